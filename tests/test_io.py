@@ -1,0 +1,237 @@
+"""Shape file I/O: round trips, triangulation, STL welding, and one test per error case."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import toolkit.io as tio
+from toolkit.errors import ParameterError, ShapeFileError
+from toolkit.io import load_shape, save_shape
+from toolkit.shape import Shape
+
+
+def _write(path, text: str):
+    path.write_text(text)
+    return path
+
+
+# -- round trips ------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "name,binary", [("a.off", False), ("a.ply", False), ("b.ply", True), ("a.obj", False)]
+)
+def test_mesh_round_trip_is_exact(sphere, tmp_mesh_dir, name, binary):
+    p = tmp_mesh_dir / name
+    save_shape(sphere, p, binary=binary)
+    back = load_shape(p)
+    assert np.array_equal(back.vertices, sphere.vertices)
+    assert np.array_equal(back.faces, sphere.faces)
+    assert back.name == "a" or back.name == "b"
+
+
+def test_binary_and_ascii_ply_agree(sphere, tmp_mesh_dir):
+    save_shape(sphere, tmp_mesh_dir / "a.ply")
+    save_shape(sphere, tmp_mesh_dir / "b.ply", binary=True)
+    assert (tmp_mesh_dir / "b.ply").read_bytes()[:40].startswith(b"ply\nformat binary_")
+    a, b = load_shape(tmp_mesh_dir / "a.ply"), load_shape(tmp_mesh_dir / "b.ply")
+    assert a.content_hash == b.content_hash
+
+
+@pytest.mark.parametrize("name", ["p.xyz", "p.pcd", "p.ply", "p.off"])
+def test_point_cloud_round_trip(sphere, tmp_mesh_dir, name):
+    cloud = Shape(sphere.vertices)
+    save_shape(cloud, tmp_mesh_dir / name)
+    back = load_shape(tmp_mesh_dir / name)
+    assert not back.is_mesh
+    assert np.array_equal(back.vertices, cloud.vertices)
+
+
+@pytest.mark.parametrize("binary", [False, True])
+def test_stl_welding_recovers_the_closed_mesh(sphere, tmp_mesh_dir, binary):
+    p = tmp_mesh_dir / "s.stl"
+    save_shape(sphere, p, binary=binary)
+    back = load_shape(p)
+    assert back.n_vertices == sphere.n_vertices and back.n_faces == sphere.n_faces
+    # STL stores float32: match welded vertices to the originals, then compare connectivity
+    v32 = sphere.vertices.astype(np.float32).astype(np.float64)
+    lookup = {tuple(x): i for i, x in enumerate(v32)}
+    to_orig = np.array([lookup[tuple(x)] for x in back.vertices])
+    assert np.array_equal(to_orig[back.faces], sphere.faces)
+    # deterministic: vertex order is first occurrence in the soup
+    assert np.array_equal(load_shape(p).vertices, back.vertices)
+
+
+def test_binary_files_written_by_open3d_are_read(sphere, tmp_mesh_dir):
+    o3d = pytest.importorskip("open3d")
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(sphere.vertices.copy()),
+        o3d.utility.Vector3iVector(sphere.faces.copy()),
+    )
+    o3d.io.write_triangle_mesh(str(tmp_mesh_dir / "o.ply"), mesh, write_ascii=False)
+    back = load_shape(tmp_mesh_dir / "o.ply")
+    assert np.array_equal(back.vertices, sphere.vertices)
+    assert np.array_equal(back.faces, sphere.faces)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sphere.vertices.copy()))
+    for name, kw in [("b.pcd", {}), ("c.pcd", {"compressed": True})]:
+        o3d.io.write_point_cloud(str(tmp_mesh_dir / name), pc, write_ascii=False, **kw)
+        back = load_shape(tmp_mesh_dir / name)
+        assert np.allclose(back.vertices, sphere.vertices, atol=1e-6)  # float32 storage
+
+
+def test_polygon_faces_are_fan_triangulated(tmp_mesh_dir):
+    p = _write(tmp_mesh_dir / "q.off", "OFF\n5 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 2 0\n"
+               "4 0 1 2 3\n3 3 2 4\n")  # fmt: skip
+    s = load_shape(p)
+    assert s.faces.tolist() == [[0, 1, 2], [0, 2, 3], [3, 2, 4]]
+    assert s.area == pytest.approx(1.5)
+
+
+def test_obj_quads_relative_indices_and_slashes(tmp_mesh_dir):
+    p = _write(tmp_mesh_dir / "q.obj", "# quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+               "vt 0 0\nf 1/1 2/1 3/1 -1/1\n")  # fmt: skip
+    assert load_shape(p).faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+
+
+def test_kind_points_and_mesh(sphere, tmp_mesh_dir):
+    save_shape(sphere, tmp_mesh_dir / "m.off")
+    assert not load_shape(tmp_mesh_dir / "m.off", kind="points").is_mesh
+    save_shape(Shape(sphere.vertices), tmp_mesh_dir / "p.xyz")
+    with pytest.raises(ShapeFileError, match="no faces"):
+        load_shape(tmp_mesh_dir / "p.xyz", kind="mesh")
+    with pytest.raises(ParameterError):
+        load_shape(tmp_mesh_dir / "m.off", kind="surface")
+
+
+def test_off_comments_and_counts_on_first_line(tmp_mesh_dir):
+    p = _write(tmp_mesh_dir / "c.off", "OFF 3 1 0 # header\n# comment\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    s = load_shape(p)
+    assert s.n_vertices == 3 and s.faces.tolist() == [[0, 1, 2]]
+
+
+# -- errors: each names the file ----------------------------------------------------------------
+def _fails(path, match):
+    with pytest.raises(ShapeFileError, match=match) as ei:
+        load_shape(path)
+    assert str(path) in str(ei.value)
+    return ei.value
+
+
+def test_missing_file(tmp_mesh_dir):
+    _fails(tmp_mesh_dir / "nope.off", "no such file")
+
+
+def test_directory(tmp_mesh_dir):
+    d = tmp_mesh_dir / "dir.off"
+    d.mkdir()
+    _fails(d, "directory")
+
+
+def test_unknown_extension(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "m.abc", "OFF\n"), "unknown shape format '.abc'")
+
+
+def test_empty_file(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "e.off", ""), "empty")
+
+
+def test_truncated_off(tmp_mesh_dir):
+    rows = "".join(f"{i} 0 0\n" for i in range(50))
+    _fails(_write(tmp_mesh_dir / "t.off", f"OFF\n100 0 0\n{rows}"), "declares 100 vertices")
+
+
+def test_truncated_off_faces(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "t.off", "OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"), "2 faces")
+
+
+def test_non_numeric_token(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "n.off", "OFF\n3 1 0\n0 0 0\n1 abc 0\n0 1 0\n3 0 1 2\n"),
+           "line 4: non-numeric vertex value 'abc'")  # fmt: skip
+
+
+def test_nan_coordinate(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "n.off", "OFF\n3 1 0\n0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n"), "NaN")
+
+
+def test_inf_coordinate_in_xyz(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "n.xyz", "0 0 0\n1 inf 0\n"), "infinite")
+
+
+def test_face_index_out_of_range(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "r.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 3\n"),
+           "face index 3 out of range")  # fmt: skip
+
+
+def test_obj_index_zero_and_out_of_range(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "z.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n"), "1-based")
+    _fails(_write(tmp_mesh_dir / "r.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"), "out of range")
+
+
+def test_two_vertex_face(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "f.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n"),
+           "face with 2 vertices")  # fmt: skip
+
+
+def test_face_count_mismatch(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "f.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n4 0 1 2\n"),
+           "declares 4 vertices but lists 3")  # fmt: skip
+
+
+def test_not_an_off_file(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "x.off", "PLY\n1 2 3\n"), "not an OFF file")
+
+
+def test_truncated_binary_ply(sphere, tmp_mesh_dir):
+    p = tmp_mesh_dir / "t.ply"
+    save_shape(sphere, p, binary=True)
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) - 100])
+    _fails(p, "truncated")
+
+
+def test_truncated_binary_stl(sphere, tmp_mesh_dir):
+    p = tmp_mesh_dir / "t.stl"
+    save_shape(sphere, p, binary=True)
+    p.write_bytes(p.read_bytes()[:-10])
+    _fails(p, "truncated")
+
+
+def test_truncated_ascii_pcd(tmp_mesh_dir):
+    # Open3D returns uninitialised points for this file; our reader must refuse it
+    head = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\n"
+            "HEIGHT 1\nPOINTS 3\nDATA ascii\n")  # fmt: skip
+    _fails(_write(tmp_mesh_dir / "t.pcd", head + "1 2 3\n4 5\n"), "declares 3 points")
+
+
+def test_point_cloud_file_with_empty_content(tmp_mesh_dir):
+    _fails(_write(tmp_mesh_dir / "c.xyz", "# only a comment\n"), "no vertices")
+
+
+def test_size_and_count_limits(tmp_mesh_dir, monkeypatch):
+    p = _write(tmp_mesh_dir / "big.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    monkeypatch.setattr(tio, "MAX_VERTICES", 2)
+    _fails(p, "above the limit")
+    monkeypatch.setattr(tio, "MAX_VERTICES", 10**9)
+    monkeypatch.setattr(tio, "MAX_FILE_BYTES", 10)
+    _fails(p, "above the limit")
+
+
+def test_save_errors(sphere, tmp_mesh_dir):
+    with pytest.raises(ShapeFileError, match="cannot write format"):
+        save_shape(sphere, tmp_mesh_dir / "a.abc")
+    with pytest.raises(ShapeFileError, match="point cloud"):
+        save_shape(Shape(sphere.vertices), tmp_mesh_dir / "a.stl")
+    with pytest.raises(ShapeFileError, match="cannot write"):
+        save_shape(sphere, tmp_mesh_dir / "missing_dir" / "a.off")
+
+
+# -- real data ----------------------------------------------------------------------------------
+def test_every_shared_off_file_loads(shared_data):
+    files = sorted((shared_data / "tosca5k").glob("*.off")) + sorted(
+        (shared_data / "psb" / "off").glob("*.off")
+    )
+    assert files, f"no OFF files under {shared_data}"
+    for f in files:
+        s = load_shape(f, kind="mesh")
+        assert s.n_vertices > 1000 and s.n_faces > 1000, f
+        header = f.read_text().split("\n", 2)[1].split()
+        assert (s.n_vertices, s.n_faces) == (int(header[0]), int(header[1])), f
