@@ -1,0 +1,287 @@
+"""mesh_info on shapes with known topology; clean_shape removes injected defects and says so."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from toolkit.cleanup import clean_shape
+from toolkit.errors import InvalidShapeError, ParameterError
+from toolkit.generate import icosphere
+from toolkit.inspect import connected_components, mesh_info
+from toolkit.io import load_shape, save_shape
+from toolkit.shape import Shape
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _union(a: Shape, b: Shape, shift=(3.0, 0.0, 0.0)) -> Shape:
+    return Shape(
+        np.concatenate([a.vertices, b.vertices + np.asarray(shift)]),
+        np.concatenate([a.faces, b.faces + a.n_vertices]),
+    )
+
+
+BOWTIE = Shape(
+    np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]], dtype=float),
+    np.array([[0, 1, 2], [0, 3, 4]]),
+)
+# three triangles sharing the edge (0, 1); the one to vertex 4 is the largest
+FIN = Shape(
+    np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 2]], dtype=float),
+    np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]]),
+)
+
+
+# -- mesh_info ----------------------------------------------------------------------------------
+def test_icosphere_info(sphere):
+    info = mesh_info(sphere)
+    json.dumps(info)  # JSON-serialisable
+    assert info["n_vertices"] == 642 and info["n_faces"] == 1280
+    assert info["euler_characteristic"] == 2
+    assert info["genus"] == 0
+    assert info["boundary_loops"] == 0 and info["boundary_edges"] == 0
+    assert info["connected_components"] == 1
+    for k in ("non_manifold_edges", "non_manifold_vertices", "degenerate_faces",
+              "duplicate_faces", "duplicate_vertices", "unreferenced_vertices"):  # fmt: skip
+        assert info[k] == 0, k
+    assert info["total_area"] == pytest.approx(4 * np.pi, rel=0.01)
+    assert info["bounding_box"]["min"] == pytest.approx([-1, -1, -1])
+    assert info["mean_edge_length"] == pytest.approx(sphere.mean_edge_length)
+
+
+def test_torus_genus_one():
+    # a 12 x 8 torus grid: V - E + F = 0
+    nu, nv = 12, 8
+    u, v = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
+    a, b = 2 * np.pi * u.ravel() / nu, 2 * np.pi * v.ravel() / nv
+    verts = np.stack([(2 + np.cos(b)) * np.cos(a), (2 + np.cos(b)) * np.sin(a), np.sin(b)], 1)
+    idx = lambda i, j: (i % nu) * nv + (j % nv)  # noqa: E731
+    faces = []
+    for i in range(nu):
+        for j in range(nv):
+            faces += [[idx(i, j), idx(i + 1, j), idx(i + 1, j + 1)],
+                      [idx(i, j), idx(i + 1, j + 1), idx(i, j + 1)]]  # fmt: skip
+    info = mesh_info(Shape(verts, np.array(faces)))
+    assert info["euler_characteristic"] == 0 and info["genus"] == 1
+
+
+def test_one_hole(sphere):
+    holed = Shape(sphere.vertices, sphere.faces[1:])
+    info = mesh_info(holed)
+    assert info["boundary_loops"] == 1 and info["boundary_edges"] == 3
+    assert info["euler_characteristic"] == 1 and info["genus"] is None
+
+
+def test_two_holes_are_two_loops(sphere):
+    # remove two faces far apart (one near +z, one near -z)
+    c = sphere.vertices[sphere.faces].mean(axis=1)
+    far = [int(np.argmax(c[:, 2])), int(np.argmin(c[:, 2]))]
+    keep = np.setdiff1d(np.arange(sphere.n_faces), far)
+    assert mesh_info(Shape(sphere.vertices, sphere.faces[keep]))["boundary_loops"] == 2
+
+
+def test_two_disjoint_spheres(sphere):
+    two = _union(sphere, icosphere(1))
+    info = mesh_info(two)
+    assert info["connected_components"] == 2
+    assert info["euler_characteristic"] == 4 and info["genus"] is None
+    k, labels = connected_components(two)
+    assert k == 2
+    assert (labels[: sphere.n_vertices] == 0).all() and (labels[sphere.n_vertices :] == 1).all()
+
+
+def test_connected_components_invariant_under_vertex_permutation(sphere):
+    two = _union(sphere, icosphere(1))
+    perm = np.random.default_rng(0).permutation(two.n_vertices)
+    inv = np.argsort(perm)
+    permuted = Shape(two.vertices[perm], inv[two.faces])
+    k, labels = connected_components(permuted)
+    k0, labels0 = connected_components(two)
+    assert k == k0 == 2
+    # same partition: vertex perm[i] of `two` is vertex i of `permuted`
+    assert len(set(zip(labels.tolist(), labels0[perm].tolist()))) == 2
+
+
+def test_bowtie_is_a_non_manifold_vertex():
+    info = mesh_info(BOWTIE)
+    assert info["non_manifold_vertices"] == 1
+    assert info["non_manifold_edges"] == 0
+    assert info["connected_components"] == 1
+
+
+def test_three_faces_on_one_edge():
+    info = mesh_info(FIN)
+    assert info["non_manifold_edges"] == 1
+    assert info["non_manifold_vertices"] == 0
+
+
+def test_point_cloud_info(sphere):
+    info = mesh_info(Shape(np.concatenate([sphere.vertices, sphere.vertices[:3]])))
+    assert info["is_mesh"] is False and info["n_faces"] == 0
+    assert info["duplicate_vertices"] == 3
+    assert info["connected_components"] is None and info["total_area"] is None
+
+
+# -- clean_shape ----------------------------------------------------------------------------------
+def _dirty(base: Shape) -> tuple[Shape, dict]:
+    """``base`` plus 4 duplicate vertices (used by faces), 3 duplicate faces, 2 degenerate
+    faces (one repeated index, one collinear) and 1 unreferenced vertex."""
+    n = base.n_vertices
+    v = np.concatenate([base.vertices, base.vertices[:4], [[9.0, 9.0, 9.0]]])
+    f = base.faces.copy()
+    for i in range(4):  # one face around vertex i now uses the copy n + i
+        row = np.flatnonzero((f == i).any(axis=1))[0]
+        f[row][f[row] == i] = n + i
+    e = base.edges[0]
+    mid = len(v)
+    v = np.concatenate([v, [(base.vertices[e[0]] + base.vertices[e[1]]) / 2]])
+    f = np.concatenate([f, f[[5, 10, 20]][:, [1, 2, 0]], [[0, 0, 1], [e[0], mid, e[1]]]])
+    # the midpoint vertex is used only by the collinear face -> unreferenced after cleaning
+    return Shape(v, f), {"dup_v": 4, "dup_f": 3, "degen": 2, "unref": 2}
+
+
+def test_cleanup_removes_injected_defects(sphere):
+    dirty, want = _dirty(sphere)
+    before = mesh_info(dirty)
+    assert before["duplicate_vertices"] == want["dup_v"]
+    assert before["duplicate_faces"] == want["dup_f"]
+    assert before["degenerate_faces"] == want["degen"]
+    clean, rep = clean_shape(dirty)
+    assert rep.duplicate_vertices_merged == want["dup_v"]
+    assert rep.duplicate_faces_removed == want["dup_f"]
+    assert rep.degenerate_faces_removed == want["degen"]
+    assert rep.unreferenced_vertices_removed == want["unref"]
+    assert (rep.n_vertices_before, rep.n_faces_before) == (dirty.n_vertices, dirty.n_faces)
+    assert (rep.n_vertices_after, rep.n_faces_after) == (642, 1280)
+    # back to the original sphere, same vertex order, faces the same as sets
+    assert np.array_equal(clean.vertices, sphere.vertices)
+    assert np.array_equal(np.sort(clean.faces, 1), np.sort(sphere.faces, 1))
+    assert np.array_equal(rep.vertex_map, np.arange(642))
+    after = mesh_info(clean)
+    assert after["genus"] == 0 and after["duplicate_vertices"] == 0
+    json.dumps(rep.to_dict())
+    assert "vertex_map" not in rep.to_dict()
+
+
+def test_cleanup_of_a_clean_mesh_changes_nothing(sphere):
+    clean, rep = clean_shape(sphere)
+    assert clean.content_hash == sphere.content_hash
+    counts = {k: v for k, v in rep.to_dict().items() if k.endswith(("merged", "removed", "repaired"))}
+    assert set(counts.values()) == {0}
+
+
+def test_vertex_map_carries_ground_truth(sphere):
+    # shuffle in unreferenced vertices, then check each output vertex is where the map says
+    rng = np.random.default_rng(1)
+    extra = rng.normal(size=(10, 3)) + 5
+    n = sphere.n_vertices
+    order = rng.permutation(n + 10)
+    v = np.concatenate([sphere.vertices, extra])[order]
+    f = np.argsort(order)[sphere.faces]
+    shape = Shape(v, f)
+    clean, rep = clean_shape(shape)
+    assert clean.n_vertices == n
+    assert np.array_equal(clean.vertices, shape.vertices[rep.vertex_map])
+    assert np.array_equal(rep.vertex_map, np.sort(np.argsort(order)[:n]))
+
+
+def test_keep_largest_component(sphere):
+    small = icosphere(1, radius=0.5)
+    two = _union(small, sphere)  # the small one first: the largest is not component 0
+    clean, rep = clean_shape(two, keep_largest_component=True)
+    assert rep.components_removed == 1
+    assert clean.n_vertices == sphere.n_vertices
+    assert np.array_equal(rep.vertex_map, small.n_vertices + np.arange(sphere.n_vertices))
+    assert np.array_equal(clean.faces, sphere.faces)
+    assert mesh_info(clean)["connected_components"] == 1
+
+
+def test_repair_bowtie_splits_the_vertex():
+    clean, rep = clean_shape(BOWTIE)
+    assert rep.non_manifold_vertices_repaired == 1
+    assert clean.n_vertices == 6
+    assert rep.vertex_map.tolist() == [0, 1, 2, 3, 4, 0]
+    assert mesh_info(clean)["non_manifold_vertices"] == 0
+    assert mesh_info(clean)["connected_components"] == 2
+    assert clean.area == pytest.approx(BOWTIE.area)
+
+
+def test_repair_non_manifold_edge_keeps_two_largest_faces():
+    clean, rep = clean_shape(FIN)
+    assert rep.non_manifold_edges_repaired == 1
+    assert mesh_info(clean)["non_manifold_edges"] == 0
+    assert clean.n_faces == 2
+    assert clean.area == pytest.approx(1.0 + 0.5)  # the area-1 fin and the first area-0.5 face
+    assert rep.unreferenced_vertices_removed == 1 and rep.vertex_map.tolist() == [0, 1, 2, 4]
+
+
+def test_point_cloud_cleanup_only_merges(sphere):
+    cloud = Shape(np.concatenate([sphere.vertices, sphere.vertices[:7]]))
+    clean, rep = clean_shape(cloud)
+    assert rep.duplicate_vertices_merged == 7 and clean.n_vertices == 642
+    assert any("point cloud" in n for n in rep.notes)
+    with pytest.raises(InvalidShapeError):
+        clean_shape(cloud, keep_largest_component=True)
+
+
+def test_remesh(sphere):
+    clean, rep = clean_shape(sphere, remesh_target_edge=0.25, remesh_iterations=3)
+    assert rep.remeshed and len(rep.vertex_map) == clean.n_vertices
+    info = mesh_info(clean)
+    assert info["genus"] == 0
+    assert clean.n_vertices < sphere.n_vertices  # coarser than the 0.15 input edges
+    assert info["mean_edge_length"] == pytest.approx(0.25, rel=0.3)
+    kept = rep.vertex_map >= 0
+    assert np.array_equal(clean.vertices[kept], sphere.vertices[rep.vertex_map[kept]])
+
+
+def test_cleanup_parameter_errors(sphere):
+    with pytest.raises(ParameterError):
+        clean_shape(sphere, remesh_target_edge=0.0)
+    with pytest.raises(ParameterError):
+        clean_shape(sphere, remesh_target_edge=0.1, remesh_iterations=0)
+    only_degenerate = Shape(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]]), np.array([[0, 1, 2]]))
+    with pytest.raises(InvalidShapeError, match="removed every face"):
+        clean_shape(only_degenerate)
+
+
+# -- CLI ------------------------------------------------------------------------------------------
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "toolkit", *args], capture_output=True, text=True, cwd=REPO,
+        timeout=300,
+    )  # fmt: skip
+
+
+def test_cli_info_and_clean(sphere, tmp_mesh_dir):
+    dirty, want = _dirty(sphere)
+    src = tmp_mesh_dir / "dirty.off"
+    save_shape(dirty, src)
+    r = _cli("info", str(src), "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["duplicate_faces"] == want["dup_f"]
+    r = _cli("info", str(src))
+    assert r.returncode == 0 and "duplicate faces" in r.stdout
+    out = tmp_mesh_dir / "clean.ply"
+    r = _cli("clean", str(src), "-o", str(out), "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["degenerate_faces_removed"] == want["degen"]
+    assert load_shape(out).n_vertices == 642
+    r = _cli("info", str(tmp_mesh_dir / "missing.off"))
+    assert r.returncode == 2 and "missing.off" in r.stderr and "Traceback" not in r.stderr
+    r = _cli("clean", str(src), "-o", str(out), "--remesh", "-1")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+
+
+# -- real data ----------------------------------------------------------------------------------
+def test_shared_meshes_are_clean_closed_manifolds(shared_data):
+    for f in sorted((shared_data / "tosca5k").glob("*.off"))[:3]:
+        info = mesh_info(load_shape(f))
+        assert info["non_manifold_edges"] == 0 and info["non_manifold_vertices"] == 0, f
+        assert info["connected_components"] == 1, f
