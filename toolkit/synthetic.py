@@ -17,7 +17,7 @@ from .errors import ParameterError
 from .generate import icosphere
 from .shape import Shape
 
-__all__ = ["ArticulatedShape", "articulated_shape", "DEFAULT_LIMBS"]
+__all__ = ["ArticulatedShape", "articulated_shape", "synthetic_dataset", "DEFAULT_LIMBS"]
 
 #: unit directions of the limbs of the default "starfish-humanoid" (two arms, two legs, head)
 DEFAULT_LIMBS = np.array(
@@ -53,9 +53,9 @@ def articulated_shape(
     *,
     subdivisions: int = 4,
     limbs: np.ndarray | None = None,
-    cap_angle: float = 0.5,
-    limb_length: float = 1.6,
-    limb_radius: float = 0.22,
+    cap_angle: float = 0.6,
+    limb_length: float = 1.4,
+    limb_radius: float = 0.28,
     random_state: int | None = None,
 ) -> ArticulatedShape:
     """An articulated mesh with one limb per row of ``limbs`` ``(L, 3)``, bent by ``angles`` ``(L,)``.
@@ -120,3 +120,28 @@ def articulated_shape(
         bent = local @ R.T + joint_h * d
         out[inside] = (1 - wgt)[:, None] * out[inside] + wgt[:, None] * bent
     return ArticulatedShape(Shape(out, sphere.faces, "articulated"), labels, angles)
+
+
+def synthetic_dataset(
+    n_poses: int = 4,
+    *,
+    subdivisions: int = 3,
+    random_state: int = 0,
+    max_angle: float = 1.0,
+) -> list[ArticulatedShape]:
+    """``n_poses`` poses of the same articulated shape (same vertices, faces and labels order):
+    pose 0 is the rest pose, pose i > 0 bends every joint by an angle drawn uniformly in
+    ``[-max_angle, max_angle]`` rad from ``random_state``. The ground-truth map between any two
+    poses is the identity; ``labels`` are the parts (0 body, 1..5 limbs)."""
+    if not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
+        raise ParameterError(f"n_poses must be a positive integer, got {n_poses!r}")
+    if not 0 <= max_angle <= 2.5:
+        raise ParameterError(f"max_angle must be in [0, 2.5] rad, got {max_angle}")
+    rng = np.random.default_rng(random_state)
+    out = []
+    for i in range(int(n_poses)):
+        n_limbs = len(DEFAULT_LIMBS)
+        angles = np.zeros(n_limbs) if i == 0 else rng.uniform(-max_angle, max_angle, n_limbs)
+        a = articulated_shape(angles, subdivisions=subdivisions)
+        out.append(ArticulatedShape(Shape(a.shape.vertices, a.shape.faces, f"pose{i}"), a.labels, a.angles))
+    return out
