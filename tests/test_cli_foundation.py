@@ -1,0 +1,135 @@
+"""CLI of the foundation: spectrum, plugins, demo, and one-line errors with non-zero exits."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from toolkit.cli import main
+from toolkit.generate import icosphere
+from toolkit.io import save_shape
+from toolkit.shape import Shape
+
+
+def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "toolkit", *args], capture_output=True, text=True, timeout=300, cwd=cwd
+    )
+
+
+@pytest.fixture(scope="module")
+def sphere_file(tmp_path_factory) -> Path:
+    p = tmp_path_factory.mktemp("cli") / "sphere.off"
+    save_shape(icosphere(3), p)
+    return p
+
+
+def test_spectrum_json_and_npz(sphere_file, tmp_path, capsys):
+    out = tmp_path / "spec.npz"
+    code = main(["spectrum", str(sphere_file), "-k", "9", "--weighting", "cotangent", "--json", "-o", str(out)])
+    assert code == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["n_vertices"] == 642 and res["weighting"] == "cotangent"
+    assert res["laplacian"] == "combinatorial" and res["generalized"] is True
+    lam = np.array(res["eigenvalues"])
+    assert np.all(np.diff(lam) >= 0)
+    np.testing.assert_allclose(lam[1:], [2] * 3 + [6] * 5, rtol=0.05)
+    with np.load(out) as z:
+        assert z["eigenvectors"].shape == (642, 9)
+
+
+@pytest.mark.parametrize("laplacian", ["normalized", "random-walk"])
+def test_spectrum_other_laplacians(sphere_file, capsys, laplacian):
+    assert main(["spectrum", str(sphere_file), "-k", "4", "--weighting", "gaussian",
+                 "--laplacian", laplacian, "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["laplacian"] == laplacian and 0 <= res["eigenvalues"][-1] <= 2
+
+
+def test_plugins_list_json(capsys):
+    assert main(["plugins", "list", "--json"]) == 0
+    fams = json.loads(capsys.readouterr().out)
+    assert set(fams) == {"weightings", "keypoints", "descriptors", "sparse_matchers",
+                         "dense_matchers", "segmenters"}
+    assert "cotangent" in fams["weightings"]
+
+
+def _bad_files(d: Path) -> dict[str, tuple[Path, str]]:
+    s = icosphere(1)
+    files = {}
+    files["missing"] = (d / "nope.off", "no such file")
+    files["directory"] = (d, "directory")
+    (d / "shape.xyzw").write_text("1 2 3\n")
+    files["unknown format"] = (d / "shape.xyzw", "format")
+    (d / "trunc.off").write_text("OFF\n10 2 0\n0 0 0\n1 0 0\n")
+    files["truncated"] = (d / "trunc.off", "")
+    (d / "text.off").write_text("OFF\n3 1 0\n0 0 0\n1 zero 0\n0 1 0\n3 0 1 2\n")
+    files["malformed"] = (d / "text.off", "")
+    (d / "empty.off").write_text("")
+    files["empty"] = (d / "empty.off", "empty")
+    (d / "nan.off").write_text("OFF\n3 1 0\n0 0 0\nnan 0 0\n0 1 0\n3 0 1 2\n")
+    files["nan"] = (d / "nan.off", "NaN")
+    (d / "range.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")
+    files["index out of range"] = (d / "range.off", "range")
+    (d / "line.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n")
+    files["not a triangle"] = (d / "line.off", "")
+    save_shape(Shape(s.vertices, s.faces), d / "ok.off")
+    return files
+
+
+def test_every_bad_input_is_one_line_and_nonzero(tmp_path):
+    for case, (path, needle) in _bad_files(tmp_path).items():
+        r = run_cli("spectrum", str(path), "-k", "3")
+        assert r.returncode == 2, (case, r.stdout, r.stderr)
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and "Traceback" not in r.stderr, (case, r.stderr)
+        assert str(path.name) in lines[0], (case, lines[0])
+        assert needle.lower() in lines[0].lower(), (case, lines[0])
+
+
+def test_parameter_and_plugin_errors_are_one_line(sphere_file, tmp_path):
+    cases = [
+        (["spectrum", str(sphere_file), "-k", "0"], "k must be"),
+        (["spectrum", str(sphere_file), "--weighting", "nope"], "available: binary"),
+        (["spectrum", str(sphere_file), "--param", "sigma=1", "--weighting", "gaussian"], "no parameter"),
+        (["spectrum", str(sphere_file), "--param", "oops"], "KEY=VALUE"),
+        (["spectrum", str(sphere_file), "-o", str(tmp_path / "x.txt")], ".npz"),
+        (["spectrum", str(sphere_file), "--laplacian", "bogus"], "invalid choice"),
+        (["nonexistent-command"], "invalid choice"),
+    ]
+    for args, needle in cases:
+        r = run_cli(*args)
+        assert r.returncode == 2, (args, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1 and needle in r.stderr, (args, r.stderr)
+
+
+def test_disconnected_mesh_is_refused_then_analysed(tmp_path):
+    a, b = icosphere(2), icosphere(2)
+    two = Shape(np.vstack([a.vertices, b.vertices + 4]), np.vstack([a.faces, b.faces + a.n_vertices]))
+    p = tmp_path / "two.ply"
+    save_shape(two, p)
+    r = run_cli("spectrum", str(p), "-k", "4")
+    assert r.returncode == 2 and "2 connected components" in r.stderr
+    r = run_cli("spectrum", str(p), "-k", "4", "--largest-component", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["eigenvalues"][0] == pytest.approx(0, abs=1e-8)
+
+
+def test_python_m_toolkit_and_help():
+    r = run_cli("--help")
+    assert r.returncode == 0 and "spectrum" in r.stdout and "plugins" in r.stdout
+
+
+def test_demo_writes_results(tmp_path):
+    out = tmp_path / "demo"
+    r = run_cli("demo", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    assert str(out) in r.stdout
+    assert (out / "embedding.png").stat().st_size > 10_000
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["eigenvalues"][0] == pytest.approx(0, abs=1e-8)

@@ -1,0 +1,260 @@
+"""Shape graphs, Laplacians and spectra: analytic answers, identities and invariances."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg as la
+import scipy.sparse as sp
+
+from toolkit import (
+    DisconnectedGraphError,
+    InvalidShapeError,
+    ParameterError,
+    PluginError,
+    Shape,
+    build_graph,
+    compute_spectrum,
+    laplacian_matrix,
+)
+from toolkit.generate import icosphere
+from toolkit.graph import ShapeGraph, epsilon_edges, knn_edges
+from toolkit.spectrum import Spectrum, clear_cache, component_spectra, fix_signs, set_cache_dir
+from toolkit.synthetic import articulated_shape
+
+
+@pytest.fixture(scope="module")
+def sphere4() -> Shape:
+    return icosphere(4)
+
+
+def _rotation(seed: int) -> np.ndarray:
+    q, r = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def test_unit_sphere_cotangent_eigenvalues_are_l_l_plus_1(sphere4):
+    spec = compute_spectrum(build_graph(sphere4, "cotangent"), 16)
+    assert spec.generalized
+    expected = np.array([0.0] + [2.0] * 3 + [6.0] * 5 + [12.0] * 7)
+    assert abs(spec.eigenvalues[0]) < 1e-8
+    np.testing.assert_allclose(spec.eigenvalues[1:], expected[1:], rtol=1e-2)
+    # multiplicities 2l+1: the gaps between consecutive groups are large, within groups tiny
+    groups = np.split(spec.eigenvalues[1:], [3, 8])
+    assert [len(g) for g in groups] == [3, 5, 7]
+    assert all(np.ptp(g) < 0.01 * g.mean() for g in groups)
+
+
+def test_intrinsic_delaunay_matches_cotangent_on_good_mesh(sphere4):
+    a = compute_spectrum(build_graph(sphere4, "cotangent"), 10).eigenvalues
+    b = compute_spectrum(build_graph(sphere4, "intrinsic-delaunay"), 10).eigenvalues
+    np.testing.assert_allclose(a[1:], b[1:], rtol=5e-3)
+
+
+def test_mass_matrix_eigenvectors_are_mass_orthonormal(sphere):
+    spec = compute_spectrum(build_graph(sphere, "cotangent"), 8)
+    U = spec.eigenvectors
+    np.testing.assert_allclose(U.T @ (spec.mass[:, None] * U), np.eye(8), atol=1e-8)
+    assert spec.mass.sum() == pytest.approx(sphere.area, rel=1e-9)
+
+
+def test_cotangent_reports_and_clamps_negative_weights():
+    shape = articulated_shape(random_state=3).shape
+    g = build_graph(shape, "cotangent")
+    assert g.info["negative_weights"] > 0
+    gc = build_graph(shape, "cotangent", clamp_negative=True)
+    assert gc.info["clamped"] and (gc.W.data >= 0).all()
+    assert (g.W.data < 0).sum() == 2 * g.info["negative_weights"]
+
+
+def test_gaussian_weights_eq_3_7_and_default_bandwidth(sphere):
+    g = build_graph(sphere, "gaussian")
+    e = sphere.edges
+    sigma = sphere.edge_lengths.mean()
+    assert g.info["bandwidth"] == pytest.approx(sigma)
+    w = np.asarray(g.W[e[:, 0], e[:, 1]]).ravel()
+    np.testing.assert_allclose(w, np.exp(-sphere.edge_lengths**2 / (2 * sigma**2)))
+    # scaling the shape does not change default weights
+    g2 = build_graph(sphere.with_vertices(sphere.vertices * 7.0), "gaussian")
+    np.testing.assert_allclose(g2.W.toarray(), g.W.toarray(), atol=1e-12)
+    with pytest.raises(ParameterError):
+        build_graph(sphere, "gaussian", bandwidth=-1.0)
+
+
+def test_binary_trace_is_mean_neighbourhood_size_eq_3_8(sphere):
+    g = build_graph(sphere, "binary")
+    L = laplacian_matrix(g.W)
+    valence = np.bincount(sphere.edges.ravel(), minlength=sphere.n_vertices)
+    assert L.diagonal().sum() / sphere.n_vertices == pytest.approx(valence.mean())
+    assert L.diagonal().sum() / sphere.n_vertices == pytest.approx(2 * len(sphere.edges) / 642)
+
+
+def test_laplacian_relations_eq_2_66_to_2_68(sphere):
+    W = build_graph(sphere, "gaussian").W
+    d = np.asarray(W.sum(1)).ravel()
+    L, Ln, Lr = (laplacian_matrix(W, k).toarray() for k in ("combinatorial", "normalized", "random-walk"))
+    Dh = np.diag(np.sqrt(d))
+    np.testing.assert_allclose(L, Dh @ Ln @ Dh, atol=1e-12)
+    np.testing.assert_allclose(L, np.diag(d) @ Lr, atol=1e-12)
+    np.testing.assert_allclose(L.sum(axis=1), 0.0, atol=1e-12)
+    with pytest.raises(ParameterError):
+        laplacian_matrix(W, "signless")
+
+
+@pytest.mark.parametrize("kind", ["combinatorial", "normalized", "random-walk"])
+def test_spectra_match_dense_solution(kind):
+    shape = icosphere(2)  # 162 vertices, dense reference is cheap
+    g = build_graph(shape, "gaussian")
+    spec = compute_spectrum(g, 12, laplacian=kind, cache=False)
+    W = g.W.toarray()
+    d = W.sum(1)
+    L = np.diag(d) - W
+    ref = la.eigh(L, None if kind == "combinatorial" else np.diag(d), eigvals_only=True)[:12]
+    np.testing.assert_allclose(spec.eigenvalues, ref, atol=1e-9, rtol=1e-7)
+    U = spec.eigenvectors
+    if kind == "combinatorial":
+        np.testing.assert_allclose(U.T @ U, np.eye(12), atol=1e-8)
+        np.testing.assert_allclose(L @ U, U * spec.eigenvalues, atol=1e-8)
+    elif kind == "normalized":
+        Ln = laplacian_matrix(g.W, "normalized").toarray()
+        np.testing.assert_allclose(Ln @ U, U * spec.eigenvalues, atol=1e-8)
+        np.testing.assert_allclose(U.T @ U, np.eye(12), atol=1e-8)
+    else:  # random walk: t_i^T D t_j = delta_ij (Table 2.1) and D^-1 L t = lambda t
+        np.testing.assert_allclose(U.T @ (d[:, None] * U), np.eye(12), atol=1e-8)
+        np.testing.assert_allclose((L @ U) / d[:, None], U * spec.eigenvalues, atol=1e-8)
+        np.testing.assert_allclose(U[:, 0] / U[0, 0], 1.0, atol=1e-8)  # t_1 = 1 (up to scale)
+
+
+def test_large_sparse_path_matches_dense():
+    shape = icosphere(3)  # 642 vertices: the sparse solver is used
+    g = build_graph(shape, "binary")
+    spec = compute_spectrum(g, 20, cache=False)
+    ref = la.eigh(laplacian_matrix(g.W).toarray(), eigvals_only=True)[:20]
+    np.testing.assert_allclose(spec.eigenvalues, ref, atol=1e-8)
+    assert np.all(np.diff(spec.eigenvalues) >= -1e-10)
+
+
+def test_proposition_1_2_3_and_theorem_3(sphere):
+    from toolkit.embedding import commute_time_embedding
+
+    g = build_graph(sphere, "gaussian")
+    spec = compute_spectrum(g, 12)
+    U = spec.eigenvectors[:, 1:]
+    n = sphere.n_vertices
+    np.testing.assert_allclose(U.sum(axis=0), 0.0, atol=1e-8)  # eq. 2.81 / 2.86
+    assert np.all(np.abs(U) < 1)  # eq. 2.82
+    np.testing.assert_allclose((U**2).mean(axis=0), 1.0 / n, rtol=1e-8)  # eq. 2.87
+    assert spec.eigenvalues.max() <= 2 * g.degrees.max()  # Proposition 2
+    X = commute_time_embedding(spec)  # Theorem 3: zero mean, covariance Lambda^-1 / n
+    np.testing.assert_allclose(X.mean(axis=0), 0.0, atol=1e-8)
+    cov = X.T @ X / n
+    np.testing.assert_allclose(cov, np.diag(1.0 / spec.eigenvalues[1:]) / n, atol=1e-8)
+    lim = 1 / np.sqrt(spec.eigenvalues[1:])  # eq. 2.93
+    assert np.all(np.abs(X) < lim)
+
+
+def test_spectrum_invariant_to_permutation_rigid_motion_and_sign(sphere):
+    shape = articulated_shape(random_state=2, subdivisions=3).shape
+    spec = compute_spectrum(build_graph(shape, "cotangent"), 10, sign_fix=True, cache=False)
+    perm = np.random.default_rng(0).permutation(shape.n_vertices)
+    inv = np.argsort(perm)
+    moved = Shape(shape.vertices[perm] @ _rotation(1).T * 1.0 + [3.0, -1.0, 2.0], inv[shape.faces])
+    spec2 = compute_spectrum(build_graph(moved, "cotangent"), 10, sign_fix=True, cache=False)
+    np.testing.assert_allclose(spec2.eigenvalues, spec.eigenvalues, rtol=1e-7, atol=1e-9)
+    # the spectrum of this asymmetric pose is simple: sign fixing gives identical vectors
+    gaps = np.diff(spec.eigenvalues)[1:]
+    assert gaps.min() > 1e-3
+    np.testing.assert_allclose(spec2.eigenvectors, spec.eigenvectors[perm], atol=1e-6)
+
+
+def test_fix_signs_is_sign_invariant():
+    rng = np.random.default_rng(0)
+    U = rng.normal(size=(50, 4))
+    flipped = U * np.array([1, -1, -1, 1])
+    np.testing.assert_array_equal(fix_signs(U), fix_signs(flipped))
+
+
+def test_disconnected_graph_is_refused_or_split():
+    a, b = icosphere(2), icosphere(1)
+    two = Shape(
+        np.vstack([a.vertices, b.vertices + [5.0, 0, 0]]),
+        np.vstack([a.faces, b.faces + a.n_vertices]),
+    )
+    g = build_graph(two, "binary")
+    with pytest.raises(DisconnectedGraphError, match="2 connected components"):
+        compute_spectrum(g, 5)
+    spec = compute_spectrum(g, 5, components="largest")
+    assert np.array_equal(spec.meta["vertices"], np.arange(a.n_vertices))
+    ref = compute_spectrum(build_graph(a, "binary"), 5).eigenvalues
+    np.testing.assert_allclose(spec.eigenvalues, ref, atol=1e-9)
+    parts = component_spectra(g, 5)
+    assert [len(ids) for ids, _ in parts] == [a.n_vertices, b.n_vertices]
+    assert all(abs(s.eigenvalues[0]) < 1e-9 for _, s in parts)
+
+
+def test_bad_parameters_raise_typed_errors(sphere):
+    g = build_graph(sphere, "binary")
+    for k in (0, -3, sphere.n_vertices + 1):
+        with pytest.raises(ParameterError):
+            compute_spectrum(g, k)
+    with pytest.raises(ParameterError, match="unknown Laplacian"):
+        compute_spectrum(g, 4, laplacian="magnetic")
+    with pytest.raises(ParameterError, match="no mass"):
+        compute_spectrum(g, 4, use_mass=True)
+    with pytest.raises(PluginError, match="available: binary, cotangent"):
+        build_graph(sphere, "nope")
+    with pytest.raises(ParameterError, match="no parameter"):
+        build_graph(sphere, "binary", sigma=2)
+    cloud = Shape(sphere.vertices)
+    with pytest.raises(InvalidShapeError, match="needs a triangle mesh"):
+        build_graph(cloud, "cotangent")
+    with pytest.raises(ParameterError):
+        build_graph(sphere, "binary", connectivity="voxels")
+
+
+def test_point_cloud_graphs(sphere):
+    cloud = Shape(sphere.vertices)
+    e = knn_edges(cloud.vertices, 6)
+    assert (e[:, 0] < e[:, 1]).all() and len(np.unique(e, axis=0)) == len(e)
+    g = build_graph(cloud, "gaussian", n_neighbors=6)
+    assert g.info["connectivity"] == "knn" and g.components[0] == 1
+    eps = epsilon_edges(cloud.vertices, 0.2)
+    d = np.linalg.norm(cloud.vertices[eps[:, 0]] - cloud.vertices[eps[:, 1]], axis=1)
+    assert (d < 0.2).all()
+    spec = compute_spectrum(build_graph(cloud, "intrinsic-delaunay"), 10)
+    ref = compute_spectrum(build_graph(sphere, "cotangent"), 10)
+    np.testing.assert_allclose(spec.eigenvalues[1:4], ref.eigenvalues[1:4], rtol=0.05)
+
+
+def test_cache_in_memory_and_on_disk(sphere, tmp_path):
+    clear_cache()
+    g = build_graph(sphere, "binary")
+    s1 = compute_spectrum(g, 6)
+    assert compute_spectrum(build_graph(sphere, "binary"), 6) is s1  # same content, same object
+    set_cache_dir(tmp_path)
+    try:
+        s2 = compute_spectrum(g, 7)
+        assert len(list(tmp_path.glob("*.npz"))) == 1
+        clear_cache()
+        s3 = compute_spectrum(g, 7)
+        assert s3 is not s2
+        np.testing.assert_array_equal(s3.eigenvectors, s2.eigenvectors)
+    finally:
+        set_cache_dir(None)
+
+
+def test_spectrum_save_load_roundtrip(sphere, tmp_path):
+    spec = compute_spectrum(build_graph(sphere, "cotangent"), 5)
+    spec.save(tmp_path / "s.npz")
+    back = Spectrum.load(tmp_path / "s.npz")
+    np.testing.assert_array_equal(back.eigenvalues, spec.eigenvalues)
+    np.testing.assert_array_equal(back.mass, spec.mass)
+    assert back.laplacian == "combinatorial" and back.weighting == "cotangent"
+
+
+def test_graph_repr_and_hash(sphere):
+    g = build_graph(sphere, "binary")
+    assert "642 vertices" in repr(g) and g.n_edges == len(sphere.edges)
+    h = ShapeGraph(sphere, sp.csr_matrix(g.W * 2.0)).content_hash
+    assert h != g.content_hash
