@@ -31,7 +31,8 @@ def sphere_file(tmp_path_factory) -> Path:
 
 def test_spectrum_json_and_npz(sphere_file, tmp_path, capsys):
     out = tmp_path / "spec.npz"
-    code = main(["spectrum", str(sphere_file), "-k", "9", "--weighting", "cotangent", "--json", "-o", str(out)])
+    args = ["spectrum", str(sphere_file), "-k", "9", "--weighting", "cotangent", "--json", "-o", str(out)]
+    code = main(args)
     assert code == 0
     res = json.loads(capsys.readouterr().out)
     assert res["n_vertices"] == 642 and res["weighting"] == "cotangent"

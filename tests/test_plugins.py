@@ -149,7 +149,9 @@ def test_third_party_plugin_installed_by_entry_point_is_listed_and_used(tmp_path
     listed = cli("plugins", "list", "--json")
     assert listed.returncode == 0, listed.stderr
     assert "inverse-length" in json.loads(listed.stdout)["weightings"]
-    used = cli("spectrum", str(mesh), "-k", "5", "--weighting", "inverse-length", "--param", "power=2", "--json")
+    used = cli(
+        "spectrum", str(mesh), "-k", "5", "--weighting", "inverse-length", "--param", "power=2", "--json"
+    )
     assert used.returncode == 0, used.stderr
     out = json.loads(used.stdout)
     assert out["weighting"] == "inverse-length" and out["graph"]["third_party"] is True
