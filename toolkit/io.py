@@ -144,9 +144,7 @@ def _check_count(n: int, what: str) -> None:
     if n < 0:
         raise _Err(f"negative {what} count {n} in the header")
     if n > MAX_VERTICES:
-        raise _Err(
-            f"declares {n} {what}, above the limit of {MAX_VERTICES} (toolkit.io.MAX_VERTICES)"
-        )
+        raise _Err(f"declares {n} {what}, above the limit of {MAX_VERTICES} (toolkit.io.MAX_VERTICES)")
 
 
 def _read_text(p: Path) -> str:
@@ -160,33 +158,41 @@ def _read_text(p: Path) -> str:
             raise _Err("not a text file") from None
 
 
-def _strip_comments(text: str) -> list[tuple[int, str]]:
-    """Non-empty lines with comments (#...) removed, as (1-based line number, content)."""
-    out = []
-    for i, line in enumerate(text.splitlines(), 1):
-        j = line.find("#")
-        if j >= 0:
-            line = line[:j]
-        line = line.strip()
-        if line:
-            out.append((i, line))
-    return out
+def _content(text: str) -> list[tuple[int, str]]:
+    """Lines that are neither blank nor whole-line comments, as (1-based line number, line).
+
+    Inline ``#`` comments are left in place (the parsers below drop them).
+    """
+    lines = text.splitlines()
+    return [(i + 1, ln) for i, ln in enumerate(lines) if (t := ln.lstrip()) and t[0] != "#"]
 
 
-def _floats(rows: list[tuple[int, list[str]]], ncols: int, what: str) -> np.ndarray:
-    """First ``ncols`` tokens of each row as float64; the error names the offending line."""
+def _tokens(line: str) -> list[str]:
+    return line.split("#", 1)[0].split()
+
+
+def _floats(rows: list[tuple[int, str]], cols: int | list[int], what: str) -> np.ndarray:
+    """Columns ``cols`` (or the first ``cols``) of text rows as float64 ``(len(rows), k)``.
+
+    Fast path: numpy's C parser; on any problem a slow pass names the offending line.
+    """
+    cols = list(range(cols)) if isinstance(cols, int) else list(cols)
+    if not rows:
+        return np.zeros((0, len(cols)))
     try:
-        return np.array([r[:ncols] for _, r in rows], dtype=np.float64).reshape(-1, ncols)
+        return np.loadtxt([r for _, r in rows], usecols=cols, ndmin=2, comments="#")
     except ValueError:
         pass
-    for ln, r in rows:
-        if len(r) < ncols:
-            raise _Err(f"line {ln}: {what} needs {ncols} numbers, found {len(r)}")
-        for tok in r[:ncols]:
+    need = max(cols) + 1
+    for ln, line in rows:
+        toks = _tokens(line)
+        if len(toks) < need:
+            raise _Err(f"line {ln}: {what} needs {need} numbers, found {len(toks)}")
+        for c in cols:
             try:
-                float(tok)
+                float(toks[c])
             except ValueError:
-                raise _Err(f"line {ln}: non-numeric {what} value {tok!r}") from None
+                raise _Err(f"line {ln}: non-numeric {what} value {toks[c]!r}") from None
     raise _Err(f"malformed {what} data")  # pragma: no cover
 
 
@@ -214,12 +220,12 @@ def _fan(polys: list[list[int]], where: list[int] | None = None) -> np.ndarray:
 # OFF
 # --------------------------------------------------------------------------------------------
 def _read_off(p: Path) -> _Parsed:
-    lines = _strip_comments(_read_text(p))
+    lines = _content(_read_text(p))
     if not lines:
         raise _Err("file has no content")
     ln, first = lines[0]
-    toks = first.split()
-    head = toks[0]
+    toks = _tokens(first)
+    head = toks[0] if toks else ""
     if head not in ("OFF", "COFF", "NOFF", "CNOFF"):
         if head.endswith("OFF"):
             raise _Err(f"OFF variant {head!r} is not supported (only OFF, COFF, NOFF, CNOFF)")
@@ -230,7 +236,7 @@ def _read_off(p: Path) -> _Parsed:
         if len(lines) < 2:
             raise _Err("truncated: missing the 'n_vertices n_faces n_edges' header line")
         ln, line = lines[1]
-        rest = line.split()
+        rest = _tokens(line)
         k = 2
     if len(rest) < 2:
         got = " ".join(rest)
@@ -242,32 +248,31 @@ def _read_off(p: Path) -> _Parsed:
     body = lines[k:]
     if len(body) < nv:
         raise _Err(f"truncated: header declares {nv} vertices but the file has {len(body)} lines")
-    vrows = [(ln, line.split()) for ln, line in body[:nv]]
-    vertices = _floats(vrows, 3, "vertex")
+    vertices = _floats(body[:nv], 3, "vertex")
     frows = body[nv:]
     if len(frows) < nf:
         raise _Err(
-            f"truncated: header declares {nf} faces but only {len(frows)} face lines follow "
-            f"the {nv} vertices"
+            f"truncated: header declares {nf} faces but only {len(frows)} face lines follow the {nv} vertices"
         )
     if len(frows) > nf:
         ln = frows[nf][0]
         raise _Err(f"line {ln}: unexpected content after the {nf} declared faces")
     if nf == 0:
         return vertices, None
-    return vertices, _parse_counted_faces([(ln, line.split()) for ln, line in frows])
+    return vertices, _parse_counted_faces(frows)
 
 
-def _parse_counted_faces(rows: list[tuple[int, list[str]]]) -> np.ndarray:
-    """Faces given as 'k i1 .. ik [extra]' rows (OFF, ascii PLY) -> fan-triangulated (m, 3)."""
-    try:  # fast path: all triangles
-        arr = np.array([r[:4] for _, r in rows], dtype=np.int64)
-        if arr.ndim == 2 and arr.shape[1] == 4 and (arr[:, 0] == 3).all():
-            return arr[:, 1:].copy()
+def _parse_counted_faces(rows: list[tuple[int, str]]) -> np.ndarray:
+    """Faces given as 'k i1 .. ik [extra]' text rows (OFF, ascii PLY) -> fan-triangulated (m, 3)."""
+    try:  # fast path: all triangles (extra columns such as colours are ignored)
+        arr = np.loadtxt([r for _, r in rows], dtype=np.int64, ndmin=2, comments="#")
+        if arr.shape[1] >= 4 and (arr[:, 0] == 3).all():
+            return arr[:, 1:4].copy()
     except ValueError:
         pass
     polys, where = [], []
-    for ln, r in rows:
+    for ln, line in rows:
+        r = _tokens(line)
         n = _int(r[0], ln, "face vertex count")
         if len(r) < n + 1:
             raise _Err(f"line {ln}: face declares {n} vertices but lists {len(r) - 1}")
@@ -280,29 +285,40 @@ def _parse_counted_faces(rows: list[tuple[int, list[str]]]) -> np.ndarray:
 # OBJ
 # --------------------------------------------------------------------------------------------
 def _read_obj(p: Path) -> _Parsed:
-    vrows: list[tuple[int, list[str]]] = []
+    lines = [(ln, line.lstrip()) for ln, line in _content(_read_text(p))]
+    vrows = [(ln, line[2:]) for ln, line in lines if line[:2] in ("v ", "v\t")]
+    _check_count(len(vrows), "vertices")
+    vertices = _floats(vrows, 3, "vertex")
+    frows = [(ln, line[2:]) for ln, line in lines if line[:2] in ("f ", "f\t")]
+    if not frows:
+        return vertices, None
+    if not any("-" in line for _, line in frows):  # fast path: absolute indices, triangles
+        stripped = frows
+        if any("/" in line for _, line in frows):
+            slash = re.compile(r"/\S*")
+            stripped = [(ln, slash.sub("", line)) for ln, line in frows]
+        try:
+            arr = np.loadtxt([r for _, r in stripped], dtype=np.int64, ndmin=2, comments="#")
+        except ValueError:
+            arr = None
+        if arr is not None and arr.shape[1] == 3 and arr.min() > 0:
+            return vertices, arr - 1
+    # general path: polygons and negative indices (relative to the vertices read so far)
     polys: list[list[int]] = []
     where: list[int] = []
-    for ln, line in _strip_comments(_read_text(p)):
-        toks = line.split()
-        key = toks[0]
-        if key == "v":
-            vrows.append((ln, toks[1:]))
-            if len(vrows) > MAX_VERTICES:
-                _check_count(len(vrows), "vertices")
-        elif key == "f":
-            nv = len(vrows)
+    nv = 0
+    for ln, line in lines:
+        if line[:2] in ("v ", "v\t"):
+            nv += 1
+        elif line[:2] in ("f ", "f\t"):
             idx = []
-            for t in toks[1:]:
+            for t in _tokens(line)[1:]:
                 i = _int(t.split("/")[0], ln, "face index")
                 if i == 0:
                     raise _Err(f"line {ln}: face index 0 is invalid in OBJ (indices are 1-based)")
-                idx.append(i - 1 if i > 0 else nv + i)  # negative = relative to current end
+                idx.append(i - 1 if i > 0 else nv + i)
             polys.append(idx)
             where.append(ln)
-    vertices = _floats(vrows, 3, "vertex")
-    if not polys:
-        return vertices, None
     return vertices, _fan(polys, where)
 
 
@@ -310,7 +326,8 @@ def _read_obj(p: Path) -> _Parsed:
 # XYZ
 # --------------------------------------------------------------------------------------------
 def _read_xyz(p: Path) -> _Parsed:
-    rows = [(ln, line.replace(",", " ").split()) for ln, line in _strip_comments(_read_text(p))]
+    text = _read_text(p)
+    rows = _content(text.replace(",", " ") if "," in text else text)
     _check_count(len(rows), "points")
     return _floats(rows, 3, "point"), None
 
@@ -387,7 +404,7 @@ def _read_ply(p: Path) -> _Parsed:
 
 
 def _ply_ascii(text: str, elements: list) -> dict:
-    lines = [(i, s.split()) for i, s in enumerate(text.splitlines(), 1) if s.strip()]
+    lines = [(i, s) for i, s in enumerate(text.splitlines(), 1) if s.strip()]
     out, pos = {}, 0
     for name, count, props in elements:
         rows = lines[pos : pos + count]
@@ -545,22 +562,16 @@ def _read_pcd(p: Path) -> _Parsed:
     _check_count(n, "points")
     if mode == "ascii":
         width = sum(counts)
-        rows = [
-            (ln, r)
-            for ln, r in enumerate(
-                (x.split() for x in data[pos:].decode("latin-1").splitlines()), 1
-            )
-            if r
-        ]
+        rows = [(ln, r) for ln, r in _content(data[pos:].decode("latin-1"))]
         if len(rows) < n:
             raise _Err(f"truncated: header declares {n} points but the file has {len(rows)}")
         if len(rows) > n:
             raise _Err(f"header declares {n} points but the file has {len(rows)} data lines")
-        short = [ln for ln, r in rows if len(r) < width]
+        short = [ln for ln, r in rows if len(r.split()) < width]
         if short:
             raise _Err(f"data line {short[0]} has fewer than the {width} declared values")
         cols = [sum(counts[: names.index(c)]) for c in "xyz"]
-        table = _floats([(ln, [r[j] for j in cols]) for ln, r in rows], 3, "point")
+        table = _floats(rows, cols, "point")
         return table, None
     if mode == "binary":
         kinds = {"F": "f", "I": "i", "U": "u"}
