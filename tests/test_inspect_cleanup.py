@@ -285,3 +285,13 @@ def test_shared_meshes_are_clean_closed_manifolds(shared_data):
         info = mesh_info(load_shape(f))
         assert info["non_manifold_edges"] == 0 and info["non_manifold_vertices"] == 0, f
         assert info["connected_components"] == 1, f
+
+
+def test_repeated_index_face_is_degenerate_not_non_manifold(sphere):
+    e = sphere.edges[0]
+    shape = Shape(sphere.vertices, np.concatenate([sphere.faces, [[e[0], e[0], e[1]]]]))
+    info = mesh_info(shape)
+    assert info["degenerate_faces"] == 1
+    assert info["non_manifold_edges"] == 0 and info["boundary_edges"] == 0
+    clean, rep = clean_shape(shape)
+    assert rep.degenerate_faces_removed == 1 and mesh_info(clean)["genus"] == 0

@@ -235,3 +235,28 @@ def test_every_shared_off_file_loads(shared_data):
         assert s.n_vertices > 1000 and s.n_faces > 1000, f
         header = f.read_text().split("\n", 2)[1].split()
         assert (s.n_vertices, s.n_faces) == (int(header[0]), int(header[1])), f
+
+
+def test_ascii_ply_quad_with_extra_properties(tmp_mesh_dir):
+    p = _write(tmp_mesh_dir / "q.ply", "ply\nformat ascii 1.0\ncomment hi\nelement vertex 4\n"
+               "property float x\nproperty float y\nproperty float z\nproperty uchar red\n"
+               "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+               "0 0 0 1\n1 0 0 2\n1 1 0 3\n0 1 0 4\n4 0 1 2 3\n")  # fmt: skip
+    s = load_shape(p)
+    assert s.faces.tolist() == [[0, 1, 2], [0, 2, 3]] and s.area == pytest.approx(1.0)
+
+
+def test_big_endian_binary_ply_with_polygons(tmp_mesh_dir):
+    head = (b"ply\nformat binary_big_endian 1.0\nelement vertex 4\nproperty float x\n"
+            b"property float y\nproperty float z\nelement face 2\n"
+            b"property list uchar uint vertex_indices\nend_header\n")  # fmt: skip
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=">f4").tobytes()
+    f = bytes([4]) + np.array([0, 1, 2, 3], ">u4").tobytes()
+    f += bytes([3]) + np.array([0, 2, 3], ">u4").tobytes()
+    p = tmp_mesh_dir / "be.ply"
+    p.write_bytes(head + v + f)
+    s = load_shape(p)
+    assert s.vertices.tolist()[2] == [1, 1, 0]
+    assert s.faces.tolist() == [[0, 1, 2], [0, 2, 3], [0, 2, 3]]
+    p.write_bytes(head + v + f[:-3])
+    _fails(p, "truncated")

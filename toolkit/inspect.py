@@ -14,6 +14,7 @@ from .shape import Shape
 __all__ = [
     "connected_components",
     "degenerate_face_mask",
+    "degenerate_index_faces",
     "duplicate_face_mask",
     "duplicate_vertex_map",
     "edge_face_counts",
@@ -58,8 +59,7 @@ def connected_components(shape: Shape) -> tuple[int, np.ndarray]:
     Labels are numbered in order of each component's lowest vertex index; every unreferenced
     vertex is a component of its own. Needs a triangle mesh.
     """
-    edges, _ = edge_face_counts(shape.require_faces("connected components"))
-    return _components(shape.n_vertices, edges)
+    return _components(shape.n_vertices, _all_edges(shape.require_faces("connected components")))
 
 
 def duplicate_vertex_map(vertices: np.ndarray) -> np.ndarray:
@@ -68,10 +68,16 @@ def duplicate_vertex_map(vertices: np.ndarray) -> np.ndarray:
     return first[inv]
 
 
+def degenerate_index_faces(faces: np.ndarray) -> np.ndarray:
+    """True for faces that repeat a vertex index, bool (m,)."""
+    f = np.asarray(faces)
+    return (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
+
+
 def degenerate_face_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """True for faces with a repeated vertex index or (numerically) zero area, bool (m,)."""
     f = np.asarray(faces)
-    rep = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])
+    rep = degenerate_index_faces(f)
     v = np.asarray(vertices, dtype=np.float64)
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)  # twice the area
@@ -88,7 +94,10 @@ def duplicate_face_mask(faces: np.ndarray) -> np.ndarray:
 
 
 def _half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sorted-by-key half edges of non-self-loop face sides: (keys (h, 2), face (h,), side (h,))."""
+    """Half edges sorted by key, (keys (h, 2) with i < j, face (h,), side (h,)).
+
+    Self-loop sides (of faces with a repeated index) are left out.
+    """
     m = len(faces)
     he = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     fid = np.tile(np.arange(m), 3)
@@ -99,9 +108,22 @@ def _half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return he[order], fid[order], side[order]
 
 
-def edge_face_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unique edges (e, 2) (i < j, sorted rows) and the number of faces on each, int64 (e,)."""
+def _all_edges(faces: np.ndarray) -> np.ndarray:
+    """Unique edges (e, 2) of all faces, degenerate ones included (i < j, sorted rows)."""
     keys, _, _ = _half_edges(np.asarray(faces, dtype=np.int64))
+    first, _, _ = _unique_rows(keys)
+    return keys[first].reshape(-1, 2)
+
+
+def edge_face_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Edges (e, 2) of the faces with 3 distinct indices and the number of such faces on each.
+
+    Rows ``i < j``, sorted; counts int64 ``(e,)``. Faces with a repeated index have no proper
+    edges and are ignored (they are reported as degenerate).
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
+    keys, _, _ = _half_edges(f)
     first, _, counts = _unique_rows(keys)
     return keys[first].reshape(-1, 2), counts.astype(np.int64)
 
@@ -115,7 +137,7 @@ def face_fans(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     f = np.asarray(faces, dtype=np.int64)
     m = len(f)
-    good = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
+    good = ~degenerate_index_faces(f)
     keys, fid, side = _half_edges(f[good])
     gid = np.flatnonzero(good)
     fid = gid[fid]
@@ -191,12 +213,13 @@ def mesh_info(shape: Shape) -> dict:
         return info
     f = shape.faces
     edges, counts = edge_face_counts(f)
-    n_comp, _ = _components(shape.n_vertices, edges)
+    all_edges = _all_edges(f) if degenerate_index_faces(f).any() else edges
+    n_comp, _ = _components(shape.n_vertices, all_edges)
     n_bnd = int((counts == 1).sum())
     n_nme = int((counts > 2).sum())
     n_nmv = len(_non_manifold_vertices(f))
     n_unref = int(shape.n_vertices - np.unique(f).size)
-    chi = shape.n_vertices - len(edges) + shape.n_faces
+    chi = shape.n_vertices - len(all_edges) + shape.n_faces
     closed_manifold = n_bnd == 0 and n_nme == 0 and n_nmv == 0 and n_comp == 1
     info.update(
         connected_components=n_comp,
@@ -210,8 +233,8 @@ def mesh_info(shape: Shape) -> dict:
         euler_characteristic=int(chi),
         genus=int((2 - chi) // 2) if closed_manifold and chi % 2 == 0 else None,
         total_area=shape.area,
-        mean_edge_length=float(np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1).mean())
-        if len(edges)
+        mean_edge_length=float(np.linalg.norm(v[all_edges[:, 0]] - v[all_edges[:, 1]], axis=1).mean())
+        if len(all_edges)
         else 0.0,
     )
     return info
