@@ -80,7 +80,7 @@ def check_times(times: float | Sequence[float] | np.ndarray) -> np.ndarray:
         raise ParameterError("at least one diffusion time is needed")
     if not np.all(np.isfinite(t)) or np.any(t <= 0):
         bad = t[~(np.isfinite(t) & (t > 0))][0]
-        raise ParameterError(f"diffusion times must be positive and finite, got {bad!r}")
+        raise ParameterError(f"diffusion times must be positive and finite, got {float(bad)!r}")
     return t
 
 
