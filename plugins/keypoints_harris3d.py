@@ -149,7 +149,14 @@ class Harris3D(KeypointDetector):
 
     def detect(self, shape: Shape, *, spectrum: Spectrum | None = None) -> np.ndarray:
         """0-based int64 keypoint ids ``(p,)``, strongest response first."""
-        resp = self.response(shape)
+        return self.select(shape, self.response(shape))
+
+    def select(self, shape: Shape, resp: np.ndarray) -> np.ndarray:
+        """Ring maxima of a response ``(n,)`` and the fraction/clustering selection."""
+        self._validate()
+        resp = np.asarray(resp, dtype=np.float64)
+        if resp.shape != (shape.n_vertices,):
+            raise ParameterError(f"response must have shape ({shape.n_vertices},), got {resp.shape}")
         scale = float(np.abs(resp).max()) or 1.0
         cand = ring_maxima(np.round(resp / scale, 12), adjacency(shape), int(self.ring))
         if self.selection == "fraction":
