@@ -1,0 +1,147 @@
+"""Geodesics: great-circle ground truth on the unit sphere, k-rings, ring maxima, relative
+r-neighbourhoods (thesis 7.5.2), caching and error cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from toolkit import geodesics as g
+from toolkit.errors import InvalidShapeError, ParameterError
+from toolkit.generate import icosphere
+from toolkit.shape import Shape
+
+SOURCES = [0, 37, 200, 641]
+
+
+@pytest.fixture(scope="module")
+def sphere3() -> Shape:
+    return icosphere(3)
+
+
+def _great_circle(shape: Shape, src) -> np.ndarray:
+    V = shape.vertices / np.linalg.norm(shape.vertices, axis=1, keepdims=True)
+    return np.arccos(np.clip(V[src] @ V.T, -1.0, 1.0))
+
+
+@pytest.mark.parametrize("method, tol", [("exact", 0.01), ("fmm", 0.04), ("heat", 0.04)])
+def test_sphere_great_circle(sphere3, method, tol):
+    d = g.geodesic_distances(sphere3, SOURCES, method=method, cache=False)
+    gt = _great_circle(sphere3, SOURCES)
+    assert d.shape == (len(SOURCES), sphere3.n_vertices) and d.dtype == np.float64
+    far = gt > 0.2
+    rel = np.abs(d - gt)[far] / gt[far]
+    assert rel.mean() < tol
+    np.testing.assert_allclose(d[np.arange(len(SOURCES)), SOURCES], 0.0, atol=1e-12)
+
+
+def test_exact_is_within_one_percent_everywhere(sphere3):
+    d = g.geodesic_distances(sphere3, [5], method="exact")
+    gt = _great_circle(sphere3, [5])
+    far = gt > 0.2
+    assert np.max(np.abs(d - gt)[far] / gt[far]) < 0.01
+
+
+def test_dijkstra_is_an_upper_bound_of_exact(sphere3):
+    de = g.geodesic_distances(sphere3, SOURCES, method="exact")
+    dd = g.geodesic_distances(sphere3, SOURCES, method="dijkstra")
+    assert np.all(dd >= de - 1e-9)
+    assert np.mean(dd - de) > 0  # and strictly worse on average (paths along edges)
+
+
+def test_targets_cache_and_symmetry(sphere3):
+    g.clear_geodesic_cache()
+    full = g.geodesic_distances(sphere3, [3, 10], method="exact")
+    sub = g.geodesic_distances(sphere3, [10, 3], targets=[3, 10, 500], method="exact")
+    np.testing.assert_allclose(sub, full[[1, 0]][:, [3, 10, 500]])
+    np.testing.assert_allclose(sub[0, 0], sub[1, 1], rtol=1e-9)  # d(10, 3) == d(3, 10)
+    again = g.geodesic_distances(sphere3, [3], method="exact")
+    np.testing.assert_array_equal(again[0], full[0])
+    # rows from the cache are copies, not views the caller could corrupt
+    again[0, :] = -1
+    assert g.geodesic_distances(sphere3, [3], method="exact")[0, 1] > 0
+    assert g.geodesic_distances(sphere3, [], method="exact").shape == (0, sphere3.n_vertices)
+
+
+def test_distance_to_set_is_the_row_minimum(sphere3):
+    for method in ("fmm", "dijkstra", "heat", "exact"):
+        rows = g.geodesic_distances(sphere3, [0, 300], method=method)
+        d = g.geodesic_distance_to_set(sphere3, [0, 300], method=method)
+        assert d.shape == (sphere3.n_vertices,)
+        tol = 1e-9 if method in ("dijkstra", "exact") else 0.08
+        assert np.all(np.abs(d - rows.min(axis=0)) <= tol * (1 + rows.min(axis=0)))
+
+
+def test_point_cloud_needs_faces_except_dijkstra(sphere3):
+    cloud = Shape(sphere3.vertices)
+    for method in ("exact", "fmm", "heat"):
+        with pytest.raises(InvalidShapeError, match="point cloud"):
+            g.geodesic_distances(cloud, [0], method=method)
+    d = g.geodesic_distances(cloud, [0], method="dijkstra")
+    chord = np.linalg.norm(sphere3.vertices - sphere3.vertices[0], axis=1)
+    assert np.all(np.isfinite(d)) and np.all(d >= chord - 1e-9)  # paths of chords
+    assert np.mean(d[0] / np.maximum(_great_circle(sphere3, [0])[0], 1e-9)) < 1.3
+
+
+def test_errors(sphere3):
+    with pytest.raises(ParameterError, match="method"):
+        g.geodesic_distances(sphere3, [0], method="magic")
+    with pytest.raises(ParameterError):
+        g.geodesic_distances(sphere3, [sphere3.n_vertices], method="fmm")
+    with pytest.raises(ParameterError):
+        g.geodesic_distances(sphere3, [-1], method="exact")
+    with pytest.raises(ParameterError):
+        g.geodesic_distances(sphere3, [0.5], method="exact")
+    with pytest.raises(ParameterError):
+        g.geodesic_distances(sphere3, [0], targets=[9999], method="dijkstra")
+    with pytest.raises(ParameterError):
+        g.k_ring(sphere3, 0, -1)
+    with pytest.raises(ParameterError):
+        g.relative_geodesic_neighbourhood(sphere3, 0, 0.0)
+    with pytest.raises(ParameterError):
+        g.relative_geodesic_neighbourhood(sphere3, 0, 150.0)
+    with pytest.raises(ParameterError):
+        g.ring_maxima(np.zeros(3), sphere3, 1)
+
+
+def test_k_rings_on_icosphere(sphere3):
+    # vertex 0 is an icosahedron corner (valence 5); a subdivision vertex has valence 6
+    valence = np.bincount(sphere3.edges.ravel())
+    corner = 0
+    regular = int(np.flatnonzero(valence == 6)[0])
+    assert valence[corner] == 5
+    assert g.k_ring(sphere3, corner, 0).tolist() == [corner]
+    assert g.k_ring(sphere3, corner, 1).size == 6
+    assert g.k_ring(sphere3, regular, 1).size == 7
+    assert g.k_ring(sphere3, regular, 2).size == 19
+    assert g.k_ring(sphere3, corner, 2).size == 16
+    R = g.k_ring_all(sphere3, 2)
+    for v in (corner, regular, 100):
+        np.testing.assert_array_equal(R[v].indices[np.argsort(R[v].indices)], g.k_ring(sphere3, v, 2))
+    # the k-ring of k >= diameter is everything
+    assert g.k_ring(sphere3, 0, 100).size == sphere3.n_vertices
+
+
+def test_ring_maxima(sphere3):
+    z = sphere3.vertices[:, 2]
+    peaks = g.ring_maxima(z, sphere3, 2)
+    assert peaks.tolist() == [int(np.argmax(z))]
+    # two bumps -> two maxima, strongest first
+    v = sphere3.vertices
+    f = np.exp(-20 * np.sum((v - [0, 0, 1]) ** 2, 1)) + 0.5 * np.exp(-20 * np.sum((v - [1, 0, 0]) ** 2, 1))
+    peaks = g.ring_maxima(f, sphere3, 2)
+    assert len(peaks) == 2
+    assert np.allclose(v[peaks[0]], [0, 0, 1], atol=1e-9) and np.allclose(v[peaks[1]], [1, 0, 0], atol=1e-9)
+    # constant values: ties broken by vertex id, so exactly one maximum per plateau
+    assert g.ring_maxima(np.ones(sphere3.n_vertices), sphere3, 100).tolist() == [0]
+
+
+def test_relative_geodesic_neighbourhood(sphere3):
+    n = sphere3.n_vertices
+    nb = g.relative_geodesic_neighbourhood(sphere3, 17, 5.0, method="exact")
+    assert nb.size == int(np.ceil(0.05 * n)) and nb[0] == 17
+    d = g.geodesic_distances(sphere3, [17], method="exact")[0]
+    assert d[nb].max() <= np.min(np.delete(d, nb)) + 1e-12
+    assert np.all(np.diff(d[nb]) >= 0)
+    assert g.relative_geodesic_neighbourhood(sphere3, 17, 100.0).size == n
+    assert g.relative_geodesic_neighbourhood(sphere3, 17, 0.01).tolist() == [17]
