@@ -200,7 +200,7 @@ def render_shapes(
         _draw(ax, shape, cols, pnl.get("points"), pnl.get("title"), pnl.get("point_size", 30.0))
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.subplots_adjust(left=0, right=1, bottom=0, top=0.9 if title else 0.95, wspace=0)
+    fig.subplots_adjust(left=0, right=1, bottom=0, top=0.86 if title else 0.95, wspace=0)
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(p, dpi=dpi)

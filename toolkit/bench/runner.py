@@ -359,6 +359,7 @@ def execute_job(job: dict, pinfo: dict | None = None) -> dict:
         "metrics": {},
         "versions": package_versions(),
         "worker": f"{platform.node()}:{os.getpid()}",
+        "prepare_key": job["pkey"],
     }
     t_start = time.perf_counter()
     try:
@@ -405,6 +406,8 @@ def execute_job(job: dict, pinfo: dict | None = None) -> dict:
         row["metric_seconds"] = time.perf_counter() - t0
         row["output"] = _save_output(job, output)
     except Exception as exc:
+        if row["seconds"] is None:
+            row["seconds"] = time.perf_counter() - t_start
         row["status"] = "failed"
         row["error"] = f"{type(exc).__name__}: {exc}"
         if os.environ.get("TOOLKIT_DEBUG"):

@@ -60,6 +60,7 @@ class Prepared:
     geodesic_rows_sym: np.ndarray | None = None
     geodesic_seconds: float = 0.0
     meta: dict[str, Any] = field(default_factory=dict)
+    target_face_labels: list[np.ndarray] = field(default_factory=list)
 
 
 def prepare(
@@ -94,6 +95,8 @@ def prepare(
     p = Prepared(
         item.name, src, tgt, truth, sym, list(item.labels), list(tlabels), vmap, secs, meta=dict(item.meta)
     )
+    if corruption_kind == "none" and tgt0 is src:
+        p.target_face_labels = list(item.face_labels)
     if geodesic_method and truth is not None and len(truth):
         from ..geodesics import geodesic_distances
 
@@ -284,19 +287,32 @@ def _m_n_keypoints(p, o, opt):
 
 
 def _m_repeatability(p, o, opt):
-    fn = lookup_metric("keypoint_repeatability")
-    truth = p.truth
-    res = fn(
+    """Keypoint repeatability in both directions through the ground-truth map
+    (:func:`toolkit.metrics.repeatability_report`); columns per radius and a curve."""
+    report, gt_map = lookup_metric("repeatability_report"), lookup_metric("ground_truth_map")
+    if p.truth is None or not len(p.truth):
+        raise ParameterError(f"item {p.name!r} has no ground-truth map for repeatability")
+    a_to_b = gt_map(p.source, p.truth[:, 0], p.truth[:, 1], p.target.n_vertices)
+    b_to_a = gt_map(p.target, p.truth[:, 1], p.truth[:, 0], p.source.n_vertices)
+    kw = {} if opt.get("radii") is None else {"radii": opt["radii"]}
+    res = report(
         p.source,
         p.target,
         o["source_keypoints"],
         o["keypoints"],
-        truth,
-        **({"radius": opt["radius"]} if opt.get("radius") is not None else {}),
+        a_to_b,
+        b_to_a,
+        method=opt["geodesic_method"],
+        **kw,
     )
-    if isinstance(res, dict):
-        return {f"{k}": v for k, v in res.items() if isinstance(v, (int, float, list))}
-    return {"repeatability": float(res)}
+    out: dict[str, Any] = {
+        "repeatability_curve": _curve(res["radii"], res["mean"]),
+        "chance_curve": _curve(res["radii"], res["chance"]),
+    }
+    for r, m, c in zip(res["radii"], res["mean"], res["chance"]):
+        out[f"repeatability@{r:g}"] = m
+        out[f"chance@{r:g}"] = c
+    return out
 
 
 class KeypointsTask(TaskAdapter):
@@ -306,11 +322,11 @@ class KeypointsTask(TaskAdapter):
     name = "keypoints"
     families = ("keypoints",)
     pairwise = True
-    option_defaults = {"radius": None}
+    option_defaults = {"radii": None, "geodesic_method": "fmm"}
     default_metrics = ("n_keypoints",)
     metrics = {
         "n_keypoints": (_m_n_keypoints, ()),
-        "repeatability": (_m_repeatability, ("keypoint_repeatability",)),
+        "repeatability": (_m_repeatability, ("repeatability_report", "ground_truth_map")),
     }
 
     def run(self, method, prepared, spectra, options, random_state, detector=None):
@@ -329,17 +345,21 @@ def _m_n_segments(p, o, opt):
 
 
 def _m_segmentation(p, o, opt):
-    """Scores against every ground-truth segmentation, averaged (the PSB protocol)."""
+    """PSB scores (:func:`toolkit.metrics.segmentation_scores`) on face labels, averaged over
+    every ground-truth segmentation: the dataset's own face labels when the mesh is unchanged,
+    else face labels derived from the (carried) vertex labels."""
+    from ..labels import vertex_to_face_labels
+
     fn = lookup_metric("segmentation_scores")
     if not p.target_labels:
         raise ParameterError(f"item {p.name!r} has no ground-truth segmentation")
-    acc: dict[str, list[float]] = {}
-    for gt in p.target_labels:
-        res = fn(p.target, np.asarray(o["labels"]), gt)
-        for k, v in res.items():
-            if isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool):
-                acc.setdefault(k, []).append(float(v))
-    return {k: float(np.mean(v)) for k, v in acc.items()}
+    faces = p.target.require_faces("segmentation scores")
+    pred = vertex_to_face_labels(faces, np.asarray(o["labels"]))
+    truths = p.target_face_labels or [vertex_to_face_labels(faces, g) for g in p.target_labels]
+    res = fn(pred, truths, mesh=p.target)
+    return {
+        k: float(v) for k, v in res.items() if isinstance(v, (int, float, np.floating)) and k != "n_truths"
+    }
 
 
 class SegmentationTask(TaskAdapter):
