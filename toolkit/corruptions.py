@@ -32,6 +32,7 @@ __all__ = [
     "shortcut",
     "partial",
     "apply_corruption",
+    "RESAMPLING",
     "invert_vertex_map",
     "carry_labels",
     "carry_correspondence",
@@ -295,14 +296,23 @@ def apply_corruption(shape: Shape, name: str, *, random_state: int = 0, **params
     return fn(shape, random_state=random_state, **params)
 
 
+#: corruptions that resample the surface: their maps name the *nearest* original vertex, so an
+#: original vertex nobody maps to still exists (near its neighbours) rather than being removed
+RESAMPLING = frozenset({"remesh"})
+
+
 def invert_vertex_map(
-    vertex_map: np.ndarray, original: Shape, *, max_distance: float | None = None
+    vertex_map: np.ndarray,
+    original: Shape,
+    *,
+    resampled: bool = False,
+    max_distance: float | None = None,
 ) -> np.ndarray:
     """Original vertex -> new vertex (int64 ``(n_original,)``, -1 when removed).
 
-    An original vertex named by the map gets the first new vertex mapping to it; the others get
-    the new vertex whose source is nearest to it, unless farther than ``max_distance`` (default
-    2 mean edge lengths of ``original``), which marks it removed.
+    An original vertex named by the map gets the first new vertex mapping to it. Others are
+    removed, unless ``resampled`` (the map of :func:`remesh`): then they get the new vertex whose
+    source is nearest, within ``max_distance`` (default 2 mean edge lengths of ``original``).
     """
     vm = np.asarray(vertex_map, dtype=np.int64)
     n = original.n_vertices
@@ -311,7 +321,7 @@ def invert_vertex_map(
     order = valid[::-1]  # assign in reverse so the first new vertex wins
     inv[vm[order]] = order
     missing = np.flatnonzero(inv < 0)
-    if missing.size and valid.size:
+    if resampled and missing.size and valid.size:
         lim = 2.0 * _length_unit(original) if max_distance is None else float(max_distance)
         dist, j = cKDTree(original.vertices[vm[valid]]).query(original.vertices[missing])
         ok = dist <= lim
@@ -327,11 +337,11 @@ def carry_labels(labels: np.ndarray, vertex_map: np.ndarray) -> np.ndarray:
 
 
 def carry_correspondence(
-    pairs: np.ndarray, vertex_map: np.ndarray, original: Shape, *, side: int = 1
+    pairs: np.ndarray, vertex_map: np.ndarray, original: Shape, *, side: int = 1, resampled: bool = False
 ) -> np.ndarray:
     """Ground-truth pairs ``(q, 2)`` with column ``side`` moved onto the corrupted shape; pairs
-    whose vertex was removed are dropped."""
+    whose vertex was removed are dropped (``resampled``: see :func:`invert_vertex_map`)."""
     p = np.array(pairs, dtype=np.int64, copy=True)
-    inv = invert_vertex_map(vertex_map, original)
+    inv = invert_vertex_map(vertex_map, original, resampled=resampled)
     p[:, side] = inv[p[:, side]]
     return p[p[:, side] >= 0]

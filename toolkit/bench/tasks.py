@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..corruptions import apply_corruption, carry_correspondence, carry_labels
+from ..corruptions import RESAMPLING, apply_corruption, carry_correspondence, carry_labels
 from ..datasets import DatasetItem
 from ..errors import ParameterError
 from ..shape import Shape
@@ -89,8 +89,9 @@ def prepare(
     tgt, vmap = apply_corruption(tgt0, corruption_kind, random_state=random_state, **corruption_params)
     secs = time.perf_counter() - t0
     if corruption_kind != "none":
-        truth = carry_correspondence(truth, vmap, tgt0) if truth is not None else None
-        sym = carry_correspondence(sym, vmap, tgt0) if sym is not None else None
+        rs = corruption_kind in RESAMPLING
+        truth = carry_correspondence(truth, vmap, tgt0, resampled=rs) if truth is not None else None
+        sym = carry_correspondence(sym, vmap, tgt0, resampled=rs) if sym is not None else None
         tlabels = [carry_labels(lab, vmap) for lab in tlabels]
     p = Prepared(
         item.name, src, tgt, truth, sym, list(item.labels), list(tlabels), vmap, secs, meta=dict(item.meta)

@@ -1,0 +1,150 @@
+"""Corruptions keep exact track of where every vertex came from."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.sparse.csgraph import shortest_path
+
+from toolkit.corruptions import (
+    CORRUPTIONS,
+    apply_corruption,
+    carry_correspondence,
+    carry_labels,
+    gaussian_noise,
+    holes,
+    invert_vertex_map,
+    micro_holes,
+    partial,
+    remesh,
+    rigid_motion,
+    shortcut,
+    shot_noise,
+)
+from toolkit.errors import ParameterError
+from toolkit.synthetic import articulated_shape
+
+
+@pytest.fixture(scope="module")
+def body():
+    a = articulated_shape(subdivisions=3)
+    return a.shape, a.labels
+
+
+def _pairwise(v):
+    return np.linalg.norm(v[:, None] - v[None], axis=-1)
+
+
+def test_rigid_motion_is_isometry_with_identity_map(body):
+    s, _ = body
+    c, vm = rigid_motion(s, strength=0.7, scale=2.0, random_state=3)
+    assert np.array_equal(vm, np.arange(s.n_vertices))
+    assert np.array_equal(c.faces, s.faces)
+    idx = np.arange(0, s.n_vertices, 17)
+    np.testing.assert_allclose(_pairwise(c.vertices[idx]), 2.0 * _pairwise(s.vertices[idx]), rtol=1e-10)
+    assert not np.allclose(c.vertices, s.vertices)
+
+
+def test_noise_identity_map_and_magnitude(body):
+    s, _ = body
+    c, vm = gaussian_noise(s, strength=0.2, random_state=1)
+    assert np.array_equal(vm, np.arange(s.n_vertices))
+    d = c.vertices - s.vertices
+    assert abs(d.std() / (0.2 * s.mean_edge_length) - 1) < 0.1
+    c2, _ = shot_noise(s, strength=0.05, magnitude=3.0, random_state=1)
+    moved = np.linalg.norm(c2.vertices - s.vertices, axis=1) > 1e-12
+    assert moved.sum() == round(0.05 * s.n_vertices)
+    np.testing.assert_allclose(
+        np.linalg.norm(c2.vertices - s.vertices, axis=1)[moved], 3.0 * s.mean_edge_length
+    )
+
+
+def test_seeded_and_deterministic(body):
+    s, _ = body
+    a, _ = gaussian_noise(s, random_state=5)
+    b, _ = gaussian_noise(s, random_state=5)
+    c, _ = gaussian_noise(s, random_state=6)
+    assert np.array_equal(a.vertices, b.vertices)
+    assert not np.array_equal(a.vertices, c.vertices)
+
+
+def test_remesh_changes_count_and_maps_to_nearby_originals(body):
+    s, labels = body
+    c, vm = remesh(s, strength=1.6, random_state=0)
+    assert c.n_vertices != s.n_vertices
+    assert abs(c.n_vertices / (1.6 * s.n_vertices) - 1) < 0.35
+    assert vm.min() >= 0 and vm.max() < s.n_vertices
+    d = np.linalg.norm(c.vertices - s.vertices[vm], axis=1)
+    assert d.max() < 2.0 * s.mean_edge_length
+    lab = carry_labels(labels, vm)
+    assert lab.shape == (c.n_vertices,) and set(np.unique(lab)) == set(np.unique(labels))
+
+
+@pytest.mark.parametrize("fn", [holes, micro_holes, partial])
+def test_removals_keep_exact_coordinates(body, fn):
+    s, _ = body
+    c, vm = fn(s, random_state=2)
+    assert c.n_vertices < s.n_vertices
+    assert np.array_equal(c.vertices, s.vertices[vm])
+    assert len(np.unique(vm)) == len(vm)
+
+
+def test_partial_removes_the_requested_fraction(body):
+    s, _ = body
+    c, _ = partial(s, strength=0.3, random_state=0)
+    assert 0.6 < c.n_vertices / s.n_vertices < 0.72
+
+
+def test_shortcut_glues_far_apart_vertices(body):
+    s, _ = body
+    c, vm = shortcut(s, strength=2, random_state=0)
+    assert np.array_equal(vm, np.arange(s.n_vertices))
+    assert c.n_faces == s.n_faces + 4
+    new = c.faces[s.n_faces :]
+    import scipy.sparse as sp
+
+    def hops(shape, a, b):
+        e = shape.edges
+        A = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(shape.n_vertices,) * 2)
+        return shortest_path(A, directed=False, unweighted=True, indices=[a])[0, b]
+
+    a, b = new[0, 0], new[0, 1]
+    assert hops(c, a, b) == 1
+    assert hops(s, a, b) > 2
+
+
+def test_correspondence_carried_through_holes(body):
+    s, _ = body
+    c, vm = holes(s, strength=4, radius=0.08, random_state=1)
+    ident = np.arange(s.n_vertices)
+    pairs = carry_correspondence(np.stack([ident, ident], 1), vm, s)
+    assert 0 < len(pairs) == c.n_vertices
+    np.testing.assert_array_equal(c.vertices[pairs[:, 1]], s.vertices[pairs[:, 0]])
+    inv = invert_vertex_map(vm, s)
+    assert np.array_equal(vm[inv[vm]], vm)
+    assert (inv < 0).sum() == s.n_vertices - c.n_vertices
+
+
+def test_apply_corruption_registry_and_errors(body):
+    s, _ = body
+    for name in CORRUPTIONS:
+        c, vm = apply_corruption(s, name, random_state=0)
+        assert len(vm) == c.n_vertices
+    same, vm = apply_corruption(s, "none")
+    assert same is s
+    with pytest.raises(ParameterError, match="unknown corruption"):
+        apply_corruption(s, "melt")
+    with pytest.raises(ParameterError, match="no parameter"):
+        apply_corruption(s, "holes", sigma=1)
+    with pytest.raises(ParameterError):
+        partial(s, strength=2.0)
+
+
+def test_remesh_correspondence_keeps_every_point_nearby(body):
+    s, _ = body
+    c, vm = remesh(s, strength=0.7, random_state=0)
+    ident = np.arange(s.n_vertices)
+    pairs = carry_correspondence(np.stack([ident, ident], 1), vm, s, resampled=True)
+    assert len(pairs) > 0.95 * s.n_vertices
+    d = np.linalg.norm(c.vertices[pairs[:, 1]] - s.vertices[pairs[:, 0]], axis=1)
+    assert np.median(d) < 1.0 * s.mean_edge_length
