@@ -1,0 +1,225 @@
+"""toolkit.eigen.smallest_eigenpairs: analytic spectra, dense agreement, every method, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.linalg as la
+import scipy.sparse as sp
+
+from toolkit.eigen import METHODS, smallest_eigenpairs
+from toolkit.errors import ParameterError, SolverError
+
+SPARSE_METHODS = [m for m in METHODS if m not in ("auto", "dense")]
+
+
+def path_laplacian(n: int) -> sp.csr_matrix:
+    """Combinatorial Laplacian of the path graph on ``n`` vertices."""
+    e = np.ones(n - 1)
+    A = sp.diags([-e, np.r_[1.0, 2.0 * np.ones(n - 2), 1.0], -e], [-1, 0, 1])
+    return sp.csr_matrix(A)
+
+
+def grid_laplacian(nx: int, ny: int) -> sp.csr_matrix:
+    """Laplacian of the ``nx x ny`` grid graph (Kronecker sum of two paths)."""
+    return sp.csr_matrix(
+        sp.kron(path_laplacian(nx), sp.identity(ny)) + sp.kron(sp.identity(nx), path_laplacian(ny))
+    )
+
+
+def grid_eigenvalues(nx: int, ny: int, k: int) -> np.ndarray:
+    """The ``k`` smallest eigenvalues of :func:`grid_laplacian`, analytically."""
+    px = 2.0 - 2.0 * np.cos(np.pi * np.arange(nx) / nx)
+    py = 2.0 - 2.0 * np.cos(np.pi * np.arange(ny) / ny)
+    return np.sort((px[:, None] + py[None, :]).ravel())[:k]
+
+
+@pytest.fixture(scope="module")
+def grid():
+    nx, ny = 47, 43  # n = 2021: the sparse path; distinct sizes keep the spectrum mostly simple
+    return nx, ny, grid_laplacian(nx, ny)
+
+
+@pytest.fixture(scope="module")
+def generalized():
+    """A 24 x 25 grid Laplacian with a random positive diagonal mass, and its dense solution."""
+    A = grid_laplacian(24, 25)
+    d = np.random.default_rng(1).uniform(0.5, 2.0, A.shape[0])
+    s = 1 / np.sqrt(d)  # D^-1/2 A D^-1/2 y = lambda y, u = D^-1/2 y
+    vals, y = la.eigh(A.toarray() * s[:, None] * s[None, :], subset_by_index=(0, 29))
+    vecs = y * s[:, None]
+    return A, d, vals, vecs
+
+
+def subspace_cosines(U: np.ndarray, V: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Cosines of the principal angles between two M-orthonormal bases (M = diag(d))."""
+    return la.svdvals(U.T @ (d[:, None] * V))
+
+
+@pytest.mark.parametrize("method", ["auto", *SPARSE_METHODS])
+def test_standard_grid_matches_analytic_spectrum(grid, method):
+    nx, ny, A = grid
+    k = 15
+    vals, vecs = smallest_eigenpairs(A, k, method=method)
+    ref = grid_eigenvalues(nx, ny, k)
+    np.testing.assert_allclose(vals, ref, rtol=1e-9, atol=1e-12)
+    assert vecs.shape == (A.shape[0], k)
+    np.testing.assert_allclose(vecs.T @ vecs, np.eye(k), atol=1e-10)
+    # each returned pair really is an eigenpair
+    res = np.linalg.norm(A @ vecs - vecs * vals, axis=0)
+    assert res.max() < 1e-6
+
+
+@pytest.mark.parametrize("method", list(METHODS))
+def test_generalized_matches_dense(generalized, method):
+    A, d, ref_vals, ref_vecs = generalized
+    k = 12
+    vals, vecs = smallest_eigenpairs(A, k, sp.diags(d), method=method)
+    np.testing.assert_allclose(vals[1:], ref_vals[1:k], rtol=1e-9)
+    assert abs(vals[0]) < 1e-10
+    # M-orthonormal, ascending
+    np.testing.assert_allclose(vecs.T @ (d[:, None] * vecs), np.eye(k), atol=1e-10)
+    assert np.all(np.diff(vals) >= 0)
+    # same invariant subspace as LAPACK (the random mass makes the eigenvalues simple)
+    np.testing.assert_allclose(subspace_cosines(vecs, ref_vecs[:, :k], d), 1.0, atol=1e-8)
+    # and the same vectors up to sign, one by one
+    cos = np.abs(np.einsum("ij,ij->j", vecs, d[:, None] * ref_vecs[:, :k]))
+    np.testing.assert_allclose(cos, 1.0, atol=1e-7)
+
+
+def test_methods_agree_with_each_other(generalized):
+    A, d, _, _ = generalized
+    k = 20
+    out = {m: smallest_eigenpairs(A, k, d, method=m) for m in METHODS}
+    v0, u0 = out["dense"]
+    for m, (v, u) in out.items():
+        np.testing.assert_allclose(v, v0, rtol=1e-8, atol=1e-10, err_msg=m)
+        # vectors agree including sign (largest-magnitude entry positive)
+        np.testing.assert_allclose(u, u0, atol=1e-6, err_msg=m)
+
+
+def test_null_eigenvector_is_constant_on_connected_graph(grid):
+    _, _, A = grid
+    vals, vecs = smallest_eigenpairs(A, 4, method="krylov")
+    assert abs(vals[0]) < 1e-12
+    assert vals[1] > 1e-4
+    u = vecs[:, 0]
+    np.testing.assert_allclose(u, np.full_like(u, 1.0 / np.sqrt(len(u))), atol=1e-10)
+
+
+def test_two_null_eigenvalues_on_two_components():
+    A = sp.block_diag([grid_laplacian(20, 25), grid_laplacian(22, 21)]).tocsr()
+    vals, vecs = smallest_eigenpairs(A, 5, method="krylov")
+    np.testing.assert_allclose(vals[:2], 0.0, atol=1e-12)
+    assert vals[2] > 1e-4
+    # the null space is spanned by the two component indicators
+    ind = np.zeros((A.shape[0], 2))
+    ind[:500, 0] = 1 / np.sqrt(500)
+    ind[500:, 1] = 1 / np.sqrt(462)
+    np.testing.assert_allclose(la.svdvals(ind.T @ vecs[:, :2]), 1.0, atol=1e-10)
+
+
+def test_deterministic(generalized):
+    A, d, _, _ = generalized
+    for method in ("auto", "krylov", "arpack"):
+        v1, u1 = smallest_eigenpairs(A, 10, d, method=method)
+        v2, u2 = smallest_eigenpairs(A, 10, d, method=method)
+        assert np.array_equal(v1, v2) and np.array_equal(u1, u2), method
+
+
+def test_diagonal_vector_equals_diagonal_matrix(generalized):
+    A, d, _, _ = generalized
+    v1, u1 = smallest_eigenpairs(A, 8, d)
+    v2, u2 = smallest_eigenpairs(A, 8, sp.diags(d))
+    np.testing.assert_array_equal(v1, v2)
+    np.testing.assert_array_equal(u1, u2)
+
+
+def test_non_diagonal_mass_matrix():
+    n = 600
+    A = path_laplacian(n)
+    # consistent (tridiagonal) P1 mass of a uniform path: SPD, not diagonal
+    M = sp.csr_matrix(sp.diags([np.ones(n - 1), 4 * np.ones(n), np.ones(n - 1)], [-1, 0, 1]) / 6)
+    ref = la.eigh(A.toarray(), M.toarray(), eigvals_only=True)[:6]
+    vals, vecs = smallest_eigenpairs(A, 6, M)
+    np.testing.assert_allclose(vals[1:], ref[1:], rtol=1e-9)
+    np.testing.assert_allclose(vecs.T @ (M @ vecs), np.eye(6), atol=1e-10)
+
+
+def test_small_and_k_close_to_n_use_dense():
+    A = grid_laplacian(25, 26)  # n = 650
+    info: dict = {}
+    vals, vecs = smallest_eigenpairs(A, 600, info=info)
+    assert info["method"] == "dense"
+    np.testing.assert_allclose(vals, grid_eigenvalues(25, 26, 600), atol=1e-10)
+    np.testing.assert_allclose(vecs.T @ vecs, np.eye(600), atol=1e-10)
+    info = {}
+    vals, _ = smallest_eigenpairs(path_laplacian(50), 50, info=info)
+    assert info["method"] == "dense"
+    np.testing.assert_allclose(vals, 2 - 2 * np.cos(np.pi * np.arange(50) / 50), atol=1e-12)
+    with pytest.raises(ParameterError, match="too close"):
+        smallest_eigenpairs(A, 640, method="krylov")
+
+
+def test_auto_uses_block_krylov_on_cholmod(grid):
+    _, _, A = grid
+    info: dict = {}
+    smallest_eigenpairs(A, 10, info=info)
+    assert info["method"] == "krylov"
+    assert info["backend"] in ("cholmod", "splu")
+
+
+def test_splu_fallback_when_cholmod_unavailable(grid, monkeypatch):
+    import toolkit.eigen as eigen
+
+    def broken(_S):
+        raise ImportError("no cholespy")
+
+    monkeypatch.setattr(eigen, "_cholmod_solver", broken)
+    nx, ny, A = grid
+    info: dict = {}
+    vals, _ = smallest_eigenpairs(A, 6, info=info)
+    assert info["backend"] == "splu"
+    np.testing.assert_allclose(vals, grid_eigenvalues(nx, ny, 6), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("k", [0, -1, 2022, 2.5, True, "3", None])
+def test_bad_k_raises(grid, k):
+    _, _, A = grid
+    with pytest.raises(ParameterError):
+        smallest_eigenpairs(A, k)
+
+
+def test_bad_inputs_raise(grid):
+    _, _, A = grid
+    n = A.shape[0]
+    with pytest.raises(ParameterError, match="method"):
+        smallest_eigenpairs(A, 3, method="magic")
+    with pytest.raises(ParameterError, match="square"):
+        smallest_eigenpairs(A[:, :-1], 3)
+    with pytest.raises(ParameterError, match="symmetric"):
+        smallest_eigenpairs(A + sp.csr_matrix(([1.0], ([0], [5])), shape=A.shape), 3)
+    with pytest.raises(ParameterError, match="positive definite"):
+        smallest_eigenpairs(A, 3, -np.ones(n))
+    with pytest.raises(ParameterError, match="shape"):
+        smallest_eigenpairs(A, 3, np.ones(n + 1))
+    with pytest.raises(ParameterError, match="sigma"):
+        smallest_eigenpairs(A, 3, sigma=0.0)
+    bad = A.copy().astype(float)
+    bad.data[0] = np.nan
+    with pytest.raises(ParameterError, match="NaN"):
+        smallest_eigenpairs(bad, 3)
+
+
+@pytest.mark.parametrize("method", ["auto", "krylov", "arpack"])
+def test_indefinite_matrix_is_refused(grid, method):
+    _, _, A = grid
+    shifted = sp.csr_matrix(A - 0.5 * sp.identity(A.shape[0]))
+    with pytest.raises(ParameterError, match="positive"):
+        smallest_eigenpairs(shifted, 5, method=method)
+
+
+def test_non_convergence_raises_solver_error(grid):
+    _, _, A = grid
+    with pytest.raises(SolverError, match="converge"):
+        smallest_eigenpairs(A, 20, method="krylov", max_basis=28, block_size=4, max_restarts=1)
