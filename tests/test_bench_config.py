@@ -1,0 +1,115 @@
+"""Benchmark configs are validated before any work, and errors name the bad key."""
+
+from __future__ import annotations
+
+import textwrap
+
+import pytest
+
+from toolkit.bench.config import ConfigError, expand_grid, load_config, parse_config
+from toolkit.cli import main
+
+BASE = """
+[run]
+name = "t"
+random_state = 3
+[[datasets]]
+name = "synth"
+kind = "synthetic"
+params = { n_poses = 2, subdivisions = 2 }
+[[corruptions]]
+name = "noise"
+kind = "gaussian-noise"
+params = { strength = [0.1, 0.2] }
+[[tasks]]
+task = "segmentation"
+corruptions = ["none", "noise"]
+spectrum = { k = 8 }
+[[tasks.methods]]
+plugin = "spectral-clustering"
+preset = "luxburg-unnormalized"
+params = { n_segments = [3, 6] }
+"""
+
+
+def _write(tmp_path, text, name="c.toml"):
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text))
+    return p
+
+
+def test_valid_config_expands_grids(tmp_path):
+    cfg = load_config(_write(tmp_path, BASE))
+    assert cfg.name == "t" and cfg.random_state == 3
+    (task,) = cfg.tasks
+    assert [m.params["n_segments"] for m in task.methods] == [3, 6]
+    assert [c.name for c in task.corruptions] == ["none", "noise[strength=0.1]", "noise[strength=0.2]"]
+    assert [c.strength for c in task.corruptions] == [0.0, 0.1, 0.2]
+    assert len(cfg.datasets["synth"].refs) == 2
+
+
+def test_expand_grid_literal_lists():
+    assert expand_grid({"a": [1, 2], "b": "x"}) == [{"a": 1, "b": "x"}, {"a": 2, "b": "x"}]
+    assert expand_grid({"times": [[1, 2]]}) == [{"times": [1, 2]}]
+
+
+@pytest.mark.parametrize(
+    "old,new,key",
+    [
+        ('plugin = "spectral-clustering"', 'plugin = "no-such-method"', "tasks[0].methods[0].plugin"),
+        (
+            "params = { n_segments = [3, 6] }",
+            "params = { n_segmentz = 3 }",
+            "tasks[0].methods[0].params.n_segmentz",
+        ),
+        ('preset = "luxburg-unnormalized"', 'preset = "nope"', "tasks[0].methods[0].preset"),
+        ('kind = "gaussian-noise"', 'kind = "melt"', "corruptions[0].kind"),
+        ("params = { strength = [0.1, 0.2] }", "params = { sigma = 1 }", "corruptions[0].params.sigma"),
+        ('corruptions = ["none", "noise"]', 'corruptions = ["none", "fog"]', "tasks[0].corruptions[1]"),
+        ("spectrum = { k = 8 }", 'spectrum = { k = 8, weighting = "nope" }', "tasks[0].spectrum.weighting"),
+        ("spectrum = { k = 8 }", 'metrics = ["nope"]', "tasks[0].metrics[0]"),
+        ('task = "segmentation"', 'task = "painting"', "tasks[0].task"),
+        ('kind = "synthetic"', 'kind = "psb"\npath = "no/such/folder"', "datasets[0].path"),
+        ("[run]", "[runn]", "runn"),
+        ('name = "t"', 'name = "t"\nworkers = 2', "run.workers"),
+    ],
+)
+def test_bad_config_names_the_key(tmp_path, old, new, key):
+    assert old in BASE
+    with pytest.raises(ConfigError) as ei:
+        load_config(_write(tmp_path, BASE.replace(old, new, 1)))
+    assert ei.value.key == key, str(ei.value)
+    assert key in str(ei.value)
+
+
+def test_relative_paths_use_toolkit_data(tmp_path, monkeypatch):
+    data = tmp_path / "data"
+    (data / "shapes").mkdir(parents=True)
+    from toolkit.generate import icosphere
+    from toolkit.io import save_shape
+
+    save_shape(icosphere(1), data / "shapes" / "ball.off")
+    raw = {
+        "datasets": [{"name": "d", "kind": "folder", "path": "shapes"}],
+        "tasks": [{"task": "spectrum", "methods": [{"plugin": "cotangent"}], "spectrum": {"k": 5}}],
+    }
+    monkeypatch.setenv("TOOLKIT_DATA", str(data))
+    cfg = parse_config(raw)
+    assert cfg.datasets["d"].path == str(data / "shapes")
+    monkeypatch.delenv("TOOLKIT_DATA")
+    cfg = parse_config(raw, base=data)  # else relative to the config's folder
+    assert cfg.datasets["d"].path == str(data / "shapes")
+    with pytest.raises(ConfigError, match=r"datasets\[0\]\.path"):
+        parse_config(raw, base=tmp_path)
+
+
+def test_cli_bad_config_fails_before_work(tmp_path, capsys):
+    cfg = _write(tmp_path, BASE.replace('plugin = "spectral-clustering"', 'plugin = "nope"'))
+    run = tmp_path / "run"
+    assert main(["bench", "run", str(cfg), "-o", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert "tasks[0].methods[0].plugin" in err and "nope" in err
+    assert not run.exists()
+    bad = _write(tmp_path, "[[datasets]\n", "bad.toml")
+    assert main(["bench", "run", str(bad), "-o", str(run)]) == 2
+    assert "invalid TOML" in capsys.readouterr().err

@@ -1,0 +1,99 @@
+"""Dataset layouts: TOSCA-style pairs, PSB segmentations, plain folders, synthetic poses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from toolkit.datasets import (
+    folder_dataset,
+    load_item,
+    open_dataset,
+    psb_dataset,
+    synthetic_refs,
+    tosca_dataset,
+)
+from toolkit.errors import ParameterError, ShapeFileError
+from toolkit.generate import icosphere
+from toolkit.io import save_shape
+from toolkit.synthetic import synthetic_dataset
+
+
+def test_synthetic_poses_share_connectivity_and_labels():
+    poses = synthetic_dataset(3, subdivisions=2, random_state=4)
+    assert np.array_equal(poses[0].angles, np.zeros(5))
+    assert all(np.array_equal(p.shape.faces, poses[0].shape.faces) for p in poses)
+    assert all(np.array_equal(p.labels, poses[0].labels) for p in poses)
+    assert not np.allclose(poses[1].shape.vertices, poses[2].shape.vertices)
+    refs = synthetic_refs(3, subdivisions=2, random_state=4)
+    item = load_item(refs[1])
+    assert np.array_equal(item.shape.vertices, poses[1].shape.vertices)
+    assert np.array_equal(item.target.vertices, poses[2].shape.vertices)
+    assert np.array_equal(item.correspondence[:, 0], item.correspondence[:, 1])
+    assert np.array_equal(item.labels[0], poses[1].labels)
+
+
+def _write_tosca(root, names=("cat0", "cat1")):
+    (root / "corres").mkdir(parents=True)
+    s = icosphere(1)
+    for k, n in enumerate(names):
+        perm = np.roll(np.arange(s.n_vertices), k)  # vertex i of cat_k is vertex perm[i] of the sphere
+        inv = np.argsort(perm)
+        from toolkit.shape import Shape
+
+        save_shape(Shape(s.vertices[perm], inv[s.faces]), root / f"{n}.off")
+        # row j: the point that is sphere vertex j, 1-based
+        (root / "corres" / f"{n}.vts").write_text("\n".join(str(inv[j] + 1) for j in range(s.n_vertices)))
+    (root / "pairs.txt").write_text(f"{names[0]}\t{names[1]}\n")
+    return s
+
+
+def test_tosca_layout(tmp_path):
+    s = _write_tosca(tmp_path)
+    refs = tosca_dataset(tmp_path)
+    assert [r.name for r in refs] == ["cat0-cat1"]
+    item = load_item(refs[0])
+    a, b = item.correspondence[:, 0], item.correspondence[:, 1]
+    np.testing.assert_array_equal(item.shape.vertices[a], item.target.vertices[b])
+    assert item.shape.n_vertices == s.n_vertices
+    (tmp_path / "pairs.txt").write_text("cat0\tdog9\n")
+    with pytest.raises(ShapeFileError, match="missing"):
+        tosca_dataset(tmp_path)
+
+
+def test_psb_layout_and_folder(tmp_path):
+    s = icosphere(1)
+    (tmp_path / "off").mkdir()
+    (tmp_path / "seg" / "7").mkdir(parents=True)
+    save_shape(s, tmp_path / "off" / "7.off")
+    for k in range(2):
+        lab = (s.vertices[s.faces].mean(axis=1)[:, k] > 0).astype(int)
+        (tmp_path / "seg" / "7" / f"7_{k}.seg").write_text("\n".join(map(str, lab)))
+    refs = psb_dataset(tmp_path)
+    item = load_item(refs[0])
+    assert len(item.face_labels) == 2 and len(item.labels) == 2
+    assert item.labels[0].shape == (s.n_vertices,)
+    # vertices well inside a half take that half's label
+    inside = s.vertices[:, 0] > 0.5
+    assert np.all(item.labels[0][inside] == 1)
+    with pytest.raises(ParameterError):
+        open_dataset("nope", tmp_path)
+    folder = tmp_path / "plain"
+    folder.mkdir()
+    save_shape(s, folder / "ball.ply")
+    (folder / "ball.labels").write_text("\n".join("1" for _ in range(s.n_vertices)))
+    (folder / "notes.txt").write_text("x")
+    refs = folder_dataset(folder)
+    assert [r.name for r in refs] == ["ball"]
+    assert load_item(refs[0]).labels[0].sum() == s.n_vertices
+
+
+def test_shared_tosca_and_psb(shared_data):
+    refs = tosca_dataset(shared_data / "tosca5k")
+    assert len(refs) == 24
+    item = load_item(refs[0])
+    assert item.correspondence.shape == (5000, 2) and item.symmetric_correspondence is not None
+    p = psb_dataset(shared_data / "psb")
+    assert [r.name for r in p][:2] == ["1", "2"]
+    it = load_item(p[0])
+    assert len(it.face_labels) >= 2 and all(len(f) == it.shape.n_faces for f in it.face_labels)

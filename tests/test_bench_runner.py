@@ -1,0 +1,227 @@
+"""The benchmark runner: rows, resume without duplicates, failed rows, Dask == local, reports."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+
+import numpy as np
+import pytest
+
+from toolkit.bench.config import load_config
+from toolkit.bench.runner import read_rows, run_benchmark
+from toolkit.cli import main
+from toolkit.hookspecs import hookimpl
+from toolkit.interfaces import Segmenter
+from toolkit.registry import get_registry
+
+CONFIG = """
+[run]
+name = "unit"
+[[datasets]]
+name = "synth"
+kind = "synthetic"
+params = { n_poses = 3, subdivisions = 2 }
+[[corruptions]]
+name = "noise"
+kind = "gaussian-noise"
+params = { strength = [0.2] }
+[[tasks]]
+task = "spectrum"
+corruptions = ["none", "noise"]
+spectrum = { k = 6 }
+metrics = ["eigenvalues", "lambda2"]
+[[tasks.methods]]
+plugin = "gaussian"
+[[tasks.methods]]
+plugin = "cotangent"
+[[tasks]]
+task = "segmentation"
+name = "seg"
+spectrum = { k = 8 }
+metrics = ["n_segments", "segmentation"]
+[[tasks.methods]]
+plugin = "spectral-clustering"
+preset = "luxburg-unnormalized"
+params = { n_segments = [3, 6] }
+"""
+N_ROWS = 3 * 2 * 2 + 3 * 2
+
+
+@pytest.fixture
+def config_path(tmp_path):
+    p = tmp_path / "bench.toml"
+    p.write_text(textwrap.dedent(CONFIG))
+    return p
+
+
+def _check_row(r):
+    for key in (
+        "item",
+        "method",
+        "params",
+        "status",
+        "error",
+        "seconds",
+        "peak_memory_mb",
+        "metrics",
+        "versions",
+        "random_state",
+        "key",
+    ):
+        assert key in r, key
+
+
+def test_run_rows_and_resume_without_duplicates(config_path, tmp_path):
+    cfg = load_config(config_path)
+    run = tmp_path / "run"
+    s1 = run_benchmark(cfg, run, limit=1, progress=False)
+    assert (s1.rows, s1.reused, s1.failed) == (N_ROWS // 3, 0, 0)
+    rows = read_rows(run)
+    for r in rows:
+        _check_row(r)
+        assert r["status"] == "ok" and r["error"] is None
+    seg = [r for r in rows if r["task"] == "seg"]
+    assert {r["metrics"]["n_segments"] for r in seg} == {3, 6}
+    assert all(0 <= r["metrics"]["rand_index_error"] <= 1 for r in seg)
+    spec = [r for r in rows if r["task"] == "spectrum"]
+    assert all(r["metrics"]["eigenvalues"][0][1] < 1e-8 < r["metrics"]["lambda2"] for r in spec)
+    # the segmentation rows reuse the spectrum computed once by the prepare stage
+    assert all(r["spectrum_cache_hit"] for r in seg)
+
+    # simulate a crash mid-write: a torn last line is dropped and its row redone
+    text = (run / "results.jsonl").read_text()
+    (run / "results.jsonl").write_text(text + text.splitlines()[-1][:40])
+    s2 = run_benchmark(cfg, run, progress=False)
+    assert s2.reused == N_ROWS // 3 and s2.rows == N_ROWS - N_ROWS // 3
+    rows = read_rows(run)
+    keys = [r["key"] for r in rows]
+    assert len(keys) == len(set(keys)) == N_ROWS
+    s3 = run_benchmark(cfg, run, progress=False)
+    assert (s3.rows, s3.reused) == (0, N_ROWS)
+    assert len(read_rows(run)) == N_ROWS
+
+
+class _Flaky(Segmenter):
+    """Fails on pose1, else one segment."""
+
+    def __init__(self, n_segments: int = 2):
+        self.n_segments = n_segments
+
+    def segment(self, shape, *, spectrum=None, constraints=None):
+        if shape.name == "pose1":
+            raise RuntimeError("flaky segmenter refuses pose1")
+        return np.zeros(shape.n_vertices, dtype=np.int64)
+
+
+class _FlakyPlugin:
+    @hookimpl
+    def toolkit_segmenters(self):
+        return {"flaky-test": _Flaky}
+
+
+@pytest.fixture
+def flaky():
+    reg = get_registry()
+    reg.register(_FlakyPlugin(), name="flaky-test")
+    yield
+    reg.pm.unregister(name="flaky-test")
+    reg._table = None
+
+
+def test_failed_rows_are_recorded_and_run_goes_on(config_path, tmp_path, flaky, capsys):
+    text = config_path.read_text().replace(
+        'plugin = "spectral-clustering"\npreset = "luxburg-unnormalized"\nparams = { n_segments = [3, 6] }',
+        'plugin = "flaky-test"',
+    )
+    config_path.write_text(text)
+    run = tmp_path / "run"
+    assert main(["bench", "run", str(config_path), "-o", str(run), "--json", "--no-progress"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["failed"] == 1 and summary["rows"] == 3 * 2 * 2 + 3 and summary["reused"] == 0
+    failed = [r for r in read_rows(run) if r["status"] == "failed"]
+    assert len(failed) == 1 and failed[0]["item"] == "pose1"
+    assert "flaky segmenter refuses pose1" in failed[0]["error"]
+    # resume: failed rows count as done unless asked to retry
+    assert main(["bench", "run", str(config_path), "-o", str(run), "--json", "--no-progress"]) == 0
+    assert json.loads(capsys.readouterr().out)["reused"] == summary["rows"]
+    assert (
+        main(["bench", "run", str(config_path), "-o", str(run), "--json", "--no-progress", "--retry-failed"])
+        == 0
+    )
+    again = json.loads(capsys.readouterr().out)
+    assert again["rows"] == 1 and again["failed"] == 1
+    assert len(read_rows(run)) == summary["rows"]
+
+    assert main(["bench", "report", str(run), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    html = (run / "report" / "index.html").read_text()
+    assert out["figures"] and "data:image/png;base64," in html
+    assert "flaky segmenter refuses pose1" in html
+    assert "http://" not in html and "https://" not in html  # self-contained
+
+
+def test_dask_local_cluster_matches_local_run(config_path, tmp_path):
+    pytest.importorskip("distributed")
+    cfg = load_config(config_path)
+    local = run_benchmark(cfg, tmp_path / "local", limit=1, progress=False)
+    dask = run_benchmark(cfg, tmp_path / "dask", limit=1, workers=2, progress=False)
+    assert local.rows == dask.rows == N_ROWS // 3 and dask.failed == 0
+    a = {r["key"]: r for r in read_rows(tmp_path / "local")}
+    b = {r["key"]: r for r in read_rows(tmp_path / "dask")}
+    assert a.keys() == b.keys()
+    for k in a:
+        ma, mb = a[k]["metrics"], b[k]["metrics"]
+        assert ma.keys() == mb.keys()
+        for m in ma:
+            np.testing.assert_allclose(
+                np.asarray(ma[m], float), np.asarray(mb[m], float), rtol=1e-6, atol=1e-9
+            )
+    assert len({r["worker"] for r in b.values()}) >= 1
+
+
+MATCHING = """
+[[datasets]]
+name = "synth"
+kind = "synthetic"
+params = { n_poses = 2, subdivisions = 2 }
+[[corruptions]]
+kind = "holes"
+params = { strength = 2, radius = 0.1 }
+[[tasks]]
+task = "matching"
+corruptions = ["none", "holes"]
+spectrum = { k = 10 }
+metrics = ["geodesic_error", "coverage", "label_transfer"]
+options = { geodesic_method = "dijkstra" }
+[[tasks.methods]]
+plugin = "eigvec-alignment"
+[[tasks]]
+task = "keypoints"
+spectrum = { k = 14 }
+metrics = ["n_keypoints", "repeatability"]
+[[tasks.methods]]
+plugin = "adf-maxima"
+"""
+
+
+def test_matching_and_keypoint_rows_with_report(tmp_path):
+    p = tmp_path / "m.toml"
+    p.write_text(MATCHING)
+    cfg = load_config(p)
+    run = tmp_path / "run"
+    s = run_benchmark(cfg, run, limit=1, progress=False)
+    rows = read_rows(run)
+    assert s.failed == 0, [r["error"] for r in rows]
+    m = [r for r in rows if r["task"] == "matching"]
+    assert len(m) == 2
+    for r in m:
+        curve = np.asarray(r["metrics"]["geodesic_error_curve"])
+        assert np.all(np.diff(curve[:, 1]) >= 0) and 0 <= curve[-1, 1] <= 1
+        assert 0 < r["metrics"]["target_coverage"] <= 1
+    k = [r for r in rows if r["task"] == "keypoints"]
+    assert k[0]["metrics"]["n_keypoints"] > 0 and "repeatability_curve" in k[0]["metrics"]
+    res = main(["bench", "report", str(run)])
+    assert res == 0
+    figs = list((run / "report" / "figures").glob("*.png"))
+    assert any("render" in f.name for f in figs) and any("geodesic_error_curve" in f.name for f in figs)
