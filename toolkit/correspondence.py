@@ -24,7 +24,6 @@ __all__ = [
     "from_pairs",
     "transfer_function",
     "transfer_labels",
-    "pull_back_function",
     "save_map",
     "load_map",
     "nearest_neighbors",
@@ -37,7 +36,9 @@ class Correspondence:
 
     ``target_of`` int64 ``(n_src,)``: target vertex of each source vertex, ``-1`` when unmatched.
     ``confidence`` float64 ``(n_src,)`` or None (higher is more certain; NaN where unmatched is fine).
-    ``posteriors`` CSR ``(n_src, n_tgt)`` or None: soft assignment ``P(target j | source i)``.
+    ``posteriors`` CSR ``(n_src, n_tgt)`` or None: non-negative soft assignment; entry ``(i, j)`` is
+    the probability that source ``i`` and target ``j`` correspond (EM registration stores
+    ``P(source i | target j)``, so its columns sum to at most 1; ``info`` says which).
     """
 
     target_of: np.ndarray
@@ -164,56 +165,86 @@ def from_pairs(
     return Correspondence(t, n_target, conf)
 
 
+def _check_side(to: str) -> None:
+    if to not in ("target", "source"):
+        raise ParameterError(f"to must be 'target' or 'source', got {to!r}")
+
+
 def transfer_function(
-    corr: Correspondence, f_target: np.ndarray, *, soft: bool = False, fill: float = np.nan
+    corr: Correspondence, values: np.ndarray, *, to: str = "target", soft: bool = False,
+    fill: float = np.nan,
 ) -> np.ndarray:
-    """Pull a function on the target ``(n_tgt,)`` or ``(n_tgt, d)`` back to the source:
-    ``g(i) = f(target_of[i])`` (``fill`` where unmatched) or, with ``soft``, the posterior-weighted
-    mean ``sum_j P_ij f_j / sum_j P_ij``."""
-    f = np.asarray(f_target, dtype=np.float64)
-    if f.shape[0] != corr.n_target:
-        raise ParameterError(f"the function has {f.shape[0]} values, the target {corr.n_target}")
+    """Carry a function ``(n, ...)`` across the map.
+
+    ``to="target"``: values live on the source; target vertex ``j`` gets the value of the source
+    vertex mapped onto it (the most confident one if several), or with ``soft`` the mean weighted
+    by column ``j`` of the posteriors. ``to="source"``: values live on the target; source vertex
+    ``i`` gets ``values[target_of[i]]``, or with ``soft`` the mean weighted by row ``i``.
+    ``fill`` where nothing maps (no match or no posterior mass).
+    """
+    _check_side(to)
+    f = np.asarray(values, dtype=np.float64)
+    n_in, n_out = (corr.n_source, corr.n_target) if to == "target" else (corr.n_target, corr.n_source)
+    if f.ndim == 0 or f.shape[0] != n_in:
+        raise ParameterError(
+            f"the function has {f.shape[0] if f.ndim else 0} values, the "
+            f"{'source' if to == 'target' else 'target'} shape {n_in} vertices"
+        )
     if soft:
         P = corr.soft()
+        P = P.T.tocsr() if to == "target" else P
         mass = np.asarray(P.sum(axis=1)).ravel()
-        out = P @ f
+        out = np.asarray(P @ f, dtype=np.float64)
         with np.errstate(invalid="ignore", divide="ignore"):
-            out = out / (mass if f.ndim == 1 else mass[:, None])
+            out = out / (mass if f.ndim == 1 else mass.reshape((-1,) + (1,) * (f.ndim - 1)))
         out[mass <= 0] = fill
         return out
-    out = np.full((corr.n_source,) + f.shape[1:], fill, dtype=np.float64)
-    m = corr.matched
-    out[m] = f[corr.target_of[m]]
+    out = np.full((n_out,) + f.shape[1:], fill, dtype=np.float64)
+    if to == "source":
+        m = corr.matched
+        out[m] = f[corr.target_of[m]]
+    else:
+        inv = corr.inverse()
+        m = inv.matched
+        out[m] = f[inv.target_of[m]]
     return out
 
 
-pull_back_function = transfer_function
-
-
 def transfer_labels(
-    corr: Correspondence, labels_target: np.ndarray, *, soft: bool = False, unmatched: int = -1
+    corr: Correspondence, labels: np.ndarray, *, to: str = "target", soft: bool = False,
+    unmatched: int = -1,
 ) -> np.ndarray:
-    """Labels of the target ``(n_tgt,)`` carried to the source ``(n_src,)`` int64: the label of the
-    matched vertex, or with ``soft`` the label of highest posterior mass (eq. 5.7-5.9, labels as
-    hard assignments eq. 5.8); ``unmatched`` where there is no match or no mass."""
-    lab = np.asarray(labels_target)
-    if lab.shape != (corr.n_target,):
-        raise ParameterError(f"labels must have shape ({corr.n_target},), got {lab.shape}")
+    """Carry integer labels across the map (``to`` as in :func:`transfer_function`).
+
+    Hard: the label of the matched vertex. Soft (probabilistic label transfer, eq. 5.7-5.9 with
+    the labels as hard assignments, eq. 5.8): the label of largest posterior mass
+    ``argmax_l sum_j p_ij delta_jl``. ``unmatched`` where nothing maps; negative input labels
+    mean "unlabelled" and never win.
+    """
+    _check_side(to)
+    lab = np.asarray(labels)
+    n_in, n_out = (corr.n_source, corr.n_target) if to == "target" else (corr.n_target, corr.n_source)
+    if lab.shape != (n_in,):
+        raise ParameterError(f"labels must have shape ({n_in},), got {lab.shape}")
+    if lab.size and not np.issubdtype(lab.dtype, np.integer):
+        if not np.all(np.equal(np.mod(lab, 1), 0)):
+            raise ParameterError("labels must be integers")
     lab = lab.astype(np.int64)
     if not soft:
-        out = np.full(corr.n_source, unmatched, dtype=np.int64)
-        m = corr.matched
-        out[m] = lab[corr.target_of[m]]
+        idx = transfer_function(corr, np.arange(n_in, dtype=np.float64), to=to, fill=-1.0)
+        out = np.full(n_out, unmatched, dtype=np.int64)
+        ok = idx >= 0
+        out[ok] = lab[idx[ok].astype(np.int64)]
         return out
     valid = lab >= 0
     values, inv = np.unique(lab[valid], return_inverse=True)
     if values.size == 0:
-        return np.full(corr.n_source, unmatched, dtype=np.int64)
-    cols = np.flatnonzero(valid)
-    onehot = sp.csr_matrix(
-        (np.ones(cols.size), (cols, inv)), shape=(corr.n_target, values.size)
-    )
-    votes = (corr.soft() @ onehot).toarray()  # (n_src, n_labels): small
+        return np.full(n_out, unmatched, dtype=np.int64)
+    rows = np.flatnonzero(valid)
+    onehot = sp.csr_matrix((np.ones(rows.size), (rows, inv)), shape=(n_in, values.size))
+    P = corr.soft()
+    P = P.T.tocsr() if to == "target" else P
+    votes = np.asarray((P @ onehot).todense())  # (n_out, n_labels): labels are few
     best = votes.argmax(axis=1)
     out = values[best].astype(np.int64)
     out[votes.max(axis=1) <= 0] = unmatched

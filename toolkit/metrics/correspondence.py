@@ -180,16 +180,15 @@ def r_smoothness(
     matched = ids[t[ids] >= 0]
     if matched.size == 0:
         return 0.0
-    nei_s = relative_geodesic_neighbourhood(source, matched, r / 100.0, method=method)
-    nei_t = relative_geodesic_neighbourhood(target, t[matched], r / 100.0, method=method)
     smooth = 0
-    for a, b in zip(nei_s, nei_t):
-        img = t[np.asarray(a, dtype=np.int64)]
+    for i in matched:
+        a = relative_geodesic_neighbourhood(source, int(i), r, method=method)
+        b = relative_geodesic_neighbourhood(target, int(t[i]), r, method=method)
+        img = t[a]
         img = img[img >= 0]
         if img.size == 0:
             continue
-        inside = np.isin(img, np.asarray(b, dtype=np.int64)).mean()
-        smooth += inside >= theta - 1e-12
+        smooth += np.isin(img, b).mean() >= theta - 1e-12
     return float(smooth / ids.size)
 
 
