@@ -38,28 +38,31 @@ DEFAULT_THRESHOLDS = np.round(np.linspace(0.0, 0.25, 26), 6)
 def paired_geodesic_distances(
     shape: Shape, a: np.ndarray, b: np.ndarray, *, method: str = "exact", chunk: int = 128
 ) -> np.ndarray:
-    """Geodesic distances ``d(a_i, b_i)`` on ``shape`` for paired vertex ids ``(p,)`` (length
-    units), computed one row per distinct ``a`` in chunks (memory ``chunk * n``)."""
+    """Geodesic distances ``d(a_i, b_i)`` on ``shape`` for vertex ids ``a`` ``(p,)`` and ``b``
+    ``(p,)`` or ``(p, r)`` (``r`` partners per ``a_i``, e.g. the images of several maps), same
+    shape as ``b``, in length units. One distance row per distinct ``a``, computed in chunks
+    (memory ``chunk * n``)."""
     from ..geodesics import geodesic_distances
 
     a = np.asarray(a, dtype=np.int64).ravel()
-    b = np.asarray(b, dtype=np.int64).ravel()
-    if a.shape != b.shape:
-        raise ParameterError(f"paired ids must have equal lengths, got {a.size} and {b.size}")
+    b = np.asarray(b, dtype=np.int64)
+    b2 = b.reshape(b.shape[0], -1) if b.ndim else b.reshape(1, 1)
+    if b2.shape[0] != a.size:
+        raise ParameterError(f"paired ids must have equal lengths, got {a.size} and {b2.shape[0]}")
     n = shape.n_vertices
-    for name, ids in (("a", a), ("b", b)):
+    for name, ids in (("a", a), ("b", b2)):
         if ids.size and (ids.min() < 0 or ids.max() >= n):
             raise ParameterError(f"vertex ids {name} must lie in [0, {n - 1}]")
-    out = np.empty(a.size)
+    out = np.empty(b2.shape)
     uniq, inv = np.unique(a, return_inverse=True)
     order = np.argsort(inv, kind="stable")
     bounds = np.searchsorted(inv[order], np.arange(uniq.size + 1))
     for s in range(0, uniq.size, chunk):
-        rows = np.asarray(geodesic_distances(shape, uniq[s : s + chunk], method=method))
+        rows = np.asarray(geodesic_distances(shape, uniq[s : s + chunk], method=method, cache=False))
         for r in range(rows.shape[0]):
             sel = order[bounds[s + r] : bounds[s + r + 1]]
-            out[sel] = rows[r, b[sel]]
-    return out
+            out[sel] = rows[r][b2[sel]]
+    return out.reshape(b.shape)
 
 
 def check_truth(
@@ -108,12 +111,12 @@ def geodesic_errors(
     ok = pred >= 0
     err = np.full(ts.size, np.inf)
     if ok.any():
-        a = np.concatenate([td[ok]] + ([np.asarray(truth_dst_sym)[ok]] if truth_dst_sym is not None else []))
-        b = np.concatenate([pred[ok]] * (2 if truth_dst_sym is not None else 1))
-        d = paired_geodesic_distances(target, a, b, method=method)
-        if truth_dst_sym is not None:
-            d = np.minimum(d[: ok.sum()], d[ok.sum() :])
-        err[ok] = d
+        # rows from the predicted vertices serve both the true and the symmetric partner
+        partners = td[ok] if truth_dst_sym is None else np.column_stack(
+            [td[ok], np.asarray(truth_dst_sym, dtype=np.int64)[ok]]
+        )
+        d = paired_geodesic_distances(target, pred[ok], partners, method=method)
+        err[ok] = d if d.ndim == 1 else d.min(axis=1)
     if normalize:
         err = err / np.sqrt(target.area)
     return err
