@@ -304,6 +304,16 @@ def _arpack(
     return vals, vecs
 
 
+def _rayleigh_quotients(A: sp.csr_matrix, U: np.ndarray) -> np.ndarray:
+    """``diag(U^T A U)``, ``(k,)``, computed by column blocks (no ``(n, k)`` temporary)."""
+    k = U.shape[1]
+    out = np.empty(k)
+    for c in range(0, k, 16):
+        blk = U[:, c : c + 16]
+        out[c : c + 16] = np.einsum("ij,ij->j", blk, A @ blk)
+    return out
+
+
 def _fix_signs(U: np.ndarray) -> np.ndarray:
     """Make the largest-magnitude entry of each column positive (reproducible signs)."""
     idx = np.argmax(np.abs(U), axis=0)
@@ -332,16 +342,27 @@ def smallest_eigenpairs(
     (usually diagonal) ``(n, n)`` matrix or a positive ``(n,)`` vector of its diagonal. Returns
     eigenvalues ``(k,)`` ascending and eigenvectors ``(n, k)``, M-orthonormal
     (``U.T @ M @ U = I``), each signed so that its largest-magnitude entry is positive.
+    Deterministic: the same call gives bit-identical results.
 
-    ``method``: ``"dense"`` (LAPACK, small ``n``), ``"krylov"`` (shift-invert block Krylov-Schur on
-    a CHOLMOD factor; the fastest for large sparse problems), ``"arpack"`` (``eigsh`` shift-invert
-    with the CHOLMOD factor as operator), ``"arpack-splu"`` (``eigsh`` shift-invert with SuperLU,
-    what most peers do) or ``"auto"`` (dense for ``n <= 500`` or ``k`` close to ``n``, else
-    ``"krylov"``). A missing or failing CHOLMOD falls back to SuperLU. ``tol`` is the relative
-    residual of the shift-inverted eigenproblem (ARPACK's meaning); the eigenvalues returned are
-    Rayleigh quotients, whose relative error is about ``tol**2`` times a gap ratio.
-    ``sigma`` (default ``-1e-8 * max(diag(A) / diag(M))``) must be negative. ``info``, if given,
-    is filled with what was done (method, factorization backend, operator applications).
+    ``method``:
+
+    - ``"krylov"``: shift-invert block Krylov-Schur on a CHOLMOD factor of ``A - sigma M``
+      (non-diagonal ``M``: ARPACK with that factor); the fastest for large sparse problems.
+    - ``"arpack"``: ``scipy.sparse.linalg.eigsh`` shift-invert with the CHOLMOD factor.
+    - ``"arpack-splu"``: ``eigsh`` shift-invert with SuperLU, what most peers do.
+    - ``"dense"``: LAPACK on a dense copy (``n <= DENSE_LIMIT_N``).
+    - ``"auto"``: ``"dense"`` for ``n <= DENSE_MAX_N`` or ``3 k >= n``, else ``"krylov"``.
+
+    CHOLMOD comes from the ``cholespy`` wheel; if it is missing or fails, SuperLU is used. ``tol``
+    is the relative residual of the shift-inverted problem (ARPACK's meaning; 0 = as tight as the
+    method can), which bounds the relative eigenvalue error; the eigenvalues returned by
+    ``"krylov"`` are Rayleigh quotients, whose error is in practice about ``tol**2``.
+    ``sigma`` (default ``-1e-8 * max(diag(A) / diag(M))``) must be negative. ``block_size``,
+    ``max_basis`` and ``max_restarts`` tune ``"krylov"``. ``info``, if given, is filled with what
+    was done (method, factorization backend, operator applications, restarts).
+
+    Raises :class:`ParameterError` for a bad ``k`` or input (including an ``A`` found not to be
+    PSD) and :class:`SolverError` when the iteration does not converge.
     """
     info = {} if info is None else info
     if method not in METHODS:
@@ -429,10 +450,10 @@ def smallest_eigenpairs(
             op, n, k, tol=max(tol, KRYLOV_MIN_TOL), block=b, max_basis=m, max_restarts=max_restarts
         )
         info.update(stats, block_size=b, max_basis=m)
-        vecs = Y / sqc
+        vecs = Y
+        vecs /= sqc  # in place: the (n, k) blocks are the memory peak after the basis
         lam_theta = sigma + 1.0 / theta
-        AU = A @ vecs
-        vals = np.einsum("ij,ij->j", vecs, AU)  # Rayleigh quotients (U^T M U = I)
+        vals = _rayleigh_quotients(A, vecs)
         # the Rayleigh quotient and the Ritz value must agree: else the solves were inaccurate
         bad = np.abs(vals - lam_theta) > 1e-3 * (np.abs(lam_theta) + abs(sigma))
         if bad.any():
@@ -441,7 +462,8 @@ def smallest_eigenpairs(
                 "is A symmetric positive semi-definite?"
             )
         order = np.argsort(vals, kind="stable")
-        vals, vecs = vals[order], vecs[:, order]
+        if np.any(order != np.arange(k)):
+            vals, vecs = vals[order], vecs[:, order]
     if vals[0] < sigma:
         raise ParameterError(
             f"A is not positive semi-definite (found eigenvalue {vals[0]:.3e} < sigma={sigma:.3e})"
