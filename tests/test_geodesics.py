@@ -145,3 +145,17 @@ def test_relative_geodesic_neighbourhood(sphere3):
     assert np.all(np.diff(d[nb]) >= 0)
     assert g.relative_geodesic_neighbourhood(sphere3, 17, 100.0).size == n
     assert g.relative_geodesic_neighbourhood(sphere3, 17, 0.01).tolist() == [17]
+
+
+@pytest.mark.parametrize("method", g.GEODESIC_METHODS)
+def test_other_components_are_unreachable(method):
+    a = icosphere(2)
+    n = a.n_vertices
+    two = Shape(np.r_[a.vertices, a.vertices + [5.0, 0, 0]], np.r_[a.faces, a.faces + n])
+    d = g.geodesic_distances(two, [0, n + 1], method=method)
+    assert np.all(np.isinf(d[0, n:])) and np.all(np.isfinite(d[0, :n]))
+    assert np.all(np.isinf(d[1, :n])) and np.all(np.isfinite(d[1, n:]))
+    near = g.geodesic_distance_to_set(two, [0, n + 1], method=method)
+    assert np.all(np.isfinite(near))
+    np.testing.assert_allclose(near[:n], d[0, :n], rtol=0.1, atol=0.05)
+    np.testing.assert_allclose(near[n:], d[1, n:], rtol=0.1, atol=0.05)

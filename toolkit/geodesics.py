@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 from scipy.sparse.csgraph import dijkstra as _csgraph_dijkstra
 
 from .errors import InvalidShapeError, ParameterError, SolverError
@@ -120,6 +121,14 @@ def _edge_graph(shape: Shape) -> sp.csr_matrix:
     return G.tocsr()
 
 
+def _components(shape: Shape) -> np.ndarray:
+    """Connected-component label ``(n,)`` of every vertex (mesh edges / kNN graph), cached."""
+    key = (shape.content_hash, "components")
+    if key not in _SOLVERS:
+        _SOLVERS[key] = connected_components(_edge_graph(shape), directed=False)[1]
+    return _SOLVERS[key]
+
+
 def _compute_rows(shape: Shape, sources: np.ndarray, method: str) -> np.ndarray:
     n = shape.n_vertices
     solver = _solver(shape, method)
@@ -127,6 +136,7 @@ def _compute_rows(shape: Shape, sources: np.ndarray, method: str) -> np.ndarray:
     if method == "dijkstra":
         out[:] = _csgraph_dijkstra(solver, directed=False, indices=sources)
         return out
+    labels = _components(shape)
     for r, s in enumerate(sources):
         if method == "exact":
             V, F = solver
@@ -142,6 +152,7 @@ def _compute_rows(shape: Shape, sources: np.ndarray, method: str) -> np.ndarray:
             d = np.asarray(solver.compute_distance(int(s)), dtype=np.float64).ravel()
         if d.shape != (n,):
             raise SolverError(f"{method} geodesics returned {d.shape[0]} values for {n} vertices")
+        d[labels != labels[s]] = np.inf  # libigl says 0 and the heat method guesses there
         out[r] = d
     return out
 
@@ -214,17 +225,25 @@ def geodesic_distance_to_set(
         raise ParameterError("geodesic_distance_to_set needs at least one source vertex")
     solver = _solver(shape, method)
     if method == "dijkstra":
-        d = _csgraph_dijkstra(solver, directed=False, indices=src, min_only=True)
-    elif method == "fmm":
-        d = solver.compute_distance([[(int(s), [])] for s in src])
-    elif method == "heat":
-        d = solver.compute_distance_multisource([int(s) for s in src])
-    else:
-        import igl
+        d = np.asarray(_csgraph_dijkstra(solver, directed=False, indices=src, min_only=True))
+        d[src] = 0.0
+        return d
+    labels = _components(shape)
+    d = np.full(n, np.inf)
+    for comp in np.unique(labels[src]):  # one solve per component that holds sources
+        group = src[labels[src] == comp]
+        if method == "fmm":
+            part = solver.compute_distance([[(int(s), [])] for s in group])
+        elif method == "heat":
+            part = solver.compute_distance_multisource([int(s) for s in group])
+        else:
+            import igl
 
-        V, F = solver
-        d = igl.exact_geodesic(V, F, VS=src, VT=np.arange(n, dtype=np.int64))
-    d = np.asarray(d, dtype=np.float64).ravel()
+            V, F = solver
+            part = igl.exact_geodesic(V, F, VS=group, VT=np.arange(n, dtype=np.int64))
+        part = np.asarray(part, dtype=np.float64).ravel()
+        inside = labels == comp
+        d[inside] = np.minimum(d[inside], part[inside])
     d[src] = 0.0
     return d
 
