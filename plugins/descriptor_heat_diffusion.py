@@ -20,6 +20,8 @@ class HeatDiffusionDescriptor(Descriptor):
     ``times`` None: ``n_times`` scales from the scree rule (``alpha(K, t_1) = alpha``,
     ``t_i = t_1 time_ratio^(i-1)``, section 7.3.1). Spectrum default: ``2K + 1`` eigenpairs of the
     Gaussian-weighted combinatorial Laplacian, ``K = 25``. Needs ``keypoints``.
+    To compare two shapes, give both the same ``times`` (and each its ``K``) from
+    :func:`toolkit.heat.pair_times`: the default times follow each shape's own spectrum.
     """
 
     def __init__(

@@ -20,6 +20,8 @@ class HeatDistanceDescriptor(Descriptor):
     ``normalization`` picks the metric (:data:`toolkit.heat.NORMALIZATIONS`); the thesis uses the
     unit hyper-sphere distance of eq. 6.43 (the default). Times and spectrum defaults as for
     ``heat-diffusion`` (scree rule with ``K = 25``, section 7.3.1). Needs ``keypoints``.
+    To compare two shapes, give both the same ``times`` (and each its ``K``) from
+    :func:`toolkit.heat.pair_times`: the default times follow each shape's own spectrum.
     """
 
     def __init__(

@@ -375,3 +375,12 @@ def test_dense_refusal_on_large_shapes():
     with pytest.raises(ParameterError, match="refusing"):
         heat.heat_kernel(S, 1.0, dense_ok=True)
     assert heat.heat_kernel(S, 1.0, rows=[0, 1]).shape == (1, 2, n)
+
+
+def test_pair_times_share_scales():
+    S1 = _full_spectrum(_random_graph(30, seed=14))
+    S2 = _full_spectrum(_random_graph(30, seed=15))
+    times, K1, K2 = heat.pair_times(S1, S2, K=5, n_times=4)
+    np.testing.assert_allclose(times, heat.multiscale_times(S1, 4, 5))
+    assert K1 == 5 and K2 == heat.dimension_for_time(S2, times[0])
+    assert heat.scree_alpha(S2, K2, times[0]) >= 0.95 - 1e-9

@@ -56,6 +56,7 @@ __all__ = [
     "min_time_for_dimension",
     "dimension_for_time",
     "pair_scale",
+    "pair_times",
     "descriptor_matching_score",
     "shape_spectrum",
     "multiscale_times",
@@ -485,6 +486,18 @@ def pair_scale(
     returns ``(t, K')``."""
     t = min_time_for_dimension(first, K, alpha, n=n_first)
     return t, dimension_for_time(second, t, alpha, n=n_second)
+
+
+def pair_times(
+    first: Spectrum, second: Spectrum, K: int = 25, n_times: int = 5, *, alpha: float = 0.95,
+    ratio: float = 2.0,
+) -> tuple[np.ndarray, int, int]:
+    """Common descriptor times for matching two shapes (section 7.3.1): ``t_1`` from ``K`` on the
+    first shape, ``t_i = t_1 ratio^(i-1)``, and the second shape's ``K'`` for ``t_1``; returns
+    ``(times (n_times,), K, K')``. Pass ``times`` and ``K``/``K'`` to the ``heat-distance`` /
+    ``heat-diffusion`` plugins of each shape so that both use the same scales."""
+    times = multiscale_times(first, n_times, K, alpha=alpha, ratio=ratio)
+    return times, int(K), dimension_for_time(second, float(times[0]), alpha)
 
 
 # -- descriptor matching (6.6.4) ---------------------------------------------------------------
