@@ -198,7 +198,7 @@ def association_graph(
     *,
     k: int = 20,
     time: float | None = None,
-    sigma: float = 0.15,
+    sigma: float = 0.3,
     adf_ratio: float = 2.0,
     max_candidates: int = 8,
 ) -> AssociationGraph:

@@ -72,10 +72,14 @@ def orientation_operators(
         ]
     )  # (3, m, d)
     d = rot.shape[2]
-    ops = np.zeros((k * d, k))
-    for x in range(3):  # sum over faces as one BLAS product per coordinate
-        ops += (phi_face[:, :, None] * rot[x][:, None, :]).reshape(m, k * d).T @ gphi[x]
-    ops = ops.reshape(k, d, k).transpose(1, 0, 2)
+    ops = np.zeros((d, k, k))
+    step = max(1, 2_000_000 // max(1, m * k))  # descriptors per block: memory ~ 16 MB
+    for s in range(0, d, step):
+        e = min(d, s + step)
+        acc = np.zeros((k * (e - s), k))
+        for x in range(3):  # sum over faces as one BLAS product per coordinate
+            acc += (phi_face[:, :, None] * rot[x][:, None, s:e]).reshape(m, -1).T @ gphi[x]
+        ops[s:e] = acc.reshape(k, e - s, k).transpose(1, 0, 2)
     # gradients carry 1/length: rescale to the unit-area normalization of the basis
     return ops * total
 

@@ -93,7 +93,7 @@ class SeedGrowingMatcher(DenseMatcher):
 
     def __init__(
         self,
-        beta: float = 0.25,
+        beta: float = 0.6,
         ring: int = 2,
         descriptor: str = "heat-distance",
         descriptor_params: dict | None = None,

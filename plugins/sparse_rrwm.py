@@ -32,7 +32,7 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
         self,
         k: int = 20,
         time: float | None = None,
-        sigma: float = 0.15,
+        sigma: float = 0.3,
         adf_ratio: float = 2.0,
         max_candidates: int = 8,
         min_score: float = 0.05,

@@ -291,7 +291,7 @@ def load_map(
 
 
 def nearest_neighbors(
-    points: np.ndarray, queries: np.ndarray, k: int = 1, *, chunk: int = 2048
+    points: np.ndarray, queries: np.ndarray, k: int = 1, *, chunk: int = 1024
 ) -> tuple[np.ndarray, np.ndarray]:
     """Euclidean ``k`` nearest ``points`` ``(n, d)`` of each query ``(q, d)``: squared distances
     and indices ``(q, k)`` (``(q,)`` when k == 1). KD-tree in low dimension, chunked BLAS brute
