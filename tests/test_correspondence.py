@@ -1,0 +1,188 @@
+"""Correspondence data type, transfers, map files and correspondence metrics on hand-made cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from toolkit.correspondence import (
+    Correspondence,
+    from_pairs,
+    load_map,
+    nearest_neighbors,
+    save_map,
+    transfer_function,
+    transfer_labels,
+)
+from toolkit.errors import ParameterError, ShapeFileError
+from toolkit.generate import icosphere
+from toolkit.metrics import (
+    correspondence_report,
+    error_curve,
+    geodesic_errors,
+    label_transfer_scores,
+    paired_geodesic_distances,
+    r_smoothness,
+    target_coverage,
+)
+
+
+@pytest.fixture(scope="module")
+def ico():
+    return icosphere(3)
+
+
+def test_validation_rejects_out_of_range():
+    with pytest.raises(ParameterError):
+        Correspondence(np.array([0, 5]), 3)
+    with pytest.raises(ParameterError):
+        Correspondence(np.array([0, -2]), 3)
+    with pytest.raises(ParameterError):
+        Correspondence(np.array([0, 1]), 3, confidence=np.ones(3))
+    with pytest.raises(ParameterError):
+        Correspondence(np.array([0, 1]), 3, posteriors=sp.csr_matrix((3, 3)))
+
+
+def test_save_load_round_trip(tmp_path):
+    c = Correspondence(np.array([2, -1, 0, 2]), 3)
+    p = tmp_path / "map.txt"
+    save_map(p, c)
+    assert p.read_text().split() == ["2", "-1", "0", "2"]
+    back = load_map(p, 4, 3)
+    np.testing.assert_array_equal(back.target_of, c.target_of)
+    assert back.n_matched == 3
+    with pytest.raises(ShapeFileError, match="entries"):
+        load_map(p, 5, 3)
+    with pytest.raises(ShapeFileError, match="out of range"):
+        load_map(p, 4, 2)
+    (tmp_path / "bad.txt").write_text("1\n-3\n")
+    with pytest.raises(ShapeFileError):
+        load_map(tmp_path / "bad.txt")
+
+
+def test_transfer_through_identity_and_permutation():
+    n = 6
+    perm = np.array([3, 0, 5, 1, 4, 2])
+    c = Correspondence(perm, n)
+    f_src = np.arange(n, dtype=float) * 10
+    # to target: target j gets the value of the source mapped onto it
+    out = transfer_function(c, f_src, to="target")
+    np.testing.assert_array_equal(out[perm], f_src)
+    back = transfer_function(c, out, to="source")
+    np.testing.assert_array_equal(back, f_src)
+    labels = np.array([0, 0, 1, 1, 2, 2])
+    np.testing.assert_array_equal(transfer_labels(c, labels, to="target")[perm], labels)
+    ident = Correspondence(np.arange(n), n)
+    np.testing.assert_array_equal(transfer_labels(ident, labels, soft=True), labels)
+    np.testing.assert_allclose(transfer_function(ident, f_src, soft=True), f_src)
+
+
+def test_soft_transfer_is_posterior_weighted():
+    # source vertex 0 is 70% target 0 and 30% target 1
+    P = sp.csr_matrix(np.array([[0.7, 0.3, 0.0], [0.0, 0.0, 1.0]]))
+    c = Correspondence(np.array([0, 2]), 3, posteriors=P)
+    out = transfer_function(c, np.array([1.0, 2.0, 5.0]), to="source", soft=True)
+    np.testing.assert_allclose(out, [1.3, 5.0])
+    lab = transfer_labels(c, np.array([4, 9]), to="target", soft=True)
+    np.testing.assert_array_equal(lab, [4, 4, 9])  # eq. 5.9: argmax of the posterior mass per label
+    unl = transfer_labels(Correspondence(np.array([0, -1]), 3), np.array([1, 2, 3]), to="source")
+    np.testing.assert_array_equal(unl, [1, -1])
+
+
+def test_one_to_one_and_inverse():
+    c = Correspondence(np.array([1, 1, 0, -1]), 2, confidence=np.array([0.2, 0.9, 0.5, 0.0]))
+    o = c.one_to_one()
+    np.testing.assert_array_equal(o.target_of, [-1, 1, 0, -1])
+    assert o.is_injective() and not c.is_injective()
+    inv = c.inverse()
+    np.testing.assert_array_equal(inv.target_of, [2, 1])
+    p = from_pairs(np.array([[0, 1], [3, 0]]), 4, 2)
+    np.testing.assert_array_equal(p.target_of, [1, -1, -1, 0])
+    np.testing.assert_array_equal(p.pairs(), [[0, 1], [3, 0]])
+
+
+@pytest.mark.parametrize("dim", [3, 40])
+def test_nearest_neighbors_matches_brute_force(dim):
+    rng = np.random.default_rng(1)
+    X, Q = rng.normal(size=(300, dim)), rng.normal(size=(50, dim))
+    d2, j = nearest_neighbors(X, Q, chunk=7)
+    full = ((Q[:, None] - X[None]) ** 2).sum(-1)
+    np.testing.assert_array_equal(j, full.argmin(1))
+    np.testing.assert_allclose(d2, full.min(1), atol=1e-9)
+    d2k, jk = nearest_neighbors(X, Q, 3)
+    np.testing.assert_array_equal(jk[:, 0], full.argmin(1))
+    assert np.all(np.diff(d2k, axis=1) >= -1e-12)
+
+
+def test_identity_map_has_zero_error_and_full_curve(ico):
+    ids = np.arange(ico.n_vertices)
+    e = geodesic_errors(ico, ids, ids, ids, method="dijkstra")
+    assert np.all(e == 0)
+    rep = correspondence_report(e)
+    assert rep["mean_geodesic_error"] == 0
+    assert all(frac == 1.0 for _, frac in rep["curve"])
+    assert rep["curve"][0][0] == 0 and rep["curve"][-1][0] == pytest.approx(0.25)
+
+
+def test_neighbour_map_error_is_edge_length(ico):
+    e0 = ico.edges[0]
+    t = np.arange(ico.n_vertices)
+    t[e0[0]] = e0[1]
+    err = geodesic_errors(ico, t, np.array([e0[0], 5]), np.array([e0[0], 5]), method="dijkstra")
+    L = np.linalg.norm(ico.vertices[e0[0]] - ico.vertices[e0[1]])
+    np.testing.assert_allclose(err, [L / np.sqrt(ico.area), 0.0])
+    un = geodesic_errors(ico, np.full(ico.n_vertices, -1), np.array([1]), np.array([1]), method="dijkstra")
+    assert np.isinf(un).all()
+    th, frac = error_curve(np.array([0.0, 0.1, np.inf, 0.3]), np.array([0.0, 0.1, 0.25]))
+    np.testing.assert_allclose(frac, [0.25, 0.5, 0.5])
+
+
+def test_symmetric_aware_error(ico):
+    V = np.asarray(ico.vertices)
+    mirror = cKDTree(V).query(V * [-1, 1, 1])[1]
+    ids = np.arange(ico.n_vertices)
+    plain = geodesic_errors(ico, mirror, ids, ids, method="dijkstra")
+    sym = geodesic_errors(ico, mirror, ids, ids, truth_dst_sym=mirror, method="dijkstra")
+    assert plain.mean() > 0.1
+    assert np.all(sym == 0)
+
+
+def test_truth_of_wrong_length_or_range_raises(ico):
+    ids = np.arange(10)
+    with pytest.raises(ParameterError, match="equal length"):
+        geodesic_errors(ico, np.arange(ico.n_vertices), ids, ids[:5], method="dijkstra")
+    with pytest.raises(ParameterError, match="0-based"):
+        geodesic_errors(ico, np.arange(ico.n_vertices), ids, ids + ico.n_vertices, method="dijkstra")
+
+
+def test_paired_distances_symmetric_in_arguments(ico):
+    a, b = np.array([0, 0, 7, 12]), np.array([5, 9, 0, 12])
+    d1 = paired_geodesic_distances(ico, a, b, method="dijkstra")
+    d2 = paired_geodesic_distances(ico, b, a, method="dijkstra")
+    np.testing.assert_allclose(d1, d2)
+    assert d1[3] == 0
+    two = paired_geodesic_distances(ico, a, np.column_stack([b, a]), method="dijkstra")
+    np.testing.assert_allclose(two[:, 0], d1)
+    np.testing.assert_allclose(two[:, 1], 0)
+
+
+def test_r_smoothness_and_coverage(ico):
+    ids = np.arange(ico.n_vertices)
+    assert r_smoothness(ico, ico, ids, r=2.0, sample=20, method="dijkstra") == 1.0
+    rng = np.random.default_rng(0)
+    shuffled = rng.permutation(ico.n_vertices)
+    assert r_smoothness(ico, ico, shuffled, r=2.0, sample=20, method="dijkstra") < 0.2
+    assert target_coverage(Correspondence(ids, ico.n_vertices)) == 1.0
+    assert target_coverage(np.array([0, 0, 1, -1]), 4) == 0.5
+
+
+def test_label_transfer_scores_hand_made():
+    truth = np.array([0, 0, 0, 1, 1, 1])
+    assert label_transfer_scores(truth, truth)["recall"] == 1.0
+    pred = np.array([0, 0, 1, 1, 1, 1])
+    s = label_transfer_scores(pred, truth)
+    # class 0: recall 2/3, precision 1; class 1: recall 1, precision 3/4
+    assert s["recall"] == pytest.approx((2 / 3 + 1) / 2)
+    assert s["precision"] == pytest.approx((1 + 0.75) / 2)
