@@ -1,0 +1,124 @@
+"""Speed and memory of eigvec-gmm and csc end to end, against the cost of the spectrum alone.
+
+    python benchmarks/bench_segmentation.py [--subdivisions 5 6] [--output FILE]
+
+Shapes: ``toolkit.synthetic.articulated_shape(subdivisions=s)`` (5: 10,242 vertices; 6: 40,962).
+Each stage runs in a fresh subprocess (no spectrum cache shared between stages):
+
+- ``spectrum-normalized`` / ``spectrum-combinatorial``: Gaussian shape graph + the 11 smallest
+  eigenpairs of the normalized Laplacian (what eigvec-gmm needs with its defaults, p = 10) / of
+  ``L = D - W`` (what csc needs);
+- ``eigvec-gmm``: the whole segmentation with k = 6, spectrum included (ratio to the normalized
+  spectrum);
+- ``csc``: the whole segmentation with k = 6 and constraints drawn from the limb labels,
+  spectrum and the second eigensolve of the modified Laplacian included.
+
+Reported: wall time, ratio to the spectrum stage, and peak resident memory added by the stage
+(``ru_maxrss`` after minus before; imports and plugin loading happen before), per 1,000
+vertices: a constant across sizes means memory linear in ``n`` (a dense ``n x n`` matrix would
+be 13 GB at 41k vertices). Writes ``benchmarks/results/bench_segmentation.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+CHILD = r"""
+import json, resource, sys, time
+sys.path.insert(0, {repo!r})
+from toolkit.synthetic import articulated_shape
+from toolkit.labels import draw_constraints
+from toolkit.registry import create_plugin
+from toolkit.graph import build_graph
+from toolkit.spectrum import compute_spectrum
+from threadpoolctl import threadpool_limits
+art = articulated_shape(subdivisions={sub})
+shape = art.shape
+cons = draw_constraints(art.labels, shape.edges, random_state=0)
+_ = shape.edges, shape.face_areas
+from toolkit.registry import available_plugins
+available_plugins()  # load every plugin module (sklearn, igl imports) before timing
+import plugins.segment_csc, plugins.segment_eigvec_gmm  # noqa: E401
+import sklearn.cluster, sklearn.mixture  # noqa: E401
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+t = time.perf_counter()
+with threadpool_limits({threads}):
+    if {stage!r} == "spectrum-combinatorial":
+        compute_spectrum(build_graph(shape, "gaussian"), 11, use_mass=False, cache=False)
+    elif {stage!r} == "spectrum-normalized":
+        compute_spectrum(build_graph(shape, "gaussian"), 11, laplacian="normalized", cache=False)
+    elif {stage!r} == "eigvec-gmm":
+        create_plugin("segmenters", "eigvec-gmm", n_segments=6).segment(shape)
+    else:
+        create_plugin("segmenters", "csc", n_segments=6).segment(shape, constraints=cons)
+dt = time.perf_counter() - t
+after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({{"n": shape.n_vertices, "seconds": dt, "peak_kb": after - before}}))
+"""
+
+
+def run_stage(sub: int, stage: str, threads: int) -> dict:
+    """Run one stage in a fresh interpreter; returns ``{"n", "seconds", "peak_kb"}``."""
+    code = CHILD.format(repo=str(REPO), sub=sub, stage=stage, threads=threads)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    if out.returncode != 0:
+        raise RuntimeError(f"stage {stage} (subdivisions {sub}) failed:\n{out.stderr}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--subdivisions", type=int, nargs="+", default=[5, 6])
+    ap.add_argument("--threads", type=int, default=1, help="BLAS/OpenMP threads (default 1)")
+    ap.add_argument("--output", default=str(REPO / "benchmarks" / "results" / "bench_segmentation.md"))
+    args = ap.parse_args(argv)
+    rows = []
+    for sub in args.subdivisions:
+        spec = {}
+        for stage, ref in (("spectrum-normalized", None), ("eigvec-gmm", "spectrum-normalized"),
+                           ("spectrum-combinatorial", None), ("csc", "spectrum-combinatorial")):
+            print(f"subdivisions {sub}: {stage} ...", file=sys.stderr, flush=True)
+            r = run_stage(sub, stage, args.threads)
+            if ref is None:
+                spec[stage] = r["seconds"]
+            r.update(stage=stage, subdivisions=sub, ratio=r["seconds"] / spec[ref or stage])
+            rows.append(r)
+            print(f"  n={r['n']} {r['seconds']:.2f} s, x{r['ratio']:.2f} of the spectrum, "
+                  f"+{r['peak_kb'] / 1024:.0f} MB peak", file=sys.stderr, flush=True)
+    load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else ["?"]
+    lines = [
+        "# Segmentation speed and memory (eigvec-gmm, csc) vs the spectrum alone",
+        "",
+        "Regenerate with `python benchmarks/bench_segmentation.py`. "
+        "Shapes: `articulated_shape(subdivisions=s)`;",
+        f"k = 6; {args.threads} BLAS/OpenMP thread(s); load average at the end {' '.join(load)} "
+        "(a shared machine: ratios are more meaningful than absolute times).",
+        "",
+        "| vertices | stage | seconds | x spectrum | peak MB added | MB per 1k vertices |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        mb = r["peak_kb"] / 1024
+        lines.append(f"| {r['n']} | {r['stage']} | {r['seconds']:.2f} | {r['ratio']:.2f} | {mb:.0f} | "
+                     f"{mb / (r['n'] / 1000):.2f} |")
+    out = Path(args.output)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    t0 = time.perf_counter()
+    code = main()
+    print(f"({time.perf_counter() - t0:.0f} s, max RSS of the driver "
+          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024} MB)", file=sys.stderr)
+    sys.exit(code)
