@@ -277,16 +277,15 @@ class FmapZoomOutMatcher(DenseMatcher):
             raise ParameterError(f"descriptor widths differ: {ds.shape[1]} and {dt.shape[1]}")
         ds, dt = self._select(ds), self._select(dt)
         if seeds is not None and len(seeds):
+            # one heat-kernel map per seed (Ovsjanikov et al. 2010) at a time in unit-area units
             from toolkit.heat import heat_kernel
 
-            hs = heat_kernel(spec_s, self.seed_time * float(np.asarray(spec_s.mass).sum()
-                                                           if spec_s.mass is not None else 1.0),
-                             seeds[:, 0])
-            ht = heat_kernel(spec_t, self.seed_time * float(np.asarray(spec_t.mass).sum()
-                                                           if spec_t.mass is not None else 1.0),
-                             seeds[:, 1])
-            ds = np.hstack([ds, np.asarray(hs).reshape(source.n_vertices, -1)])
-            dt = np.hstack([dt, np.asarray(ht).reshape(target.n_vertices, -1)])
+            def seed_maps(spec: Spectrum, ids: np.ndarray) -> np.ndarray:
+                area = float(np.sum(spec.mass)) if spec.mass is not None else 1.0
+                return np.asarray(heat_kernel(spec, self.seed_time * area, ids))[0].T  # (n, q)
+
+            ds = np.hstack([ds, seed_maps(spec_s, seeds[:, 0])])
+            dt = np.hstack([dt, seed_maps(spec_t, seeds[:, 1])])
         ds, dt = normalize_columns(ds, bs.mass), normalize_columns(dt, bt.mass)
         w_orient = 0.0 if self.orientation == "none" else self.w_orient
         Os = Ot = None

@@ -62,6 +62,13 @@ def test_fmap_zoomout_orientation_term_resolves_the_flip(pair):
     flip = create_plugin("dense_matchers", "fmap-zoomout", orientation="none", **kw).match(A, B)
     assert _err(B, flip).mean() > 0.2
     assert _err(B, flip, mirror).mean() < 0.01
+    # ... and three seed matches (heat-kernel maps as extra descriptors) fix it as well
+    rest = np.asarray(articulated_shape(np.zeros(5), subdivisions=4).shape.vertices)
+    tips = [int(np.argmax(rest @ np.array(d))) for d in ([1, 0.25, 0], [-1, 0.25, 0], [0.7, -1, 0])]
+    seeded = create_plugin("dense_matchers", "fmap-zoomout", orientation="none", **kw).match(
+        A, B, seeds=np.column_stack([tips, tips])
+    )
+    assert _err(B, seeded).mean() < 0.01
     again = create_plugin("dense_matchers", "fmap-zoomout", **kw).match(A, B)
     np.testing.assert_array_equal(again.target_of, good.target_of)  # deterministic
 
