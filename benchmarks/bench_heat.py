@@ -84,7 +84,8 @@ def timed_peak(fn):
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="smaller shapes (smoke run)")
-    ap.add_argument("--exact-sources", type=int, default=3, help="sources timed with libigl exact")
+    ap.add_argument("--exact-sources", type=int, default=1,
+                    help="sources timed with libigl exact (minutes each at 50k)")
     ap.add_argument("--output", default=str(REPO / "benchmarks" / "results" / "heat.md"))
     args = ap.parse_args(argv)
     big, mid, n_src = (20_000, 5_000, 100) if args.quick else (200_000, 50_000, 1000)
