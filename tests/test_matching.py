@@ -39,6 +39,17 @@ def pair():
 
 
 @pytest.fixture(scope="module")
+def small_pair(tmp_path_factory):
+    """The same poses at 642 vertices, written to OFF files for the CLI tests."""
+    d = tmp_path_factory.mktemp("small")
+    A = articulated_shape(ANGLES_A, subdivisions=3).shape
+    B = articulated_shape(ANGLES_B, subdivisions=3).shape
+    save_shape(A, d / "a.off")
+    save_shape(B, d / "b.off")
+    return A, B, d
+
+
+@pytest.fixture(scope="module")
 def seeds(pair):
     A = pair[0]
     s = np.random.default_rng(0).choice(A.n_vertices, 30, replace=False)
@@ -197,12 +208,12 @@ def _cli(*args, cwd=None):
                           text=True, cwd=cwd or REPO)
 
 
-def test_cli_match_and_evaluate(pair, tmp_path):
-    A, B, _ = pair
-    save_shape(A, tmp_path / "a.off")
-    save_shape(B, tmp_path / "b.off")
+def test_cli_match_and_evaluate(small_pair, tmp_path):
+    A, B, d = small_pair
+    for name in ("a.off", "b.off"):
+        (tmp_path / name).write_bytes((d / name).read_bytes())
     spec = tmp_path / "fast.toml"
-    spec.write_text('[dense]\nplugin = "fmap-zoomout"\n[dense.params]\nk = 20\nzoomout_iters = 4\n')
+    spec.write_text('[dense]\nplugin = "fmap-zoomout"\n[dense.params]\nk = 15\nzoomout_iters = 4\n')
     r = _cli("match", tmp_path / "a.off", tmp_path / "b.off", "--pipeline", spec, "-o",
              tmp_path / "map.txt", "--json", "--quiet")
     assert r.returncode == 0, r.stderr
@@ -218,7 +229,7 @@ def test_cli_match_and_evaluate(pair, tmp_path):
              "dijkstra", "--json")
     assert r.returncode == 0, r.stderr
     ev = json.loads(r.stdout)
-    assert ev["mean_geodesic_error"] < 0.02
+    assert ev["mean_geodesic_error"] < 0.05
     assert len(ev["curve"]) == 26 and ev["curve"][-1][1] > 0.95
     # truth files of the wrong length or indexing: one line, exit 2
     np.savetxt(tmp_path / "short.vts", ids[:-10], fmt="%d")
@@ -235,10 +246,10 @@ def test_cli_match_and_evaluate(pair, tmp_path):
     assert r.returncode == 2 and "no vertex" in r.stderr
 
 
-def test_cli_match_errors(pair, tmp_path):
-    A, B, _ = pair
-    save_shape(A, tmp_path / "a.off")
-    save_shape(B, tmp_path / "b.off")
+def test_cli_match_errors(small_pair, tmp_path):
+    A, B, d = small_pair
+    for name in ("a.off", "b.off"):
+        (tmp_path / name).write_bytes((d / name).read_bytes())
     (tmp_path / "seeds.txt").write_text(f"0 {B.n_vertices + 5}\n")
     r = _cli("match", tmp_path / "a.off", tmp_path / "b.off", "--pipeline", "sharma2012", "--seeds",
              tmp_path / "seeds.txt", "-o", tmp_path / "m.txt")
