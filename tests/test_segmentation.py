@@ -143,7 +143,7 @@ def test_plugins_are_registered():
 
 @pytest.mark.parametrize(
     "name, min_recall",
-    [("eigvec-gmm", 0.55), ("spectral-clustering", 0.55), ("csc", 0.75), ("spectral-learning", 0.7),
+    [("eigvec-gmm", 0.6), ("spectral-clustering", 0.55), ("csc", 0.75), ("spectral-learning", 0.7),
      ("ccskl", 0.55)],
 )
 def test_segmenters_find_the_limbs(body, body_constraints, name, min_recall):
@@ -157,11 +157,9 @@ def test_segmenters_find_the_limbs(body, body_constraints, name, min_recall):
 
 
 def test_eigvec_gmm_beats_standard_spectral_clustering(body):
-    """The thesis' claim of chapter 4 on this articulated shape, with the combinatorial Laplacian of
-    4.2 (deterministic with the seeds; the default normalized one does not win here, see the PSB
-    results for the real-data comparison)."""
-    seg = create_plugin("segmenters", "eigvec-gmm", n_segments=6, laplacian="combinatorial")
-    gmm = seg.segment(body.shape)
+    """The thesis' claim of chapter 4 on this articulated shape (deterministic with the seeds; on the
+    PSB meshes it does not hold on average, see benchmarks/results/psb_segmentation.md)."""
+    gmm = create_plugin("segmenters", "eigvec-gmm", n_segments=6).segment(body.shape)
     sc = create_plugin("segmenters", "spectral-clustering", n_segments=6).segment(body.shape)
     assert rand_index_error(gmm, body.labels) < rand_index_error(sc, body.labels)
     assert matched_recall_precision(gmm, body.labels)[1] > matched_recall_precision(sc, body.labels)[1]
