@@ -297,6 +297,26 @@ def _validate_corruptions(raw: Any) -> dict[str, list[CorruptionSpec]]:
     return out
 
 
+def _pipeline_method(task: str, m: dict, where: str) -> MethodSpec:
+    """A matching method given as a pipeline (preset name, TOML path or inline table) of
+    :mod:`toolkit.pipeline`; its spec becomes the method's ``pipeline`` parameter."""
+    from ..pipeline import load_pipeline
+
+    if task != "matching":
+        raise ConfigError(f"{where}.pipeline", 'pipelines are matching methods (task = "matching")')
+    extra = sorted(set(m) - {"pipeline", "label"})
+    if extra:
+        raise ConfigError(f"{where}.{extra[0]}", "not allowed with pipeline (put it in the pipeline spec)")
+    try:
+        pipe = load_pipeline(m["pipeline"])
+    except ToolkitError as exc:
+        raise ConfigError(f"{where}.pipeline", str(exc)) from None
+    spec = {"name": pipe.name, **pipe.stages}
+    return MethodSpec(
+        pipe.name, "pipelines", None, {"pipeline": spec}, m.get("label", f"pipeline:{pipe.name}")
+    )
+
+
 def parse_config(raw: dict[str, Any], *, base: Path | None = None, source: str = "") -> BenchConfig:
     """Validate a config dict (as read from TOML) and list the dataset items; raises
     :class:`ConfigError` naming the first bad key."""
@@ -398,7 +418,12 @@ def parse_config(raw: dict[str, Any], *, base: Path | None = None, source: str =
         methods = []
         for j, m in enumerate(t["methods"]):
             mw = f"{w}.methods[{j}]"
-            _check_keys(m, {"plugin", "preset", "label", "params", "spectrum", "keypoints"}, mw, ("plugin",))
+            _check_keys(m, {"plugin", "pipeline", "preset", "label", "params", "spectrum", "keypoints"}, mw)
+            if "pipeline" in m:
+                methods.append(_pipeline_method(kind, m, mw))
+                continue
+            if "plugin" not in m:
+                raise ConfigError(f"{mw}.plugin", "is required (or pipeline = ... for a matching pipeline)")
             fam = _family_for(kind, m["plugin"], mw)
             prm = m.get("params", {}) or {}
             if not isinstance(prm, dict):

@@ -387,6 +387,11 @@ def execute_job(job: dict, pinfo: dict | None = None) -> dict:
             detector = create_plugin("keypoints", kp["plugin"], kp.get("preset"), **(kp.get("params") or {}))
         if job["task_kind"] == "spectrum":  # the spectrum *is* the method: time it inside the row
             method = None
+        elif job["family"] == "pipelines":
+            from ..pipeline import load_pipeline
+
+            method = load_pipeline(job["params"]["pipeline"])
+            spectra, row["spectrum_seconds"], row["spectrum_cache_hit"] = _spectra()
         else:
             method = _with_random_state(
                 job["family"], job["method"], job["preset"], job["params"], job["random_state"]

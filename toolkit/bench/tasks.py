@@ -503,6 +503,10 @@ class MatchingTask(TaskAdapter):
             t = np.full(src.n_vertices, -1, dtype=np.int64)
             t[pairs[:, 0]] = pairs[:, 1]
             return {"target_of": t, "pairs": pairs, "sparse": True}
+        if type(method).__name__ == "Pipeline":  # toolkit.pipeline: computes its own stages
+            corr = method.run(src, tgt)
+            t = np.asarray(corr.target_of, dtype=np.int64)
+            return {"target_of": t, "sparse": False}
         corr = method.match(
             src, tgt, source_spectrum=spectra.get("source"), target_spectrum=spectra.get("target")
         )
