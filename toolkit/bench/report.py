@@ -29,11 +29,13 @@ __all__ = ["write_report", "summarize", "method_id"]
 
 
 def method_id(row: dict) -> str:
-    """Display name of a row's method: label plus its parameters."""
+    """Display name of a row's method: label plus its (short) parameters."""
     p = row.get("params") or {}
-    if not p:
-        return str(row.get("method"))
-    return f"{row.get('method')}({', '.join(f'{k}={v}' for k, v in sorted(p.items()))})"
+    label = str(row.get("method"))
+    shown = {k: v for k, v in sorted(p.items()) if not isinstance(v, dict) and len(repr(v)) <= 24}
+    if row.get("family") == "pipelines" or not shown:
+        return label
+    return f"{label}({', '.join(f'{k}={v}' for k, v in shown.items())})"
 
 
 def _is_num(v: Any) -> bool:
@@ -113,41 +115,53 @@ def _plt():
 
 
 def _curve_figs(task: str, rows: list[dict], figs: _Figs) -> list[str]:
+    """Curve metrics averaged per method: one panel per corruption group (lines: method and
+    strength), so uncorrupted and corrupted results sit side by side."""
     plt = _plt()
     parts = []
-    curves: dict = defaultdict(lambda: defaultdict(list))
+    curves: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
     for r in rows:
         if r.get("status") != "ok" or r["task"] != task:
             continue
+        g = r.get("corruption_group") or "none"
         for k, v in (r.get("metrics") or {}).items():
             if _is_curve(v):
-                curves[k][(method_id(r), r.get("corruption", "none"))].append(np.asarray(v, dtype=float))
-    for metric, groups in sorted(curves.items()):
-        fig, ax = plt.subplots(figsize=(6, 4))
-        for (mid, corr), cs in sorted(groups.items()):
-            L = min(len(c) for c in cs)
-            arr = np.stack([c[:L] for c in cs])
-            x, y = arr[0, :, 0], arr[:, :, 1].mean(axis=0)
-            label = mid if corr == "none" else f"{mid} / {corr}"
-            ax.plot(x, y, "-", lw=1.5, label=label)
-            if len(cs) > 1:
-                ax.fill_between(x, arr[:, :, 1].min(axis=0), arr[:, :, 1].max(axis=0), alpha=0.12)
-        ax.set_title(f"{task}: {metric} (mean over items; band = min..max)", fontsize=9)
-        if "geodesic_error_curve" in metric:
-            ax.set_xlabel("geodesic error / sqrt(area)")
-            ax.set_ylabel("fraction of correspondences")
-        if "alpha_vs_t" in metric:
-            ax.set_xscale("log")
-            ax.set_xlabel("t")
-            ax.set_ylabel("alpha(K, t)")
-        if "alpha_vs_K" in metric:
-            ax.set_xlabel("K (% of computed eigenpairs)")
-            ax.set_ylabel("alpha(K, t)")
-        if metric == "eigenvalues":
-            ax.set_xlabel("index")
-            ax.set_ylabel("eigenvalue")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=6, loc="best")
+                curves[k][g][(method_id(r), r.get("corruption", "none"))].append(np.asarray(v, dtype=float))
+    for metric, by_group in sorted(curves.items()):
+        groups = sorted(by_group, key=lambda g: (g != "none", g))
+        ncol = min(3, len(groups))
+        nrow = math.ceil(len(groups) / ncol)
+        fig, axes = plt.subplots(nrow, ncol, figsize=(4.6 * ncol, 3.4 * nrow), squeeze=False)
+        for ax, g in zip(axes.ravel(), groups):
+            for (mid, corr), cs in sorted(by_group[g].items()):
+                L = min(len(c) for c in cs)
+                arr = np.stack([c[:L] for c in cs])
+                x, y = arr[0, :, 0], arr[:, :, 1].mean(axis=0)
+                label = mid if corr == "none" else f"{mid} {corr[len(g) :]}".strip()
+                ax.plot(x, y, "-", lw=1.4, label=label[:48])
+                if len(cs) > 1:
+                    ax.fill_between(x, arr[:, :, 1].min(axis=0), arr[:, :, 1].max(axis=0), alpha=0.12)
+            ax.set_title("uncorrupted" if g == "none" else g, fontsize=8)
+            if "geodesic_error_curve" in metric:
+                ax.set_xlabel("geodesic error / sqrt(area)", fontsize=7)
+                ax.set_ylabel("fraction of correspondences", fontsize=7)
+            elif "alpha_vs_t" in metric:
+                ax.set_xscale("log")
+                ax.set_xlabel("t", fontsize=7)
+                ax.set_ylabel("alpha(K, t)", fontsize=7)
+            elif "alpha_vs_K" in metric:
+                ax.set_xlabel("K (% of computed eigenpairs)", fontsize=7)
+                ax.set_ylabel("alpha(K, t)", fontsize=7)
+            elif metric == "eigenvalues":
+                ax.set_xlabel("index", fontsize=7)
+                ax.set_ylabel("eigenvalue", fontsize=7)
+            ax.tick_params(labelsize=7)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=6, loc="best")
+        for ax in axes.ravel()[len(groups) :]:
+            ax.set_axis_off()
+        fig.suptitle(f"{task}: {metric} (mean over items; band = min..max)", fontsize=9)
+        fig.tight_layout()
         parts.append(_img(figs.save(fig, f"{task}-{metric}"), f"{task}: {metric}"))
     return parts
 
