@@ -135,11 +135,12 @@ class SeedGrowingMatcher(DenseMatcher):
             kp = seeds
             if len(kp) > self.max_keypoints:  # evenly spread subset of the seeds as keypoints
                 kp = kp[np.linspace(0, len(kp) - 1, int(self.max_keypoints)).round().astype(int)]
+            from toolkit.pipeline import paired_descriptors
+
             plugin = create_plugin("descriptors", self.descriptor, **(self.descriptor_params or {}))
-            source_descriptors = plugin.compute(source, spectrum=source_spectrum, keypoints=kp[:, 0])
-            target_descriptors = plugin.compute(target, spectrum=target_spectrum, keypoints=kp[:, 1])
-            times = getattr(plugin, "times", None)
-            n_times = len(times) if times is not None else int(getattr(plugin, "n_times", 1))
+            source_descriptors, target_descriptors, n_times = paired_descriptors(
+                plugin, source, target, kp[:, 0], kp[:, 1]
+            )
         else:
             n_times = 1 if n_times is None else int(n_times)
         ds = check_descriptors(source_descriptors, source.n_vertices, "source")

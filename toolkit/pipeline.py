@@ -38,7 +38,10 @@ from .correspondence import Correspondence
 from .errors import ParameterError, ShapeFileError
 from .shape import Shape
 
-__all__ = ["STAGES", "PRESETS", "Pipeline", "load_pipeline", "run_pipeline", "read_seeds"]
+__all__ = [
+    "STAGES", "PRESETS", "Pipeline", "load_pipeline", "run_pipeline", "read_seeds",
+    "paired_descriptors",
+]
 
 #: stage name -> plugin family, in execution order
 STAGES: dict[str, str] = {
@@ -192,15 +195,14 @@ class Pipeline:
                     f"pipeline {self.name!r}: the [descriptors] stage needs seeds (matched keypoints)"
                 )
             desc = self._create("descriptors")
-            ds, dt = timed("descriptors", lambda: (
-                desc.compute(source, keypoints=seeds[:, 0]), desc.compute(target, keypoints=seeds[:, 1])
+            ds, dt, n_times = timed("descriptors", lambda: paired_descriptors(
+                desc, source, target, seeds[:, 0], seeds[:, 1]
             ))
             accepted = inspect.signature(dense.match).parameters
             if "source_descriptors" in accepted:
                 kwargs["source_descriptors"], kwargs["target_descriptors"] = ds, dt
             if "n_times" in accepted:
-                times = getattr(desc, "times", None)
-                kwargs["n_times"] = len(times) if times is not None else int(getattr(desc, "n_times", 1))
+                kwargs["n_times"] = n_times
         corr = timed("dense", lambda: dense.match(source, target, **kwargs))
         info["n_dense"] = corr.n_matched
         if "refine" in self.stages:
@@ -214,6 +216,36 @@ class Pipeline:
         merged = dict(corr.info)
         merged.update(info)
         return Correspondence(corr.target_of, corr.n_target, corr.confidence, corr.posteriors, merged)
+
+
+def paired_descriptors(
+    plugin: Any, source: Shape, target: Shape, kp_source: np.ndarray, kp_target: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Keypoint descriptors of both shapes with matched keypoints, and their number of scales.
+
+    Multi-scale heat descriptors must use the *same* times on both shapes to be comparable
+    (thesis 7.3.1): when the plugin has a ``times`` parameter left to None, the times are chosen
+    on the source (scree rule of :func:`toolkit.heat.keypoint_descriptor_inputs`) and reused on
+    the target."""
+    import copy as _copy
+
+    if hasattr(plugin, "times") and getattr(plugin, "times", None) is None:
+        from .heat import keypoint_descriptor_inputs
+
+        params = plugin.get_params()
+        _, _, times, _ = keypoint_descriptor_inputs(
+            source, None, kp_source, K=params.get("K"), times=None,
+            n_times=params.get("n_times", 5), alpha=params.get("alpha", 0.95),
+            time_ratio=params.get("time_ratio", 2.0), weighting=params.get("weighting", "gaussian"),
+            laplacian=params.get("laplacian", "combinatorial"), who="descriptors",
+        )
+        plugin = _copy.copy(plugin)
+        plugin.set_params(times=[float(t) for t in times])
+    ds = plugin.compute(source, keypoints=kp_source)
+    dt = plugin.compute(target, keypoints=kp_target)
+    times = getattr(plugin, "times", None)
+    n_times = len(times) if times is not None else int(getattr(plugin, "n_times", 1))
+    return ds, dt, n_times
 
 
 def _check_seed_array(seeds: np.ndarray, n_src: int, n_tgt: int) -> np.ndarray:
