@@ -227,6 +227,15 @@ def test_non_convergence_raises_solver_error(grid):
         smallest_eigenpairs(A, 20, method="krylov", max_basis=28, block_size=4, max_restarts=1)
 
 
+def test_auto_falls_back_to_arpack_when_the_block_iteration_stalls(grid):
+    _, _, A = grid
+    info: dict = {}
+    vals, _ = smallest_eigenpairs(A, 20, max_basis=28, block_size=4, max_restarts=1, info=info)
+    assert "krylov" in info["fallback_from"] and info["method"] == "arpack"
+    ref, _ = smallest_eigenpairs(A, 20, method="dense")
+    np.testing.assert_allclose(vals, ref, rtol=1e-7, atol=1e-10)
+
+
 def test_highly_symmetric_graph_with_clusters_cut_at_k():
     """Icosphere graph: eigenvalue multiplicities 3-5, and k = 20 cuts a 5-fold cluster.
 

@@ -348,7 +348,8 @@ def smallest_eigenpairs(
       Lanczos: on very symmetric shapes it can miss a copy of a multiple eigenvalue at the cut).
     - ``"arpack-splu"``: ``eigsh`` shift-invert with SuperLU, what most peers do.
     - ``"dense"``: LAPACK on a dense copy (``n <= DENSE_LIMIT_N``).
-    - ``"auto"``: ``"dense"`` for ``n <= DENSE_MAX_N`` or ``3 k >= n``, else ``"krylov"``.
+    - ``"auto"``: ``"dense"`` for ``n <= DENSE_MAX_N`` or ``3 k >= n``, else ``"krylov"``, falling
+      back to ``"arpack"`` if the block iteration does not converge (``info['fallback_from']``).
 
     CHOLMOD comes from the ``cholespy`` wheel; if it is missing or fails, SuperLU is used. ``tol``
     is the relative residual of the shift-inverted problem (ARPACK's meaning; 0 = as tight as the
@@ -391,7 +392,18 @@ def smallest_eigenpairs(
     dM = np.ones(n) if Ms is None else _diagonal_of(Ms)
 
     if method == "auto":
-        method = "dense" if n <= DENSE_MAX_N or 3 * k >= n else "krylov"
+        if n <= DENSE_MAX_N or 3 * k >= n:
+            method = "dense"
+        else:
+            # the block solver is the fast path; single-vector ARPACK is the safety net
+            kwargs = dict(tol=tol, sigma=sigma, block_size=block_size, max_basis=max_basis,
+                          max_restarts=max_restarts, info=info)
+            try:
+                return smallest_eigenpairs(A, k, M, method="krylov", **kwargs)
+            except SolverError as exc:
+                info.clear()
+                info["fallback_from"] = f"krylov: {exc}"
+                return smallest_eigenpairs(A, k, M, method="arpack", **kwargs)
     info["method"] = method
     if method == "dense":
         vals, vecs = _dense(A, k, Ms, dM)
