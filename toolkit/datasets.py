@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ParameterError, ShapeFileError
+from .labels import face_to_vertex_labels
 from .shape import Shape
 
 __all__ = [
@@ -24,7 +25,6 @@ __all__ = [
     "read_face_labels",
     "read_labels",
     "write_labels",
-    "face_to_vertex_labels",
     "ItemRef",
     "DatasetItem",
     "DATASET_KINDS",
@@ -109,23 +109,6 @@ def write_labels(path: str | os.PathLike, labels: np.ndarray) -> None:
 # --------------------------------------------------------------------------------------------
 # dataset layouts
 # --------------------------------------------------------------------------------------------
-def face_to_vertex_labels(faces: np.ndarray, face_labels: np.ndarray, n_vertices: int) -> np.ndarray:
-    """Per-vertex int64 labels ``(n,)`` from per-face labels ``(m,)``: each vertex takes the label
-    covering most of its incident faces (ties: smallest label; isolated vertices: -1)."""
-    faces = np.asarray(faces, dtype=np.int64)
-    fl = np.asarray(face_labels, dtype=np.int64)
-    if len(fl) != len(faces):
-        raise ParameterError(f"{len(fl)} face labels for {len(faces)} faces")
-    uniq, inv = np.unique(fl, return_inverse=True)
-    counts = np.zeros((n_vertices, len(uniq)), dtype=np.int64) if len(uniq) * n_vertices < 5e7 else None
-    if counts is None:  # pragma: no cover - absurdly many labels
-        raise ParameterError("too many distinct face labels")
-    np.add.at(counts, (faces.ravel(), np.repeat(inv.ravel(), 3)), 1)
-    out = uniq[np.argmax(counts, axis=1)]
-    out[counts.sum(axis=1) == 0] = -1
-    return out.astype(np.int64)
-
-
 @dataclass(frozen=True)
 class ItemRef:
     """A light, picklable reference to one dataset item: ``kind`` (tosca, psb, folder,
