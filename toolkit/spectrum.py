@@ -109,6 +109,13 @@ class Spectrum:
             )
 
 
+def _require_positive_degrees(d: np.ndarray, kind: str) -> None:
+    if np.any(d <= 0):
+        raise ParameterError(
+            f"the {kind} Laplacian needs positive degrees; {int(np.sum(d <= 0))} vertices have none"
+        )
+
+
 def laplacian_matrix(W: sp.spmatrix, kind: str = "combinatorial") -> sp.csr_matrix:
     """The ``(n, n)`` Laplacian of weights ``W``: ``D - W`` (eq. 2.63), ``D^-1/2 (D - W) D^-1/2``
     (eq. 2.64) or ``D^-1 (D - W)`` (eq. 2.65, not symmetric)."""
@@ -119,10 +126,7 @@ def laplacian_matrix(W: sp.spmatrix, kind: str = "combinatorial") -> sp.csr_matr
         return sp.csr_matrix(L)
     if kind not in LAPLACIANS:
         raise ParameterError(f"unknown Laplacian {kind!r}; choose one of {', '.join(LAPLACIANS)}")
-    if np.any(d <= 0):
-        raise ParameterError(
-            f"the {kind} Laplacian needs positive degrees; {int(np.sum(d <= 0))} vertices have none"
-        )
+    _require_positive_degrees(d, kind)
     if kind == "normalized":
         s = sp.diags(1.0 / np.sqrt(d))
         return sp.csr_matrix(s @ L @ s)
@@ -214,11 +218,7 @@ def _solve(W: sp.csr_matrix, mass: np.ndarray | None, k: int, laplacian: str):
     if laplacian == "combinatorial":
         M = sp.diags(mass) if mass is not None else None
         return smallest_eigenpairs(L, k, M)
-    if np.any(d <= 0):
-        raise ParameterError(
-            f"the {laplacian} Laplacian needs positive degrees; "
-            f"{int(np.sum(d <= 0))} vertices have none"
-        )
+    _require_positive_degrees(d, laplacian)
     # both go through the better-conditioned generalized problem (D - W) v = lambda D v (eq. 2.79)
     vals, v = smallest_eigenpairs(L, k, sp.diags(d))
     if laplacian == "normalized":
