@@ -19,7 +19,14 @@ from toolkit import (
 )
 from toolkit.generate import icosphere
 from toolkit.graph import ShapeGraph, epsilon_edges, knn_edges
-from toolkit.spectrum import Spectrum, clear_cache, component_spectra, fix_signs, set_cache_dir
+from toolkit.spectrum import (
+    Spectrum,
+    clear_cache,
+    component_spectra,
+    fix_signs,
+    is_cached,
+    set_cache_dir,
+)
 from toolkit.synthetic import articulated_shape
 
 
@@ -230,7 +237,9 @@ def test_point_cloud_graphs(sphere):
 def test_cache_in_memory_and_on_disk(sphere, tmp_path):
     clear_cache()
     g = build_graph(sphere, "binary")
+    assert not is_cached(g, 6)
     s1 = compute_spectrum(g, 6)
+    assert is_cached(g, 6) and not is_cached(g, 6, laplacian="normalized")
     assert compute_spectrum(build_graph(sphere, "binary"), 6) is s1  # same content, same object
     set_cache_dir(tmp_path)
     try:

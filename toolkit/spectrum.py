@@ -25,6 +25,7 @@ __all__ = [
     "fix_signs",
     "set_cache_dir",
     "clear_cache",
+    "is_cached",
 ]
 
 LAPLACIANS = ("combinatorial", "normalized", "random-walk")
@@ -227,6 +228,27 @@ def _solve(W: sp.csr_matrix, mass: np.ndarray | None, k: int, laplacian: str):
     return vals, v
 
 
+def _resolve_use_mass(graph: ShapeGraph, laplacian: str, use_mass: bool | None) -> bool:
+    if use_mass is None:
+        return graph.mass is not None and laplacian == "combinatorial"
+    return bool(use_mass)
+
+
+def is_cached(
+    graph: ShapeGraph,
+    k: int,
+    *,
+    laplacian: str = "combinatorial",
+    use_mass: bool | None = None,
+    sign_fix: bool = False,
+    components: str = "raise",
+) -> bool:
+    """True when :func:`compute_spectrum` with these arguments would be served from the cache."""
+    use_mass = _resolve_use_mass(graph, laplacian, use_mass)
+    key = _cache_key(graph, int(k), laplacian, use_mass, bool(sign_fix), components)
+    return _cache_get(key) is not None
+
+
 def compute_spectrum(
     graph: ShapeGraph,
     k: int,
@@ -251,8 +273,7 @@ def compute_spectrum(
     n = graph.n_vertices
     if not isinstance(k, (int, np.integer)) or not 1 <= k <= n:
         raise ParameterError(f"k must be an integer in [1, {n}] (the vertex count), got {k}")
-    if use_mass is None:
-        use_mass = graph.mass is not None and laplacian == "combinatorial"
+    use_mass = _resolve_use_mass(graph, laplacian, use_mass)
     if use_mass and graph.mass is None:
         raise ParameterError(f"weighting {graph.weighting!r} provides no mass matrix")
     if use_mass and laplacian != "combinatorial":

@@ -137,15 +137,7 @@ def get_spectrum(shape: Shape, settings: dict[str, Any], *, weighting_params: di
     g = build_graph(shape, settings["weighting"], **kw, **params)
     k = min(int(settings["k"]), shape.n_vertices - 1)
     use_mass = settings.get("use_mass")
-    mass = (
-        use_mass
-        if use_mass is not None
-        else (g.mass is not None and settings["laplacian"] == "combinatorial")
-    )
-    # the same key compute_spectrum uses: tells whether this call is served by the cache
-    hit = (
-        spm._cache_get(spm._cache_key(g, k, settings["laplacian"], bool(mass), False, "largest")) is not None
-    )
+    hit = spm.is_cached(g, k, laplacian=settings["laplacian"], use_mass=use_mass, components="largest")
     spec = spm.compute_spectrum(
         g, k, laplacian=settings["laplacian"], use_mass=use_mass, components="largest"
     )
