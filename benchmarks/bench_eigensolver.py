@@ -1,4 +1,4 @@
-"""Eigensolver benchmark: toolkit.eigen against the peers' ``eigsh`` shift-invert, in one run.
+"""Eigensolver benchmark: shape_toolkit.core.eigen against the peers' ``eigsh`` shift-invert, in one run.
 
     python benchmarks/bench_eigensolver.py            # ~50k and ~200k vertices, k = 20 and 100
     python benchmarks/bench_eigensolver.py --quick    # a 5k-vertex smoke test (seconds)
@@ -162,7 +162,7 @@ def child(npz: str, method: str, k: int) -> None:
     M = None if mass is None else sp.diags(mass).tocsr()
     import scipy.sparse.linalg as sla
 
-    from toolkit.eigen import smallest_eigenpairs
+    from shape_toolkit.core.eigen import smallest_eigenpairs
 
     sigma = sigma_for(A, mass)
     rss0 = peak_rss_kb()

@@ -50,9 +50,9 @@ def load_pair(tosca: Path, s: int):
     """cat0, cat1 (subdivided ``s x s`` when ``s > 1``) and their ground truth (0-based)."""
     from scipy.spatial import cKDTree
 
-    from toolkit.datasets import read_vts
-    from toolkit.io import load_shape
-    from toolkit.shape import Shape
+    from shape_toolkit.core.shape import Shape
+    from shape_toolkit.data.datasets import read_vts
+    from shape_toolkit.io.mesh import load_shape
 
     out = []
     for name in ("cat0", "cat1"):
@@ -89,7 +89,7 @@ def child(case: str, tosca: Path, s: int, out: Path) -> None:
     (A, ta), (B, tb) = load_pair(tosca, s)
     res: dict = {"case": case, "n_source": A.n_vertices, "n_target": B.n_vertices}
     if case != "none":
-        from toolkit.metrics import geodesic_errors
+        from shape_toolkit.metrics import geodesic_errors
 
         seeds = np.column_stack([ta, tb])[np.linspace(0, len(ta) - 1, 30).astype(int)]
         t0, c0 = time.perf_counter(), time.process_time()
@@ -98,11 +98,11 @@ def child(case: str, tosca: Path, s: int, out: Path) -> None:
 
             t = run_pyfm(A, B)
         elif case in ("em-registration", "seed-growing"):
-            from toolkit.registry import create_plugin
+            from shape_toolkit.api.registry import create_plugin
 
             t = create_plugin("dense_matchers", case).match(A, B, seeds=seeds).target_of
         else:
-            from toolkit.pipeline import run_pipeline
+            from shape_toolkit.pipeline import run_pipeline
 
             t = run_pipeline(case, A, B).target_of
         res["seconds"] = time.perf_counter() - t0

@@ -21,9 +21,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from toolkit.bench.config import parse_config
-from toolkit.bench.runner import read_rows, run_benchmark
-from toolkit.commands.demo import showcase_config
+from shape_toolkit.bench.config import parse_config
+from shape_toolkit.bench.runner import read_rows, run_benchmark
+from shape_toolkit.cli.commands.demo import showcase_config
 
 OUT = Path(__file__).resolve().parent / "results" / "runner_scaling.md"
 

@@ -2,7 +2,7 @@
 
     python benchmarks/bench_segmentation.py [--subdivisions 5 6] [--output FILE]
 
-Shapes: ``toolkit.synthetic.articulated_shape(subdivisions=s)`` (5: 10,242 vertices; 6: 40,962).
+Shapes: ``shape_toolkit.data.synthetic.articulated_shape(subdivisions=s)`` (5: 10,242 vertices; 6: 40,962).
 Each stage runs in a fresh subprocess (no spectrum cache shared between stages):
 
 - ``spectrum-combinatorial``: Gaussian shape graph + the 11 smallest eigenpairs of ``L = D - W``
@@ -32,19 +32,19 @@ REPO = Path(__file__).resolve().parent.parent
 CHILD = r"""
 import json, resource, sys, time
 sys.path.insert(0, {repo!r})
-from toolkit.synthetic import articulated_shape
-from toolkit.labels import draw_constraints
-from toolkit.registry import create_plugin
-from toolkit.graph import build_graph
-from toolkit.spectrum import compute_spectrum
+from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.results.labels import draw_constraints
+from shape_toolkit.api.registry import create_plugin
+from shape_toolkit.core.graph import build_graph
+from shape_toolkit.core.spectrum import compute_spectrum
 from threadpoolctl import threadpool_limits
 art = articulated_shape(subdivisions={sub})
 shape = art.shape
 cons = draw_constraints(art.labels, shape.edges, random_state=0)
 _ = shape.edges, shape.face_areas
-from toolkit.registry import available_plugins
+from shape_toolkit.api.registry import available_plugins
 available_plugins()  # load every plugin module (sklearn, igl imports) before timing
-import plugins.segment_csc, plugins.segment_eigvec_gmm  # noqa: E401
+import shape_toolkit.plugins.segmenters.csc, shape_toolkit.plugins.segmenters.eigvec_gmm  # noqa: E401
 import sklearn.cluster, sklearn.mixture  # noqa: E401
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 t = time.perf_counter()

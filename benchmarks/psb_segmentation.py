@@ -20,7 +20,7 @@ Protocol (stated again in the results file):
   consistency ceiling the published PSB numbers call "Human".
 - Predicted vertex labels become face labels by majority (ties to the smallest label). All metrics
   are area-weighted over faces, as in PSB; cut discrepancy uses Dijkstra distances over mesh edges
-  (see ``toolkit.metrics.segmentation``).
+  (see ``shape_toolkit.metrics.segmentation``).
 """
 
 from __future__ import annotations
@@ -38,12 +38,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from plugins._segment_common import graph_spectrum, shape_graph  # noqa: E402
-from toolkit.datasets import read_face_labels  # noqa: E402
-from toolkit.io import load_shape  # noqa: E402
-from toolkit.labels import draw_constraints, face_to_vertex_labels, vertex_to_face_labels  # noqa: E402
-from toolkit.metrics.segmentation import SEGMENTATION_METRICS, segmentation_scores  # noqa: E402
-from toolkit.registry import create_plugin  # noqa: E402
+from shape_toolkit.api.registry import create_plugin  # noqa: E402
+from shape_toolkit.data.datasets import read_face_labels  # noqa: E402
+from shape_toolkit.io.mesh import load_shape  # noqa: E402
+from shape_toolkit.metrics.segmentation import SEGMENTATION_METRICS, segmentation_scores  # noqa: E402
+from shape_toolkit.plugins.segmenters._common import graph_spectrum, shape_graph  # noqa: E402
+from shape_toolkit.results.labels import draw_constraints, face_to_vertex_labels, vertex_to_face_labels  # noqa: E402
 
 #: (row name, plugin name, extra params, constrained?, which spectrum to pass)
 METHODS = [

@@ -24,11 +24,11 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from toolkit.datasets import read_vts  # noqa: E402
-from toolkit.heat import shape_spectrum  # noqa: E402
-from toolkit.io import load_shape  # noqa: E402
-from toolkit.metrics.keypoints import ground_truth_map, repeatability_report  # noqa: E402
-from toolkit.registry import create_plugin  # noqa: E402
+from shape_toolkit.api.registry import create_plugin  # noqa: E402
+from shape_toolkit.data.datasets import read_vts  # noqa: E402
+from shape_toolkit.features.heat import shape_spectrum  # noqa: E402
+from shape_toolkit.io.mesh import load_shape  # noqa: E402
+from shape_toolkit.metrics.keypoints import ground_truth_map, repeatability_report  # noqa: E402
 
 RADII = (0.025, 0.05, 0.1)
 SETUPS = [

@@ -50,9 +50,9 @@ import numpy as np  # noqa: E402
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from toolkit.datasets import read_vts  # noqa: E402
-from toolkit.io import load_shape  # noqa: E402
-from toolkit.metrics.correspondence import (  # noqa: E402
+from shape_toolkit.data.datasets import read_vts  # noqa: E402
+from shape_toolkit.io.mesh import load_shape  # noqa: E402
+from shape_toolkit.metrics.correspondence import (  # noqa: E402
     DEFAULT_THRESHOLDS,
     error_curve,
     paired_geodesic_distances,
@@ -112,7 +112,7 @@ def child(method: str, tosca: Path, pairs: list[tuple[str, str]], out_dir: Path)
     import warnings
 
     warnings.filterwarnings("ignore")
-    from toolkit.pipeline import load_pipeline
+    from shape_toolkit.pipeline import load_pipeline
 
     pipe = None if method in ("pyfm", "none") else load_pipeline(method)
     rows = []

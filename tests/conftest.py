@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from toolkit.generate import icosphere
-from toolkit.shape import Shape
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.data.generate import icosphere
 
 _REPO = Path(__file__).resolve().parent.parent
 

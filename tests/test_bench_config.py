@@ -6,8 +6,8 @@ import textwrap
 
 import pytest
 
-from toolkit.bench.config import ConfigError, expand_grid, load_config, parse_config
-from toolkit.cli import main
+from shape_toolkit.bench.config import ConfigError, expand_grid, load_config, parse_config
+from shape_toolkit.cli import main
 
 BASE = """
 [run]
@@ -85,8 +85,8 @@ def test_bad_config_names_the_key(tmp_path, old, new, key):
 def test_relative_paths_use_toolkit_data(tmp_path, monkeypatch):
     data = tmp_path / "data"
     (data / "shapes").mkdir(parents=True)
-    from toolkit.generate import icosphere
-    from toolkit.io import save_shape
+    from shape_toolkit.data.generate import icosphere
+    from shape_toolkit.io.mesh import save_shape
 
     save_shape(icosphere(1), data / "shapes" / "ball.off")
     raw = {

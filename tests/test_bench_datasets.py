@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from toolkit.datasets import (
+from shape_toolkit.data.datasets import (
     folder_dataset,
     load_item,
     open_dataset,
@@ -13,10 +13,10 @@ from toolkit.datasets import (
     synthetic_refs,
     tosca_dataset,
 )
-from toolkit.errors import ParameterError, ShapeFileError
-from toolkit.generate import icosphere
-from toolkit.io import save_shape
-from toolkit.synthetic import synthetic_dataset
+from shape_toolkit.data.generate import icosphere
+from shape_toolkit.data.synthetic import synthetic_dataset
+from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.io.mesh import save_shape
 
 
 def test_synthetic_poses_share_connectivity_and_labels():
@@ -39,7 +39,7 @@ def _write_tosca(root, names=("cat0", "cat1")):
     for k, n in enumerate(names):
         perm = np.roll(np.arange(s.n_vertices), k)  # vertex i of cat_k is vertex perm[i] of the sphere
         inv = np.argsort(perm)
-        from toolkit.shape import Shape
+        from shape_toolkit.core.shape import Shape
 
         save_shape(Shape(s.vertices[perm], inv[s.faces]), root / f"{n}.off")
         # row j: the point that is sphere vertex j, 1-based

@@ -8,12 +8,12 @@ import textwrap
 import numpy as np
 import pytest
 
-from toolkit.bench.config import load_config
-from toolkit.bench.runner import read_rows, run_benchmark
-from toolkit.cli import main
-from toolkit.hookspecs import hookimpl
-from toolkit.interfaces import Segmenter
-from toolkit.registry import get_registry
+from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.interfaces import Segmenter
+from shape_toolkit.api.registry import get_registry
+from shape_toolkit.bench.config import load_config
+from shape_toolkit.bench.runner import read_rows, run_benchmark
+from shape_toolkit.cli import main
 
 CONFIG = """
 [run]
@@ -125,8 +125,7 @@ def flaky():
     reg = get_registry()
     reg.register(_FlakyPlugin(), name="flaky-test")
     yield
-    reg.pm.unregister(name="flaky-test")
-    reg._table = None
+    reg.unregister("flaky-test")
 
 
 def test_failed_rows_are_recorded_and_run_goes_on(config_path, tmp_path, flaky, capsys):

@@ -10,15 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from toolkit.cli import main
-from toolkit.generate import icosphere
-from toolkit.io import save_shape
-from toolkit.shape import Shape
+from shape_toolkit.cli import main
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.data.generate import icosphere
+from shape_toolkit.io.mesh import save_shape
 
 
 def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "toolkit", *args], capture_output=True, text=True, timeout=300, cwd=cwd
+        [sys.executable, "-m", "shape_toolkit", *args], capture_output=True, text=True, timeout=300, cwd=cwd
     )
 
 

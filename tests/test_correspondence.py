@@ -7,18 +7,9 @@ import pytest
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from toolkit.correspondence import (
-    Correspondence,
-    from_pairs,
-    load_map,
-    nearest_neighbors,
-    save_map,
-    transfer_function,
-    transfer_labels,
-)
-from toolkit.errors import ParameterError, ShapeFileError
-from toolkit.generate import icosphere
-from toolkit.metrics import (
+from shape_toolkit.data.generate import icosphere
+from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.metrics import (
     correspondence_report,
     error_curve,
     geodesic_errors,
@@ -26,6 +17,15 @@ from toolkit.metrics import (
     paired_geodesic_distances,
     r_smoothness,
     target_coverage,
+)
+from shape_toolkit.results.correspondence import (
+    Correspondence,
+    from_pairs,
+    load_map,
+    nearest_neighbors,
+    save_map,
+    transfer_function,
+    transfer_labels,
 )
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import shortest_path
 
-from toolkit.corruptions import (
+from shape_toolkit.data.corruptions import (
     CORRUPTIONS,
     apply_corruption,
     carry_correspondence,
@@ -21,8 +21,8 @@ from toolkit.corruptions import (
     shortcut,
     shot_noise,
 )
-from toolkit.errors import ParameterError
-from toolkit.synthetic import articulated_shape
+from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.errors import ParameterError
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""toolkit.eigen.smallest_eigenpairs: analytic spectra, dense agreement, every method, errors."""
+"""shape_toolkit.core.eigen.smallest_eigenpairs: analytic spectra, dense agreement, every method, errors."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 import scipy.linalg as la
 import scipy.sparse as sp
 
-from toolkit.eigen import METHODS, smallest_eigenpairs
-from toolkit.errors import ParameterError, SolverError
+from shape_toolkit.core.eigen import METHODS, smallest_eigenpairs
+from shape_toolkit.errors import ParameterError, SolverError
 
 SPARSE_METHODS = [m for m in METHODS if m not in ("auto", "dense")]
 
@@ -172,7 +172,7 @@ def test_auto_uses_block_krylov_on_cholmod(grid):
 
 
 def test_splu_fallback_when_cholmod_unavailable(grid, monkeypatch):
-    import toolkit.eigen as eigen
+    import shape_toolkit.core.eigen as eigen
 
     def broken(_S):
         raise ImportError("no cholespy")
@@ -242,7 +242,7 @@ def test_highly_symmetric_graph_with_clusters_cut_at_k():
     The block solver must find every copy; single-vector ARPACK ("arpack", "arpack-splu") is known
     to miss copies of a multiple eigenvalue at the cut, so it is not asked to here.
     """
-    from toolkit.generate import icosphere
+    from shape_toolkit.data.generate import icosphere
 
     e = icosphere(3).edges  # 642 vertices
     n = int(e.max()) + 1

@@ -7,8 +7,10 @@ import pytest
 import scipy.linalg as la
 import scipy.sparse as sp
 
-from toolkit import ParameterError, Shape, build_graph, compute_spectrum
-from toolkit.embedding import (
+from shape_toolkit import ParameterError, Shape, build_graph, compute_spectrum
+from shape_toolkit.core.graph import ShapeGraph
+from shape_toolkit.data.generate import icosphere
+from shape_toolkit.features.embedding import (
     choose_dimension,
     commute_time_distance,
     commute_time_embedding,
@@ -16,8 +18,6 @@ from toolkit.embedding import (
     scree_theta,
     theta_min,
 )
-from toolkit.generate import icosphere
-from toolkit.graph import ShapeGraph
 
 
 def _full(shape: Shape):

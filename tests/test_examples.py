@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from toolkit.bench.config import load_config, parse_config
-from toolkit.bench.runner import read_rows, run_benchmark
+from shape_toolkit.bench.config import load_config, parse_config
+from shape_toolkit.bench.runner import read_rows, run_benchmark
 
 if sys.version_info >= (3, 11):
     import tomllib

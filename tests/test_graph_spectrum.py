@@ -7,7 +7,7 @@ import pytest
 import scipy.linalg as la
 import scipy.sparse as sp
 
-from toolkit import (
+from shape_toolkit import (
     DisconnectedGraphError,
     InvalidShapeError,
     ParameterError,
@@ -17,9 +17,8 @@ from toolkit import (
     compute_spectrum,
     laplacian_matrix,
 )
-from toolkit.generate import icosphere
-from toolkit.graph import ShapeGraph, epsilon_edges, knn_edges
-from toolkit.spectrum import (
+from shape_toolkit.core.graph import ShapeGraph, epsilon_edges, knn_edges
+from shape_toolkit.core.spectrum import (
     Spectrum,
     clear_cache,
     component_spectra,
@@ -27,7 +26,8 @@ from toolkit.spectrum import (
     is_cached,
     set_cache_dir,
 )
-from toolkit.synthetic import articulated_shape
+from shape_toolkit.data.generate import icosphere
+from shape_toolkit.data.synthetic import articulated_shape
 
 
 @pytest.fixture(scope="module")
@@ -143,7 +143,7 @@ def test_large_sparse_path_matches_dense():
 
 
 def test_proposition_1_2_3_and_theorem_3(sphere):
-    from toolkit.embedding import commute_time_embedding
+    from shape_toolkit.features.embedding import commute_time_embedding
 
     g = build_graph(sphere, "gaussian")
     spec = compute_spectrum(g, 12)

@@ -8,11 +8,11 @@ import pytest
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from toolkit import heat
-from toolkit.errors import ParameterError
-from toolkit.graph import ShapeGraph
-from toolkit.shape import Shape
-from toolkit.spectrum import Spectrum, compute_spectrum
+from shape_toolkit.features import heat
+from shape_toolkit.core.graph import ShapeGraph
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.spectrum import Spectrum, compute_spectrum
+from shape_toolkit.errors import ParameterError
 
 
 # -- tiny graphs with complete spectra ----------------------------------------------------------

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from toolkit.cleanup import clean_shape
-from toolkit.errors import InvalidShapeError, ParameterError
-from toolkit.generate import icosphere
-from toolkit.inspect import connected_components, mesh_info
-from toolkit.io import load_shape, save_shape
-from toolkit.shape import Shape
+from shape_toolkit.core.cleanup import clean_shape
+from shape_toolkit.core.inspect import connected_components, mesh_info
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.data.generate import icosphere
+from shape_toolkit.errors import InvalidShapeError, ParameterError
+from shape_toolkit.io.mesh import load_shape, save_shape
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -254,7 +254,7 @@ def test_cleanup_parameter_errors(sphere):
 # -- CLI ------------------------------------------------------------------------------------------
 def _cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "toolkit", *args], capture_output=True, text=True, cwd=REPO,
+        [sys.executable, "-m", "shape_toolkit", *args], capture_output=True, text=True, cwd=REPO,
         timeout=300,
     )  # fmt: skip
 

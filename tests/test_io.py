@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import toolkit.io as tio
-from toolkit.errors import ParameterError, ShapeFileError
-from toolkit.io import load_shape, save_shape
-from toolkit.shape import Shape
+import shape_toolkit.io.mesh as tio
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.io.mesh import load_shape, save_shape
 
 
 def _write(path, text: str):

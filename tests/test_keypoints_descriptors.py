@@ -8,23 +8,23 @@ import json
 import numpy as np
 import pytest
 
-from toolkit import heat
-from toolkit.cli import main as cli_main
-from toolkit.eigen import smallest_eigenpairs
-from toolkit.errors import InvalidShapeError, ParameterError, PluginError
-from toolkit.generate import icosphere
-from toolkit.geodesics import k_ring
-from toolkit.graph import build_graph
-from toolkit.io import save_shape
-from toolkit.metrics.keypoints import (
+from shape_toolkit.features import heat
+from shape_toolkit.api.registry import available_plugins, create_plugin, get_plugin
+from shape_toolkit.cli import main as cli_main
+from shape_toolkit.core.eigen import smallest_eigenpairs
+from shape_toolkit.core.graph import build_graph
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.spectrum import Spectrum, laplacian_matrix
+from shape_toolkit.data.generate import icosphere
+from shape_toolkit.errors import InvalidShapeError, ParameterError, PluginError
+from shape_toolkit.features.geodesics import k_ring
+from shape_toolkit.io.mesh import save_shape
+from shape_toolkit.metrics.keypoints import (
     ground_truth_map,
     keypoint_coverage,
     keypoint_repeatability,
     repeatability_report,
 )
-from toolkit.registry import available_plugins, create_plugin, get_plugin
-from toolkit.shape import Shape
-from toolkit.spectrum import Spectrum, laplacian_matrix
 
 DIRS = np.array([[0, 0, 1], [1, 0, 0], [0, -1, 0], [-0.6, 0.8, 0.0]], float)
 HEIGHTS = [1.2, 0.9, 0.7, 0.5]

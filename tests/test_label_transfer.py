@@ -10,13 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from toolkit.correspondence import Correspondence, transfer_labels
-from toolkit.datasets import write_labels
-from toolkit.errors import ParameterError
-from toolkit.io import save_shape
-from toolkit.label_transfer import probabilistic_label_transfer
-from toolkit.metrics import label_transfer_scores
-from toolkit.synthetic import articulated_shape
+from shape_toolkit.data.datasets import write_labels
+from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.io.mesh import save_shape
+from shape_toolkit.metrics import label_transfer_scores
+from shape_toolkit.results.correspondence import Correspondence, transfer_labels
+from shape_toolkit.results.label_transfer import probabilistic_label_transfer
 
 REPO = Path(__file__).resolve().parent.parent
 #: limb labels merged by mirror symmetry: body, arms, legs, head (an intrinsic transfer may swap
@@ -71,7 +71,7 @@ def test_cli_transfer_labels(shapes, tmp_path):
     save_shape(b.shape, tmp_path / "b.off")
     write_labels(tmp_path / "a.txt", SYMMETRIC_CLASSES[a.labels])
     write_labels(tmp_path / "b.txt", SYMMETRIC_CLASSES[b.labels])
-    cmd = [sys.executable, "-m", "toolkit", "transfer-labels", tmp_path / "a.off", tmp_path / "a.txt",
+    cmd = [sys.executable, "-m", "shape_toolkit", "transfer-labels", tmp_path / "a.off", tmp_path / "a.txt",
            tmp_path / "b.off", "-o", tmp_path / "out.txt", "--truth", tmp_path / "b.txt", "--json"]
     r = subprocess.run(list(map(str, cmd)), capture_output=True, text=True, cwd=REPO)
     assert r.returncode == 0, r.stderr

@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from toolkit.errors import ParameterError, PluginError, ShapeFileError
-from toolkit.io import save_shape
-from toolkit.metrics import geodesic_errors
-from toolkit.pipeline import PRESETS, Pipeline, load_pipeline, read_seeds, run_pipeline
-from toolkit.registry import create_plugin
-from toolkit.synthetic import articulated_shape
+from shape_toolkit.api.registry import create_plugin
+from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.errors import ParameterError, PluginError, ShapeFileError
+from shape_toolkit.io.mesh import save_shape
+from shape_toolkit.metrics import geodesic_errors
+from shape_toolkit.pipeline import PRESETS, Pipeline, load_pipeline, read_seeds, run_pipeline
 
 ANGLES_A = [0.4, 0.4, -0.3, -0.3, 0.2]
 ANGLES_B = [-0.4, 0.4, 0.3, -0.3, -0.2]
@@ -204,7 +204,7 @@ def test_read_seeds(tmp_path):
 
 # -- command line -----------------------------------------------------------------------------------
 def _cli(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "toolkit", *map(str, args)], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "shape_toolkit", *map(str, args)], capture_output=True,
                           text=True, cwd=cwd or REPO)
 
 
@@ -260,8 +260,8 @@ def test_cli_match_errors(small_pair, tmp_path):
 
 @pytest.mark.slow
 def test_tosca_pair_zoomout(shared_data):
-    from toolkit.datasets import read_vts
-    from toolkit.io import load_shape
+    from shape_toolkit.data.datasets import read_vts
+    from shape_toolkit.io.mesh import load_shape
 
     d = shared_data / "tosca5k"
     A, B = load_shape(d / "cat0.off"), load_shape(d / "cat1.off")

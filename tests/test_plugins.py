@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from toolkit import ParameterError, PluginError, build_graph, hookimpl
-from toolkit.generate import icosphere
-from toolkit.hookspecs import FAMILY_HOOKS
-from toolkit.interfaces import FAMILY_INTERFACES, BasePlugin, Weighting, Weights
-from toolkit.registry import Registry, available_plugins, get_plugin
+from shape_toolkit import ParameterError, PluginError, build_graph, hookimpl
+from shape_toolkit.api.hookspecs import FAMILY_HOOKS
+from shape_toolkit.api.interfaces import FAMILY_INTERFACES, BasePlugin, Weighting, Weights
+from shape_toolkit.api.registry import Registry, available_plugins, get_plugin
+from shape_toolkit.data.generate import icosphere
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -24,10 +24,10 @@ def test_every_family_is_listed_and_builtins_come_through_entry_points():
     fams = available_plugins()
     assert set(fams) == set(FAMILY_HOOKS) == set(FAMILY_INTERFACES)
     assert {"binary", "gaussian", "cotangent", "intrinsic-delaunay"} <= set(fams["weightings"])
-    # built-ins register exactly as a third-party plugin: through the 'toolkit' entry points
+    # built-ins register exactly as a third-party plugin: through the per-family entry points
     reg = Registry()
-    names = {name for name, _ in reg.pm.list_name_plugin()}
-    assert {"binary", "gaussian", "cotangent", "intrinsic-delaunay"} <= names
+    for name in ("binary", "gaussian", "cotangent", "intrinsic-delaunay"):
+        assert reg.entry_point("weightings", name).startswith("shape_toolkit.plugins.weightings.")
     assert not reg.broken
 
 
@@ -62,7 +62,7 @@ class _Doubled(Weighting):
         self.factor = factor
 
     def weigh(self, shape, edges):
-        from toolkit.graph import weights_from_edges
+        from shape_toolkit.core.graph import weights_from_edges
 
         return Weights(weights_from_edges(shape.n_vertices, edges, np.full(len(edges), self.factor)))
 
@@ -88,9 +88,8 @@ def test_register_in_process_and_conflicts():
         def toolkit_weightings(self):
             return {"gaussian": _Doubled}
 
-    reg.register(Clash(), name="clash")
     with pytest.raises(PluginError, match="two plugins register weightings 'gaussian'"):
-        reg.families()
+        reg.register(Clash(), name="clash")  # refused at once, though 'gaussian' is not imported yet
 
     class NoMethod:
         @hookimpl
@@ -98,17 +97,16 @@ def test_register_in_process_and_conflicts():
             return {"broken": object}
 
     reg2 = Registry()
-    reg2.register(NoMethod(), name="nomethod")
     with pytest.raises(PluginError, match="without a segment"):
-        reg2.families()
+        reg2.register(NoMethod(), name="nomethod")
 
 
 THIRD_PARTY = '''
 """A throwaway third-party weighting plugin: w_ij = 1 / edge length."""
 import numpy as np
-from toolkit.hookspecs import hookimpl
-from toolkit.interfaces import Weighting, Weights
-from toolkit.graph import weights_from_edges
+from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.interfaces import Weighting, Weights
+from shape_toolkit.core.graph import weights_from_edges
 
 
 class InverseLength(Weighting):
@@ -136,14 +134,14 @@ def test_third_party_plugin_installed_by_entry_point_is_listed_and_used(tmp_path
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: tp-weights\nVersion: 0.1\n")
     (dist / "entry_points.txt").write_text("[toolkit]\ninverse-length = tp_weights\n")
     mesh = tmp_path / "sphere.off"
-    from toolkit.io import save_shape
+    from shape_toolkit.io.mesh import save_shape
 
     save_shape(icosphere(2), mesh)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), str(REPO)])}
 
     def cli(*args):
         return subprocess.run(
-            [sys.executable, "-m", "toolkit", *args], env=env, capture_output=True, text=True, timeout=120
+            [sys.executable, "-m", "shape_toolkit", *args], env=env, capture_output=True, text=True, timeout=120
         )
 
     listed = cli("plugins", "list", "--json")

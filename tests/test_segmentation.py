@@ -10,9 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from toolkit.errors import ParameterError, ShapeFileError
-from toolkit.io import save_shape
-from toolkit.labels import (
+from shape_toolkit.api.registry import available_plugins, create_plugin
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.io.mesh import save_shape
+from shape_toolkit.metrics.segmentation import matched_recall_precision, rand_index_error
+from shape_toolkit.results.labels import (
     ConstraintError,
     Constraints,
     coerce_constraints,
@@ -23,10 +27,6 @@ from toolkit.labels import (
     save_constraints,
     vertex_to_face_labels,
 )
-from toolkit.metrics.segmentation import matched_recall_precision, rand_index_error
-from toolkit.registry import available_plugins, create_plugin
-from toolkit.shape import Shape
-from toolkit.synthetic import articulated_shape
 
 REPO = Path(__file__).resolve().parent.parent
 METHODS = ["eigvec-gmm", "spectral-clustering", "csc", "spectral-learning", "ccskl"]
@@ -198,7 +198,7 @@ def test_eigvec_gmm_diagnostics_and_bic(body):
 
 
 def test_bic_knee_of_a_curve_without_minimum():
-    from plugins.segment_eigvec_gmm import _knee
+    from shape_toolkit.plugins.segmenters.eigvec_gmm import _knee
 
     ks = np.arange(2.0, 12.0)
     bic = np.where(ks <= 5, -100 * ks, -500 - 5 * (ks - 5))  # steep until 5, then slowly improving
@@ -241,13 +241,13 @@ def test_missing_k_and_bad_constraints(body):
 
 # -- CLI -------------------------------------------------------------------------------------
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "toolkit", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "shape_toolkit", *args], capture_output=True, text=True,
                           cwd=cwd, env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"}, timeout=300)
 
 
 def _main(args: list[str], cwd: Path, capsys, monkeypatch) -> tuple[int, str, str]:
     """In-process CLI run (faster than a subprocess): (exit code, stdout, stderr)."""
-    from toolkit.cli import main
+    from shape_toolkit.cli import main
 
     monkeypatch.chdir(cwd)
     capsys.readouterr()
@@ -324,9 +324,9 @@ def test_cli_error_exit_in_a_subprocess(small_case):
 
 # -- real data -------------------------------------------------------------------------------
 def test_psb_human_mesh(shared_data):
-    from toolkit.datasets import read_face_labels
-    from toolkit.io import load_shape
-    from toolkit.metrics.segmentation import segmentation_scores
+    from shape_toolkit.data.datasets import read_face_labels
+    from shape_toolkit.io.mesh import load_shape
+    from shape_toolkit.metrics.segmentation import segmentation_scores
 
     psb = shared_data / "psb"
     if not (psb / "off" / "1.off").exists():

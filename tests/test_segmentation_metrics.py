@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from toolkit.errors import ParameterError
-from toolkit.metrics.segmentation import (
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.metrics.segmentation import (
     SEGMENTATION_METRICS,
     _average_radius,
     consistency_errors,
@@ -16,7 +17,6 @@ from toolkit.metrics.segmentation import (
     rand_index_error,
     segmentation_scores,
 )
-from toolkit.shape import Shape
 
 
 def grid(nx: int = 10, ny: int = 6) -> Shape:

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from toolkit.errors import ParameterError
-from toolkit.shape import Shape
-from toolkit.synthetic import articulated_shape
-from toolkit.viz import label_colors, match_colors, render_shape, render_shapes, save_colored_ply
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.io.viz import label_colors, match_colors, render_shape, render_shapes, save_colored_ply
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,206 @@
+"""The interface of every plugin family, in the scikit-learn estimator style.
+
+``__init__`` only stores keyword parameters (all visible in ``repr`` and :meth:`get_params`),
+the work happens in one method, and randomness comes from a ``random_state`` parameter.
+A plugin may subclass these bases (recommended) or simply provide the same method.
+"""
+
+from __future__ import annotations
+
+import inspect
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+import scipy.sparse as sp
+
+from shape_toolkit.errors import ParameterError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from shape_toolkit.core.shape import Shape
+    from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
+    from shape_toolkit.results.correspondence import Correspondence
+
+
+class BasePlugin:
+    """Parameter handling shared by all plugins, with scikit-learn's semantics: ``get_params``
+    (``deep=True`` adds ``name__param`` entries of nested plugins), ``set_params`` (nested too),
+    ``repr``; so ``sklearn.base.clone(plugin)`` works. A plugin that needs a spectrum says which
+    in :meth:`spectrum_spec`; callers compute it and pass it in."""
+
+    family: ClassVar[str] = ""
+    #: named parameter sets, e.g. {"sparse": {...}, "dense": {...}}
+    presets: ClassVar[dict[str, dict[str, Any]]] = {}
+
+    @classmethod
+    def _param_names(cls) -> list[str]:
+        sig = inspect.signature(cls.__init__)
+        return [
+            p.name
+            for p in sig.parameters.values()
+            if p.name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+        ]
+
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """The constructor parameters and their current values; with ``deep``, also those of
+        nested plugins as ``name__param``."""
+        out: dict[str, Any] = {}
+        for name in self._param_names():
+            value = getattr(self, name)
+            out[name] = value
+            if deep and hasattr(value, "get_params") and not isinstance(value, type):
+                out.update({f"{name}__{k}": v for k, v in value.get_params(deep=True).items()})
+        return out
+
+    def set_params(self, **params: Any) -> BasePlugin:
+        """Set constructor parameters (``name__param`` for nested plugins); unknown names raise
+        :class:`ParameterError`."""
+        valid = set(self._param_names())
+        nested: dict[str, dict[str, Any]] = {}
+        for key, value in params.items():
+            head, sep, rest = key.partition("__")
+            if head not in valid:
+                raise ParameterError(
+                    f"{type(self).__name__} has no parameter {head!r}; valid: {sorted(valid)}"
+                )
+            if sep:
+                nested.setdefault(head, {})[rest] = value
+            else:
+                setattr(self, key, value)
+        for head, sub in nested.items():
+            inner = getattr(self, head)
+            if not hasattr(inner, "set_params"):
+                raise ParameterError(f"{type(self).__name__}.{head} is not a plugin; cannot set {sorted(sub)}")
+            inner.set_params(**sub)
+        return self
+
+    def spectrum_spec(self) -> SpectrumSpec | None:
+        """The spectrum this plugin needs (weighting, Laplacian, mass, ``k``), or None."""
+        return None
+
+    def _spectrum(self, shape: Shape, spectrum: Spectrum | None) -> Spectrum:
+        """``spectrum`` checked against :meth:`spectrum_spec` (a typed error when it is too short or
+        of another kind); when None, the declared spectrum through the shared content cache."""
+        spec = self.spectrum_spec()
+        if spec is None:  # pragma: no cover - programming error in a plugin
+            raise TypeError(f"{type(self).__name__} declares no spectrum")
+        if spectrum is None:
+            return spec.compute(shape)
+        return spec.check(spectrum, shape, who=type(self).__name__)
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params(deep=False).items())
+        return f"{type(self).__name__}({args})"
+
+
+@dataclass
+class Weights:
+    """What a weighting scheme returns: symmetric weights ``W`` (n, n) CSR, optional lumped mass
+    ``mass`` (n,) (area units), and ``info`` (e.g. counts of negative weights)."""
+
+    W: sp.csr_matrix
+    mass: np.ndarray | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class Weighting(BasePlugin, ABC):
+    """Edge-weighting scheme of a shape graph (thesis 3.3.3)."""
+
+    family = "weightings"
+    #: True when the scheme ignores the given edges and needs triangles (e.g. cotangent)
+    needs_faces: ClassVar[bool] = False
+
+    @abstractmethod
+    def weigh(self, shape: Shape, edges: np.ndarray) -> Weights:
+        """Weights for the undirected ``(e, 2)`` int64 ``edges`` of ``shape``."""
+
+
+class KeypointDetector(BasePlugin, ABC):
+    """Detects sparse, repeatable vertices."""
+
+    family = "keypoints"
+
+    @abstractmethod
+    def detect(self, shape: Shape, *, spectrum: Spectrum | None = None) -> np.ndarray:
+        """0-based int64 vertex ids ``(p,)`` of the keypoints, in a deterministic order."""
+
+
+class Descriptor(BasePlugin, ABC):
+    """Per-vertex feature vectors."""
+
+    family = "descriptors"
+
+    @abstractmethod
+    def compute(
+        self,
+        shape: Shape,
+        *,
+        spectrum: Spectrum | None = None,
+        keypoints: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """A float64 ``(n, d)`` descriptor matrix, one row per vertex."""
+
+
+class SparseMatcher(BasePlugin, ABC):
+    """One-to-one matching of the keypoints of two shapes."""
+
+    family = "sparse_matchers"
+
+    @abstractmethod
+    def match(
+        self,
+        source: Shape,
+        target: Shape,
+        source_keypoints: np.ndarray,
+        target_keypoints: np.ndarray,
+        *,
+        source_spectrum: Spectrum | None = None,
+        target_spectrum: Spectrum | None = None,
+    ) -> np.ndarray:
+        """Matched vertex pairs as an int64 ``(q, 2)`` array ``[source_vertex, target_vertex]``."""
+
+
+class DenseMatcher(BasePlugin, ABC):
+    """A correspondence for every source vertex."""
+
+    family = "dense_matchers"
+
+    @abstractmethod
+    def match(
+        self,
+        source: Shape,
+        target: Shape,
+        *,
+        seeds: np.ndarray | None = None,
+        source_spectrum: Spectrum | None = None,
+        target_spectrum: Spectrum | None = None,
+    ) -> Correspondence:
+        """The dense map; ``seeds`` is an optional int64 ``(q, 2)`` array of known matches."""
+
+
+class Segmenter(BasePlugin, ABC):
+    """Assigns one label per vertex."""
+
+    family = "segmenters"
+
+    @abstractmethod
+    def segment(
+        self,
+        shape: Shape,
+        *,
+        spectrum: Spectrum | None = None,
+        constraints: Any | None = None,
+    ) -> np.ndarray:
+        """int64 labels ``(n,)`` in ``0..k-1``."""
+
+
+#: family name -> (base class, name of the method a plugin must provide)
+FAMILY_INTERFACES: dict[str, tuple[type, str]] = {
+    "weightings": (Weighting, "weigh"),
+    "keypoints": (KeypointDetector, "detect"),
+    "descriptors": (Descriptor, "compute"),
+    "sparse_matchers": (SparseMatcher, "match"),
+    "dense_matchers": (DenseMatcher, "match"),
+    "segmenters": (Segmenter, "segment"),
+}

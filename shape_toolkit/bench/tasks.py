@@ -1,0 +1,512 @@
+"""Task adapters: how a benchmark calls each plugin family and scores its output.
+
+A task adapter knows the plugin families whose methods it compares, how to call a method
+through the family interface of :mod:`shape_toolkit.api.interfaces` (so any registered plugin works),
+and its metrics by name. Metrics return ``{column: value}`` where a value is a number, or a
+curve ``[[x, y], ...]`` that reports plot averaged per method. Metric functions of other
+modules (``shape_toolkit.metrics.*``) are looked up by name when used, so a metric appears as soon
+as its module exists.
+
+Items are *prepared* once per (item, corruption) and shared by every method: the corrupted
+shape, the ground truth carried through the corruption, and geodesic distance rows of the
+evaluated ground-truth points (matching). Spectra go through the content-addressed cache of
+:mod:`shape_toolkit.core.spectrum` (on disk in the run folder), so each is computed once per run.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.data.corruptions import RESAMPLING, apply_corruption, carry_correspondence, carry_labels
+from shape_toolkit.data.datasets import DatasetItem
+from shape_toolkit.errors import ParameterError
+
+__all__ = [
+    "Prepared",
+    "TaskAdapter",
+    "TASKS",
+    "prepare",
+    "get_spectrum",
+    "lookup_metric",
+]
+
+
+@dataclass
+class Prepared:
+    """An item ready for a task: ``source`` (clean) and ``target`` (corrupted; for single-shape
+    tasks the analysed shape), ground-truth pairs ``truth`` ``(q, 2)`` source -> target (and
+    ``truth_sym``), per-vertex ground-truth labels of both, the corruption's vertex map
+    (target -> uncorrupted target) and ``geodesic_rows`` (q_eval, n_target) of the evaluated
+    truth pairs ``truth_eval`` when a task needs them."""
+
+    name: str
+    source: Shape
+    target: Shape
+    truth: np.ndarray | None
+    truth_sym: np.ndarray | None
+    source_labels: list[np.ndarray]
+    target_labels: list[np.ndarray]
+    vertex_map: np.ndarray
+    corruption_seconds: float = 0.0
+    truth_eval: np.ndarray | None = None
+    truth_eval_sym: np.ndarray | None = None
+    geodesic_rows: np.ndarray | None = None
+    geodesic_rows_sym: np.ndarray | None = None
+    geodesic_seconds: float = 0.0
+    meta: dict[str, Any] = field(default_factory=dict)
+    target_face_labels: list[np.ndarray] = field(default_factory=list)
+
+
+def prepare(
+    item: DatasetItem,
+    corruption_kind: str,
+    corruption_params: dict[str, Any],
+    *,
+    pairwise: bool,
+    random_state: int,
+    truth_sample: int | None = None,
+    geodesic_method: str | None = None,
+) -> Prepared:
+    """Corrupt the analysed shape of ``item`` and carry its ground truth: for ``pairwise`` tasks
+    the target is ``item.target`` (or a copy of the shape, with the identity as truth), else
+    the shape itself. With ``geodesic_method``, distance rows from (a sample of ``truth_sample``)
+    ground-truth target vertices are computed once here for every method to reuse."""
+    src = item.shape
+    if pairwise and item.target is not None:
+        tgt0, truth, sym = item.target, item.correspondence, item.symmetric_correspondence
+        tlabels = item.target_labels
+    else:
+        tgt0, truth, sym, tlabels = src, None, None, item.labels
+        ident = np.arange(src.n_vertices, dtype=np.int64)
+        truth = np.stack([ident, ident], axis=1)
+    t0 = time.perf_counter()
+    tgt, vmap = apply_corruption(tgt0, corruption_kind, random_state=random_state, **corruption_params)
+    secs = time.perf_counter() - t0
+    if corruption_kind != "none":
+        rs = corruption_kind in RESAMPLING
+        truth = carry_correspondence(truth, vmap, tgt0, resampled=rs) if truth is not None else None
+        sym = carry_correspondence(sym, vmap, tgt0, resampled=rs) if sym is not None else None
+        tlabels = [carry_labels(lab, vmap) for lab in tlabels]
+    p = Prepared(
+        item.name, src, tgt, truth, sym, list(item.labels), list(tlabels), vmap, secs, meta=dict(item.meta)
+    )
+    if corruption_kind == "none" and tgt0 is src:
+        p.target_face_labels = list(item.face_labels)
+    if geodesic_method and truth is not None and len(truth):
+        from shape_toolkit.features.geodesics import geodesic_distances
+
+        rng = np.random.default_rng(random_state)
+        sel = np.arange(len(truth))
+        if sym is not None and len(sym) != len(truth):  # rows dropped differently: no symmetric truth
+            sym = None
+        if truth_sample and len(truth) > truth_sample:
+            sel = np.sort(rng.choice(len(truth), truth_sample, replace=False))
+        t0 = time.perf_counter()
+        p.truth_eval = truth[sel]
+        p.geodesic_rows = np.asarray(
+            geodesic_distances(tgt, truth[sel, 1], method=geodesic_method), np.float32
+        )
+        if sym is not None:
+            p.truth_eval_sym = sym[sel]
+            p.geodesic_rows_sym = np.asarray(
+                geodesic_distances(tgt, sym[sel, 1], method=geodesic_method), np.float32
+            )
+        p.geodesic_seconds = time.perf_counter() - t0
+    return p
+
+
+def get_spectrum(shape: Shape, settings: dict[str, Any], *, weighting_params: dict | None = None):
+    """The spectrum of ``shape`` for config ``settings`` (weighting, k, laplacian, params, ...)
+    through the content cache; returns ``(Spectrum, seconds, cache_hit)``."""
+    from shape_toolkit.core import spectrum as spm
+    from shape_toolkit.core.graph import build_graph
+
+    t0 = time.perf_counter()
+    params = dict(settings.get("params", {}) or {})
+    params.update(weighting_params or {})
+    kw = {}
+    for key in ("connectivity", "n_neighbors"):
+        if key in settings:
+            kw[key] = settings[key]
+    g = build_graph(shape, settings["weighting"], **kw, **params)
+    k = min(int(settings["k"]), shape.n_vertices - 1)
+    use_mass = settings.get("use_mass")
+    hit = spm.is_cached(g, k, laplacian=settings["laplacian"], use_mass=use_mass, components="largest")
+    spec = spm.compute_spectrum(
+        g, k, laplacian=settings["laplacian"], use_mass=use_mass, components="largest"
+    )
+    return spec, time.perf_counter() - t0, hit
+
+
+def lookup_metric(name: str) -> Callable[..., Any] | None:
+    """A function of :mod:`shape_toolkit.metrics` by name, or None when no such metric exists (yet)."""
+    import importlib
+
+    mod = importlib.import_module("shape_toolkit.metrics")
+    return getattr(mod, name, None)
+
+
+def _with_random_state(family: str, plugin: str, preset: str | None, params: dict, random_state: int):
+    from shape_toolkit.api.registry import create_plugin, get_plugin
+
+    cls = get_plugin(family, plugin)
+    params = dict(params)
+    names = cls._param_names() if hasattr(cls, "_param_names") else []
+    if "random_state" in names and "random_state" not in params:
+        params["random_state"] = random_state
+    return create_plugin(family, plugin, preset, **params)
+
+
+def _curve(x: np.ndarray, y: np.ndarray) -> list[list[float]]:
+    return [[float(a), float(b)] for a, b in zip(x, y)]
+
+
+# --------------------------------------------------------------------------------------------
+class TaskAdapter:
+    """Base adapter: ``families`` of the compared plugins, metric table, option defaults."""
+
+    name = ""
+    families: tuple[str, ...] = ()
+    pairwise = False
+    needs_keypoints: tuple[str, ...] = ()
+    option_defaults: dict[str, Any] = {}
+    default_metrics: tuple[str, ...] = ()
+    #: metric name -> (function(prepared, output, options) -> {column: value}, required shape_toolkit.metrics names)
+    metrics: dict[str, tuple[Callable[..., dict[str, Any]], tuple[str, ...]]] = {}
+
+    def check_options(self, options: dict[str, Any]) -> dict[str, Any]:
+        """Options merged over the defaults; unknown keys raise :class:`ParameterError`."""
+        if not isinstance(options, dict):
+            raise ParameterError("options must be a table")
+        bad = sorted(set(options) - set(self.option_defaults))
+        if bad:
+            raise ParameterError(
+                f"unknown {self.name} option {bad[0]!r}; "
+                f"known: {', '.join(sorted(self.option_defaults)) or 'none'}"
+            )
+        return {**self.option_defaults, **options}
+
+    def check_metric(self, name: str) -> str | None:
+        """None when ``name`` is usable, else the problem."""
+        if name not in self.metrics:
+            return f"unknown {self.name} metric {name!r}; known: {', '.join(sorted(self.metrics))}"
+        missing = [m for m in self.metrics[name][1] if lookup_metric(m) is None]
+        if missing:
+            return f"metric {name!r} needs shape_toolkit.metrics.{missing[0]}, which is not available"
+        return None
+
+    def run(
+        self,
+        method,
+        prepared: Prepared,
+        spectra: dict[str, Any],
+        options: dict[str, Any],
+        random_state: int,
+        detector: Any = None,
+    ):
+        """Call the method (``detector``: the keypoint detector of a sparse matcher); returns a
+        dict of output arrays (saved for reports)."""
+        raise NotImplementedError
+
+    def evaluate(self, names, prepared: Prepared, output: dict, options: dict) -> dict[str, Any]:
+        """Every requested metric as ``{column: value}`` (a failing metric raises)."""
+        out: dict[str, Any] = {}
+        for n in names:
+            out.update(self.metrics[n][0](prepared, output, options))
+        return out
+
+
+# -- spectrum ---------------------------------------------------------------------------------
+def _m_eigenvalues(p, o, opt):
+    lam = np.asarray(o["eigenvalues"])
+    return {"eigenvalues": _curve(np.arange(1, lam.size + 1), lam), "mean_eigenvalue": float(lam.mean())}
+
+
+def _m_fiedler(p, o, opt):
+    lam = np.asarray(o["eigenvalues"])
+    return {"lambda2": float(lam[1]) if lam.size > 1 else float("nan")}
+
+
+def _m_scree(p, o, opt):
+    from shape_toolkit.features.heat import scree_alpha
+
+    lam = np.asarray(o["eigenvalues"])
+    n = int(o["n_vertices"])
+    avail = max(lam.size - 1, 1)
+    res: dict[str, Any] = {}
+    ts = np.asarray(opt["scree_times"], dtype=float)
+    for frac in opt["scree_fractions"]:  # alpha vs t for K = frac of the computed eigenpairs (Fig. 6.3)
+        K = max(1, min(avail, int(round(frac * avail))))
+        res[f"alpha_vs_t_K{int(round(frac * 100))}pct"] = _curve(
+            ts, [scree_alpha(lam, K, t, n=n) for t in ts]
+        )
+    Ks = np.arange(1, avail + 1)
+    for t in opt["scree_times_for_K"]:  # alpha vs K (percent of computed eigenpairs) at fixed t (Fig. 6.4)
+        res[f"alpha_vs_K_t{t:g}"] = _curve(100.0 * Ks / avail, [scree_alpha(lam, int(K), t, n=n) for K in Ks])
+    return res
+
+
+class SpectrumTask(TaskAdapter):
+    """Laplacian spectra of each shape under each weighting plugin (the compared methods)."""
+
+    name = "spectrum"
+    families = ("weightings",)
+    option_defaults = {
+        "scree_fractions": [0.05, 0.1, 0.2, 0.5],
+        "scree_times": [0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0],
+        "scree_times_for_K": [1.0, 10.0],
+    }
+    default_metrics = ("eigenvalues", "lambda2")
+    metrics = {
+        "eigenvalues": (_m_eigenvalues, ()),
+        "lambda2": (_m_fiedler, ()),
+        "scree_alpha": (_m_scree, ()),
+    }
+
+    def run(self, method, prepared, spectra, options, random_state, detector=None):
+        spec = spectra["target"]
+        return {"eigenvalues": spec.eigenvalues, "n_vertices": prepared.target.n_vertices}
+
+
+# -- keypoints --------------------------------------------------------------------------------
+def _m_n_keypoints(p, o, opt):
+    return {"n_keypoints": int(len(o["keypoints"])), "n_keypoints_source": int(len(o["source_keypoints"]))}
+
+
+def _m_repeatability(p, o, opt):
+    """Keypoint repeatability in both directions through the ground-truth map
+    (:func:`shape_toolkit.metrics.repeatability_report`); columns per radius and a curve."""
+    report, gt_map = lookup_metric("repeatability_report"), lookup_metric("ground_truth_map")
+    if p.truth is None or not len(p.truth):
+        raise ParameterError(f"item {p.name!r} has no ground-truth map for repeatability")
+    a_to_b = gt_map(p.source, p.truth[:, 0], p.truth[:, 1], p.target.n_vertices)
+    b_to_a = gt_map(p.target, p.truth[:, 1], p.truth[:, 0], p.source.n_vertices)
+    kw = {} if opt.get("radii") is None else {"radii": opt["radii"]}
+    res = report(
+        p.source,
+        p.target,
+        o["source_keypoints"],
+        o["keypoints"],
+        a_to_b,
+        b_to_a,
+        method=opt["geodesic_method"],
+        **kw,
+    )
+    out: dict[str, Any] = {
+        "repeatability_curve": _curve(res["radii"], res["mean"]),
+        "chance_curve": _curve(res["radii"], res["chance"]),
+    }
+    for r, m, c in zip(res["radii"], res["mean"], res["chance"]):
+        out[f"repeatability@{r:g}"] = m
+        out[f"chance@{r:g}"] = c
+    return out
+
+
+class KeypointsTask(TaskAdapter):
+    """Keypoints on the clean source and the (corrupted / other pose) target; repeatability
+    through the ground-truth map."""
+
+    name = "keypoints"
+    families = ("keypoints",)
+    pairwise = True
+    option_defaults = {"radii": None, "geodesic_method": "fmm"}
+    default_metrics = ("n_keypoints",)
+    metrics = {
+        "n_keypoints": (_m_n_keypoints, ()),
+        "repeatability": (_m_repeatability, ("repeatability_report", "ground_truth_map")),
+    }
+
+    def run(self, method, prepared, spectra, options, random_state, detector=None):
+        return {
+            "source_keypoints": np.asarray(
+                method.detect(prepared.source, spectrum=spectra.get("source")), np.int64
+            ),
+            "keypoints": np.asarray(method.detect(prepared.target, spectrum=spectra["target"]), np.int64),
+        }
+
+
+# -- segmentation -----------------------------------------------------------------------------
+def _m_n_segments(p, o, opt):
+    lab = np.asarray(o["labels"])
+    return {"n_segments": int(np.unique(lab[lab >= 0]).size)}
+
+
+def _m_segmentation(p, o, opt):
+    """PSB scores (:func:`shape_toolkit.metrics.segmentation_scores`) on face labels, averaged over
+    every ground-truth segmentation: the dataset's own face labels when the mesh is unchanged,
+    else face labels derived from the (carried) vertex labels."""
+    from shape_toolkit.results.labels import vertex_to_face_labels
+
+    fn = lookup_metric("segmentation_scores")
+    if not p.target_labels:
+        raise ParameterError(f"item {p.name!r} has no ground-truth segmentation")
+    faces = p.target.require_faces("segmentation scores")
+    pred = vertex_to_face_labels(faces, np.asarray(o["labels"]))
+    truths = p.target_face_labels or [vertex_to_face_labels(faces, g) for g in p.target_labels]
+    res = fn(pred, truths, mesh=p.target)
+    return {
+        k: float(v) for k, v in res.items() if isinstance(v, (int, float, np.floating)) and k != "n_truths"
+    }
+
+
+class SegmentationTask(TaskAdapter):
+    """Segmenters on each (corrupted) shape, scored against its ground-truth segmentations.
+    ``constraints`` options draw must/cannot-links from the first ground truth
+    (:func:`shape_toolkit.results.labels.draw_constraints`) for semi-supervised methods."""
+
+    name = "segmentation"
+    families = ("segmenters",)
+    option_defaults = {"constraints": None}
+    default_metrics = ("n_segments",)
+    metrics = {"n_segments": (_m_n_segments, ()), "segmentation": (_m_segmentation, ("segmentation_scores",))}
+
+    def run(self, method, prepared, spectra, options, random_state, detector=None):
+        constraints = None
+        if options.get("constraints") is not None:
+            from shape_toolkit.results.labels import draw_constraints
+
+            if not prepared.target_labels:
+                raise ParameterError("constraints need a ground-truth segmentation")
+            c = dict(options["constraints"])
+            constraints = draw_constraints(
+                prepared.target_labels[0], prepared.target.edges, random_state=random_state, **c
+            )
+        labels = method.segment(prepared.target, spectrum=spectra["target"], constraints=constraints)
+        return {"labels": np.asarray(labels, dtype=np.int64)}
+
+
+# -- matching ---------------------------------------------------------------------------------
+def _errors(p: Prepared, target_of: np.ndarray) -> np.ndarray:
+    """Normalised geodesic errors of the evaluated truth pairs from the prepared rows (the
+    protocol of :func:`shape_toolkit.metrics.geodesic_errors`, reusing rows computed once per item)."""
+    if p.geodesic_rows is None:
+        raise ParameterError(f"item {p.name!r} has no correspondence ground truth")
+    ts = p.truth_eval[:, 0]
+    pred = np.asarray(target_of, dtype=np.int64)[ts]
+    ok = pred >= 0
+    err = np.full(len(ts), np.inf)
+    r = np.flatnonzero(ok)
+    err[r] = p.geodesic_rows[r, pred[r]]
+    if p.geodesic_rows_sym is not None:
+        err[r] = np.minimum(err[r], p.geodesic_rows_sym[r, pred[r]])
+    return err / np.sqrt(p.target.area)
+
+
+def _m_geodesic(p, o, opt):
+    report = lookup_metric("correspondence_report")
+    ts = p.truth_eval[:, 0]
+    t = np.asarray(o["target_of"])
+    if o.get("sparse"):  # evaluate the matched truth points only
+        keep = t[ts] >= 0
+        if not keep.any():
+            return {"mean_geodesic_error": float("nan"), "matched_fraction": 0.0}
+        sub = Prepared(**{**p.__dict__})
+        sub.truth_eval = p.truth_eval[keep]
+        sub.geodesic_rows = p.geodesic_rows[keep]
+        sub.geodesic_rows_sym = p.geodesic_rows_sym[keep] if p.geodesic_rows_sym is not None else None
+        errs = _errors(sub, t)
+    else:
+        errs = _errors(p, t)
+    res = report(errs)
+    return {
+        "mean_geodesic_error": res["mean_geodesic_error"],
+        "median_geodesic_error": res["median_geodesic_error"],
+        "within_0.05": res["within_0.05"],
+        "matched_fraction": res["matched_fraction"],
+        "geodesic_error_curve": res["curve"],
+    }
+
+
+def _m_coverage(p, o, opt):
+    fn = lookup_metric("target_coverage")
+    return {"target_coverage": fn(np.asarray(o["target_of"]), p.target.n_vertices)}
+
+
+def _m_label_transfer(p, o, opt):
+    fn = lookup_metric("label_transfer_scores")
+    if not p.source_labels or not p.target_labels:
+        raise ParameterError(f"item {p.name!r} has no ground-truth labels on both shapes")
+    inv = np.full(p.target.n_vertices, -1, dtype=np.int64)  # pull labels back: target vertex -> a source
+    t = np.asarray(o["target_of"])
+    src = np.flatnonzero(t >= 0)
+    inv[t[src]] = src
+    pred = np.where(inv >= 0, p.source_labels[0][np.maximum(inv, 0)], -1)
+    if (pred < 0).any() and (inv >= 0).any():  # unmatched target vertices take the nearest matched one
+        from scipy.spatial import cKDTree
+
+        have = np.flatnonzero(inv >= 0)
+        miss = np.flatnonzero(inv < 0)
+        pred[miss] = pred[have[cKDTree(p.target.vertices[have]).query(p.target.vertices[miss])[1]]]
+    res = fn(pred, p.target_labels[0])
+    return {"label_recall": res["recall"], "label_precision": res["precision"]}
+
+
+class MatchingTask(TaskAdapter):
+    """Dense matchers (and sparse matchers on detected keypoints) from the clean source to the
+    (corrupted) target, scored by the normalised geodesic error on ground-truth pairs."""
+
+    name = "matching"
+    families = ("dense_matchers", "sparse_matchers")
+    pairwise = True
+    needs_keypoints = ("sparse_matchers",)
+    option_defaults = {"truth_sample": 500, "geodesic_method": "heat"}
+    default_metrics = ("geodesic_error",)
+    metrics = {
+        "geodesic_error": (_m_geodesic, ("correspondence_report",)),
+        "coverage": (_m_coverage, ("target_coverage",)),
+        "label_transfer": (_m_label_transfer, ("label_transfer_scores",)),
+    }
+
+    def check_options(self, options):
+        from shape_toolkit.features.geodesics import GEODESIC_METHODS
+
+        o = super().check_options(options)
+        if o["geodesic_method"] not in GEODESIC_METHODS:
+            raise ParameterError(f"geodesic_method must be one of {', '.join(GEODESIC_METHODS)}")
+        if o["truth_sample"] is not None and (
+            not isinstance(o["truth_sample"], int) or o["truth_sample"] < 1
+        ):
+            raise ParameterError("truth_sample must be a positive integer")
+        return o
+
+    def run(self, method, prepared, spectra, options, random_state, detector=None):
+        src, tgt = prepared.source, prepared.target
+        if detector is not None:
+            det = detector
+            skp = np.asarray(det.detect(src, spectrum=spectra.get("source")), np.int64)
+            tkp = np.asarray(det.detect(tgt, spectrum=spectra.get("target")), np.int64)
+            pairs = np.asarray(
+                method.match(
+                    src,
+                    tgt,
+                    skp,
+                    tkp,
+                    source_spectrum=spectra.get("source"),
+                    target_spectrum=spectra.get("target"),
+                ),
+                dtype=np.int64,
+            ).reshape(-1, 2)
+            t = np.full(src.n_vertices, -1, dtype=np.int64)
+            t[pairs[:, 0]] = pairs[:, 1]
+            return {"target_of": t, "pairs": pairs, "sparse": True}
+        if type(method).__name__ == "Pipeline":  # shape_toolkit.pipeline: computes its own stages
+            corr = method.run(src, tgt)
+            t = np.asarray(corr.target_of, dtype=np.int64)
+            return {"target_of": t, "sparse": False}
+        corr = method.match(
+            src, tgt, source_spectrum=spectra.get("source"), target_spectrum=spectra.get("target")
+        )
+        t = corr.target_of if hasattr(corr, "target_of") else np.asarray(corr, dtype=np.int64)
+        return {"target_of": np.asarray(t, dtype=np.int64), "sparse": False}
+
+
+#: task name -> adapter
+TASKS: dict[str, TaskAdapter] = {
+    t.name: t for t in (SpectrumTask(), KeypointsTask(), SegmentationTask(), MatchingTask())
+}

@@ -1,0 +1,89 @@
+"""``shape-toolkit bench run CONFIG -o RUN_DIR`` and ``shape-toolkit bench report RUN_DIR``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from shape_toolkit.cli.commands._common import print_json
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="run benchmark configs and write reports")
+    bsub = p.add_subparsers(dest="bench_command", metavar="ACTION")
+    r = bsub.add_parser("run", help="run (or resume) a benchmark config into a run folder")
+    r.add_argument("config", help="TOML benchmark config")
+    r.add_argument(
+        "-o", "--output", required=True, metavar="RUN_DIR", help="run folder (results.jsonl, cache)"
+    )
+    r.add_argument(
+        "--workers", type=int, default=1, help="local parallel workers (Dask LocalCluster when > 1)"
+    )
+    r.add_argument(
+        "--scheduler", metavar="ADDRESS", help="address of an existing Dask scheduler (tcp://host:port)"
+    )
+    r.add_argument("--limit", type=int, metavar="N", help="keep the first N items of each dataset")
+    r.add_argument("--retry-failed", action="store_true", help="run failed rows again")
+    r.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    r.add_argument("--report", action="store_true", help="write the report when the run ends")
+    r.add_argument("--json", action="store_true", help='print {"rows", "failed", "reused", ...} at the end')
+    r.set_defaults(func=run_cmd)
+    rep = bsub.add_parser("report", help="write RUN_DIR/report/index.html and PNG figures")
+    rep.add_argument("run_dir", help="a run folder written by bench run")
+    rep.add_argument("-o", "--output", help="report folder (default RUN_DIR/report)")
+    rep.add_argument("--renders", type=int, default=3, help="shapes rendered per task (default 3)")
+    rep.add_argument("--json", action="store_true", help="print the written files as JSON")
+    rep.set_defaults(func=report_cmd)
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def run_cmd(args: argparse.Namespace) -> int:
+    from shape_toolkit.bench.config import load_config
+    from shape_toolkit.bench.runner import run_benchmark
+
+    cfg = load_config(args.config)  # every check happens before any work
+    summary = run_benchmark(
+        cfg,
+        args.output,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        limit=args.limit,
+        progress=not args.no_progress,
+        retry_failed=args.retry_failed,
+    )
+    report = None
+    if args.report:
+        from shape_toolkit.bench.report import write_report
+
+        report = str(write_report(args.output)["html"])
+    if args.json:
+        print_json(
+            {
+                "rows": summary.rows,
+                "failed": summary.failed,
+                "reused": summary.reused,
+                "planned": summary.planned,
+                "seconds": summary.seconds,
+                "run_dir": summary.run_dir,
+                "report": report,
+            }
+        )
+    else:
+        print(
+            f"{summary.rows} rows written, {summary.reused} reused, {summary.failed} failed "
+            f"({summary.planned} planned) in {summary.seconds:.1f} s -> {summary.run_dir}/results.jsonl"
+        )
+        if report:
+            print(f"report: {report}")
+    return 0 if summary.failed == 0 else 0
+
+
+def report_cmd(args: argparse.Namespace) -> int:
+    from shape_toolkit.bench.report import write_report
+
+    res = write_report(args.run_dir, output=args.output, renders=args.renders)
+    if args.json:
+        print_json({k: str(v) if not isinstance(v, list) else [str(x) for x in v] for k, v in res.items()})
+    else:
+        print(f"report: {res['html']} ({len(res['figures'])} figures)", file=sys.stdout)
+    return 0

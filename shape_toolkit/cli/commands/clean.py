@@ -1,0 +1,61 @@
+"""``shape-toolkit clean MESH -o OUT``: repair defects, write the result, print what changed."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from shape_toolkit.cli.commands._common import print_json
+from shape_toolkit.core.cleanup import clean_shape
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.io.mesh import load_shape, save_shape
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "clean",
+        help="merge duplicates, drop degenerate faces, repair non-manifold parts, optionally "
+        "keep the largest component and remesh",
+    )
+    p.add_argument("shape", help="input mesh or point-cloud file")
+    p.add_argument("-o", "--output", required=True, help="output file (OFF, PLY, OBJ, STL, XYZ)")
+    p.add_argument("--keep-largest", action="store_true", help="keep only the largest component")
+    p.add_argument("--remesh", type=float, metavar="EDGE_LEN", default=None,
+                   help="isotropic remeshing to this target edge length (file units)")
+    p.add_argument("--remesh-iterations", type=int, default=3, help="remeshing iterations")
+    p.add_argument("--no-repair", action="store_true", help="do not repair non-manifold parts")
+    p.add_argument("--binary", action="store_true", help="write binary PLY/STL")
+    p.add_argument("--map", metavar="NPY", default=None,
+                   help="also save the new->old vertex map (int64, -1 = new vertex) to this .npy")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.map and not str(args.map).endswith(".npy"):
+        raise ParameterError(f"--map must end with .npy, got {args.map!r}")
+    if Path(args.output).resolve() == Path(args.shape).resolve():
+        raise ParameterError("--output must differ from the input file")
+    shape = load_shape(args.shape)
+    cleaned, report = clean_shape(
+        shape,
+        repair_non_manifold=not args.no_repair,
+        keep_largest_component=args.keep_largest,
+        remesh_target_edge=args.remesh,
+        remesh_iterations=args.remesh_iterations,
+    )
+    save_shape(cleaned, args.output, binary=args.binary)
+    if args.map:
+        import numpy as np
+
+        np.save(args.map, report.vertex_map)
+    out = {"input": str(args.shape), "output": str(args.output), **report.to_dict()}
+    if args.json:
+        print_json(out)
+    else:
+        width = max(len(k) for k in out)
+        for k, v in out.items():
+            if k == "notes":
+                v = "; ".join(v) if v else "-"
+            print(f"{k.replace('_', ' '):<{width}}  {v}")
+    return 0

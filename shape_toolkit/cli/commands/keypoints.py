@@ -1,0 +1,54 @@
+"""``shape-toolkit keypoints MESH --detector NAME [--preset P] [--param K=V ...] [--json]``."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from shape_toolkit.api.registry import create_plugin
+from shape_toolkit.cli.commands._common import parse_params, print_json
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.io.mesh import load_shape
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("keypoints", help="detect keypoints (0-based vertex ids)")
+    p.add_argument("shape", help="mesh or point-cloud file")
+    p.add_argument("--detector", default="adf-maxima", help="keypoint plugin (default adf-maxima)")
+    p.add_argument("--preset", default=None, help="named parameter set, e.g. sparse or dense")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE",
+                   help="detector parameter (repeatable), overrides the preset")
+    p.add_argument("-o", "--output", help="also write the ids, one per line, to this file")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    params = parse_params(args.param)
+    detector = create_plugin("keypoints", args.detector, preset=args.preset, **params)
+    shape = load_shape(args.shape)
+    start = time.perf_counter()
+    ids = np.asarray(detector.detect(shape), dtype=np.int64)
+    seconds = time.perf_counter() - start
+    if ids.ndim != 1 or (ids.size and (ids.min() < 0 or ids.max() >= shape.n_vertices)):
+        raise ParameterError(f"detector {args.detector!r} returned invalid vertex ids")
+    if args.output:
+        np.savetxt(args.output, ids, fmt="%d")
+    result = {
+        "keypoints": ids.tolist(),
+        "detector": args.detector,
+        "preset": args.preset,
+        "params": detector.get_params(),
+        "n_keypoints": int(ids.size),
+        "n_vertices": shape.n_vertices,
+        "seconds": round(seconds, 4),
+    }
+    if args.json:
+        print_json(result)
+    else:
+        print(f"{shape!r}: {ids.size} keypoints ({args.detector}"
+              f"{', preset ' + args.preset if args.preset else ''})")
+        print(" ".join(str(i) for i in ids))
+    return 0

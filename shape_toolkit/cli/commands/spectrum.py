@@ -1,0 +1,64 @@
+"""``shape-toolkit spectrum MESH -k K``: Laplacian eigenvalues (and vectors to an .npz)."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from shape_toolkit.cli.commands._common import parse_params, print_json
+from shape_toolkit.core.graph import build_graph
+from shape_toolkit.core.spectrum import LAPLACIANS, compute_spectrum
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.io.mesh import load_shape
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("spectrum", help="smallest Laplacian eigenpairs of a shape")
+    p.add_argument("shape", help="mesh or point-cloud file")
+    p.add_argument("-k", type=int, default=20, help="number of eigenpairs (default 20)")
+    p.add_argument("--weighting", default="cotangent", help="weighting plugin (default cotangent)")
+    p.add_argument("--laplacian", default="combinatorial", choices=LAPLACIANS)
+    p.add_argument("--no-mass", action="store_true", help="ignore the weighting's mass matrix")
+    p.add_argument("--connectivity", default="auto", choices=["auto", "mesh", "knn", "epsilon"])
+    p.add_argument("--neighbors", type=int, default=10, help="k of the kNN graph (point clouds)")
+    p.add_argument("--radius", type=float, default=None, help="radius of the epsilon graph")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="weighting parameter")
+    p.add_argument("--largest-component", action="store_true",
+                   help="analyse the largest connected component instead of refusing")
+    p.add_argument("--sign-fix", action="store_true", help="deterministic eigenvector signs")
+    p.add_argument("-o", "--output", help="write eigenvalues and eigenvectors to this .npz")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.output and not str(args.output).endswith(".npz"):
+        raise ParameterError(f"--output must end with .npz, got {args.output!r}")
+    shape = load_shape(args.shape)
+    graph = build_graph(
+        shape, args.weighting, connectivity=args.connectivity, n_neighbors=args.neighbors,
+        radius=args.radius, **parse_params(args.param),
+    )
+    spec = compute_spectrum(
+        graph, args.k, laplacian=args.laplacian, use_mass=False if args.no_mass else None,
+        sign_fix=args.sign_fix, components="largest" if args.largest_component else "raise",
+    )
+    if args.output:
+        spec.save(args.output)
+    result = {
+        "eigenvalues": spec.eigenvalues.tolist(),
+        "n_vertices": shape.n_vertices,
+        "k": spec.k,
+        "weighting": args.weighting,
+        "laplacian": args.laplacian,
+        "generalized": spec.generalized,
+        "graph": {"edges": graph.n_edges, **graph.info},
+        "output": args.output,
+    }
+    if args.json:
+        print_json(result)
+    else:
+        print(f"{shape!r}: {spec.k} smallest eigenvalues ({args.laplacian}, {args.weighting}):")
+        print(np.array2string(spec.eigenvalues, precision=6, max_line_width=100))
+    return 0

@@ -1,0 +1,222 @@
+"""Repair common mesh defects and report exactly what changed.
+
+Topological repairs are done here with numpy (exact, deterministic, and every output vertex
+keeps track of the input vertex it came from); only isotropic remeshing calls pymeshlab.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from shape_toolkit.core.inspect import (
+    _unique_rows,
+    connected_components,
+    degenerate_face_mask,
+    duplicate_face_mask,
+    duplicate_vertex_map,
+    edge_face_counts,
+    face_fans,
+)
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import InvalidShapeError, ParameterError
+
+__all__ = ["CleanupReport", "clean_shape"]
+
+
+@dataclass
+class CleanupReport:
+    """What :func:`clean_shape` changed. ``vertex_map[i]`` is the input vertex of output vertex i.
+
+    ``vertex_map`` is int64 ``(n_vertices_after,)``; -1 marks vertices created by remeshing
+    (remeshed vertices keep their source only when their coordinates are exactly unchanged).
+    Vertices split off a non-manifold vertex map to that vertex.
+    """
+
+    n_vertices_before: int = 0
+    n_faces_before: int = 0
+    n_vertices_after: int = 0
+    n_faces_after: int = 0
+    duplicate_vertices_merged: int = 0
+    duplicate_faces_removed: int = 0
+    degenerate_faces_removed: int = 0
+    unreferenced_vertices_removed: int = 0
+    non_manifold_edges_repaired: int = 0
+    non_manifold_vertices_repaired: int = 0
+    components_removed: int = 0
+    remeshed: bool = False
+    notes: list[str] = field(default_factory=list)
+    vertex_map: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64), repr=False)
+
+    def to_dict(self) -> dict:
+        """The counts and notes as a JSON-ready dict (without the vertex map)."""
+        d = asdict(self)
+        d.pop("vertex_map")
+        return d
+
+
+def _keep_vertices(v, f, vmap, keep: np.ndarray):
+    """Restrict to vertices where ``keep`` (bool (n,)) is True, renumbering faces."""
+    remap = np.cumsum(keep) - 1
+    return v[keep], (remap[f] if f is not None else None), vmap[keep]
+
+
+def clean_shape(
+    shape: Shape,
+    *,
+    remove_duplicates: bool = True,
+    remove_degenerate: bool = True,
+    remove_unreferenced: bool = True,
+    repair_non_manifold: bool = True,
+    keep_largest_component: bool = False,
+    remesh_target_edge: float | None = None,
+    remesh_iterations: int = 3,
+) -> tuple[Shape, CleanupReport]:
+    """Clean a shape; return the new shape and a :class:`CleanupReport` of what changed.
+
+    Steps, in order: merge exactly coincident vertices, drop degenerate faces (repeated index
+    or zero area), drop duplicate faces (same vertex set), repair non-manifold edges (keep the
+    two largest faces on each) and vertices (split each extra fan into a new vertex), drop
+    unreferenced vertices, keep the component with most faces, isotropic remeshing to
+    ``remesh_target_edge`` (file units). A point cloud only gets duplicate points merged.
+    """
+    if remesh_target_edge is not None and not (np.isfinite(remesh_target_edge) and remesh_target_edge > 0):
+        raise ParameterError(f"remesh_target_edge must be > 0, got {remesh_target_edge!r}")
+    if int(remesh_iterations) != remesh_iterations or remesh_iterations < 1:
+        raise ParameterError(f"remesh_iterations must be a positive integer, got {remesh_iterations!r}")
+    rep = CleanupReport(n_vertices_before=shape.n_vertices, n_faces_before=shape.n_faces)
+    v = np.array(shape.vertices)
+    f = None if shape.faces is None else np.array(shape.faces)
+    vmap = np.arange(len(v), dtype=np.int64)
+
+    if remove_duplicates:
+        first = duplicate_vertex_map(v)
+        keep = first == np.arange(len(v))
+        rep.duplicate_vertices_merged = int((~keep).sum())
+        if f is not None:
+            f = first[f]
+        v, f, vmap = _keep_vertices(v, f, vmap, keep)
+
+    if f is None:
+        rep.notes.append("point cloud: only exactly duplicate points were merged")
+        if keep_largest_component or remesh_target_edge is not None:
+            raise InvalidShapeError(
+                "keep_largest_component and remeshing need a triangle mesh, got a point cloud"
+            )
+        return _finish(shape, v, None, vmap, rep)
+
+    if remove_degenerate:
+        bad = degenerate_face_mask(v, f)
+        rep.degenerate_faces_removed = int(bad.sum())
+        f = f[~bad]
+    if remove_duplicates:
+        dup = duplicate_face_mask(f)
+        rep.duplicate_faces_removed = int(dup.sum())
+        f = f[~dup]
+    if repair_non_manifold and len(f):
+        f, rep.non_manifold_edges_repaired = _repair_non_manifold_edges(v, f)
+        v, f, vmap, rep.non_manifold_vertices_repaired = _split_non_manifold_vertices(v, f, vmap)
+        if rep.non_manifold_vertices_repaired:
+            rep.notes.append(
+                "split vertices are exact copies (they count as duplicate vertices in mesh_info)"
+            )
+    if remove_unreferenced:
+        used = np.zeros(len(v), dtype=bool)
+        used[f.ravel()] = True
+        rep.unreferenced_vertices_removed = int((~used).sum())
+        v, f, vmap = _keep_vertices(v, f, vmap, used)
+    if len(f) == 0:
+        raise InvalidShapeError(f"cleaning {shape!r} removed every face")
+
+    if keep_largest_component:
+        k, labels = connected_components(Shape(v, f))
+        if k > 1:
+            n_faces_per = np.bincount(labels[f[:, 0]], minlength=k)
+            n_verts_per = np.bincount(labels, minlength=k)
+            best = np.lexsort((-n_verts_per, -n_faces_per))[0]  # most faces, then most vertices
+            rep.components_removed = int(k - 1)
+            f = f[labels[f[:, 0]] == best]
+            v, f, vmap = _keep_vertices(v, f, vmap, labels == best)
+
+    if remesh_target_edge is not None:
+        v, f, vmap = _remesh(v, f, vmap, float(remesh_target_edge), int(remesh_iterations))
+        rep.remeshed = True
+    return _finish(shape, v, f, vmap, rep)
+
+
+def _finish(shape: Shape, v, f, vmap, rep: CleanupReport) -> tuple[Shape, CleanupReport]:
+    out = Shape(v, f, shape.name)
+    rep.n_vertices_after, rep.n_faces_after = out.n_vertices, out.n_faces
+    rep.vertex_map = vmap.astype(np.int64)
+    return out, rep
+
+
+def _repair_non_manifold_edges(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, int]:
+    """Drop faces so no edge has more than two: keep the two largest (ties: lower index)."""
+    edges, counts = edge_face_counts(f)
+    if not (counts > 2).any():
+        return f, 0
+    he = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    fid = np.tile(np.arange(len(f)), 3)
+    bad_edges = edges[counts > 2]
+    # half edges lying on a non-manifold edge
+    n = len(v)
+    on_bad = np.isin(he[:, 0] * n + he[:, 1], bad_edges[:, 0] * n + bad_edges[:, 1])
+    he, fid = he[on_bad], fid[on_bad]
+    area = Shape(v, f).face_areas[fid]
+    order = np.lexsort((fid, -area, he[:, 1], he[:, 0]))
+    he, fid = he[order], fid[order]
+    _, inv, _ = _unique_rows(he)
+    start = np.searchsorted(inv, inv)  # first position of each half edge's group (inv sorted)
+    rank = np.arange(len(inv)) - start
+    drop = np.zeros(len(f), dtype=bool)
+    drop[fid[rank >= 2]] = True
+    return f[~drop], len(bad_edges)
+
+
+def _split_non_manifold_vertices(v, f, vmap):
+    """Give every fan but the first around a bow-tie vertex its own copy of the vertex."""
+    corner_v, fan = face_fans(f)
+    ok = fan >= 0
+    idx = np.flatnonzero(ok)
+    pairs = np.stack([corner_v[idx], fan[idx]], 1)
+    first, inv, _ = _unique_rows(pairs)  # one group per (vertex, fan), sorted by vertex then fan
+    gv = pairs[first, 0]
+    is_extra = np.zeros(len(first), dtype=bool)
+    is_extra[1:] = gv[1:] == gv[:-1]  # not the first fan of its vertex
+    n_extra = int(is_extra.sum())
+    if n_extra == 0:
+        return v, f, vmap, 0
+    new_id = np.full(len(first), -1, dtype=np.int64)
+    new_id[is_extra] = len(v) + np.arange(n_extra)
+    corners = f.ravel().copy()
+    moved = new_id[inv] >= 0
+    corners[idx[moved]] = new_id[inv][moved]
+    src = gv[is_extra]
+    n_repaired = int(np.unique(src).size)
+    return (
+        np.concatenate([v, v[src]]),
+        corners.reshape(-1, 3),
+        np.concatenate([vmap, vmap[src]]),
+        n_repaired,
+    )
+
+
+def _remesh(v, f, vmap, target: float, iterations: int):
+    """Isotropic explicit remeshing (pymeshlab); vertices exactly unchanged keep their source."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v, face_matrix=f.astype(np.int32)))
+    ms.meshing_isotropic_explicit_remeshing(iterations=iterations, targetlen=pymeshlab.PureValue(target))
+    m = ms.current_mesh()
+    nv = np.asarray(m.vertex_matrix(), dtype=np.float64)
+    nf = np.asarray(m.face_matrix(), dtype=np.int64)
+    if len(nf) == 0:
+        raise InvalidShapeError(f"remeshing to edge length {target} produced an empty mesh")
+    both = np.concatenate([v, nv]) + 0.0
+    firsts, inv, _ = _unique_rows(both)
+    src = firsts[inv[len(v) :]]
+    new_map = np.where(src < len(v), vmap[np.minimum(src, len(v) - 1)], -1)
+    return nv, nf, new_map.astype(np.int64)

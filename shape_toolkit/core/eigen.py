@@ -1,0 +1,480 @@
+"""Smallest eigenpairs of sparse symmetric positive semi-definite (generalized) problems.
+
+The problem class is a graph or mesh Laplacian ``A`` (symmetric PSD, singular on a connected
+graph) with ``M`` either the identity or a positive diagonal (lumped) mass matrix. The default
+sparse solver is a shift-invert **block Krylov-Schur** iteration: ``A - sigma M`` (with ``sigma``
+slightly negative, so the matrix is SPD) is factored once by CHOLMOD (through ``cholespy``), the
+operator ``M^1/2 (A - sigma M)^-1 M^1/2`` is applied to blocks of vectors (one multi-right-hand-side
+solve per block), and the basis is orthogonalised with matrix-matrix products (BLAS 3) instead of
+ARPACK's one-vector-at-a-time Gram-Schmidt. ``benchmarks/bench_eigensolver.py`` measures it
+against the usual ``scipy.sparse.linalg.eigsh`` shift-invert approach.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import scipy.linalg as la
+import scipy.linalg.blas as blas
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from shape_toolkit.errors import ParameterError, SolverError
+
+__all__ = ["METHODS", "smallest_eigenpairs"]
+
+#: Accepted values of ``method``.
+METHODS = ("auto", "dense", "krylov", "arpack", "arpack-splu")
+
+#: Below this many rows ``method="auto"`` uses the dense solver.
+DENSE_MAX_N = 500
+
+#: Largest problem the dense solver accepts (an ``n x n`` dense matrix is formed).
+DENSE_LIMIT_N = 20000
+
+#: The block Krylov solver's tightest residual tolerance (``tol=0`` means this).
+KRYLOV_MIN_TOL = 1e-11
+
+_Operator = Callable[[np.ndarray, np.ndarray], None]
+
+
+# -- input checks ------------------------------------------------------------------------------
+def _as_square_sparse(X: object, name: str, n: int | None = None) -> sp.csr_matrix:
+    if not (sp.issparse(X) or isinstance(X, np.ndarray)):
+        raise ParameterError(f"{name} must be a scipy.sparse matrix or a numpy array")
+    try:
+        Xs = sp.csr_matrix(X, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{name} must be a real matrix: {exc}") from exc
+    if Xs.ndim != 2 or Xs.shape[0] != Xs.shape[1]:
+        raise ParameterError(f"{name} must be square, got shape {Xs.shape}")
+    if n is not None and Xs.shape[0] != n:
+        raise ParameterError(f"{name} must be ({n}, {n}) like A, got {Xs.shape}")
+    if not np.all(np.isfinite(Xs.data)):
+        raise ParameterError(f"{name} has NaN or infinite entries")
+    return Xs
+
+
+def _check_symmetric(X: sp.csr_matrix, name: str) -> None:
+    scale = float(np.abs(X.data).max()) if X.nnz else 0.0
+    diff = X - X.T
+    if diff.nnz and float(np.abs(diff.data).max()) > 1e-10 * scale:
+        raise ParameterError(f"{name} must be symmetric")
+
+
+def _diagonal_of(M: sp.csr_matrix) -> np.ndarray | None:
+    """The diagonal of ``M`` if ``M`` is diagonal, else None."""
+    coo = M.tocoo()
+    off = (coo.row != coo.col) & (coo.data != 0)
+    return None if off.any() else M.diagonal()
+
+
+# -- linear solvers for A - sigma M ---------------------------------------------------------------
+def _cholmod_solver(S: sp.csr_matrix) -> _Operator:
+    """``solve(B, X)`` writing ``S^-1 B`` into ``X`` via CHOLMOD (cholespy); raises on failure."""
+    from cholespy import CholeskySolverD, MatrixType
+
+    n = S.shape[0]
+    chol = CholeskySolverD(
+        n,
+        np.ascontiguousarray(S.indptr, dtype=np.int32),
+        np.ascontiguousarray(S.indices, dtype=np.int32),
+        np.ascontiguousarray(S.data, dtype=np.float64),
+        MatrixType.CSR,
+    )
+
+    def solve(B: np.ndarray, X: np.ndarray) -> None:
+        chol.solve(B, X)
+
+    return solve
+
+
+def _splu_solver(S: sp.csr_matrix) -> _Operator:
+    """``solve(B, X)`` writing ``S^-1 B`` into ``X`` via SuperLU (scipy)."""
+    try:
+        lu = sla.splu(sp.csc_matrix(S))
+    except RuntimeError as exc:  # exactly singular
+        raise SolverError(f"A - sigma*M could not be factored: {exc}") from exc
+
+    def solve(B: np.ndarray, X: np.ndarray) -> None:
+        X[...] = lu.solve(B)
+
+    return solve
+
+
+class _NotPositiveDefinite(Exception):
+    """CHOLMOD found a non-positive pivot."""
+
+
+def _factor(S: sp.csr_matrix, backend: str) -> tuple[_Operator, str]:
+    """Factor the SPD matrix ``S``; 'cholmod' falls back to 'splu' if cholespy is unusable.
+
+    Raises :class:`_NotPositiveDefinite` when CHOLMOD reports that ``S`` is not positive definite.
+    """
+    if backend == "cholmod":
+        try:
+            return _cholmod_solver(S), "cholmod"
+        except ValueError as exc:
+            if "positive definite" in str(exc):
+                raise _NotPositiveDefinite(str(exc)) from exc
+        except Exception:  # noqa: BLE001 - missing wheel or a CHOLMOD failure: use SuperLU
+            pass
+    return _splu_solver(S), "splu"
+
+
+# -- block Krylov-Schur for the largest eigenvalues of a symmetric operator ------------------------
+def _right_solve_upper(W: np.ndarray, R: np.ndarray) -> None:
+    """``W <- W R^-1`` in place for a Fortran-ordered ``W`` and upper triangular ``R``."""
+    out = blas.dtrsm(1.0, R, W, side=1, lower=0, trans_a=0, diag=0, overwrite_b=1)
+    if out is not W:  # not expected for a Fortran-ordered float64 W
+        W[...] = out
+
+
+def _orthonormalize_block(
+    P: np.ndarray, W: np.ndarray, tmp: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Make ``W`` orthogonal to the orthonormal ``P`` and orthonormal itself, in place.
+
+    Returns ``(h, R)`` with ``W_in = P h + W_out R``. Block classical Gram-Schmidt twice (BLAS 3),
+    then Cholesky-QR twice; a rank-deficient block (an invariant subspace was found) falls back to
+    Householder QR and random completion.
+    """
+    h = P.T @ W
+    np.matmul(P, h, out=tmp)
+    W -= tmp
+    h2 = P.T @ W  # "twice is enough": one pass lets the basis drift from orthogonality
+    np.matmul(P, h2, out=tmp)
+    W -= tmp
+    h += h2
+    b = W.shape[1]
+    R = np.eye(b)
+    for _ in range(2):
+        try:
+            Rc = la.cholesky(W.T @ W, lower=False, check_finite=False)
+        except la.LinAlgError:
+            break
+        d = np.abs(np.diag(Rc))
+        if not d.min() > 1e-6 * d.max():
+            break
+        _right_solve_upper(W, Rc)
+        R = Rc @ R
+    else:
+        return h, R
+    Qw, Rq = la.qr(W, mode="economic", check_finite=False)
+    R = Rq @ R
+    # columns of Qw that only carry rounding noise get random directions instead
+    small = np.abs(np.diag(R)) <= 1e-12 * max(float(np.abs(R).max()), 1e-300)
+    if small.any():
+        Qw[:, small] = rng.standard_normal((W.shape[0], int(small.sum())))
+    for _ in range(2):
+        Qw -= P @ (P.T @ Qw)
+        Qw, R2 = la.qr(Qw, mode="economic", check_finite=False)
+        R = R2 @ R
+    W[...] = Qw[:, :b]
+    return h, R
+
+
+def _block_krylov_schur(
+    op: _Operator,
+    n: int,
+    k: int,
+    *,
+    tol: float,
+    block: int,
+    max_basis: int,
+    max_restarts: int,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The ``k`` largest-magnitude eigenpairs of the symmetric operator ``op`` (``op(B, out)``).
+
+    Thick-restarted block Lanczos with full reorthogonalisation (block Krylov-Schur). A Ritz pair
+    ``(theta, y)`` is accepted when ``||op(y) - theta y|| <= tol * |theta|``. Returns ``theta``
+    by decreasing magnitude ``(k,)``, orthonormal Ritz vectors ``(n, k)`` and iteration statistics.
+    """
+    b, m = block, max_basis
+    rng = np.random.default_rng(seed)
+    Q = np.empty((n, m + b), order="F")  # orthonormal basis
+    H = np.zeros((m + b, m))  # projected operator (upper part) and the coupling blocks
+    Bin = np.empty((n, b))  # C-contiguous in/out buffers for the solver
+    Bout = np.empty((n, b))
+    tmp = np.empty((n, b), order="F")
+    W = np.empty((n, b), order="F")
+    Q[:, :b] = la.qr(rng.standard_normal((n, b)), mode="economic")[0]
+    j, restarts, n_op = 0, 0, 0
+    while True:
+        Bin[...] = Q[:, j : j + b]
+        op(Bin, Bout)
+        n_op += b
+        W[...] = Bout
+        h, R = _orthonormalize_block(Q[:, : j + b], W, tmp, rng)
+        H[: j + b, j : j + b] = h
+        H[j + b : j + 2 * b, j : j + b] = R
+        Q[:, j + b : j + 2 * b] = W
+        j += b
+        if j < k + b and j + b <= m:
+            continue
+        T = np.triu(H[:j, :j])
+        T += np.triu(T, 1).T
+        theta, S = la.eigh(T, check_finite=False)
+        order = np.argsort(-np.abs(theta), kind="stable")  # largest magnitude first
+        want = order[:k]
+        res = np.linalg.norm(R @ S[j - b : j, want], axis=0)
+        if np.all(res <= tol * np.abs(theta[want])):
+            Y = Q[:, :j] @ S[:, want]
+            return theta[want], Y, {"n_op": n_op, "restarts": restarts, "basis": j}
+        if j + b <= m:
+            continue
+        restarts += 1
+        if restarts > max_restarts:
+            worst = float(np.max(res / np.abs(theta[want])))
+            raise SolverError(
+                f"block Krylov eigensolver did not converge in {max_restarts} restarts "
+                f"(worst relative residual {worst:.1e} > tol {tol:.1e}); "
+                "try a larger max_basis or a looser tol"
+            )
+        # thick restart: keep the p best Ritz vectors and the last block (Krylov-Schur)
+        p = min(j - b, max(k + b, (k + m) // 2))
+        keep = order[:p]
+        Sk = S[:, keep]
+        W[...] = Q[:, j : j + b]
+        step = max(1, (1 << 21) // max(j, 1))  # row chunks: no (n, p) temporary
+        for r0 in range(0, n, step):
+            Q[r0 : r0 + step, :p] = Q[r0 : r0 + step, :j] @ Sk
+        Q[:, p : p + b] = W
+        C = R @ S[j - b : j, keep]
+        H[:] = 0.0
+        H[np.arange(p), np.arange(p)] = theta[keep]
+        H[p : p + b, :p] = C
+        H[:p, p : p + b] = C.T
+        j = p
+
+
+# -- the solvers ------------------------------------------------------------------------------------
+def _dense(
+    A: sp.csr_matrix, k: int, M: sp.csr_matrix | None, dM: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """LAPACK on dense copies; a diagonal ``M`` (``dM``) is folded into a standard problem."""
+    n = A.shape[0]
+    if n > DENSE_LIMIT_N:
+        raise ParameterError(
+            f"method='dense' would form a {n} x {n} dense matrix (limit {DENSE_LIMIT_N})"
+        )
+    try:
+        if dM is not None:
+            s = 1.0 / np.sqrt(dM)
+            B = A.toarray()
+            B *= s[:, None]
+            B *= s[None, :]
+            vals, Y = la.eigh(B, subset_by_index=(0, k - 1), overwrite_a=True)
+            return vals, Y * s[:, None]
+        return la.eigh(A.toarray(), M.toarray(), subset_by_index=(0, k - 1))
+    except la.LinAlgError as exc:
+        raise SolverError(f"dense eigensolver failed: {exc}") from exc
+
+
+def _arpack(
+    A: sp.csr_matrix,
+    k: int,
+    M: sp.csr_matrix | None,
+    sigma: float,
+    solve: _Operator,
+    tol: float,
+    ncv: int | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    n = A.shape[0]
+
+    def matvec(x: np.ndarray) -> np.ndarray:
+        out = np.empty(n)
+        solve(np.ascontiguousarray(x, dtype=np.float64).ravel(), out)
+        return out
+
+    opinv = sla.LinearOperator((n, n), matvec=matvec, dtype=np.float64)
+    v0 = np.random.default_rng(0).standard_normal(n)  # deterministic start vector
+    try:
+        vals, vecs = sla.eigsh(
+            A, k=k, M=M, sigma=sigma, which="LM", OPinv=opinv, tol=tol, ncv=ncv, v0=v0
+        )
+    except (sla.ArpackNoConvergence, sla.ArpackError) as exc:
+        raise SolverError(f"ARPACK did not converge: {exc}") from exc
+    return vals, vecs
+
+
+def _rayleigh_quotients(A: sp.csr_matrix, U: np.ndarray) -> np.ndarray:
+    """``diag(U^T A U)``, ``(k,)``, computed by column blocks (no ``(n, k)`` temporary)."""
+    k = U.shape[1]
+    out = np.empty(k)
+    for c in range(0, k, 16):
+        blk = U[:, c : c + 16]
+        out[c : c + 16] = np.einsum("ij,ij->j", blk, A @ blk)
+    return out
+
+
+def _fix_signs(U: np.ndarray) -> np.ndarray:
+    """Make the largest-magnitude entry of each column positive (reproducible signs)."""
+    idx = np.argmax(np.abs(U), axis=0)
+    s = np.sign(U[idx, np.arange(U.shape[1])])
+    s[s == 0] = 1.0
+    U *= s
+    return U
+
+
+def smallest_eigenpairs(
+    A: sp.spmatrix,
+    k: int,
+    M: sp.spmatrix | np.ndarray | None = None,
+    *,
+    tol: float = 1e-8,
+    method: str = "auto",
+    sigma: float | None = None,
+    block_size: int | None = None,
+    max_basis: int | None = None,
+    max_restarts: int = 100,
+    info: dict | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` smallest eigenpairs of ``A u = lambda M u`` (``M = I`` when None).
+
+    ``A`` is a symmetric PSD ``(n, n)`` sparse matrix, ``M`` a symmetric positive definite
+    (usually diagonal) ``(n, n)`` matrix or a positive ``(n,)`` vector of its diagonal. Returns
+    eigenvalues ``(k,)`` ascending and eigenvectors ``(n, k)``, M-orthonormal
+    (``U.T @ M @ U = I``), each signed so that its largest-magnitude entry is positive.
+    Deterministic: the same call gives bit-identical results.
+
+    ``method``:
+
+    - ``"krylov"``: shift-invert block Krylov-Schur on a CHOLMOD factor of ``A - sigma M``
+      (non-diagonal ``M``: ARPACK with that factor); the fastest for large sparse problems.
+    - ``"arpack"``: ``scipy.sparse.linalg.eigsh`` shift-invert with the CHOLMOD factor (single-vector
+      Lanczos: on very symmetric shapes it can miss a copy of a multiple eigenvalue at the cut).
+    - ``"arpack-splu"``: ``eigsh`` shift-invert with SuperLU, what most peers do.
+    - ``"dense"``: LAPACK on a dense copy (``n <= DENSE_LIMIT_N``).
+    - ``"auto"``: ``"dense"`` for ``n <= DENSE_MAX_N`` or ``3 k >= n``, else ``"krylov"``, falling
+      back to ``"arpack"`` if the block iteration does not converge (``info['fallback_from']``).
+
+    CHOLMOD comes from the ``cholespy`` wheel; if it is missing or fails, SuperLU is used. ``tol``
+    is the relative residual of the shift-inverted problem (ARPACK's meaning; 0 = as tight as the
+    method can), which bounds the relative eigenvalue error; the eigenvalues returned by
+    ``"krylov"`` are Rayleigh quotients, whose error is in practice about ``tol**2``.
+    ``sigma`` (default ``-1e-8 * max(diag(A) / diag(M))``) must be negative. ``block_size``,
+    ``max_basis`` and ``max_restarts`` tune ``"krylov"``. ``info``, if given, is filled with what
+    was done (method, factorization backend, operator applications, restarts).
+
+    Raises :class:`ParameterError` for a bad ``k`` or input (including an ``A`` found not to be
+    PSD) and :class:`SolverError` when the iteration does not converge.
+    """
+    info = {} if info is None else info
+    if method not in METHODS:
+        raise ParameterError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    A = _as_square_sparse(A, "A")
+    n = A.shape[0]
+    if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)):
+        raise ParameterError(f"k must be an integer, got {k!r}")
+    k = int(k)
+    if not 1 <= k <= n:
+        raise ParameterError(f"k must be in [1, {n}], got {k}")
+    if not (isinstance(tol, (int, float)) and 0 <= tol < 1):
+        raise ParameterError(f"tol must be a number in [0, 1), got {tol!r}")
+    _check_symmetric(A, "A")
+
+    Ms: sp.csr_matrix | None = None
+    if M is not None:
+        if isinstance(M, np.ndarray) and M.ndim == 1:
+            if M.shape != (n,):
+                raise ParameterError(f"a diagonal M must have shape ({n},), got {M.shape}")
+            if not np.all(np.isfinite(M)):
+                raise ParameterError("M has NaN or infinite entries")
+            Ms = sp.diags(M.astype(np.float64)).tocsr()
+        else:
+            Ms = _as_square_sparse(M, "M", n)
+            _check_symmetric(Ms, "M")
+        if not np.all(Ms.diagonal() > 0):
+            raise ParameterError("M must be positive definite (its diagonal must be > 0)")
+    dM = np.ones(n) if Ms is None else _diagonal_of(Ms)
+
+    if method == "auto":
+        if n <= DENSE_MAX_N or 3 * k >= n:
+            method = "dense"
+        else:
+            # the block solver is the fast path; single-vector ARPACK is the safety net
+            kwargs = dict(tol=tol, sigma=sigma, block_size=block_size, max_basis=max_basis,
+                          max_restarts=max_restarts, info=info)
+            try:
+                return smallest_eigenpairs(A, k, M, method="krylov", **kwargs)
+            except SolverError as exc:
+                info.clear()
+                info["fallback_from"] = f"krylov: {exc}"
+                return smallest_eigenpairs(A, k, M, method="arpack", **kwargs)
+    info["method"] = method
+    if method == "dense":
+        vals, vecs = _dense(A, k, Ms, dM)
+        return vals, _fix_signs(vecs)
+
+    b = int(block_size) if block_size is not None else (4 if k <= 40 else 8)
+    if b < 1:
+        raise ParameterError(f"block_size must be >= 1, got {block_size}")
+    m = int(max_basis) if max_basis is not None else max(2 * k + 2 * b, k + 6 * b)
+    m = min(m, n - b)
+    if m < k + 2 * b:
+        raise ParameterError(
+            f"k={k} is too close to n={n} for a sparse solver: use method='dense'"
+        )
+
+    dvals = A.diagonal()
+    scale = float(np.max(dvals / (dM if dM is not None else Ms.diagonal())))
+    Mop = Ms if Ms is not None else sp.identity(n, format="csr")
+    user_sigma = sigma is not None
+    if sigma is None:
+        sigma = -1e-8 * scale if scale > 0 else -1.0
+    if not sigma < 0:
+        raise ParameterError(f"sigma must be negative (A - sigma*M must be SPD), got {sigma}")
+    backend = "splu" if method == "arpack-splu" else "cholmod"
+    for attempt in range(2):
+        try:
+            solve, backend = _factor(sp.csr_matrix(A - sigma * Mop), backend)
+            break
+        except _NotPositiveDefinite as exc:
+            if user_sigma or attempt:
+                raise ParameterError(
+                    f"A - sigma*M (sigma={sigma:.3e}) is not positive definite: "
+                    "A must be symmetric positive semi-definite"
+                ) from exc
+            sigma *= 100.0  # rounding at a tiny shift: retry once with a larger one
+    info.update(backend=backend, sigma=sigma)
+
+    if method in ("arpack", "arpack-splu") or dM is None:
+        info["method"] = "arpack" if method == "krylov" else method
+        vals, vecs = _arpack(A, k, Ms, sigma, solve, tol, None)
+        order = np.argsort(vals)
+        vals, vecs = vals[order], vecs[:, order]
+    else:
+        sq = np.sqrt(dM)
+        sqc = sq[:, None]
+
+        def op(B: np.ndarray, X: np.ndarray) -> None:
+            B *= sqc
+            solve(B, X)
+            X *= sqc
+
+        theta, Y, stats = _block_krylov_schur(
+            op, n, k, tol=max(tol, KRYLOV_MIN_TOL), block=b, max_basis=m, max_restarts=max_restarts
+        )
+        info.update(stats, block_size=b, max_basis=m)
+        vecs = Y
+        vecs /= sqc  # in place: the (n, k) blocks are the memory peak after the basis
+        lam_theta = sigma + 1.0 / theta
+        vals = _rayleigh_quotients(A, vecs)
+        # the Rayleigh quotient and the Ritz value must agree: else the solves were inaccurate
+        bad = np.abs(vals - lam_theta) > 1e-3 * (np.abs(lam_theta) + abs(sigma))
+        if bad.any():
+            raise SolverError(
+                "eigensolver lost accuracy (Ritz values and Rayleigh quotients disagree); "
+                "is A symmetric positive semi-definite?"
+            )
+        order = np.argsort(vals, kind="stable")
+        if np.any(order != np.arange(k)):
+            vals, vecs = vals[order], vecs[:, order]
+    if vals[0] < sigma:
+        raise ParameterError(
+            f"A is not positive semi-definite (found eigenvalue {vals[0]:.3e} < sigma={sigma:.3e})"
+        )
+    return vals, _fix_signs(vecs)

@@ -1,0 +1,189 @@
+"""The immutable :class:`Shape`: vertices, optional triangle faces, cheap cached properties."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from shape_toolkit.errors import InvalidShapeError
+
+__all__ = ["Shape"]
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class Shape:
+    """A triangle mesh (``faces`` given) or a point cloud (``faces`` is None).
+
+    ``vertices`` is a float64 ``(n, 3)`` array, ``faces`` an int64 ``(m, 3)`` array of 0-based
+    vertex indices. Both are validated and made read-only on construction: a Shape never holds
+    NaN/inf coordinates or out-of-range face indices, so native code (libigl) is safe to call.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray | None = None
+    name: str = field(default="")
+
+    def __post_init__(self) -> None:
+        v = np.asarray(self.vertices)
+        where = f" ({self.name})" if self.name else ""
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise InvalidShapeError(f"vertices must be an (n, 3) array, got shape {v.shape}{where}")
+        if v.shape[0] == 0:
+            raise InvalidShapeError(f"the shape has no vertices{where}")
+        if not np.issubdtype(v.dtype, np.number):
+            raise InvalidShapeError(f"vertices must be numeric, got {v.dtype}{where}")
+        v = v.astype(np.float64, copy=True)
+        if not np.isfinite(v).all():
+            bad = int((~np.isfinite(v)).any(axis=1).sum())
+            raise InvalidShapeError(f"{bad} vertices have NaN or infinite coordinates{where}")
+        object.__setattr__(self, "vertices", _readonly(v))
+        if self.faces is not None:
+            f = np.asarray(self.faces)
+            if f.ndim != 2 or f.shape[1] != 3:
+                raise InvalidShapeError(
+                    f"faces must be an (m, 3) array of triangles, got shape {f.shape}{where}"
+                )
+            if f.size and not np.issubdtype(f.dtype, np.integer):
+                if not np.all(np.equal(np.mod(f, 1), 0)):
+                    raise InvalidShapeError(f"face indices must be integers{where}")
+            f = f.astype(np.int64, copy=True)
+            if f.shape[0] == 0:
+                raise InvalidShapeError(
+                    f"the mesh has no faces{where}; pass faces=None for a point cloud"
+                )
+            lo, hi = int(f.min()), int(f.max())
+            if lo < 0 or hi >= v.shape[0]:
+                raise InvalidShapeError(
+                    f"face indices must lie in [0, {v.shape[0] - 1}], found range [{lo}, {hi}]{where}"
+                )
+            object.__setattr__(self, "faces", _readonly(f))
+
+    # -- basic facts -------------------------------------------------------------------------
+    @property
+    def n_vertices(self) -> int:
+        """Number of vertices ``n``."""
+        return int(self.vertices.shape[0])
+
+    @property
+    def n_faces(self) -> int:
+        """Number of triangles ``m`` (0 for a point cloud)."""
+        return 0 if self.faces is None else int(self.faces.shape[0])
+
+    @property
+    def is_mesh(self) -> bool:
+        """True for a triangle mesh, False for a point cloud."""
+        return self.faces is not None
+
+    def __repr__(self) -> str:
+        kind = f"{self.n_faces} faces" if self.is_mesh else "point cloud"
+        nm = f"{self.name!r}, " if self.name else ""
+        return f"Shape({nm}{self.n_vertices} vertices, {kind})"
+
+    def require_faces(self, what: str) -> np.ndarray:
+        """Return the faces or raise :class:`InvalidShapeError` naming ``what`` needs them."""
+        if self.faces is None:
+            raise InvalidShapeError(f"{what} needs a triangle mesh, but {self!r} has no faces")
+        return self.faces
+
+    # -- cached derived properties ----------------------------------------------------------
+    @cached_property
+    def edges(self) -> np.ndarray:
+        """Unique undirected mesh edges as an int64 ``(e, 2)`` array with ``i < j``, sorted."""
+        f = self.require_faces("edges")
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        e = np.sort(e, axis=1)
+        e = e[e[:, 0] != e[:, 1]]
+        return _readonly(np.unique(e, axis=0))
+
+    @cached_property
+    def face_areas(self) -> np.ndarray:
+        """Area of each triangle, float64 ``(m,)``, in squared length units."""
+        f = self.require_faces("face areas")
+        v = self.vertices
+        cr = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        return _readonly(0.5 * np.linalg.norm(cr, axis=1))
+
+    @cached_property
+    def face_normals(self) -> np.ndarray:
+        """Unit normal of each triangle, float64 ``(m, 3)`` (zero for degenerate faces)."""
+        f = self.require_faces("face normals")
+        v = self.vertices
+        cr = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        nrm = np.linalg.norm(cr, axis=1, keepdims=True)
+        return _readonly(np.divide(cr, nrm, out=np.zeros_like(cr), where=nrm > 0))
+
+    @cached_property
+    def vertex_areas(self) -> np.ndarray:
+        """Barycentric vertex area (one third of the incident triangles), float64 ``(n,)``."""
+        f = self.require_faces("vertex areas")
+        a = np.zeros(self.n_vertices)
+        np.add.at(a, f.ravel(), np.repeat(self.face_areas / 3.0, 3))
+        return _readonly(a)
+
+    @cached_property
+    def area(self) -> float:
+        """Total surface area (squared length units)."""
+        return float(self.face_areas.sum())
+
+    @cached_property
+    def bounding_box(self) -> np.ndarray:
+        """Axis-aligned bounding box as a ``(2, 3)`` array ``[min, max]``."""
+        return _readonly(np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)]))
+
+    @cached_property
+    def diagonal(self) -> float:
+        """Length of the bounding-box diagonal."""
+        b = self.bounding_box
+        return float(np.linalg.norm(b[1] - b[0]))
+
+    @cached_property
+    def edge_lengths(self) -> np.ndarray:
+        """Length of each unique mesh edge, float64 ``(e,)``, aligned with :attr:`edges`."""
+        e = self.edges
+        return _readonly(np.linalg.norm(self.vertices[e[:, 0]] - self.vertices[e[:, 1]], axis=1))
+
+    @cached_property
+    def mean_edge_length(self) -> float:
+        """Mean length of the unique mesh edges."""
+        return float(self.edge_lengths.mean()) if len(self.edges) else 0.0
+
+    @cached_property
+    def content_hash(self) -> str:
+        """SHA-1 of the vertex and face bytes: equal shapes share cached spectra."""
+        h = hashlib.sha1()
+        h.update(self.vertices.tobytes())
+        if self.faces is not None:
+            h.update(b"F")
+            h.update(self.faces.tobytes())
+        return h.hexdigest()
+
+    # -- derived shapes ---------------------------------------------------------------------
+    def with_vertices(self, vertices: np.ndarray) -> Shape:
+        """Same connectivity, new ``(n, 3)`` coordinates."""
+        return Shape(vertices, self.faces, self.name)
+
+    def submesh(self, vertex_ids: np.ndarray) -> tuple[Shape, np.ndarray]:
+        """Keep the given vertices (and the faces entirely inside them).
+
+        Returns the new shape and the int64 array of kept original vertex ids (new id -> old id).
+        """
+        keep = np.unique(np.asarray(vertex_ids, dtype=np.int64))
+        if keep.size == 0:
+            raise InvalidShapeError("submesh: no vertex kept")
+        remap = -np.ones(self.n_vertices, dtype=np.int64)
+        remap[keep] = np.arange(keep.size)
+        faces = None
+        if self.faces is not None:
+            ff = remap[self.faces]
+            ff = ff[(ff >= 0).all(axis=1)]
+            faces = ff if len(ff) else None
+        return Shape(self.vertices[keep], faces, self.name), keep

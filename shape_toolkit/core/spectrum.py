@@ -1,0 +1,500 @@
+"""Graph Laplacians (thesis 2.6.1) and their smallest eigenpairs, cached by content."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from shape_toolkit.core.eigen import smallest_eigenpairs
+from shape_toolkit.core.graph import ShapeGraph
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import DisconnectedGraphError, ParameterError, SpectrumMismatchError
+
+__all__ = [
+    "LAPLACIANS",
+    "Spectrum",
+    "laplacian_matrix",
+    "compute_spectrum",
+    "component_spectra",
+    "fix_signs",
+    "set_cache_dir",
+    "clear_cache",
+    "is_cached",
+    "SpectrumSpec",
+    "shape_spectrum",
+    "null_count",
+]
+
+LAPLACIANS = ("combinatorial", "normalized", "random-walk")
+_CACHE_VERSION = "2"
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class Spectrum:
+    """The ``k`` smallest eigenpairs of a graph Laplacian, eigenvalues ascending.
+
+    Normalisation of ``eigenvectors`` ``(n, k)``: orthonormal for ``combinatorial`` (``U^T M U = I``
+    when the mass matrix is used) and ``normalized``; ``D``-orthonormal for ``random-walk``.
+    ``degrees`` ``(n,)`` and ``volume`` (sum of degrees) come from the weight matrix.
+    """
+
+    eigenvalues: np.ndarray
+    eigenvectors: np.ndarray
+    laplacian: str
+    weighting: str
+    mass: np.ndarray | None
+    degrees: np.ndarray
+    sign_fixed: bool = False
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def k(self) -> int:
+        """Number of eigenpairs."""
+        return int(self.eigenvalues.shape[0])
+
+    @property
+    def n_vertices(self) -> int:
+        """Number of graph vertices ``n``."""
+        return int(self.eigenvectors.shape[0])
+
+    @property
+    def generalized(self) -> bool:
+        """True when the problem was ``L u = lambda M u`` with the mass matrix."""
+        return self.mass is not None
+
+    @property
+    def volume(self) -> float:
+        """Graph volume ``Vol(G) = sum_i d_i``."""
+        return float(self.degrees.sum())
+
+    def __repr__(self) -> str:
+        lam = ", ".join(f"{x:.4g}" for x in self.eigenvalues[:4])
+        return (
+            f"Spectrum(k={self.k}, n={self.n_vertices}, laplacian={self.laplacian!r}, "
+            f"weighting={self.weighting!r}, generalized={self.generalized}, eigenvalues=[{lam}, ...])"
+        )
+
+    def truncated(self, k: int) -> Spectrum:
+        """The first ``k`` eigenpairs of this spectrum."""
+        if not 1 <= k <= self.k:
+            raise ParameterError(f"k must be in [1, {self.k}], got {k}")
+        return Spectrum(
+            self.eigenvalues[:k], self.eigenvectors[:, :k], self.laplacian, self.weighting,
+            self.mass, self.degrees, self.sign_fixed, dict(self.meta),
+        )
+
+    @property
+    def n_null(self) -> int:
+        """Number of (numerically) zero eigenvalues, see :func:`null_count`."""
+        return null_count(self.eigenvalues)
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the spectrum to an ``.npz`` file (plain arrays and JSON text, no pickle)."""
+        meta = {k: v for k, v in self.meta.items() if k != "vertices"}
+        vertices = self.meta.get("vertices")
+        np.savez(
+            path,
+            eigenvalues=self.eigenvalues,
+            eigenvectors=self.eigenvectors,
+            laplacian=self.laplacian,
+            weighting=self.weighting,
+            mass=self.mass if self.mass is not None else np.zeros(0),
+            degrees=self.degrees,
+            sign_fixed=self.sign_fixed,
+            meta=json.dumps(meta, default=_json_default),
+            vertices=np.asarray(vertices, dtype=np.int64) if vertices is not None else np.zeros(0, np.int64),
+            has_vertices=vertices is not None,
+        )
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Spectrum:
+        """Read a spectrum written by :meth:`save` (``allow_pickle=False``)."""
+        with np.load(path, allow_pickle=False) as z:
+            mass = z["mass"]
+            meta = json.loads(str(z["meta"])) if "meta" in z.files else {}
+            if "has_vertices" in z.files and bool(z["has_vertices"]):
+                meta["vertices"] = z["vertices"]
+            return cls(
+                z["eigenvalues"], z["eigenvectors"], str(z["laplacian"]), str(z["weighting"]),
+                mass if mass.size else None, z["degrees"], bool(z["sign_fixed"]), meta,
+            )
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return str(obj)
+
+
+def _require_positive_degrees(d: np.ndarray, kind: str) -> None:
+    if np.any(d <= 0):
+        raise ParameterError(
+            f"the {kind} Laplacian needs positive degrees; {int(np.sum(d <= 0))} vertices have none"
+        )
+
+
+def laplacian_matrix(W: sp.spmatrix, kind: str = "combinatorial") -> sp.csr_matrix:
+    """The ``(n, n)`` Laplacian of weights ``W``: ``D - W`` (eq. 2.63), ``D^-1/2 (D - W) D^-1/2``
+    (eq. 2.64) or ``D^-1 (D - W)`` (eq. 2.65, not symmetric)."""
+    W = sp.csr_matrix(W, dtype=np.float64)
+    d = np.asarray(W.sum(axis=1)).ravel()
+    L = sp.diags(d) - W
+    if kind == "combinatorial":
+        return sp.csr_matrix(L)
+    if kind not in LAPLACIANS:
+        raise ParameterError(f"unknown Laplacian {kind!r}; choose one of {', '.join(LAPLACIANS)}")
+    _require_positive_degrees(d, kind)
+    if kind == "normalized":
+        s = sp.diags(1.0 / np.sqrt(d))
+        return sp.csr_matrix(s @ L @ s)
+    return sp.csr_matrix(sp.diags(1.0 / d) @ L)
+
+
+def fix_signs(vectors: np.ndarray) -> np.ndarray:
+    """Flip each column of ``(n, k)`` ``vectors`` so that its third moment is positive, falling
+    back to its largest-magnitude entry; invariant to vertex permutation and to sign flips."""
+    out = np.array(vectors, dtype=np.float64, copy=True)
+    for j in range(out.shape[1]):
+        u = out[:, j]
+        skew = float(np.sum(u**3))
+        scale = float(np.sum(np.abs(u) ** 3))
+        if abs(skew) > 1e-8 * max(scale, 1e-300):
+            s = np.sign(skew)
+        else:
+            i = int(np.argmax(np.abs(u)))
+            s = np.sign(u[i]) or 1.0
+        out[:, j] = s * u
+    return out
+
+
+# -- cache ------------------------------------------------------------------------------------
+_MEMORY: OrderedDict[str, Spectrum] = OrderedDict()
+_MEMORY_MAX = 32
+_CACHE_DIR: Path | None = None
+
+
+def set_cache_dir(path: str | os.PathLike | None) -> None:
+    """Also cache spectra on disk in ``path`` (None: memory only). ``$TOOLKIT_CACHE_DIR`` sets
+    the default."""
+    global _CACHE_DIR
+    _CACHE_DIR = Path(path) if path is not None else None
+    if _CACHE_DIR is not None:
+        _CACHE_DIR.mkdir(parents=True, exist_ok=True)
+
+
+def _cache_dir() -> Path | None:
+    if _CACHE_DIR is not None:
+        return _CACHE_DIR
+    env = os.environ.get("TOOLKIT_CACHE_DIR")
+    return Path(env) if env else None
+
+
+def clear_cache() -> None:
+    """Forget every spectrum cached in memory (disk files are left alone)."""
+    _MEMORY.clear()
+
+
+def _cache_key(graph: ShapeGraph, *parts: object) -> str:
+    h = hashlib.sha1(graph.content_hash.encode())
+    h.update(repr((_CACHE_VERSION, graph.weighting) + parts).encode())
+    return h.hexdigest()
+
+
+def _cache_get(key: str) -> Spectrum | None:
+    if key in _MEMORY:
+        _MEMORY.move_to_end(key)
+        return _MEMORY[key]
+    d = _cache_dir()
+    if d is not None and (d / f"{key}.npz").exists():
+        try:
+            spec = Spectrum.load(d / f"{key}.npz")
+        except (OSError, ValueError, KeyError):
+            return None
+        _cache_put(key, spec, disk=False)
+        return spec
+    return None
+
+
+def _cache_put(key: str, spec: Spectrum, disk: bool = True) -> None:
+    _MEMORY[key] = spec
+    _MEMORY.move_to_end(key)
+    while len(_MEMORY) > _MEMORY_MAX:
+        _MEMORY.popitem(last=False)
+    d = _cache_dir()
+    if disk and d is not None:
+        d.mkdir(parents=True, exist_ok=True)
+        tmp = d / f".{key}.{os.getpid()}.tmp.npz"
+        spec.save(tmp)
+        os.replace(tmp, d / f"{key}.npz")
+
+
+# -- solving ----------------------------------------------------------------------------------
+def _solve(W: sp.csr_matrix, mass: np.ndarray | None, k: int, laplacian: str):
+    d = np.asarray(W.sum(axis=1)).ravel()
+    L = sp.csr_matrix(sp.diags(d) - W)
+    if laplacian == "combinatorial":
+        M = sp.diags(mass) if mass is not None else None
+        return smallest_eigenpairs(L, k, M)
+    _require_positive_degrees(d, laplacian)
+    # both go through the better-conditioned generalized problem (D - W) v = lambda D v (eq. 2.79)
+    vals, v = smallest_eigenpairs(L, k, sp.diags(d))
+    if laplacian == "normalized":
+        u = v * np.sqrt(d)[:, None]
+        return vals, u / np.linalg.norm(u, axis=0)
+    return vals, v
+
+
+def _resolve_use_mass(graph: ShapeGraph, laplacian: str, use_mass: bool | None) -> bool:
+    if use_mass is None:
+        return graph.mass is not None and laplacian == "combinatorial"
+    return bool(use_mass)
+
+
+def is_cached(
+    graph: ShapeGraph,
+    k: int,
+    *,
+    laplacian: str = "combinatorial",
+    use_mass: bool | None = None,
+    sign_fix: bool = False,
+    components: str = "raise",
+) -> bool:
+    """True when :func:`compute_spectrum` with these arguments would be served from the cache."""
+    use_mass = _resolve_use_mass(graph, laplacian, use_mass)
+    key = _cache_key(graph, int(k), laplacian, use_mass, bool(sign_fix), components)
+    return _cache_get(key) is not None
+
+
+def compute_spectrum(
+    graph: ShapeGraph,
+    k: int,
+    *,
+    laplacian: str = "combinatorial",
+    use_mass: bool | None = None,
+    sign_fix: bool = False,
+    components: str = "raise",
+    cache: bool = True,
+) -> Spectrum:
+    """The ``k`` smallest eigenpairs of the chosen Laplacian of ``graph``, ascending.
+
+    ``use_mass`` (default: whenever the graph has a mass and ``laplacian='combinatorial'``) solves
+    ``L u = lambda M u``. A disconnected graph raises :class:`DisconnectedGraphError` unless
+    ``components='largest'``, which analyses the largest component only (the other vertices get
+    zero rows; ``meta['vertices']`` lists the analysed ones); see also :func:`component_spectra`.
+    """
+    if laplacian not in LAPLACIANS:
+        raise ParameterError(f"unknown Laplacian {laplacian!r}; choose one of {', '.join(LAPLACIANS)}")
+    if components not in ("raise", "largest"):
+        raise ParameterError(f"components must be 'raise' or 'largest', got {components!r}")
+    n = graph.n_vertices
+    if not isinstance(k, (int, np.integer)) or not 1 <= k <= n:
+        raise ParameterError(f"k must be an integer in [1, {n}] (the vertex count), got {k}")
+    use_mass = _resolve_use_mass(graph, laplacian, use_mass)
+    if use_mass and graph.mass is None:
+        raise ParameterError(f"weighting {graph.weighting!r} provides no mass matrix")
+    if use_mass and laplacian != "combinatorial":
+        raise ParameterError("the mass matrix applies to the combinatorial Laplacian only")
+    if use_mass and np.any(graph.mass <= 0):
+        raise ParameterError(
+            f"{int(np.sum(graph.mass <= 0))} vertices have zero mass (unreferenced or degenerate): "
+            "clean the shape first"
+        )
+    key = _cache_key(graph, int(k), laplacian, bool(use_mass), bool(sign_fix), components)
+    if cache and (hit := _cache_get(key)) is not None:
+        return hit
+
+    n_comp, labels = graph.components
+    W, mass = graph.W, graph.mass if use_mass else None
+    vertices = None
+    if n_comp > 1:
+        sizes = np.bincount(labels)
+        if components == "raise":
+            raise DisconnectedGraphError(n_comp, sorted(sizes.tolist(), reverse=True))
+        vertices = np.flatnonzero(labels == int(np.argmax(sizes)))
+        if not 1 <= k <= len(vertices):
+            raise ParameterError(f"k must be in [1, {len(vertices)}] (largest component)")
+        W = W[vertices][:, vertices]
+        mass = mass[vertices] if mass is not None else None
+    vals, vecs = _solve(sp.csr_matrix(W), mass, int(k), laplacian)
+    vals = np.maximum(vals, 0.0) if vals[0] > -1e-9 * max(abs(vals[-1]), 1.0) else vals
+    if sign_fix:
+        vecs = fix_signs(vecs)
+    degrees = graph.degrees
+    if vertices is not None:
+        full = np.zeros((n, vecs.shape[1]))
+        full[vertices] = vecs
+        vecs = full
+    spec = Spectrum(
+        np.ascontiguousarray(vals),
+        np.ascontiguousarray(vecs),
+        laplacian,
+        graph.weighting,
+        graph.mass if use_mass else None,
+        degrees,
+        bool(sign_fix),
+        {"weighting_params": dict(graph.params), **({"vertices": vertices} if vertices is not None else {})},
+    )
+    if cache:
+        _cache_put(key, spec)
+    return spec
+
+
+def component_spectra(
+    graph: ShapeGraph, k: int, **kwargs: Any
+) -> list[tuple[np.ndarray, Spectrum]]:
+    """One spectrum per connected component: ``[(vertex ids, Spectrum of that subgraph)]``,
+    largest component first; ``k`` is capped at each component's size."""
+    from shape_toolkit.core.graph import ShapeGraph as _G
+
+    n_comp, labels = graph.components
+    out = []
+    for c in np.argsort(-np.bincount(labels), kind="stable"):
+        ids = np.flatnonzero(labels == c)
+        sub = _G(
+            graph.shape.submesh(ids)[0],
+            sp.csr_matrix(graph.W[ids][:, ids]),
+            graph.mass[ids] if graph.mass is not None else None,
+            graph.weighting,
+            graph.params,
+            graph.info,
+        )
+        out.append((ids, compute_spectrum(sub, min(k, len(ids)), **kwargs)))
+    return out
+
+
+def null_count(eigenvalues: np.ndarray, rtol: float = 1e-8) -> int:
+    """Number of eigenvalues ``<= rtol * max(|eigenvalue|, 1e-300)``: the null space of a
+    Laplacian, one per connected component (thesis 2.6.1). ``eigenvalues`` ascending ``(k,)``."""
+    vals = np.asarray(eigenvalues, dtype=np.float64)
+    if vals.size == 0:
+        return 0
+    scale = max(float(np.abs(vals).max()), 1e-300)
+    return int(np.sum(vals <= rtol * scale))
+
+
+#: weightings that need triangles; on a point cloud their spectrum becomes the intrinsic-Delaunay one
+_MESH_ONLY = {"cotangent": "intrinsic-delaunay"}
+
+
+@dataclass(frozen=True)
+class SpectrumSpec:
+    """The spectrum a method needs, as data: a weighting plugin and its parameters, a Laplacian,
+    the mass matrix or not, and ``k`` eigenpairs (capped at the vertex count).
+
+    Methods declare one through ``spectrum_spec()``; callers compute it once with
+    :meth:`compute` (through the content cache) and pass it in; methods check what they are
+    given with :meth:`check`. ``use_mass=None`` means: whenever the weighting has a mass and the
+    Laplacian is combinatorial.
+    """
+
+    k: int
+    weighting: str = "cotangent"
+    laplacian: str = "combinatorial"
+    use_mass: bool | None = None
+    weighting_params: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        if isinstance(self.k, bool) or not isinstance(self.k, (int, np.integer)) or self.k < 1:
+            raise ParameterError(f"a spectrum spec needs k >= 1 eigenpairs, got {self.k!r}")
+        if self.laplacian not in LAPLACIANS:
+            raise ParameterError(f"unknown Laplacian {self.laplacian!r}; choose one of {', '.join(LAPLACIANS)}")
+        if isinstance(self.weighting_params, dict):
+            object.__setattr__(self, "weighting_params", tuple(sorted(self.weighting_params.items())))
+
+    def for_shape(self, shape: Shape) -> SpectrumSpec:
+        """This spec as it applies to ``shape``: ``k`` capped at the vertex count, and a mesh-only
+        weighting (cotangent) replaced by its point-cloud counterpart (intrinsic Delaunay)."""
+        weighting = self.weighting
+        if not shape.is_mesh and weighting in _MESH_ONLY:
+            weighting = _MESH_ONLY[weighting]
+        k = int(min(self.k, shape.n_vertices))
+        if weighting == self.weighting and k == self.k:
+            return self
+        return SpectrumSpec(k, weighting, self.laplacian, self.use_mass, self.weighting_params)
+
+    def merge(self, other: SpectrumSpec) -> SpectrumSpec | None:
+        """One spec serving both ``self`` and ``other`` (the larger ``k``), or None if their kinds differ."""
+        if self.kind != other.kind:
+            return None
+        return self if self.k >= other.k else other
+
+    @property
+    def kind(self) -> tuple[Any, ...]:
+        """Everything but ``k``: two specs of one kind share their eigenpairs."""
+        return (self.weighting, self.weighting_params, self.laplacian, self.use_mass)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready description (what a benchmark row records)."""
+        out: dict[str, Any] = {"weighting": self.weighting, "laplacian": self.laplacian, "k": int(self.k)}
+        if self.use_mass is not None:
+            out["use_mass"] = bool(self.use_mass)
+        if self.weighting_params:
+            out["params"] = dict(self.weighting_params)
+        return out
+
+    def compute(self, shape: Shape, *, components: str = "raise") -> Spectrum:
+        """The spectrum of ``shape`` that this spec describes, through the content cache."""
+        from shape_toolkit.core.graph import build_graph
+
+        spec = self.for_shape(shape)
+        graph = build_graph(shape, spec.weighting, **dict(spec.weighting_params))
+        return compute_spectrum(graph, spec.k, laplacian=spec.laplacian, use_mass=spec.use_mass,
+                                components=components)
+
+    def check(self, spectrum: Spectrum, shape: Shape, who: str = "this method") -> Spectrum:
+        """``spectrum`` if it is of this spec's kind for ``shape`` with at least ``k`` eigenpairs;
+        else :class:`~shape_toolkit.errors.SpectrumMismatchError` saying what was expected."""
+        spec = self.for_shape(shape)
+        if not isinstance(spectrum, Spectrum):
+            raise SpectrumMismatchError(f"{who} needs a Spectrum, got {type(spectrum).__name__}")
+        problems = []
+        if spectrum.n_vertices != shape.n_vertices:
+            problems.append(f"{spectrum.n_vertices} rows for {shape.n_vertices} vertices")
+        if spectrum.k < spec.k:
+            problems.append(f"{spectrum.k} eigenpairs, fewer than {spec.k}")
+        if spectrum.weighting != spec.weighting:
+            problems.append(f"weighting {spectrum.weighting!r}")
+        if spectrum.laplacian != spec.laplacian:
+            problems.append(f"Laplacian {spectrum.laplacian!r}")
+        if spec.use_mass is not None and spectrum.generalized != spec.use_mass:
+            problems.append("the mass matrix" if spectrum.generalized else "no mass matrix")
+        given_params = spectrum.meta.get("weighting_params")
+        if spec.weighting_params and given_params is not None and dict(spec.weighting_params) != {
+            k: given_params.get(k) for k, _ in spec.weighting_params
+        }:
+            problems.append(f"weighting parameters {given_params}")
+        if problems:
+            raise SpectrumMismatchError(
+                f"{who} needs the spectrum {spec.to_dict()}, but was given one with {', '.join(problems)}"
+            )
+        return spectrum
+
+
+def shape_spectrum(shape: Shape, k: int, *, kind: str = "lbo", **spec: Any) -> Spectrum:
+    """The toolkit's default spectrum of ``shape``, ``k`` eigenpairs (the one place that says what
+    "default" means): ``kind='lbo'`` is the Laplace-Beltrami operator (cotangent weights with
+    Voronoi mass, intrinsic Delaunay on point clouds); ``kind='graph'`` the combinatorial
+    Laplacian of the Gaussian-weighted graph (thesis ch. 2-3). Extra keywords override the spec."""
+    return default_spec(k, kind, **spec).compute(shape)
+
+
+def default_spec(k: int, kind: str = "lbo", **overrides: Any) -> SpectrumSpec:
+    """The :class:`SpectrumSpec` behind :func:`shape_spectrum`."""
+    if kind == "lbo":
+        base: dict[str, Any] = {"weighting": "cotangent", "laplacian": "combinatorial", "use_mass": True}
+    elif kind == "graph":
+        base = {"weighting": "gaussian", "laplacian": "combinatorial", "use_mass": False}
+    else:
+        raise ParameterError(f"unknown spectrum kind {kind!r}; choose 'lbo' or 'graph'")
+    base.update(overrides)
+    return SpectrumSpec(int(k), **base)

@@ -1,0 +1,347 @@
+"""Shape corruptions with the ground truth carried through (SHREC'10 transforms, thesis Table 5.2).
+
+Every corruption is a seeded, parameterised function ``Shape -> (Shape, vertex_map)`` where
+``vertex_map`` is an int64 ``(n_new,)`` array giving, for each new vertex, the original vertex it
+comes from (for resampled vertices: the nearest original vertex). ``strength`` is the one knob
+every corruption has, so results can be plotted against it; its unit is given per function.
+:func:`carry_labels` and :func:`carry_correspondence` move ground truth onto the corrupted shape.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
+
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import InvalidShapeError, ParameterError
+
+__all__ = [
+    "CORRUPTIONS",
+    "rigid_motion",
+    "scaling",
+    "gaussian_noise",
+    "shot_noise",
+    "remesh",
+    "holes",
+    "micro_holes",
+    "shortcut",
+    "partial",
+    "apply_corruption",
+    "RESAMPLING",
+    "invert_vertex_map",
+    "carry_labels",
+    "carry_correspondence",
+]
+
+Corruption = tuple[Shape, np.ndarray]
+
+
+def _identity(shape: Shape) -> np.ndarray:
+    return np.arange(shape.n_vertices, dtype=np.int64)
+
+
+def _check_strength(strength: float, lo: float = 0.0, hi: float = np.inf, what: str = "strength") -> float:
+    try:
+        s = float(strength)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{what} must be a number, got {strength!r}") from None
+    if not lo <= s <= hi:
+        raise ParameterError(f"{what} must be in [{lo}, {hi}], got {strength!r}")
+    return s
+
+
+def _random_rotation(rng: np.random.Generator, angle: float) -> np.ndarray:
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def rigid_motion(
+    shape: Shape, *, strength: float = 1.0, scale: float = 1.0, random_state: int = 0
+) -> Corruption:
+    """Rotate by ``strength * pi`` rad about a random axis, translate by ``strength`` bounding-box
+    diagonals in a random direction and scale by ``scale``; the vertex map is the identity."""
+    s = _check_strength(strength)
+    if not scale > 0:
+        raise ParameterError(f"scale must be positive, got {scale!r}")
+    rng = np.random.default_rng(random_state)
+    R = _random_rotation(rng, s * np.pi)
+    t = rng.normal(size=3)
+    t *= s * shape.diagonal / max(np.linalg.norm(t), 1e-300)
+    c = shape.vertices.mean(axis=0)
+    v = scale * (shape.vertices - c) @ R.T + c + t
+    return shape.with_vertices(v), _identity(shape)
+
+
+def scaling(shape: Shape, *, strength: float = 0.5, random_state: int = 0) -> Corruption:
+    """Scale about the centroid by ``1 + strength`` (uniform); the vertex map is the identity."""
+    s = _check_strength(strength, -0.99, 1e6)
+    c = shape.vertices.mean(axis=0)
+    return shape.with_vertices((1.0 + s) * (shape.vertices - c) + c), _identity(shape)
+
+
+def _length_unit(shape: Shape) -> float:
+    return shape.mean_edge_length if shape.is_mesh and shape.n_faces else 0.01 * shape.diagonal
+
+
+def gaussian_noise(shape: Shape, *, strength: float = 0.1, random_state: int = 0) -> Corruption:
+    """Add isotropic Gaussian noise of standard deviation ``strength`` mean edge lengths to every
+    coordinate (1 % of the diagonal for point clouds); the vertex map is the identity."""
+    s = _check_strength(strength)
+    rng = np.random.default_rng(random_state)
+    v = shape.vertices + rng.normal(scale=s * _length_unit(shape), size=shape.vertices.shape)
+    return shape.with_vertices(v), _identity(shape)
+
+
+def shot_noise(
+    shape: Shape, *, strength: float = 0.02, magnitude: float = 3.0, random_state: int = 0
+) -> Corruption:
+    """Displace a fraction ``strength`` of the vertices by ``magnitude`` mean edge lengths in
+    random directions (impulse noise); the vertex map is the identity."""
+    s = _check_strength(strength, 0.0, 1.0)
+    rng = np.random.default_rng(random_state)
+    n = shape.n_vertices
+    ids = rng.choice(n, size=int(round(s * n)), replace=False)
+    d = rng.normal(size=(len(ids), 3))
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    v = np.array(shape.vertices)
+    v[ids] += magnitude * _length_unit(shape) * d
+    return shape.with_vertices(v), _identity(shape)
+
+
+def _nearest(original: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return cKDTree(original).query(points)[1].astype(np.int64)
+
+
+def remesh(
+    shape: Shape,
+    *,
+    strength: float = 1.0,
+    n_vertices: int | None = None,
+    iterations: int = 5,
+    random_state: int = 0,
+) -> Corruption:
+    """Independent isotropic remeshing (pymeshlab) to about ``n_vertices`` vertices (default:
+    ``strength`` times the original count). Every new vertex maps to its nearest original vertex.
+    ``random_state`` jitters the input slightly so the new connectivity is unrelated to the old."""
+    f = shape.require_faces("remesh")
+    s = _check_strength(strength, 0.05, 20.0)
+    target = int(n_vertices) if n_vertices is not None else int(round(s * shape.n_vertices))
+    if target < 20:
+        raise ParameterError(f"remesh target must be at least 20 vertices, got {target}")
+    import pymeshlab
+
+    edge = float(np.sqrt(2.0 * shape.area / (np.sqrt(3.0) * target)))
+    rng = np.random.default_rng(random_state)
+    v = shape.vertices + rng.normal(scale=1e-3 * shape.mean_edge_length, size=shape.vertices.shape)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v, face_matrix=f.astype(np.int32)))
+    ms.meshing_isotropic_explicit_remeshing(
+        iterations=int(iterations), targetlen=pymeshlab.PureValue(edge), featuredeg=180.0
+    )
+    m = ms.current_mesh()
+    nv = np.asarray(m.vertex_matrix(), dtype=np.float64)
+    nf = np.asarray(m.face_matrix(), dtype=np.int64)
+    if len(nf) == 0:
+        raise InvalidShapeError("remeshing produced an empty mesh")
+    used = np.zeros(len(nv), dtype=bool)
+    used[nf.ravel()] = True
+    remap = np.cumsum(used) - 1
+    nv, nf = nv[used], remap[nf]
+    return Shape(nv, nf, shape.name), _nearest(shape.vertices, nv)
+
+
+def _keep(shape: Shape, keep: np.ndarray, largest: bool = True) -> Corruption:
+    """Keep the vertices where ``keep`` (bool) and the faces inside them, then (optionally) the
+    largest connected component; the map lists kept original ids."""
+    sub, ids = shape.submesh(np.flatnonzero(keep))
+    if sub.faces is None:
+        raise InvalidShapeError("the corruption removed every face")
+    used = np.zeros(sub.n_vertices, dtype=bool)
+    used[sub.faces.ravel()] = True
+    if largest:
+        n = sub.n_vertices
+        e = sub.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        A = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+        _, lab = connected_components(A, directed=False)
+        sizes = np.bincount(lab[used])
+        big = int(np.argmax(sizes))
+        used &= lab == big
+    sub2, ids2 = sub.submesh(np.flatnonzero(used))
+    return Shape(sub2.vertices, sub2.faces, shape.name), ids[ids2]
+
+
+def holes(
+    shape: Shape, *, strength: float = 3, radius: float = 0.05, random_state: int = 0
+) -> Corruption:
+    """Cut ``strength`` (rounded) holes: remove the vertices within ``radius`` bounding-box
+    diagonals of random centre vertices; the largest remaining component is kept."""
+    shape.require_faces("holes")
+    k = int(round(_check_strength(strength, 0, 1000)))
+    rng = np.random.default_rng(random_state)
+    centres = rng.choice(shape.n_vertices, size=min(k, shape.n_vertices), replace=False)
+    tree = cKDTree(shape.vertices)
+    keep = np.ones(shape.n_vertices, dtype=bool)
+    for c in centres:
+        keep[tree.query_ball_point(shape.vertices[c], radius * shape.diagonal)] = False
+    return _keep(shape, keep)
+
+
+def micro_holes(shape: Shape, *, strength: float = 0.02, random_state: int = 0) -> Corruption:
+    """Remove a fraction ``strength`` of single vertices at random (each leaves a one-ring
+    hole); the largest remaining component is kept."""
+    shape.require_faces("micro_holes")
+    s = _check_strength(strength, 0.0, 0.5)
+    rng = np.random.default_rng(random_state)
+    keep = np.ones(shape.n_vertices, dtype=bool)
+    keep[rng.choice(shape.n_vertices, size=int(round(s * shape.n_vertices)), replace=False)] = False
+    return _keep(shape, keep)
+
+
+def shortcut(
+    shape: Shape, *, strength: float = 1, min_ratio: float = 1.5, random_state: int = 0
+) -> Corruption:
+    """Topological shortcuts ("merging hands"): glue ``strength`` (rounded) pairs of vertices
+    that are close in space but far along the surface (the largest geodesic / Euclidean ratios
+    from random seeds, at least ``min_ratio``) with a bridge of two triangles. Vertices are
+    unchanged: the map is the identity."""
+    f = shape.require_faces("shortcut")
+    k = int(round(_check_strength(strength, 0, 100)))
+    rng = np.random.default_rng(random_state)
+    v, e, n = shape.vertices, shape.edges, shape.n_vertices
+    G = sp.coo_matrix((shape.edge_lengths, (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    nbrs = sp.csr_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    nbrs = (nbrs + nbrs.T).tocsr()
+    seeds = rng.choice(n, size=min(n, max(8 * k, 16)), replace=False)
+    geo = dijkstra(G, directed=False, indices=seeds)
+    new_faces = []
+    used: set[int] = set()
+    candidates = []
+    for row, a in zip(geo, seeds):
+        eu = np.linalg.norm(v - v[a], axis=1)
+        ratio = np.where(np.isfinite(row) & (eu > 0), row / np.maximum(eu, 1e-300), 0.0)
+        b = int(np.argmax(ratio))
+        if ratio[b] >= min_ratio:
+            candidates.append((-float(ratio[b]), int(a), b))
+    for _, a, b in sorted(candidates):
+        if len(new_faces) // 2 >= k:
+            break
+        if a in used or b in used:
+            continue
+        na = nbrs.indices[nbrs.indptr[a] : nbrs.indptr[a + 1]]
+        c = int(na[np.argmin(np.linalg.norm(v[na] - v[b], axis=1))])
+        nb = nbrs.indices[nbrs.indptr[b] : nbrs.indptr[b + 1]]
+        nb = nb[nb != c]
+        d = int(nb[np.argmin(np.linalg.norm(v[nb] - v[c], axis=1))])
+        new_faces += [[a, b, c], [b, d, c]]
+        used.update((a, b, c, d))
+    if k and not new_faces:
+        raise InvalidShapeError(
+            f"shortcut: no vertex pair with geodesic/Euclidean ratio above {min_ratio}"
+        )
+    faces = np.concatenate([f, np.array(new_faces, dtype=np.int64).reshape(-1, 3)])
+    return Shape(v, faces, shape.name), _identity(shape)
+
+
+def partial(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Corruption:
+    """Partiality: cut away the fraction ``strength`` of the vertices lying furthest along a
+    random direction; the largest remaining component is kept."""
+    s = _check_strength(strength, 0.0, 0.95)
+    rng = np.random.default_rng(random_state)
+    d = rng.normal(size=3)
+    proj = shape.vertices @ (d / np.linalg.norm(d))
+    keep = proj <= np.quantile(proj, 1.0 - s) if s > 0 else np.ones(shape.n_vertices, dtype=bool)
+    if not shape.is_mesh:
+        sub, ids = shape.submesh(np.flatnonzero(keep))
+        return sub, ids
+    return _keep(shape, keep)
+
+
+#: corruption name (as used in configs) -> function
+CORRUPTIONS: dict[str, Callable[..., Corruption]] = {
+    "rigid": rigid_motion,
+    "scale": scaling,
+    "gaussian-noise": gaussian_noise,
+    "shot-noise": shot_noise,
+    "remesh": remesh,
+    "holes": holes,
+    "micro-holes": micro_holes,
+    "shortcut": shortcut,
+    "partial": partial,
+}
+
+
+def apply_corruption(shape: Shape, name: str, *, random_state: int = 0, **params: Any) -> Corruption:
+    """Apply the corruption registered as ``name`` (see :data:`CORRUPTIONS`) with ``params``;
+    ``name='none'`` returns the shape with the identity map."""
+    if name == "none":
+        return shape, _identity(shape)
+    if name not in CORRUPTIONS:
+        raise ParameterError(f"unknown corruption {name!r}; known: none, {', '.join(CORRUPTIONS)}")
+    fn = CORRUPTIONS[name]
+    import inspect
+
+    valid = [p for p in inspect.signature(fn).parameters if p != "shape"]
+    bad = sorted(set(params) - set(valid))
+    if bad:
+        raise ParameterError(
+            f"corruption {name!r} has no parameter {', '.join(bad)}; valid: {', '.join(valid)}"
+        )
+    return fn(shape, random_state=random_state, **params)
+
+
+#: corruptions that resample the surface: their maps name the *nearest* original vertex, so an
+#: original vertex nobody maps to still exists (near its neighbours) rather than being removed
+RESAMPLING = frozenset({"remesh"})
+
+
+def invert_vertex_map(
+    vertex_map: np.ndarray,
+    original: Shape,
+    *,
+    resampled: bool = False,
+    max_distance: float | None = None,
+) -> np.ndarray:
+    """Original vertex -> new vertex (int64 ``(n_original,)``, -1 when removed).
+
+    An original vertex named by the map gets the first new vertex mapping to it. Others are
+    removed, unless ``resampled`` (the map of :func:`remesh`): then they get the new vertex whose
+    source is nearest, within ``max_distance`` (default 2 mean edge lengths of ``original``).
+    """
+    vm = np.asarray(vertex_map, dtype=np.int64)
+    n = original.n_vertices
+    inv = -np.ones(n, dtype=np.int64)
+    valid = np.flatnonzero(vm >= 0)
+    order = valid[::-1]  # assign in reverse so the first new vertex wins
+    inv[vm[order]] = order
+    missing = np.flatnonzero(inv < 0)
+    if resampled and missing.size and valid.size:
+        lim = 2.0 * _length_unit(original) if max_distance is None else float(max_distance)
+        dist, j = cKDTree(original.vertices[vm[valid]]).query(original.vertices[missing])
+        ok = dist <= lim
+        inv[missing[ok]] = valid[j[ok]]
+    return inv
+
+
+def carry_labels(labels: np.ndarray, vertex_map: np.ndarray) -> np.ndarray:
+    """Per-vertex labels of the corrupted shape: ``labels[vertex_map]`` (-1 for unmapped)."""
+    lab = np.asarray(labels, dtype=np.int64)
+    vm = np.asarray(vertex_map, dtype=np.int64)
+    return np.where(vm >= 0, lab[np.maximum(vm, 0)], -1)
+
+
+def carry_correspondence(
+    pairs: np.ndarray, vertex_map: np.ndarray, original: Shape, *, side: int = 1, resampled: bool = False
+) -> np.ndarray:
+    """Ground-truth pairs ``(q, 2)`` with column ``side`` moved onto the corrupted shape; pairs
+    whose vertex was removed are dropped (``resampled``: see :func:`invert_vertex_map`)."""
+    p = np.array(pairs, dtype=np.int64, copy=True)
+    inv = invert_vertex_map(vertex_map, original, resampled=resampled)
+    p[:, side] = inv[p[:, side]]
+    return p[p[:, side] >= 0]

@@ -1,0 +1,294 @@
+"""Ground-truth files and dataset layouts (TOSCA-style correspondences, PSB segmentations).
+
+Datasets are listed cheaply as :class:`ItemRef` (small, picklable: a kind, a name and the paths
+or parameters needed to build it) and materialised with :func:`load_item` into a
+:class:`DatasetItem` (shape, optional matching target and ground truth). Benchmark workers
+receive refs and load items themselves.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.results.labels import face_to_vertex_labels
+
+__all__ = [
+    "read_vertex_ids",
+    "read_vts",
+    "read_face_labels",
+    "read_labels",
+    "write_labels",
+    "ItemRef",
+    "DatasetItem",
+    "DATASET_KINDS",
+    "tosca_dataset",
+    "psb_dataset",
+    "folder_dataset",
+    "synthetic_refs",
+    "open_dataset",
+    "load_item",
+]
+
+
+def _read_ints(path: str | os.PathLike, what: str) -> np.ndarray:
+    p = Path(path)
+    if not p.exists():
+        raise ShapeFileError(p, "no such file")
+    if p.is_dir():
+        raise ShapeFileError(p, "is a directory, expected a file")
+    try:
+        text = p.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ShapeFileError(p, f"cannot read {what}: {exc}") from None
+    tokens = text.split()
+    if not tokens:
+        raise ShapeFileError(p, f"empty {what} file")
+    try:
+        values = np.array([int(t) for t in tokens], dtype=np.int64)
+    except ValueError:
+        bad = next(t for t in tokens if not t.lstrip("-").isdigit())
+        raise ShapeFileError(p, f"{what} must be integers, found {bad!r}") from None
+    return values
+
+
+def read_vertex_ids(
+    path: str | os.PathLike, *, one_based: bool, n_vertices: int | None = None
+) -> np.ndarray:
+    """Read one vertex index per line as 0-based int64 ``(p,)``; ``one_based`` says how the file
+    counts. With ``n_vertices``, indices outside the shape raise :class:`ShapeFileError`."""
+    ids = _read_ints(path, "vertex indices")
+    if one_based:
+        if ids.min() < 1:
+            raise ShapeFileError(path, f"1-based indices expected, found {int(ids.min())}")
+        ids = ids - 1
+    elif ids.min() < 0:
+        raise ShapeFileError(path, f"negative vertex index {int(ids.min())}")
+    if n_vertices is not None and ids.max() >= n_vertices:
+        raise ShapeFileError(
+            path, f"vertex index {int(ids.max()) + one_based} is out of range for {n_vertices} vertices"
+        )
+    return ids
+
+
+def read_vts(path: str | os.PathLike, n_vertices: int | None = None) -> np.ndarray:
+    """Read a TOSCA ``.vts`` correspondence file (1-based) as 0-based int64 vertex ids."""
+    return read_vertex_ids(path, one_based=True, n_vertices=n_vertices)
+
+
+def read_labels(path: str | os.PathLike, n_expected: int | None = None) -> np.ndarray:
+    """Read one integer label per line (vertex labels, or face labels of a PSB ``.seg`` file)
+    as int64 ``(n,)``; a length other than ``n_expected`` raises :class:`ShapeFileError`."""
+    labels = _read_ints(path, "labels")
+    if n_expected is not None and len(labels) != n_expected:
+        raise ShapeFileError(path, f"has {len(labels)} labels, expected {n_expected}")
+    return labels
+
+
+def read_face_labels(path: str | os.PathLike, n_faces: int | None = None) -> np.ndarray:
+    """Read a PSB ``.seg`` file: one label per face, in face order, int64 ``(m,)``."""
+    return read_labels(path, n_faces)
+
+
+def write_labels(path: str | os.PathLike, labels: np.ndarray) -> None:
+    """Write one integer per line (labels, or 0-based vertex ids with -1 for unmatched)."""
+    p = Path(path)
+    if p.parent and not p.parent.exists():
+        raise ShapeFileError(p, "the output folder does not exist")
+    tmp = p.with_name(f".{p.name}.tmp")
+    np.savetxt(tmp, np.asarray(labels, dtype=np.int64), fmt="%d")
+    os.replace(tmp, p)
+
+
+# --------------------------------------------------------------------------------------------
+# dataset layouts
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ItemRef:
+    """A light, picklable reference to one dataset item: ``kind`` (tosca, psb, folder,
+    synthetic), its ``name``, and the ``paths``/``params`` :func:`load_item` needs."""
+
+    kind: str
+    name: str
+    paths: dict[str, Any] = field(default_factory=dict)
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class DatasetItem:
+    """One benchmark item with its ground truth.
+
+    ``shape``: the (source) shape. ``labels``: ground-truth per-vertex segmentations of ``shape``
+    (list of int64 ``(n,)``, several when several people segmented it). ``face_labels``: the same
+    per face when the dataset gives them. ``target`` and ``correspondence`` (int64 ``(q, 2)``
+    pairs ``[source vertex, target vertex]``) for matching; ``symmetric_correspondence`` the
+    left-right symmetric ground truth when known. ``target_labels`` segmentations of the target.
+    """
+
+    name: str
+    shape: Shape
+    labels: list[np.ndarray] = field(default_factory=list)
+    face_labels: list[np.ndarray] = field(default_factory=list)
+    target: Shape | None = None
+    correspondence: np.ndarray | None = None
+    symmetric_correspondence: np.ndarray | None = None
+    target_labels: list[np.ndarray] = field(default_factory=list)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def _require_dir(root: str | os.PathLike, what: str) -> Path:
+    p = Path(root)
+    if not p.is_dir():
+        raise ShapeFileError(p, f"{what} dataset folder not found")
+    return p
+
+
+def tosca_dataset(root: str | os.PathLike, *, pairs: str = "pairs.txt") -> list[ItemRef]:
+    """Pairs of a TOSCA-style folder: ``NAME.off`` meshes, ``corres/NAME.vts`` (1-based, row i of
+    every file of a class is the same point) and a tab/space separated ``pairs`` list (A B)."""
+    root = _require_dir(root, "TOSCA-style")
+    plist = root / pairs
+    if plist.exists():
+        rows = [ln.split() for ln in plist.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+        for r in rows:
+            if len(r) != 2:
+                raise ShapeFileError(plist, f"each line must name two shapes, got {' '.join(r)!r}")
+    else:  # every ordered pair of shapes sharing a class prefix (letters before the digits)
+        names = sorted(p.stem for p in root.glob("*.off"))
+        cls = {n: n.rstrip("0123456789") for n in names}
+        rows = [[a, b] for a in names for b in names if a < b and cls[a] == cls[b]]
+    refs = []
+    for a, b in rows:
+        paths = {"source": str(root / f"{a}.off"), "target": str(root / f"{b}.off")}
+        for key, nm in (("source_vts", a), ("target_vts", b)):
+            paths[key] = str(root / "corres" / f"{nm}.vts")
+        sym = root / "corres" / f"{b}.sym.vts"
+        if sym.exists():
+            paths["target_sym_vts"] = str(sym)
+        for key in ("source", "target", "source_vts", "target_vts"):
+            if not Path(paths[key]).exists():
+                raise ShapeFileError(paths[key], f"listed by {plist.name} but missing")
+        refs.append(ItemRef("tosca", f"{a}-{b}", paths))
+    return refs
+
+
+def psb_dataset(root: str | os.PathLike) -> list[ItemRef]:
+    """Meshes of the Princeton Segmentation Benchmark layout: ``off/ID.off`` and the human
+    segmentations ``seg/ID/ID_K.seg`` (one label per face), sorted by numeric id."""
+    root = _require_dir(root, "PSB")
+    off = root / "off" if (root / "off").is_dir() else root
+    meshes = sorted(off.glob("*.off"), key=lambda p: (int(p.stem) if p.stem.isdigit() else 1 << 60, p.stem))
+    refs = []
+    for m in meshes:
+        segdir = root / "seg" / m.stem
+        segs = sorted(segdir.glob("*.seg"), key=lambda p: (len(p.stem), p.stem)) if segdir.is_dir() else []
+        if not segs:
+            segs = sorted((root / "seg").glob(f"{m.stem}*.seg")) if (root / "seg").is_dir() else []
+        refs.append(ItemRef("psb", m.stem, {"shape": str(m), "segs": [str(s) for s in segs]}))
+    return refs
+
+
+def folder_dataset(root: str | os.PathLike, *, pattern: str = "*") -> list[ItemRef]:
+    """Every mesh or point-cloud file (OFF, PLY, OBJ, STL, XYZ, PCD) matching ``pattern``; a
+    sibling ``NAME.labels`` file (one label per vertex) is read as ground truth."""
+    from shape_toolkit.io.mesh import MESH_FORMATS, POINT_FORMATS
+
+    root = _require_dir(root, "shape")
+    exts = set(MESH_FORMATS) | set(POINT_FORMATS)
+    files = sorted(p for p in root.glob(pattern) if p.is_file() and p.suffix.lower() in exts)
+    refs = []
+    for f in files:
+        paths: dict[str, Any] = {"shape": str(f)}
+        lab = f.with_suffix(".labels")
+        if lab.exists():
+            paths["labels"] = str(lab)
+        refs.append(ItemRef("folder", f.stem, paths))
+    return refs
+
+
+def synthetic_refs(
+    n_poses: int = 4, *, subdivisions: int = 3, random_state: int = 0, max_angle: float = 1.0
+) -> list[ItemRef]:
+    """Refs of :func:`shape_toolkit.data.synthetic.synthetic_dataset`: item i is pose i, matched to pose
+    i + 1 (cyclically) with the identity as exact ground truth."""
+    if not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
+        raise ParameterError(f"n_poses must be a positive integer, got {n_poses!r}")
+    params = {
+        "n_poses": int(n_poses), "subdivisions": int(subdivisions),
+        "random_state": int(random_state), "max_angle": float(max_angle),
+    }
+    return [ItemRef("synthetic", f"pose{i}", {}, {**params, "index": i}) for i in range(n_poses)]
+
+
+#: dataset kind -> function listing its refs (first argument: the folder, except synthetic)
+DATASET_KINDS = {
+    "tosca": tosca_dataset,
+    "psb": psb_dataset,
+    "folder": folder_dataset,
+    "synthetic": synthetic_refs,
+}
+
+
+def open_dataset(kind: str, path: str | os.PathLike | None = None, **params: Any) -> list[ItemRef]:
+    """The item refs of a dataset of ``kind`` (see :data:`DATASET_KINDS`) at ``path``."""
+    if kind not in DATASET_KINDS:
+        raise ParameterError(f"unknown dataset kind {kind!r}; known: {', '.join(DATASET_KINDS)}")
+    fn = DATASET_KINDS[kind]
+    try:
+        if kind == "synthetic":
+            return fn(**params)
+        if path is None:
+            raise ParameterError(f"a {kind} dataset needs a path")
+        return fn(path, **params)
+    except TypeError as exc:
+        raise ParameterError(f"{kind} dataset: {exc}") from None
+
+
+def _pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    if len(a) != len(b):
+        raise ParameterError(f"correspondence files differ in length ({len(a)} vs {len(b)})")
+    return np.stack([a, b], axis=1).astype(np.int64)
+
+
+def load_item(ref: ItemRef) -> DatasetItem:
+    """Materialise a ref: read the shapes and their ground truth (0-based, validated)."""
+    from shape_toolkit.io.mesh import load_shape
+
+    p = ref.paths
+    if ref.kind == "tosca":
+        src, tgt = load_shape(p["source"], kind="mesh"), load_shape(p["target"], kind="mesh")
+        a = read_vts(p["source_vts"], src.n_vertices)
+        b = read_vts(p["target_vts"], tgt.n_vertices)
+        item = DatasetItem(ref.name, src, target=tgt, correspondence=_pairs(a, b))
+        if "target_sym_vts" in p:
+            item.symmetric_correspondence = _pairs(a, read_vts(p["target_sym_vts"], tgt.n_vertices))
+        return item
+    if ref.kind == "psb":
+        shape = load_shape(p["shape"], kind="mesh")
+        fls = [read_face_labels(s, shape.n_faces) for s in p["segs"]]
+        vls = [face_to_vertex_labels(shape.faces, fl, shape.n_vertices) for fl in fls]
+        return DatasetItem(ref.name, shape, labels=vls, face_labels=fls)
+    if ref.kind == "folder":
+        shape = load_shape(p["shape"])
+        labels = [read_labels(p["labels"], shape.n_vertices)] if "labels" in p else []
+        return DatasetItem(ref.name, shape, labels=labels)
+    if ref.kind == "synthetic":
+        from shape_toolkit.data.synthetic import synthetic_dataset
+
+        prm = dict(ref.params)
+        i = prm.pop("index")
+        poses = synthetic_dataset(**prm)
+        a, b = poses[i], poses[(i + 1) % len(poses)]
+        ident = np.arange(a.shape.n_vertices, dtype=np.int64)
+        return DatasetItem(
+            ref.name, a.shape, labels=[a.labels], target=b.shape,
+            correspondence=np.stack([ident, ident], axis=1), target_labels=[b.labels],
+            meta={"angles": a.angles.tolist(), "target_angles": b.angles.tolist()},
+        )
+    raise ParameterError(f"unknown dataset kind {ref.kind!r}")

@@ -1,0 +1,700 @@
+"""Read and write shapes: triangle meshes (OFF, PLY, OBJ, STL) and point clouds (PLY, XYZ, PCD).
+
+Text formats and PLY (ascii and binary) are parsed here with numpy, so every problem is reported
+as a :class:`ShapeFileError` naming the file and the line; PCD is read with Open3D. STL triangle
+soups are welded (exactly coincident corners merged, first-occurrence order). Polygons are
+triangulated as fans. Indices are 0-based in the API and in every file written, except where the
+format itself is 1-based (OBJ).
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import InvalidShapeError, ParameterError, ShapeFileError
+
+__all__ = [
+    "MAX_FILE_BYTES",
+    "MAX_VERTICES",
+    "MESH_FORMATS",
+    "POINT_FORMATS",
+    "load_shape",
+    "save_shape",
+]
+
+#: Files larger than this are refused with a clear error instead of exhausting memory.
+MAX_FILE_BYTES = 2 * 1024**3
+#: Files declaring more vertices (or faces, or STL triangles) than this are refused.
+MAX_VERTICES = 50_000_000
+
+#: Extensions that may hold triangle meshes / point clouds.
+MESH_FORMATS = (".off", ".ply", ".obj", ".stl")
+POINT_FORMATS = (".ply", ".xyz", ".pcd", ".off", ".obj")
+
+_Parsed = tuple[np.ndarray, "np.ndarray | None"]
+
+
+class _Err(Exception):
+    """Internal: a parse problem, turned into ShapeFileError with the path by load_shape."""
+
+
+# --------------------------------------------------------------------------------------------
+# public API
+# --------------------------------------------------------------------------------------------
+def load_shape(path: str | Path, *, kind: str = "auto") -> Shape:
+    """Read a mesh or point cloud file into a :class:`Shape` (vertices in file units).
+
+    ``kind``: "auto" (faces if the file has any), "mesh" (faces required), "points" (faces
+    dropped). Raises :class:`ShapeFileError` naming the file for any problem.
+    """
+    if kind not in ("auto", "mesh", "points"):
+        raise ParameterError(f"kind must be 'auto', 'mesh' or 'points', got {kind!r}")
+    p = Path(path)
+    ext = p.suffix.lower()
+    if not p.exists():
+        raise ShapeFileError(p, "no such file")
+    if p.is_dir():
+        raise ShapeFileError(p, "is a directory, not a shape file")
+    reader = _READERS.get(ext)
+    if reader is None:
+        known = ", ".join(sorted(_READERS))
+        raise ShapeFileError(p, f"unknown shape format {ext or '(no extension)'!r}; known: {known}")
+    try:
+        size = p.stat().st_size
+    except OSError as e:
+        raise ShapeFileError(p, f"cannot read: {e.strerror or e}") from None
+    if size == 0:
+        raise ShapeFileError(p, "file is empty")
+    if size > MAX_FILE_BYTES:
+        raise ShapeFileError(
+            p,
+            f"file is {size / 1024**3:.1f} GiB, above the limit of "
+            f"{MAX_FILE_BYTES / 1024**3:.1f} GiB (shape_toolkit.io.mesh.MAX_FILE_BYTES)",
+        )
+    try:
+        vertices, faces = reader(p)
+    except _Err as e:
+        raise ShapeFileError(p, str(e)) from None
+    except OSError as e:
+        raise ShapeFileError(p, f"cannot read: {e.strerror or e}") from None
+    except MemoryError:
+        raise ShapeFileError(p, "not enough memory to load this file") from None
+
+    if vertices.shape[0] == 0:
+        raise ShapeFileError(p, "the file contains no vertices")
+    if faces is not None and faces.shape[0] == 0:
+        faces = None
+    if kind == "points":
+        faces = None
+    elif kind == "mesh" and faces is None:
+        raise ShapeFileError(p, "contains no faces (a point cloud); load it with kind='points'")
+    if not np.isfinite(vertices).all():
+        bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
+        raise ShapeFileError(
+            p, f"{bad.size} vertices have NaN or infinite coordinates (first: vertex {bad[0]})"
+        )
+    if faces is not None:
+        lo, hi = int(faces.min()), int(faces.max())
+        if lo < 0 or hi >= vertices.shape[0]:
+            bad = lo if lo < 0 else hi
+            raise ShapeFileError(
+                p,
+                f"face index {bad} out of range: the file has {vertices.shape[0]} vertices "
+                f"(valid 0-based indices 0..{vertices.shape[0] - 1})",
+            )
+    try:
+        return Shape(vertices, faces, name=p.stem)
+    except InvalidShapeError as e:
+        raise ShapeFileError(p, str(e)) from None
+
+
+def save_shape(shape: Shape, path: str | Path, *, binary: bool = False) -> None:
+    """Write a shape as OFF, PLY, OBJ, STL (meshes) or XYZ, PCD (vertices only).
+
+    ``binary`` selects binary PLY/STL (little endian); other formats are always text. Coordinates
+    are written with full float64 precision (except STL, which stores float32).
+    """
+    p = Path(path)
+    ext = p.suffix.lower()
+    writer = _WRITERS.get(ext)
+    if writer is None:
+        known = ", ".join(sorted(_WRITERS))
+        raise ShapeFileError(p, f"cannot write format {ext or '(no extension)'!r}; known: {known}")
+    if ext == ".stl" and not shape.is_mesh:
+        raise ShapeFileError(p, "STL stores triangles only; this shape is a point cloud")
+    if p.is_dir():
+        raise ShapeFileError(p, "is a directory")
+    try:
+        with open(p, "wb") as fh:
+            writer(fh, shape, binary)
+    except OSError as e:
+        raise ShapeFileError(p, f"cannot write: {e.strerror or e}") from None
+
+
+# --------------------------------------------------------------------------------------------
+# helpers
+# --------------------------------------------------------------------------------------------
+def _check_count(n: int, what: str) -> None:
+    if n < 0:
+        raise _Err(f"negative {what} count {n} in the header")
+    if n > MAX_VERTICES:
+        raise _Err(f"declares {n} {what}, above the limit of {MAX_VERTICES} (shape_toolkit.io.mesh.MAX_VERTICES)")
+
+
+def _read_text(p: Path) -> str:
+    data = p.read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        try:
+            return data.decode("latin-1")
+        except UnicodeDecodeError:  # pragma: no cover - latin-1 decodes any byte
+            raise _Err("not a text file") from None
+
+
+def _content(text: str) -> list[tuple[int, str]]:
+    """Lines that are neither blank nor whole-line comments, as (1-based line number, line).
+
+    Inline ``#`` comments are left in place (the parsers below drop them).
+    """
+    lines = text.splitlines()
+    return [(i + 1, ln) for i, ln in enumerate(lines) if (t := ln.lstrip()) and t[0] != "#"]
+
+
+def _tokens(line: str) -> list[str]:
+    return line.split("#", 1)[0].split()
+
+
+def _floats(rows: list[tuple[int, str]], cols: int | list[int], what: str) -> np.ndarray:
+    """Columns ``cols`` (or the first ``cols``) of text rows as float64 ``(len(rows), k)``.
+
+    Fast path: numpy's C parser; on any problem a slow pass names the offending line.
+    """
+    cols = list(range(cols)) if isinstance(cols, int) else list(cols)
+    if not rows:
+        return np.zeros((0, len(cols)))
+    try:
+        return np.loadtxt([r for _, r in rows], usecols=cols, ndmin=2, comments="#")
+    except ValueError:
+        pass
+    need = max(cols) + 1
+    for ln, line in rows:
+        toks = _tokens(line)
+        if len(toks) < need:
+            raise _Err(f"line {ln}: {what} needs {need} numbers, found {len(toks)}")
+        for c in cols:
+            try:
+                float(toks[c])
+            except ValueError:
+                raise _Err(f"line {ln}: non-numeric {what} value {toks[c]!r}") from None
+    raise _Err(f"malformed {what} data")  # pragma: no cover
+
+
+def _int(tok: str, ln: int, what: str) -> int:
+    try:
+        return int(tok)
+    except ValueError:
+        raise _Err(f"line {ln}: {what} {tok!r} is not an integer") from None
+
+
+def _fan(polys: list[list[int]], where: list[int] | None = None) -> np.ndarray:
+    """Triangulate polygons (lists of indices) as fans around their first vertex -> (m, 3)."""
+    tris: list[tuple[int, int, int]] = []
+    for k, poly in enumerate(polys):
+        if len(poly) < 3:
+            loc = f"line {where[k]}: " if where else ""
+            raise _Err(f"{loc}face with {len(poly)} vertices; a face needs at least 3")
+        a = poly[0]
+        for j in range(1, len(poly) - 1):
+            tris.append((a, poly[j], poly[j + 1]))
+    return np.array(tris, dtype=np.int64).reshape(-1, 3)
+
+
+# --------------------------------------------------------------------------------------------
+# OFF
+# --------------------------------------------------------------------------------------------
+def _read_off(p: Path) -> _Parsed:
+    lines = _content(_read_text(p))
+    if not lines:
+        raise _Err("file has no content")
+    ln, first = lines[0]
+    toks = _tokens(first)
+    head = toks[0] if toks else ""
+    if head not in ("OFF", "COFF", "NOFF", "CNOFF"):
+        if head.endswith("OFF"):
+            raise _Err(f"OFF variant {head!r} is not supported (only OFF, COFF, NOFF, CNOFF)")
+        raise _Err(f"not an OFF file: first keyword is {head[:20]!r}, expected 'OFF'")
+    rest = toks[1:]
+    k = 1
+    if not rest:
+        if len(lines) < 2:
+            raise _Err("truncated: missing the 'n_vertices n_faces n_edges' header line")
+        ln, line = lines[1]
+        rest = _tokens(line)
+        k = 2
+    if len(rest) < 2:
+        got = " ".join(rest)
+        raise _Err(f"line {ln}: header needs 'n_vertices n_faces [n_edges]', got {got!r}")
+    nv = _int(rest[0], ln, "vertex count")
+    nf = _int(rest[1], ln, "face count")
+    _check_count(nv, "vertices")
+    _check_count(nf, "faces")
+    body = lines[k:]
+    if len(body) < nv:
+        raise _Err(f"truncated: header declares {nv} vertices but the file has {len(body)} lines")
+    vertices = _floats(body[:nv], 3, "vertex")
+    frows = body[nv:]
+    if len(frows) < nf:
+        raise _Err(
+            f"truncated: header declares {nf} faces but only {len(frows)} face lines follow the {nv} vertices"
+        )
+    if len(frows) > nf:
+        ln = frows[nf][0]
+        raise _Err(f"line {ln}: unexpected content after the {nf} declared faces")
+    if nf == 0:
+        return vertices, None
+    return vertices, _parse_counted_faces(frows)
+
+
+def _parse_counted_faces(rows: list[tuple[int, str]]) -> np.ndarray:
+    """Faces given as 'k i1 .. ik [extra]' text rows (OFF, ascii PLY) -> fan-triangulated (m, 3)."""
+    try:  # fast path: all triangles (extra columns such as colours are ignored)
+        arr = np.loadtxt([r for _, r in rows], dtype=np.int64, ndmin=2, comments="#")
+        if arr.shape[1] >= 4 and (arr[:, 0] == 3).all():
+            return arr[:, 1:4].copy()
+    except ValueError:
+        pass
+    polys, where = [], []
+    for ln, line in rows:
+        r = _tokens(line)
+        n = _int(r[0], ln, "face vertex count")
+        if len(r) < n + 1:
+            raise _Err(f"line {ln}: face declares {n} vertices but lists {len(r) - 1}")
+        polys.append([_int(t, ln, "face index") for t in r[1 : n + 1]])
+        where.append(ln)
+    return _fan(polys, where)
+
+
+# --------------------------------------------------------------------------------------------
+# OBJ
+# --------------------------------------------------------------------------------------------
+def _read_obj(p: Path) -> _Parsed:
+    lines = [(ln, line.lstrip()) for ln, line in _content(_read_text(p))]
+    vrows = [(ln, line[2:]) for ln, line in lines if line[:2] in ("v ", "v\t")]
+    _check_count(len(vrows), "vertices")
+    vertices = _floats(vrows, 3, "vertex")
+    frows = [(ln, line[2:]) for ln, line in lines if line[:2] in ("f ", "f\t")]
+    if not frows:
+        return vertices, None
+    if not any("-" in line for _, line in frows):  # fast path: absolute indices, triangles
+        stripped = frows
+        if any("/" in line for _, line in frows):
+            slash = re.compile(r"/\S*")
+            stripped = [(ln, slash.sub("", line)) for ln, line in frows]
+        try:
+            arr = np.loadtxt([r for _, r in stripped], dtype=np.int64, ndmin=2, comments="#")
+        except ValueError:
+            arr = None
+        if arr is not None and arr.shape[1] == 3 and arr.min() > 0:
+            return vertices, arr - 1
+    # general path: polygons and negative indices (relative to the vertices read so far)
+    polys: list[list[int]] = []
+    where: list[int] = []
+    nv = 0
+    for ln, line in lines:
+        if line[:2] in ("v ", "v\t"):
+            nv += 1
+        elif line[:2] in ("f ", "f\t"):
+            idx = []
+            for t in _tokens(line)[1:]:
+                i = _int(t.split("/")[0], ln, "face index")
+                if i == 0:
+                    raise _Err(f"line {ln}: face index 0 is invalid in OBJ (indices are 1-based)")
+                idx.append(i - 1 if i > 0 else nv + i)
+            polys.append(idx)
+            where.append(ln)
+    return vertices, _fan(polys, where)
+
+
+# --------------------------------------------------------------------------------------------
+# XYZ
+# --------------------------------------------------------------------------------------------
+def _read_xyz(p: Path) -> _Parsed:
+    text = _read_text(p)
+    rows = _content(text.replace(",", " ") if "," in text else text)
+    _check_count(len(rows), "points")
+    return _floats(rows, 3, "point"), None
+
+
+# --------------------------------------------------------------------------------------------
+# PLY (ascii, binary little/big endian)
+# --------------------------------------------------------------------------------------------
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}  # fmt: skip
+
+
+def _read_ply(p: Path) -> _Parsed:
+    data = p.read_bytes()
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise _Err("not a PLY file (missing 'ply' magic or 'end_header')")
+    nl = data.find(b"\n", end)
+    body_start = len(data) if nl < 0 else nl + 1
+    header = data[:end].decode("ascii", errors="replace").splitlines()
+    fmt = None
+    # elements: (name, count, [(prop, type) | (prop, count_type, item_type)])
+    elements: list[tuple[str, int, list[tuple]]] = []
+    for raw in header[1:]:
+        t = raw.split()
+        if not t or t[0] in ("comment", "obj_info"):
+            continue
+        if t[0] == "format":
+            fmt = t[1] if len(t) > 1 else ""
+        elif t[0] == "element" and len(t) == 3:
+            try:
+                count = int(t[2])
+            except ValueError:
+                raise _Err(f"bad element count in header line {raw!r}") from None
+            _check_count(count, t[1])
+            elements.append((t[1], count, []))
+        elif t[0] == "property" and elements:
+            if t[1] == "list" and len(t) == 5 and t[2] in _PLY_TYPES and t[3] in _PLY_TYPES:
+                elements[-1][2].append((t[4], _PLY_TYPES[t[2]], _PLY_TYPES[t[3]]))
+            elif len(t) == 3 and t[1] in _PLY_TYPES:
+                elements[-1][2].append((t[2], _PLY_TYPES[t[1]]))
+            else:
+                raise _Err(f"unsupported PLY property line {raw!r}")
+        else:
+            raise _Err(f"unsupported PLY header line {raw!r}")
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise _Err(f"unknown PLY format {fmt!r}")
+    body = memoryview(data)[body_start:]  # no copy of the body
+    names = [e[0] for e in elements]
+    if "vertex" not in names:
+        raise _Err("PLY header has no 'vertex' element")
+    if fmt == "ascii":
+        parsed = _ply_ascii(bytes(body).decode("latin-1"), elements)
+    else:
+        parsed = _ply_binary(body, elements, "<" if fmt == "binary_little_endian" else ">")
+    vert = parsed["vertex"]
+    for c in "xyz":
+        if c not in vert:
+            raise _Err(f"PLY vertex element has no '{c}' property")
+    vertices = np.stack([np.asarray(vert[c], dtype=np.float64) for c in "xyz"], axis=1)
+    faces = None
+    face = parsed.get("face")
+    if face is not None:
+        key = "vertex_indices" if "vertex_indices" in face else "vertex_index"
+        if key not in face:
+            raise _Err("PLY face element has no 'vertex_indices' list")
+        faces = face[key]
+        if isinstance(faces, list):
+            faces = _fan(faces)
+    return vertices, faces
+
+
+def _ply_ascii(text: str, elements: list) -> dict:
+    lines = [(i, s) for i, s in enumerate(text.splitlines(), 1) if s.strip()]
+    out, pos = {}, 0
+    for name, count, props in elements:
+        rows = lines[pos : pos + count]
+        if len(rows) < count:
+            raise _Err(f"truncated: header declares {count} {name} but the body has {len(rows)}")
+        pos += count
+        if not props:
+            continue
+        if all(len(pr) == 2 for pr in props):
+            arr = _floats(rows, len(props), name)
+            out[name] = {pr[0]: arr[:, j] for j, pr in enumerate(props)}
+        elif len(props) == 1 and name == "face":  # the usual: one list property
+            faces = _parse_counted_faces(rows)
+            out[name] = {props[0][0]: faces}
+        elif name in ("vertex", "face"):
+            raise _Err(f"unsupported ascii PLY {name} layout (mixed list and scalar properties)")
+    return out
+
+
+def _ply_binary(body: memoryview, elements: list, order: str) -> dict:
+    out, pos = {}, 0
+    for name, count, props in elements:
+        if all(len(pr) == 2 for pr in props):
+            dt = np.dtype([(pr[0], order + pr[1]) for pr in props])
+            nbytes = dt.itemsize * count
+            if pos + nbytes > len(body):
+                raise _Err(f"truncated: binary body too short for {count} {name}")
+            arr = np.frombuffer(body, dtype=dt, count=count, offset=pos)
+            pos += nbytes
+            out[name] = {pr[0]: arr[pr[0]] for pr in props}
+            continue
+        if name != "face" or len(props) != 1:
+            if name == "vertex":
+                raise _Err("unsupported binary PLY vertex layout (list properties)")
+            raise _Err(f"unsupported binary PLY element {name!r} with list properties")
+        lname, ct, it = props[0]
+        ct, it = np.dtype(order + ct), np.dtype(order + it)
+        # fast path: every face is a triangle -> fixed-size records
+        dt = np.dtype([("n", ct), ("i", it, (3,))])
+        nbytes = dt.itemsize * count
+        if count and pos + nbytes <= len(body):
+            arr = np.frombuffer(body, dtype=dt, count=count, offset=pos)
+            if (arr["n"] == 3).all():
+                pos += nbytes
+                out[name] = {lname: arr["i"].astype(np.int64)}
+                continue
+        polys = []
+        for k in range(count):
+            if pos + ct.itemsize > len(body):
+                raise _Err(f"truncated: binary body ends inside face {k} of {count}")
+            n = int(np.frombuffer(body, dtype=ct, count=1, offset=pos)[0])
+            pos += ct.itemsize
+            if pos + n * it.itemsize > len(body):
+                raise _Err(f"truncated: binary body ends inside face {k} of {count}")
+            idx = np.frombuffer(body, dtype=it, count=n, offset=pos)
+            polys.append(idx.astype(np.int64).tolist())
+            pos += n * it.itemsize
+        out[name] = {lname: polys}
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# STL (ascii and binary), welded
+# --------------------------------------------------------------------------------------------
+_STL_DT = np.dtype([("n", "<f4", (3,)), ("v", "<f4", (3, 3)), ("attr", "<u2")])
+
+
+def _weld(corners: np.ndarray) -> _Parsed:
+    """Merge exactly coincident triangle corners ((m, 3, 3) soup) -> vertices, faces.
+
+    Vertices keep the order of their first occurrence, so the result is deterministic.
+    """
+    flat = corners.reshape(-1, 3).astype(np.float64)
+    flat = flat + 0.0  # turn -0.0 into +0.0 so both weld together
+    _, first, inv = np.unique(flat, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    return flat[first[order]], rank[inv.ravel()].reshape(-1, 3).astype(np.int64)
+
+
+def _read_stl(p: Path) -> _Parsed:
+    size = p.stat().st_size
+    with open(p, "rb") as fh:
+        head = fh.read(84)
+    if len(head) >= 84:
+        n = int(np.frombuffer(head, dtype="<u4", count=1, offset=80)[0])
+        if size == 84 + 50 * n:
+            _check_count(n, "triangles")
+            if n == 0:
+                raise _Err("binary STL with 0 triangles")
+            soup = np.fromfile(p, dtype=_STL_DT, count=n, offset=84)
+            return _weld(soup["v"])
+    if not head.lstrip().lower().startswith(b"solid"):
+        raise _Err(
+            "neither a valid binary STL (size does not match the triangle count) nor ascii STL "
+            "(no 'solid' keyword): the file is probably truncated"
+        )
+    text = _read_text(p)
+    toks = re.findall(r"^\s*vertex\s+(\S+)\s+(\S+)\s+(\S+)", text, flags=re.MULTILINE)
+    if not toks:
+        raise _Err("ascii STL without any 'vertex' line")
+    if len(toks) % 3:
+        raise _Err(f"ascii STL has {len(toks)} vertex lines, not a multiple of 3 (truncated?)")
+    n_facets = len(re.findall(r"^\s*endfacet", text, flags=re.MULTILINE))
+    if n_facets * 3 != len(toks):
+        raise _Err(f"ascii STL has {len(toks)} vertex lines for {n_facets} facets (truncated?)")
+    _check_count(len(toks) // 3, "triangles")
+    try:
+        arr = np.array(toks, dtype=np.float64)
+    except ValueError:
+        bad = next(t for row in toks for t in row if not _isfloat(t))
+        raise _Err(f"non-numeric vertex value {bad!r}") from None
+    return _weld(arr.reshape(-1, 3, 3))
+
+
+def _isfloat(t: str) -> bool:
+    try:
+        float(t)
+        return True
+    except ValueError:
+        return False
+
+
+# --------------------------------------------------------------------------------------------
+# PCD (Open3D)
+# --------------------------------------------------------------------------------------------
+def _read_pcd(p: Path) -> _Parsed:
+    data = p.read_bytes()
+    fields: dict[str, list[str]] = {}
+    pos = 0
+    while "DATA" not in fields:
+        nl = data.find(b"\n", pos)
+        if nl < 0:
+            raise _Err("not a PCD file (header without a DATA line)")
+        line = data[pos:nl].decode("latin-1").split("#")[0].split()
+        pos = nl + 1
+        if line:
+            fields[line[0].upper()] = line[1:]
+        if pos > 65536:
+            raise _Err("not a PCD file (no DATA line in the first 64 KiB)")
+    try:
+        names = fields["FIELDS"]
+        n = int(fields["POINTS"][0])
+        sizes = [int(x) for x in fields.get("SIZE", ["4"] * len(names))]
+        types = fields.get("TYPE", ["F"] * len(names))
+        counts = [int(x) for x in fields.get("COUNT", ["1"] * len(names))]
+        mode = fields["DATA"][0].lower()
+    except (KeyError, IndexError, ValueError):
+        raise _Err("malformed PCD header (FIELDS/POINTS/SIZE/TYPE/COUNT/DATA)") from None
+    if not all(c in names for c in "xyz"):
+        raise _Err(f"PCD has no x/y/z fields (fields: {' '.join(names)})")
+    if not (len(sizes) == len(types) == len(counts) == len(names)):
+        raise _Err("PCD header: FIELDS, SIZE, TYPE and COUNT have different lengths")
+    _check_count(n, "points")
+    if mode == "ascii":
+        width = sum(counts)
+        rows = [(ln, r) for ln, r in _content(data[pos:].decode("latin-1"))]
+        if len(rows) < n:
+            raise _Err(f"truncated: header declares {n} points but the file has {len(rows)}")
+        if len(rows) > n:
+            raise _Err(f"header declares {n} points but the file has {len(rows)} data lines")
+        short = [ln for ln, r in rows if len(r.split()) < width]
+        if short:
+            raise _Err(f"data line {short[0]} has fewer than the {width} declared values")
+        cols = [sum(counts[: names.index(c)]) for c in "xyz"]
+        table = _floats(rows, cols, "point")
+        return table, None
+    if mode == "binary":
+        kinds = {"F": "f", "I": "i", "U": "u"}
+        try:
+            dt = np.dtype(
+                [
+                    (nm, "<" + kinds[t.upper()] + str(sz), (c,))
+                    if c > 1
+                    else (nm, "<" + kinds[t.upper()] + str(sz))
+                    for nm, sz, t, c in zip(names, sizes, types, counts)
+                ]
+            )
+        except (KeyError, TypeError):
+            raise _Err("PCD header: unsupported TYPE/SIZE combination") from None
+        if len(data) - pos < dt.itemsize * n:
+            raise _Err(f"truncated: binary data too short for {n} points")
+        arr = np.frombuffer(data, dtype=dt, count=n, offset=pos)
+        return np.stack([arr[c].astype(np.float64) for c in "xyz"], axis=1), None
+    if mode != "binary_compressed":
+        raise _Err(f"unknown PCD DATA mode {mode!r}")
+    del data
+    import open3d as o3d  # imported lazily: slow import; only for LZF-compressed data
+
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        pc = o3d.io.read_point_cloud(
+            str(p), format="pcd", remove_nan_points=False, remove_infinite_points=False
+        )
+    pts = np.asarray(pc.points, dtype=np.float64)
+    if pts.shape[0] != n:  # Open3D returns an empty cloud instead of raising
+        raise _Err(f"header declares {n} points but Open3D could read {pts.shape[0]}")
+    return pts, None
+
+
+# --------------------------------------------------------------------------------------------
+# writers
+# --------------------------------------------------------------------------------------------
+def _fmt_rows(a: np.ndarray, prefix: str = "") -> str:
+    """Rows of ``a`` as text, floats in shortest round-trip repr, one row per line."""
+    return "".join(prefix + " ".join(map(repr, row)) + "\n" for row in a.tolist())
+
+
+def _write_off(fh, shape: Shape, binary: bool) -> None:
+    fh.write(f"OFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode())
+    fh.write(_fmt_rows(shape.vertices).encode())
+    if shape.faces is not None:
+        fh.write(_fmt_rows(shape.faces, "3 ").encode())
+
+
+def _write_obj(fh, shape: Shape, binary: bool) -> None:
+    fh.write(_fmt_rows(shape.vertices, "v ").encode())
+    if shape.faces is not None:
+        fh.write(_fmt_rows(shape.faces + 1, "f ").encode())
+
+
+def _write_xyz(fh, shape: Shape, binary: bool) -> None:
+    fh.write(_fmt_rows(shape.vertices).encode())
+
+
+def _write_pcd(fh, shape: Shape, binary: bool) -> None:
+    n = shape.n_vertices
+    fh.write(
+        (
+            "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z\n"
+            f"SIZE 8 8 8\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\n"
+            f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA ascii\n"
+        ).encode()
+    )
+    fh.write(_fmt_rows(shape.vertices).encode())
+
+
+def _write_ply(fh, shape: Shape, binary: bool) -> None:
+    fmt = f"binary_{sys.byteorder}_endian" if binary else "ascii"
+    head = f"ply\nformat {fmt} 1.0\nelement vertex {shape.n_vertices}\n"
+    head += "property double x\nproperty double y\nproperty double z\n"
+    if shape.faces is not None:
+        head += f"element face {shape.n_faces}\nproperty list uchar int vertex_indices\n"
+    fh.write((head + "end_header\n").encode())
+    if not binary:
+        fh.write(_fmt_rows(shape.vertices).encode())
+        if shape.faces is not None:
+            fh.write(_fmt_rows(shape.faces, "3 ").encode())
+        return
+    fh.write(np.ascontiguousarray(shape.vertices, dtype="=f8").tobytes())
+    if shape.faces is not None:
+        rec = np.empty(shape.n_faces, dtype=[("n", "u1"), ("i", "=i4", (3,))])
+        rec["n"] = 3
+        rec["i"] = shape.faces
+        fh.write(rec.tobytes())
+
+
+def _write_stl(fh, shape: Shape, binary: bool) -> None:
+    f = shape.require_faces("STL output")
+    tri = shape.vertices[f]
+    if binary:
+        rec = np.zeros(shape.n_faces, dtype=_STL_DT)
+        rec["n"] = shape.face_normals
+        rec["v"] = tri
+        fh.write(b"binary STL written by shape-toolkit".ljust(80, b" "))
+        fh.write(np.uint32(shape.n_faces).tobytes())
+        fh.write(rec.tobytes())
+        return
+    parts = ["solid toolkit\n"]
+    for nrm, t in zip(shape.face_normals.tolist(), tri.astype(np.float32).tolist()):
+        parts.append("facet normal {!r} {!r} {!r}\n outer loop\n".format(*nrm))
+        parts.extend("  vertex {!r} {!r} {!r}\n".format(*c) for c in t)
+        parts.append(" endloop\nendfacet\n")
+    parts.append("endsolid toolkit\n")
+    fh.write("".join(parts).encode())
+
+
+_READERS: dict[str, Callable[[Path], _Parsed]] = {
+    ".off": _read_off,
+    ".obj": _read_obj,
+    ".ply": _read_ply,
+    ".stl": _read_stl,
+    ".xyz": _read_xyz,
+    ".pcd": _read_pcd,
+}
+_WRITERS = {
+    ".off": _write_off,
+    ".obj": _write_obj,
+    ".ply": _write_ply,
+    ".stl": _write_stl,
+    ".xyz": _write_xyz,
+    ".pcd": _write_pcd,
+}

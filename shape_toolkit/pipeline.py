@@ -1,0 +1,329 @@
+"""Named, declarative matching pipelines: keypoints -> sparse matcher -> descriptors -> dense
+matcher -> refinement, each stage a plugin that can be swapped in a small dict/TOML spec.
+
+A spec (dict, or a TOML file with the same layout)::
+
+    name = "my-pipeline"
+    [keypoints]                       # optional: needed by [sparse]
+    plugin = "adf-maxima"
+    preset = "dense"
+    [sparse]                          # optional: keypoint matches -> seeds
+    plugin = "replicator"
+    [descriptors]                     # optional: computed with the seeds as matched keypoints
+    plugin = "heat-distance"
+    [dense]                           # required
+    plugin = "seed-growing"
+    params = { beta = 0.25 }
+    [refine]                          # optional: a dense matcher seeded with the dense map
+    plugin = "em-registration"
+
+Each stage takes ``plugin``, optional ``preset`` and ``params``. Seeds given by the caller
+replace the keypoint and sparse stages. The result is a :class:`Correspondence` whose ``info``
+records the stages, their timings and the number of seeds.
+"""
+
+from __future__ import annotations
+
+import copy
+import inspect
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.results.correspondence import Correspondence
+
+__all__ = [
+    "STAGES", "PRESETS", "Pipeline", "load_pipeline", "run_pipeline", "read_seeds",
+    "paired_descriptors",
+]
+
+#: stage name -> plugin family, in execution order
+STAGES: dict[str, str] = {
+    "keypoints": "keypoints",
+    "sparse": "sparse_matchers",
+    "descriptors": "descriptors",
+    "dense": "dense_matchers",
+    "refine": "dense_matchers",
+}
+
+#: built-in pipelines
+PRESETS: dict[str, dict[str, Any]] = {
+    "sharma2012": {
+        "description": "thesis ch. 7: ADF keypoints, replicator matching, heat-distance "
+        "descriptors, seed growing (Alg. 6), EM registration (Alg. 7)",
+        "keypoints": {"plugin": "adf-maxima", "preset": "dense"},
+        "sparse": {"plugin": "replicator"},
+        "descriptors": {"plugin": "heat-distance"},
+        "dense": {"plugin": "seed-growing"},
+        "refine": {"plugin": "em-registration"},
+    },
+    "seed-growing": {
+        "description": "ADF keypoints, replicator matching, heat-distance descriptors, seed growing",
+        "keypoints": {"plugin": "adf-maxima", "preset": "dense"},
+        "sparse": {"plugin": "replicator"},
+        "descriptors": {"plugin": "heat-distance"},
+        "dense": {"plugin": "seed-growing"},
+    },
+    "zoomout": {
+        "description": "WKS functional map with orientation-preserving term, refined by ZoomOut",
+        "dense": {"plugin": "fmap-zoomout"},
+    },
+    "zoomout-fast": {
+        "description": "zoomout with fewer ZoomOut iterations on a vertex sample",
+        "dense": {"plugin": "fmap-zoomout", "preset": "fast"},
+    },
+    "mateus2008": {
+        "description": "eigenvector histogram alignment + EM registration (unsupervised)",
+        "dense": {"plugin": "eigvec-alignment"},
+    },
+    "ovsjanikov2010": {
+        "description": "ADF keypoints, replicator matching, greedy heat-kernel-map matching",
+        "keypoints": {"plugin": "adf-maxima", "preset": "dense"},
+        "sparse": {"plugin": "replicator"},
+        "dense": {"plugin": "greedy-descriptor"},
+    },
+}
+
+_STAGE_KEYS = {"plugin", "preset", "params"}
+
+
+class Pipeline:
+    """A validated pipeline spec: ``name``, ``description`` and ``stages`` (stage -> dict with
+    ``plugin``, ``preset``, ``params``), checked against the plugin registry."""
+
+    def __init__(self, spec: dict[str, Any], name: str | None = None):
+        if not isinstance(spec, dict):
+            raise ParameterError(f"a pipeline spec must be a mapping, got {type(spec).__name__}")
+        unknown = sorted(set(spec) - set(STAGES) - {"name", "description"})
+        if unknown:
+            raise ParameterError(
+                f"unknown pipeline keys {unknown}; valid: name, description, {', '.join(STAGES)}"
+            )
+        self.name = str(spec.get("name") or name or "custom")
+        self.description = str(spec.get("description", ""))
+        self.stages: dict[str, dict[str, Any]] = {}
+        for stage in STAGES:
+            if stage not in spec or spec[stage] is None:
+                continue
+            st = spec[stage]
+            if isinstance(st, str):
+                st = {"plugin": st}
+            if not isinstance(st, dict) or "plugin" not in st:
+                raise ParameterError(f"pipeline stage [{stage}] needs a 'plugin' name")
+            bad = sorted(set(st) - _STAGE_KEYS)
+            if bad:
+                raise ParameterError(f"stage [{stage}] has unknown keys {bad}; valid: plugin, preset, params")
+            params = st.get("params") or {}
+            if not isinstance(params, dict):
+                raise ParameterError(f"stage [{stage}] params must be a mapping")
+            self.stages[stage] = {
+                "plugin": str(st["plugin"]), "preset": st.get("preset"), "params": dict(params)
+            }
+        if "dense" not in self.stages:
+            raise ParameterError("a pipeline needs a [dense] stage")
+        if ("sparse" in self.stages) != ("keypoints" in self.stages):
+            raise ParameterError("the [sparse] and [keypoints] stages go together")
+        for stage in self.stages:  # fail early on unknown plugins and parameters
+            self._create(stage)
+
+    def _create(self, stage: str) -> Any:
+        from shape_toolkit.api.registry import create_plugin
+
+        st = self.stages[stage]
+        return create_plugin(STAGES[stage], st["plugin"], st["preset"], **st["params"])
+
+    def to_dict(self) -> dict[str, Any]:
+        """The spec as a plain dict (round-trips through :class:`Pipeline`)."""
+        out: dict[str, Any] = {"name": self.name, "description": self.description}
+        out.update(copy.deepcopy(self.stages))
+        return out
+
+    def __repr__(self) -> str:
+        chain = " -> ".join(f"{s}:{v['plugin']}" for s, v in self.stages.items())
+        return f"Pipeline({self.name!r}: {chain})"
+
+    def run(
+        self,
+        source: Shape,
+        target: Shape,
+        seeds: np.ndarray | None = None,
+        *,
+        progress: Callable[[str], None] | None = None,
+    ) -> Correspondence:
+        """Run the stages on ``source`` -> ``target``; ``seeds`` ``(q, 2)`` replace the
+        keypoint and sparse stages."""
+        say = progress or (lambda _msg: None)
+        timings: dict[str, float] = {}
+        info: dict[str, Any] = {"pipeline": self.name}
+
+        def timed(stage: str, fn: Callable[[], Any]) -> Any:
+            say(f"{self.name}: {stage} ({self.stages[stage]['plugin']})")
+            t0 = time.perf_counter()
+            out = fn()
+            timings[stage] = time.perf_counter() - t0
+            return out
+
+        if seeds is not None:
+            seeds = _check_seed_array(seeds, source.n_vertices, target.n_vertices)
+            info["seed_source"] = "given"
+        elif "sparse" in self.stages:
+            det = self._create("keypoints")
+            kps = timed("keypoints", lambda: (det.detect(source), det.detect(target)))
+            info["n_keypoints"] = [int(len(kps[0])), int(len(kps[1]))]
+            matcher = self._create("sparse")
+            seeds = timed("sparse", lambda: matcher.match(source, target, kps[0], kps[1]))
+            seeds = np.asarray(seeds, dtype=np.int64).reshape(-1, 2)
+            if len(seeds) == 0:
+                raise ParameterError(
+                    f"pipeline {self.name!r}: the sparse matcher found no keypoint matches "
+                    f"({info['n_keypoints'][0]} and {info['n_keypoints'][1]} keypoints)"
+                )
+            info["seed_source"] = self.stages["sparse"]["plugin"]
+        info["n_seeds"] = 0 if seeds is None else int(len(seeds))
+
+        dense = self._create("dense")
+        kwargs: dict[str, Any] = {"seeds": seeds}
+        if "descriptors" in self.stages:
+            if seeds is None or len(seeds) == 0:
+                raise ParameterError(
+                    f"pipeline {self.name!r}: the [descriptors] stage needs seeds (matched keypoints)"
+                )
+            desc = self._create("descriptors")
+            ds, dt, n_times = timed("descriptors", lambda: paired_descriptors(
+                desc, source, target, seeds[:, 0], seeds[:, 1]
+            ))
+            accepted = inspect.signature(dense.match).parameters
+            if "source_descriptors" in accepted:
+                kwargs["source_descriptors"], kwargs["target_descriptors"] = ds, dt
+            if "n_times" in accepted:
+                kwargs["n_times"] = n_times
+        corr = timed("dense", lambda: dense.match(source, target, **kwargs))
+        info["n_dense"] = corr.n_matched
+        if "refine" in self.stages:
+            pairs = corr.pairs()
+            if len(pairs) == 0:
+                raise ParameterError(f"pipeline {self.name!r}: the dense stage matched no vertex")
+            ref = self._create("refine")
+            corr = timed("refine", lambda: ref.match(source, target, seeds=pairs))
+        info["timings"] = timings
+        info["seconds"] = float(sum(timings.values()))
+        merged = dict(corr.info)
+        merged.update(info)
+        return Correspondence(corr.target_of, corr.n_target, corr.confidence, corr.posteriors, merged)
+
+
+def paired_descriptors(
+    plugin: Any, source: Shape, target: Shape, kp_source: np.ndarray, kp_target: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Keypoint descriptors of both shapes with matched keypoints, and their number of scales.
+
+    Multi-scale heat descriptors must use the *same* times on both shapes to be comparable
+    (thesis 7.3.1): when the plugin has a ``times`` parameter left to None, the times are chosen
+    on the source (scree rule of :func:`shape_toolkit.features.heat.keypoint_descriptor_inputs`) and reused on
+    the target."""
+    import copy as _copy
+
+    if hasattr(plugin, "times") and getattr(plugin, "times", None) is None:
+        from shape_toolkit.features.heat import keypoint_descriptor_inputs
+
+        params = plugin.get_params()
+        _, _, times, _ = keypoint_descriptor_inputs(
+            source, None, kp_source, K=params.get("K"), times=None,
+            n_times=params.get("n_times", 5), alpha=params.get("alpha", 0.95),
+            time_ratio=params.get("time_ratio", 2.0), weighting=params.get("weighting", "gaussian"),
+            laplacian=params.get("laplacian", "combinatorial"), who="descriptors",
+        )
+        plugin = _copy.copy(plugin)
+        plugin.set_params(times=[float(t) for t in times])
+    ds = plugin.compute(source, keypoints=kp_source)
+    dt = plugin.compute(target, keypoints=kp_target)
+    times = getattr(plugin, "times", None)
+    n_times = len(times) if times is not None else int(getattr(plugin, "n_times", 1))
+    return ds, dt, n_times
+
+
+def _check_seed_array(seeds: np.ndarray, n_src: int, n_tgt: int) -> np.ndarray:
+    s = np.asarray(seeds)
+    if s.ndim != 2 or s.shape[1] != 2 or len(s) == 0:
+        raise ParameterError(f"seeds must be a non-empty (q, 2) array of [source, target] ids, got {s.shape}")
+    s = s.astype(np.int64)
+    for col, n, what in ((0, n_src, "source"), (1, n_tgt, "target")):
+        if s[:, col].min() < 0 or s[:, col].max() >= n:
+            raise ParameterError(
+                f"seed {what} ids must lie in [0, {n - 1}] (0-based), found "
+                f"[{int(s[:, col].min())}, {int(s[:, col].max())}]"
+            )
+    return s
+
+
+def read_seeds(
+    path: str | os.PathLike, n_source: int | None = None, n_target: int | None = None
+) -> np.ndarray:
+    """Read seed matches: one ``source target`` pair of 0-based vertex ids per line, int64 ``(q, 2)``."""
+    p = Path(path)
+    if not p.is_file():
+        raise ShapeFileError(p, "no such seed file")
+    rows = []
+    for ln, line in enumerate(p.read_text().splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.replace(",", " ").split()
+        if len(parts) != 2:
+            raise ShapeFileError(p, f"line {ln}: expected 'source target' (two 0-based ids), got {line!r}")
+        try:
+            rows.append((int(parts[0]), int(parts[1])))
+        except ValueError:
+            raise ShapeFileError(p, f"line {ln}: vertex ids must be integers, got {line!r}") from None
+    if not rows:
+        raise ShapeFileError(p, "no seed pairs in the file")
+    s = np.asarray(rows, dtype=np.int64)
+    try:
+        return _check_seed_array(s, n_source or int(s[:, 0].max()) + 1, n_target or int(s[:, 1].max()) + 1)
+    except ParameterError as exc:
+        raise ShapeFileError(p, str(exc)) from None
+
+
+def load_pipeline(spec_or_name: str | os.PathLike | dict[str, Any] | Pipeline) -> Pipeline:
+    """A :class:`Pipeline` from a preset name, a TOML file path or a dict."""
+    if isinstance(spec_or_name, Pipeline):
+        return spec_or_name
+    if isinstance(spec_or_name, dict):
+        return Pipeline(spec_or_name)
+    key = str(spec_or_name)
+    if key in PRESETS:
+        return Pipeline(PRESETS[key], name=key)
+    p = Path(key)
+    if p.suffix.lower() == ".toml" or p.exists():
+        if not p.is_file():
+            raise ShapeFileError(p, "no such pipeline file")
+        try:
+            import tomllib
+        except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+            import tomli as tomllib
+        try:
+            spec = tomllib.loads(p.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ShapeFileError(p, f"invalid TOML: {exc}") from None
+        return Pipeline(spec, name=p.stem)
+    raise ParameterError(
+        f"unknown pipeline {key!r}: give a preset ({', '.join(sorted(PRESETS))}) or a .toml file"
+    )
+
+
+def run_pipeline(
+    spec_or_name: str | os.PathLike | dict[str, Any] | Pipeline,
+    source: Shape,
+    target: Shape,
+    seeds: np.ndarray | None = None,
+    *,
+    progress: Callable[[str], None] | None = None,
+) -> Correspondence:
+    """Load a pipeline (preset name, TOML path, dict) and run it on ``source`` -> ``target``."""
+    return load_pipeline(spec_or_name).run(source, target, seeds, progress=progress)

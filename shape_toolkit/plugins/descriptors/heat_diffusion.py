@@ -1,0 +1,62 @@
+"""Multi-scale heat diffusion descriptor (thesis 6.6.3.1, eqs. 6.61-6.63)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.interfaces import Descriptor
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.features.heat import heat_kernel, heat_kernel_signature, keypoint_descriptor_inputs
+
+
+class HeatDiffusionDescriptor(Descriptor):
+    """Heat from each of the ``M`` keypoints ``h(v_i, p_m; t_1..t_tau)`` plus self-diffusion
+    ``h(i, i; t_1..t_tau)``: ``tau x (M + 1)`` values per vertex, returned ``(n, (M + 1) * tau)``
+    keypoint-major (columns ``m * tau .. (m + 1) * tau - 1`` belong to keypoint ``m``; the last
+    ``tau`` columns are the self-diffusion).
+
+    ``times`` None: ``n_times`` scales from the scree rule (``alpha(K, t_1) = alpha``,
+    ``t_i = t_1 time_ratio^(i-1)``, section 7.3.1). Spectrum default: ``2K + 1`` eigenpairs of the
+    Gaussian-weighted combinatorial Laplacian, ``K = 25``. Needs ``keypoints``.
+    To compare two shapes, give both the same ``times`` (and each its ``K``) from
+    :func:`shape_toolkit.features.heat.pair_times`: the default times follow each shape's own spectrum.
+    """
+
+    def __init__(
+        self,
+        times: list[float] | None = None,
+        n_times: int = 5,
+        K: int | None = None,
+        alpha: float = 0.95,
+        time_ratio: float = 2.0,
+        weighting: str = "gaussian",
+        laplacian: str = "combinatorial",
+    ):
+        self.times = times
+        self.n_times = n_times
+        self.K = K
+        self.alpha = alpha
+        self.time_ratio = time_ratio
+        self.weighting = weighting
+        self.laplacian = laplacian
+
+    def compute(
+        self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Descriptor ``(n, (M + 1) * tau)`` float64."""
+        spectrum, K, t, kp = keypoint_descriptor_inputs(
+            shape, spectrum, keypoints, K=self.K, times=self.times, n_times=self.n_times,
+            alpha=self.alpha, time_ratio=self.time_ratio, weighting=self.weighting,
+            laplacian=self.laplacian, who="heat-diffusion",
+        )
+        H = heat_kernel(spectrum, t, rows=None, cols=kp, K=K)  # (tau, n, M)
+        self_diff = heat_kernel_signature(spectrum, t, K=K)  # (n, tau)
+        out = np.concatenate([H.transpose(1, 2, 0), self_diff[:, None, :]], axis=1)
+        return out.reshape(shape.n_vertices, -1)
+
+
+@hookimpl
+def toolkit_descriptors() -> dict[str, type]:
+    return {"heat-diffusion": HeatDiffusionDescriptor}

@@ -1,0 +1,302 @@
+"""Helpers shared by the matching plugins: area-normalized Laplace-Beltrami bases, functional map
+<-> point-to-point conversions, descriptor and seed checks. Not a plugin (no hook)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.errors import ParameterError, SolverError
+from shape_toolkit.results.correspondence import nearest_neighbors
+
+
+@dataclass(frozen=True)
+class Basis:
+    """An area-normalized Laplacian eigenbasis: ``evals`` ``(k,)``, ``evecs`` ``(n, k)`` with
+    ``evecs.T @ diag(mass) @ evecs = I`` and ``mass.sum() == 1`` (unit total area)."""
+
+    evals: np.ndarray
+    evecs: np.ndarray
+    mass: np.ndarray
+
+    @property
+    def k(self) -> int:
+        """Number of basis functions."""
+        return int(self.evals.size)
+
+    def project(self, f: np.ndarray, k: int | None = None) -> np.ndarray:
+        """Coefficients ``(k, d)`` of functions ``f`` ``(n, d)`` on the first ``k`` vectors."""
+        k = self.k if k is None else k
+        return self.evecs[:, :k].T @ (self.mass[:, None] * f)
+
+
+def shape_spectrum(shape: Shape, k: int, spectrum: Spectrum | None = None) -> Spectrum:
+    """``spectrum`` if it has at least ``k`` eigenpairs, else the cotangent (intrinsic-Delaunay
+    for point clouds) Laplace-Beltrami spectrum of ``shape`` with its mass matrix (cached)."""
+    from shape_toolkit.core.graph import build_graph
+    from shape_toolkit.core.spectrum import compute_spectrum
+
+    if spectrum is not None:
+        if spectrum.n_vertices != shape.n_vertices:
+            raise ParameterError(
+                f"the spectrum has {spectrum.n_vertices} rows, the shape {shape.n_vertices} vertices"
+            )
+        if spectrum.k >= k:
+            return spectrum
+    k = int(min(k, shape.n_vertices - 1))
+    weighting = "cotangent" if shape.is_mesh else "intrinsic-delaunay"
+    graph = build_graph(shape, weighting)
+    try:
+        return compute_spectrum(graph, k)
+    except SolverError:
+        # the default block Krylov solver can stall on clustered (symmetric-shape) spectra:
+        # fall back to ARPACK shift-invert on the same problem
+        import scipy.sparse as sp
+
+        from shape_toolkit.core.eigen import smallest_eigenpairs
+        from shape_toolkit.core.spectrum import laplacian_matrix
+
+        if graph.components[0] > 1:
+            raise
+        M = sp.diags(graph.mass) if graph.mass is not None else None
+        vals, vecs = smallest_eigenpairs(laplacian_matrix(graph.W), k, M, method="arpack")
+        return Spectrum(np.maximum(vals, 0.0), vecs, "combinatorial", graph.weighting, graph.mass,
+                        graph.degrees, False, {"solver": "arpack-fallback"})
+
+
+def basis_of(spectrum: Spectrum, k: int | None = None) -> Basis:
+    """The area-normalized :class:`Basis` of the first ``k`` eigenpairs of ``spectrum``
+    (eigenvalues times total mass, eigenvectors times ``sqrt(total mass)``)."""
+    k = spectrum.k if k is None else min(k, spectrum.k)
+    n = spectrum.n_vertices
+    mass = np.ones(n) if spectrum.mass is None else np.asarray(spectrum.mass, dtype=np.float64)
+    total = float(mass.sum())
+    return Basis(
+        np.asarray(spectrum.eigenvalues[:k]) * total,
+        np.asarray(spectrum.eigenvectors[:, :k]) * np.sqrt(total),
+        mass / total,
+    )
+
+
+def fmap_from_p2p(
+    src: Basis, tgt: Basis, target_of: np.ndarray, ks: int, kt: int, *, weights: np.ndarray | None = None,
+    rows: np.ndarray | None = None,
+) -> np.ndarray:
+    """Functional map ``C_ts`` ``(ks, kt)`` pulling target functions back to the source through
+    the point map ``target_of`` (all entries >= 0) of the source vertices ``rows`` (default all):
+    least squares ``argmin ||Phi_s C - Phi_t[T]||`` weighted by the source mass."""
+    if rows is None:
+        w = src.mass if weights is None else weights
+        return src.evecs[:, :ks].T @ (w[:, None] * tgt.evecs[target_of, :kt])
+    A = src.evecs[rows, :ks]
+    w = src.mass[rows] if weights is None else weights
+    AtA = A.T @ (w[:, None] * A)
+    return np.linalg.solve(AtA + 1e-10 * np.eye(ks), A.T @ (w[:, None] * tgt.evecs[target_of, :kt]))
+
+
+def p2p_from_fmap(C_ts: np.ndarray, src: Basis, tgt: Basis, rows: np.ndarray | None = None) -> np.ndarray:
+    """Point map (target vertex of each source vertex, or of ``rows``) of the functional map
+    ``C_ts`` ``(ks, kt)``: nearest neighbour of ``Phi_s[i]`` among the rows of ``Phi_t C_ts^T``."""
+    ks, kt = C_ts.shape
+    points = tgt.evecs[:, :kt] @ C_ts.T
+    queries = src.evecs[:, :ks] if rows is None else src.evecs[rows, :ks]
+    return nearest_neighbors(points, queries)[1]
+
+
+def check_descriptors(desc: np.ndarray, n: int, what: str) -> np.ndarray:
+    """``desc`` as float64 ``(n, d)``; raises :class:`ParameterError` on a bad shape or NaN."""
+    d = np.asarray(desc, dtype=np.float64)
+    if d.ndim == 1:
+        d = d[:, None]
+    if d.ndim != 2 or d.shape[0] != n:
+        raise ParameterError(f"{what} descriptors must be ({n}, d), got shape {d.shape}")
+    if not np.isfinite(d).all():
+        raise ParameterError(f"{what} descriptors contain NaN or infinite values")
+    return d
+
+
+def check_seeds(seeds: np.ndarray | None, n_src: int, n_tgt: int) -> np.ndarray | None:
+    """Seeds as int64 ``(q, 2)`` ``[source, target]`` inside both shapes, or None."""
+    if seeds is None:
+        return None
+    s = np.asarray(seeds)
+    if s.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    if s.ndim != 2 or s.shape[1] != 2:
+        raise ParameterError(f"seeds must be a (q, 2) array of [source, target] ids, got {s.shape}")
+    if not np.issubdtype(s.dtype, np.integer):
+        if not np.all(np.equal(np.mod(s, 1), 0)):
+            raise ParameterError("seeds must be integer vertex ids")
+    s = s.astype(np.int64)
+    for col, n, name in ((0, n_src, "source"), (1, n_tgt, "target")):
+        if s[:, col].min() < 0 or s[:, col].max() >= n:
+            raise ParameterError(
+                f"seed {name} ids must lie in [0, {n - 1}] (0-based), found "
+                f"[{int(s[:, col].min())}, {int(s[:, col].max())}]"
+            )
+    return s
+
+
+def normalize_columns(desc: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """Descriptor columns divided by their ``mass``-weighted L2 norm (constant columns kept)."""
+    norms = np.sqrt((mass[:, None] * desc**2).sum(axis=0))
+    norms[norms <= 1e-300] = 1.0
+    return desc / norms
+
+
+# -- association graph for sparse keypoint matching (thesis 7.2.1) ---------------------------------
+@dataclass(frozen=True)
+class AssociationGraph:
+    """Candidate matches ``nodes`` ``(N, 2)`` (indices into the two keypoint lists), symmetric
+    pairwise consistency ``W`` ``(N, N)`` (0 between conflicting candidates and on the diagonal)
+    and unary similarity ``unary`` ``(N,)`` in ``(0, 1]``."""
+
+    nodes: np.ndarray
+    W: np.ndarray
+    unary: np.ndarray
+
+
+def normalized_spectrum(spectrum: Spectrum) -> Spectrum:
+    """The same spectrum scaled to unit total mass (area-normalized eigenpairs)."""
+    b = basis_of(spectrum)
+    return Spectrum(
+        b.evals, b.evecs, spectrum.laplacian, spectrum.weighting,
+        b.mass if spectrum.mass is not None else None, spectrum.degrees, spectrum.sign_fixed,
+    )
+
+
+def check_keypoints(kp: np.ndarray, n: int, what: str, minimum: int = 3) -> np.ndarray:
+    """Keypoints as unique int64 ids inside the shape; fewer than ``minimum`` raise."""
+    k = np.asarray(kp)
+    if k.ndim != 1:
+        raise ParameterError(f"{what} keypoints must be a 1-D array of vertex ids")
+    if k.size and not np.issubdtype(k.dtype, np.integer):
+        raise ParameterError(f"{what} keypoints must be integer vertex ids")
+    k = k.astype(np.int64)
+    if k.size and (k.min() < 0 or k.max() >= n):
+        raise ParameterError(f"{what} keypoints must lie in [0, {n - 1}]")
+    _, first = np.unique(k, return_index=True)
+    k = k[np.sort(first)]
+    if k.size < minimum:
+        raise ParameterError(
+            f"not enough {what} keypoints to match: {k.size} (need at least {minimum}); "
+            "use a denser keypoint preset or give seeds"
+        )
+    return k
+
+
+def association_graph(
+    source: Shape,
+    target: Shape,
+    kp_s: np.ndarray,
+    kp_t: np.ndarray,
+    spec_s: Spectrum,
+    spec_t: Spectrum,
+    *,
+    k: int = 20,
+    time: float | None = None,
+    sigma: float = 0.3,
+    adf_ratio: float = 2.0,
+    max_candidates: int = 8,
+) -> AssociationGraph:
+    """Association graph of section 7.2.1 on keypoints ``kp_s``/``kp_t``.
+
+    Spectral distances: unit-sphere heat distance (eq. 6.43, radians) at one time ``time`` (in
+    unit-area units; default ``1 / lambda_5`` of the source) on the area-normalized ``k``-term
+    spectra, so both shapes use the same scale. Candidates are pruned by the normalized
+    auto-diffusion function (eq. 6.32 on unit-area eigenfunctions, a sampling-independent density)
+    at three times: a pair is kept when the values agree within a factor ``adf_ratio`` at every
+    time, then the ``max_candidates`` most similar per source keypoint are kept. Edge weight
+    ``exp(-(d_s(a, c) - d_t(b, d))^2 / (2 sigma^2))``.
+    """
+    from shape_toolkit.features.heat import heat_distances, heat_kernel_signature
+
+    ns = normalized_spectrum(spec_s.truncated(min(spec_s.k, k + 1)))
+    nt = normalized_spectrum(spec_t.truncated(min(spec_t.k, k + 1)))
+    vals = ns.eigenvalues[ns.eigenvalues > 1e-9 * ns.eigenvalues.max()]
+    if time is None:
+        time = 1.0 / float(vals[min(4, vals.size - 1)])
+    times = np.array([0.25, 1.0, 4.0]) * float(time)
+    a_s = heat_kernel_signature(ns, times, vertices=kp_s)
+    a_t = heat_kernel_signature(nt, times, vertices=kp_t)
+    logr = np.abs(np.log(np.maximum(a_s, 1e-300))[:, None, :] - np.log(np.maximum(a_t, 1e-300))[None])
+    worst = logr.max(axis=2)  # (P, Q)
+    keep = worst <= np.log(adf_ratio)
+    for a in range(len(kp_s)):
+        cand = np.flatnonzero(keep[a])
+        if cand.size > max_candidates:
+            drop = cand[np.argsort(worst[a, cand], kind="stable")[max_candidates:]]
+            keep[a, drop] = False
+    nodes = np.argwhere(keep)
+    if len(nodes) == 0:
+        return AssociationGraph(np.zeros((0, 2), dtype=np.int64), np.zeros((0, 0)), np.zeros(0))
+    Ds = heat_distances(ns, time, kp_s, kp_s, normalization="unit-sphere")[0]
+    Dt = heat_distances(nt, time, kp_t, kp_t, normalization="unit-sphere")[0]
+    a, b = nodes[:, 0], nodes[:, 1]
+    diff = Ds[a][:, a] - Dt[b][:, b]
+    W = np.exp(-(diff**2) / (2.0 * sigma**2))
+    conflict = (a[:, None] == a[None, :]) | (b[:, None] == b[None, :])
+    W[conflict] = 0.0
+    unary = np.exp(-(worst[a, b] ** 2) / (2.0 * np.log(adf_ratio) ** 2))
+    return AssociationGraph(nodes.astype(np.int64), W, unary)
+
+
+def greedy_discretize(
+    nodes: np.ndarray, scores: np.ndarray, min_score: float = 0.0
+) -> np.ndarray:
+    """One-to-one selection of candidate ``nodes`` ``(N, 2)`` by decreasing ``scores`` (those
+    ``> min_score``): indices of the chosen nodes."""
+    order = np.argsort(-scores, kind="stable")
+    used_a, used_b, chosen = set(), set(), []
+    for u in order:
+        if scores[u] <= min_score:
+            break
+        a, b = int(nodes[u, 0]), int(nodes[u, 1])
+        if a in used_a or b in used_b:
+            continue
+        used_a.add(a)
+        used_b.add(b)
+        chosen.append(u)
+    return np.asarray(chosen, dtype=np.int64)
+
+
+def sparse_inputs(
+    source: Shape, target: Shape, kp_s: np.ndarray, kp_t: np.ndarray,
+    spec_s: Spectrum | None, spec_t: Spectrum | None, k: int,
+) -> tuple[np.ndarray, np.ndarray, Spectrum, Spectrum]:
+    """Validated keypoints and spectra (``k + 1`` eigenpairs) shared by the sparse matchers."""
+    kp_s = check_keypoints(kp_s, source.n_vertices, "source")
+    kp_t = check_keypoints(kp_t, target.n_vertices, "target")
+    return kp_s, kp_t, shape_spectrum(source, k + 1, spec_s), shape_spectrum(target, k + 1, spec_t)
+
+
+class AssociationMatcherBase:
+    """Shared parameters and flow of the association-graph matchers (replicator, spectral,
+    rrwm): build the graph, score its nodes with :meth:`_solve`, discretize one-to-one."""
+
+    def _graph_params(self) -> dict:
+        return dict(k=int(self.k), time=self.time, sigma=float(self.sigma),
+                    adf_ratio=float(self.adf_ratio), max_candidates=int(self.max_candidates))
+
+    def _solve(self, graph: AssociationGraph) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def match(self, source, target, source_keypoints, target_keypoints, *,
+              source_spectrum=None, target_spectrum=None) -> np.ndarray:
+        """Matched ``[source_vertex, target_vertex]`` pairs, int64 ``(q, 2)``."""
+        if not self.sigma > 0 or not self.adf_ratio > 1 or self.max_candidates < 1:
+            raise ParameterError("need sigma > 0, adf_ratio > 1 and max_candidates >= 1")
+        kp_s, kp_t, ss, st = sparse_inputs(
+            source, target, source_keypoints, target_keypoints, source_spectrum, target_spectrum,
+            int(self.k),
+        )
+        g = association_graph(source, target, kp_s, kp_t, ss, st, **self._graph_params())
+        if len(g.nodes) == 0:
+            return np.zeros((0, 2), dtype=np.int64)
+        scores = self._solve(g)
+        chosen = greedy_discretize(g.nodes, scores, float(self.min_score) * float(scores.max()))
+        nodes = g.nodes[chosen]
+        return np.column_stack([kp_s[nodes[:, 0]], kp_t[nodes[:, 1]]]).astype(np.int64)

@@ -1,0 +1,122 @@
+"""Standard spectral clustering baselines: k-means on the first ``k`` Laplacian eigenvectors.
+
+Variants (von Luxburg 2007 names the three classic algorithms):
+
+- ``"ng"`` (default): Ng, Jordan & Weiss 2001, the baseline of thesis chapter 4: the ``k`` smallest
+  eigenvectors of the normalized Laplacian ``D^-1/2 (D - W) D^-1/2``, rows scaled to unit length,
+  then k-means.
+- ``"unnormalized"``: von Luxburg's unnormalized spectral clustering: the ``k`` smallest
+  eigenvectors of ``L = D - W``, then k-means.
+- ``"random-walk"``: Shi & Malik 2000: the ``k`` smallest generalized eigenvectors of
+  ``(D - W) v = lambda D v``, then k-means.
+- ``"commute-time"``: k-means on the commute-time embedding of ``L`` (eq. 5.1) with the ``k - 1``
+  first non-null eigenpairs: the "SC" column of Table 5.1 (steps 3-4 of CSC without constraints,
+  with CSC's default ``output_dim``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.interfaces import Segmenter
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins.segmenters._common import (
+    check_n_segments,
+    check_random_state,
+    check_spectrum,
+    graph_spectrum,
+    kmeans_labels,
+    n_null,
+    row_normalize,
+)
+
+_LAPLACIAN = {
+    "ng": "normalized",
+    "unnormalized": "combinatorial",
+    "random-walk": "random-walk",
+    "commute-time": "combinatorial",
+}
+
+
+class SpectralClustering(Segmenter):
+    """k-means on the first ``n_segments`` eigenvectors of a graph Laplacian (see module doc).
+
+    ``n_segments=None`` picks ``k`` in ``[2, max_segments]`` at the largest eigengap
+    ``lambda_{k+1} - lambda_k`` (von Luxburg 2007, 8.3), recorded in ``eigengaps_``.
+    Diagnostics of the last run: ``n_segments_``, ``eigenvalues_``, ``embedding_dim_``.
+    """
+
+    presets = {"ng2001": {"variant": "ng"}, "luxburg-unnormalized": {"variant": "unnormalized"}}
+
+    def __init__(
+        self,
+        n_segments: int | None = None,
+        *,
+        variant: str = "ng",
+        weighting: str = "gaussian",
+        max_segments: int = 15,
+        n_init: int = 10,
+        random_state: int = 0,
+    ):
+        self.n_segments = n_segments
+        self.variant = variant
+        self.weighting = weighting
+        self.max_segments = max_segments
+        self.n_init = n_init
+        self.random_state = random_state
+
+    def segment(
+        self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
+    ) -> np.ndarray:
+        """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised baseline)."""
+        if self.variant not in _LAPLACIAN:
+            raise ParameterError(f"unknown variant {self.variant!r}; choose one of {', '.join(_LAPLACIAN)}")
+        n = shape.n_vertices
+        k = check_n_segments(self.n_segments, n, allow_none=True)
+        seed = check_random_state(self.random_state)
+        laplacian = _LAPLACIAN[self.variant]
+        if k is None:
+            kmax = check_n_segments(min(int(self.max_segments), n - 1), n, allow_none=False)
+        else:
+            kmax = k
+        needed = min(kmax + 2, n)
+        if spectrum is None:
+            spectrum = graph_spectrum(shape, needed, weighting=self.weighting, laplacian=laplacian)
+        else:
+            if spectrum.laplacian != laplacian:
+                raise ParameterError(
+                    f"variant {self.variant!r} needs a {laplacian} spectrum, got {spectrum.laplacian}"
+                )
+            check_spectrum(spectrum, shape, min(kmax + 1, n))
+        vals = spectrum.eigenvalues
+        self.eigengaps_ = None
+        if k is None:
+            gaps = np.diff(vals[: kmax + 1])  # gaps[i] = lambda_{i+2} - lambda_{i+1} (1-based)
+            self.eigengaps_ = gaps.tolist()
+            k = int(np.argmax(gaps[1:]) + 2) if len(gaps) > 1 else 2
+        vecs = spectrum.eigenvectors
+        if self.variant == "commute-time":
+            skip = n_null(vals)
+            if spectrum.k < skip + k - 1:
+                raise ParameterError(f"the spectrum needs {skip + k - 1} eigenpairs for k={k}")
+            lam = vals[skip : skip + k - 1]
+            X = vecs[:, skip : skip + k - 1] / np.sqrt(lam)[None, :]
+        else:
+            X = vecs[:, :k]
+            if self.variant == "ng":
+                X = row_normalize(X)
+        labels = kmeans_labels(X, k, seed, self.n_init)
+        self.n_segments_ = int(labels.max() + 1)
+        self.eigenvalues_ = vals[: k + 1].tolist()
+        self.embedding_dim_ = int(X.shape[1])
+        return labels
+
+
+@hookimpl
+def toolkit_segmenters() -> dict[str, type]:
+    return {"spectral-clustering": SpectralClustering}

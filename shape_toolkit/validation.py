@@ -1,0 +1,110 @@
+"""Validation of the inputs every layer shares: random states, vertex ids, seed pairs, JSON output.
+
+One helper per kind of input, so that a bad value gets the same typed error and message wherever
+it enters the toolkit.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+
+from shape_toolkit.errors import ParameterError
+
+__all__ = ["check_random_state", "check_vertex_ids", "check_seeds", "jsonable", "dumps_json"]
+
+
+def check_random_state(random_state: Any) -> np.random.RandomState:
+    """A ``numpy.random.RandomState`` from ``random_state`` with scikit-learn's semantics: None (the
+    global state), an int in ``[0, 2**32 - 1]``, a ``RandomState`` (used as is) or a numpy
+    ``Generator`` (seeds a new ``RandomState`` from it). Anything else raises :class:`ParameterError`."""
+    if random_state is None or isinstance(random_state, np.random.RandomState):
+        return np.random.mtrand._rand if random_state is None else random_state
+    if isinstance(random_state, np.random.Generator):
+        return np.random.RandomState(int(random_state.integers(0, 2**32 - 1)))
+    if isinstance(random_state, (int, np.integer)) and not isinstance(random_state, (bool, np.bool_)):
+        if not 0 <= int(random_state) <= 2**32 - 1:
+            raise ParameterError(f"random_state must be in [0, 2**32 - 1], got {random_state}")
+        return np.random.RandomState(int(random_state))
+    raise ParameterError(
+        f"random_state must be None, an integer, a numpy RandomState or Generator, got {random_state!r}"
+    )
+
+
+def seed_of(random_state: Any) -> int:
+    """An int seed drawn from :func:`check_random_state` (for libraries that want an int)."""
+    return int(check_random_state(random_state).randint(0, 2**31 - 1))
+
+
+def check_vertex_ids(ids: object, n: int, what: str = "vertex ids", *, allow_empty: bool = True) -> np.ndarray:
+    """``ids`` as a 1-D int64 array of 0-based vertex ids in ``[0, n)``; integral floats are accepted,
+    anything else raises :class:`ParameterError` naming ``what``."""
+    a = np.atleast_1d(np.asarray(ids))
+    if a.size == 0:
+        if not allow_empty:
+            raise ParameterError(f"{what} must not be empty")
+        return np.zeros(0, dtype=np.int64)
+    if a.ndim != 1:
+        raise ParameterError(f"{what} must be a 1-D array of vertex ids, got shape {a.shape}")
+    a = _integral(a, what)
+    if a.min() < 0 or a.max() >= n:
+        raise ParameterError(f"{what} must be vertex ids in [0, {n - 1}] (0-based), found [{a.min()}, {a.max()}]")
+    return a
+
+
+def check_seeds(seeds: object, n_source: int, n_target: int, *, allow_empty: bool = True) -> np.ndarray:
+    """Seed matches as int64 ``(q, 2)`` ``[source vertex, target vertex]`` inside both shapes."""
+    s = np.asarray(seeds)
+    if s.size == 0:
+        if not allow_empty:
+            raise ParameterError("seeds must be a non-empty (q, 2) array of [source, target] ids")
+        return np.zeros((0, 2), dtype=np.int64)
+    if s.ndim != 2 or s.shape[1] != 2:
+        raise ParameterError(f"seeds must be a (q, 2) array of [source, target] ids, got shape {s.shape}")
+    s = _integral(s, "seeds")
+    for col, n, side in ((0, n_source, "source"), (1, n_target, "target")):
+        lo, hi = int(s[:, col].min()), int(s[:, col].max())
+        if lo < 0 or hi >= n:
+            raise ParameterError(f"seed {side} ids must lie in [0, {n - 1}] (0-based), found [{lo}, {hi}]")
+    return s
+
+
+def _integral(a: np.ndarray, what: str) -> np.ndarray:
+    if np.issubdtype(a.dtype, np.integer):
+        return a.astype(np.int64)
+    if a.dtype.kind not in "fb" or not np.all(np.isfinite(a)) or not np.all(np.mod(a, 1) == 0):
+        raise ParameterError(f"{what} must be integer vertex ids")
+    if np.abs(a).max() > 2**62:
+        raise ParameterError(f"{what} are out of range")
+    return a.astype(np.int64)
+
+
+def jsonable(obj: Any) -> Any:
+    """``obj`` with numpy values, tuples and sets turned into JSON types; NaN and infinities become
+    None (JSON has neither), so the output is always valid JSON."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, set, frozenset)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if obj is None or isinstance(obj, str):
+        return obj
+    if hasattr(obj, "to_dict"):
+        return jsonable(obj.to_dict())
+    return str(obj)
+
+
+def dumps_json(obj: Any, **kwargs: Any) -> str:
+    """``json.dumps(jsonable(obj))``, refusing NaN and infinities (``allow_nan=False``)."""
+    return json.dumps(jsonable(obj), allow_nan=False, **kwargs)
