@@ -6,6 +6,7 @@ import hashlib
 import json
 import os
 from collections import OrderedDict
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,9 @@ __all__ = [
     "SpectrumSpec",
     "shape_spectrum",
     "null_count",
+    "default_spec",
+    "merge_specs",
+    "pick_spectrum",
 ]
 
 LAPLACIANS = ("combinatorial", "normalized", "random-walk")
@@ -498,3 +502,35 @@ def default_spec(k: int, kind: str = "lbo", **overrides: Any) -> SpectrumSpec:
         raise ParameterError(f"unknown spectrum kind {kind!r}; choose 'lbo' or 'graph'")
     base.update(overrides)
     return SpectrumSpec(int(k), **base)
+
+
+def merge_specs(specs: Iterable[SpectrumSpec | None]) -> list[SpectrumSpec]:
+    """One spec per kind (the largest ``k`` of each), in first-seen order; None entries are skipped.
+    A caller computes these once and every method picks its own with :func:`pick_spectrum`."""
+    out: list[SpectrumSpec] = []
+    for spec in specs:
+        if spec is None:
+            continue
+        for i, have in enumerate(out):
+            merged = have.merge(spec)
+            if merged is not None:
+                out[i] = merged
+                break
+        else:
+            out.append(spec)
+    return out
+
+
+def pick_spectrum(spectra: Iterable[Spectrum], spec: SpectrumSpec | None, shape: Shape) -> Spectrum | None:
+    """The first of ``spectra`` that satisfies ``spec`` on ``shape`` (see :meth:`SpectrumSpec.check`),
+    or None when ``spec`` is None; :class:`~shape_toolkit.errors.SpectrumMismatchError` when none does."""
+    if spec is None:
+        return None
+    candidates = list(spectra)
+    for s in candidates:
+        try:
+            return spec.check(s, shape)
+        except SpectrumMismatchError:
+            continue
+    given = ", ".join(repr(s) for s in candidates) or "none"
+    raise SpectrumMismatchError(f"no spectrum given matches {spec.for_shape(shape).to_dict()} (given: {given})")
