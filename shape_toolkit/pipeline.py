@@ -28,15 +28,18 @@ import copy
 import inspect
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, merge_specs, pick_spectrum
 from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.plugins.matching._common import paired_descriptors
 from shape_toolkit.results.correspondence import Correspondence
+from shape_toolkit.validation import check_seeds
 
 __all__ = [
     "STAGES", "PRESETS", "Pipeline", "load_pipeline", "run_pipeline", "read_seeds",
@@ -148,19 +151,33 @@ class Pipeline:
         chain = " -> ".join(f"{s}:{v['plugin']}" for s, v in self.stages.items())
         return f"Pipeline({self.name!r}: {chain})"
 
+    def plugins(self) -> dict[str, Any]:
+        """A fresh plugin instance per stage, ``{stage: plugin}``, in execution order."""
+        return {stage: self._create(stage) for stage in self.stages}
+
+    def spectrum_specs(self) -> list[SpectrumSpec]:
+        """Every spectrum the stages need (one per kind, the largest ``k``): what a caller computes
+        once per shape and passes to :meth:`run`."""
+        return merge_specs(s for plugin in self.plugins().values() for s in _specs_of(plugin))
+
     def run(
         self,
         source: Shape,
         target: Shape,
         seeds: np.ndarray | None = None,
         *,
+        spectra: dict[str, Sequence[Spectrum]] | None = None,
         progress: Callable[[str], None] | None = None,
     ) -> Correspondence:
-        """Run the stages on ``source`` -> ``target``; ``seeds`` ``(q, 2)`` replace the
-        keypoint and sparse stages."""
+        """Run the stages on ``source`` -> ``target``; ``seeds`` ``(q, 2)`` replace the keypoint and
+        sparse stages. ``spectra`` ``{"source": [...], "target": [...]}`` holds the spectra of
+        :meth:`spectrum_specs` (computed here through the content cache when None); every stage
+        receives them and picks the one it declares. ``info['spectra']`` records, per stage, the
+        spectra each stage declared and received."""
         say = progress or (lambda _msg: None)
         timings: dict[str, float] = {}
         info: dict[str, Any] = {"pipeline": self.name}
+        plugins = self.plugins()
 
         def timed(stage: str, fn: Callable[[], Any]) -> Any:
             say(f"{self.name}: {stage} ({self.stages[stage]['plugin']})")
@@ -169,15 +186,32 @@ class Pipeline:
             timings[stage] = time.perf_counter() - t0
             return out
 
+        if spectra is None:
+            specs = merge_specs(s for p in plugins.values() for s in _specs_of(p))
+            t0 = time.perf_counter()
+            say(f"{self.name}: spectra ({', '.join(str(s.to_dict()) for s in specs) or 'none'})")
+            spectra = {"source": [s.compute(source) for s in specs], "target": [s.compute(target) for s in specs]}
+            timings["spectra"] = time.perf_counter() - t0
+        src_spectra, tgt_spectra = _spectrum_lists(spectra)
+        info["spectra"] = {
+            stage: [s.for_shape(source).to_dict() for s in _specs_of(p)] for stage, p in plugins.items()
+        }
+        for p in plugins.values():  # fail before any work when a given spectrum does not fit
+            for spec in _specs_of(p):
+                pick_spectrum(src_spectra, spec, source)
+                pick_spectrum(tgt_spectra, spec, target)
+        sides = {"source_spectrum": src_spectra, "target_spectrum": tgt_spectra}
+
         if seeds is not None:
-            seeds = _check_seed_array(seeds, source.n_vertices, target.n_vertices)
+            seeds = check_seeds(seeds, source.n_vertices, target.n_vertices, allow_empty=False)
             info["seed_source"] = "given"
         elif "sparse" in self.stages:
-            det = self._create("keypoints")
-            kps = timed("keypoints", lambda: (det.detect(source), det.detect(target)))
+            det = plugins["keypoints"]
+            kps = timed("keypoints", lambda: (det.detect(source, spectrum=src_spectra),
+                                              det.detect(target, spectrum=tgt_spectra)))
             info["n_keypoints"] = [int(len(kps[0])), int(len(kps[1]))]
-            matcher = self._create("sparse")
-            seeds = timed("sparse", lambda: matcher.match(source, target, kps[0], kps[1]))
+            matcher = plugins["sparse"]
+            seeds = timed("sparse", lambda: matcher.match(source, target, kps[0], kps[1], **sides))
             seeds = np.asarray(seeds, dtype=np.int64).reshape(-1, 2)
             if len(seeds) == 0:
                 raise ParameterError(
@@ -187,16 +221,16 @@ class Pipeline:
             info["seed_source"] = self.stages["sparse"]["plugin"]
         info["n_seeds"] = 0 if seeds is None else int(len(seeds))
 
-        dense = self._create("dense")
-        kwargs: dict[str, Any] = {"seeds": seeds}
+        dense = plugins["dense"]
+        kwargs: dict[str, Any] = {"seeds": seeds, **sides}
         if "descriptors" in self.stages:
             if seeds is None or len(seeds) == 0:
                 raise ParameterError(
                     f"pipeline {self.name!r}: the [descriptors] stage needs seeds (matched keypoints)"
                 )
-            desc = self._create("descriptors")
+            desc = plugins["descriptors"]
             ds, dt, n_times = timed("descriptors", lambda: paired_descriptors(
-                desc, source, target, seeds[:, 0], seeds[:, 1]
+                desc, source, target, seeds[:, 0], seeds[:, 1], **sides
             ))
             accepted = inspect.signature(dense.match).parameters
             if "source_descriptors" in accepted:
@@ -209,8 +243,8 @@ class Pipeline:
             pairs = corr.pairs()
             if len(pairs) == 0:
                 raise ParameterError(f"pipeline {self.name!r}: the dense stage matched no vertex")
-            ref = self._create("refine")
-            corr = timed("refine", lambda: ref.match(source, target, seeds=pairs))
+            ref = plugins["refine"]
+            corr = timed("refine", lambda: ref.match(source, target, seeds=pairs, **sides))
         info["timings"] = timings
         info["seconds"] = float(sum(timings.values()))
         merged = dict(corr.info)
@@ -218,48 +252,20 @@ class Pipeline:
         return Correspondence(corr.target_of, corr.n_target, corr.confidence, corr.posteriors, merged)
 
 
-def paired_descriptors(
-    plugin: Any, source: Shape, target: Shape, kp_source: np.ndarray, kp_target: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """Keypoint descriptors of both shapes with matched keypoints, and their number of scales.
-
-    Multi-scale heat descriptors must use the *same* times on both shapes to be comparable
-    (thesis 7.3.1): when the plugin has a ``times`` parameter left to None, the times are chosen
-    on the source (scree rule of :func:`shape_toolkit.features.heat.keypoint_descriptor_inputs`) and reused on
-    the target."""
-    import copy as _copy
-
-    if hasattr(plugin, "times") and getattr(plugin, "times", None) is None:
-        from shape_toolkit.features.heat import keypoint_descriptor_inputs
-
-        params = plugin.get_params()
-        _, _, times, _ = keypoint_descriptor_inputs(
-            source, None, kp_source, K=params.get("K"), times=None,
-            n_times=params.get("n_times", 5), alpha=params.get("alpha", 0.95),
-            time_ratio=params.get("time_ratio", 2.0), weighting=params.get("weighting", "gaussian"),
-            laplacian=params.get("laplacian", "combinatorial"), who="descriptors",
-        )
-        plugin = _copy.copy(plugin)
-        plugin.set_params(times=[float(t) for t in times])
-    ds = plugin.compute(source, keypoints=kp_source)
-    dt = plugin.compute(target, keypoints=kp_target)
-    times = getattr(plugin, "times", None)
-    n_times = len(times) if times is not None else int(getattr(plugin, "n_times", 1))
-    return ds, dt, n_times
+def _specs_of(plugin: Any) -> list[SpectrumSpec]:
+    """The spectra a plugin declares (third-party plugins without the method declare none)."""
+    fn = getattr(plugin, "spectrum_specs", None)
+    return list(fn()) if fn is not None else []
 
 
-def _check_seed_array(seeds: np.ndarray, n_src: int, n_tgt: int) -> np.ndarray:
-    s = np.asarray(seeds)
-    if s.ndim != 2 or s.shape[1] != 2 or len(s) == 0:
-        raise ParameterError(f"seeds must be a non-empty (q, 2) array of [source, target] ids, got {s.shape}")
-    s = s.astype(np.int64)
-    for col, n, what in ((0, n_src, "source"), (1, n_tgt, "target")):
-        if s[:, col].min() < 0 or s[:, col].max() >= n:
-            raise ParameterError(
-                f"seed {what} ids must lie in [0, {n - 1}] (0-based), found "
-                f"[{int(s[:, col].min())}, {int(s[:, col].max())}]"
-            )
-    return s
+def _spectrum_lists(spectra: Any) -> tuple[list[Spectrum], list[Spectrum]]:
+    if not isinstance(spectra, dict) or set(spectra) != {"source", "target"}:
+        raise ParameterError("spectra must be a mapping {'source': [Spectrum, ...], 'target': [Spectrum, ...]}")
+    out = []
+    for side in ("source", "target"):
+        v = spectra[side]
+        out.append([v] if isinstance(v, Spectrum) else list(v))
+    return out[0], out[1]
 
 
 def read_seeds(
@@ -285,7 +291,8 @@ def read_seeds(
         raise ShapeFileError(p, "no seed pairs in the file")
     s = np.asarray(rows, dtype=np.int64)
     try:
-        return _check_seed_array(s, n_source or int(s[:, 0].max()) + 1, n_target or int(s[:, 1].max()) + 1)
+        return check_seeds(s, n_source or int(s[:, 0].max()) + 1, n_target or int(s[:, 1].max()) + 1,
+                           allow_empty=False)
     except ParameterError as exc:
         raise ShapeFileError(p, str(exc)) from None
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import inspect
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -79,14 +80,35 @@ class BasePlugin:
         """The spectrum this plugin needs (weighting, Laplacian, mass, ``k``), or None."""
         return None
 
-    def _spectrum(self, shape: Shape, spectrum: Spectrum | None) -> Spectrum:
-        """``spectrum`` checked against :meth:`spectrum_spec` (a typed error when it is too short or
-        of another kind); when None, the declared spectrum through the shared content cache."""
+    def spectrum_specs(self) -> list[SpectrumSpec]:
+        """Every spectrum this plugin needs: its own and its nested plugins', one per kind."""
+        out: list[SpectrumSpec] = []
+        own = self.spectrum_spec()
+        nested = [s for p in self._nested_plugins() for s in p.spectrum_specs()]
+        for spec in ([own] if own is not None else []) + nested:
+            for i, have in enumerate(out):
+                if (merged := have.merge(spec)) is not None:
+                    out[i] = merged
+                    break
+            else:
+                out.append(spec)
+        return out
+
+    def _nested_plugins(self) -> list[BasePlugin]:
+        """Plugins this one calls (e.g. a matcher's descriptor), for :meth:`spectrum_specs`."""
+        return [v for v in self.get_params(deep=False).values() if isinstance(v, BasePlugin)]
+
+    def _spectrum(self, shape: Shape, spectrum: Spectrum | Sequence[Spectrum] | None) -> Spectrum:
+        """The spectrum of :meth:`spectrum_spec` among ``spectrum`` (one Spectrum, or several of which
+        one matches), checked: a typed error when it is too short or of another kind. When None,
+        the declared spectrum through the shared content cache (what a caller would pass)."""
         spec = self.spectrum_spec()
         if spec is None:  # pragma: no cover - programming error in a plugin
             raise TypeError(f"{type(self).__name__} declares no spectrum")
         if spectrum is None:
             return spec.compute(shape)
+        if isinstance(spectrum, (list, tuple)):
+            return spec.pick(spectrum, shape)
         return spec.check(spectrum, shape, who=type(self).__name__)
 
     def __repr__(self) -> str:

@@ -483,6 +483,19 @@ class SpectrumSpec:
             )
         return spectrum
 
+    def pick(self, spectra: Iterable[Spectrum], shape: Shape, who: str = "this method") -> Spectrum:
+        """The first of ``spectra`` that satisfies this spec on ``shape``; a typed error when none does."""
+        candidates = list(spectra)
+        for s in candidates:
+            try:
+                return self.check(s, shape, who)
+            except SpectrumMismatchError:
+                continue
+        given = ", ".join(repr(s) for s in candidates) or "none"
+        raise SpectrumMismatchError(
+            f"{who} needs the spectrum {self.for_shape(shape).to_dict()}; none given matches (given: {given})"
+        )
+
 
 def shape_spectrum(shape: Shape, k: int, *, kind: str = "lbo", **spec: Any) -> Spectrum:
     """The toolkit's default spectrum of ``shape``, ``k`` eigenpairs (the one place that says what
@@ -524,13 +537,4 @@ def merge_specs(specs: Iterable[SpectrumSpec | None]) -> list[SpectrumSpec]:
 def pick_spectrum(spectra: Iterable[Spectrum], spec: SpectrumSpec | None, shape: Shape) -> Spectrum | None:
     """The first of ``spectra`` that satisfies ``spec`` on ``shape`` (see :meth:`SpectrumSpec.check`),
     or None when ``spec`` is None; :class:`~shape_toolkit.errors.SpectrumMismatchError` when none does."""
-    if spec is None:
-        return None
-    candidates = list(spectra)
-    for s in candidates:
-        try:
-            return spec.check(s, shape)
-        except SpectrumMismatchError:
-            continue
-    given = ", ".join(repr(s) for s in candidates) or "none"
-    raise SpectrumMismatchError(f"no spectrum given matches {spec.for_shape(shape).to_dict()} (given: {given})")
+    return None if spec is None else spec.pick(spectra, shape)

@@ -3,14 +3,17 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.errors import ParameterError, SolverError
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
+from shape_toolkit.errors import ParameterError
 from shape_toolkit.results.correspondence import nearest_neighbors
+from shape_toolkit.validation import check_seeds as _check_seeds
 
 
 @dataclass(frozen=True)
@@ -31,40 +34,6 @@ class Basis:
         """Coefficients ``(k, d)`` of functions ``f`` ``(n, d)`` on the first ``k`` vectors."""
         k = self.k if k is None else k
         return self.evecs[:, :k].T @ (self.mass[:, None] * f)
-
-
-def shape_spectrum(shape: Shape, k: int, spectrum: Spectrum | None = None) -> Spectrum:
-    """``spectrum`` if it has at least ``k`` eigenpairs, else the cotangent (intrinsic-Delaunay
-    for point clouds) Laplace-Beltrami spectrum of ``shape`` with its mass matrix (cached)."""
-    from shape_toolkit.core.graph import build_graph
-    from shape_toolkit.core.spectrum import compute_spectrum
-
-    if spectrum is not None:
-        if spectrum.n_vertices != shape.n_vertices:
-            raise ParameterError(
-                f"the spectrum has {spectrum.n_vertices} rows, the shape {shape.n_vertices} vertices"
-            )
-        if spectrum.k >= k:
-            return spectrum
-    k = int(min(k, shape.n_vertices - 1))
-    weighting = "cotangent" if shape.is_mesh else "intrinsic-delaunay"
-    graph = build_graph(shape, weighting)
-    try:
-        return compute_spectrum(graph, k)
-    except SolverError:
-        # the default block Krylov solver can stall on clustered (symmetric-shape) spectra:
-        # fall back to ARPACK shift-invert on the same problem
-        import scipy.sparse as sp
-
-        from shape_toolkit.core.eigen import smallest_eigenpairs
-        from shape_toolkit.core.spectrum import laplacian_matrix
-
-        if graph.components[0] > 1:
-            raise
-        M = sp.diags(graph.mass) if graph.mass is not None else None
-        vals, vecs = smallest_eigenpairs(laplacian_matrix(graph.W), k, M, method="arpack")
-        return Spectrum(np.maximum(vals, 0.0), vecs, "combinatorial", graph.weighting, graph.mass,
-                        graph.degrees, False, {"solver": "arpack-fallback"})
 
 
 def basis_of(spectrum: Spectrum, k: int | None = None) -> Basis:
@@ -120,24 +89,59 @@ def check_descriptors(desc: np.ndarray, n: int, what: str) -> np.ndarray:
 
 def check_seeds(seeds: np.ndarray | None, n_src: int, n_tgt: int) -> np.ndarray | None:
     """Seeds as int64 ``(q, 2)`` ``[source, target]`` inside both shapes, or None."""
-    if seeds is None:
-        return None
-    s = np.asarray(seeds)
-    if s.size == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    if s.ndim != 2 or s.shape[1] != 2:
-        raise ParameterError(f"seeds must be a (q, 2) array of [source, target] ids, got {s.shape}")
-    if not np.issubdtype(s.dtype, np.integer):
-        if not np.all(np.equal(np.mod(s, 1), 0)):
-            raise ParameterError("seeds must be integer vertex ids")
-    s = s.astype(np.int64)
-    for col, n, name in ((0, n_src, "source"), (1, n_tgt, "target")):
-        if s[:, col].min() < 0 or s[:, col].max() >= n:
+    return None if seeds is None else _check_seeds(seeds, n_src, n_tgt)
+
+
+def descriptor_plugin(descriptor: Any, params: dict | None = None) -> Any:
+    """The descriptor plugin a matcher names: an instance (used as is), a registry name with
+    ``params``, or a table ``{plugin, preset, params}`` (as written in TOML configs)."""
+    from shape_toolkit.api.registry import create_plugin
+
+    if hasattr(descriptor, "compute") and not isinstance(descriptor, (str, dict, type)):
+        if params:
+            raise ParameterError("descriptor_params apply to a descriptor given by name, not to an instance")
+        return descriptor
+    if isinstance(descriptor, dict):
+        bad = sorted(set(descriptor) - {"plugin", "preset", "params"})
+        if bad or "plugin" not in descriptor:
             raise ParameterError(
-                f"seed {name} ids must lie in [0, {n - 1}] (0-based), found "
-                f"[{int(s[:, col].min())}, {int(s[:, col].max())}]"
+                f"a descriptor table needs 'plugin' (and optional preset, params); got {sorted(descriptor)}"
             )
-    return s
+        return create_plugin("descriptors", str(descriptor["plugin"]), descriptor.get("preset"),
+                             **{**(descriptor.get("params") or {}), **(params or {})})
+    if isinstance(descriptor, str):
+        return create_plugin("descriptors", descriptor, **(params or {}))
+    raise ParameterError(f"descriptor must be a plugin name, a table or a Descriptor, got {descriptor!r}")
+
+
+def paired_descriptors(
+    plugin: Any, source: Shape, target: Shape, kp_source: np.ndarray, kp_target: np.ndarray, *,
+    source_spectrum: Spectrum | Sequence[Spectrum] | None = None,
+    target_spectrum: Spectrum | Sequence[Spectrum] | None = None,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Keypoint descriptors ``(n, M * tau)`` of both shapes on matched keypoints, and ``tau``.
+
+    Multi-scale heat descriptors must use the *same* times on both shapes to be comparable
+    (thesis 7.3.1): when the plugin has a ``times`` parameter left to None, the times are chosen
+    on the source's spectrum (``multiscale_times``, K defaulting to 25 as in 7.3.1) and reused
+    on the target."""
+    import copy
+
+    if hasattr(plugin, "times") and getattr(plugin, "times", None) is None:
+        from shape_toolkit.features.heat import multiscale_times
+
+        params = plugin.get_params(deep=False)
+        spec = plugin._spectrum(source, source_spectrum)
+        K = min(int(params.get("K") or 25), spec.k - 1)
+        times = multiscale_times(spec, int(params.get("n_times", 5)), K, alpha=float(params.get("alpha", 0.95)),
+                                 ratio=float(params.get("time_ratio", 2.0)))
+        plugin = copy.deepcopy(plugin)
+        plugin.set_params(times=[float(t) for t in times])
+    ds = plugin.compute(source, spectrum=source_spectrum, keypoints=kp_source)
+    dt = plugin.compute(target, spectrum=target_spectrum, keypoints=kp_target)
+    times = getattr(plugin, "times", None)
+    n_times = len(times) if times is not None else int(getattr(plugin, "n_times", 1))
+    return ds, dt, n_times
 
 
 def normalize_columns(desc: np.ndarray, mass: np.ndarray) -> np.ndarray:
@@ -263,19 +267,13 @@ def greedy_discretize(
     return np.asarray(chosen, dtype=np.int64)
 
 
-def sparse_inputs(
-    source: Shape, target: Shape, kp_s: np.ndarray, kp_t: np.ndarray,
-    spec_s: Spectrum | None, spec_t: Spectrum | None, k: int,
-) -> tuple[np.ndarray, np.ndarray, Spectrum, Spectrum]:
-    """Validated keypoints and spectra (``k + 1`` eigenpairs) shared by the sparse matchers."""
-    kp_s = check_keypoints(kp_s, source.n_vertices, "source")
-    kp_t = check_keypoints(kp_t, target.n_vertices, "target")
-    return kp_s, kp_t, shape_spectrum(source, k + 1, spec_s), shape_spectrum(target, k + 1, spec_t)
-
-
 class AssociationMatcherBase:
     """Shared parameters and flow of the association-graph matchers (replicator, spectral,
     rrwm): build the graph, score its nodes with :meth:`_solve`, discretize one-to-one."""
+
+    def spectrum_spec(self) -> SpectrumSpec:
+        """The Laplace-Beltrami spectrum with ``k + 1`` eigenpairs (see :func:`default_spec`)."""
+        return default_spec(int(self.k) + 1)
 
     def _graph_params(self) -> dict:
         return dict(k=int(self.k), time=self.time, sigma=float(self.sigma),
@@ -289,10 +287,9 @@ class AssociationMatcherBase:
         """Matched ``[source_vertex, target_vertex]`` pairs, int64 ``(q, 2)``."""
         if not self.sigma > 0 or not self.adf_ratio > 1 or self.max_candidates < 1:
             raise ParameterError("need sigma > 0, adf_ratio > 1 and max_candidates >= 1")
-        kp_s, kp_t, ss, st = sparse_inputs(
-            source, target, source_keypoints, target_keypoints, source_spectrum, target_spectrum,
-            int(self.k),
-        )
+        kp_s = check_keypoints(source_keypoints, source.n_vertices, "source")
+        kp_t = check_keypoints(target_keypoints, target.n_vertices, "target")
+        ss, st = self._spectrum(source, source_spectrum), self._spectrum(target, target_spectrum)
         g = association_graph(source, target, kp_s, kp_t, ss, st, **self._graph_params())
         if len(g.nodes) == 0:
             return np.zeros((0, 2), dtype=np.int64)

@@ -15,7 +15,6 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from shape_toolkit.api.hookspecs import hookimpl
-from shape_toolkit.plugins.matching._common import basis_of, shape_spectrum
 from shape_toolkit.plugins.matching.dense.em_registration import EMRegistrationMatcher
 
 __all__ = ["EigvecAlignmentMatcher", "histogram_alignment"]
@@ -65,21 +64,18 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         threshold: float = 0.5,
         one_to_one: bool = False,
         fill_unmatched: bool = True,
-        random_state: int = 0,
     ):
         super().__init__(
             k=k, outlier_weight=outlier_weight, n_neighbors=n_neighbors, max_iter=max_iter,
             tol=tol, threshold=threshold, one_to_one=one_to_one, fill_unmatched=fill_unmatched,
-            random_state=random_state,
         )
         self.bins = bins
 
     def match(self, source, target, *, seeds=None, source_spectrum=None, target_spectrum=None):
         """Dense map source -> target with sparse posteriors (no seeds needed)."""
         self._check()
-        X, Y = self._embeddings(source, target, source_spectrum, target_spectrum)
-        bs = basis_of(shape_spectrum(source, self.k + 1, source_spectrum))
-        bt = basis_of(shape_spectrum(target, self.k + 1, target_spectrum))
+        bs, bt = self._bases(source, target, source_spectrum, target_spectrum)
+        X, Y = bs.evecs[:, 1 : self.k + 1], bt.evecs[:, 1 : self.k + 1]
         Q0, _ = histogram_alignment(X, Y, bs.mass, bt.mass, int(self.bins))
         return self._finish(X, Y, Q0, target, {"Q0": Q0})
 

@@ -21,9 +21,9 @@ from scipy.spatial import cKDTree
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.matching._common import basis_of, check_seeds, shape_spectrum
+from shape_toolkit.plugins.matching._common import Basis, basis_of, check_seeds
 from shape_toolkit.results.correspondence import Correspondence
 
 __all__ = ["EMRegistrationMatcher", "em_register", "procrustes"]
@@ -146,7 +146,6 @@ class EMRegistrationMatcher(DenseMatcher):
         threshold: float = 0.5,
         one_to_one: bool = False,
         fill_unmatched: bool = True,
-        random_state: int = 0,
     ):
         self.k = k
         self.outlier_weight = outlier_weight
@@ -156,7 +155,6 @@ class EMRegistrationMatcher(DenseMatcher):
         self.threshold = threshold
         self.one_to_one = one_to_one
         self.fill_unmatched = fill_unmatched
-        self.random_state = random_state
 
     def _check(self) -> None:
         if not isinstance(self.k, (int, np.integer)) or not 1 <= self.k <= 100:
@@ -166,10 +164,17 @@ class EMRegistrationMatcher(DenseMatcher):
         if self.n_neighbors < 1 or self.max_iter < 1:
             raise ParameterError("n_neighbors and max_iter must be >= 1")
 
+    def spectrum_spec(self) -> SpectrumSpec:
+        """The Laplace-Beltrami spectrum with ``k + 1`` eigenpairs (the first is constant)."""
+        return default_spec(int(self.k) + 1)
+
+    def _bases(self, source, target, source_spectrum, target_spectrum) -> tuple[Basis, Basis]:
+        spec_s = self._spectrum(source, source_spectrum)
+        spec_t = self._spectrum(target, target_spectrum)
+        return basis_of(spec_s, self.k + 1), basis_of(spec_t, self.k + 1)
+
     def _embeddings(self, source, target, source_spectrum, target_spectrum):
-        spec_s = shape_spectrum(source, self.k + 1, source_spectrum)
-        spec_t = shape_spectrum(target, self.k + 1, target_spectrum)
-        bs, bt = basis_of(spec_s, self.k + 1), basis_of(spec_t, self.k + 1)
+        bs, bt = self._bases(source, target, source_spectrum, target_spectrum)
         return bs.evecs[:, 1 : self.k + 1], bt.evecs[:, 1 : self.k + 1]
 
     def _initial_transform(self, X, Y, seeds, source, target, **kw) -> np.ndarray:

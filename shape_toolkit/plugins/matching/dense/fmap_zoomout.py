@@ -20,17 +20,17 @@ import numpy as np
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.matching._common import (
     Basis,
     basis_of,
     check_descriptors,
     check_seeds,
+    descriptor_plugin,
     fmap_from_p2p,
     normalize_columns,
     p2p_from_fmap,
-    shape_spectrum,
 )
 from shape_toolkit.results.correspondence import Correspondence
 
@@ -173,7 +173,9 @@ class FmapZoomOutMatcher(DenseMatcher):
     """Dense map from a functional map fitted on descriptors and refined by ZoomOut.
 
     ``descriptor``/``descriptor_params``: descriptor plugin computed on both shapes (unless the
-    caller passes ``source_descriptors``/``target_descriptors``), ``n_descriptors`` evenly spaced
+    caller passes ``source_descriptors``/``target_descriptors``); a name, a ``{plugin, preset,
+    params}`` table or an instance; None (default) is the WKS on this matcher's own cotangent
+    Laplace-Beltrami eigenpairs (``K = k + zoomout_iters * zoomout_step``); ``n_descriptors`` evenly spaced
     columns are kept. ``k``: size of the fitted map; ZoomOut then grows it by ``zoomout_step`` for
     ``zoomout_iters`` iterations (``zoomout_iters=0`` disables it). ``orientation``:
     ``"preserving"`` (default), ``"reversing"`` or ``"none"`` (weight ``w_orient``).
@@ -189,7 +191,7 @@ class FmapZoomOutMatcher(DenseMatcher):
     def __init__(
         self,
         k: int = 30,
-        descriptor: str = "wks",
+        descriptor: str | dict | None = None,
         descriptor_params: dict | None = None,
         n_descriptors: int = 50,
         w_descr: float = 1.0,
@@ -201,7 +203,6 @@ class FmapZoomOutMatcher(DenseMatcher):
         zoomout_step: int = 5,
         zoomout_samples: int | None = 2000,
         seed_time: float = 0.01,
-        random_state: int = 0,
     ):
         self.k = k
         self.descriptor = descriptor
@@ -216,7 +217,6 @@ class FmapZoomOutMatcher(DenseMatcher):
         self.zoomout_step = zoomout_step
         self.zoomout_samples = zoomout_samples
         self.seed_time = seed_time
-        self.random_state = random_state
 
     def _check(self) -> None:
         if not isinstance(self.k, (int, np.integer)) or self.k < 2:
@@ -231,11 +231,21 @@ class FmapZoomOutMatcher(DenseMatcher):
             if getattr(self, name) < 0:
                 raise ParameterError(f"{name} must be >= 0")
 
-    def _descriptors(self, shape: Shape, spectrum: Spectrum) -> np.ndarray:
-        from shape_toolkit.api.registry import create_plugin
+    def _k_final(self) -> int:
+        return int(self.k + self.zoomout_iters * self.zoomout_step)
 
-        plugin = create_plugin("descriptors", self.descriptor, **(self.descriptor_params or {}))
-        return plugin.compute(shape, spectrum=spectrum)
+    def spectrum_spec(self) -> SpectrumSpec:
+        """The Laplace-Beltrami spectrum with ``k + zoomout_iters * zoomout_step + 1`` eigenpairs."""
+        return default_spec(self._k_final() + 1)
+
+    def _descriptor_plugin(self):
+        if self.descriptor is None:  # WKS on this matcher's own Laplace-Beltrami basis
+            return descriptor_plugin("wks", {"weighting": "cotangent", "K": self._k_final(),
+                                             **(self.descriptor_params or {})})
+        return descriptor_plugin(self.descriptor, self.descriptor_params)
+
+    def _nested_plugins(self) -> list:
+        return [self._descriptor_plugin()]
 
     def _select(self, d: np.ndarray) -> np.ndarray:
         if self.n_descriptors and d.shape[1] > self.n_descriptors:
@@ -260,16 +270,17 @@ class FmapZoomOutMatcher(DenseMatcher):
         source.require_faces("fmap-zoomout")
         target.require_faces("fmap-zoomout")
         seeds = check_seeds(seeds, source.n_vertices, target.n_vertices)
-        k_final = self.k + self.zoomout_iters * self.zoomout_step
-        k_final = int(min(k_final, source.n_vertices - 1, target.n_vertices - 1))
+        k_final = int(min(self._k_final(), source.n_vertices - 1, target.n_vertices - 1))
         k0 = min(self.k, k_final)
-        spec_s = shape_spectrum(source, k_final + 1, source_spectrum)
-        spec_t = shape_spectrum(target, k_final + 1, target_spectrum)
+        spec_s = self._spectrum(source, source_spectrum)
+        spec_t = self._spectrum(target, target_spectrum)
         bs, bt = basis_of(spec_s, k_final), basis_of(spec_t, k_final)
-        if bs.k < k_final or bt.k < k_final:
-            raise ParameterError(f"the given spectra are too short for k={k_final}")
-        ds = self._descriptors(source, spec_s) if source_descriptors is None else source_descriptors
-        dt = self._descriptors(target, spec_t) if target_descriptors is None else target_descriptors
+        if source_descriptors is None or target_descriptors is None:
+            desc = self._descriptor_plugin()
+            # the descriptor picks its own declared spectrum among what the caller gave
+            source_descriptors = desc.compute(source, spectrum=_share(source_spectrum))
+            target_descriptors = desc.compute(target, spectrum=_share(target_spectrum))
+        ds, dt = source_descriptors, target_descriptors
         ds = check_descriptors(ds, source.n_vertices, "source")
         dt = check_descriptors(dt, target.n_vertices, "target")
         if ds.shape[1] != dt.shape[1]:
@@ -304,6 +315,14 @@ class FmapZoomOutMatcher(DenseMatcher):
             cols = farthest_point_sampling(np.asarray(target.vertices), int(self.zoomout_samples))
         C, T = zoomout(C, bs, bt, k_final, self.zoomout_step, rows, cols)
         return Correspondence(T, target.n_vertices, info={"C": C, "k_final": k_final})
+
+
+def _share(given):
+    """What to hand a nested plugin: the caller's spectra (it picks its own among them), or, when
+    the caller gave none, None (it computes its declared spectrum through the cache)."""
+    if given is None:
+        return None
+    return list(given) if isinstance(given, (list, tuple)) else [given]
 
 
 @hookimpl

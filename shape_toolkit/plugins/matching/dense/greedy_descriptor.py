@@ -13,7 +13,7 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.matching._common import check_descriptors, check_seeds
+from shape_toolkit.plugins.matching._common import check_descriptors, check_seeds, descriptor_plugin
 from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
 
 __all__ = ["GreedyDescriptorMatcher"]
@@ -33,14 +33,18 @@ class GreedyDescriptorMatcher(DenseMatcher):
         log_scale: bool = True,
         one_to_one: bool = False,
         candidates: int = 8,
-        random_state: int = 0,
     ):
         self.descriptor = descriptor
         self.descriptor_params = descriptor_params
         self.log_scale = log_scale
         self.one_to_one = one_to_one
         self.candidates = candidates
-        self.random_state = random_state
+
+    def _descriptor_plugin(self):
+        return descriptor_plugin(self.descriptor, self.descriptor_params)
+
+    def _nested_plugins(self) -> list:
+        return [self._descriptor_plugin()]
 
     def match(
         self,
@@ -56,9 +60,7 @@ class GreedyDescriptorMatcher(DenseMatcher):
         """Dense map source -> target by nearest descriptors; confidence ``1 / (1 + distance)``."""
         seeds = check_seeds(seeds, source.n_vertices, target.n_vertices)
         if source_descriptors is None or target_descriptors is None:
-            from shape_toolkit.api.registry import create_plugin
-
-            plugin = create_plugin("descriptors", self.descriptor, **(self.descriptor_params or {}))
+            plugin = self._descriptor_plugin()
             kp_s = kp_t = None
             if seeds is not None and len(seeds):
                 kp_s, kp_t = seeds[:, 0], seeds[:, 1]

@@ -20,7 +20,12 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.heat import descriptor_matching_score
-from shape_toolkit.plugins.matching._common import check_descriptors, check_seeds
+from shape_toolkit.plugins.matching._common import (
+    check_descriptors,
+    check_seeds,
+    descriptor_plugin,
+    paired_descriptors,
+)
 from shape_toolkit.results.correspondence import Correspondence
 
 __all__ = ["SeedGrowingMatcher", "seed_growing"]
@@ -97,14 +102,18 @@ class SeedGrowingMatcher(DenseMatcher):
         descriptor: str = "heat-distance",
         descriptor_params: dict | None = None,
         max_keypoints: int = 50,
-        random_state: int = 0,
     ):
         self.beta = beta
         self.ring = ring
         self.descriptor = descriptor
         self.descriptor_params = descriptor_params
         self.max_keypoints = max_keypoints
-        self.random_state = random_state
+
+    def _descriptor_plugin(self):
+        return descriptor_plugin(self.descriptor, self.descriptor_params)
+
+    def _nested_plugins(self) -> list:
+        return [self._descriptor_plugin()]
 
     def match(
         self,
@@ -129,16 +138,12 @@ class SeedGrowingMatcher(DenseMatcher):
         source.require_faces("seed-growing")
         target.require_faces("seed-growing")
         if source_descriptors is None or target_descriptors is None:
-            from shape_toolkit.api.registry import create_plugin
-
             kp = seeds
             if len(kp) > self.max_keypoints:  # evenly spread subset of the seeds as keypoints
                 kp = kp[np.linspace(0, len(kp) - 1, int(self.max_keypoints)).round().astype(int)]
-            from shape_toolkit.pipeline import paired_descriptors
-
-            plugin = create_plugin("descriptors", self.descriptor, **(self.descriptor_params or {}))
             source_descriptors, target_descriptors, n_times = paired_descriptors(
-                plugin, source, target, kp[:, 0], kp[:, 1]
+                self._descriptor_plugin(), source, target, kp[:, 0], kp[:, 1],
+                source_spectrum=source_spectrum, target_spectrum=target_spectrum,
             )
         else:
             n_times = 1 if n_times is None else int(n_times)

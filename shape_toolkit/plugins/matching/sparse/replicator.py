@@ -49,7 +49,6 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
         max_candidates: int = 8,
         min_score: float = 0.05,
         max_iter: int = 2000,
-        random_state: int = 0,
     ):
         self.k = k
         self.time = time
@@ -58,7 +57,6 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
         self.max_candidates = max_candidates
         self.min_score = min_score
         self.max_iter = max_iter
-        self.random_state = random_state
 
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
         A = graph.W + 0.5 * np.eye(len(graph.nodes))

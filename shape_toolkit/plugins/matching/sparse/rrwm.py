@@ -38,7 +38,6 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
         alpha: float = 0.2,
         inflation: float = 30.0,
         max_iter: int = 300,
-        random_state: int = 0,
     ):
         self.k = k
         self.time = time
@@ -49,7 +48,6 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
         self.alpha = alpha
         self.inflation = inflation
         self.max_iter = max_iter
-        self.random_state = random_state
 
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
         W = graph.W + np.diag(graph.unary)

@@ -24,7 +24,6 @@ class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
         adf_ratio: float = 2.0,
         max_candidates: int = 8,
         min_score: float = 0.1,
-        random_state: int = 0,
     ):
         self.k = k
         self.time = time
@@ -32,7 +31,6 @@ class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
         self.adf_ratio = adf_ratio
         self.max_candidates = max_candidates
         self.min_score = min_score
-        self.random_state = random_state
 
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
         M = graph.W + np.diag(graph.unary)

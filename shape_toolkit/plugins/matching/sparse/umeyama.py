@@ -10,8 +10,9 @@ from scipy.optimize import linear_sum_assignment
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
+from shape_toolkit.core.spectrum import SpectrumSpec, default_spec
 from shape_toolkit.features.heat import heat_distances
-from shape_toolkit.plugins.matching._common import normalized_spectrum, sparse_inputs
+from shape_toolkit.plugins.matching._common import check_keypoints, normalized_spectrum
 
 __all__ = ["UmeyamaMatcher", "umeyama_assignment"]
 
@@ -34,21 +35,22 @@ class UmeyamaMatcher(SparseMatcher):
 
     def __init__(
         self, k: int = 20, time: float | None = None, sigma: float = 0.5, min_score: float = 0.0,
-        random_state: int = 0,
     ):
         self.k = k
         self.time = time
         self.sigma = sigma
         self.min_score = min_score
-        self.random_state = random_state
+
+    def spectrum_spec(self) -> SpectrumSpec:
+        """The Laplace-Beltrami spectrum with ``k + 1`` eigenpairs."""
+        return default_spec(int(self.k) + 1)
 
     def match(self, source, target, source_keypoints, target_keypoints, *,
               source_spectrum=None, target_spectrum=None) -> np.ndarray:
         """Matched ``[source_vertex, target_vertex]`` pairs, int64 ``(q, 2)``."""
-        kp_s, kp_t, ss, st = sparse_inputs(
-            source, target, source_keypoints, target_keypoints, source_spectrum, target_spectrum,
-            int(self.k),
-        )
+        kp_s = check_keypoints(source_keypoints, source.n_vertices, "source")
+        kp_t = check_keypoints(target_keypoints, target.n_vertices, "target")
+        ss, st = self._spectrum(source, source_spectrum), self._spectrum(target, target_spectrum)
         ns = normalized_spectrum(ss.truncated(min(ss.k, int(self.k) + 1)))
         nt = normalized_spectrum(st.truncated(min(st.k, int(self.k) + 1)))
         vals = ns.eigenvalues[ns.eigenvalues > 1e-9 * ns.eigenvalues.max()]
