@@ -114,6 +114,17 @@ def descriptor_plugin(descriptor: Any, params: dict | None = None) -> Any:
     raise ParameterError(f"descriptor must be a plugin name, a table or a Descriptor, got {descriptor!r}")
 
 
+class UsesDescriptor:
+    """Mixin of the dense matchers that compute a descriptor plugin (``descriptor`` and
+    ``descriptor_params`` parameters): the plugin instance, and its spectra in ``spectrum_specs()``."""
+
+    def _descriptor_plugin(self) -> Any:
+        return descriptor_plugin(self.descriptor, self.descriptor_params)
+
+    def _nested_plugins(self) -> list:
+        return [self._descriptor_plugin()]
+
+
 def paired_descriptors(
     plugin: Any, source: Shape, target: Shape, kp_source: np.ndarray, kp_target: np.ndarray, *,
     source_spectrum: Spectrum | Sequence[Spectrum] | None = None,

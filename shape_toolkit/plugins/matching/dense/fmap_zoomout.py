@@ -24,6 +24,7 @@ from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.matching._common import (
     Basis,
+    UsesDescriptor,
     basis_of,
     check_descriptors,
     check_seeds,
@@ -169,7 +170,7 @@ def farthest_point_sampling(points: np.ndarray, n: int, start: int = 0) -> np.nd
     return idx
 
 
-class FmapZoomOutMatcher(DenseMatcher):
+class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     """Dense map from a functional map fitted on descriptors and refined by ZoomOut.
 
     ``descriptor``/``descriptor_params``: descriptor plugin computed on both shapes (unless the
@@ -242,10 +243,7 @@ class FmapZoomOutMatcher(DenseMatcher):
         if self.descriptor is None:  # WKS on this matcher's own Laplace-Beltrami basis
             return descriptor_plugin("wks", {"weighting": "cotangent", "K": self._k_final(),
                                              **(self.descriptor_params or {})})
-        return descriptor_plugin(self.descriptor, self.descriptor_params)
-
-    def _nested_plugins(self) -> list:
-        return [self._descriptor_plugin()]
+        return super()._descriptor_plugin()
 
     def _select(self, d: np.ndarray) -> np.ndarray:
         if self.n_descriptors and d.shape[1] > self.n_descriptors:

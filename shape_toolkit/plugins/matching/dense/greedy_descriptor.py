@@ -13,13 +13,13 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.matching._common import check_descriptors, check_seeds, descriptor_plugin
+from shape_toolkit.plugins.matching._common import UsesDescriptor, check_descriptors, check_seeds
 from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
 
 __all__ = ["GreedyDescriptorMatcher"]
 
 
-class GreedyDescriptorMatcher(DenseMatcher):
+class GreedyDescriptorMatcher(UsesDescriptor, DenseMatcher):
     """Nearest-descriptor map. ``descriptor``/``descriptor_params``: plugin computed on both
     shapes with the seeds as matched keypoints (when it uses keypoints), unless the caller
     passes descriptors. ``log_scale`` compares log descriptors (heat values span decades).
@@ -39,12 +39,6 @@ class GreedyDescriptorMatcher(DenseMatcher):
         self.log_scale = log_scale
         self.one_to_one = one_to_one
         self.candidates = candidates
-
-    def _descriptor_plugin(self):
-        return descriptor_plugin(self.descriptor, self.descriptor_params)
-
-    def _nested_plugins(self) -> list:
-        return [self._descriptor_plugin()]
 
     def match(
         self,

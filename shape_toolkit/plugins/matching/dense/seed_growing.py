@@ -21,9 +21,9 @@ from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.heat import descriptor_matching_score
 from shape_toolkit.plugins.matching._common import (
+    UsesDescriptor,
     check_descriptors,
     check_seeds,
-    descriptor_plugin,
     paired_descriptors,
 )
 from shape_toolkit.results.correspondence import Correspondence
@@ -87,7 +87,7 @@ def seed_growing(
     return target_of, score
 
 
-class SeedGrowingMatcher(DenseMatcher):
+class SeedGrowingMatcher(UsesDescriptor, DenseMatcher):
     """Algorithm 6. Descriptors: given by the caller (``source_descriptors``/``target_descriptors``
     keypoint-major with ``n_times`` scales, keypoints in matched order) or computed with the
     ``descriptor`` plugin (default ``heat-distance``, eq. 6.64-6.65) using the seeds as matched
@@ -108,12 +108,6 @@ class SeedGrowingMatcher(DenseMatcher):
         self.descriptor = descriptor
         self.descriptor_params = descriptor_params
         self.max_keypoints = max_keypoints
-
-    def _descriptor_plugin(self):
-        return descriptor_plugin(self.descriptor, self.descriptor_params)
-
-    def _nested_plugins(self) -> list:
-        return [self._descriptor_plugin()]
 
     def match(
         self,
