@@ -310,10 +310,17 @@ def _rayleigh_quotients(A: sp.csr_matrix, U: np.ndarray) -> np.ndarray:
     return out
 
 
-def _fix_signs(U: np.ndarray) -> np.ndarray:
-    """Make the largest-magnitude entry of each column positive (reproducible signs)."""
-    idx = np.argmax(np.abs(U), axis=0)
-    s = np.sign(U[idx, np.arange(U.shape[1])])
+def fix_signs(vectors: np.ndarray, *, copy: bool = True) -> np.ndarray:
+    """The one sign rule: flip each column of ``(n, k)`` ``vectors`` so that its third moment is
+    positive, falling back to its largest-magnitude entry when the moment vanishes (symmetric
+    columns); invariant to vertex permutation and to sign flips."""
+    U = np.array(vectors, dtype=np.float64, copy=True) if copy else vectors
+    if U.size == 0:
+        return U
+    skew = np.einsum("ij,ij,ij->j", U, U, U)
+    scale = np.einsum("ij->j", np.abs(U) ** 3)
+    peak = U[np.argmax(np.abs(U), axis=0), np.arange(U.shape[1])]
+    s = np.where(np.abs(skew) > 1e-8 * np.maximum(scale, 1e-300), np.sign(skew), np.sign(peak))
     s[s == 0] = 1.0
     U *= s
     return U
@@ -407,7 +414,7 @@ def smallest_eigenpairs(
     info["method"] = method
     if method == "dense":
         vals, vecs = _dense(A, k, Ms, dM)
-        return vals, _fix_signs(vecs)
+        return vals, fix_signs(vecs, copy=False)
 
     b = int(block_size) if block_size is not None else (4 if k <= 40 else 8)
     if b < 1:
@@ -477,4 +484,4 @@ def smallest_eigenpairs(
         raise ParameterError(
             f"A is not positive semi-definite (found eigenvalue {vals[0]:.3e} < sigma={sigma:.3e})"
         )
-    return vals, _fix_signs(vecs)
+    return vals, fix_signs(vecs, copy=False)
