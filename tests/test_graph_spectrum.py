@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 import scipy.linalg as la
@@ -17,7 +19,7 @@ from shape_toolkit import (
     compute_spectrum,
     laplacian_matrix,
 )
-from shape_toolkit.core.graph import ShapeGraph, epsilon_edges, knn_edges
+from shape_toolkit.core.graph import NumericallyDisconnectedGraphError, ShapeGraph, epsilon_edges, knn_edges
 from shape_toolkit.core.spectrum import (
     Spectrum,
     clear_cache,
@@ -75,18 +77,126 @@ def test_cotangent_reports_and_clamps_negative_weights():
     assert (g.W.data < 0).sum() == 2 * g.info["negative_weights"]
 
 
-def test_gaussian_weights_eq_3_7_and_default_bandwidth(sphere):
+def test_gaussian_weights_eq_3_7_with_local_default_bandwidth(sphere):
     g = build_graph(sphere, "gaussian")
-    e = sphere.edges
-    sigma = sphere.edge_lengths.mean()
-    assert g.info["bandwidth"] == pytest.approx(sigma)
+    e, length = sphere.edges, sphere.edge_lengths
+    sigma_v = np.zeros(sphere.n_vertices)
+    np.maximum.at(sigma_v, e[:, 0], length)
+    np.maximum.at(sigma_v, e[:, 1], length)
     w = np.asarray(g.W[e[:, 0], e[:, 1]]).ravel()
-    np.testing.assert_allclose(w, np.exp(-sphere.edge_lengths**2 / (2 * sigma**2)))
+    np.testing.assert_allclose(w, np.exp(-(length**2) / (2 * sigma_v[e[:, 0]] * sigma_v[e[:, 1]])))
+    assert g.info["bandwidth"] == "local" and (w >= np.exp(-0.5) - 1e-15).all() and (w <= 1).all()
     # scaling the shape does not change default weights
     g2 = build_graph(sphere.with_vertices(sphere.vertices * 7.0), "gaussian")
     np.testing.assert_allclose(g2.W.toarray(), g.W.toarray(), atol=1e-12)
-    with pytest.raises(ParameterError):
-        build_graph(sphere, "gaussian", bandwidth=-1.0)
+    # the former global default and an explicit global bandwidth follow eq. 3.7 with one sigma
+    gm = build_graph(sphere, "gaussian", bandwidth="mean")
+    assert gm.info["bandwidth"] == pytest.approx(length.mean())
+    wm = np.asarray(gm.W[e[:, 0], e[:, 1]]).ravel()
+    np.testing.assert_allclose(wm, np.exp(-(length**2) / (2 * length.mean() ** 2)))
+    g3 = build_graph(sphere, "gaussian", bandwidth=0.3)
+    np.testing.assert_allclose(np.asarray(g3.W[e[:, 0], e[:, 1]]).ravel(), np.exp(-(length**2) / 0.18))
+    for bad in (-1.0, 0.0, np.inf, "wide", True):
+        with pytest.raises(ParameterError):
+            build_graph(sphere, "gaussian", bandwidth=bad)
+    with pytest.raises(ParameterError, match="bandwidth_scale"):
+        build_graph(sphere, "gaussian", bandwidth_scale=0)
+
+
+def test_tiny_user_bandwidth_is_refused_with_what_to_do(sphere):
+    with pytest.raises(ParameterError, match=r"numerically disconnected.*Use bandwidth >= ") as exc:
+        build_graph(sphere, "gaussian", bandwidth=1e-300)
+    safe = float(str(exc.value).split("bandwidth >= ")[1].split(",")[0])
+    g = build_graph(sphere, "gaussian", bandwidth=safe)  # the advertised bound is enough
+    assert g.W.data.min() >= 1e-8 * 0.99
+    assert compute_spectrum(g, 4, cache=False).n_null == 1
+    with pytest.raises(ParameterError, match="bandwidth_scale >= "):
+        build_graph(_horse_like(), "gaussian", bandwidth_scale=0.05)
+
+
+def _horse_like(stretch: float = 40.0, z0: float = 0.7) -> Shape:
+    """An icosphere whose cap z > z0 is stretched into a long, sparsely sampled spike (edges up to
+    ~15x the mean length): like a leg or tail of an irregular remeshing (the TOSCA horse)."""
+    s = icosphere(4)
+    v = s.vertices.copy()
+    top = v[:, 2] > z0
+    v[top, 2] = z0 + (v[top, 2] - z0) * stretch
+    return Shape(v, s.faces)
+
+
+def test_irregular_mesh_stays_connected_with_default_bandwidth():
+    shape = _horse_like()
+    lengths = shape.edge_lengths
+    assert lengths.max() / lengths.mean() > 10
+    g = build_graph(shape, "gaussian")
+    assert g.W.data.min() >= np.exp(-0.5) - 1e-15  # provable: |v_i - v_j| <= sqrt(sigma_i sigma_j)
+    spec = compute_spectrum(g, 11, cache=False)
+    assert spec.n_null == 1 and spec.eigenvalues[1] > 1e-4 * g.degrees.max()
+    # the former default (one bandwidth, the mean edge length) underflows on the spike: the graph is
+    # numerically disconnected, which compute_spectrum refuses instead of returning two null eigenpairs
+    old = build_graph(shape, "gaussian", bandwidth="mean")
+    assert old.components[0] == 1 and old.W.data.min() < 1e-20
+    with pytest.raises(NumericallyDisconnectedGraphError, match="numerically disconnected") as exc:
+        compute_spectrum(old, 11, cache=False)
+    assert isinstance(exc.value, DisconnectedGraphError)
+    assert "bandwidth" in str(exc.value) and "component_spectra" in str(exc.value)
+
+
+def test_numerically_disconnected_graph_is_refused_whatever_the_weighting(sphere):
+    g = build_graph(sphere, "binary")
+    W = g.W.tocoo()
+    z = sphere.vertices[:, 2]
+    cut = (z[W.row] > 0) != (z[W.col] > 0)
+    for factor, refused in ((1e-14, True), (1e-3, False)):
+        data = np.where(cut, W.data * factor, W.data)
+        weak = ShapeGraph(sphere, sp.csr_matrix((data, (W.row, W.col)), shape=W.shape), weighting="binary")
+        assert weak.components[0] == 1
+        for kind in ("combinatorial", "normalized", "random-walk"):
+            if refused:
+                with pytest.raises(NumericallyDisconnectedGraphError, match="2 eigenvalues that are zero") as exc:
+                    compute_spectrum(weak, 6, laplacian=kind, cache=False)
+                assert exc.value.n_null == 2 and exc.value.n_components == 1
+                assert "components='largest'" in str(exc.value)
+            else:  # a bottleneck, not a break: its small lambda_2 is resolved and kept
+                spec = compute_spectrum(weak, 6, laplacian=kind, cache=False)
+                assert spec.n_null == 1 and spec.eigenvalues[1] > 0
+    # the error survives pickling (benchmark workers send errors across processes)
+    err = NumericallyDisconnectedGraphError("msg", 3, 1, [10])
+    back = pickle.loads(pickle.dumps(err))
+    assert str(back) == "msg" and back.n_null == 3
+
+
+def test_knn_connectivity_on_a_mesh_is_honoured_or_refused(sphere):
+    g = build_graph(sphere, "gaussian", connectivity="knn", n_neighbors=8)
+    assert g.info["connectivity"] == "knn"
+    assert g.n_edges == len(knn_edges(sphere.vertices, 8)) != len(sphere.edges)
+    g = build_graph(sphere, "binary", connectivity="knn", n_neighbors=8)
+    assert g.n_edges == len(knn_edges(sphere.vertices, 8))
+    with pytest.raises(ParameterError, match="cannot use connectivity='knn'.*intrinsic-delaunay"):
+        build_graph(sphere, "cotangent", connectivity="knn")
+    with pytest.raises(ParameterError, match="cannot use connectivity='epsilon'"):
+        build_graph(sphere, "cotangent", connectivity="epsilon", radius=0.3)
+    with pytest.raises(ParameterError, match="cannot use connectivity='epsilon'"):
+        build_graph(sphere, "intrinsic-delaunay", connectivity="epsilon", radius=0.3)
+    # intrinsic Delaunay honours knn by treating the vertices as a point cloud
+    gk = build_graph(sphere, "intrinsic-delaunay", connectivity="knn", n_neighbors=12)
+    cloud = build_graph(Shape(sphere.vertices), "intrinsic-delaunay", n_neighbors=12)
+    assert gk.info["connectivity"] == "knn" and gk.params["n_neighbors"] == 12
+    np.testing.assert_allclose(gk.W.toarray(), cloud.W.toarray())
+    np.testing.assert_allclose(gk.mass, cloud.mass)
+    assert build_graph(sphere, "intrinsic-delaunay").info["connectivity"] == "mesh"
+
+
+def test_multi_component_errors_name_the_options():
+    a, b = icosphere(2), icosphere(1)
+    two = Shape(np.vstack([a.vertices, b.vertices + [5.0, 0, 0]]), np.vstack([a.faces, b.faces + a.n_vertices]))
+    for weighting in ("gaussian", "cotangent", "intrinsic-delaunay", "binary"):
+        with pytest.raises(DisconnectedGraphError, match="2 connected components") as exc:
+            compute_spectrum(build_graph(two, weighting), 5)
+        msg = str(exc.value)
+        assert "components='largest'" in msg and "component_spectra" in msg and "keep_largest_component" in msg
+    back = pickle.loads(pickle.dumps(exc.value))
+    assert str(back) == msg and back.sizes == [a.n_vertices, b.n_vertices]
 
 
 def test_binary_trace_is_mean_neighbourhood_size_eq_3_8(sphere):

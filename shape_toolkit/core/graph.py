@@ -13,9 +13,54 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.errors import InvalidShapeError, ParameterError
+from shape_toolkit.errors import DisconnectedGraphError, InvalidShapeError, ParameterError
 
-__all__ = ["ShapeGraph", "build_graph", "knn_edges", "epsilon_edges", "weights_from_edges"]
+__all__ = [
+    "ShapeGraph", "build_graph", "knn_edges", "epsilon_edges", "weights_from_edges",
+    "NumericallyDisconnectedGraphError", "ComponentsError", "COMPONENT_OPTIONS",
+]
+
+#: what to do with a graph that has several components (named by every such error)
+COMPONENT_OPTIONS = (
+    "compute_spectrum(..., components='largest') analyses the largest component only; "
+    "component_spectra(graph, k) gives one spectrum per component; "
+    "Shape cleanup (keep_largest_component) removes the small pieces"
+)
+
+
+class ComponentsError(DisconnectedGraphError):
+    """A graph with several connected components given where one is required; the message names
+    the sizes and every option (largest component, per-component spectra, cleanup)."""
+
+    def __init__(self, n_components: int, sizes: list[int]):
+        self.n_components = int(n_components)
+        self.sizes = list(sizes)
+        shown = ", ".join(str(x) for x in self.sizes[:8]) + (", ..." if len(self.sizes) > 8 else "")
+        Exception.__init__(
+            self,
+            f"the shape graph has {self.n_components} connected components (sizes {shown}); a spectrum "
+            f"of a disconnected graph mixes its components. Options: {COMPONENT_OPTIONS}",
+        )
+
+    def __reduce__(self):
+        return (type(self), (self.n_components, self.sizes))
+
+
+class NumericallyDisconnectedGraphError(DisconnectedGraphError):
+    """A graph that is connected (or has ``n_components`` components) structurally, but whose
+    Laplacian has more eigenvalues that are zero to solver precision than it has components: some
+    cut of its edges weighs (next to) nothing, so its spectrum would mix unrelated pieces and every
+    eigenpair count (``K``) downstream would be off. Raised by
+    :func:`~shape_toolkit.core.spectrum.compute_spectrum`."""
+
+    def __init__(self, message: str, n_null: int = 0, n_components: int = 1, sizes: list[int] | None = None):
+        self.n_null = int(n_null)
+        self.n_components = int(n_components)
+        self.sizes = list(sizes) if sizes is not None else []
+        Exception.__init__(self, message)
+
+    def __reduce__(self):
+        return (type(self), (str(self), self.n_null, self.n_components, self.sizes))
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -110,22 +155,43 @@ def build_graph(
     weighting: str = "gaussian",
     *,
     connectivity: str = "auto",
-    n_neighbors: int = 10,
+    n_neighbors: int | None = None,
     radius: float | None = None,
     **params: Any,
 ) -> ShapeGraph:
     """Build the shape graph of ``shape`` with a weighting plugin (by name) and its parameters.
 
-    ``connectivity``: ``"mesh"`` (mesh edges), ``"knn"`` (``n_neighbors``), ``"epsilon"``
+    ``connectivity``: ``"mesh"`` (mesh edges), ``"knn"`` (``n_neighbors``, default 10), ``"epsilon"``
     (``radius``, in the shape's length units) or ``"auto"`` (mesh edges for meshes, kNN otherwise).
+
+    Weightings that build their own connectivity instead of weighing the graph's edges
+    (``uses_edges = False``, the default of those with ``needs_faces``): ``cotangent`` needs the
+    mesh triangles, so any connectivity but ``"auto"``/``"mesh"`` is a :class:`ParameterError`;
+    ``intrinsic-delaunay`` honours ``"knn"`` on a mesh by treating its vertices as a point cloud
+    (local Delaunay triangulations of ``n_neighbors`` neighbours, default the plugin's own
+    ``n_neighbors``) and refuses ``"epsilon"``.
     """
     from shape_toolkit.api.registry import create_plugin
 
+    if connectivity not in ("auto", "mesh", "knn", "epsilon"):
+        raise ParameterError(
+            f"unknown connectivity {connectivity!r}; choose auto, mesh, knn or epsilon"
+        )
+    if n_neighbors is not None and (
+        isinstance(n_neighbors, bool) or not isinstance(n_neighbors, (int, np.integer))
+    ):
+        raise ParameterError(f"n_neighbors must be an integer, got {n_neighbors!r}")
     scheme = create_plugin("weightings", weighting, **params)
+    requested = connectivity
     if connectivity == "auto":
         connectivity = "mesh" if shape.is_mesh else "knn"
-    if getattr(scheme, "needs_faces", False):
+    needs_faces = bool(getattr(scheme, "needs_faces", False))
+    if needs_faces:
         shape.require_faces(f"the {weighting!r} weighting")
+    if not getattr(scheme, "uses_edges", not needs_faces):
+        return _build_own_connectivity(shape, scheme, weighting, requested, connectivity, n_neighbors)
+    if n_neighbors is None:
+        n_neighbors = 10
     if connectivity == "mesh":
         shape.require_faces("connectivity='mesh'")
         edges = shape.edges
@@ -135,13 +201,38 @@ def build_graph(
         if radius is None:
             raise ParameterError("connectivity='epsilon' needs a radius")
         edges = epsilon_edges(shape.vertices, radius)
-    else:
-        raise ParameterError(
-            f"unknown connectivity {connectivity!r}; choose auto, mesh, knn or epsilon"
-        )
-    if len(edges) == 0 and not getattr(scheme, "needs_faces", False):
+    if len(edges) == 0:
         raise InvalidShapeError(f"{shape!r} has no edges to weigh")
-    result = scheme.weigh(shape, edges)
+    return _finish(shape, scheme, weighting, scheme.weigh(shape, edges), connectivity)
+
+
+def _build_own_connectivity(
+    shape: Shape, scheme: Any, weighting: str, requested: str, connectivity: str, n_neighbors: int | None
+) -> ShapeGraph:
+    """Weightings that make their own edges (cotangent, intrinsic Delaunay): honour or refuse the
+    requested connectivity, never ignore it."""
+    if requested == "epsilon" or (requested == "knn" and getattr(scheme, "needs_faces", False)):
+        alternatives = (
+            "use connectivity='auto' or 'mesh', or a weighting of graph edges (gaussian, binary)"
+            + ("" if requested == "epsilon" else ", or 'intrinsic-delaunay' for a kNN point-cloud Laplacian")
+        )
+        raise ParameterError(
+            f"the {weighting!r} weighting builds its own edges from "
+            + ("the mesh triangles" if getattr(scheme, "needs_faces", False) else "Delaunay triangulations")
+            + f" and cannot use connectivity={requested!r}: {alternatives}"
+        )
+    if requested == "mesh":
+        shape.require_faces("connectivity='mesh'")
+    target = shape
+    if connectivity == "knn":
+        if shape.is_mesh:
+            target = Shape(shape.vertices)
+        if n_neighbors is not None and "n_neighbors" in scheme.get_params():
+            scheme.set_params(n_neighbors=int(n_neighbors))
+    return _finish(shape, scheme, weighting, scheme.weigh(target, np.zeros((0, 2), np.int64)), connectivity)
+
+
+def _finish(shape: Shape, scheme: Any, weighting: str, result: Any, connectivity: str) -> ShapeGraph:
     W = sp.csr_matrix(result.W, dtype=np.float64)
     if W.shape != (shape.n_vertices, shape.n_vertices):
         raise InvalidShapeError(f"weighting {weighting!r} returned a matrix of shape {W.shape}")
@@ -155,5 +246,5 @@ def build_graph(
         mass = np.asarray(mass, dtype=np.float64).ravel()
         if mass.shape != (shape.n_vertices,) or not np.isfinite(mass).all():
             raise InvalidShapeError(f"weighting {weighting!r} returned an invalid mass vector")
-    info = {"connectivity": connectivity, **result.info}
+    info = {"connectivity": connectivity, **(result.info or {})}
     return ShapeGraph(shape, W, mass, weighting, scheme.get_params(), info)

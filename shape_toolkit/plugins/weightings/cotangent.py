@@ -20,6 +20,8 @@ class CotangentWeighting(Weighting):
     """
 
     needs_faces = True
+    #: builds its edges from the triangles: the graph's connectivity must be the mesh's
+    uses_edges = False
 
     def __init__(self, clamp_negative: bool = False):
         self.clamp_negative = clamp_negative

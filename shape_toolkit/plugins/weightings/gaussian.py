@@ -1,8 +1,25 @@
-"""Gaussian weights ``w_ij = exp(-||v_i - v_j||^2 / (2 sigma^2))`` (thesis eq. 3.7)."""
+"""Gaussian weights ``w_ij = exp(-||v_i - v_j||^2 / (2 sigma^2))`` (thesis eq. 3.7).
+
+Default bandwidth: *local scaling* (Zelnik-Manor and Perona, "Self-tuning spectral clustering",
+NIPS 2004): each vertex gets its own scale ``sigma_i``, the length of its longest graph edge (the
+distance to its farthest graph neighbour, their ``K``-th neighbour with ``K`` the neighbourhood),
+and edge ``ij`` uses ``sigma_ij = s * sqrt(sigma_i sigma_j)`` (``s = bandwidth_scale``). Because
+``||v_i - v_j|| <= min(sigma_i, sigma_j) <= sqrt(sigma_i sigma_j)``, every existing edge keeps
+
+    exp(-1 / (2 s^2)) <= w_ij <= 1          (exp(-1/2) ~ 0.61 for s = 1),
+
+which is the regime the thesis assumes for Gaussian shape graphs (sec. 5.3: ``0 < w_min <= w_ij <=
+w_max <= 1`` for close neighbours): no weight can underflow, whatever the spread of edge lengths of
+the triangulation, and the weights are invariant to a global scaling of the shape. A single global
+bandwidth (the former default, the mean edge length) cannot promise this: on an irregular
+remeshing the long edges of sparsely sampled regions weigh ~1e-11 and the graph falls apart
+numerically (Laplacian eigenvalues that are zero to solver precision).
+"""
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse.csgraph import connected_components
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Weighting, Weights
@@ -10,32 +27,118 @@ from shape_toolkit.core.graph import weights_from_edges
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 
+#: a weight below this fraction of the largest weight is zero to solver precision (the relative
+#: resolution of the eigensolver, ``shape_toolkit.core.eigen``: shift ``-1e-8 * scale``, tol 1e-8)
+NEGLIGIBLE_WEIGHT = 1e-8
+
+_MODES = ("local", "mean")
+
 
 class GaussianWeighting(Weighting):
-    """Heat-kernel weights on graph edges.
+    """Heat-kernel weights on graph edges (eq. 3.7).
 
-    ``bandwidth`` is ``sigma`` in the shape's length units. When None it defaults to
-    ``bandwidth_scale`` times the mean length of the graph's edges, which makes the weights
-    invariant to a global scaling of the shape and keeps a typical edge at ``exp(-1/2)``.
+    ``bandwidth``: ``"local"`` (default, also ``None``) for the self-tuning local bandwidths
+    ``sigma_ij = bandwidth_scale * sqrt(sigma_i sigma_j)`` described in the module docstring (every
+    weight in ``[exp(-1/(2 bandwidth_scale^2)), 1]``); ``"mean"`` for one global ``sigma =
+    bandwidth_scale * mean edge length`` (the thesis-era default; long edges of irregular meshes may
+    underflow); or a positive number, a global ``sigma`` in the shape's length units.
+
+    A global bandwidth that leaves some edges with weights below ``1e-8`` of the largest and thereby
+    cuts the graph into more pieces than it structurally has (a numerically disconnected graph,
+    whose spectrum would have spurious zero eigenvalues) is refused with a
+    :class:`~shape_toolkit.errors.ParameterError` giving the smallest safe bandwidth.
     """
 
-    def __init__(self, bandwidth: float | None = None, bandwidth_scale: float = 1.0):
+    def __init__(self, bandwidth: float | str | None = None, bandwidth_scale: float = 1.0):
         self.bandwidth = bandwidth
         self.bandwidth_scale = bandwidth_scale
 
     def weigh(self, shape: Shape, edges: np.ndarray) -> Weights:
         """Gaussian weights on the ``(e, 2)`` edges."""
-        d2 = np.sum((shape.vertices[edges[:, 0]] - shape.vertices[edges[:, 1]]) ** 2, axis=1)
-        if self.bandwidth is not None:
-            sigma = float(self.bandwidth)
+        n = shape.n_vertices
+        edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+        length = np.linalg.norm(shape.vertices[edges[:, 0]] - shape.vertices[edges[:, 1]], axis=1)
+        bw = "local" if self.bandwidth is None else self.bandwidth
+        if isinstance(bw, str):
+            if bw not in _MODES:
+                raise ParameterError(
+                    f"bandwidth must be a positive number, 'local' or 'mean', got {bw!r}"
+                )
+            s = self.bandwidth_scale
+            if isinstance(s, bool) or not isinstance(s, (int, float, np.number)) or not (0 < s < np.inf):
+                raise ParameterError(f"bandwidth_scale must be a positive finite number, got {s!r}")
         else:
-            if not self.bandwidth_scale > 0:
-                raise ParameterError(f"bandwidth_scale must be > 0, got {self.bandwidth_scale}")
-            sigma = self.bandwidth_scale * float(np.sqrt(d2).mean())
-        if not sigma > 0 or not np.isfinite(sigma):
-            raise ParameterError(f"Gaussian bandwidth must be positive and finite, got {sigma}")
-        w = np.exp(-d2 / (2.0 * sigma**2))
-        return Weights(weights_from_edges(shape.n_vertices, edges, w), info={"bandwidth": sigma})
+            if isinstance(bw, bool) or not isinstance(bw, (int, float, np.number)) or not (0 < bw < np.inf):
+                raise ParameterError(
+                    f"Gaussian bandwidth must be a positive finite number (in the shape's length units), "
+                    f"'local' or 'mean', got {bw!r}"
+                )
+        if len(edges) == 0:
+            return Weights(weights_from_edges(n, edges, np.zeros(0)), info={"bandwidth": bw})
+
+        info: dict = {}
+        if bw == "local":
+            sigma_v = np.zeros(n)
+            np.maximum.at(sigma_v, edges[:, 0], length)
+            np.maximum.at(sigma_v, edges[:, 1], length)
+            sigma = float(self.bandwidth_scale) * np.sqrt(sigma_v[edges[:, 0]] * sigma_v[edges[:, 1]])
+            info.update(bandwidth="local", bandwidth_median=float(np.median(sigma)),
+                        bandwidth_range=[float(sigma.min()), float(sigma.max())],
+                        weight_lower_bound=float(np.exp(-0.5 / float(self.bandwidth_scale) ** 2)))
+        else:
+            sigma = float(self.bandwidth_scale) * float(length.mean()) if bw == "mean" else float(bw)
+            info["bandwidth"] = sigma
+        with np.errstate(under="ignore", over="ignore", invalid="ignore", divide="ignore"):
+            # an edge between coincident vertices weighs 1 (and may have sigma_ij = 0 when local)
+            w = np.where(length > 0, np.exp(-0.5 * (length / sigma) ** 2), 1.0)
+        self._check_not_vanishing(n, edges, length, w, bw == "local", sigma)
+        info["min_weight"] = float(w.min())
+        return Weights(weights_from_edges(n, edges, w), info=info)
+
+    @staticmethod
+    def _check_not_vanishing(
+        n: int, edges: np.ndarray, length: np.ndarray, w: np.ndarray, local: bool, sigma: np.ndarray | float
+    ) -> None:
+        """Refuse a global bandwidth whose negligible weights cut the graph apart."""
+        wmax = float(w.max())
+        keep = w > NEGLIGIBLE_WEIGHT * wmax if wmax > 0 else np.zeros(len(w), bool)
+        if keep.all():
+            return
+        import scipy.sparse as sp
+
+        def count(mask: np.ndarray) -> int:
+            e = edges[mask]
+            A = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+            return int(connected_components(A, directed=False)[0])
+
+        structural, numerical = count(np.ones(len(w), bool)), count(keep)
+        if numerical == structural:
+            return
+        # the bandwidth keeping every weight above NEGLIGIBLE_WEIGHT: exp(-l^2 / 2 sigma^2) >= eps
+        factor = np.sqrt(2.0 * np.log(1.0 / NEGLIGIBLE_WEIGHT))
+        if local:
+            raise ParameterError(
+                f"bandwidth_scale is too small: {int(np.sum(~keep))} of {len(w)} local Gaussian weights vanish "
+                f"(below {NEGLIGIBLE_WEIGHT:g} of the largest), leaving a numerically disconnected graph "
+                f"({numerical} pieces instead of {structural}). Use bandwidth_scale >= {_round_up(1.0 / factor):.3g} "
+                "(1, the default, keeps every weight >= exp(-1/2))"
+            )
+        safe = _round_up(float(length.max()) / factor)
+        raise ParameterError(
+            f"Gaussian bandwidth {sigma:.4g} is too small for this shape's edges (lengths "
+            f"{length.min():.3g} to {length.max():.3g}): {int(np.sum(~keep))} of {len(w)} weights vanish "
+            f"(below {NEGLIGIBLE_WEIGHT:g} of the largest), leaving a numerically disconnected graph "
+            f"({numerical} pieces instead of {structural}) whose spectrum has spurious zero eigenvalues. "
+            f"Use bandwidth >= {safe:.3g}, or leave bandwidth unset for the scale-free local bandwidths"
+        )
+
+
+def _round_up(x: float, digits: int = 3) -> float:
+    """``x`` rounded up to ``digits`` significant digits (a printed lower bound that still holds)."""
+    if not x > 0 or not np.isfinite(x):
+        return x
+    q = 10.0 ** (np.floor(np.log10(x)) - digits + 1)
+    return float(np.ceil(x / q * (1 - 1e-12)) * q)
 
 
 @hookimpl

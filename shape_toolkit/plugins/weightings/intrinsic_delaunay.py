@@ -21,6 +21,10 @@ class IntrinsicDelaunayWeighting(Weighting):
     is used for point clouds only. The graph's edges are ignored: the scheme builds its own.
     """
 
+    #: builds its own edges (intrinsic or local Delaunay triangulations); build_graph honours
+    #: connectivity='knn' on a mesh by treating its vertices as a point cloud
+    uses_edges = False
+
     def __init__(self, mollify_factor: float = 1e-5, n_neighbors: int = 30):
         self.mollify_factor = mollify_factor
         self.n_neighbors = n_neighbors
