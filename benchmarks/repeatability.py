@@ -25,8 +25,8 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from shape_toolkit.api.registry import create_plugin  # noqa: E402
+from shape_toolkit.core.spectrum import shape_spectrum  # noqa: E402
 from shape_toolkit.data.datasets import read_vts  # noqa: E402
-from shape_toolkit.features.heat import shape_spectrum  # noqa: E402
 from shape_toolkit.io.mesh import load_shape  # noqa: E402
 from shape_toolkit.metrics.keypoints import ground_truth_map, repeatability_report  # noqa: E402
 
@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         shapes[name] = shape
         vts[name] = read_vts(root / "corres" / f"{name}.vts", shape.n_vertices)
         tic = time.perf_counter()
-        spec = shape_spectrum(shape, 51)  # K = 50 non-null covers both ADF presets
+        spec = shape_spectrum(shape, 51, kind="graph")  # K = 50 non-null covers both ADF presets
         t_spec = time.perf_counter() - tic
         harris = create_plugin("keypoints", "harris3d", preset="sparse")
         tic = time.perf_counter()

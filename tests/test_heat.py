@@ -8,11 +8,12 @@ import pytest
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from shape_toolkit.features import heat
 from shape_toolkit.core.graph import ShapeGraph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, compute_spectrum
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.features import heat, scales
+from shape_toolkit.metrics.descriptors import descriptor_matching_score
 
 
 # -- tiny graphs with complete spectra ----------------------------------------------------------
@@ -255,10 +256,10 @@ def test_scree_alpha_exact_and_monotone():
     for K in (1, 5, 20):
         for t in (0.1, 1.0, 10.0):
             w = np.exp(-t * lam)
-            assert heat.scree_alpha(S, K, t) == pytest.approx(w[:K].sum() / w.sum(), rel=1e-12)
-    a = [heat.scree_alpha(S, 5, t) for t in np.geomspace(0.01, 100, 30)]
+            assert scales.scree_alpha(S, K, t) == pytest.approx(w[:K].sum() / w.sum(), rel=1e-12)
+    a = [scales.scree_alpha(S, 5, t) for t in np.geomspace(0.01, 100, 30)]
     assert np.all(np.diff(a) >= -1e-15)
-    assert heat.scree_alpha(S.eigenvalues, 5, 1.0) == pytest.approx(heat.scree_alpha(S, 5, 1.0))
+    assert scales.scree_alpha(S.eigenvalues, 5, 1.0) == pytest.approx(scales.scree_alpha(S, 5, 1.0))
 
 
 def test_truncated_scree_is_a_lower_bound():
@@ -267,48 +268,48 @@ def test_truncated_scree_is_a_lower_bound():
     T = S.truncated(12)
     for t in (0.5, 2.0, 8.0):
         for K in (2, 6, 11):
-            assert heat.scree_alpha(T, K, t, n=40) <= heat.scree_alpha(S, K, t) + 1e-12
-    assert heat.scree_alpha(T, 11, 3.0) == heat.scree_alpha(T, 11, 3.0, n=40)
+            assert scales.scree_alpha(T, K, t, n=40) <= scales.scree_alpha(S, K, t) + 1e-12
+    assert scales.scree_alpha(T, 11, 3.0) == scales.scree_alpha(T, 11, 3.0, n=40)
 
 
 def test_min_time_and_dimension_selection():
     S = _full_spectrum(_random_graph(30, seed=11))
-    t = heat.min_time_for_dimension(S, 4, 0.95)
-    assert heat.scree_alpha(S, 4, t) >= 0.95 - 1e-9
-    assert heat.scree_alpha(S, 4, 0.99 * t) < 0.95
-    K = heat.dimension_for_time(S, t, 0.95)
-    assert K <= 4 and heat.scree_alpha(S, K, t) >= 0.95 - 1e-9
+    t = scales.min_time_for_dimension(S, 4, 0.95)
+    assert scales.scree_alpha(S, 4, t) >= 0.95 - 1e-9
+    assert scales.scree_alpha(S, 4, 0.99 * t) < 0.95
+    K = scales.dimension_for_time(S, t, 0.95)
+    assert K <= 4 and scales.scree_alpha(S, K, t) >= 0.95 - 1e-9
     if K > 1:
-        assert heat.scree_alpha(S, K - 1, t) < 0.95
-    K2 = heat.dimension_for_time(S, 0.5 * t)
+        assert scales.scree_alpha(S, K - 1, t) < 0.95
+    K2 = scales.dimension_for_time(S, 0.5 * t)
     assert K2 >= K
     # rule of 7.3.1: K on the first shape, t from it, K' on the second
     S2 = _full_spectrum(_random_graph(30, seed=12))
-    tp, Kp = heat.pair_scale(S, S2, K=4)
+    tp, Kp = scales.pair_scale(S, S2, K=4)
     assert tp == pytest.approx(t)
-    assert Kp == heat.dimension_for_time(S2, t)
+    assert Kp == scales.dimension_for_time(S2, t)
 
 
 def test_fiedler_multiplicity_bounds_the_dimension():
     # on a cycle lambda_2 has multiplicity 2: alpha(1, t) -> 1/2, alpha(2, t) -> 1 (eq. 6.45)
     S = _full_spectrum(_cycle(12))
-    assert heat.scree_alpha(S, 1, 200.0) == pytest.approx(0.5, abs=1e-8)
-    assert heat.scree_alpha(S, 2, 200.0) == pytest.approx(1.0, abs=1e-8)
+    assert scales.scree_alpha(S, 1, 200.0) == pytest.approx(0.5, abs=1e-8)
+    assert scales.scree_alpha(S, 2, 200.0) == pytest.approx(1.0, abs=1e-8)
     with pytest.raises(ParameterError):
-        heat.min_time_for_dimension(S, 1, 0.95)
-    assert heat.dimension_for_time(S, 200.0) == 2
-    assert heat.dimension_for_time(_full_spectrum(_path(10)), 200.0) == 1
+        scales.min_time_for_dimension(S, 1, 0.95)
+    assert scales.dimension_for_time(S, 200.0) == 2
+    assert scales.dimension_for_time(_full_spectrum(_path(10)), 200.0) == 1
 
 
 def test_default_and_multiscale_times():
     S = _full_spectrum(_random_graph(20, seed=13))
-    t = heat.default_times(S, 8)
+    t = scales.default_times(S, 8)
     assert t.shape == (8,) and np.all(np.diff(np.log(t)) > 0)
     np.testing.assert_allclose(np.diff(np.log(t)), np.diff(np.log(t))[0])
     lam = S.eigenvalues[1:]
     assert t[0] == pytest.approx(4 * np.log(10) / lam[-1]) and t[-1] == pytest.approx(4 * np.log(10) / lam[0])
-    mt = heat.multiscale_times(S, 5, 6)
-    assert mt[0] == pytest.approx(heat.min_time_for_dimension(S, 6))
+    mt = scales.multiscale_times(S, 5, 6)
+    assert mt[0] == pytest.approx(scales.min_time_for_dimension(S, 6))
     np.testing.assert_allclose(mt[1:] / mt[:-1], 2.0)
 
 
@@ -319,22 +320,22 @@ def test_descriptor_matching_score():
     b = a + 0.0
     b[2, 1, 3] += 0.5
     b[2, 0, 0] -= 0.25
-    s = heat.descriptor_matching_score(a, b)
+    s = descriptor_matching_score(a, b)
     expect = np.abs(a - b).max(axis=2).sum(axis=1)
     np.testing.assert_allclose(s, expect)
     assert s[2] == pytest.approx(0.75) and s[0] == 0
-    flat = heat.descriptor_matching_score(a.reshape(6, 12), b.reshape(6, 12), [2, 0], [2, 0], n_times=4)
+    flat = descriptor_matching_score(a.reshape(6, 12), b.reshape(6, 12), [2, 0], [2, 0], n_times=4)
     np.testing.assert_allclose(flat, [0.75, 0.0])
-    lst = heat.descriptor_matching_score([a[:, m] for m in range(3)], [b[:, m] for m in range(3)])
+    lst = descriptor_matching_score([a[:, m] for m in range(3)], [b[:, m] for m in range(3)])
     np.testing.assert_allclose(lst, s)
-    P = heat.descriptor_matching_score(a, b, [0, 1, 2], [0, 1, 2, 3], pairwise=True)
+    P = descriptor_matching_score(a, b, [0, 1, 2], [0, 1, 2, 3], pairwise=True)
     assert P.shape == (3, 4)
     np.testing.assert_allclose(P[2, 2], 0.75)
     np.testing.assert_allclose(P[1, 3], np.abs(a[1] - b[3]).max(axis=1).sum())
     with pytest.raises(ParameterError):
-        heat.descriptor_matching_score(a.reshape(6, 12), b.reshape(6, 12))  # n_times missing
+        descriptor_matching_score(a.reshape(6, 12), b.reshape(6, 12))  # n_times missing
     with pytest.raises(ParameterError):
-        heat.descriptor_matching_score(a, b[:, :2])
+        descriptor_matching_score(a, b[:, :2])
 
 
 # -- errors -------------------------------------------------------------------------------------
@@ -362,11 +363,11 @@ def test_error_cases():
     with pytest.raises(ParameterError):
         heat.heat_distance(S, 1.0, [0], normalization="bogus")
     with pytest.raises(ParameterError):
-        heat.scree_alpha(S, 20, 1.0)
+        scales.scree_alpha(S, 20, 1.0)
     with pytest.raises(ParameterError):
-        heat.min_time_for_dimension(S, 3, 1.5)
+        scales.min_time_for_dimension(S, 3, 1.5)
     with pytest.raises(ParameterError):
-        heat.dimension_for_time(S.truncated(3), 1e-6, n=14)  # spectrum too short
+        scales.dimension_for_time(S.truncated(3), 1e-6, n=14)  # spectrum too short
 
 
 def test_dense_refusal_on_large_shapes():
@@ -380,7 +381,7 @@ def test_dense_refusal_on_large_shapes():
 def test_pair_times_share_scales():
     S1 = _full_spectrum(_random_graph(30, seed=14))
     S2 = _full_spectrum(_random_graph(30, seed=15))
-    times, K1, K2 = heat.pair_times(S1, S2, K=5, n_times=4)
-    np.testing.assert_allclose(times, heat.multiscale_times(S1, 4, 5))
-    assert K1 == 5 and K2 == heat.dimension_for_time(S2, times[0])
-    assert heat.scree_alpha(S2, K2, times[0]) >= 0.95 - 1e-9
+    times, K1, K2 = scales.pair_times(S1, S2, K=5, n_times=4)
+    np.testing.assert_allclose(times, scales.multiscale_times(S1, 4, 5))
+    assert K1 == 5 and K2 == scales.dimension_for_time(S2, times[0])
+    assert scales.scree_alpha(S2, K2, times[0]) >= 0.95 - 1e-9

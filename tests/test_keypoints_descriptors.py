@@ -8,7 +8,6 @@ import json
 import numpy as np
 import pytest
 
-from shape_toolkit.features import heat
 from shape_toolkit.api.registry import available_plugins, create_plugin, get_plugin
 from shape_toolkit.cli import main as cli_main
 from shape_toolkit.core.eigen import smallest_eigenpairs
@@ -16,9 +15,11 @@ from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, laplacian_matrix
 from shape_toolkit.data.generate import icosphere
-from shape_toolkit.errors import InvalidShapeError, ParameterError, PluginError
+from shape_toolkit.errors import InvalidShapeError, ParameterError, PluginError, SpectrumMismatchError
+from shape_toolkit.features import heat, scales
 from shape_toolkit.features.geodesics import k_ring
 from shape_toolkit.io.mesh import save_shape
+from shape_toolkit.metrics.descriptors import descriptor_matching_score
 from shape_toolkit.metrics.keypoints import (
     ground_truth_map,
     keypoint_coverage,
@@ -113,7 +114,7 @@ def test_adf_maxima_deterministic_and_invariant(bump):
     perm, inv = permuted(shape)
     np.testing.assert_array_equal(det.detect(perm, spectrum=gaussian_spectrum(perm, 11)), inv[kp])
     # eigenvector signs do not matter
-    flipped = Spectrum(spec.eigenvalues, -spec.eigenvectors, spec.laplacian, "g", None, spec.degrees)
+    flipped = Spectrum(spec.eigenvalues, -spec.eigenvectors, spec.laplacian, spec.weighting, None, spec.degrees)
     np.testing.assert_array_equal(det.detect(shape, spectrum=flipped), kp)
 
 
@@ -126,7 +127,7 @@ def test_adf_maxima_default_spectrum_small_shape():
 
 def test_adf_maxima_errors(bump):
     shape, _, spec = bump
-    with pytest.raises(ParameterError, match="K must be"):
+    with pytest.raises(SpectrumMismatchError, match="31 eigenpairs, fewer than 32"):
         create_plugin("keypoints", "adf-maxima", K=31).detect(shape, spectrum=spec)  # 30 non-null
     for bad in (0.0, -5.0, float("nan")):
         with pytest.raises(ParameterError, match="positive"):
@@ -188,31 +189,31 @@ def test_harris3d_errors(bump):
 # -- descriptors ------------------------------------------------------------------------------
 def test_hks_plugin(bump):
     shape, _, spec = bump
-    d = create_plugin("descriptors", "hks", n_times=8).compute(shape, spectrum=spec)
-    np.testing.assert_allclose(d, heat.heat_kernel_signature(spec, heat.default_times(spec, 8)))
+    d = create_plugin("descriptors", "hks", n_times=8, K=30).compute(shape, spectrum=spec)
+    np.testing.assert_allclose(d, heat.heat_kernel_signature(spec, scales.default_times(spec, 8)))
     assert d.shape == (shape.n_vertices, 8)
     moved = rigid(shape)
-    d2 = create_plugin("descriptors", "hks", n_times=8).compute(moved, spectrum=gaussian_spectrum(moved, 31))
+    d2 = create_plugin("descriptors", "hks", n_times=8, K=30).compute(moved, spectrum=gaussian_spectrum(moved, 31))
     np.testing.assert_allclose(d2, d, rtol=1e-6, atol=1e-12)
     perm, inv = permuted(shape)
-    d3 = create_plugin("descriptors", "hks", n_times=8).compute(perm, spectrum=gaussian_spectrum(perm, 31))
+    d3 = create_plugin("descriptors", "hks", n_times=8, K=30).compute(perm, spectrum=gaussian_spectrum(perm, 31))
     np.testing.assert_allclose(d3[inv], d, rtol=1e-6, atol=1e-12)
-    lg = create_plugin("descriptors", "hks", times=[1.0, 10.0], log=True, scale="trace").compute(
+    lg = create_plugin("descriptors", "hks", K=30, times=[1.0, 10.0], log=True, scale="trace").compute(
         shape, spectrum=spec
     )
     assert lg.shape == (shape.n_vertices, 2) and np.all(np.isfinite(lg))
     with pytest.raises(ParameterError):
-        create_plugin("descriptors", "hks", times=[1.0, -1.0]).compute(shape, spectrum=spec)
-    with pytest.raises(ParameterError, match="K must be"):
+        create_plugin("descriptors", "hks", K=30, times=[1.0, -1.0]).compute(shape, spectrum=spec)
+    with pytest.raises(SpectrumMismatchError, match="fewer than 101"):  # too short: never recomputed
         create_plugin("descriptors", "hks", K=100).compute(shape, spectrum=spec)
 
 
 def test_wks_plugin(bump):
     shape, _, spec = bump
-    d = create_plugin("descriptors", "wks", n_energies=20).compute(shape, spectrum=spec)
+    d = create_plugin("descriptors", "wks", n_energies=20, K=30).compute(shape, spectrum=spec)
     assert d.shape == (shape.n_vertices, 20) and np.all(d >= 0)
-    flipped = Spectrum(spec.eigenvalues, spec.eigenvectors * -1, spec.laplacian, "g", None, spec.degrees)
-    np.testing.assert_allclose(create_plugin("descriptors", "wks", n_energies=20).compute(
+    flipped = Spectrum(spec.eigenvalues, spec.eigenvectors * -1, spec.laplacian, spec.weighting, None, spec.degrees)
+    np.testing.assert_allclose(create_plugin("descriptors", "wks", n_energies=20, K=30).compute(
         shape, spectrum=flipped), d)
     # each energy band is a weighted mean of u_k^2, whose vertex sum is 1
     np.testing.assert_allclose(d.sum(axis=0), 1.0, rtol=1e-10)
@@ -221,19 +222,19 @@ def test_wks_plugin(bump):
 def test_heat_diffusion_descriptor(bump):
     shape, tips, spec = bump
     times = [2.0, 8.0, 32.0]
-    d = create_plugin("descriptors", "heat-diffusion", times=times, K=20).compute(
+    d = create_plugin("descriptors", "heat-diffusion", times=times, K=15).compute(
         shape, spectrum=spec, keypoints=tips
     )
     M, tau = len(tips), len(times)
     assert d.shape == (shape.n_vertices, (M + 1) * tau)
     cube = d.reshape(shape.n_vertices, M + 1, tau)
-    H = heat.heat_kernel(spec, times, cols=tips, K=20)  # (tau, n, M)
+    H = heat.heat_kernel(spec, times, cols=tips, K=15)  # (tau, n, M)
     np.testing.assert_allclose(cube[:, :M, :], H.transpose(1, 2, 0))
-    np.testing.assert_allclose(cube[:, M, :], heat.heat_kernel_signature(spec, times, K=20))
+    np.testing.assert_allclose(cube[:, M, :], heat.heat_kernel_signature(spec, times, K=15))
     with pytest.raises(ParameterError, match="keypoints"):
-        create_plugin("descriptors", "heat-diffusion").compute(shape, spectrum=spec)
+        create_plugin("descriptors", "heat-diffusion", K=15).compute(shape, spectrum=spec)
     with pytest.raises(ParameterError):
-        create_plugin("descriptors", "heat-diffusion", K=20).compute(
+        create_plugin("descriptors", "heat-diffusion", K=15).compute(
             shape, spectrum=spec, keypoints=[shape.n_vertices]
         )
 
@@ -241,23 +242,23 @@ def test_heat_diffusion_descriptor(bump):
 def test_heat_distance_descriptor_and_matching_score(bump):
     shape, tips, spec = bump
     times = [2.0, 8.0, 32.0]
-    plug = create_plugin("descriptors", "heat-distance", times=times, K=20)
+    plug = create_plugin("descriptors", "heat-distance", times=times, K=15)
     d = plug.compute(shape, spectrum=spec, keypoints=tips)
     M, tau = len(tips), len(times)
     assert d.shape == (shape.n_vertices, M * tau)
     cube = d.reshape(shape.n_vertices, M, tau)
     for ti, t in enumerate(times):
         np.testing.assert_allclose(
-            cube[:, :, ti], heat.heat_distance(spec, t, tips, normalization="unit-sphere", K=20).T
+            cube[:, :, ti], heat.heat_distance(spec, t, tips, normalization="unit-sphere", K=15).T
         )
     np.testing.assert_allclose(cube[tips, np.arange(M), :], 0.0, atol=1e-6)
     # the same shape with another vertex order: eq. 6.66 scores find the right vertex
     perm, inv = permuted(shape)
     d2 = plug.compute(perm, spectrum=gaussian_spectrum(perm, 31), keypoints=inv[tips])
     q = np.arange(0, shape.n_vertices, 7)
-    own = heat.descriptor_matching_score(d, d2, q, inv[q], n_times=tau)
+    own = descriptor_matching_score(d, d2, q, inv[q], n_times=tau)
     assert np.all(own < 1e-4)
-    P = heat.descriptor_matching_score(d, d2, q, None, n_times=tau, pairwise=True)
+    P = descriptor_matching_score(d, d2, q, None, n_times=tau, pairwise=True)
     assert np.mean(np.argmin(P, axis=1) == inv[q]) > 0.95
     with pytest.raises(ParameterError, match="keypoints"):
         plug.compute(shape, spectrum=spec)
@@ -359,3 +360,67 @@ def test_ground_truth_map_fills_unlisted_vertices(bump):
 def test_unknown_family_member():
     with pytest.raises(PluginError):
         create_plugin("descriptors", "shot")
+
+
+# -- issue 10: declared spectra, sklearn contract -------------------------------------------------
+SPECTRAL = [
+    ("keypoints", "adf-maxima", {"t": 10.0, "K": 10}),
+    ("descriptors", "hks", {"n_times": 4, "K": 20}),
+    ("descriptors", "wks", {"n_energies": 8, "K": 20}),
+    ("descriptors", "heat-diffusion", {"K": 8, "n_times": 3}),
+    ("descriptors", "heat-distance", {"K": 8, "n_times": 3}),
+]
+
+
+def _run(plugin, shape, spectrum=None, tips=None):
+    if plugin.family == "keypoints":
+        return plugin.detect(shape, spectrum=spectrum)
+    return plugin.compute(shape, spectrum=spectrum, keypoints=tips)
+
+
+@pytest.mark.parametrize("family, name, params", SPECTRAL)
+def test_plugins_declare_and_check_their_spectrum(family, name, params):
+    from sklearn.base import clone
+
+    from shape_toolkit.core.spectrum import default_spec
+
+    shape, tips = bumpy(2)
+    plug = create_plugin(family, name, **params)
+    assert "random_state" not in plug.get_params()  # deterministic
+    spec = plug.spectrum_spec()
+    assert (spec.weighting, spec.laplacian, spec.use_mass) == ("gaussian", "combinatorial", False)
+    out = _run(plug, shape, None, tips)
+    np.testing.assert_allclose(_run(plug, shape, spec.compute(shape), tips), out)
+    np.testing.assert_allclose(_run(clone(plug), shape, None, tips), out)
+    # a longer spectrum of the same kind gives the same output (the plugin uses what it declared)
+    longer = default_spec(spec.k + 10, "graph").compute(shape)
+    np.testing.assert_allclose(_run(plug, shape, longer, tips), out, rtol=1e-6, atol=1e-7)
+    with pytest.raises(SpectrumMismatchError, match="fewer than"):
+        _run(plug, shape, longer.truncated(spec.k - 1), tips)
+    with pytest.raises(SpectrumMismatchError, match="Laplacian"):
+        _run(plug, shape, default_spec(spec.k, "graph", laplacian="normalized").compute(shape), tips)
+
+
+def test_harris3d_declares_no_spectrum_and_clones():
+    from sklearn.base import clone
+
+    shape, _ = bumpy(2)
+    h = create_plugin("keypoints", "harris3d", preset="sparse")
+    assert h.spectrum_spec() is None and "random_state" not in h.get_params()
+    np.testing.assert_array_equal(clone(h).detect(shape), h.detect(shape))
+
+
+@pytest.mark.parametrize("name", ["heat-diffusion", "heat-distance"])
+def test_descriptor_times_are_the_times_compute_uses(name):
+    shape, tips = bumpy(2)
+    plug = create_plugin("descriptors", name, K=8, n_times=3)
+    times = plug.descriptor_times(shape)
+    fixed = create_plugin("descriptors", name, K=8, times=times.tolist())
+    np.testing.assert_allclose(fixed.compute(shape, keypoints=tips), plug.compute(shape, keypoints=tips))
+    # the deprecated helper kept for pipeline.paired_descriptors agrees
+    _, K, t, kp = heat.keypoint_descriptor_inputs(
+        shape, None, tips, K=8, times=None, n_times=3, alpha=0.95, time_ratio=2.0, weighting="gaussian",
+        laplacian="combinatorial", who=name,
+    )
+    np.testing.assert_allclose(t, times)
+    assert K == 8 and kp.tolist() == tips

@@ -211,15 +211,54 @@ def test_spectral_clustering_is_deterministic(body):
     assert np.array_equal(a, b)
 
 
-def test_vertex_permutation_invariance(body):
+@pytest.mark.parametrize("name, params", [(m, {"n_segments": 6}) for m in METHODS] + [("eigvec-gmm", {})])
+def test_vertex_permutation_invariance(body, body_constraints, name, params):
+    """A permuted mesh gets the permuted labels, up to label names (issue 11: eigvec-gmm subsampled
+    and initialised its fits by vertex index; adjusted Rand was 0.70)."""
+    from sklearn.metrics import adjusted_rand_score
+
     shape = body.shape
     perm = np.random.default_rng(0).permutation(shape.n_vertices)  # new vertex i = old perm[i]
     inv = np.argsort(perm)
     permuted = Shape(shape.vertices[perm], inv[shape.faces], "permuted")
-    for name in ("spectral-clustering", "csc"):
-        a = create_plugin("segmenters", name, n_segments=6).segment(shape)
-        b = create_plugin("segmenters", name, n_segments=6).segment(permuted)[inv]
-        assert rand_index_error(a, b) < 0.02, name  # same partition up to relabelling
+    cons = Constraints(inv[body_constraints.must_link], inv[body_constraints.cannot_link])
+    a = create_plugin("segmenters", name, **params).segment(shape, constraints=body_constraints)
+    b = create_plugin("segmenters", name, **params).segment(permuted, constraints=cons)[inv]
+    assert adjusted_rand_score(a, b) > 0.99, name
+
+
+@pytest.mark.parametrize("name", METHODS)
+def test_segmenters_declare_their_spectrum_and_clone(body, body_constraints, name):
+    """Issue 10: the spectrum flows in (checked, never silently recomputed), sklearn's clone keeps the
+    output, random_state follows sklearn's semantics."""
+    from sklearn.base import clone
+
+    from shape_toolkit.core.spectrum import default_spec
+    from shape_toolkit.errors import SpectrumMismatchError
+
+    shape = body.shape
+    seg = create_plugin("segmenters", name, n_segments=6, random_state=3)
+    labels = seg.segment(shape, constraints=body_constraints)
+    np.testing.assert_array_equal(clone(seg).segment(shape, constraints=body_constraints), labels)
+    spec = seg.spectrum_spec()
+    if name == "spectral-learning":  # its eigenproblem is the constraint-modified graph: no shape spectrum
+        assert spec is None
+    else:
+        assert spec.weighting == "gaussian" and spec.use_mass is False
+        given = spec.compute(shape)
+        np.testing.assert_array_equal(seg.segment(shape, spectrum=given, constraints=body_constraints), labels)
+        short = given.truncated(spec.k - 1)
+        with pytest.raises(SpectrumMismatchError, match="fewer than"):
+            seg.segment(shape, spectrum=short, constraints=body_constraints)
+        other = "random-walk" if spec.laplacian != "random-walk" else "combinatorial"
+        wrong = default_spec(spec.k, "graph", laplacian=other).compute(shape)
+        with pytest.raises(SpectrumMismatchError, match="Laplacian"):
+            seg.segment(shape, spectrum=wrong, constraints=body_constraints)
+    gen = create_plugin("segmenters", name, n_segments=6, random_state=np.random.default_rng(0))
+    assert gen.segment(shape, constraints=body_constraints).shape == (shape.n_vertices,)
+    with pytest.raises(ParameterError, match="random_state"):
+        create_plugin("segmenters", name, n_segments=6, random_state="seed").segment(
+            shape, constraints=body_constraints)
 
 
 @pytest.mark.parametrize("name", METHODS)

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.core.spectrum import Spectrum, null_count
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.features.basis import spectral_basis
+from shape_toolkit.validation import check_vertex_ids
 
 __all__ = [
     "laplacian_eigenmap",
@@ -14,18 +16,11 @@ __all__ = [
     "scree_theta",
     "theta_min",
     "choose_dimension",
-    "null_space_size",
 ]
 
 
-def null_space_size(spectrum: Spectrum, rtol: float = 1e-8) -> int:
-    """Number of (numerically) zero eigenvalues at the start of the spectrum."""
-    scale = max(float(np.abs(spectrum.eigenvalues).max()), 1e-300)
-    return int(np.sum(spectrum.eigenvalues <= rtol * scale))
-
-
 def _non_null(spectrum: Spectrum, dim: int | None) -> tuple[np.ndarray, np.ndarray]:
-    skip = max(null_space_size(spectrum), 1)
+    skip = max(null_count(spectrum.eigenvalues), 1)
     avail = spectrum.k - skip
     if dim is None:
         dim = avail
@@ -43,8 +38,13 @@ def laplacian_eigenmap(spectrum: Spectrum, dim: int | None = None) -> np.ndarray
 
 
 def commute_time_embedding(spectrum: Spectrum, dim: int | None = None) -> np.ndarray:
-    """Commute-time embedding ``X = Lambda_K^-1/2 U_K^T`` (eq. 2.92), returned as ``(n, K)`` rows."""
-    vals, vecs = _non_null(spectrum, dim)
+    """Commute-time embedding ``X = Lambda_K^-1/2 U_K^T`` (eq. 2.92; the time-invariant embedding of
+    eq. 6.57), returned as ``(n, K)`` rows: the first ``dim`` non-null eigenpairs (None: all), in the
+    basis of :func:`~shape_toolkit.features.basis.spectral_basis`. The one implementation: the heat
+    module, the descriptors and the segmenters call it."""
+    vals, vecs = spectral_basis(spectrum, dim)
+    if np.any(vals <= 0):
+        raise ParameterError("the commute-time embedding needs positive non-null eigenvalues")
     return vecs / np.sqrt(vals)[None, :]
 
 
@@ -57,11 +57,8 @@ def commute_time_distance(
     """Commute-time distance ``CTD = sqrt(Vol(G)) ||x_i - x_j||`` (eq. 2.90) truncated to ``dim``
     eigenpairs, as an ``(len(sources), len(targets))`` array (all vertices when ``targets`` is None)."""
     X = commute_time_embedding(spectrum, dim)
-    src = np.atleast_1d(np.asarray(sources, dtype=np.int64))
-    tgt = np.arange(len(X)) if targets is None else np.atleast_1d(np.asarray(targets, np.int64))
-    for name, ids in (("sources", src), ("targets", tgt)):
-        if ids.size and (ids.min() < 0 or ids.max() >= len(X)):
-            raise ParameterError(f"{name} must be vertex ids in [0, {len(X) - 1}]")
+    src = check_vertex_ids(sources, len(X), "sources")
+    tgt = np.arange(len(X)) if targets is None else check_vertex_ids(targets, len(X), "targets")
     a, b = X[src], X[tgt]
     d2 = (a**2).sum(1)[:, None] + (b**2).sum(1)[None, :] - 2.0 * a @ b.T
     return np.sqrt(spectrum.volume * np.maximum(d2, 0.0))

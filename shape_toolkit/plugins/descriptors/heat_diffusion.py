@@ -8,21 +8,24 @@ from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.features.heat import heat_kernel, heat_kernel_signature, keypoint_descriptor_inputs
+from shape_toolkit.features.heat import heat_kernel, heat_kernel_signature
+from shape_toolkit.plugins.descriptors._common import KeypointHeatMixin
 
 
-class HeatDiffusionDescriptor(Descriptor):
+class HeatDiffusionDescriptor(KeypointHeatMixin, Descriptor):
     """Heat from each of the ``M`` keypoints ``h(v_i, p_m; t_1..t_tau)`` plus self-diffusion
     ``h(i, i; t_1..t_tau)``: ``tau x (M + 1)`` values per vertex, returned ``(n, (M + 1) * tau)``
     keypoint-major (columns ``m * tau .. (m + 1) * tau - 1`` belong to keypoint ``m``; the last
     ``tau`` columns are the self-diffusion).
 
     ``times`` None: ``n_times`` scales from the scree rule (``alpha(K, t_1) = alpha``,
-    ``t_i = t_1 time_ratio^(i-1)``, section 7.3.1). Spectrum default: ``2K + 1`` eigenpairs of the
-    Gaussian-weighted combinatorial Laplacian, ``K = 25``. Needs ``keypoints``.
-    To compare two shapes, give both the same ``times`` (and each its ``K``) from
-    :func:`shape_toolkit.features.heat.pair_times`: the default times follow each shape's own spectrum.
+    ``t_i = t_1 time_ratio^(i-1)``, section 7.3.1). Declared spectrum (:meth:`spectrum_spec`):
+    ``2K + 1`` eigenpairs of the Gaussian-weighted combinatorial Laplacian, ``K = 25`` when None.
+    Needs ``keypoints``. To compare two shapes, give both the same ``times``: from
+    :meth:`descriptor_times` on one of them, or :func:`shape_toolkit.features.scales.pair_times`.
     """
+
+    _who = "heat-diffusion"
 
     def __init__(
         self,
@@ -46,11 +49,7 @@ class HeatDiffusionDescriptor(Descriptor):
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None
     ) -> np.ndarray:
         """Descriptor ``(n, (M + 1) * tau)`` float64."""
-        spectrum, K, t, kp = keypoint_descriptor_inputs(
-            shape, spectrum, keypoints, K=self.K, times=self.times, n_times=self.n_times,
-            alpha=self.alpha, time_ratio=self.time_ratio, weighting=self.weighting,
-            laplacian=self.laplacian, who="heat-diffusion",
-        )
+        spectrum, K, t, kp = self.inputs(shape, spectrum, keypoints)
         H = heat_kernel(spectrum, t, rows=None, cols=kp, K=K)  # (tau, n, M)
         self_diff = heat_kernel_signature(spectrum, t, K=K)  # (n, tau)
         out = np.concatenate([H.transpose(1, 2, 0), self_diff[:, None, :]], axis=1)

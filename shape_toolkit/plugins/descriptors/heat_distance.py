@@ -8,21 +8,24 @@ from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.features.heat import heat_distances, keypoint_descriptor_inputs
+from shape_toolkit.features.heat import heat_distances
+from shape_toolkit.plugins.descriptors._common import KeypointHeatMixin
 
 
-class HeatDistanceDescriptor(Descriptor):
+class HeatDistanceDescriptor(KeypointHeatMixin, Descriptor):
     """Heat distances ``d_h(v_i, p_m; t_1..t_tau)`` from every vertex to each of the ``M``
     keypoints, ``tau x M`` values per vertex, returned ``(n, M * tau)`` keypoint-major (columns
     ``m * tau .. (m + 1) * tau - 1`` belong to keypoint ``m``), ready for
-    :func:`shape_toolkit.features.heat.descriptor_matching_score` (eq. 6.66) with ``n_times = tau``.
+    :func:`shape_toolkit.metrics.descriptors.descriptor_matching_score` (eq. 6.66) with ``n_times = tau``.
 
     ``normalization`` picks the metric (:data:`shape_toolkit.features.heat.NORMALIZATIONS`); the thesis uses the
-    unit hyper-sphere distance of eq. 6.43 (the default). Times and spectrum defaults as for
+    unit hyper-sphere distance of eq. 6.43 (the default). Times and declared spectrum as for
     ``heat-diffusion`` (scree rule with ``K = 25``, section 7.3.1). Needs ``keypoints``.
-    To compare two shapes, give both the same ``times`` (and each its ``K``) from
-    :func:`shape_toolkit.features.heat.pair_times`: the default times follow each shape's own spectrum.
+    To compare two shapes, give both the same ``times``: from :meth:`descriptor_times` on one of
+    them, or :func:`shape_toolkit.features.scales.pair_times`.
     """
+
+    _who = "heat-distance"
 
     def __init__(
         self,
@@ -48,11 +51,7 @@ class HeatDistanceDescriptor(Descriptor):
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None
     ) -> np.ndarray:
         """Descriptor ``(n, M * tau)`` float64."""
-        spectrum, K, t, kp = keypoint_descriptor_inputs(
-            shape, spectrum, keypoints, K=self.K, times=self.times, n_times=self.n_times,
-            alpha=self.alpha, time_ratio=self.time_ratio, weighting=self.weighting,
-            laplacian=self.laplacian, who="heat-distance",
-        )
+        spectrum, K, t, kp = self.inputs(shape, spectrum, keypoints)
         D = heat_distances(spectrum, t, kp, None, normalization=self.normalization, K=K)
         return np.ascontiguousarray(D.transpose(2, 1, 0)).reshape(shape.n_vertices, -1)
 

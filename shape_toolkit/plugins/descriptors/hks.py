@@ -7,18 +7,22 @@ import numpy as np
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.errors import ParameterError
-from shape_toolkit.features.heat import check_times, default_times, heat_kernel_signature, shape_spectrum
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
+from shape_toolkit.features.heat import heat_kernel_signature
+from shape_toolkit.features.scales import check_times, default_times
+from shape_toolkit.plugins.descriptors._common import check_K, own_spectrum
+
+#: ``K`` of the spectral descriptors when not given
+DEFAULT_K = 100
 
 
 class HKSDescriptor(Descriptor):
     """Heat kernel signature at ``n_times`` log-spaced scales (or the given ``times``).
 
-    Without a spectrum, ``K + 1`` eigenpairs (``K`` defaults to 100) of the combinatorial
-    Laplacian of the Gaussian-weighted graph are computed (:func:`shape_toolkit.features.heat.shape_spectrum`);
-    with one, ``K=None`` uses all its non-null eigenpairs. ``times=None`` spans
-    ``[4 ln10 / lambda_K, 4 ln10 / lambda_2]`` (:func:`shape_toolkit.features.heat.default_times`).
+    Declared spectrum (:meth:`spectrum_spec`): ``K + 1`` eigenpairs (``K`` = 100 when None, capped
+    at the vertex count) of the combinatorial Laplacian of the Gaussian-weighted graph; a longer
+    spectrum given by the caller is truncated to it. ``times=None`` spans
+    ``[4 ln10 / lambda_K, 4 ln10 / lambda_2]`` (:func:`shape_toolkit.features.scales.default_times`).
     ``scale='trace'`` divides by the heat trace (scale-normalised HKS); ``log`` takes the log.
     Output ``(n, n_times)``; ``keypoints`` are ignored.
     """
@@ -41,25 +45,19 @@ class HKSDescriptor(Descriptor):
         self.weighting = weighting
         self.laplacian = laplacian
 
+    def spectrum_spec(self) -> SpectrumSpec:
+        """``K + 1`` eigenpairs of the ``laplacian`` of the ``weighting`` graph, no mass matrix."""
+        return default_spec(check_K(self.K, DEFAULT_K) + 1, "graph", weighting=self.weighting,
+                            laplacian=self.laplacian)
+
     def compute(
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None
     ) -> np.ndarray:
         """HKS ``(n, T)`` float64 of ``shape``."""
         if self.times is not None:
             check_times(self.times)
-        if spectrum is None:
-            K = 100 if self.K is None else self.K
-            spectrum = shape_spectrum(
-                shape, min(K + 1, shape.n_vertices), weighting=self.weighting,
-                laplacian=self.laplacian,
-            )
-            K = min(K, spectrum.k - 1) if self.K is None else K
-        else:
-            K = self.K
-        if spectrum.n_vertices != shape.n_vertices:
-            raise ParameterError(
-                f"the spectrum has {spectrum.n_vertices} vertices, the shape {shape.n_vertices}"
-            )
+        spectrum = own_spectrum(self, shape, spectrum)
+        K = self.K  # None: every non-null eigenpair of the declared spectrum (K capped at n - 1)
         times = default_times(spectrum, self.n_times, K) if self.times is None else self.times
         out = heat_kernel_signature(spectrum, times, K=K, scale=self.scale)
         if self.log:

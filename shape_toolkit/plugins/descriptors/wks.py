@@ -7,9 +7,11 @@ import numpy as np
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.features.heat import shape_spectrum, spectral_basis
+from shape_toolkit.features.basis import spectral_basis
+from shape_toolkit.plugins.descriptors._common import check_K, own_spectrum
+from shape_toolkit.plugins.descriptors.hks import DEFAULT_K
 
 
 class WKSDescriptor(Descriptor):
@@ -19,8 +21,9 @@ class WKSDescriptor(Descriptor):
 
         WKS(i, e) = sum_k u_ik^2 exp(-(e - log lambda_k)^2 / 2 sigma^2) / sum_k exp(...)
 
-    over the ``K`` first non-null eigenpairs (spectrum defaults as for ``hks``: ``K = 100``,
-    Gaussian-weighted combinatorial Laplacian). Output ``(n, n_energies)``.
+    over the ``K`` first non-null eigenpairs (declared spectrum as for ``hks``: ``K + 1``
+    eigenpairs, ``K = 100`` when None, Gaussian-weighted combinatorial Laplacian). Output
+    ``(n, n_energies)``.
     """
 
     def __init__(
@@ -37,6 +40,11 @@ class WKSDescriptor(Descriptor):
         self.weighting = weighting
         self.laplacian = laplacian
 
+    def spectrum_spec(self) -> SpectrumSpec:
+        """``K + 1`` eigenpairs of the ``laplacian`` of the ``weighting`` graph, no mass matrix."""
+        return default_spec(check_K(self.K, DEFAULT_K) + 1, "graph", weighting=self.weighting,
+                            laplacian=self.laplacian)
+
     def compute(
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None
     ) -> np.ndarray:
@@ -45,18 +53,8 @@ class WKSDescriptor(Descriptor):
             raise ParameterError(f"n_energies must be a positive integer, got {self.n_energies!r}")
         if not self.variance > 0:
             raise ParameterError(f"variance must be positive, got {self.variance!r}")
-        K = self.K
-        if spectrum is None:
-            kk = 100 if K is None else K
-            spectrum = shape_spectrum(
-                shape, min(kk + 1, shape.n_vertices), weighting=self.weighting,
-                laplacian=self.laplacian,
-            )
-        if spectrum.n_vertices != shape.n_vertices:
-            raise ParameterError(
-                f"the spectrum has {spectrum.n_vertices} vertices, the shape {shape.n_vertices}"
-            )
-        vals, U = spectral_basis(spectrum, K)
+        spectrum = own_spectrum(self, shape, spectrum)
+        vals, U = spectral_basis(spectrum, self.K)
         if vals.size < 2 or not vals[0] > 0:
             raise ParameterError("the WKS needs at least two positive eigenvalues")
         loge = np.log(vals)

@@ -7,10 +7,11 @@ import numpy as np
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import KeypointDetector
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.geodesics import adjacency, ring_maxima
-from shape_toolkit.features.heat import check_times, heat_kernel_signature, shape_spectrum
+from shape_toolkit.features.heat import heat_kernel_signature
+from shape_toolkit.features.scales import check_times
 
 
 class ADFMaxima(KeypointDetector):
@@ -19,8 +20,8 @@ class ADFMaxima(KeypointDetector):
 
     Large ``t`` gives few, stable keypoints on protrusions ("sparse", Table 6.1: ``t = 500,
     K = 10``), small ``t`` many local ones ("dense": ``t = 50, K = 50``). ``t`` is in the units
-    of ``1 / eigenvalue`` of the spectrum; without a spectrum ``K + 1`` eigenpairs of the
-    combinatorial Laplacian of the Gaussian-weighted graph are computed (the thesis's setting).
+    of ``1 / eigenvalue`` of the spectrum. Declared spectrum (:meth:`spectrum_spec`): ``K + 1``
+    eigenpairs of the combinatorial Laplacian of the Gaussian-weighted graph (the thesis's setting).
     ``max_keypoints`` keeps only the strongest maxima.
     """
 
@@ -45,25 +46,25 @@ class ADFMaxima(KeypointDetector):
         self.weighting = weighting
         self.laplacian = laplacian
 
+    def _check_K(self) -> int:
+        if isinstance(self.K, bool) or not isinstance(self.K, (int, np.integer)) or self.K < 1:
+            raise ParameterError(f"K must be a positive integer, got {self.K!r}")
+        return int(self.K)
+
+    def spectrum_spec(self) -> SpectrumSpec:
+        """``K + 1`` eigenpairs of the ``laplacian`` of the ``weighting`` graph, no mass matrix."""
+        return default_spec(self._check_K() + 1, "graph", weighting=self.weighting, laplacian=self.laplacian)
+
     def adf(self, shape: Shape, *, spectrum: Spectrum | None = None) -> np.ndarray:
         """The auto-diffusion function ``(n,)`` this detector maximises."""
         check_times(self.t)
-        if isinstance(self.K, bool) or not isinstance(self.K, (int, np.integer)) or self.K < 1:
-            raise ParameterError(f"K must be a positive integer, got {self.K!r}")
-        if spectrum is None:
-            if self.K + 1 > shape.n_vertices:
-                raise ParameterError(
-                    f"K = {self.K} needs {self.K + 1} eigenpairs but the shape has "
-                    f"{shape.n_vertices} vertices"
-                )
-            spectrum = shape_spectrum(
-                shape, self.K + 1, weighting=self.weighting, laplacian=self.laplacian
-            )
-        if spectrum.n_vertices != shape.n_vertices:
+        K = self._check_K()
+        if K + 1 > shape.n_vertices:
             raise ParameterError(
-                f"the spectrum has {spectrum.n_vertices} vertices, the shape {shape.n_vertices}"
+                f"K = {K} needs {K + 1} eigenpairs but the shape has {shape.n_vertices} vertices"
             )
-        return heat_kernel_signature(spectrum, self.t, K=int(self.K))[:, 0]
+        spectrum = self._spectrum(shape, spectrum)
+        return heat_kernel_signature(spectrum, self.t, K=K)[:, 0]
 
     def detect(self, shape: Shape, *, spectrum: Spectrum | None = None) -> np.ndarray:
         """0-based int64 keypoint ids ``(p,)``, strongest first."""

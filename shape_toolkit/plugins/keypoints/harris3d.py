@@ -171,8 +171,6 @@ class Harris3D(KeypointDetector):
         return np.asarray(kept, dtype=np.int64)
 
 
-
-
 @hookimpl
 def toolkit_keypoint_detectors() -> dict[str, type]:
     return {"harris3d": Harris3D}

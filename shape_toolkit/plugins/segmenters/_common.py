@@ -2,7 +2,7 @@
 
 Default shape graph of the segmenters (thesis 3.3.3, 4.1.2, 5.2): mesh connectivity (kNN for point
 clouds) with Gaussian weights ``exp(-d^2 / 2 sigma^2)``, sigma = mean edge length, so that
-``0 < w_ij <= 1``.
+``0 < w_ij <= 1``; their spectra are declared with :func:`segmenter_spec` (no mass matrix).
 """
 
 from __future__ import annotations
@@ -14,9 +14,7 @@ import scipy.sparse as sp
 from sklearn.cluster import KMeans
 from threadpoolctl import threadpool_limits
 
-from shape_toolkit.core.graph import ShapeGraph, build_graph
-from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, compute_spectrum
+from shape_toolkit.core.spectrum import SpectrumSpec, default_spec, fix_signs
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.results.labels import relabel_consecutive
 
@@ -36,53 +34,37 @@ def check_n_segments(k: Any, n: int, *, allow_none: bool) -> int | None:
     return int(k)
 
 
-def check_random_state(random_state: Any) -> int:
-    """The integer seed (None means 0, for determinism)."""
-    if random_state is None:
-        return 0
-    if isinstance(random_state, bool) or not isinstance(random_state, (int, np.integer)):
-        raise ParameterError(f"random_state must be an integer, got {random_state!r}")
-    return int(random_state)
+def segmenter_spec(k: int, weighting: str, laplacian: str) -> SpectrumSpec:
+    """The spectrum a segmenter declares: ``k`` eigenpairs of the ``laplacian`` of the ``weighting``
+    graph, no mass matrix (:func:`shape_toolkit.core.spectrum.default_spec` of kind ``graph``)."""
+    return default_spec(int(k), "graph", weighting=weighting, laplacian=laplacian)
 
 
-def shape_graph(shape: Shape, weighting: str) -> ShapeGraph:
-    """The segmenters' default shape graph with the named weighting."""
-    return build_graph(shape, weighting)
+def canonical_order(X: np.ndarray) -> np.ndarray:
+    """A vertex order that depends on the rows of ``X`` ``(n, d)`` only, not on their numbering:
+    lexicographic by the columns (first column first), after :func:`~shape_toolkit.core.spectrum.fix_signs`
+    (eigenvectors come with arbitrary signs). Fitting k-means or a GMM on ``X[order]`` makes their
+    random initialisation, which draws rows by index, independent of the vertex order."""
+    Y = fix_signs(np.asarray(X, dtype=np.float64).reshape(len(X), -1))
+    return np.lexsort(Y.T[::-1])
 
 
-def graph_spectrum(
-    shape: Shape, k: int, *, weighting: str, laplacian: str, graph: ShapeGraph | None = None
-) -> Spectrum:
-    """``k`` smallest eigenpairs of the chosen Laplacian of the default graph (no mass matrix),
-    cached by content; ``k`` is capped at the vertex count."""
-    graph = graph if graph is not None else shape_graph(shape, weighting)
-    return compute_spectrum(graph, min(int(k), graph.n_vertices), laplacian=laplacian, use_mass=False)
+def fit_predict_invariant(model: Any, X: np.ndarray) -> np.ndarray:
+    """``model.fit(X[order]).predict(X)`` with :func:`canonical_order`: labels of a permuted ``X``
+    are the permuted labels (up to the numerical noise of the eigensolver)."""
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    order = canonical_order(X)
+    model.fit(X[order])
+    return np.asarray(model.predict(X), dtype=np.int64)
 
 
-def check_spectrum(spectrum: Spectrum, shape: Shape, needed: int) -> None:
-    """Refuse a spectrum of another shape or with fewer than ``needed`` eigenpairs."""
-    if spectrum.n_vertices != shape.n_vertices:
-        raise ParameterError(
-            f"the spectrum has {spectrum.n_vertices} vertices but the shape has {shape.n_vertices}"
-        )
-    if spectrum.k < needed:
-        raise ParameterError(
-            f"the spectrum has {spectrum.k} eigenpairs; this segmenter needs {needed} "
-            "(pass spectrum=None to compute it)"
-        )
-
-
-def n_null(eigenvalues: np.ndarray, rtol: float = 1e-8) -> int:
-    """Number of (numerically) null eigenvalues at the start, at least 1."""
-    scale = max(float(np.abs(eigenvalues).max()), 1e-300)
-    return max(int(np.sum(eigenvalues <= rtol * scale)), 1)
-
-
-def kmeans_labels(X: np.ndarray, k: int, random_state: int, n_init: int = 10) -> np.ndarray:
-    """K-means labels of the rows of ``X`` ``(n, d)``, renumbered by first appearance."""
+def kmeans_labels(X: np.ndarray, k: int, random_state: Any, n_init: int = 10) -> np.ndarray:
+    """K-means labels of the rows of ``X`` ``(n, d)``, renumbered by first appearance; independent
+    of the row order (:func:`fit_predict_invariant`). ``random_state``: an int seed, see
+    :func:`shape_toolkit.validation.seed_of`."""
     km = KMeans(n_clusters=k, n_init=n_init, random_state=random_state)
     with single_thread():
-        return relabel_consecutive(km.fit_predict(np.ascontiguousarray(X, dtype=np.float64)))
+        return relabel_consecutive(fit_predict_invariant(km, X))
 
 
 def single_thread() -> threadpool_limits:

@@ -24,17 +24,16 @@ from scipy.optimize import nnls
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
-    check_random_state,
-    check_spectrum,
-    graph_spectrum,
     kmeans_labels,
     row_normalize,
+    segmenter_spec,
 )
 from shape_toolkit.results.labels import coerce_constraints
+from shape_toolkit.validation import seed_of
 
 
 def learn_spectral_weights(U: np.ndarray, must: np.ndarray, cannot: np.ndarray) -> np.ndarray:
@@ -77,23 +76,28 @@ class CCSKL(Segmenter):
         self.n_init = n_init
         self.random_state = random_state
 
+    def _check_m(self) -> int:
+        m = self.n_eigenvectors
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
+            raise ParameterError(f"n_eigenvectors must be a positive integer, got {m!r}")
+        return int(m)
+
+    def spectrum_spec(self) -> SpectrumSpec:
+        """``n_eigenvectors`` eigenpairs of the normalized Laplacian of the ``weighting`` graph."""
+        return segmenter_spec(self._check_m(), self.weighting, "normalized")
+
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
         """int64 labels ``(n,)`` in ``0..k-1``; ``constraints``: Constraints, dict or JSON path."""
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=False)
-        seed = check_random_state(self.random_state)
         m = self.n_eigenvectors
         if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not k <= m <= n:
             raise ParameterError(f"n_eigenvectors must be an integer in [n_segments={k}, {n}], got {m!r}")
         cons = coerce_constraints(constraints, n)
-        if spectrum is None:
-            spectrum = graph_spectrum(shape, int(m), weighting=self.weighting, laplacian="normalized")
-        else:
-            if spectrum.laplacian != "normalized":
-                raise ParameterError(f"CCSKL needs a normalized-Laplacian spectrum, got {spectrum.laplacian}")
-            check_spectrum(spectrum, shape, int(m))
+        spectrum = self._spectrum(shape, spectrum)
+        seed = seed_of(self.random_state)
         U = spectrum.eigenvectors[:, : int(m)]
         if cons is None:
             beta = np.ones(int(m))

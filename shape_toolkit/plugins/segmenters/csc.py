@@ -38,21 +38,19 @@ from scipy.spatial import cKDTree
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
-from shape_toolkit.core.graph import weights_from_edges
+from shape_toolkit.core.graph import build_graph, weights_from_edges
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
 from shape_toolkit.errors import DisconnectedGraphError, ParameterError
+from shape_toolkit.features.embedding import commute_time_embedding
 from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
-    check_random_state,
-    check_spectrum,
-    graph_spectrum,
     kmeans_labels,
     laplacian_embedding_of,
-    n_null,
-    shape_graph,
+    segmenter_spec,
 )
 from shape_toolkit.results.labels import coerce_constraints
+from shape_toolkit.validation import seed_of
 
 
 def propagation_volumes(X: np.ndarray, pairs: np.ndarray, tree: cKDTree | None = None) -> list[np.ndarray]:
@@ -105,21 +103,34 @@ class ConstrainedSpectralClustering(Segmenter):
         self.n_init = n_init
         self.random_state = random_state
 
+    def _n_embedding(self, k: int | None) -> int:
+        p = self.n_embedding if self.n_embedding is not None else max(k or 0, 10)
+        if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or p < 1:
+            raise ParameterError(f"n_embedding must be a positive integer, got {p!r}")
+        return int(p)
+
+    def spectrum_spec(self) -> SpectrumSpec:
+        """``p + 1`` eigenpairs (``p``: ``n_embedding``, default ``max(n_segments, 10)``) of the
+        combinatorial Laplacian of the ``weighting`` graph: the L-embedding of step 1. (The modified
+        Laplacian of step 3 is solved by the algorithm itself.)"""
+        k = self.n_segments if isinstance(self.n_segments, (int, np.integer)) else None
+        return segmenter_spec(self._n_embedding(k) + 1, self.weighting, "combinatorial")
+
     def modified_weights(
         self, shape: Shape, constraints: Any, *, spectrum: Spectrum | None = None
     ) -> sp.csr_matrix:
         """``W_hat`` (n, n) CSR: the shape graph weights after propagating ``constraints`` (steps 1-2)."""
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=False)
-        p = self.n_embedding if self.n_embedding is not None else max(k, 10)
-        if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or not 1 <= p <= n - 1:
+        p = self._n_embedding(k)
+        if not 1 <= p <= n - 1:
             raise ParameterError(f"n_embedding must be an integer in [1, {n - 1}], got {p!r}")
         if self.cannot_mode not in ("bisector", "volume"):
             raise ParameterError(f"cannot_mode must be 'bisector' or 'volume', got {self.cannot_mode!r}")
         if not self.epsilon > 0 or not self.must_weight > 0:
             raise ParameterError("epsilon and must_weight must be positive (the topology is kept)")
         cons = coerce_constraints(constraints, n)
-        graph = shape_graph(shape, self.weighting)
+        graph = build_graph(shape, self.weighting)
         if graph.components[0] > 1:
             sizes = np.bincount(graph.components[1])
             raise DisconnectedGraphError(graph.components[0], sorted(sizes.tolist(), reverse=True))
@@ -128,19 +139,7 @@ class ConstrainedSpectralClustering(Segmenter):
         self.n_must_edges_ = self.n_cannot_edges_ = 0
         if cons is None or len(cons) == 0:
             return W
-        if spectrum is None:
-            spectrum = graph_spectrum(shape, int(p) + 1, weighting=self.weighting, laplacian="combinatorial",
-                                      graph=graph)
-        else:
-            if spectrum.laplacian != "combinatorial":
-                raise ParameterError(
-                    f"CSC needs a combinatorial-Laplacian spectrum, got {spectrum.laplacian}"
-                )
-            check_spectrum(spectrum, shape, int(p) + 1)
-        skip = n_null(spectrum.eigenvalues)
-        p = min(int(p), spectrum.k - skip)
-        lam = spectrum.eigenvalues[skip : skip + p]
-        X = spectrum.eigenvectors[:, skip : skip + p] / np.sqrt(lam)[None, :]
+        X = commute_time_embedding(self._spectrum(shape, spectrum), p)
         tree = cKDTree(X)
         up = sp.triu(W, k=1).tocoo()
         ei, ej, w = up.row.astype(np.int64), up.col.astype(np.int64), up.data.copy()
@@ -171,7 +170,7 @@ class ConstrainedSpectralClustering(Segmenter):
         """int64 labels ``(n,)`` in ``0..k-1``; ``constraints``: Constraints, dict or JSON path."""
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=False)
-        seed = check_random_state(self.random_state)
+        seed = seed_of(self.random_state)
         dim = k - 1 if self.output_dim is None else self.output_dim
         if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 1 <= dim <= n - 1:
             raise ParameterError(f"output_dim must be an integer in [1, {n - 1}], got {dim!r}")

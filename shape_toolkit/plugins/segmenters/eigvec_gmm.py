@@ -28,19 +28,19 @@ from sklearn.mixture import GaussianMixture
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
+from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import LAPLACIANS, Spectrum
+from shape_toolkit.core.spectrum import LAPLACIANS, Spectrum, SpectrumSpec, fix_signs, null_count
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.segmenters._common import (
+    canonical_order,
     check_n_segments,
-    check_random_state,
-    check_spectrum,
-    graph_spectrum,
-    n_null,
-    shape_graph,
+    fit_predict_invariant,
+    segmenter_spec,
     single_thread,
 )
 from shape_toolkit.results.labels import relabel_consecutive
+from shape_toolkit.validation import seed_of
 
 
 def _knee(ks: np.ndarray, values: np.ndarray) -> int:
@@ -65,8 +65,15 @@ class EigvecGMMSegmenter(Segmenter):
     combinatorial, as in 4.2; Fig. 4.1 used the normalized one, which selects fewer eigenvectors on
     the PSB meshes, ~5 of 10 as the thesis reports, but segmented them worse: mean Rand index error
     0.174 vs 0.162 over the 12 shared PSB meshes), ``weighting`` (Gaussian, 4.1.2),
-    ``max_fit_samples_1d`` / ``max_fit_samples`` (the 1D fits / the BIC sweep use a random
-    subsample of at most this many vertices; the final GMM uses all), ``random_state``.
+    ``max_fit_samples_1d`` / ``max_fit_samples`` (the 1D fits / the BIC sweep use an evenly spaced
+    subsample of at most this many vertices, taken in an order of the embedding values, not of the
+    vertex ids; the final GMM uses all), ``random_state`` (the GMM initialisations).
+
+    Vertex-order independent: the eigenvectors are sign-fixed, the subsamples are chosen by value and
+    every GMM is fitted on the vertices in a canonical order of their embedding
+    (:func:`~shape_toolkit.plugins.segmenters._common.canonical_order`), so a permuted mesh gets the
+    permuted labels (up to label names; exactly degenerate eigenvalues, as on symmetric shapes, leave
+    the eigenbasis itself undetermined).
 
     Diagnostics of the last run: ``selected_eigenvectors_`` (1-based eigenvector indices,
     ``u_2`` = 2, as in the thesis), ``eigenvector_analysis_`` (per eigenvector: 1D components,
@@ -106,11 +113,25 @@ class EigvecGMMSegmenter(Segmenter):
         self.max_fit_samples = max_fit_samples
         self.random_state = random_state
 
-    def _check(self, n: int) -> tuple[int | None, int, int]:
-        k = check_n_segments(self.n_segments, n, allow_none=True)
-        seed = check_random_state(self.random_state)
+    def _check_p(self) -> int:
         p = self.n_eigenvectors
-        if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or not 1 <= p <= n - 1:
+        if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or p < 1:
+            raise ParameterError(f"n_eigenvectors must be a positive integer, got {p!r}")
+        return int(p)
+
+    def spectrum_spec(self) -> SpectrumSpec:
+        """``n_eigenvectors + 1`` eigenpairs (the null one and ``u_2 .. u_{p+1}``) of the chosen
+        Laplacian of the ``weighting`` graph, no mass matrix."""
+        if self.laplacian not in LAPLACIANS:
+            raise ParameterError(
+                f"unknown laplacian {self.laplacian!r}; choose one of {', '.join(LAPLACIANS)}"
+            )
+        return segmenter_spec(self._check_p() + 1, self.weighting, self.laplacian)
+
+    def _check(self, n: int) -> tuple[int | None, int]:
+        k = check_n_segments(self.n_segments, n, allow_none=True)
+        p = self._check_p()
+        if not 1 <= p <= n - 1:
             raise ParameterError(f"n_eigenvectors must be an integer in [1, {n - 1}], got {p!r}")
         if not 0 <= self.zero_threshold < 1:
             raise ParameterError(f"zero_threshold must be in [0, 1), got {self.zero_threshold}")
@@ -126,13 +147,17 @@ class EigvecGMMSegmenter(Segmenter):
             raise ParameterError(f"unknown covariance_type {self.covariance_type!r}")
         if k is None:
             check_n_segments(self.max_segments, n, allow_none=False)
-        return k, seed, int(p)
+        return k, p
 
-    def _subsample(self, idx: np.ndarray, rng: np.random.Generator, m: int) -> np.ndarray:
+    @staticmethod
+    def _subsample(idx: np.ndarray, order_key: np.ndarray, m: int) -> np.ndarray:
+        """At most ``m`` of ``idx``, evenly spaced along ``order_key`` ``(len(idx),)`` (a vertex-order
+        independent ranking of them), returned in that ranking."""
+        ranked = idx[np.argsort(order_key, kind="stable")]
         m = int(m)
-        if m <= 0 or len(idx) <= m:
-            return idx
-        return np.sort(rng.choice(idx, size=m, replace=False))
+        if m <= 0 or len(ranked) <= m:
+            return ranked
+        return ranked[np.round(np.linspace(0, len(ranked) - 1, m)).astype(np.int64)]
 
     def _outer_cluster_components(self, A: sp.csr_matrix, ids: np.ndarray) -> tuple[int, float]:
         """(number of connected components, fraction held by the largest) of vertex set ``ids``."""
@@ -151,24 +176,17 @@ class EigvecGMMSegmenter(Segmenter):
 
     def _segment(self, shape: Shape, spectrum: Spectrum | None) -> np.ndarray:
         n = shape.n_vertices
-        k, seed, p = self._check(n)
-        rng = np.random.default_rng(seed)
-        graph = shape_graph(shape, self.weighting)
-        if spectrum is None:
-            spectrum = graph_spectrum(shape, p + 1, weighting=self.weighting, laplacian=self.laplacian,
-                                      graph=graph)
-        else:
-            check_spectrum(spectrum, shape, p + 1)
-        skip = n_null(spectrum.eigenvalues)
+        k, p = self._check(n)
+        spectrum = self._spectrum(shape, spectrum)
+        seed = seed_of(self.random_state)
+        skip = max(null_count(spectrum.eigenvalues), 1)
         if skip > 1:
             raise ParameterError(
                 f"the Laplacian has {skip} null eigenvalues: the shape graph is disconnected; "
                 "segment each component (or clean the shape) first"
             )
-        if spectrum.k < skip + p:
-            raise ParameterError(f"the spectrum needs {skip + p} eigenpairs, has {spectrum.k}")
-        U = spectrum.eigenvectors[:, skip : skip + p]
-        A = sp.csr_matrix(graph.W)
+        U = fix_signs(spectrum.eigenvectors[:, skip : skip + p])
+        A = sp.csr_matrix(build_graph(shape, self.weighting).W)
 
         analysis = []
         selected = []
@@ -182,7 +200,7 @@ class EigvecGMMSegmenter(Segmenter):
                 analysis.append(info)
                 continue
             x = (u / amax)[:, None]
-            fit_ids = self._subsample(keep, rng, self.max_fit_samples_1d)
+            fit_ids = self._subsample(keep, x[keep, 0], self.max_fit_samples_1d)
             best, best_bic = None, np.inf
             for c in range(1, min(int(self.max_components_1d), len(fit_ids)) + 1):
                 gm = GaussianMixture(c, random_state=seed, reg_covar=1e-6).fit(x[fit_ids])
@@ -216,7 +234,7 @@ class EigvecGMMSegmenter(Segmenter):
         self.bic_curve_ = None
         self.bic_monotone_ = None
         if k is None:
-            fit_ids = self._subsample(np.arange(n), rng, self.max_fit_samples)
+            fit_ids = self._subsample(np.arange(n), np.argsort(canonical_order(X)), self.max_fit_samples)
             ks = np.arange(2, int(self.max_segments) + 1)
             bics = np.array([
                 GaussianMixture(int(c), covariance_type=self.covariance_type, n_init=1,
@@ -235,8 +253,8 @@ class EigvecGMMSegmenter(Segmenter):
         else:
             self.n_segments_rule_ = "given"
         gm = GaussianMixture(int(k), covariance_type=self.covariance_type, n_init=int(self.n_init),
-                             random_state=seed).fit(X)
-        labels = relabel_consecutive(gm.predict(X))
+                             random_state=seed)
+        labels = relabel_consecutive(fit_predict_invariant(gm, X))
         self.n_segments_ = int(labels.max() + 1)
         self.embedding_dim_ = int(X.shape[1])
         return labels

@@ -23,17 +23,16 @@ import numpy as np
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.features.embedding import commute_time_embedding
 from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
-    check_random_state,
-    check_spectrum,
-    graph_spectrum,
     kmeans_labels,
-    n_null,
     row_normalize,
+    segmenter_spec,
 )
+from shape_toolkit.validation import seed_of
 
 _LAPLACIAN = {
     "ng": "normalized",
@@ -70,44 +69,40 @@ class SpectralClustering(Segmenter):
         self.n_init = n_init
         self.random_state = random_state
 
+    def _kmax(self, n: int | None = None) -> int:
+        """Largest ``k`` considered: ``n_segments``, or ``max_segments`` (capped at ``n - 1``)."""
+        if self.n_segments is not None:
+            return int(check_n_segments(self.n_segments, n if n is not None else self.n_segments,
+                                        allow_none=False))
+        kmax = self.max_segments if n is None else min(int(self.max_segments), n - 1)
+        return int(check_n_segments(kmax, n if n is not None else kmax, allow_none=False))
+
+    def spectrum_spec(self) -> SpectrumSpec:
+        """``kmax + 1`` eigenpairs (``kmax``: ``n_segments`` or ``max_segments``) of the variant's
+        Laplacian of the ``weighting`` graph, no mass matrix."""
+        if self.variant not in _LAPLACIAN:
+            raise ParameterError(f"unknown variant {self.variant!r}; choose one of {', '.join(_LAPLACIAN)}")
+        return segmenter_spec(self._kmax() + 1, self.weighting, _LAPLACIAN[self.variant])
+
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
         """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised baseline)."""
-        if self.variant not in _LAPLACIAN:
-            raise ParameterError(f"unknown variant {self.variant!r}; choose one of {', '.join(_LAPLACIAN)}")
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=True)
-        seed = check_random_state(self.random_state)
-        laplacian = _LAPLACIAN[self.variant]
-        if k is None:
-            kmax = check_n_segments(min(int(self.max_segments), n - 1), n, allow_none=False)
-        else:
-            kmax = k
-        needed = min(kmax + 2, n)
-        if spectrum is None:
-            spectrum = graph_spectrum(shape, needed, weighting=self.weighting, laplacian=laplacian)
-        else:
-            if spectrum.laplacian != laplacian:
-                raise ParameterError(
-                    f"variant {self.variant!r} needs a {laplacian} spectrum, got {spectrum.laplacian}"
-                )
-            check_spectrum(spectrum, shape, min(kmax + 1, n))
+        kmax = self._kmax(n)
+        spectrum = self._spectrum(shape, spectrum)
+        seed = seed_of(self.random_state)
         vals = spectrum.eigenvalues
         self.eigengaps_ = None
         if k is None:
             gaps = np.diff(vals[: kmax + 1])  # gaps[i] = lambda_{i+2} - lambda_{i+1} (1-based)
             self.eigengaps_ = gaps.tolist()
             k = int(np.argmax(gaps[1:]) + 2) if len(gaps) > 1 else 2
-        vecs = spectrum.eigenvectors
         if self.variant == "commute-time":
-            skip = n_null(vals)
-            if spectrum.k < skip + k - 1:
-                raise ParameterError(f"the spectrum needs {skip + k - 1} eigenpairs for k={k}")
-            lam = vals[skip : skip + k - 1]
-            X = vecs[:, skip : skip + k - 1] / np.sqrt(lam)[None, :]
+            X = commute_time_embedding(spectrum, k - 1)
         else:
-            X = vecs[:, :k]
+            X = spectrum.eigenvectors[:, :k]
             if self.variant == "ng":
                 X = row_normalize(X)
         labels = kmeans_labels(X, k, seed, self.n_init)

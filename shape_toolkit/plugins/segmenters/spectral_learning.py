@@ -17,21 +17,24 @@ import scipy.sparse as sp
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.eigen import smallest_eigenpairs
+from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
-    check_random_state,
     kmeans_labels,
     row_normalize,
-    shape_graph,
 )
 from shape_toolkit.results.labels import coerce_constraints
+from shape_toolkit.validation import seed_of
 
 
 class SpectralLearning(Segmenter):
     """Kamvar et al. 2003 on the shape graph (Gaussian weights): constrained affinities, then
     row-normalised k-means on the ``k`` smallest eigenvectors of ``D - A``.
+
+    It declares no spectrum: the eigenproblem of the constraint-modified affinities is the algorithm
+    itself, so a ``spectrum`` argument is ignored.
 
     Diagnostics: ``n_added_edges_``, ``n_removed_edges_``, ``n_segments_``.
     """
@@ -55,9 +58,9 @@ class SpectralLearning(Segmenter):
         """int64 labels ``(n,)`` in ``0..k-1``; the spectrum is recomputed on the modified affinities."""
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=False)
-        seed = check_random_state(self.random_state)
+        seed = seed_of(self.random_state)
         cons = coerce_constraints(constraints, n)
-        A = sp.lil_matrix(shape_graph(shape, self.weighting).W)
+        A = sp.lil_matrix(build_graph(shape, self.weighting).W)
         added = removed = 0
         if cons is not None:
             for i, j in cons.must_link.tolist():
