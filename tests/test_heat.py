@@ -13,7 +13,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, compute_spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features import heat, scales
-from shape_toolkit.metrics.descriptors import descriptor_matching_score
+from shape_toolkit.features.descriptor_score import descriptor_matching_score
 
 
 # -- tiny graphs with complete spectra ----------------------------------------------------------

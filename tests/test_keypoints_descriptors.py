@@ -17,9 +17,9 @@ from shape_toolkit.core.spectrum import Spectrum, laplacian_matrix
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.errors import InvalidShapeError, ParameterError, PluginError, SpectrumMismatchError
 from shape_toolkit.features import heat, scales
+from shape_toolkit.features.descriptor_score import descriptor_matching_score
 from shape_toolkit.features.geodesics import k_ring
 from shape_toolkit.io.mesh import save_shape
-from shape_toolkit.metrics.descriptors import descriptor_matching_score
 from shape_toolkit.metrics.keypoints import (
     ground_truth_map,
     keypoint_coverage,
@@ -417,10 +417,3 @@ def test_descriptor_times_are_the_times_compute_uses(name):
     times = plug.descriptor_times(shape)
     fixed = create_plugin("descriptors", name, K=8, times=times.tolist())
     np.testing.assert_allclose(fixed.compute(shape, keypoints=tips), plug.compute(shape, keypoints=tips))
-    # the deprecated helper kept for pipeline.paired_descriptors agrees
-    _, K, t, kp = heat.keypoint_descriptor_inputs(
-        shape, None, tips, K=8, times=None, n_times=3, alpha=0.95, time_ratio=2.0, weighting="gaussian",
-        laplacian="combinatorial", who=name,
-    )
-    np.testing.assert_allclose(t, times)
-    assert K == 8 and kp.tolist() == tips

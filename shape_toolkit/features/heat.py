@@ -24,7 +24,7 @@ Conventions
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -36,7 +36,7 @@ from shape_toolkit.features.scales import check_times, scalar_time
 from shape_toolkit.validation import check_vertex_ids
 
 if TYPE_CHECKING:  # pragma: no cover
-    from shape_toolkit.core.shape import Shape
+    pass
 
 __all__ = [
     "DENSE_MAX_N",
@@ -289,54 +289,3 @@ def heat_distance(
     return heat_distances(
         spectrum, scalar_time(t), sources, targets, normalization=normalization, K=K
     )[0]
-
-
-# -- names that moved (kept importable from here until their last callers are updated) ----------
-_MOVED = {
-    "default_times": "shape_toolkit.features.scales",
-    "scree_alpha": "shape_toolkit.features.scales",
-    "min_time_for_dimension": "shape_toolkit.features.scales",
-    "dimension_for_time": "shape_toolkit.features.scales",
-    "pair_scale": "shape_toolkit.features.scales",
-    "pair_times": "shape_toolkit.features.scales",
-    "multiscale_times": "shape_toolkit.features.scales",
-    "descriptor_matching_score": "shape_toolkit.metrics.descriptors",
-}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _MOVED:
-        import importlib
-
-        return getattr(importlib.import_module(_MOVED[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def keypoint_descriptor_inputs(
-    shape: Shape,
-    spectrum: Spectrum | None,
-    keypoints: np.ndarray | Sequence[int] | None,
-    *,
-    K: int | None,
-    times: Sequence[float] | None,
-    n_times: int,
-    alpha: float,
-    time_ratio: float,
-    weighting: str,
-    laplacian: str,
-    who: str,
-) -> tuple[Spectrum, int, np.ndarray, np.ndarray]:
-    """Deprecated (kept for ``pipeline.paired_descriptors``): use the descriptor plugin's
-    ``descriptor_times(shape, spectrum=...)`` or ``inputs(...)`` instead. ``(spectrum, K, times,
-    keypoints)`` exactly as the ``heat-diffusion`` / ``heat-distance`` plugins with these parameters
-    resolve them (the spectrum is their declared one, never a private default)."""
-    from shape_toolkit.plugins.descriptors._common import keypoint_heat_inputs, keypoint_heat_spec
-
-    spec = keypoint_heat_spec(K, weighting, laplacian)
-    spectrum = spec.compute(shape) if spectrum is None else spec.check(spectrum, shape, who)
-    spectrum = spectrum.truncated(min(spectrum.k, spec.for_shape(shape).k))
-    K, t, kp = keypoint_heat_inputs(
-        shape, spectrum, keypoints, K=K, times=times, n_times=n_times, alpha=alpha, time_ratio=time_ratio,
-        who=who,
-    )
-    return spectrum, K, t, kp

@@ -16,7 +16,7 @@ class HeatDistanceDescriptor(KeypointHeatMixin, Descriptor):
     """Heat distances ``d_h(v_i, p_m; t_1..t_tau)`` from every vertex to each of the ``M``
     keypoints, ``tau x M`` values per vertex, returned ``(n, M * tau)`` keypoint-major (columns
     ``m * tau .. (m + 1) * tau - 1`` belong to keypoint ``m``), ready for
-    :func:`shape_toolkit.metrics.descriptors.descriptor_matching_score` (eq. 6.66) with ``n_times = tau``.
+    :func:`shape_toolkit.features.descriptor_score.descriptor_matching_score` (eq. 6.66) with ``n_times = tau``.
 
     ``normalization`` picks the metric (:data:`shape_toolkit.features.heat.NORMALIZATIONS`); the thesis uses the
     unit hyper-sphere distance of eq. 6.43 (the default). Times and declared spectrum as for
