@@ -24,7 +24,7 @@ params = { strength = [0.1, 0.2] }
 [[tasks]]
 task = "segmentation"
 corruptions = ["none", "noise"]
-spectrum = { k = 8 }
+metrics = ["n_segments"]
 [[tasks.methods]]
 plugin = "spectral-clustering"
 preset = "luxburg-unnormalized"
@@ -66,8 +66,7 @@ def test_expand_grid_literal_lists():
         ('kind = "gaussian-noise"', 'kind = "melt"', "corruptions[0].kind"),
         ("params = { strength = [0.1, 0.2] }", "params = { sigma = 1 }", "corruptions[0].params.sigma"),
         ('corruptions = ["none", "noise"]', 'corruptions = ["none", "fog"]', "tasks[0].corruptions[1]"),
-        ("spectrum = { k = 8 }", 'spectrum = { k = 8, weighting = "nope" }', "tasks[0].spectrum.weighting"),
-        ("spectrum = { k = 8 }", 'metrics = ["nope"]', "tasks[0].metrics[0]"),
+        ('metrics = ["n_segments"]', 'metrics = ["nope"]', "tasks[0].metrics[0]"),
         ('task = "segmentation"', 'task = "painting"', "tasks[0].task"),
         ('kind = "synthetic"', 'kind = "psb"\npath = "no/such/folder"', "datasets[0].path"),
         ("[run]", "[runn]", "runn"),
@@ -113,3 +112,49 @@ def test_cli_bad_config_fails_before_work(tmp_path, capsys):
     bad = _write(tmp_path, "[[datasets]\n", "bad.toml")
     assert main(["bench", "run", str(bad), "-o", str(run)]) == 2
     assert "invalid TOML" in capsys.readouterr().err
+
+
+SPECTRUM_TASK = """
+[[datasets]]
+name = "synth"
+kind = "synthetic"
+params = { n_poses = 2, subdivisions = 2 }
+[[tasks]]
+task = "spectrum"
+spectrum = { k = 8 }
+[[tasks.methods]]
+plugin = "gaussian"
+"""
+
+
+def test_spectrum_table_is_the_subject_of_the_spectrum_task_only(tmp_path):
+    cfg = load_config(_write(tmp_path, SPECTRUM_TASK))
+    (task,) = cfg.tasks
+    assert (task.task_kind, task.task_name, task.spectrum["k"]) == ("spectrum", "spectrum", 8)
+    assert task.methods[0].plugin == "gaussian" and task.methods[0].method_label == "gaussian"
+    with pytest.raises(ConfigError) as ei:
+        load_config(_write(tmp_path, SPECTRUM_TASK.replace("{ k = 8 }", '{ k = 8, weighting = "nope" }')))
+    assert ei.value.key == "tasks[0].spectrum.weighting"
+    # elsewhere methods receive the spectra they declare: a spectrum table would mislead
+    bad = BASE.replace('corruptions = ["none", "noise"]\n', 'corruptions = ["none", "noise"]\nspectrum = { k = 8 }\n')
+    with pytest.raises(ConfigError) as ei:
+        load_config(_write(tmp_path, bad))
+    assert ei.value.key == "tasks[0].spectrum"
+    assert "receive the spectra they declare" in str(ei.value)
+    bad = BASE.replace('preset = "luxburg-unnormalized"', 'preset = "luxburg-unnormalized"\nspectrum = { k = 8 }')
+    with pytest.raises(ConfigError) as ei:
+        load_config(_write(tmp_path, bad))
+    assert ei.value.key == "tasks[0].methods[0].spectrum"
+    assert "receive the spectra they declare" in str(ei.value)
+
+
+def test_missing_dataset_folder_mentions_toolkit_data(tmp_path, monkeypatch):
+    bad = BASE.replace('kind = "synthetic"', 'kind = "psb"\npath = "no/such/folder"')
+    monkeypatch.delenv("TOOLKIT_DATA", raising=False)
+    with pytest.raises(ConfigError, match=r"\$TOOLKIT_DATA.*not\)"):
+        load_config(_write(tmp_path, bad))
+    monkeypatch.setenv("TOOLKIT_DATA", str(tmp_path / "data"))
+    with pytest.raises(ConfigError) as ei:
+        load_config(_write(tmp_path, bad))
+    assert f"$TOOLKIT_DATA={tmp_path / 'data'}" in str(ei.value)
+    assert str(tmp_path / "data" / "no" / "such" / "folder") in str(ei.value)

@@ -11,8 +11,9 @@ import pytest
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.api.registry import get_registry
+from shape_toolkit.bench import read_rows, run_benchmark
 from shape_toolkit.bench.config import load_config
-from shape_toolkit.bench.runner import read_rows, run_benchmark
+from shape_toolkit.bench.store import BenchWarning
 from shape_toolkit.cli import main
 
 CONFIG = """
@@ -38,7 +39,6 @@ plugin = "cotangent"
 [[tasks]]
 task = "segmentation"
 name = "seg"
-spectrum = { k = 8 }
 metrics = ["n_segments", "segmentation"]
 [[tasks.methods]]
 plugin = "spectral-clustering"
@@ -58,7 +58,11 @@ def config_path(tmp_path):
 def _check_row(r):
     for key in (
         "item",
-        "method",
+        "task_name",
+        "task_kind",
+        "plugin",
+        "method_label",
+        "spectra",
         "params",
         "status",
         "error",
@@ -81,18 +85,28 @@ def test_run_rows_and_resume_without_duplicates(config_path, tmp_path):
     for r in rows:
         _check_row(r)
         assert r["status"] == "ok" and r["error"] is None
-    seg = [r for r in rows if r["task"] == "seg"]
+    assert "task" not in rows[0] and "method" not in rows[0]  # one meaning per field name
+    seg = [r for r in rows if r["task_name"] == "seg"]
+    assert {r["task_kind"] for r in seg} == {"segmentation"}
+    assert {r["plugin"] for r in seg} == {"spectral-clustering"}
+    assert {r["method_label"] for r in seg} == {"spectral-clustering:luxburg-unnormalized"}
     assert {r["metrics"]["n_segments"] for r in seg} == {3, 6}
     assert all(0 <= r["metrics"]["rand_index_error"] <= 1 for r in seg)
-    spec = [r for r in rows if r["task"] == "spectrum"]
+    spec = [r for r in rows if r["task_name"] == "spectrum"]
     assert all(r["metrics"]["eigenvalues"][0][1] < 1e-8 < r["metrics"]["lambda2"] for r in spec)
+    # the spectrum task records its subject: the method's weighting with the task's settings
+    assert {(r["plugin"], r["spectra"][0]["weighting"], r["spectra"][0]["k"]) for r in spec} == {
+        ("gaussian", "gaussian", 6),
+        ("cotangent", "cotangent", 6),
+    }
     # the segmentation rows reuse the spectrum computed once by the prepare stage
-    assert all(r["spectrum_cache_hit"] for r in seg)
+    assert all(r["spectrum_cache_hit"] for r in seg if r["spectra"])
 
     # simulate a crash mid-write: a torn last line is dropped and its row redone
     text = (run / "results.jsonl").read_text()
     (run / "results.jsonl").write_text(text + text.splitlines()[-1][:40])
-    s2 = run_benchmark(cfg, run, progress=False)
+    with pytest.warns(BenchWarning, match="invalid line"):
+        s2 = run_benchmark(cfg, run, progress=False)
     assert s2.reused == N_ROWS // 3 and s2.rows == N_ROWS - N_ROWS // 3
     rows = read_rows(run)
     keys = [r["key"] for r in rows]
@@ -135,18 +149,18 @@ def test_failed_rows_are_recorded_and_run_goes_on(config_path, tmp_path, flaky, 
     )
     config_path.write_text(text)
     run = tmp_path / "run"
-    assert main(["bench", "run", str(config_path), "-o", str(run), "--json", "--no-progress"]) == 0
+    assert main(["bench", "run", str(config_path), "-o", str(run), "--json", "--no-progress"]) == 1
     summary = json.loads(capsys.readouterr().out)
     assert summary["failed"] == 1 and summary["rows"] == 3 * 2 * 2 + 3 and summary["reused"] == 0
     failed = [r for r in read_rows(run) if r["status"] == "failed"]
     assert len(failed) == 1 and failed[0]["item"] == "pose1"
     assert "flaky segmenter refuses pose1" in failed[0]["error"]
     # resume: failed rows count as done unless asked to retry
-    assert main(["bench", "run", str(config_path), "-o", str(run), "--json", "--no-progress"]) == 0
+    assert main(["bench", "run", str(config_path), "-o", str(run), "--json", "--no-progress"]) == 1
     assert json.loads(capsys.readouterr().out)["reused"] == summary["rows"]
     assert (
         main(["bench", "run", str(config_path), "-o", str(run), "--json", "--no-progress", "--retry-failed"])
-        == 0
+        == 1
     )
     again = json.loads(capsys.readouterr().out)
     assert again["rows"] == 1 and again["failed"] == 1
@@ -190,14 +204,12 @@ params = { strength = 2, radius = 0.1 }
 [[tasks]]
 task = "matching"
 corruptions = ["none", "holes"]
-spectrum = { k = 10 }
 metrics = ["geodesic_error", "coverage", "label_transfer"]
 options = { geodesic_method = "dijkstra" }
 [[tasks.methods]]
 plugin = "eigvec-alignment"
 [[tasks]]
 task = "keypoints"
-spectrum = { k = 14 }
 metrics = ["n_keypoints", "repeatability"]
 [[tasks.methods]]
 plugin = "adf-maxima"
@@ -212,13 +224,13 @@ def test_matching_and_keypoint_rows_with_report(tmp_path):
     s = run_benchmark(cfg, run, limit=1, progress=False)
     rows = read_rows(run)
     assert s.failed == 0, [r["error"] for r in rows]
-    m = [r for r in rows if r["task"] == "matching"]
+    m = [r for r in rows if r["task_name"] == "matching"]
     assert len(m) == 2
     for r in m:
         curve = np.asarray(r["metrics"]["geodesic_error_curve"])
         assert np.all(np.diff(curve[:, 1]) >= 0) and 0 <= curve[-1, 1] <= 1
         assert 0 < r["metrics"]["target_coverage"] <= 1
-    k = [r for r in rows if r["task"] == "keypoints"]
+    k = [r for r in rows if r["task_name"] == "keypoints"]
     assert k[0]["metrics"]["n_keypoints"] > 0 and "repeatability_curve" in k[0]["metrics"]
     res = main(["bench", "report", str(run)])
     assert res == 0

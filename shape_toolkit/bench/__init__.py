@@ -4,10 +4,15 @@
 executes it locally, on a local Dask cluster (``workers > 1``) or on an existing Dask scheduler,
 appending rows to ``RUN_DIR/results.jsonl`` as they finish, and ``write_report`` turns a run
 folder into an HTML page with PNG figures.
+
+Modules: ``config`` (TOML -> validated specs), ``plan`` (jobs), ``tasks`` (adapters and metrics),
+``worker`` (prepare and row execution), ``store`` (the run folder: rows, cache, lock),
+``executors`` (local and Dask), ``report``.
 """
 
 from shape_toolkit.bench.config import BenchConfig, ConfigError, load_config
-from shape_toolkit.bench.runner import RunSummary, read_rows, run_benchmark
+from shape_toolkit.bench.executors import RunSummary, run_benchmark
+from shape_toolkit.bench.store import read_rows
 
 __all__ = [
     "BenchConfig",

@@ -19,11 +19,10 @@ Layout (every key is checked; an error names the key, e.g. ``tasks[0].methods[1]
     params = { strength = [0.1, 0.3] }   # lists are grids (a literal list: wrap it, [[1, 2]])
 
     [[tasks]]
-    task = "segmentation"      # spectrum | keypoints | segmentation | matching
-    name = "seg"               # optional, default = task
+    task = "segmentation"      # the task kind: spectrum | keypoints | segmentation | matching
+    name = "seg"               # optional task name, default = the task kind
     datasets = ["psb"]         # default: every dataset
     corruptions = ["none", "noise"]      # default: ["none"]
-    spectrum = { weighting = "cotangent", k = 30, laplacian = "combinatorial" }
     metrics = ["rand_index"]   # default: the task's default metrics
     options = {}               # task options (see shape_toolkit.bench.tasks)
     [[tasks.methods]]
@@ -31,6 +30,13 @@ Layout (every key is checked; an error names the key, e.g. ``tasks[0].methods[1]
     preset = "..."             # optional
     label = "..."              # optional display name
     params = { n_segments = [4, 6] }
+
+Spectra: methods receive the spectra they declare (``spectrum_spec()`` of a plugin and of its
+keypoint detector, ``spectrum_specs()`` of a pipeline), so a ``spectrum`` table belongs to the
+``spectrum`` task only, where the spectrum is the subject (``{ k = 40, laplacian = ..., use_mass
+= ..., params = {...} }``; the weighting is each method's plugin). Elsewhere it is an error.
+In Python, :class:`TaskSpec` has ``task_kind`` (the ``task`` key) and ``task_name`` (``name``);
+:class:`MethodSpec` has ``plugin`` (registry name) and ``method_label`` (``label``).
 """
 
 from __future__ import annotations
@@ -107,27 +113,30 @@ NO_CORRUPTION = CorruptionSpec("none", "none", {}, "none")
 
 @dataclass(frozen=True)
 class MethodSpec:
-    """One method instance (a grid point): plugin name, family, preset, params, display label."""
+    """One method instance (a grid point): plugin name, family, preset, params, display label
+    (``method_label``); ``spectrum`` overrides the task's spectrum (spectrum task only)."""
 
     plugin: str
     family: str
     preset: str | None
     params: dict[str, Any]
-    label: str
+    method_label: str
     spectrum: dict[str, Any] | None = None
     keypoints: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """A task of the config with its expanded methods and corruption instances."""
+    """A task of the config with its expanded methods and corruption instances: ``task_kind`` is
+    the adapter (the config's ``task`` key), ``task_name`` the config's ``name``; ``spectrum`` is
+    the subject of a ``spectrum`` task and None for every other kind."""
 
-    name: str
-    task: str
+    task_name: str
+    task_kind: str
     datasets: tuple[str, ...]
     corruptions: tuple[CorruptionSpec, ...]
     methods: tuple[MethodSpec, ...]
-    spectrum: dict[str, Any]
+    spectrum: dict[str, Any] | None
     metrics: tuple[str, ...]
     options: dict[str, Any]
 
@@ -144,6 +153,11 @@ class BenchConfig:
     raw: dict[str, Any] = field(default_factory=dict)
 
 
+_NOT_A_SUBJECT = (
+    "a spectrum table is allowed for the spectrum task only: {kind} methods receive the spectra "
+    "they declare (spectrum_spec() of a plugin, spectrum_specs() of a pipeline); remove this table "
+    "and choose the method's parameters or preset instead"
+)
 _SPECTRUM_KEYS = {"weighting", "k", "laplacian", "params", "use_mass", "connectivity", "n_neighbors"}
 DEFAULT_SPECTRUM = {"weighting": "cotangent", "k": 30, "laplacian": "combinatorial"}
 
@@ -350,7 +364,14 @@ def parse_config(raw: dict[str, Any], *, base: Path | None = None, source: str =
                 raise ConfigError(f"{w}.path", f"a {kind} dataset needs a path")
             p = resolve_data_path(str(d["path"]), base)
             if not p.is_dir():
-                raise ConfigError(f"{w}.path", f"dataset folder not found: {p}")
+                env = os.environ.get("TOOLKIT_DATA")
+                how = (
+                    f"relative paths are resolved under $TOOLKIT_DATA={env}"
+                    if env
+                    else "relative paths are resolved under $TOOLKIT_DATA when set (it is not), "
+                    "else under the config's folder"
+                )
+                raise ConfigError(f"{w}.path", f"dataset folder not found: {p} ({how})")
             path = str(p)
         try:
             refs = open_dataset(kind, path, **params)
@@ -400,7 +421,16 @@ def parse_config(raw: dict[str, Any], *, base: Path | None = None, source: str =
                     f"{w}.corruptions[{j}]", f"unknown corruption {cn!r}; defined: {', '.join(corruptions)}"
                 )
             cinst += corruptions[cn]
-        spectrum = _validate_spectrum(t.get("spectrum"), f"{w}.spectrum")
+        if kind == "spectrum":
+            if isinstance(t.get("spectrum"), dict) and "weighting" in t["spectrum"]:
+                raise ConfigError(
+                    f"{w}.spectrum.weighting", "the weightings of a spectrum task are its methods' plugins"
+                )
+            spectrum = _validate_spectrum(t.get("spectrum"), f"{w}.spectrum")
+        elif "spectrum" in t:
+            raise ConfigError(f"{w}.spectrum", _NOT_A_SUBJECT.format(kind=kind))
+        else:
+            spectrum = None
         options = t.get("options", {}) or {}
         try:
             options = adapter.check_options(options)
@@ -428,6 +458,10 @@ def parse_config(raw: dict[str, Any], *, base: Path | None = None, source: str =
             prm = m.get("params", {}) or {}
             if not isinstance(prm, dict):
                 raise ConfigError(f"{mw}.params", "must be a table")
+            if "spectrum" in m and spectrum is None:
+                raise ConfigError(f"{mw}.spectrum", _NOT_A_SUBJECT.format(kind=kind))
+            if isinstance(m.get("spectrum"), dict) and "weighting" in m["spectrum"]:
+                raise ConfigError(f"{mw}.spectrum.weighting", "the weighting of a spectrum task's method is its plugin")
             mspec = (
                 _validate_spectrum({**spectrum, **m["spectrum"]}, f"{mw}.spectrum")
                 if "spectrum" in m

@@ -15,23 +15,30 @@ import html
 import json
 import math
 import os
-import pickle
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from shape_toolkit.bench.runner import PREPARED, RESULTS, read_rows
+from shape_toolkit.bench.store import (
+    RESULTS,
+    load_output,
+    load_prepared,
+    prepared_path,
+    read_prepare_log,
+    read_rows,
+    safe_name,
+)
 from shape_toolkit.errors import ParameterError
 
 __all__ = ["write_report", "summarize", "method_id"]
 
 
 def method_id(row: dict) -> str:
-    """Display name of a row's method: label plus its (short) parameters."""
-    p = row.get("params") or {}
-    label = str(row.get("method"))
+    """Display name of a row's method: its ``method_label`` plus its (short) parameters."""
+    p = row.get("params") if isinstance(row.get("params"), dict) else {}
+    label = str(row.get("method_label"))
     shown = {k: v for k, v in sorted(p.items()) if not isinstance(v, dict) and len(repr(v)) <= 24}
     if row.get("family") == "pipelines" or not shown:
         return label
@@ -47,13 +54,13 @@ def _is_curve(v: Any) -> bool:
 
 
 def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str], dict[str, tuple[float, float, int]]]]:
-    """``{task: {(method_id, corruption): {column: (mean, std, count)}}}`` over ok rows, for
+    """``{task_name: {(method_id, corruption): {column: (mean, std, count)}}}`` over ok rows, for
     every scalar metric plus ``seconds`` and ``peak_memory_mb``."""
     acc: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
     for r in rows:
         if r.get("status") != "ok":
             continue
-        cell = acc[r["task"]][(method_id(r), r.get("corruption", "none"))]
+        cell = acc[r["task_name"]][(method_id(r), str(r.get("corruption", "none")))]
         for k, v in (r.get("metrics") or {}).items():
             if _is_num(v):
                 cell[k].append(float(v))
@@ -76,7 +83,7 @@ class _Figs:
     def save(self, fig, name: str) -> Path:
         import matplotlib.pyplot as plt
 
-        p = self.folder / f"{len(self.files):02d}-{name}.png"
+        p = self.folder / f"{len(self.files):02d}-{safe_name(name)}.png"
         fig.savefig(p, dpi=90, bbox_inches="tight")
         plt.close(fig)
         self.files.append(p)
@@ -121,9 +128,9 @@ def _curve_figs(task: str, rows: list[dict], figs: _Figs) -> list[str]:
     parts = []
     curves: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
     for r in rows:
-        if r.get("status") != "ok" or r["task"] != task:
+        if r.get("status") != "ok" or r["task_name"] != task:
             continue
-        g = r.get("corruption_group") or "none"
+        g = str(r.get("corruption_group") or "none")
         for k, v in (r.get("metrics") or {}).items():
             if _is_curve(v):
                 curves[k][g][(method_id(r), r.get("corruption", "none"))].append(np.asarray(v, dtype=float))
@@ -170,7 +177,7 @@ def _strength_figs(task: str, rows: list[dict], figs: _Figs) -> list[str]:
     """One figure per corruption group: a panel per scalar metric, metric vs strength per method."""
     plt = _plt()
     parts = []
-    ok = [r for r in rows if r.get("status") == "ok" and r["task"] == task]
+    ok = [r for r in rows if r.get("status") == "ok" and r["task_name"] == task]
     groups = sorted({r.get("corruption_group") for r in ok} - {"none", None})
     metrics = sorted({k for r in ok for k, v in (r.get("metrics") or {}).items() if _is_num(v)})
     for g in groups:
@@ -244,16 +251,15 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
             break
         if r.get("status") != "ok" or not r.get("output") or method_id(r) in done_methods:
             continue
-        ppath = run / "cache" / "prepared" / f"{r.get('prepare_key')}.pkl"
-        opath = run / r["output"]
-        if not ppath.exists() or not opath.exists():
+        if not isinstance(r.get("prepare_key"), str):
+            continue
+        ppath = prepared_path(run, r["prepare_key"])
+        if not ppath.exists():
             continue
         try:
-            with open(ppath, "rb") as fh:
-                prep = pickle.load(fh)
-            with np.load(opath) as z:
-                out = {k: z[k] for k in z.files}
-            title = f"{r['task']}: {method_id(r)} on {r['item']} ({r.get('corruption', 'none')})"
+            prep = load_prepared(ppath)  # npz, validated; never pickle
+            out = load_output(run, r["output"])
+            title = f"{r['task_name']}: {method_id(r)} on {r['item']} ({r.get('corruption', 'none')})"
             kind = r.get("task_kind")
             if kind == "segmentation" and "labels" in out:
                 panels = [{"shape": prep.target, "labels": out["labels"], "title": "result"}]
@@ -276,7 +282,7 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
                 continue
             p = render_shapes(
                 panels,
-                figs.folder / f"{len(figs.files):02d}-render-{r['key']}.png",
+                figs.folder / f"{len(figs.files):02d}-render-{safe_name(r['key'])}.png",
                 panel_size=3.0,
                 dpi=80,
                 title=title,
@@ -291,14 +297,34 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
     return parts
 
 
+def _spectra_list(rows: list[dict]) -> str:
+    """The spectra each method received (as its rows record them)."""
+    seen: dict[str, list[str]] = {}
+    for r in rows:
+        specs = r.get("spectra") if isinstance(r.get("spectra"), list) else []
+        text = "; ".join(
+            ", ".join(f"{k}={v}" for k, v in s.items()) for s in specs if isinstance(s, dict)
+        ) or "none"
+        seen.setdefault(method_id(r), [])
+        if text not in seen[method_id(r)]:
+            seen[method_id(r)].append(text)
+    items = "".join(
+        f"<li>{html.escape(m)}: {html.escape(' | '.join(t))}</li>" for m, t in sorted(seen.items())
+    )
+    return f"<p>Spectra the methods received:</p><ul>{items}</ul>"
+
+
 def _prepare_section(run: Path, rows: list[dict]) -> str:
-    preps = read_rows(run, PREPARED)
+    preps = read_prepare_log(run)
     if not preps:
         return ""
-    comp = [s for p in preps for s in p.get("spectra", []) if "seconds" in s and not s.get("cache_hit")]
+    comp = [
+        s for p in preps for s in p.get("spectra", [])
+        if isinstance(s, dict) and _is_num(s.get("seconds")) and not s.get("cache_hit")
+    ]
     spec_total = sum(s["seconds"] for s in comp)
-    geo_total = sum(p.get("geodesic_seconds", 0.0) or 0.0 for p in preps)
-    cor_total = sum(p.get("corruption_seconds", 0.0) or 0.0 for p in preps)
+    geo_total = sum(p["geodesic_seconds"] for p in preps if _is_num(p.get("geodesic_seconds")))
+    cor_total = sum(p["corruption_seconds"] for p in preps if _is_num(p.get("corruption_seconds")))
     looked = [r for r in rows if _is_num(r.get("spectrum_seconds")) and r.get("task_kind") != "spectrum"]
     hits = sum(bool(r.get("spectrum_cache_hit")) for r in looked)
     look_total = sum(r["spectrum_seconds"] for r in looked)
@@ -340,7 +366,7 @@ def write_report(
     summ = summarize(rows)
     n_ok = sum(r.get("status") == "ok" for r in rows)
     failed = [r for r in rows if r.get("status") != "ok"]
-    name = rows[0].get("run", run.name) if rows else run.name
+    name = rows[0].get("run_name", run.name) if rows else run.name
     versions = next((r.get("versions") for r in rows if r.get("versions")), {})
     parts = [
         f"<h1>Benchmark report: {html.escape(str(name))}</h1>",
@@ -350,14 +376,15 @@ def write_report(
         "<p>Seconds are the method's own call (spectra come from the shared cache, timed separately); "
         "peak memory is the resident-set growth during that call (MB).</p>",
     ]
-    tasks = list(dict.fromkeys(r["task"] for r in rows))
+    tasks = list(dict.fromkeys(r["task_name"] for r in rows))
     for task in tasks:
-        trows = [r for r in rows if r["task"] == task]
+        trows = [r for r in rows if r["task_name"] == task]
         parts.append(f"<h2>Task {html.escape(task)} ({trows[0].get('task_kind', '')})</h2>")
         cells = summ.get(task, {})
         cols = sorted({c for v in cells.values() for c in v} - {"seconds", "peak_memory_mb"})
         if cells:
             parts.append(_table(cells, cols + ["seconds", "peak_memory_mb"]))
+        parts.append(_spectra_list(trows))
         parts += _curve_figs(task, rows, figs)
         parts += _strength_figs(task, rows, figs)
         parts += _cost_fig(task, cells, figs)
@@ -366,7 +393,7 @@ def write_report(
     parts.append(_prepare_section(run, rows))
     if failed:
         items = "".join(
-            f"<tr><td>{html.escape(str(r.get('task')))}</td><td>{html.escape(method_id(r))}</td>"
+            f"<tr><td>{html.escape(str(r.get('task_name')))}</td><td>{html.escape(method_id(r))}</td>"
             f"<td>{html.escape(str(r.get('item')))}</td><td>{html.escape(str(r.get('corruption')))}</td>"
             f"<td style='text-align:left'>{html.escape(str(r.get('error')))}</td></tr>"
             for r in failed

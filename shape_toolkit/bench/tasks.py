@@ -9,20 +9,23 @@ as its module exists.
 
 Items are *prepared* once per (item, corruption) and shared by every method: the corrupted
 shape, the ground truth carried through the corruption, and geodesic distance rows of the
-evaluated ground-truth points (matching). Spectra go through the content-addressed cache of
-:mod:`shape_toolkit.core.spectrum` (on disk in the run folder), so each is computed once per run.
+evaluated ground-truth points (matching). Spectra are the ones each method declares
+(``spectrum_spec()`` of a plugin and of its keypoint detector, ``spectrum_specs()`` of a pipeline);
+they go through the content-addressed cache of :mod:`shape_toolkit.core.spectrum` (on disk in the
+run folder), so each is computed once per item and run.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, merge_specs
 from shape_toolkit.data.corruptions import RESAMPLING, apply_corruption, carry_correspondence, carry_labels
 from shape_toolkit.data.datasets import DatasetItem
 from shape_toolkit.errors import ParameterError
@@ -32,7 +35,10 @@ __all__ = [
     "TaskAdapter",
     "TASKS",
     "prepare",
-    "get_spectrum",
+    "compute_spectrum_cached",
+    "spectrum_for",
+    "received_spec",
+    "method_specs",
     "lookup_metric",
 ]
 
@@ -121,27 +127,59 @@ def prepare(
     return p
 
 
-def get_spectrum(shape: Shape, settings: dict[str, Any], *, weighting_params: dict | None = None):
-    """The spectrum of ``shape`` for config ``settings`` (weighting, k, laplacian, params, ...)
-    through the content cache; returns ``(Spectrum, seconds, cache_hit)``."""
+def compute_spectrum_cached(spec: SpectrumSpec, shape: Shape) -> tuple[Spectrum, bool]:
+    """``spec`` computed on ``shape`` through the content cache (largest connected component, as
+    corruptions may split a shape); returns ``(Spectrum, cache_hit)``."""
     from shape_toolkit.core import spectrum as spm
     from shape_toolkit.core.graph import build_graph
 
-    t0 = time.perf_counter()
-    params = dict(settings.get("params", {}) or {})
-    params.update(weighting_params or {})
-    kw = {}
-    for key in ("connectivity", "n_neighbors"):
-        if key in settings:
-            kw[key] = settings[key]
-    g = build_graph(shape, settings["weighting"], **kw, **params)
-    k = min(int(settings["k"]), shape.n_vertices - 1)
-    use_mass = settings.get("use_mass")
-    hit = spm.is_cached(g, k, laplacian=settings["laplacian"], use_mass=use_mass, components="largest")
-    spec = spm.compute_spectrum(
-        g, k, laplacian=settings["laplacian"], use_mass=use_mass, components="largest"
-    )
-    return spec, time.perf_counter() - t0, hit
+    s = spec.for_shape(shape)
+    graph = build_graph(shape, s.weighting, **dict(s.weighting_params))
+    k = min(int(s.k), shape.n_vertices - 1) if shape.n_vertices > 1 else 1
+    hit = spm.is_cached(graph, k, laplacian=s.laplacian, use_mass=s.use_mass, components="largest")
+    out = spm.compute_spectrum(graph, k, laplacian=s.laplacian, use_mass=s.use_mass, components="largest")
+    return out, hit
+
+
+def spectrum_for(spec: SpectrumSpec, shape: Shape, pool: Sequence[SpectrumSpec] = ()) -> tuple[Spectrum, bool]:
+    """The spectrum ``spec`` asks for on ``shape``, exactly (``k`` eigenpairs, never more): taken
+    from the larger spectrum of the same kind in ``pool`` (what the prepare stage computed into
+    the cache) when there is one, and checked with :meth:`SpectrumSpec.check`."""
+    source = next((p for p in pool if p.kind == spec.kind and p.k >= spec.k), spec)
+    spectrum, hit = compute_spectrum_cached(source, shape)
+    want = spec.for_shape(shape)
+    k = min(want.k, spectrum.k)
+    spectrum = spectrum.truncated(k) if spectrum.k > k else spectrum
+    if k == want.k:
+        spec.check(spectrum, shape)
+    return spectrum, hit
+
+
+def received_spec(spec: SpectrumSpec, shape: Shape) -> dict[str, Any]:
+    """What a row records for a spectrum ``spec`` given on ``shape`` (its ``to_dict`` as applied to
+    the shape: ``k`` capped at the vertex count, a mesh-only weighting swapped on point clouds)."""
+    out = spec.for_shape(shape).to_dict()
+    out["k"] = min(out["k"], shape.n_vertices - 1) if shape.n_vertices > 1 else 1
+    return out
+
+
+def method_specs(method: Any, detector: Any = None) -> tuple[list[SpectrumSpec], SpectrumSpec | None]:
+    """The spectra a method declares: ``(specs of the method, spec of its keypoint detector)``; a
+    pipeline (:meth:`~shape_toolkit.pipeline.Pipeline.spectrum_specs`) may declare several, a
+    plugin one (:meth:`spectrum_spec`) or none."""
+    if method is None:
+        own: list[SpectrumSpec] = []
+    elif hasattr(method, "spectrum_specs"):
+        own = merge_specs(method.spectrum_specs() or [])
+    else:
+        getter = getattr(method, "spectrum_spec", None)
+        own = [s for s in [getter() if getter else None] if s is not None]
+    getter = getattr(detector, "spectrum_spec", None) if detector is not None else None
+    det = getter() if getter else None
+    for s in own + ([det] if det is not None else []):
+        if not isinstance(s, SpectrumSpec):
+            raise ParameterError(f"{type(method).__name__} declared {s!r}, not a SpectrumSpec")
+    return own, det
 
 
 def lookup_metric(name: str) -> Callable[..., Any] | None:
@@ -209,9 +247,12 @@ class TaskAdapter:
         options: dict[str, Any],
         random_state: int,
         detector: Any = None,
+        detector_spectra: dict[str, Any] | None = None,
     ):
-        """Call the method (``detector``: the keypoint detector of a sparse matcher); returns a
-        dict of output arrays (saved for reports)."""
+        """Call the method with the spectra it declared: ``spectra`` ``{"source": ..., "target": ...}``
+        (a :class:`Spectrum` or None per side for a plugin, a list of spectra for a pipeline);
+        ``detector`` is the keypoint detector of a sparse matcher, given ``detector_spectra``.
+        Returns a dict of output arrays (saved for reports)."""
         raise NotImplementedError
 
     def evaluate(self, names, prepared: Prepared, output: dict, options: dict) -> dict[str, Any]:
@@ -234,7 +275,7 @@ def _m_fiedler(p, o, opt):
 
 
 def _m_scree(p, o, opt):
-    from shape_toolkit.features.heat import scree_alpha
+    from shape_toolkit.features.scales import scree_alpha
 
     lam = np.asarray(o["eigenvalues"])
     n = int(o["n_vertices"])
@@ -269,8 +310,8 @@ class SpectrumTask(TaskAdapter):
         "scree_alpha": (_m_scree, ()),
     }
 
-    def run(self, method, prepared, spectra, options, random_state, detector=None):
-        spec = spectra["target"]
+    def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
+        spec = spectra["target"]  # the subject: computed inside the row, timed as the method
         return {"eigenvalues": spec.eigenvalues, "n_vertices": prepared.target.n_vertices}
 
 
@@ -322,12 +363,12 @@ class KeypointsTask(TaskAdapter):
         "repeatability": (_m_repeatability, ("repeatability_report", "ground_truth_map")),
     }
 
-    def run(self, method, prepared, spectra, options, random_state, detector=None):
+    def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         return {
             "source_keypoints": np.asarray(
                 method.detect(prepared.source, spectrum=spectra.get("source")), np.int64
             ),
-            "keypoints": np.asarray(method.detect(prepared.target, spectrum=spectra["target"]), np.int64),
+            "keypoints": np.asarray(method.detect(prepared.target, spectrum=spectra.get("target")), np.int64),
         }
 
 
@@ -366,7 +407,7 @@ class SegmentationTask(TaskAdapter):
     default_metrics = ("n_segments",)
     metrics = {"n_segments": (_m_n_segments, ()), "segmentation": (_m_segmentation, ("segmentation_scores",))}
 
-    def run(self, method, prepared, spectra, options, random_state, detector=None):
+    def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         constraints = None
         if options.get("constraints") is not None:
             from shape_toolkit.results.labels import draw_constraints
@@ -377,7 +418,7 @@ class SegmentationTask(TaskAdapter):
             constraints = draw_constraints(
                 prepared.target_labels[0], prepared.target.edges, random_state=random_state, **c
             )
-        labels = method.segment(prepared.target, spectrum=spectra["target"], constraints=constraints)
+        labels = method.segment(prepared.target, spectrum=spectra.get("target"), constraints=constraints)
         return {"labels": np.asarray(labels, dtype=np.int64)}
 
 
@@ -475,12 +516,12 @@ class MatchingTask(TaskAdapter):
             raise ParameterError("truth_sample must be a positive integer")
         return o
 
-    def run(self, method, prepared, spectra, options, random_state, detector=None):
+    def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         src, tgt = prepared.source, prepared.target
         if detector is not None:
-            det = detector
-            skp = np.asarray(det.detect(src, spectrum=spectra.get("source")), np.int64)
-            tkp = np.asarray(det.detect(tgt, spectrum=spectra.get("target")), np.int64)
+            ds = detector_spectra or {}
+            skp = np.asarray(detector.detect(src, spectrum=ds.get("source")), np.int64)
+            tkp = np.asarray(detector.detect(tgt, spectrum=ds.get("target")), np.int64)
             pairs = np.asarray(
                 method.match(
                     src,
@@ -495,8 +536,9 @@ class MatchingTask(TaskAdapter):
             t = np.full(src.n_vertices, -1, dtype=np.int64)
             t[pairs[:, 0]] = pairs[:, 1]
             return {"target_of": t, "pairs": pairs, "sparse": True}
-        if type(method).__name__ == "Pipeline":  # shape_toolkit.pipeline: computes its own stages
-            corr = method.run(src, tgt)
+        if type(method).__name__ == "Pipeline":  # shape_toolkit.pipeline: its stages pick their spectra
+            given = {side: list(spectra.get(side) or []) for side in ("source", "target")}
+            corr = method.run(src, tgt, spectra=given) if any(given.values()) else method.run(src, tgt)
             t = np.asarray(corr.target_of, dtype=np.int64)
             return {"target_of": t, "sparse": False}
         corr = method.match(

@@ -4,14 +4,44 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from shape_toolkit.cli.commands._common import print_json
+
+RUN_EPILOG = """exit status:
+  0  every row of the run folder succeeded
+  1  the run finished but some rows failed (see results.jsonl or the report)
+  2  usage error: invalid config, bad option, or a run folder that is locked by another
+     'bench run' or not writable (one line on stderr, nothing run)"""
+
+
+@contextmanager
+def _one_line_warnings() -> Iterator[None]:
+    """Show benchmark warnings (skipped invalid lines, ...) as one ``warning:`` line on stderr."""
+    from shape_toolkit.bench.store import BenchWarning
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
+        print(f"shape-toolkit bench: warning: {message}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", BenchWarning)
+        warnings.showwarning = show
+        yield
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="run benchmark configs and write reports")
     bsub = p.add_subparsers(dest="bench_command", metavar="ACTION")
-    r = bsub.add_parser("run", help="run (or resume) a benchmark config into a run folder")
+    r = bsub.add_parser(
+        "run",
+        help="run (or resume) a benchmark config into a run folder",
+        description="Run (or resume) a benchmark config: one row per item, method and parameters "
+        "appended to RUN_DIR/results.jsonl. One 'bench run' per run folder at a time.",
+        epilog=RUN_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     r.add_argument("config", help="TOML benchmark config")
     r.add_argument(
         "-o", "--output", required=True, metavar="RUN_DIR", help="run folder (results.jsonl, cache)"
@@ -38,24 +68,26 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_cmd(args: argparse.Namespace) -> int:
+    """Exit 0 when every row succeeded, 1 when some failed; usage errors raise (exit 2)."""
     from shape_toolkit.bench.config import load_config
-    from shape_toolkit.bench.runner import run_benchmark
+    from shape_toolkit.bench.executors import run_benchmark
 
-    cfg = load_config(args.config)  # every check happens before any work
-    summary = run_benchmark(
-        cfg,
-        args.output,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        limit=args.limit,
-        progress=not args.no_progress,
-        retry_failed=args.retry_failed,
-    )
-    report = None
-    if args.report:
-        from shape_toolkit.bench.report import write_report
+    with _one_line_warnings():
+        cfg = load_config(args.config)  # every check happens before any work
+        summary = run_benchmark(
+            cfg,
+            args.output,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            limit=args.limit,
+            progress=not args.no_progress,
+            retry_failed=args.retry_failed,
+        )
+        report = None
+        if args.report:
+            from shape_toolkit.bench.report import write_report
 
-        report = str(write_report(args.output)["html"])
+            report = str(write_report(args.output)["html"])
     if args.json:
         print_json(
             {
@@ -75,13 +107,14 @@ def run_cmd(args: argparse.Namespace) -> int:
         )
         if report:
             print(f"report: {report}")
-    return 0 if summary.failed == 0 else 0
+    return 1 if summary.failed else 0
 
 
 def report_cmd(args: argparse.Namespace) -> int:
     from shape_toolkit.bench.report import write_report
 
-    res = write_report(args.run_dir, output=args.output, renders=args.renders)
+    with _one_line_warnings():
+        res = write_report(args.run_dir, output=args.output, renders=args.renders)
     if args.json:
         print_json({k: str(v) if not isinstance(v, list) else [str(x) for x in v] for k, v in res.items()})
     else:

@@ -1,0 +1,227 @@
+"""Run a plan: in process (``workers == 1``), on a local Dask cluster (``workers > 1``: processes,
+one thread each, loopback) or on an existing Dask scheduler (``scheduler="tcp://..."``; the run
+folder must then be on a filesystem the workers share).
+
+One ``bench run`` writes a run folder at a time (an OS-level lock); rows already in
+``results.jsonl`` are skipped (ok or failed; ``retry_failed`` re-runs failed ones). Prepare jobs
+run first; with Dask, row jobs depend on their prepare job, so shared work is done once per run
+even across workers. Only the runner process writes the files.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from shape_toolkit.bench.config import BenchConfig
+from shape_toolkit.bench.plan import Job, PrepareJob, plan
+from shape_toolkit.bench.progress import Progress
+from shape_toolkit.bench.store import (
+    PREPARED,
+    RESULTS,
+    Appender,
+    RunFolderError,
+    clean_results,
+    read_rows,
+    run_lock,
+)
+from shape_toolkit.bench.worker import execute_job, lost_row, prepare_job
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.validation import dumps_json
+
+__all__ = ["RunSummary", "run_benchmark", "run_local", "run_dask"]
+
+
+@dataclass
+class RunSummary:
+    """What a run did: rows written now, failed among all rows of the folder, reused (already
+    done), planned, wall seconds, the run folder."""
+
+    rows: int
+    failed: int
+    reused: int
+    planned: int
+    seconds: float
+    run_dir: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary."""
+        return asdict(self)
+
+
+_WRITE_ERRORS = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT}
+
+
+def _open_run_dir(run_dir: str | os.PathLike) -> Path:
+    run = Path(run_dir).resolve()
+    try:
+        run.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RunFolderError(f"cannot create run folder {run}: {exc.strerror or exc}") from None
+    if not os.access(run, os.W_OK | os.X_OK):
+        raise RunFolderError(f"run folder {run} is not writable")
+    return run
+
+
+def run_benchmark(
+    config: BenchConfig,
+    run_dir: str | os.PathLike,
+    *,
+    workers: int = 1,
+    scheduler: str | None = None,
+    limit: int | None = None,
+    progress: bool = True,
+    retry_failed: bool = False,
+) -> RunSummary:
+    """Run every planned row not already in ``RUN_DIR/results.jsonl``; see the module docstring.
+    :class:`~shape_toolkit.bench.store.RunFolderError` when the folder is locked by another run
+    or not writable."""
+    if workers < 1:
+        raise ParameterError(f"workers must be >= 1, got {workers}")
+    if limit is not None and limit < 1:
+        raise ParameterError(f"limit must be >= 1, got {limit}")
+    t0 = time.perf_counter()
+    run = _open_run_dir(run_dir)
+    with run_lock(run):
+        try:
+            return _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed)
+        except OSError as exc:
+            if exc.errno not in _WRITE_ERRORS:
+                raise
+            raise RunFolderError(f"cannot write to run folder {run}: {exc.strerror or exc}") from None
+
+
+def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed) -> RunSummary:
+    (run / "config.json").write_text(dumps_json(config.raw, indent=2))
+    results = run / RESULTS
+    clean_results(results, keep_failed=not retry_failed)
+    clean_results_log(run / PREPARED)
+    done = {r["key"] for r in read_rows(run)}
+    jobs, preps = plan(config, run, limit=limit)
+    todo = [j for j in jobs if j.key not in done]
+    reused = len(jobs) - len(todo)
+    needed = {j.prepare_key for j in todo}
+    preps = {k: v for k, v in preps.items() if k in needed}
+    bar = Progress(len(jobs), initial=reused, enabled=progress)
+    out = Appender(results)
+    plog = Appender(run / PREPARED)
+    n_rows = 0
+
+    def finish(row: dict) -> None:
+        nonlocal n_rows
+        out.write(row)
+        n_rows += 1
+        bar.update(failed=row["status"] != "ok")
+
+    try:
+        if scheduler is None and workers == 1:
+            run_local(todo, preps, finish, plog.write)
+        else:
+            run_dask(todo, preps, workers, scheduler, finish, plog.write)
+    finally:
+        bar.close()
+        out.close()
+        plog.close()
+    n_failed_total = sum(r["status"] != "ok" for r in read_rows(run))
+    return RunSummary(n_rows, n_failed_total, reused, len(jobs), time.perf_counter() - t0, str(run))
+
+
+def clean_results_log(path: Path) -> None:
+    """Drop a torn last line of the prepare log so appends start on a fresh line."""
+    if not path.exists() or path.stat().st_size == 0:
+        return
+    data = path.read_bytes()
+    if data.endswith(b"\n"):
+        return
+    cut = data.rfind(b"\n") + 1
+    tmp = path.with_name(f".{path.name}.repair")
+    tmp.write_bytes(data[:cut])
+    os.replace(tmp, path)
+
+
+def run_local(
+    todo: list[Job], preps: dict[str, PrepareJob], finish: Callable[[dict], None], log: Callable[[dict], None]
+) -> None:
+    """In process: each prepare job, then its rows; with one BLAS thread, as in a Dask worker, so
+    that results (near-degenerate eigenvectors are sensitive to it) and timings do not depend on
+    how a run is executed."""
+    from threadpoolctl import threadpool_limits
+
+    by_prep: dict[str, list[Job]] = {}
+    for j in todo:
+        by_prep.setdefault(j.prepare_key, []).append(j)
+    with threadpool_limits(limits=1):
+        for pkey, js in by_prep.items():
+            info = prepare_job(preps[pkey])
+            log(info)
+            for j in js:
+                finish(execute_job(j, info))
+
+
+def run_dask(
+    todo: list[Job],
+    preps: dict[str, PrepareJob],
+    workers: int,
+    scheduler: str | None,
+    finish: Callable[[dict], None],
+    log: Callable[[dict], None],
+) -> None:
+    """On a local Dask cluster of ``workers`` processes, or on the scheduler at ``scheduler``."""
+    import logging
+
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    for name in ("distributed", "distributed.worker", "distributed.scheduler", "distributed.nanny"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    if scheduler is None:
+        cluster = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+        )
+        client = Client(cluster)
+    else:
+        client = Client(scheduler, timeout="30s")
+    try:
+        # workers must import the same toolkit: forward sys.path entries of this process
+        client.run(_extend_path, [p for p in sys.path if p])
+        pfuts = {k: client.submit(prepare_job, p, key=f"prepare-{k}", pure=False) for k, p in preps.items()}
+        by_key = {f"row-{j.key}": j for j in todo}
+        rfuts = [
+            client.submit(execute_job, j, pfuts[j.prepare_key], key=f"row-{j.key}", pure=False) for j in todo
+        ]
+        logged: set[str] = set()
+        for fut in as_completed(rfuts):
+            try:
+                row = fut.result()
+            except Exception as exc:  # a worker died: record the row as failed, go on
+                row = lost_row(by_key[fut.key], exc)
+            finish(row)
+            for k, pf in pfuts.items():
+                if k not in logged and pf.done():
+                    logged.add(k)
+                    try:
+                        log(pf.result())
+                    except Exception as exc:  # pragma: no cover - the worker died while preparing
+                        log({"key": k, "error": f"worker lost: {type(exc).__name__}: {exc}", "spectra": []})
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _extend_path(paths: list[str]) -> None:
+    for p in reversed(paths):
+        if p not in sys.path:
+            sys.path.insert(0, p)
+

@@ -1,0 +1,235 @@
+"""Planning: expand a validated config into row jobs and the prepare jobs they share.
+
+A :class:`Job` is one row to compute (a method on one dataset item under one corruption); a
+:class:`PrepareJob` is the work shared by every row of one (item, corruption): loading, the
+corruption, ground truth carried through it, geodesic rows for the evaluation, and the spectra
+the methods on that item declare (merged per kind: one eigen-solve with the largest ``k``).
+
+Rows are keyed by a stable hash of their identity (dataset, item, task, plugin, preset,
+parameters, corruption, the spectra the method declares, random state, metrics, options), so a
+resumed run skips exactly the rows already done.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from shape_toolkit.bench.config import BenchConfig, MethodSpec, TaskSpec
+from shape_toolkit.core.spectrum import SpectrumSpec, merge_specs
+from shape_toolkit.validation import dumps_json
+
+__all__ = ["Job", "PrepareJob", "plan", "row_key", "subject_spec", "create_method", "declared_specs"]
+
+
+def row_key(fields: dict[str, Any]) -> str:
+    """Stable hash of the identity of a row (not of its results)."""
+    return hashlib.sha1(dumps_json(fields, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _seed(*parts: Any) -> int:
+    return int(hashlib.sha1(repr(parts).encode()).hexdigest()[:8], 16) % (2**31 - 1)
+
+
+@dataclass
+class PrepareJob:
+    """Shared work of one (item, corruption): see the module docstring. ``specs`` are the merged
+    spectra every method on the item declared, computed on ``sides`` into the cache."""
+
+    key: str
+    run_dir: str
+    dataset: str
+    item: str
+    ref: dict[str, Any]
+    corruption_kind: str
+    corruption_params: dict[str, Any]
+    pairwise: bool
+    seed: int
+    geodesic_method: str | None
+    truth_sample: int | None
+    specs: list[SpectrumSpec] = field(default_factory=list)
+
+    @property
+    def sides(self) -> tuple[str, ...]:
+        """The shapes a method sees: the target, and the source of a pairwise task."""
+        return ("target", "source") if self.pairwise else ("target",)
+
+
+@dataclass
+class Job:
+    """One row to compute. ``plugin`` is the registry name (a pipeline's name for pipelines),
+    ``method_label`` the display name, ``task_kind`` the adapter and ``task_name`` the config's
+    task; ``subject_spectrum`` is set for the spectrum task only (the spectrum *is* the result);
+    ``item_specs`` are the merged spectra the prepare stage computed for the item."""
+
+    key: str
+    prepare_key: str
+    run_dir: str
+    run_name: str
+    task_name: str
+    task_kind: str
+    dataset: str
+    item: str
+    plugin: str
+    family: str
+    preset: str | None
+    params: dict[str, Any]
+    method_label: str
+    keypoints: dict[str, Any] | None
+    corruption: str
+    corruption_kind: str
+    corruption_group: str
+    corruption_params: dict[str, Any]
+    strength: float | None
+    random_state: int
+    corruption_seed: int
+    metrics: tuple[str, ...]
+    options: dict[str, Any]
+    subject_spectrum: SpectrumSpec | None = None
+    item_specs: tuple[SpectrumSpec, ...] = ()
+
+
+def subject_spec(task: TaskSpec, method: MethodSpec) -> SpectrumSpec:
+    """The spectrum a ``spectrum`` task computes for a weighting method: the task's (or the
+    method's) ``spectrum`` table with the method's plugin as weighting and its parameters."""
+    s = dict(method.spectrum or task.spectrum)
+    params = {**(s.get("params") or {}), **method.params}
+    for key in ("connectivity", "n_neighbors"):
+        if key in s:
+            params[key] = s[key]
+    return SpectrumSpec(int(s["k"]), method.plugin, s["laplacian"], s.get("use_mass"), params)
+
+
+def create_method(family: str, plugin: str, preset: str | None, params: dict, random_state: int) -> Any:
+    """The method object of a row: a pipeline, or a plugin seeded with the run's random state."""
+    if family == "pipelines":
+        from shape_toolkit.pipeline import load_pipeline
+
+        return load_pipeline(params["pipeline"])
+    from shape_toolkit.bench.tasks import _with_random_state
+
+    return _with_random_state(family, plugin, preset, params, random_state)
+
+
+def create_detector(keypoints: dict[str, Any] | None) -> Any:
+    """The keypoint detector of a sparse-matching method, or None."""
+    if not keypoints:
+        return None
+    from shape_toolkit.api.registry import create_plugin
+
+    return create_plugin("keypoints", keypoints["plugin"], keypoints.get("preset"), **(keypoints.get("params") or {}))
+
+
+def declared_specs(task: TaskSpec, method: MethodSpec, random_state: int) -> list[SpectrumSpec]:
+    """Every spectrum a method of a (non-spectrum) task declares, its keypoint detector's included;
+    empty when the method cannot be created (its row will fail with the reason)."""
+    from shape_toolkit.bench.tasks import method_specs
+
+    try:
+        obj = create_method(method.family, method.plugin, method.preset, method.params, random_state)
+        own, det = method_specs(obj, create_detector(method.keypoints))
+    except Exception:  # noqa: BLE001 - reported by the row itself
+        return []
+    return own + ([det] if det is not None else [])
+
+
+def plan(
+    config: BenchConfig, run_dir: str | os.PathLike, *, limit: int | None = None
+) -> tuple[list[Job], dict[str, PrepareJob]]:
+    """Expand the config into row jobs and prepare jobs ``{prepare key: job}``."""
+    from shape_toolkit.bench.tasks import TASKS
+
+    run_dir = str(Path(run_dir).resolve())
+    jobs: list[Job] = []
+    preps: dict[str, PrepareJob] = {}
+    seen: set[str] = set()
+    declared: dict[tuple[str, int], list[SpectrumSpec]] = {}
+    for task in config.tasks:
+        adapter = TASKS[task.task_kind]
+        geo = task.task_kind == "matching"
+        for m_index, m in enumerate(task.methods):
+            if task.task_kind != "spectrum":
+                declared[(task.task_name, m_index)] = declared_specs(task, m, config.random_state)
+        for dname in task.datasets:
+            ds = config.datasets[dname]
+            refs = list(ds.refs)
+            n = min(x for x in (ds.limit, limit, len(refs)) if x is not None)
+            for ref in refs[:n]:
+                for corr in task.corruptions:
+                    seed = _seed(config.random_state, dname, ref.name, corr.name)
+                    pident = {
+                        "dataset": dname,
+                        "item": ref.name,
+                        "ref": asdict(ref),
+                        "corruption": corr.kind,
+                        "corruption_params": corr.params,
+                        "pairwise": adapter.pairwise,
+                        "seed": seed,
+                        "geodesic_method": task.options.get("geodesic_method") if geo else None,
+                        "truth_sample": task.options.get("truth_sample") if geo else None,
+                    }
+                    pkey = row_key(pident)
+                    prep = preps.get(pkey)
+                    if prep is None:
+                        prep = preps[pkey] = PrepareJob(
+                            pkey, run_dir, dname, ref.name, asdict(ref), corr.kind, dict(corr.params),
+                            adapter.pairwise, seed, pident["geodesic_method"], pident["truth_sample"],
+                        )
+                    for m_index, m in enumerate(task.methods):
+                        subject = subject_spec(task, m) if task.task_kind == "spectrum" else None
+                        specs = [subject] if subject else declared[(task.task_name, m_index)]
+                        if subject is None:
+                            prep.specs = merge_specs(prep.specs + specs)
+                        ident = {
+                            "dataset": dname,
+                            "item": ref.name,
+                            "task_name": task.task_name,
+                            "task_kind": task.task_kind,
+                            "plugin": m.plugin,
+                            "preset": m.preset,
+                            "params": m.params,
+                            "corruption": corr.name,
+                            "corruption_params": corr.params,
+                            "spectra": [s.to_dict() for s in specs],
+                            "keypoints": m.keypoints,
+                            "random_state": config.random_state,
+                            "metrics": list(task.metrics),
+                            "options": task.options,
+                        }
+                        key = row_key(ident)
+                        if key in seen:
+                            continue
+                        seen.add(key)
+                        jobs.append(
+                            Job(
+                                key=key,
+                                prepare_key=pkey,
+                                run_dir=run_dir,
+                                run_name=config.name,
+                                task_name=task.task_name,
+                                task_kind=task.task_kind,
+                                dataset=dname,
+                                item=ref.name,
+                                plugin=m.plugin,
+                                family=m.family,
+                                preset=m.preset,
+                                params=m.params,
+                                method_label=m.method_label,
+                                keypoints=m.keypoints,
+                                corruption=corr.name,
+                                corruption_kind=corr.kind,
+                                corruption_group=corr.group,
+                                corruption_params=corr.params,
+                                strength=corr.strength,
+                                random_state=config.random_state,
+                                corruption_seed=seed,
+                                metrics=tuple(task.metrics),
+                                options=task.options,
+                                subject_spectrum=subject,
+                            )
+                        )
+    jobs = [replace(j, item_specs=tuple(preps[j.prepare_key].specs)) for j in jobs]
+    return jobs, preps

@@ -1,0 +1,443 @@
+"""The run folder: result rows, the prepare log, prepared items and outputs, and its lock.
+
+A run folder is data, never code: everything in it is JSON lines or ``.npz`` archives read with
+``allow_pickle=False`` and validated; whatever fails validation is skipped (rows, with a
+warning, and recomputed) or rebuilt (cached items), never trusted.
+
+``RUN_DIR/results.jsonl`` holds one JSON object per line. One ``bench run`` at a time writes a
+run folder (an OS-level lock on ``RUN_DIR/.lock``); it appends each finished row as one whole
+line followed by ``flush`` + ``fsync``, so a crash loses no finished row and at worst leaves a
+torn last line, which the next run moves aside with any other invalid line.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.validation import dumps_json, jsonable
+
+__all__ = [
+    "RESULTS",
+    "PREPARED",
+    "LOCK",
+    "BenchWarning",
+    "RunFolderError",
+    "Row",
+    "read_rows",
+    "read_prepare_log",
+    "clean_results",
+    "Appender",
+    "run_lock",
+    "save_prepared",
+    "load_prepared",
+    "prepared_path",
+    "save_output",
+    "load_output",
+    "safe_name",
+]
+
+RESULTS = "results.jsonl"
+PREPARED = "prepare.jsonl"
+LOCK = ".lock"
+INVALID_SUFFIX = ".invalid"
+_STATUSES = ("ok", "failed")
+
+
+class BenchWarning(UserWarning):
+    """Something in a run folder was skipped (an invalid line, an unreadable cache file)."""
+
+
+class RunFolderError(ParameterError):
+    """The run folder cannot be used: locked by another run, not writable, not a run folder."""
+
+
+def safe_name(name: str, limit: int = 80) -> str:
+    """``name`` usable as one file-name component: anything but letters, digits, ``.``, ``-``
+    and ``_`` becomes ``_`` (so ``a/b`` or ``..`` never leave the folder)."""
+    out = "".join(c if c.isalnum() and c.isascii() or c in "-_." else "_" for c in str(name))
+    out = out.strip(".") or "_"
+    return out[:limit]
+
+
+# --------------------------------------------------------------------------------------------
+# rows
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Row:
+    """One result row: the identity of the run (task, dataset item, method, corruption) and what
+    the method did. Field names have one meaning each: ``task_kind`` is the adapter (spectrum,
+    keypoints, segmentation, matching), ``task_name`` the config's name for the task; ``plugin``
+    the registry name (or pipeline name), ``method_label`` the display name; ``spectra`` lists the
+    spectra the method received (:meth:`SpectrumSpec.to_dict`), nothing else."""
+
+    key: str
+    run_name: str
+    task_name: str
+    task_kind: str
+    dataset: str
+    item: str
+    plugin: str
+    family: str
+    method_label: str
+    preset: str | None
+    params: dict[str, Any]
+    corruption: str
+    corruption_kind: str
+    corruption_group: str
+    corruption_params: dict[str, Any]
+    strength: float | None
+    random_state: int
+    corruption_seed: int
+    prepare_key: str
+    status: str = "ok"
+    error: str | None = None
+    seconds: float | None = None
+    peak_memory_mb: float | None = None
+    metrics: dict[str, Any] = field(default_factory=dict)
+    spectra: list[dict[str, Any]] = field(default_factory=list)
+    spectrum_seconds: float | None = None
+    spectrum_cache_hit: bool | None = None
+    metric_seconds: float | None = None
+    total_seconds: float | None = None
+    n_vertices: int | None = None
+    output: str | None = None
+    versions: dict[str, str] = field(default_factory=dict)
+    worker: str = ""
+    traceback: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON-ready row (NaN and infinities become null)."""
+        d = asdict(self)
+        if d["traceback"] is None:
+            del d["traceback"]
+        return jsonable(d)
+
+
+#: keys every stored row must have, with their types (checked on read)
+_ROW_TYPES: dict[str, type | tuple[type, ...]] = {
+    "key": str,
+    "status": str,
+    "task_name": str,
+    "task_kind": str,
+    "item": str,
+    "method_label": str,
+    "metrics": dict,
+}
+
+
+def _row_problem(obj: Any) -> str | None:
+    if not isinstance(obj, dict):
+        return f"a JSON {type(obj).__name__}, not an object"
+    for k, t in _ROW_TYPES.items():
+        if not isinstance(obj.get(k), t):
+            return f"no valid {k!r}"
+    if obj["status"] not in _STATUSES:
+        return f"status {obj['status']!r}"
+    return None
+
+
+def _prep_problem(obj: Any) -> str | None:
+    if not isinstance(obj, dict):
+        return f"a JSON {type(obj).__name__}, not an object"
+    if not isinstance(obj.get("key"), str):
+        return "no valid 'key'"
+    if not isinstance(obj.get("spectra", []), list):
+        return "no valid 'spectra'"
+    return None
+
+
+def _scan(path: Path, check) -> tuple[list[dict], list[tuple[int, str, str]]]:
+    """Valid objects and ``(line number, line, problem)`` of invalid lines of a JSON-lines file."""
+    good: list[dict] = []
+    bad: list[tuple[int, str, str]] = []
+    if not path.exists():
+        return good, bad
+    data = path.read_bytes()
+    for i, raw in enumerate(data.split(b"\n"), 1):
+        line = raw.decode("utf-8", errors="replace").strip()
+        if not line:
+            continue
+        try:
+            obj = json.loads(line)
+        except ValueError:
+            bad.append((i, line, "not valid JSON"))
+            continue
+        problem = check(obj)
+        if problem:
+            bad.append((i, line, problem))
+        else:
+            good.append(obj)
+    return good, bad
+
+
+def _warn_bad(path: Path, bad: list[tuple[int, str, str]], action: str) -> None:
+    if not bad:
+        return
+    shown = ", ".join(f"line {i} ({p})" for i, _, p in bad[:3]) + (", ..." if len(bad) > 3 else "")
+    warnings.warn(f"{path}: skipped {len(bad)} invalid line(s): {shown}; {action}", BenchWarning, stacklevel=3)
+
+
+def read_rows(run_dir: str | os.PathLike, name: str = RESULTS) -> list[dict]:
+    """Every valid row of ``RUN_DIR/results.jsonl`` as dicts (one per key, the last written);
+    invalid lines (torn, not JSON, not a row object) are skipped with a :class:`BenchWarning`."""
+    path = Path(run_dir) / name
+    if name != RESULTS:
+        return read_prepare_log(run_dir, name)
+    good, bad = _scan(path, _row_problem)
+    _warn_bad(path, bad, "their rows count as not done")
+    by_key: dict[str, dict] = {}
+    for r in good:
+        by_key.pop(r["key"], None)
+        by_key[r["key"]] = r
+    return list(by_key.values())
+
+
+def read_prepare_log(run_dir: str | os.PathLike, name: str = PREPARED) -> list[dict]:
+    """The valid entries of ``RUN_DIR/prepare.jsonl`` (invalid lines skipped with a warning)."""
+    path = Path(run_dir) / name
+    good, bad = _scan(path, _prep_problem)
+    _warn_bad(path, bad, "ignored")
+    return good
+
+
+def clean_results(path: Path, *, keep_failed: bool = True) -> None:
+    """Rewrite a JSON-lines file with its valid rows only (the run holds the lock): invalid lines
+    (a torn last line, garbage) move to ``NAME.invalid`` and their rows are recomputed;
+    ``keep_failed=False`` also drops failed rows (``--retry-failed``)."""
+    if not path.exists():
+        return
+    good, bad = _scan(path, _row_problem)
+    _warn_bad(path, bad, f"moved to {path.name}{INVALID_SUFFIX}, their rows will be recomputed")
+    keep = [r for r in good if keep_failed or r.get("status") == "ok"]
+    data = path.read_bytes()
+    if not bad and len(keep) == len(good) and (not data or data.endswith(b"\n")):
+        return
+    if bad:
+        with open(path.with_name(path.name + INVALID_SUFFIX), "a", encoding="utf-8") as fh:
+            fh.writelines(line + "\n" for _, line, _ in bad)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "w", encoding="utf-8") as fh:
+        fh.writelines(dumps_json(r) + "\n" for r in keep)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+class Appender:
+    """Append JSON objects to a JSON-lines file, one whole line each, flushed and fsynced."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.fh = open(path, "a", encoding="utf-8")
+
+    def write(self, obj: Any) -> None:
+        """Append ``obj`` (NaN and infinities become null)."""
+        self.fh.write(dumps_json(obj) + "\n")
+        self.fh.flush()
+        os.fsync(self.fh.fileno())
+
+    def close(self) -> None:
+        """Close the file."""
+        self.fh.close()
+
+
+@contextmanager
+def run_lock(run: Path) -> Iterator[None]:
+    """Hold the run folder's OS-level lock (``RUN_DIR/.lock``) for the duration: a second writer
+    gets :class:`RunFolderError` at once instead of duplicating rows."""
+    from filelock import FileLock, Timeout
+
+    lock = FileLock(str(run / LOCK), timeout=0)
+    try:
+        lock.acquire(timeout=0)
+    except Timeout:
+        raise RunFolderError(
+            f"run folder {run} is in use by another 'bench run' (lock {run / LOCK}); wait for it to finish"
+        ) from None
+    except OSError as exc:
+        raise RunFolderError(f"cannot lock run folder {run}: {exc.strerror or exc}") from None
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+# --------------------------------------------------------------------------------------------
+# prepared items (npz, no pickle)
+# --------------------------------------------------------------------------------------------
+_PREP_VERSION = 1
+_OPTIONAL = ("truth", "truth_sym", "truth_eval", "truth_eval_sym", "geodesic_rows", "geodesic_rows_sym")
+_LISTS = ("source_labels", "target_labels", "target_face_labels")
+
+
+def prepared_path(run_dir: str | os.PathLike, key: str) -> Path:
+    """Where the prepared item ``key`` is cached."""
+    return Path(run_dir) / "cache" / "prepared" / f"{safe_name(key)}.npz"
+
+
+def save_prepared(path: Path, prep: Any) -> None:
+    """Write a :class:`~shape_toolkit.bench.tasks.Prepared` as plain arrays plus a JSON header."""
+    arrays: dict[str, np.ndarray] = {}
+    header: dict[str, Any] = {
+        "version": _PREP_VERSION,
+        "name": prep.name,
+        "corruption_seconds": float(prep.corruption_seconds),
+        "geodesic_seconds": float(prep.geodesic_seconds),
+        "meta": jsonable(prep.meta),
+        "present": [],
+        "lists": {},
+        "shapes": {},
+    }
+    for side in ("source", "target"):
+        shape = getattr(prep, side)
+        arrays[f"{side}_vertices"] = np.asarray(shape.vertices, np.float64)
+        if shape.faces is not None:
+            arrays[f"{side}_faces"] = np.asarray(shape.faces, np.int64)
+        header["shapes"][side] = {"name": shape.name, "faces": shape.faces is not None}
+    arrays["vertex_map"] = np.asarray(prep.vertex_map)
+    for k in _OPTIONAL:
+        v = getattr(prep, k)
+        if v is not None:
+            arrays[k] = np.asarray(v)
+            header["present"].append(k)
+    for k in _LISTS:
+        items = list(getattr(prep, k) or [])
+        header["lists"][k] = len(items)
+        for i, a in enumerate(items):
+            arrays[f"{k}_{i}"] = np.asarray(a)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
+    np.savez(tmp, header=np.array(dumps_json(header)), **arrays)
+    os.replace(tmp, path)
+
+
+def _int_array(a: np.ndarray, what: str, shape_ok) -> np.ndarray:
+    if not np.issubdtype(a.dtype, np.integer) or not shape_ok(a):
+        raise ValueError(f"{what}: bad dtype {a.dtype} or shape {a.shape}")
+    return a.astype(np.int64)
+
+
+def load_prepared(path: Path):
+    """Read and validate a prepared item written by :func:`save_prepared` (``allow_pickle=False``);
+    ``ValueError`` when anything is off (the caller prepares the item again)."""
+    from shape_toolkit.bench.tasks import Prepared
+    from shape_toolkit.core.shape import Shape
+    from shape_toolkit.errors import ToolkitError
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError) as exc:  # not an npz (a pickle is refused here)
+        raise ValueError(f"not a prepared-item archive: {exc}") from None
+    try:
+        header = json.loads(str(arrays.pop("header")))
+        if not isinstance(header, dict) or header.get("version") != _PREP_VERSION:
+            raise ValueError("unknown header version")
+        shapes = {}
+        for side in ("source", "target"):
+            info = header["shapes"][side]
+            faces = arrays.get(f"{side}_faces") if info["faces"] else None
+            v = arrays[f"{side}_vertices"]
+            bad_faces = faces is not None and not np.issubdtype(faces.dtype, np.integer)
+            if not np.issubdtype(v.dtype, np.floating) or bad_faces:
+                raise ValueError(f"{side}: bad dtypes")
+            shapes[side] = Shape(v, faces, name=str(info["name"]))
+        n_s, n_t = shapes["source"].n_vertices, shapes["target"].n_vertices
+        vmap = _int_array(arrays["vertex_map"], "vertex_map", lambda a: a.ndim == 1 and len(a) == n_t)
+        opt: dict[str, Any] = {k: None for k in _OPTIONAL}
+        for k in header["present"]:
+            if k not in _OPTIONAL:
+                raise ValueError(f"unknown array {k!r}")
+            a = arrays[k]
+            if k.startswith("truth"):
+                a = _int_array(a, k, lambda a: a.ndim == 2 and a.shape[1] == 2)
+                if len(a) and (a[:, 0].max() >= n_s or a[:, 1].max() >= n_t or a.min() < -1):
+                    raise ValueError(f"{k}: vertex ids out of range")
+            else:
+                if not np.issubdtype(a.dtype, np.floating) or a.ndim != 2 or a.shape[1] != n_t:
+                    raise ValueError(f"{k}: bad dtype or shape")
+            opt[k] = a
+        for k, t in (("geodesic_rows", "truth_eval"), ("geodesic_rows_sym", "truth_eval_sym")):
+            if opt[k] is not None and (opt[t] is None or len(opt[k]) != len(opt[t])):
+                raise ValueError(f"{k} does not match {t}")
+        lists: dict[str, list[np.ndarray]] = {}
+        for k in _LISTS:
+            n = int(header["lists"].get(k, 0))
+            items = [arrays[f"{k}_{i}"] for i in range(n)]
+            for a in items:
+                if not np.issubdtype(a.dtype, np.integer) or a.ndim != 1:
+                    raise ValueError(f"{k}: bad labels")
+            lists[k] = [a.astype(np.int64) for a in items]
+        if any(len(a) != n_s for a in lists["source_labels"]) or any(len(a) != n_t for a in lists["target_labels"]):
+            raise ValueError("labels do not match the vertex counts")
+        meta = header.get("meta") or {}
+        if not isinstance(meta, dict):
+            raise ValueError("meta is not a table")
+        return Prepared(
+            str(header["name"]),
+            shapes["source"],
+            shapes["target"],
+            opt["truth"],
+            opt["truth_sym"],
+            lists["source_labels"],
+            lists["target_labels"],
+            vmap,
+            float(header["corruption_seconds"]),
+            truth_eval=opt["truth_eval"],
+            truth_eval_sym=opt["truth_eval_sym"],
+            geodesic_rows=opt["geodesic_rows"],
+            geodesic_rows_sym=opt["geodesic_rows_sym"],
+            geodesic_seconds=float(header["geodesic_seconds"]),
+            meta=meta,
+            target_face_labels=lists["target_face_labels"],
+        )
+    except (KeyError, TypeError, ValueError, ToolkitError) as exc:
+        raise ValueError(f"invalid prepared item {path.name}: {exc}") from None
+
+
+# --------------------------------------------------------------------------------------------
+# method outputs
+# --------------------------------------------------------------------------------------------
+def save_output(run_dir: str | os.PathLike, key: str, output: dict) -> str | None:
+    """Save the array outputs of a row to ``RUN_DIR/outputs/KEY.npz``; returns the relative path."""
+    arrays = {}
+    for k, v in output.items():
+        if isinstance(v, (np.ndarray, list)):
+            a = np.asarray(v)
+            if a.dtype.kind in "biuf":
+                arrays[k] = a
+    if not arrays:
+        return None
+    d = Path(run_dir) / "outputs"
+    d.mkdir(parents=True, exist_ok=True)
+    name = safe_name(key)
+    tmp = d / f".{name}.{os.getpid()}.tmp.npz"
+    np.savez_compressed(tmp, **arrays)
+    os.replace(tmp, d / f"{name}.npz")
+    return f"outputs/{name}.npz"
+
+
+def load_output(run_dir: str | os.PathLike, rel: Any) -> dict[str, np.ndarray]:
+    """The arrays of a row's output file (``allow_pickle=False``); ``ValueError`` when the path
+    leaves the run folder or the file is not a plain npz archive."""
+    run = Path(run_dir).resolve()
+    if not isinstance(rel, str):
+        raise ValueError("output path is not a string")
+    path = (run / rel).resolve()
+    if run not in path.parents:
+        raise ValueError(f"output path {rel!r} leaves the run folder")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError) as exc:
+        raise ValueError(f"unreadable output {rel}: {exc}") from None

@@ -1,0 +1,291 @@
+"""Worker side: prepare one (item, corruption), run one row; both never raise.
+
+Spectra flow down: a row asks its method (the plugin, its keypoint detector, or the pipeline)
+for the spectra it declares, takes each from the cache the prepare stage filled (the merged,
+larger spectrum of the same kind, truncated to exactly what was declared), times that as
+``spectrum_seconds`` and passes them in; ``row.spectra`` records what the method received.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import resource
+import threading
+import time
+import traceback
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+from shape_toolkit.bench.plan import Job, PrepareJob, create_detector, create_method
+from shape_toolkit.bench.store import Row, load_prepared, prepared_path, save_output, save_prepared
+
+__all__ = ["package_versions", "MemoryMonitor", "prepare_job", "execute_job", "lost_row"]
+
+
+@lru_cache(maxsize=1)
+def package_versions() -> dict[str, str]:
+    """Versions of the toolkit and the main numerical packages in this process."""
+    import importlib.metadata as md
+
+    out = {"python": platform.python_version()}
+    for name in ("shape-toolkit", "numpy", "scipy", "scikit-learn", "libigl", "potpourri3d", "dask", "distributed"):
+        try:
+            out[name] = md.version(name)
+        except md.PackageNotFoundError:
+            pass
+    return out
+
+
+def _rss_mb() -> float:
+    try:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError):  # pragma: no cover - non-Linux
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+class MemoryMonitor:
+    """Peak resident memory (MB) above the RSS at entry: exact when the block raises the
+    process's high-water mark (``ru_maxrss``), otherwise the maximum of RSS samples every 5 ms."""
+
+    def __enter__(self) -> MemoryMonitor:
+        self.start = _rss_mb()
+        self.max_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        self.peak = self.start
+        self.peak_mb = 0.0
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._sample, daemon=True)
+        self._t.start()
+        return self
+
+    def _sample(self) -> None:
+        while not self._stop.wait(0.005):
+            self.peak = max(self.peak, _rss_mb())
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        self._t.join()
+        self.peak = max(self.peak, _rss_mb())
+        max_after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        if max_after > self.max_before + 0.5:
+            self.peak = max(self.peak, max_after)
+        self.peak_mb = max(0.0, self.peak - self.start)
+
+
+def _set_cache(run_dir: str) -> None:
+    from shape_toolkit.core import spectrum as spm
+
+    spm.set_cache_dir(Path(run_dir) / "cache" / "spectra")
+
+
+def _error(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _prepare_item(pjob: PrepareJob, info: dict[str, Any]):
+    """The prepared item from the cache when it is there and valid, else prepared and cached."""
+    from shape_toolkit.bench.tasks import prepare
+    from shape_toolkit.data.datasets import ItemRef, load_item
+
+    path = prepared_path(pjob.run_dir, pjob.key)
+    info["path"] = str(path)
+    if path.exists():
+        try:
+            prep = load_prepared(path)
+            info["reused"] = True
+            return prep
+        except ValueError as exc:  # unreadable or tampered with: prepare it again
+            info["cache_problem"] = str(exc)
+    t1 = time.perf_counter()
+    item = load_item(ItemRef(**pjob.ref))
+    info["load_seconds"] = time.perf_counter() - t1
+    prep = prepare(
+        item,
+        pjob.corruption_kind,
+        pjob.corruption_params,
+        pairwise=pjob.pairwise,
+        random_state=pjob.seed,
+        truth_sample=pjob.truth_sample,
+        geodesic_method=pjob.geodesic_method,
+    )
+    save_prepared(path, prep)
+    info["reused"] = False
+    return prep
+
+
+def prepare_job(pjob: PrepareJob) -> dict[str, Any]:
+    """Prepare one (item, corruption): corrupt, carry ground truth, geodesic rows, and compute
+    the declared spectra into the cache; writes ``cache/prepared/KEY.npz``. Never raises:
+    errors are returned in ``info['error']``."""
+    from shape_toolkit.bench.tasks import compute_spectrum_cached
+
+    info: dict[str, Any] = {
+        "key": pjob.key,
+        "dataset": pjob.dataset,
+        "item": pjob.item,
+        "corruption": pjob.corruption_kind,
+        "corruption_params": pjob.corruption_params,
+        "error": None,
+        "pid": os.getpid(),
+    }
+    t0 = time.perf_counter()
+    try:
+        _set_cache(pjob.run_dir)
+        prep = _prepare_item(pjob, info)
+        info["corruption_seconds"] = prep.corruption_seconds
+        info["geodesic_seconds"] = prep.geodesic_seconds
+        info["n_vertices"] = prep.target.n_vertices
+        spectra = []
+        for spec in pjob.specs:
+            for side in pjob.sides:
+                shape = getattr(prep, side)
+                entry: dict[str, Any] = {"side": side, "spectrum": spec.for_shape(shape).to_dict()}
+                t1 = time.perf_counter()
+                try:
+                    _, entry["cache_hit"] = compute_spectrum_cached(spec, shape)
+                    entry["seconds"] = time.perf_counter() - t1
+                except Exception as exc:  # the rows needing it fail with the message
+                    entry["error"] = _error(exc)
+                spectra.append(entry)
+        info["spectra"] = spectra
+    except Exception as exc:
+        info["error"] = _error(exc)
+    info["seconds"] = time.perf_counter() - t0
+    return info
+
+
+def _load_prepared(job: Job, pinfo: dict | None):
+    if pinfo is not None and pinfo.get("error"):
+        raise RuntimeError(f"preparing {job.item} ({job.corruption}) failed: {pinfo['error']}")
+    path = prepared_path(job.run_dir, job.prepare_key)
+    if not path.exists():
+        raise RuntimeError(f"prepared item missing: {path}")
+    try:
+        return load_prepared(path)
+    except ValueError as exc:
+        raise RuntimeError(str(exc)) from None
+
+
+def _new_row(job: Job) -> Row:
+    return Row(
+        key=job.key,
+        run_name=job.run_name,
+        task_name=job.task_name,
+        task_kind=job.task_kind,
+        dataset=job.dataset,
+        item=job.item,
+        plugin=job.plugin,
+        family=job.family,
+        method_label=job.method_label,
+        preset=job.preset,
+        params=job.params,
+        corruption=job.corruption,
+        corruption_kind=job.corruption_kind,
+        corruption_group=job.corruption_group,
+        corruption_params=job.corruption_params,
+        strength=job.strength,
+        random_state=job.random_state,
+        corruption_seed=job.corruption_seed,
+        prepare_key=job.prepare_key,
+    )
+
+
+def lost_row(job: Job, exc: BaseException) -> dict[str, Any]:
+    """The failed row of a job whose worker died."""
+    row = _new_row(job)
+    row.status = "failed"
+    row.error = f"worker lost: {_error(exc)}"
+    return row.to_dict()
+
+
+class _Received:
+    """Spectra handed to a method, and what the row records about them."""
+
+    def __init__(self, job: Job, prep: Any, sides: tuple[str, ...]):
+        self.job, self.prep, self.sides = job, prep, sides
+        self.seconds = 0.0
+        self.hits: list[bool] = []
+        self.records: list[dict[str, Any]] = []
+
+    def _one(self, spec, side: str):
+        from shape_toolkit.bench.tasks import received_spec, spectrum_for
+
+        shape = getattr(self.prep, side)
+        t0 = time.perf_counter()
+        spectrum, hit = spectrum_for(spec, shape, self.job.item_specs)
+        self.seconds += time.perf_counter() - t0
+        self.hits.append(hit)
+        rec = received_spec(spec, shape)
+        if rec not in self.records:
+            self.records.append(rec)
+        return spectrum
+
+    def single(self, spec) -> dict[str, Any]:
+        """``{side: Spectrum or None}`` for a plugin declaring ``spec`` (None: no spectrum)."""
+        return {side: (self._one(spec, side) if spec is not None else None) for side in self.sides}
+
+    def several(self, specs) -> dict[str, list]:
+        """``{side: [Spectrum, ...]}`` for a pipeline declaring ``specs``."""
+        return {side: [self._one(s, side) for s in specs] for side in self.sides}
+
+
+def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
+    """Run one method on one prepared item and score it; returns the row as a dict (never raises:
+    a failure becomes ``status='failed'`` with the error message)."""
+    from shape_toolkit.bench.tasks import TASKS, compute_spectrum_cached, method_specs, received_spec
+
+    row = _new_row(job)
+    row.versions = package_versions()
+    row.worker = f"{platform.node()}:{os.getpid()}"
+    t_start = time.perf_counter()
+    try:
+        _set_cache(job.run_dir)
+        adapter = TASKS[job.task_kind]
+        prep = _load_prepared(job, pinfo)
+        row.n_vertices = prep.target.n_vertices
+        sides = ("target", "source") if adapter.pairwise else ("target",)
+        detector = method = None
+        spectra: dict[str, Any] = {}
+        detector_spectra = None
+        if job.subject_spectrum is None:
+            method = create_method(job.family, job.plugin, job.preset, job.params, job.random_state)
+            detector = create_detector(job.keypoints)
+            own, det_spec = method_specs(method, detector)
+            got = _Received(job, prep, sides)
+            if job.family == "pipelines":
+                spectra = got.several(own)
+            else:
+                spectra = got.single(own[0] if own else None)
+            if detector is not None:
+                detector_spectra = got.single(det_spec)
+            row.spectra = got.records
+            row.spectrum_seconds = got.seconds
+            row.spectrum_cache_hit = all(got.hits) if got.hits else None
+        with MemoryMonitor() as mon:
+            t0 = time.perf_counter()
+            if job.subject_spectrum is not None:  # the spectrum *is* the result: timed as the method
+                spec = job.subject_spectrum
+                spectra["target"], row.spectrum_cache_hit = compute_spectrum_cached(spec, prep.target)
+                row.spectra = [received_spec(spec, prep.target)]
+                row.spectrum_seconds = time.perf_counter() - t0
+            output = adapter.run(
+                method, prep, spectra, job.options, job.random_state,
+                detector=detector, detector_spectra=detector_spectra,
+            )
+            row.seconds = time.perf_counter() - t0
+        row.peak_memory_mb = mon.peak_mb
+        t0 = time.perf_counter()
+        row.metrics = adapter.evaluate(job.metrics, prep, output, job.options)
+        row.metric_seconds = time.perf_counter() - t0
+        row.output = save_output(job.run_dir, job.key, output)
+    except Exception as exc:
+        if row.seconds is None:
+            row.seconds = time.perf_counter() - t_start
+        row.status = "failed"
+        row.error = _error(exc)
+        if os.environ.get("TOOLKIT_DEBUG"):
+            row.traceback = traceback.format_exc()
+    row.total_seconds = time.perf_counter() - t_start
+    return row.to_dict()

@@ -1,0 +1,239 @@
+"""Run folders are data, one writer at a time, and rows record the spectra methods received."""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.interfaces import Segmenter
+from shape_toolkit.api.registry import get_registry
+from shape_toolkit.bench import load_config, read_rows, run_benchmark, write_report
+from shape_toolkit.bench.store import LOCK, BenchWarning
+from shape_toolkit.cli import main
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
+
+CONFIG = """
+[run]
+name = "safety"
+[[datasets]]
+name = "synth"
+kind = "synthetic"
+limit = 1
+params = { n_poses = 2, subdivisions = 2 }
+[[tasks]]
+task = "segmentation"
+name = "seg"
+metrics = ["n_segments", "segmentation"]
+[[tasks.methods]]
+plugin = "spectral-clustering"
+preset = "luxburg-unnormalized"
+params = { n_segments = 3 }
+"""
+N_ROWS = 1
+
+
+def _write(tmp_path: Path, text: str = CONFIG) -> Path:
+    p = tmp_path / "bench.toml"
+    p.write_text(textwrap.dedent(text))
+    return p
+
+
+def _run(config: Path, run: Path, *extra: str) -> int:
+    return main(["bench", "run", str(config), "-o", str(run), "--no-progress", *extra])
+
+
+# -- a run folder is data, never code ---------------------------------------------------------
+class _Evil:
+    """Unpickling this creates ``path`` (a stand-in for arbitrary code)."""
+
+    def __init__(self, path: Path):
+        self.path = str(path)
+
+    def __reduce__(self):
+        return (open, (self.path, "w"))
+
+
+def test_planted_pickles_are_never_loaded(tmp_path, capsys):
+    control = tmp_path / "control"
+    pickle.loads(pickle.dumps(_Evil(control))).close()
+    assert control.exists()  # the payload is live: loading it runs code
+
+    marker = tmp_path / "PWNED"
+    payload = pickle.dumps(_Evil(marker))
+    config = _write(tmp_path)
+    run = tmp_path / "run"
+    assert _run(config, run) == 0
+    rows = read_rows(run)
+    assert len(rows) == N_ROWS and rows[0]["output"]
+    # every place the old runner and report unpickled (cache/prepared/KEY.pkl), and every file
+    # they read now (prepared items, cached spectra, outputs), holds a malicious pickle
+    planted = []
+    for r in rows:
+        old = run / "cache" / "prepared" / f"{r['prepare_key']}.pkl"
+        old.write_bytes(payload)
+        planted.append(old)
+    for folder in ("cache/prepared", "cache/spectra", "outputs"):
+        for f in (run / folder).glob("*.npz"):
+            f.write_bytes(payload)
+            planted.append(f)
+    assert len(planted) >= 4
+    assert main(["bench", "report", str(run)]) == 0  # renders are skipped, the report is written
+    assert (run / "report" / "index.html").exists()
+    assert not marker.exists()
+    (run / "results.jsonl").unlink()  # every row again: prepared items and spectra are read back
+    capsys.readouterr()
+    assert _run(config, run, "--json") == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["rows"] == N_ROWS and summary["failed"] == 0
+    assert not marker.exists()
+    assert all(r["status"] == "ok" for r in read_rows(run))
+    assert main(["bench", "report", str(run)]) == 0
+    assert not marker.exists()
+    with np.load(next((run / "cache" / "prepared").glob("*.npz")), allow_pickle=False) as z:
+        assert "header" in z.files  # rebuilt as a plain archive
+
+
+# -- one writer per run folder ----------------------------------------------------------------
+def test_second_run_on_a_locked_folder_exits_2(tmp_path, capsys):
+    from filelock import FileLock
+
+    config = _write(tmp_path)
+    run = tmp_path / "run"
+    run.mkdir()
+    with FileLock(str(run / LOCK), timeout=0):
+        assert _run(config, run) == 2
+        err = capsys.readouterr().err.strip()
+        assert "in use by another 'bench run'" in err and len(err.splitlines()) == 1
+        assert not (run / "results.jsonl").exists()
+    assert _run(config, run) == 0
+    assert len(read_rows(run)) == N_ROWS
+
+
+def test_garbage_lines_are_skipped_with_a_warning_and_recomputed(tmp_path, capsys):
+    config = _write(tmp_path)
+    run = tmp_path / "run"
+    assert _run(config, run) == 0
+    good = (run / "results.jsonl").read_text().splitlines()
+    garbage = ["42", '{"broken"', "[1, 2, 3]", '{"key": 7, "status": "ok"}']
+    (run / "results.jsonl").write_text("\n".join(garbage + ["[" + good[0] + "]"]) + "\n")
+    with pytest.warns(BenchWarning, match="skipped 5 invalid line"):
+        assert read_rows(run) == []
+    with pytest.warns(BenchWarning, match="invalid line"):
+        write_report(run, renders=0)
+    capsys.readouterr()
+    assert main(["bench", "report", str(run)]) == 0
+    err = capsys.readouterr().err
+    assert "warning:" in err and "skipped 5 invalid line" in err and "Traceback" not in err
+    assert _run(config, run, "--json") == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["rows"] == N_ROWS  # the row hidden in garbage is recomputed
+    assert "skipped 5 invalid line" in captured.err
+    rows = read_rows(run)  # the garbage moved aside: no warning any more
+    assert len(rows) == N_ROWS and rows[0]["status"] == "ok"
+    assert (run / "results.jsonl.invalid").read_text().splitlines() == garbage + ["[" + good[0] + "]"]
+    assert _run(config, run, "--json") == 0
+    assert json.loads(capsys.readouterr().out)["reused"] == N_ROWS
+
+
+def test_unwritable_run_folder_is_one_line(tmp_path, capsys):
+    config = _write(tmp_path)
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert _run(config, blocker / "run") == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "cannot create run folder" in err and "Traceback" not in err
+
+
+@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root ignores permissions")
+def test_read_only_run_folder_is_one_line(tmp_path, capsys):
+    config = _write(tmp_path)
+    run = tmp_path / "run"
+    run.mkdir()
+    run.chmod(0o555)
+    try:
+        assert _run(config, run) == 2
+    finally:
+        run.chmod(0o755)
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not writable" in err
+
+
+def test_task_name_with_slash_does_not_break_the_report(tmp_path):
+    config = _write(tmp_path, CONFIG.replace('name = "seg"', 'name = "../seg/a b"'))
+    run = tmp_path / "run"
+    assert _run(config, run) == 0
+    res = write_report(run, renders=1)
+    figures = run / "report" / "figures"
+    assert res["figures"] and all(Path(f).parent == figures for f in res["figures"])
+    assert "../seg/a b" in res["html"].read_text()
+
+
+# -- rows record the spectra methods received -------------------------------------------------
+RECEIVED: list[tuple[str, Spectrum | None]] = []
+
+
+class _Recorder(Segmenter):
+    """Declares a spectrum (``k``, normalized Laplacian of Gaussian weights, or none with k=0)
+    and records the one it is given."""
+
+    def __init__(self, k: int = 5):
+        self.k = k
+
+    def spectrum_spec(self):
+        if self.k == 0:
+            return None
+        return SpectrumSpec(self.k, "gaussian", "normalized", False)
+
+    def segment(self, shape, *, spectrum=None, constraints=None):
+        RECEIVED.append((f"k={self.k}", spectrum))
+        return np.zeros(shape.n_vertices, dtype=np.int64)
+
+
+class _RecorderPlugin:
+    @hookimpl
+    def toolkit_segmenters(self):
+        return {"spectrum-recorder-test": _Recorder}
+
+
+@pytest.fixture
+def recorder():
+    reg = get_registry()
+    reg.register(_RecorderPlugin(), name="spectrum-recorder-test")
+    RECEIVED.clear()
+    yield
+    reg.unregister("spectrum-recorder-test")
+
+
+def test_row_records_the_spectrum_the_method_received(tmp_path, recorder):
+    text = CONFIG.replace(
+        'plugin = "spectral-clustering"\npreset = "luxburg-unnormalized"\nparams = { n_segments = 3 }',
+        'plugin = "spectrum-recorder-test"\nparams = { k = [5, 9, 0] }',
+    )
+    cfg = load_config(_write(tmp_path, text))
+    run = tmp_path / "run"
+    s = run_benchmark(cfg, run, progress=False)
+    rows = {f"k={r['params']['k']}": r for r in read_rows(run)}
+    assert s.failed == 0 and len(rows) == 3, [r["error"] for r in rows.values()]
+    given = dict(RECEIVED)
+    for name in ("k=5", "k=9"):  # one eigen-solve (k=9) serves both; each gets exactly its own k
+        spectrum, row = given[name], rows[name]
+        assert isinstance(spectrum, Spectrum)
+        received = {
+            "weighting": spectrum.weighting,
+            "laplacian": spectrum.laplacian,
+            "k": spectrum.k,
+            "use_mass": spectrum.generalized,
+        }
+        assert row["spectra"] == [received]
+        assert received["k"] == row["params"]["k"]
+        assert row["spectrum_seconds"] >= 0 and row["spectrum_cache_hit"] is True
+    assert given["k=0"] is None and rows["k=0"]["spectra"] == []  # declared none, given none
+    preps = [json.loads(x) for x in (run / "prepare.jsonl").read_text().splitlines()]
+    assert [e["spectrum"]["k"] for p in preps for e in p["spectra"]] == [9]
