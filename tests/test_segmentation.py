@@ -356,9 +356,12 @@ def test_cli_errors_are_one_line(small_case, args, message, capsys, monkeypatch)
 
 def test_cli_error_exit_in_a_subprocess(small_case):
     d, _ = small_case
-    r = _cli("segment", "body.off", "--method", "eigvec-gmm", "-k", "0", cwd=d)
+    r = _cli("segment", "body.off", "--method", "eigvec-gmm", "-k", "1", cwd=d)
     assert r.returncode == 2 and r.stdout == ""
-    assert r.stderr.strip() == "shape-toolkit segment: error: n_segments must be >= 2, got 0"
+    assert r.stderr.strip() == "shape-toolkit segment: error: n_segments must be >= 2, got 1"
+    r = _cli("segment", "body.off", "--method", "eigvec-gmm", "-k", "0", cwd=d)  # caught by the parser
+    assert r.returncode == 2 and r.stdout == "" and len(r.stderr.strip().splitlines()) == 1
+    assert "positive integer, got 0" in r.stderr
 
 
 # -- real data -------------------------------------------------------------------------------
