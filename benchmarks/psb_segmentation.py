@@ -86,8 +86,10 @@ METHODS = [
 ]
 
 #: tuning grids (tuning split only); the winners are passed to every ``sdf`` / ``smoothed`` row
-SDF_GRID = [{"n_clusters": c, "smoothing_lambda": lam} for c in (3, 5, None) for lam in (0.26, 1.0)]
+SDF_GRID = [{"n_clusters": c, "smoothing_lambda": lam} for c in (5, None) for lam in (0.26, 1.0)]
 SMOOTH_GRID = [0.25, 0.5, 1.0, 2.0]
+#: the base segmenter of the ``smoothed`` tuning (fast; its lambda is then used for every base)
+SMOOTH_TUNE_BASE = ("spectral-clustering", {"variant": "ng"})
 
 CATEGORIES = ["human", "cup", "glasses", "airplane", "ant", "chair", "octopus", "table", "teddy", "hand",
               "plier", "fish", "bird", "(spring)", "armadillo", "bust", "mech", "bearing", "vase",
@@ -184,11 +186,12 @@ def tune(psb: Path, ids: list[str], seed: int, log) -> dict:
             seg = create_plugin("segmenters", "sdf", n_segments=k, random_state=seed, **params)
             seg.segment(shape)
             sdf_err[i].append(err(seg.face_labels_))
-        base = create_plugin("segmenters", "eigvec-gmm", n_segments=k, random_state=seed)
+        base = create_plugin("segmenters", SMOOTH_TUNE_BASE[0], n_segments=k, random_state=seed,
+                             **SMOOTH_TUNE_BASE[1])
         try:
             fl0 = vertex_to_face_labels(shape.faces, base.segment(shape))
         except Exception as exc:  # reported by the main run
-            log(f"  tune {mesh_id}: eigvec-gmm failed ({type(exc).__name__}: {exc})")
+            log(f"  tune {mesh_id}: {SMOOTH_TUNE_BASE[0]} failed ({type(exc).__name__}: {exc})")
             continue
         base_err.append(err(fl0))
         for lam in SMOOTH_GRID:
@@ -209,7 +212,8 @@ def tune(psb: Path, ids: list[str], seed: int, log) -> dict:
     }
 
 
-def run_mesh(psb: Path, mesh_id: str, seed: int, log, methods=None, tuned: dict | None = None) -> dict:
+def run_mesh(psb: Path, mesh_id: str, seed: int, log, methods=None, tuned: dict | None = None,
+             trace_memory: bool = False) -> dict:
     """Scores of every method on one mesh."""
     tuned = tuned or {}
     methods = methods or METHODS
@@ -239,18 +243,26 @@ def run_mesh(psb: Path, mesh_id: str, seed: int, log, methods=None, tuned: dict 
     t_spec = time.perf_counter() - t0
     for name, _plugin, _params, cmode in methods:
         seg = plugins[name]
-        tracemalloc.start()
-        tracemalloc.reset_peak()
+        kwargs = {"spectrum": spectra if seg.spectrum_specs() else None,
+                  "constraints": cons[cmode] if cmode else None}
         t = time.perf_counter()
         try:
-            labels = seg.segment(shape, spectrum=spectra if seg.spectrum_specs() else None,
-                                 constraints=cons[cmode] if cmode else None)
+            labels = seg.segment(shape, **kwargs)
             error = None
         except Exception as exc:
             labels, error = None, f"{type(exc).__name__}: {exc}"
         dt = time.perf_counter() - t
-        peak = tracemalloc.get_traced_memory()[1]
-        tracemalloc.stop()
+        peak = float("nan")
+        if trace_memory and error is None:  # a second run, traced (tracemalloc slows Python code down)
+            from shape_toolkit.plugins.segmenters import sdf as _sdf
+
+            _sdf._SDF_CACHE.clear()
+            again = _make(*[m for m in methods if m[0] == name][0][1:3], k, seed, tuned)
+            tracemalloc.start()
+            tracemalloc.reset_peak()
+            again.segment(shape, **kwargs)
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
         if error is not None:
             rows[name] = {"error": error, "seconds": dt}
             log(f"  {mesh_id:>4s} {name:26s} FAILED: {error}")
@@ -260,7 +272,8 @@ def run_mesh(psb: Path, mesh_id: str, seed: int, log, methods=None, tuned: dict 
         sc = segmentation_scores(pred, ref, areas, mesh=shape)
         rows[name] = {m: sc[m] for m in SEGMENTATION_METRICS}
         rows[name]["seconds"] = dt
-        rows[name]["peak_mb"] = peak / 2**20
+        if np.isfinite(peak):
+            rows[name]["peak_mb"] = peak / 2**20
         rows[name]["k"] = int(len(np.unique(pred)))
         if hasattr(seg, "selected_eigenvectors_"):
             rows[name]["selected"] = list(seg.selected_eigenvectors_)
@@ -354,7 +367,7 @@ def write_report(results: list[dict], out: Path, seed: int, elapsed: float, tune
         for row in tuned["sdf_grid"]:
             nc = "k" if row["n_clusters"] is None else row["n_clusters"]
             lines.append(f"| {nc} | {row['smoothing_lambda']} | {_fmt(row['rand_index_error'])} |")
-        lines += ["", f"`smoothed` on eigvec-gmm (unsmoothed: {_fmt(tuned['smooth_base_error'])}):", "",
+        lines += ["", f"`smoothed` on {SMOOTH_TUNE_BASE[0]} (unsmoothed: {_fmt(tuned['smooth_base_error'])}):", "",
                   "| smoothing_lambda | RI err |", "|---|---|"]
         for row in tuned["smooth_grid"]:
             lines.append(f"| {row['smoothing_lambda']} | {_fmt(row['rand_index_error'])} |")
@@ -401,18 +414,21 @@ def write_report(results: list[dict], out: Path, seed: int, elapsed: float, tune
     # time and memory
     lines += ["## Time and peak memory (all meshes)", "",
               "Per 10k faces = the method's seconds (or tracemalloc peak MB) divided by faces / 10 000, averaged "
-              "over meshes. tracemalloc sees numpy and Python allocations only (not Open3D / PyMaxflow / "
-              "ARPACK native buffers) and slows Python code a little.", "",
+              "over meshes. Seconds: untraced run, every mesh (sdf includes its ray casting; methods after the "
+              "first sdf row reuse its cached SDF). Peak MB: a second, traced run on every 10th mesh only "
+              "(tracemalloc slows Python code several-fold); it sees numpy and Python allocations, not Open3D / "
+              "PyMaxflow / ARPACK native buffers.", "",
               "| method | seconds per mesh | seconds per 10k faces | peak MB per mesh | peak MB per 10k faces |",
               "|---|---|---|---|---|"]
     for name in names[1:]:
-        rs = [r for r in results if "peak_mb" in r["rows"].get(name, {})]
+        rs = [r for r in results if "k" in r["rows"].get(name, {})]
+        rm = [r for r in rs if "peak_mb" in r["rows"][name]]
         if not rs:
             continue
         sec = np.mean([r["rows"][name]["seconds"] for r in rs])
         sec10 = np.mean([r["rows"][name]["seconds"] / (r["n_faces"] / 1e4) for r in rs])
-        mb = np.mean([r["rows"][name]["peak_mb"] for r in rs])
-        mb10 = np.mean([r["rows"][name]["peak_mb"] / (r["n_faces"] / 1e4) for r in rs])
+        mb = np.mean([r["rows"][name]["peak_mb"] for r in rm]) if rm else float("nan")
+        mb10 = np.mean([r["rows"][name]["peak_mb"] / (r["n_faces"] / 1e4) for r in rm]) if rm else float("nan")
         lines.append(f"| {name} | {sec:.2f} | {sec10:.2f} | {mb:.0f} | {mb10:.0f} |")
     spec = np.mean([r["spectrum_seconds"] for r in results])
     lines += ["", f"Mean time of the spectra per mesh (shared by the methods): {spec:.1f} s.", ""]
@@ -495,7 +511,8 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     for mesh_id in ids:
         log(f"mesh {mesh_id} ({category_of(mesh_id)}, {split[mesh_id]}) ...")
-        r = run_mesh(psb, mesh_id, args.random_state, log, methods, tuned)
+        r = run_mesh(psb, mesh_id, args.random_state, log, methods, tuned,
+                     trace_memory=ids.index(mesh_id) % 10 == 0)
         r["split"] = split[mesh_id]
         results.append(r)
     command = "python " + " ".join(["benchmarks/psb_segmentation.py"] + (argv if argv is not None else sys.argv[1:]))
