@@ -323,7 +323,10 @@ def compute_spectrum(
     if n_comp > 1:
         sizes = np.bincount(labels)
         if components == "raise":
-            raise DisconnectedGraphError(n_comp, sorted(sizes.tolist(), reverse=True))
+            from shape_toolkit.core.graph import ComponentsError
+
+            err: DisconnectedGraphError = ComponentsError(n_comp, sorted(sizes.tolist(), reverse=True))
+            raise err  # a DisconnectedGraphError whose message names every option
         vertices = np.flatnonzero(labels == int(np.argmax(sizes)))
         if not 1 <= k <= len(vertices):
             raise ParameterError(f"k must be in [1, {len(vertices)}] (largest component)")
@@ -331,6 +334,40 @@ def compute_spectrum(
         mass = mass[vertices] if mass is not None else None
     vals, vecs = _solve(sp.csr_matrix(W), mass, int(k), laplacian)
     vals = np.maximum(vals, 0.0) if vals[0] > -1e-9 * max(abs(vals[-1]), 1.0) else vals
+    # Numerically disconnected: one zero eigenvalue per component is expected (thesis 2.6.1), here
+    # one (the analysed graph is connected). The spectrum's scale is the median of L_ii / M_ii (M the
+    # mass, the identity, or D for the normalized and random-walk Laplacians, where it is 1): the
+    # mean eigenvalue of the whole spectrum is tr(M^-1 L) / n, and the median is its robust version,
+    # blind to a few near-zero masses of degenerate vertices. Eigenvalues below 1e-8 of it (the
+    # solver's relative tolerance) -- or counted null by null_count, which methods use to skip null
+    # eigenpairs -- are zero to solver precision; more than one means a cut of (next to) no weight.
+    d_sub = np.asarray(sp.csr_matrix(W).sum(axis=1)).ravel()
+    if laplacian == "combinatorial":
+        scale = float(np.median(d_sub / mass)) if mass is not None else float(np.median(d_sub))
+    else:
+        scale = 1.0
+    null_tol = 1e-8 * max(scale, 0.0)
+    n_null = max(int(np.sum(vals <= null_tol)), null_count(vals))
+    if n_null > 1:
+        from shape_toolkit.core.graph import COMPONENT_OPTIONS, NumericallyDisconnectedGraphError
+
+        shown = ", ".join(f"{x:.2e}" for x in vals[: min(len(vals), n_null + 1)])
+        what = "connected" if vertices is None else f"largest component ({len(vertices)} vertices) is connected"
+        hint = {
+            "gaussian": "leave the Gaussian bandwidth unset (local, scale-free bandwidths keep every weight "
+            ">= exp(-1/2)) or give a larger one",
+            "cotangent": "use the 'intrinsic-delaunay' weighting (non-negative weights on poor triangulations) "
+            "or clean degenerate triangles",
+        }.get(graph.weighting, "use a weighting whose weights do not vanish (binary, intrinsic-delaunay, "
+                               "gaussian with its default local bandwidth)")
+        raise NumericallyDisconnectedGraphError(
+            f"the shape graph is structurally {what} but numerically disconnected: the {laplacian} "
+            f"Laplacian ({graph.weighting!r} weights) has {n_null} eigenvalues that are zero to solver "
+            f"precision (<= {null_tol:.2e}, 1e-8 of the spectrum's typical scale; first eigenvalues: {shown}), "
+            "so some cut of its edges weighs next to nothing and the spectrum would mix unrelated pieces. "
+            f"To fix: {hint}. If the pieces are really separate parts, split them: {COMPONENT_OPTIONS}",
+            n_null, n_comp, sorted(np.bincount(labels).tolist(), reverse=True),
+        )
     if sign_fix:
         vecs = fix_signs(vecs)
     degrees = graph.degrees
