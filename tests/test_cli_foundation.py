@@ -134,3 +134,78 @@ def test_demo_writes_results(tmp_path):
     assert (out / "embedding.png").stat().st_size > 10_000
     summary = json.loads((out / "summary.json").read_text())
     assert summary["eigenvalues"][0] == pytest.approx(0, abs=1e-8)
+
+
+def _inprocess(capsys, *args: str) -> tuple[int, str, str]:
+    code = main(list(args))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_output_paths_are_checked_before_any_work(sphere_file, tmp_path, capsys):
+    cases = [
+        (["spectrum", str(sphere_file), "-o", str(tmp_path / "no" / "x.npz")], "does not exist"),
+        (["clean", str(sphere_file), "-o", str(tmp_path / "no" / "x.off")], "does not exist"),
+        (["clean", str(sphere_file), "-o", str(tmp_path)], "must end with"),
+        (["keypoints", str(sphere_file), "-o", str(tmp_path)], "is a directory"),
+        (["segment", str(sphere_file), "--method", "eigvec-gmm", "-o", str(tmp_path)], "is a directory"),
+        (["match", str(sphere_file), str(sphere_file), "-o", str(tmp_path)], "is a directory"),
+        (["clean", str(sphere_file), "-o", str(sphere_file)], "must differ"),
+    ]
+    for args, needle in cases:
+        code, _, err = _inprocess(capsys, *args)
+        assert code == 2 and len(err.strip().splitlines()) == 1 and needle in err, (args, err)
+
+
+def test_parameters_are_typed(sphere_file, tmp_path, capsys):
+    cases = [
+        (["keypoints", str(sphere_file), "--param", "t=abc"], "t expects a number"),
+        (["keypoints", str(sphere_file), "--param", "t=NaN"], "not a usable value"),
+        (["segment", str(sphere_file), "--method", "eigvec-gmm", "--param", "n_init=2.5",
+          "-o", str(tmp_path / "s.txt")], "expects an integer"),
+        (["segment", str(sphere_file), "--method", "eigvec-gmm", "--random-state", "-1",
+          "-o", str(tmp_path / "s.txt")], "random_state must be in"),
+        (["clean", str(sphere_file), "-o", str(tmp_path / "c.off"), "--remesh", "nan"], "positive number"),
+    ]
+    for args, needle in cases:
+        code, _, err = _inprocess(capsys, *args)
+        assert code == 2 and len(err.strip().splitlines()) == 1 and needle in err, (args, err)
+
+
+def test_info_json_is_valid_for_huge_coordinates(tmp_path, capsys):
+    s = icosphere(2)
+    p = tmp_path / "huge.off"
+    save_shape(Shape(s.vertices * 1e300, s.faces), p)
+    code, out, _ = _inprocess(capsys, "info", str(p), "--json")
+    assert code == 0
+    info = json.loads(out, parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
+    assert info["degenerate_faces"] == 0 and info["total_area"] is None
+    assert info["mean_edge_length"] == pytest.approx(1e300 * s.mean_edge_length)
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e300])
+def test_evaluate_map_identity_at_any_scale(tmp_path, capsys, scale):
+    s = icosphere(2)
+    p = tmp_path / "s.off"
+    save_shape(Shape(s.vertices * scale, s.faces), p)
+    (tmp_path / "id.map").write_text("".join(f"{i}\n" for i in range(s.n_vertices)))
+    (tmp_path / "t.vts").write_text("".join(f"{i}\n" for i in range(1, s.n_vertices + 1, 7)))
+    code, out, err = _inprocess(capsys, "evaluate-map", str(p), str(p), str(tmp_path / "id.map"),
+                                "--truth-src", str(tmp_path / "t.vts"), "--truth-dst", str(tmp_path / "t.vts"),
+                                "--json")
+    assert code == 0, err
+    assert json.loads(out)["mean_geodesic_error"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_duplicate_faces_are_refused_naming_clean(tmp_path, capsys):
+    s = icosphere(2)
+    p = tmp_path / "dup.off"
+    save_shape(Shape(s.vertices, np.vstack([s.faces, s.faces[:10]])), p)
+    code, _, err = _inprocess(capsys, "spectrum", str(p), "-k", "4")
+    assert code == 2 and "duplicate faces" in err and "shape-toolkit clean" in err
+    code, out, _ = _inprocess(capsys, "info", str(p), "--json")
+    assert code == 0 and json.loads(out)["duplicate_faces"] == 10
+    fixed = tmp_path / "fixed.off"
+    assert _inprocess(capsys, "clean", str(p), "-o", str(fixed))[0] == 0
+    code, out, _ = _inprocess(capsys, "spectrum", str(fixed), "-k", "4", "--json")
+    assert code == 0 and json.loads(out)["eigenvalues"][1] == pytest.approx(2.0, rel=0.1)

@@ -295,3 +295,46 @@ def test_repeated_index_face_is_degenerate_not_non_manifold(sphere):
     assert info["non_manifold_edges"] == 0 and info["boundary_edges"] == 0
     clean, rep = clean_shape(shape)
     assert rep.degenerate_faces_removed == 1 and mesh_info(clean)["genus"] == 0
+
+
+# ------------------------------------------------------------------------------------------------
+# scale: tolerances relative to the shape, no overflow / underflow (issue 11)
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("scale", [1e300, 1e-300, 1e-320, 1e150])
+def test_info_and_clean_do_not_depend_on_units(scale):
+    from shape_toolkit.validation import dumps_json
+
+    s = icosphere(2)
+    big = Shape(s.vertices * scale, s.faces)
+    info = mesh_info(big)
+    dumps_json(info)  # valid JSON: raises on NaN / Infinity
+    ref = mesh_info(s)
+    for key in ("degenerate_faces", "duplicate_faces", "non_manifold_vertices", "genus", "connected_components"):
+        assert info[key] == ref[key], key
+    cleaned, rep = clean_shape(big)
+    assert rep.degenerate_faces_removed == 0 and cleaned.n_faces == s.n_faces
+    assert rep.non_manifold_vertices_repaired == 0
+
+
+def test_shape_geometry_is_overflow_free():
+    s = icosphere(2)
+    big = Shape(s.vertices * 1e200, s.faces)
+    np.testing.assert_allclose(big.edge_lengths / 1e200, s.edge_lengths, rtol=1e-12)
+    np.testing.assert_allclose(big.diagonal / 1e200, s.diagonal, rtol=1e-12)
+    tiny = Shape(s.vertices * 1e-200, s.faces)
+    np.testing.assert_allclose(tiny.face_normals, s.face_normals, atol=1e-12)
+    np.testing.assert_array_equal(Shape(s.vertices * 4.0, s.faces).face_areas, s.face_areas * 16.0)  # exact
+    n, centre, diag = big.normalized()
+    assert n.diagonal == pytest.approx(1.0) and np.isfinite(centre).all() and diag == pytest.approx(big.diagonal)
+
+
+def test_remesh_refuses_targets_beyond_the_vertex_budget():
+    from shape_toolkit.core.cleanup import MAX_REMESH_VERTICES, estimate_remesh_vertices
+
+    s = icosphere(2)
+    assert estimate_remesh_vertices(s, s.mean_edge_length) == pytest.approx(s.n_vertices, rel=0.3)
+    with pytest.raises(ParameterError, match=f"{MAX_REMESH_VERTICES:,}"):
+        clean_shape(s, remesh_target_edge=1e-6)
+    big = Shape(s.vertices * 1e300, s.faces)
+    with pytest.raises(ParameterError, match="budget"):
+        clean_shape(big, remesh_target_edge=1e290)

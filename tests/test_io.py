@@ -255,8 +255,78 @@ def test_big_endian_binary_ply_with_polygons(tmp_mesh_dir):
     f += bytes([3]) + np.array([0, 2, 3], ">u4").tobytes()
     p = tmp_mesh_dir / "be.ply"
     p.write_bytes(head + v + f)
-    s = load_shape(p)
+    _fails(p, "duplicate faces")  # the triangle repeats half of the quad
+    s = load_shape(p, duplicate_faces="keep")
     assert s.vertices.tolist()[2] == [1, 1, 0]
     assert s.faces.tolist() == [[0, 1, 2], [0, 2, 3], [0, 2, 3]]
     p.write_bytes(head + v + f[:-3])
     _fails(p, "truncated")
+
+
+# ------------------------------------------------------------------------------------------------
+# issue 11: hostile headers and indices
+# ------------------------------------------------------------------------------------------------
+_HEAD = (b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+         b"property float z\nelement face %d\nproperty list %s %s vertex_indices\nend_header\n")
+_TRI = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], "<f4").tobytes()
+
+
+def test_ply_float_indices_only_when_integral(tmp_mesh_dir):
+    p = tmp_mesh_dir / "f.ply"
+    p.write_bytes(_HEAD % (1, b"uchar", b"float") + _TRI + b"\x03" + np.array([0, 1, 2], "<f4").tobytes())
+    assert load_shape(p).faces.tolist() == [[0, 1, 2]]
+    p.write_bytes(_HEAD % (1, b"uchar", b"float") + _TRI + b"\x03" + np.array([0, 1.5, 2], "<f4").tobytes())
+    _fails(p, "not all integers")
+    p.write_bytes(_HEAD % (1, b"char", b"int") + _TRI + b"\xff" + np.array([0, 1, 2], "<i4").tobytes())
+    _fails(p, "-1 vertices")
+    p.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                 "element face 1\nproperty list char int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n-2 0 1\n")
+    _fails(p, "-2 vertices")
+
+
+def test_declared_counts_checked_against_the_file_size(tmp_mesh_dir):
+    import time
+
+    p = tmp_mesh_dir / "many.ply"
+    p.write_bytes(_HEAD % (40_000_000, b"uchar", b"int") + _TRI + b"\x03" + np.array([0, 1, 2], "<i4").tobytes())
+    _fails(p, "need at least")
+    p.write_bytes(_HEAD % (2_000_000, b"uchar", b"int") + _TRI + b"\x00" * 2_000_000)  # 2M empty faces
+    t0 = time.perf_counter()
+    _fails(p, "face 0 has 0 vertices")
+    assert time.perf_counter() - t0 < 5
+    p = tmp_mesh_dir / "many.off"
+    p.write_text("OFF\n30000000 1 0\n0 0 0\n")
+    _fails(p, "need at least")
+    p = tmp_mesh_dir / "many.pcd"
+    p.write_text("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\n"
+                 "POINTS 9000000\nDATA ascii\n0 0 0\n")
+    _fails(p, "need at least")
+
+
+def test_huge_indices_and_pcd_count_zero(tmp_mesh_dir):
+    p = tmp_mesh_dir / "h.off"
+    p.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 99999999999999999999999\n")
+    _fails(p, "out of range")
+    p = tmp_mesh_dir / "h.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999999\n")
+    _fails(p, "out of range")
+    p = tmp_mesh_dir / "c.pcd"
+    p.write_text("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 0 1\nWIDTH 2\nHEIGHT 1\n"
+                 "POINTS 2\nDATA ascii\n1 2 3\n4 5 6\n")
+    _fails(p, "COUNT must be >= 1")
+
+
+def test_duplicate_faces_rule(tmp_mesh_dir):
+    from shape_toolkit.io.mesh import DuplicateFacesWarning
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    f = np.array([[0, 1, 2], [0, 2, 3], [2, 1, 0]])  # face 2 is face 0 flipped
+    p = tmp_mesh_dir / "dup.off"
+    save_shape(Shape(v, f), p)
+    err = _fails(p, "1 duplicate faces")
+    assert "shape-toolkit clean" in str(err)
+    assert load_shape(p, duplicate_faces="keep").n_faces == 3
+    with pytest.warns(DuplicateFacesWarning, match="dropped 1 duplicate"):
+        assert load_shape(p, duplicate_faces="drop").faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+    with pytest.raises(ParameterError):
+        load_shape(p, duplicate_faces="maybe")

@@ -148,3 +148,81 @@ def test_size_mismatch_is_a_parameter_error():
         rand_index_error([0, 1], [0, 1, 1])
     with pytest.raises(ParameterError, match="no ground-truth"):
         segmentation_scores(lab, [], mesh=mesh)
+
+
+# ------------------------------------------------------------------------------------------------
+# O(n) memory implementation against a brute-force O(n^2) reference
+# ------------------------------------------------------------------------------------------------
+def _brute_force(a, b, w):
+    """Pairwise / per-element definitions, O(n^2): the reference for the contingency-table code."""
+    n = len(a)
+    sa = a[:, None] == a[None, :]
+    sb = b[:, None] == b[None, :]
+    ww = np.outer(w, w)
+    off = ~np.eye(n, dtype=bool)
+    ri = float((ww * (sa != sb) * off).sum() / (ww * off).sum())
+    # GCE / LCE per element: R(S, p) = weight of p's segment
+    ra = (sa * w[None, :]).sum(1)
+    rb = (sb * w[None, :]).sum(1)
+    inter = (sa & sb) * w[None, :]
+    inter = inter.sum(1)
+    e12, e21 = (ra - inter) / ra, (rb - inter) / rb
+    total = w.sum()
+    gce = min((w * e12).sum(), (w * e21).sum()) / total
+    lce = (w * np.minimum(e12, e21)).sum() / total
+    # Hamming: for each segment of S2, the weight outside its best-overlapping segment of S1
+    def dh(s1, s2):
+        out = 0.0
+        for lab in np.unique(s2):
+            m = s2 == lab
+            best = max(w[m & (s1 == k)].sum() for k in np.unique(s1[m]))
+            out += w[m].sum() - best
+        return out / total
+    rm, rf = dh(a, b), dh(b, a)
+    return {"rand": ri, "gce": gce, "lce": lce, "rm": rm, "rf": rf}
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_table_metrics_match_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(5, 60))
+    a = rng.integers(0, rng.integers(1, 8), n) * 7 - 3  # arbitrary label values
+    b = rng.integers(0, rng.integers(1, 8), n)
+    w = rng.random(n) + (0.0 if seed % 2 else 1.0)
+    ref = _brute_force(a, b, w)
+    assert rand_index_error(a, b, w) == pytest.approx(ref["rand"], abs=1e-12)
+    gce, lce = consistency_errors(a, b, w)
+    assert (gce, lce) == pytest.approx((ref["gce"], ref["lce"]), abs=1e-12)
+    hd, rm, rf = hamming_distance(a, b, w)
+    assert (rm, rf, hd) == pytest.approx((ref["rm"], ref["rf"], 0.5 * (ref["rm"] + ref["rf"])), abs=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_sparse_matching_equals_dense_hungarian(seed, monkeypatch):
+    import shape_toolkit.metrics.segmentation as seg
+
+    rng = np.random.default_rng(seed)
+    n = 300
+    a, b, w = rng.integers(0, 40, n), rng.integers(0, 25, n), rng.random(n)
+    dense = matched_recall_precision(a, b, w)
+    monkeypatch.setattr(seg, "DENSE_ASSIGNMENT_CELLS", 0)  # force the sparse bipartite matching
+    sparse = matched_recall_precision(a, b, w)
+    assert sparse == pytest.approx(dense, abs=1e-12)
+
+
+def test_many_segments_use_linear_memory():
+    """A per-element labelling of 200k elements: a dense 200k x 200k table would need 320 GB."""
+    import tracemalloc
+
+    rng = np.random.default_rng(0)
+    n = 200_000
+    a = np.arange(n)
+    b = rng.integers(0, 10, n)
+    tracemalloc.start()
+    rand_index_error(a, b)
+    consistency_errors(a, b)
+    hamming_distance(a, b)
+    matched_recall_precision(a, b)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 400 * 2**20

@@ -34,11 +34,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_warnings(command: str):
+    """A ``warnings.showwarning`` printing each warning as one line (no source excerpt)."""
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ARG001
+        text = " ".join(str(message).split())
+        print(f"shape-toolkit {command}: warning: {text}", file=file or sys.stderr)
+
+    return show
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``shape-toolkit`` console script; returns the exit code."""
-    warnings.filterwarnings("ignore", category=DeprecationWarning)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, or a usage error already printed as one line
+        return int(exc.code or 0) if isinstance(exc.code, int) else 2
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", category=DeprecationWarning)
+        warnings.showwarning = _one_line_warnings(getattr(args, "command", None) or "")
+        return _run(parser, args)
+
+
+def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     if args.version:
         from shape_toolkit import __version__
 
@@ -60,6 +79,10 @@ def main(argv: list[str] | None = None) -> int:
         return 3
     except BrokenPipeError:
         return 0
+    except OSError as exc:  # the environment (disk full, permissions), not a bug: one line
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        print(f"shape-toolkit {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return 2
     except Exception as exc:  # a bug of ours: still one line, with a pointer for reporting
         print(
             f"shape-toolkit {args.command}: internal error: {type(exc).__name__}: {exc} "

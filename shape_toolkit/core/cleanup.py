@@ -22,7 +22,11 @@ from shape_toolkit.core.inspect import (
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 
-__all__ = ["CleanupReport", "clean_shape"]
+__all__ = ["CleanupReport", "clean_shape", "MAX_REMESH_VERTICES", "estimate_remesh_vertices"]
+
+#: Remeshing targets whose estimated vertex count exceeds this are refused (memory: pymeshlab needs
+#: a few hundred bytes per vertex, so the budget keeps a remesh well under a few GB).
+MAX_REMESH_VERTICES = 2_000_000
 
 
 @dataclass
@@ -140,9 +144,29 @@ def clean_shape(
             v, f, vmap = _keep_vertices(v, f, vmap, labels == best)
 
     if remesh_target_edge is not None:
+        est = estimate_remesh_vertices(Shape(v, f), float(remesh_target_edge))
+        if est > MAX_REMESH_VERTICES:
+            raise ParameterError(
+                f"remeshing to edge length {remesh_target_edge:g} would create about {est:.3g} vertices "
+                f"(surface area / edge length^2), above the budget of {MAX_REMESH_VERTICES:,} vertices "
+                "(shape_toolkit.core.cleanup.MAX_REMESH_VERTICES); choose a longer edge length"
+            )
         v, f, vmap = _remesh(v, f, vmap, float(remesh_target_edge), int(remesh_iterations))
         rep.remeshed = True
     return _finish(shape, v, f, vmap, rep)
+
+
+def estimate_remesh_vertices(shape: Shape, target_edge: float) -> float:
+    """Vertices of an isotropic remesh of ``shape`` to ``target_edge``: area over the area per
+    vertex of a regular triangulation (two equilateral triangles, sqrt(3)/2 edge^2). Computed on
+    rescaled units, so it is inf only when the count really is astronomically large."""
+    s = shape.scale
+    area = float(0.5 * np.linalg.norm(shape._scaled_cross(), axis=1).sum())  # in units of s^2
+    t = float(target_edge) / s
+    if t == 0.0:
+        return float("inf")
+    with np.errstate(over="ignore"):
+        return float(area / (np.sqrt(3.0) / 2.0 * t * t))
 
 
 def _finish(shape: Shape, v, f, vmap, rep: CleanupReport) -> tuple[Shape, CleanupReport]:

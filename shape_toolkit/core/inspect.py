@@ -9,7 +9,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components as _cc
 
-from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.shape import Shape, coordinate_scale
 
 __all__ = [
     "connected_components",
@@ -24,6 +24,9 @@ __all__ = [
 
 #: A face is degenerate when its area is below this fraction of its longest edge squared.
 DEGENERATE_REL_AREA = 1e-12
+#: ... or when its longest edge is below this fraction of the bounding-box diagonal (at that size the
+#: corners differ only in the last bits of their coordinates: the face has no usable geometry).
+DEGENERATE_REL_LENGTH = 1e-12
 
 
 def _components(n: int, edges: np.ndarray) -> tuple[int, np.ndarray]:
@@ -75,14 +78,24 @@ def degenerate_index_faces(faces: np.ndarray) -> np.ndarray:
 
 
 def degenerate_face_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """True for faces with a repeated vertex index or (numerically) zero area, bool (m,)."""
+    """True for faces with a repeated vertex index or (numerically) zero area, bool (m,).
+
+    Both tolerances are relative (area against the face's longest edge squared, edge length
+    against the bounding-box diagonal) and computed on rescaled coordinates, so the result does not
+    depend on the units: 1e300 or 1e-300 coordinates give the same answer as 1.0.
+    """
     f = np.asarray(faces)
     rep = degenerate_index_faces(f)
     v = np.asarray(vertices, dtype=np.float64)
+    if len(f) == 0:
+        return rep
+    v = v / coordinate_scale(v)
+    diag2 = float(((v.max(axis=0) - v.min(axis=0)) ** 2).sum())
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)  # twice the area
     longest2 = np.max(np.stack([((b - a) ** 2).sum(1), ((c - b) ** 2).sum(1), ((a - c) ** 2).sum(1)]), axis=0)
-    return rep | (area2 <= 2 * DEGENERATE_REL_AREA * longest2)
+    tiny = longest2 <= (DEGENERATE_REL_LENGTH**2) * diag2
+    return rep | tiny | (area2 <= 2 * DEGENERATE_REL_AREA * longest2)
 
 
 def duplicate_face_mask(faces: np.ndarray) -> np.ndarray:
@@ -232,9 +245,19 @@ def mesh_info(shape: Shape) -> dict:
         unreferenced_vertices=n_unref,
         euler_characteristic=int(chi),
         genus=int((2 - chi) // 2) if closed_manifold and chi % 2 == 0 else None,
-        total_area=shape.area,
-        mean_edge_length=float(np.linalg.norm(v[all_edges[:, 0]] - v[all_edges[:, 1]], axis=1).mean())
-        if len(all_edges)
-        else 0.0,
+        total_area=shape.area if np.isfinite(shape.area) else None,
+        mean_edge_length=_mean_edge_length(v, all_edges),
     )
     return info
+
+
+def _mean_edge_length(v: np.ndarray, edges: np.ndarray) -> float | None:
+    """Mean edge length computed on rescaled coordinates; None when it exceeds the float64 range."""
+    if len(edges) == 0:
+        return 0.0
+    s = coordinate_scale(v)
+    w = v / s
+    mean = float(np.linalg.norm(w[edges[:, 0]] - w[edges[:, 1]], axis=1).mean())
+    with np.errstate(over="ignore"):
+        out = mean * s
+    return out if np.isfinite(out) else None

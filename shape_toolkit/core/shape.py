@@ -10,7 +10,59 @@ import numpy as np
 
 from shape_toolkit.errors import InvalidShapeError
 
-__all__ = ["Shape"]
+__all__ = ["Shape", "coordinate_scale", "duplicate_face_pairs", "check_no_duplicate_faces"]
+
+
+def coordinate_scale(vertices: np.ndarray) -> float:
+    """A power of two close to the largest absolute coordinate (1.0 for all-zero coordinates).
+
+    Dividing coordinates by it is exact (only the exponent changes), so lengths and areas computed
+    on ``vertices / scale`` and multiplied back are bit-identical to the direct computation when that
+    does not overflow or underflow, and stay finite where the direct one would not (1e300 or 1e-300
+    coordinates).
+    """
+    v = np.asarray(vertices)
+    m = float(np.max(np.abs(v))) if v.size else 0.0
+    if not np.isfinite(m) or m == 0.0:
+        return 1.0
+    return float(np.ldexp(1.0, int(np.frexp(m)[1])))
+
+
+def duplicate_face_pairs(faces: np.ndarray) -> np.ndarray:
+    """``(d, 2)`` int64 pairs ``[earlier face, duplicate face]`` of faces with the same vertex set
+    (any order or orientation), one row per duplicate, in order of the duplicate."""
+    f = np.sort(np.asarray(faces, dtype=np.int64), axis=1)
+    if len(f) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    order = np.lexsort(f.T[::-1])
+    srt = f[order]
+    same = (srt[1:] == srt[:-1]).all(axis=1)
+    if not same.any():
+        return np.zeros((0, 2), dtype=np.int64)
+    start = np.flatnonzero(np.r_[True, ~same])  # group starts in sorted order
+    group = np.cumsum(np.r_[True, ~same]) - 1
+    first = order[start][group]  # lexsort is stable: the lowest face index leads its group
+    dup = np.flatnonzero(order != first)
+    pairs = np.stack([first[dup], order[dup]], axis=1)
+    return pairs[np.argsort(pairs[:, 1], kind="stable")].astype(np.int64)
+
+
+def check_no_duplicate_faces(faces: np.ndarray, where: str = "") -> None:
+    """Raise :class:`InvalidShapeError` when two faces share the same three vertices.
+
+    Duplicate faces double the weight of their edges and vertex areas, so they silently change
+    every spectrum (an icosphere's lambda2 moves from 2.0 to 1.85); the rule of the toolkit is to
+    refuse them, naming the fix (``shape-toolkit clean`` or :func:`shape_toolkit.core.cleanup.clean_shape`).
+    """
+    pairs = duplicate_face_pairs(faces)
+    if len(pairs):
+        a, b = (int(x) for x in pairs[0])
+        tri = np.asarray(faces)[b].tolist()
+        raise InvalidShapeError(
+            f"{len(pairs)} duplicate faces{where} (first: face {b} repeats face {a}, vertices {tri}); "
+            "they would silently change the spectrum: remove them with `shape-toolkit clean` "
+            "(or shape_toolkit.core.cleanup.clean_shape)"
+        )
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -105,19 +157,32 @@ class Shape:
         return _readonly(np.unique(e, axis=0))
 
     @cached_property
+    def scale(self) -> float:
+        """:func:`coordinate_scale` of the vertices: a power of two near the largest coordinate."""
+        return coordinate_scale(self.vertices)
+
+    def _scaled_cross(self) -> np.ndarray:
+        """Face cross products computed on ``vertices / scale`` (exact rescaling, no overflow)."""
+        f = self.require_faces("face geometry")
+        v = self.vertices / self.scale
+        return np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+
+    @cached_property
     def face_areas(self) -> np.ndarray:
-        """Area of each triangle, float64 ``(m,)``, in squared length units."""
-        f = self.require_faces("face areas")
-        v = self.vertices
-        cr = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-        return _readonly(0.5 * np.linalg.norm(cr, axis=1))
+        """Area of each triangle, float64 ``(m,)``, in squared length units.
+
+        Computed on rescaled coordinates, so it neither overflows nor underflows unless the area
+        itself is outside the float64 range."""
+        self.require_faces("face areas")
+        s = self.scale
+        with np.errstate(over="ignore"):
+            return _readonly(0.5 * np.linalg.norm(self._scaled_cross(), axis=1) * s * s)
 
     @cached_property
     def face_normals(self) -> np.ndarray:
         """Unit normal of each triangle, float64 ``(m, 3)`` (zero for degenerate faces)."""
-        f = self.require_faces("face normals")
-        v = self.vertices
-        cr = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        self.require_faces("face normals")
+        cr = self._scaled_cross()
         nrm = np.linalg.norm(cr, axis=1, keepdims=True)
         return _readonly(np.divide(cr, nrm, out=np.zeros_like(cr), where=nrm > 0))
 
@@ -131,8 +196,9 @@ class Shape:
 
     @cached_property
     def area(self) -> float:
-        """Total surface area (squared length units)."""
-        return float(self.face_areas.sum())
+        """Total surface area (squared length units; inf when beyond the float64 range)."""
+        with np.errstate(over="ignore"):
+            return float(self.face_areas.sum())
 
     @cached_property
     def bounding_box(self) -> np.ndarray:
@@ -142,14 +208,17 @@ class Shape:
     @cached_property
     def diagonal(self) -> float:
         """Length of the bounding-box diagonal."""
-        b = self.bounding_box
-        return float(np.linalg.norm(b[1] - b[0]))
+        b = self.bounding_box / self.scale
+        with np.errstate(over="ignore"):
+            return float(np.linalg.norm(b[1] - b[0]) * self.scale)
 
     @cached_property
     def edge_lengths(self) -> np.ndarray:
         """Length of each unique mesh edge, float64 ``(e,)``, aligned with :attr:`edges`."""
         e = self.edges
-        return _readonly(np.linalg.norm(self.vertices[e[:, 0]] - self.vertices[e[:, 1]], axis=1))
+        v = self.vertices / self.scale
+        with np.errstate(over="ignore"):
+            return _readonly(np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1) * self.scale)
 
     @cached_property
     def mean_edge_length(self) -> float:
@@ -167,6 +236,20 @@ class Shape:
         return h.hexdigest()
 
     # -- derived shapes ---------------------------------------------------------------------
+    def normalized(self) -> tuple[Shape, np.ndarray, float]:
+        """The shape centred on its bounding-box centre and divided by its bounding-box diagonal
+        (so every length is well inside the float64 range), with the ``centre`` and ``diagonal``:
+        ``original = normalized * diagonal + centre``. Scale-invariant measures (geodesic errors
+        over sqrt(area), angles, relative tolerances) are computed safely on it."""
+        s = self.scale
+        b = self.bounding_box / s
+        centre = 0.5 * (b[0] + b[1])
+        v = self.vertices / s - centre
+        d = float(np.linalg.norm(b[1] - b[0]))
+        if d == 0.0:
+            d = 1.0
+        return Shape(v / d, self.faces, self.name), centre * s, d * s
+
     def with_vertices(self, vertices: np.ndarray) -> Shape:
         """Same connectivity, new ``(n, 3)`` coordinates."""
         return Shape(vertices, self.faces, self.name)

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import re
 import sys
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.shape import Shape, check_no_duplicate_faces, duplicate_face_pairs
 from shape_toolkit.errors import InvalidShapeError, ParameterError, ShapeFileError
 
 __all__ = [
@@ -32,6 +33,10 @@ __all__ = [
 MAX_FILE_BYTES = 2 * 1024**3
 #: Files declaring more vertices (or faces, or STL triangles) than this are refused.
 MAX_VERTICES = 50_000_000
+#: Face indices beyond this magnitude cannot be vertex ids of any loadable file.
+_MAX_INDEX = 2**62
+#: The least bytes an element (vertex, face, point) takes in a text file: one digit and a separator.
+MIN_TEXT_BYTES_PER_ELEMENT = 2
 
 #: Extensions that may hold triangle meshes / point clouds.
 MESH_FORMATS = (".off", ".ply", ".obj", ".stl")
@@ -44,17 +49,26 @@ class _Err(Exception):
     """Internal: a parse problem, turned into ShapeFileError with the path by load_shape."""
 
 
+class DuplicateFacesWarning(UserWarning):
+    """Exactly duplicated faces were dropped on load (``duplicate_faces="drop"``)."""
+
+
 # --------------------------------------------------------------------------------------------
 # public API
 # --------------------------------------------------------------------------------------------
-def load_shape(path: str | Path, *, kind: str = "auto") -> Shape:
+def load_shape(path: str | Path, *, kind: str = "auto", duplicate_faces: str = "error") -> Shape:
     """Read a mesh or point cloud file into a :class:`Shape` (vertices in file units).
 
     ``kind``: "auto" (faces if the file has any), "mesh" (faces required), "points" (faces
-    dropped). Raises :class:`ShapeFileError` naming the file for any problem.
+    dropped). ``duplicate_faces`` (faces with the same three vertices, which silently change every
+    spectrum): "error" (default: refuse, naming ``shape-toolkit clean``), "drop" (keep the first of
+    each, with a :class:`DuplicateFacesWarning`) or "keep" (for inspection and repair: ``info``,
+    ``clean``). Raises :class:`ShapeFileError` naming the file for any problem.
     """
     if kind not in ("auto", "mesh", "points"):
         raise ParameterError(f"kind must be 'auto', 'mesh' or 'points', got {kind!r}")
+    if duplicate_faces not in ("error", "drop", "keep"):
+        raise ParameterError(f"duplicate_faces must be 'error', 'drop' or 'keep', got {duplicate_faces!r}")
     p = Path(path)
     ext = p.suffix.lower()
     if not p.exists():
@@ -78,15 +92,20 @@ def load_shape(path: str | Path, *, kind: str = "auto") -> Shape:
             f"{MAX_FILE_BYTES / 1024**3:.1f} GiB (shape_toolkit.io.mesh.MAX_FILE_BYTES)",
         )
     try:
-        vertices, faces = reader(p)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # numpy's loadtxt warnings; problems are raised below
+            vertices, faces = reader(p)
     except _Err as e:
         raise ShapeFileError(p, str(e)) from None
     except OSError as e:
         raise ShapeFileError(p, f"cannot read: {e.strerror or e}") from None
     except MemoryError:
         raise ShapeFileError(p, "not enough memory to load this file") from None
+    except (ValueError, OverflowError, IndexError, KeyError, TypeError, UnicodeError, RecursionError) as e:
+        # a malformation the parsers above do not name precisely: still the file's fault
+        raise ShapeFileError(p, f"malformed {ext[1:].upper()} file ({type(e).__name__}: {e})") from None
 
-    if vertices.shape[0] == 0:
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.shape[0] == 0:
         raise ShapeFileError(p, "the file contains no vertices")
     if faces is not None and faces.shape[0] == 0:
         faces = None
@@ -108,6 +127,22 @@ def load_shape(path: str | Path, *, kind: str = "auto") -> Shape:
                 f"face index {bad} out of range: the file has {vertices.shape[0]} vertices "
                 f"(valid 0-based indices 0..{vertices.shape[0] - 1})",
             )
+        if duplicate_faces == "error":
+            try:
+                check_no_duplicate_faces(faces)
+            except InvalidShapeError as e:
+                raise ShapeFileError(p, str(e)) from None
+        elif duplicate_faces == "drop":
+            pairs = duplicate_face_pairs(faces)
+            if len(pairs):
+                keep = np.ones(len(faces), dtype=bool)
+                keep[pairs[:, 1]] = False
+                faces = faces[keep]
+                warnings.warn(
+                    f"{p}: dropped {len(pairs)} duplicate faces (same three vertices as an earlier face)",
+                    DuplicateFacesWarning,
+                    stacklevel=2,
+                )
     try:
         return Shape(vertices, faces, name=p.stem)
     except InvalidShapeError as e:
@@ -145,6 +180,15 @@ def _check_count(n: int, what: str) -> None:
         raise _Err(f"negative {what} count {n} in the header")
     if n > MAX_VERTICES:
         raise _Err(f"declares {n} {what}, above the limit of {MAX_VERTICES} (shape_toolkit.io.mesh.MAX_VERTICES)")
+
+
+def _check_text_size(n_elements: int, n_bytes: int, what: str) -> None:
+    """Refuse a text body that cannot hold ``n_elements`` declared elements (before allocating)."""
+    if n_elements * MIN_TEXT_BYTES_PER_ELEMENT > n_bytes:
+        raise _Err(
+            f"truncated: the header declares {n_elements} {what}, which need at least "
+            f"{n_elements * MIN_TEXT_BYTES_PER_ELEMENT} bytes, but the data has {n_bytes}"
+        )
 
 
 def _read_text(p: Path) -> str:
@@ -198,9 +242,12 @@ def _floats(rows: list[tuple[int, str]], cols: int | list[int], what: str) -> np
 
 def _int(tok: str, ln: int, what: str) -> int:
     try:
-        return int(tok)
+        v = int(tok)
     except ValueError:
         raise _Err(f"line {ln}: {what} {tok!r} is not an integer") from None
+    if abs(v) > _MAX_INDEX:
+        raise _Err(f"line {ln}: {what} {tok[:30]!r} is out of range")
+    return v
 
 
 def _fan(polys: list[list[int]], where: list[int] | None = None) -> np.ndarray:
@@ -245,6 +292,7 @@ def _read_off(p: Path) -> _Parsed:
     nf = _int(rest[1], ln, "face count")
     _check_count(nv, "vertices")
     _check_count(nf, "faces")
+    _check_text_size(nv + nf, p.stat().st_size, "vertices and faces")
     body = lines[k:]
     if len(body) < nv:
         raise _Err(f"truncated: header declares {nv} vertices but the file has {len(body)} lines")
@@ -268,12 +316,16 @@ def _parse_counted_faces(rows: list[tuple[int, str]]) -> np.ndarray:
         arr = np.loadtxt([r for _, r in rows], dtype=np.int64, ndmin=2, comments="#")
         if arr.shape[1] >= 4 and (arr[:, 0] == 3).all():
             return arr[:, 1:4].copy()
-    except ValueError:
+    except (ValueError, OverflowError):
         pass
     polys, where = [], []
     for ln, line in rows:
         r = _tokens(line)
+        if not r:
+            raise _Err(f"line {ln}: empty face line")
         n = _int(r[0], ln, "face vertex count")
+        if n < 3:
+            raise _Err(f"line {ln}: face with {n} vertices; a face needs at least 3")
         if len(r) < n + 1:
             raise _Err(f"line {ln}: face declares {n} vertices but lists {len(r) - 1}")
         polys.append([_int(t, ln, "face index") for t in r[1 : n + 1]])
@@ -299,7 +351,7 @@ def _read_obj(p: Path) -> _Parsed:
             stripped = [(ln, slash.sub("", line)) for ln, line in frows]
         try:
             arr = np.loadtxt([r for _, r in stripped], dtype=np.int64, ndmin=2, comments="#")
-        except ValueError:
+        except (ValueError, OverflowError):
             arr = None
         if arr is not None and arr.shape[1] == 3 and arr.min() > 0:
             return vertices, arr - 1
@@ -382,6 +434,7 @@ def _read_ply(p: Path) -> _Parsed:
     names = [e[0] for e in elements]
     if "vertex" not in names:
         raise _Err("PLY header has no 'vertex' element")
+    _check_ply_size(elements, fmt, len(body))
     if fmt == "ascii":
         parsed = _ply_ascii(bytes(body).decode("latin-1"), elements)
     else:
@@ -401,6 +454,35 @@ def _read_ply(p: Path) -> _Parsed:
         if isinstance(faces, list):
             faces = _fan(faces)
     return vertices, faces
+
+
+def _check_ply_size(elements: list, fmt: str, n_bytes: int) -> None:
+    """Refuse declared element counts the body cannot hold, before allocating anything: binary
+    elements need their exact record size (list properties at least their count field), ascii
+    elements at least :data:`MIN_TEXT_BYTES_PER_ELEMENT` bytes each."""
+    if fmt == "ascii":
+        n = sum(count for _, count, props in elements if props)
+        _check_text_size(n, n_bytes, "elements")
+        return
+    need = 0
+    for name, count, props in elements:
+        rec = sum(np.dtype(pr[1]).itemsize for pr in props)  # a list's count field (its minimum)
+        if count and rec:
+            need += count * rec
+            if need > n_bytes:
+                raise _Err(
+                    f"truncated: the header declares {count} {name}, which need at least {need} bytes "
+                    f"of binary data, but the body has {n_bytes}"
+                )
+
+
+def _list_indices(arr: np.ndarray, what: str) -> np.ndarray:
+    """List-property items as int64 vertex indices: integer types, or floats only when integral."""
+    if arr.dtype.kind == "f":
+        ok = np.isfinite(arr) & (np.abs(arr) <= _MAX_INDEX)
+        if not ok.all() or not (np.mod(arr, 1) == 0).all():
+            raise _Err(f"{what} are stored as floats and are not all integers")
+    return arr.astype(np.int64)
 
 
 def _ply_ascii(text: str, elements: list) -> dict:
@@ -442,25 +524,33 @@ def _ply_binary(body: memoryview, elements: list, order: str) -> dict:
             raise _Err(f"unsupported binary PLY element {name!r} with list properties")
         lname, ct, it = props[0]
         ct, it = np.dtype(order + ct), np.dtype(order + it)
-        # fast path: every face is a triangle -> fixed-size records
-        dt = np.dtype([("n", ct), ("i", it, (3,))])
-        nbytes = dt.itemsize * count
-        if count and pos + nbytes <= len(body):
-            arr = np.frombuffer(body, dtype=dt, count=count, offset=pos)
-            if (arr["n"] == 3).all():
-                pos += nbytes
-                out[name] = {lname: arr["i"].astype(np.int64)}
-                continue
+        if count and ct.kind == "f":
+            raise _Err(f"PLY face list count type is a float ({ct.name}); it must be an integer type")
+        # fast path: every face has the size k of the first one -> fixed-size records
+        if count and pos + ct.itemsize <= len(body):
+            k = int(np.frombuffer(body, dtype=ct, count=1, offset=pos)[0])
+            dt = np.dtype([("n", ct), ("i", it, (max(k, 1),))])
+            nbytes = dt.itemsize * count
+            if k >= 3 and pos + nbytes <= len(body):
+                arr = np.frombuffer(body, dtype=dt, count=count, offset=pos)
+                if (arr["n"] == k).all():
+                    pos += nbytes
+                    idx = _list_indices(arr["i"], "face indices")
+                    tri = np.stack([idx[:, [0, j, j + 1]] for j in range(1, k - 1)], axis=1).reshape(-1, 3)
+                    out[name] = {lname: tri}
+                    continue
         polys = []
         for k in range(count):
             if pos + ct.itemsize > len(body):
                 raise _Err(f"truncated: binary body ends inside face {k} of {count}")
             n = int(np.frombuffer(body, dtype=ct, count=1, offset=pos)[0])
             pos += ct.itemsize
+            if n < 3:
+                raise _Err(f"face {k} has {n} vertices; a face needs at least 3")
             if pos + n * it.itemsize > len(body):
                 raise _Err(f"truncated: binary body ends inside face {k} of {count}")
             idx = np.frombuffer(body, dtype=it, count=n, offset=pos)
-            polys.append(idx.astype(np.int64).tolist())
+            polys.append(_list_indices(idx, "face indices").tolist())
             pos += n * it.itemsize
         out[name] = {lname: polys}
     return out
@@ -559,8 +649,17 @@ def _read_pcd(p: Path) -> _Parsed:
         raise _Err(f"PCD has no x/y/z fields (fields: {' '.join(names)})")
     if not (len(sizes) == len(types) == len(counts) == len(names)):
         raise _Err("PCD header: FIELDS, SIZE, TYPE and COUNT have different lengths")
+    bad = [f"{nm}={c}" for nm, c in zip(names, counts) if c < 1]
+    if bad:
+        raise _Err(f"PCD header: COUNT must be >= 1 for every field, got {' '.join(bad)}")
+    bad = [f"{nm}={sz}" for nm, sz in zip(names, sizes) if sz not in (1, 2, 4, 8)]
+    if bad:
+        raise _Err(f"PCD header: SIZE must be 1, 2, 4 or 8 bytes, got {' '.join(bad)}")
+    if len(set(names)) != len(names):
+        raise _Err(f"PCD header: repeated field names in FIELDS {' '.join(names)}")
     _check_count(n, "points")
     if mode == "ascii":
+        _check_text_size(n, len(data) - pos, "points")
         width = sum(counts)
         rows = [(ln, r) for ln, r in _content(data[pos:].decode("latin-1"))]
         if len(rows) < n:
@@ -584,7 +683,7 @@ def _read_pcd(p: Path) -> _Parsed:
                     for nm, sz, t, c in zip(names, sizes, types, counts)
                 ]
             )
-        except (KeyError, TypeError):
+        except (KeyError, TypeError, ValueError):
             raise _Err("PCD header: unsupported TYPE/SIZE combination") from None
         if len(data) - pos < dt.itemsize * n:
             raise _Err(f"truncated: binary data too short for {n} points")

@@ -2,6 +2,10 @@
 Benchmark metrics (Chen, Golovinskiy & Funkhouser 2009), all lower-is-better except recall and
 precision.
 
+Memory is O(n): every score is computed from the non-zero cells of the contingency table (at most one
+per element), never from an n x n or k_pred x k_truth dense array (a 27k-face mesh with a per-face
+labelling would otherwise need gigabytes).
+
 Labels are per element (faces for PSB); ``weights`` are the element measures (face areas in PSB,
 which weighs every metric by area), uniform when None. Each function compares one prediction with
 one ground truth; :func:`segmentation_scores` averages over several human segmentations.
@@ -20,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import scipy.sparse as sp
 from scipy.optimize import linear_sum_assignment
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import dijkstra, min_weight_full_bipartite_matching
 
 from shape_toolkit.errors import ParameterError
 
@@ -62,31 +66,61 @@ def _prep(
     return a, b, w
 
 
+#: Tables with at most this many cells use the dense Hungarian solver (the historical reference);
+#: larger ones a sparse bipartite matching over the non-zero cells (same optimum, O(n) memory).
+DENSE_ASSIGNMENT_CELLS = 1_000_000
+
+
+class _Table:
+    """The non-zero cells of a weighted contingency table: ``row``, ``col`` (int64), ``n`` (weight
+    of the elements in the cell), ``s`` (sum of their squared weights), and the row / column sums."""
+
+    def __init__(self, a: np.ndarray, b: np.ndarray, w: np.ndarray):
+        _, ia = np.unique(a, return_inverse=True)
+        _, ib = np.unique(b, return_inverse=True)
+        ia, ib = ia.ravel().astype(np.int64), ib.ravel().astype(np.int64)
+        self.ka, self.kb = int(ia.max()) + 1, int(ib.max()) + 1
+        cell, inv = np.unique(ia * self.kb + ib, return_inverse=True)
+        inv = inv.ravel()
+        self.row, self.col = cell // self.kb, cell % self.kb
+        self.n = np.bincount(inv, weights=w, minlength=len(cell))
+        self.s = np.bincount(inv, weights=w * w, minlength=len(cell))
+        self.row_sum = np.bincount(self.row, weights=self.n, minlength=self.ka)
+        self.col_sum = np.bincount(self.col, weights=self.n, minlength=self.kb)
+        self.total = float(self.n.sum())
+
+    def dense(self) -> np.ndarray:
+        out = np.zeros((self.ka, self.kb))
+        out[self.row, self.col] = self.n
+        return out
+
+
 def contingency(a: np.ndarray, b: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-    """Weighted contingency table ``(ka, kb)``: total weight of elements labelled ``(i, j)``."""
-    a, b, w = _prep(a, b, weights)
-    _, ia = np.unique(a, return_inverse=True)
-    _, ib = np.unique(b, return_inverse=True)
-    return sp.coo_matrix((w, (ia.ravel(), ib.ravel()))).toarray()
+    """Weighted contingency table ``(ka, kb)``: total weight of elements labelled ``(i, j)``.
+
+    Dense, for inspection of small segmentations; the scores below never build it."""
+    return _Table(*_prep(a, b, weights)).dense()
 
 
 def rand_index_error(a: np.ndarray, b: np.ndarray, weights: np.ndarray | None = None) -> float:
     """``1 - RI``: the weighted fraction of element pairs ``i != j`` grouped together in one
     segmentation and apart in the other (pair weight ``w_i w_j``; classic Rand index when None)."""
     a, b, w = _prep(a, b, weights)
-    _, ia = np.unique(a, return_inverse=True)
-    _, ib = np.unique(b, return_inverse=True)
-    ia, ib = ia.ravel(), ib.ravel()
+    t = _Table(a, b, w)
     w2 = w * w
-    n = sp.coo_matrix((w, (ia, ib))).toarray()
-    s = sp.coo_matrix((w2, (ia, ib))).toarray()
-    same_both = float((n**2 - s).sum())
-    same_a = float((n.sum(1) ** 2 - s.sum(1)).sum())
-    same_b = float((n.sum(0) ** 2 - s.sum(0)).sum())
+    same_both = float((t.n**2 - t.s).sum())
+    same_a = float((t.row_sum**2).sum() - w2.sum())
+    same_b = float((t.col_sum**2).sum() - w2.sum())
     total = float(w.sum() ** 2 - w2.sum())
     if total <= 0:
         return 0.0
     return max(0.0, (same_a + same_b - 2.0 * same_both) / total)
+
+
+def _group_max(keys: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
+    out = np.zeros(k)
+    np.maximum.at(out, keys, values)
+    return out
 
 
 def hamming_distance(
@@ -95,10 +129,9 @@ def hamming_distance(
     """``(HD, Rm, Rf)`` of Chen et al.: ``Rm = D_H(pred => truth) / |S|`` (missing rate),
     ``Rf = D_H(truth => pred) / |S|`` (false alarm), ``HD = (Rm + Rf) / 2``; ``D_H(S1 => S2)`` sums
     over the segments of ``S2`` the weight outside their best-overlapping segment of ``S1``."""
-    n = contingency(pred, truth, weights)  # rows: pred segments, columns: truth segments
-    total = n.sum()
-    rm = float((n.sum(0) - n.max(0)).sum() / total)
-    rf = float((n.sum(1) - n.max(1)).sum() / total)
+    t = _Table(*_prep(pred, truth, weights))  # rows: pred segments, columns: truth segments
+    rm = float((t.col_sum - _group_max(t.col, t.n, t.kb)).sum() / t.total)
+    rf = float((t.row_sum - _group_max(t.row, t.n, t.ka)).sum() / t.total)
     return 0.5 * (rm + rf), rm, rf
 
 
@@ -108,15 +141,35 @@ def consistency_errors(
     """``(GCE, LCE)`` (Martin et al. 2001) with weighted set sizes: per element
     ``E(S1, S2, p) = |R(S1, p) \\ R(S2, p)| / |R(S1, p)|``; GCE takes the better direction globally,
     LCE per element."""
-    n = contingency(a, b, weights)
-    ra, rb = n.sum(1, keepdims=True), n.sum(0, keepdims=True)
+    t = _Table(*_prep(a, b, weights))
+    n = t.n
+    ra, rb = t.row_sum[t.row], t.col_sum[t.col]
+    pos = n > 0
     with np.errstate(invalid="ignore", divide="ignore"):
-        e12 = np.where(n > 0, (ra - n) / ra, 0.0)  # per cell: error of an element in that cell
-        e21 = np.where(n > 0, (rb - n) / rb, 0.0)
-    total = n.sum()
-    gce = min(float((n * e12).sum()), float((n * e21).sum())) / total
-    lce = float((n * np.minimum(e12, e21)).sum()) / total
+        e12 = np.where(pos, (ra - n) / np.where(pos, ra, 1.0), 0.0)  # error of an element in that cell
+        e21 = np.where(pos, (rb - n) / np.where(pos, rb, 1.0), 0.0)
+    gce = min(float((n * e12).sum()), float((n * e21).sum())) / t.total
+    lce = float((n * np.minimum(e12, e21)).sum()) / t.total
     return gce, lce
+
+
+def _max_overlap_matching(t: _Table) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of a one-to-one matching of segments maximising the total overlap."""
+    if t.ka * t.kb <= DENSE_ASSIGNMENT_CELLS:
+        return linear_sum_assignment(-t.dense())
+    # Sparse: a perfect matching of minimum cost on a graph where every row may also pair with
+    # its own "unmatched" node (and every column likewise); costs c - overlap > 0 on the cells,
+    # c elsewhere, so the minimum is the maximum total overlap. Nodes: left = rows + column
+    # copies, right = columns + row copies.
+    ka, kb, m = t.ka, t.kb, len(t.n)
+    c = float(t.n.max()) + 1.0
+    r_idx = np.r_[t.row, np.arange(ka), ka + np.arange(kb), ka + t.col]
+    c_idx = np.r_[t.col, kb + np.arange(ka), np.arange(kb), kb + t.row]
+    cost = np.r_[c - t.n, np.full(ka + kb + m, c)]
+    g = sp.csr_matrix((cost, (r_idx, c_idx)), shape=(ka + kb, ka + kb))
+    left, right = min_weight_full_bipartite_matching(g)
+    real = (left < ka) & (right < kb)
+    return left[real], right[real]
 
 
 def matched_recall_precision(
@@ -125,11 +178,13 @@ def matched_recall_precision(
     """Thesis 5.5 ``(m_tpr, m_ppv)``: predicted segments matched one-to-one to true ones maximising
     the total overlap (Hungarian); recall is the mean over true segments of ``tp / (tp + fn)``,
     precision the mean over predicted segments of ``tp / (tp + fp)`` (unmatched segments count 0)."""
-    n = contingency(pred, truth, weights)
-    rows, cols = linear_sum_assignment(-n)
-    tp = n[rows, cols]
-    recall = float((tp / n.sum(0)[cols]).sum() / n.shape[1])
-    precision = float((tp / n.sum(1)[rows]).sum() / n.shape[0])
+    t = _Table(*_prep(pred, truth, weights))
+    rows, cols = _max_overlap_matching(t)
+    lookup = dict(zip((t.row * t.kb + t.col).tolist(), t.n.tolist()))
+    tp = np.array([lookup.get(int(r) * t.kb + int(c), 0.0) for r, c in zip(rows, cols)], dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        recall = float((tp / t.col_sum[cols]).sum() / t.kb)
+        precision = float((tp / t.row_sum[rows]).sum() / t.ka)
     return recall, precision
 
 

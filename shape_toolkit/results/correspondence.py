@@ -18,6 +18,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.results.labels import read_int_file
 
 __all__ = [
     "Correspondence",
@@ -257,6 +258,8 @@ def save_map(path: str | os.PathLike, corr: Correspondence | np.ndarray) -> None
     p = Path(path)
     if not p.parent.exists():
         raise ShapeFileError(p, "the output folder does not exist")
+    if p.is_dir():
+        raise ShapeFileError(p, "is a directory, expected a map file to write")
     tmp = p.with_name(f".{p.name}.tmp")
     np.savetxt(tmp, t, fmt="%d")
     os.replace(tmp, p)
@@ -267,15 +270,7 @@ def load_map(
 ) -> Correspondence:
     """Read a map written by :func:`save_map` (0-based, -1 unmatched) and check its size."""
     p = Path(path)
-    if not p.is_file():
-        raise ShapeFileError(p, "no such file")
-    tokens = p.read_text().split()
-    if not tokens:
-        raise ShapeFileError(p, "empty map file")
-    try:
-        t = np.array([int(x) for x in tokens], dtype=np.int64)
-    except ValueError:
-        raise ShapeFileError(p, "a map file holds one integer per line") from None
+    t = read_int_file(p, "map")  # typed errors for missing / binary / non-integer / huge values
     if n_source is not None and t.size != n_source:
         raise ShapeFileError(p, f"has {t.size} entries, the source shape has {n_source} vertices")
     if t.min() < -1:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ import scipy.sparse as sp
 from shape_toolkit.errors import ParameterError, ShapeFileError
 
 __all__ = [
+    "read_int_file",
     "Constraints",
     "ConstraintError",
     "load_constraints",
@@ -36,6 +38,50 @@ __all__ = [
 
 class ConstraintError(ParameterError):
     """Pairwise constraints are malformed: out-of-range ids, self-pairs, or contradictory pairs."""
+
+
+_INT_TOKEN = re.compile(r"[+-]?[0-9]+\Z")
+#: Integers in label / id / map files must fit int64 with room to spare.
+_MAX_ABS_INT = 2**62
+
+
+def _read_small_text(p: Path, what: str) -> str:
+    """The text of a small ascii/UTF-8 file, every problem a :class:`ShapeFileError`."""
+    if not p.exists():
+        raise ShapeFileError(p, "no such file")
+    if p.is_dir():
+        raise ShapeFileError(p, f"is a directory, expected a {what} file")
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise ShapeFileError(p, f"cannot read {what}: {exc.strerror or exc}") from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ShapeFileError(p, f"not a text {what} file (invalid UTF-8 at byte {exc.start})") from None
+
+
+def read_int_file(path: str | os.PathLike, what: str = "labels") -> np.ndarray:
+    """Whitespace-separated integers of a text file (label files, PSB ``.seg``, ``.vts`` vertex ids,
+    map files) as int64 ``(n,)``. Every problem (missing, directory, not text, empty, a token that
+    is not a plain ASCII integer, a value beyond +-2**62) raises :class:`ShapeFileError` naming the
+    file and the first bad token."""
+    p = Path(path)
+    tokens = _read_small_text(p, what).split()
+    if not tokens:
+        raise ShapeFileError(p, f"empty {what} file")
+    try:
+        values = np.array(tokens, dtype=np.int64)  # C parser; also accepts a few odd forms
+        if all(_INT_TOKEN.match(t) for t in tokens) and (np.abs(values) <= _MAX_ABS_INT).all():
+            return values
+    except (ValueError, OverflowError):
+        pass
+    for k, t in enumerate(tokens):
+        if not _INT_TOKEN.match(t):
+            raise ShapeFileError(p, f"{what} must be integers, found {t[:40]!r} (value {k + 1})")
+        if abs(int(t)) > _MAX_ABS_INT:
+            raise ShapeFileError(p, f"value {k + 1} ({t[:40]}) is out of range for {what}")
+    raise ShapeFileError(p, f"malformed {what} file")  # pragma: no cover - the loop names the token
 
 
 def _as_pairs(value: Any, what: str) -> np.ndarray:
@@ -54,6 +100,8 @@ def _as_pairs(value: Any, what: str) -> np.ndarray:
             raise ConstraintError(f"{what} must contain integer vertex ids")
     elif arr.dtype.kind not in "iu":
         raise ConstraintError(f"{what} must contain integer vertex ids, got {arr.dtype}")
+    if np.abs(arr.astype(np.float64)).max() > _MAX_ABS_INT:
+        raise ConstraintError(f"{what} contains vertex ids out of range")
     return arr.astype(np.int64)
 
 
@@ -129,14 +177,13 @@ def load_constraints(path: str | os.PathLike, n_vertices: int | None = None) -> 
     p = Path(path)
     if not p.exists():
         raise ShapeFileError(p, "no such constraints file")
-    if p.is_dir():
-        raise ShapeFileError(p, "is a directory, expected a constraints JSON file")
+    text = _read_small_text(p, "constraints JSON")
     try:
-        data = json.loads(p.read_text())
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ShapeFileError(p, f"cannot read constraints: {exc}") from None
+        data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ShapeFileError(p, f"constraints are not valid JSON: {exc}") from None
+    except (RecursionError, ValueError) as exc:  # absurdly nested, or an integer too long to parse
+        raise ShapeFileError(p, f"constraints are not usable JSON: {type(exc).__name__}") from None
     if not isinstance(data, dict):
         raise ShapeFileError(
             p, 'constraints must be a JSON object {"must_link": [...], "cannot_link": [...]}'

@@ -1,51 +1,215 @@
-"""Helpers shared by CLI subcommands."""
+"""Helpers shared by CLI subcommands: JSON output, output-path checks, typed parameter parsing,
+and the readers of the small text files (labels, vertex ids, seeds) with typed errors."""
 
 from __future__ import annotations
 
+import argparse
+import inspect
 import json
+import os
 import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from shape_toolkit.errors import ParameterError
-
-
-def _default(o: Any) -> Any:
-    if isinstance(o, np.integer):
-        return int(o)
-    if isinstance(o, np.floating):
-        return float(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.bool_):
-        return bool(o)
-    return str(o)
+from shape_toolkit.errors import ParameterError, ShapeFileError, ToolkitError
+from shape_toolkit.validation import check_random_state, dumps_json
 
 
 def print_json(obj: Any) -> None:
-    """Print ``obj`` as JSON (numpy values converted) on stdout."""
-    json.dump(obj, sys.stdout, default=_default, indent=2)
+    """Print ``obj`` as JSON on stdout: numpy values converted, NaN and infinities as null
+    (:func:`shape_toolkit.validation.dumps_json`), so the output is always valid JSON."""
+    sys.stdout.write(dumps_json(obj, indent=2))
     sys.stdout.write("\n")
 
 
 def to_json_text(obj: Any) -> str:
-    """``obj`` as a JSON string (numpy values converted)."""
-    return json.dumps(obj, default=_default, indent=2)
+    """``obj`` as a JSON string (numpy values converted, NaN and infinities as null)."""
+    return dumps_json(obj, indent=2)
 
 
-def parse_params(items: list[str] | None) -> dict[str, Any]:
-    """Parse ``KEY=VALUE`` strings; values are read as JSON when possible (numbers, true, lists)."""
+# --------------------------------------------------------------------------------------------
+# output paths
+# --------------------------------------------------------------------------------------------
+def check_output_path(
+    path: str | os.PathLike | None, option: str = "--output", *, suffixes: tuple[str, ...] = ()
+) -> Path | None:
+    """Check, before any work, that ``path`` can be written as a file: not a directory, its folder
+    exists, and (with ``suffixes``) it ends with one of them. Every command with an output file
+    calls this; the problems are :class:`ParameterError` naming the option."""
+    if path is None:
+        return None
+    p = Path(path)
+    if str(path) == "" or p.name in ("", ".", ".."):
+        raise ParameterError(f"{option} must name a file, got {str(path)!r}")
+    if suffixes and not p.name.lower().endswith(tuple(s.lower() for s in suffixes)):
+        raise ParameterError(f"{option} must end with {' or '.join(suffixes)}, got {str(path)!r}")
+    if p.is_dir():
+        raise ParameterError(f"{option} {str(path)!r} is a directory; give a file name inside it")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.exists():
+        raise ParameterError(f"{option}: the output folder {str(parent)!r} does not exist")
+    if not parent.is_dir():
+        raise ParameterError(f"{option}: {str(parent)!r} is not a folder")
+    if p.exists() and not os.access(p, os.W_OK) or not os.access(parent, os.W_OK):
+        raise ParameterError(f"{option}: {str(path)!r} is not writable")
+    return p
+
+
+def check_distinct(output: str | os.PathLike, *inputs: str | os.PathLike | None) -> None:
+    """Refuse an output path that is one of the input files (it would be overwritten)."""
+    out = Path(output).resolve()
+    for i in inputs:
+        if i is not None and Path(i).resolve() == out:
+            raise ParameterError(f"the output {str(output)!r} must differ from the input file {str(i)!r}")
+
+
+# --------------------------------------------------------------------------------------------
+# arguments and parameters
+# --------------------------------------------------------------------------------------------
+def random_state_arg(text: str) -> int:
+    """argparse ``type=`` for ``--random-state``: an integer in ``[0, 2**32 - 1]``."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer in [0, 2**32 - 1], got {text!r}") from None
+    try:
+        check_random_state(value)
+    except ParameterError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return value
+
+
+def positive_int_arg(text: str) -> int:
+    """argparse ``type=`` for counts that must be >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
+    return value
+
+
+def positive_float_arg(text: str) -> float:
+    """argparse ``type=`` for finite lengths > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}") from None
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite positive number, got {text!r}")
+    return value
+
+
+def parse_params(items: list[str] | None, plugin: type | None = None, what: str = "--param") -> dict[str, Any]:
+    """Parse ``KEY=VALUE`` strings; values are read as JSON when possible (numbers, true, lists),
+    else kept as strings. With ``plugin`` (a class), a value is checked against the kind of the
+    constructor parameter's default: a number where the default is a number, a boolean where it
+    is a boolean, so ``bandwidth=abc`` is a :class:`ParameterError` naming the parameter instead of
+    an error deep inside the plugin."""
     out: dict[str, Any] = {}
     for item in items or []:
         if "=" not in item:
-            raise ParameterError(f"--param expects KEY=VALUE, got {item!r}")
+            raise ParameterError(f"{what} expects KEY=VALUE, got {item!r}")
         key, value = item.split("=", 1)
         key = key.strip().replace("-", "_")
         if not key:
-            raise ParameterError(f"--param expects KEY=VALUE, got {item!r}")
+            raise ParameterError(f"{what} expects KEY=VALUE, got {item!r}")
         try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
+            out[key] = json.loads(value, parse_constant=_no_constant)
+        except (json.JSONDecodeError, RecursionError):
             out[key] = value
+        except ValueError:  # NaN / Infinity, or an integer literal too long to parse
+            raise ParameterError(f"{what} {key}: {value[:40]!r} is not a usable value") from None
+    if plugin is not None:
+        _check_param_kinds(out, plugin, what)
     return out
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(name)
+
+
+def _check_param_kinds(params: dict[str, Any], plugin: type, what: str) -> None:
+    try:
+        sig = inspect.signature(plugin.__init__)
+    except (TypeError, ValueError):  # pragma: no cover - builtins
+        return
+    for key, value in params.items():
+        par = sig.parameters.get(key)
+        if par is None or par.default is inspect.Parameter.empty or par.default is None:
+            continue  # unknown names are reported by the registry; no default: no expectation
+        default = par.default
+        if isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise ParameterError(f"{what} {key}={_show(value)}: {key} expects true or false")
+        elif isinstance(default, (int, float)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ParameterError(f"{what} {key}={_show(value)}: {key} expects a number (default {default!r})")
+            if isinstance(default, int) and isinstance(value, float) and not value.is_integer():
+                raise ParameterError(f"{what} {key}={_show(value)}: {key} expects an integer (default {default})")
+
+
+def _show(value: Any) -> str:
+    text = value if isinstance(value, str) else json.dumps(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def plugin_class(family: str, name: str) -> type:
+    """The plugin class registered as ``name`` (typed :class:`PluginError` when unknown)."""
+    from shape_toolkit.api.registry import get_plugin
+
+    return get_plugin(family, name)
+
+
+# --------------------------------------------------------------------------------------------
+# small text files
+# --------------------------------------------------------------------------------------------
+def read_labels_file(path: str | os.PathLike, n_expected: int | None = None) -> np.ndarray:
+    """One integer label per line as int64 ``(n,)``; every problem a :class:`ShapeFileError`."""
+    from shape_toolkit.results.labels import read_int_file
+
+    labels = read_int_file(path, "labels")
+    if n_expected is not None and len(labels) != n_expected:
+        raise ShapeFileError(path, f"has {len(labels)} labels, expected {n_expected}")
+    return labels
+
+
+def read_ids_file(path: str | os.PathLike, *, one_based: bool, n_vertices: int | None = None) -> np.ndarray:
+    """One vertex id per line (``.vts`` files are 1-based) as 0-based int64; typed errors."""
+    from shape_toolkit.results.labels import read_int_file
+
+    ids = read_int_file(path, "vertex indices")
+    if one_based:
+        if ids.min() < 1:
+            raise ShapeFileError(path, f"1-based indices expected, found {int(ids.min())}")
+        ids = ids - 1
+    elif ids.min() < 0:
+        raise ShapeFileError(path, f"negative vertex index {int(ids.min())}")
+    if n_vertices is not None and ids.max() >= n_vertices:
+        raise ShapeFileError(
+            path, f"vertex index {int(ids.max()) + one_based} is out of range for {n_vertices} vertices"
+        )
+    return ids
+
+
+def read_seeds_file(path: str | os.PathLike, n_source: int, n_target: int) -> np.ndarray:
+    """:func:`shape_toolkit.pipeline.read_seeds` with every failure typed: the file is first
+    checked to be UTF-8 text of plain integers within range (what ``read_seeds`` assumes)."""
+    from shape_toolkit.pipeline import read_seeds
+    from shape_toolkit.results.labels import _INT_TOKEN, _MAX_ABS_INT, _read_small_text
+
+    p = Path(path)
+    text = _read_small_text(p, "seed")
+    for ln, line in enumerate(text.splitlines(), 1):
+        for tok in line.split("#", 1)[0].replace(",", " ").split():
+            if not _INT_TOKEN.match(tok) or abs(int(tok)) > _MAX_ABS_INT:
+                raise ShapeFileError(p, f"line {ln}: vertex ids must be integers in range, got {tok[:40]!r}")
+    try:
+        return read_seeds(p, n_source, n_target)
+    except ToolkitError:
+        raise
+    except (ValueError, OverflowError, UnicodeError, IndexError) as exc:  # pragma: no cover - belt and braces
+        raise ShapeFileError(p, f"malformed seed file ({type(exc).__name__}: {exc})") from None

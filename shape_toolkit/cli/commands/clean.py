@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from shape_toolkit.cli.commands._common import print_json
+from shape_toolkit.cli.commands._common import (
+    check_distinct,
+    check_output_path,
+    positive_float_arg,
+    positive_int_arg,
+    print_json,
+)
 from shape_toolkit.core.cleanup import clean_shape
-from shape_toolkit.errors import ParameterError
-from shape_toolkit.io.mesh import load_shape, save_shape
+from shape_toolkit.io.mesh import _WRITERS, load_shape, save_shape
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,9 +24,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("shape", help="input mesh or point-cloud file")
     p.add_argument("-o", "--output", required=True, help="output file (OFF, PLY, OBJ, STL, XYZ)")
     p.add_argument("--keep-largest", action="store_true", help="keep only the largest component")
-    p.add_argument("--remesh", type=float, metavar="EDGE_LEN", default=None,
+    p.add_argument("--remesh", type=positive_float_arg, metavar="EDGE_LEN", default=None,
                    help="isotropic remeshing to this target edge length (file units)")
-    p.add_argument("--remesh-iterations", type=int, default=3, help="remeshing iterations")
+    p.add_argument("--remesh-iterations", type=positive_int_arg, default=3, help="remeshing iterations")
     p.add_argument("--no-repair", action="store_true", help="do not repair non-manifold parts")
     p.add_argument("--binary", action="store_true", help="write binary PLY/STL")
     p.add_argument("--map", metavar="NPY", default=None,
@@ -32,11 +36,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.map and not str(args.map).endswith(".npy"):
-        raise ParameterError(f"--map must end with .npy, got {args.map!r}")
-    if Path(args.output).resolve() == Path(args.shape).resolve():
-        raise ParameterError("--output must differ from the input file")
-    shape = load_shape(args.shape)
+    check_output_path(args.output, suffixes=tuple(sorted(_WRITERS)))
+    check_output_path(args.map, "--map", suffixes=(".npy",))
+    check_distinct(args.output, args.shape)
+    if args.map:
+        check_distinct(args.map, args.shape, args.output)
+    shape = load_shape(args.shape, duplicate_faces="keep")  # removing them is clean's job
     cleaned, report = clean_shape(
         shape,
         repair_non_manifold=not args.no_repair,

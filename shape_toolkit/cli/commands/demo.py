@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from shape_toolkit.cli.commands._common import positive_int_arg, random_state_arg
 from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.spectrum import compute_spectrum
 from shape_toolkit.data.synthetic import articulated_shape
@@ -20,9 +21,9 @@ from shape_toolkit.io.mesh import save_shape
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="run the toolkit on a generated articulated shape")
     p.add_argument("-o", "--output", default="shape-toolkit-demo", help="output folder")
-    p.add_argument("-k", type=int, default=30, help="number of eigenpairs (default 30)")
-    p.add_argument("--random-state", type=int, default=0, help="seed of the generated pose")
-    p.add_argument("--workers", type=int, default=1, help="parallel workers of the showcase benchmark")
+    p.add_argument("-k", type=positive_int_arg, default=30, help="number of eigenpairs (default 30)")
+    p.add_argument("--random-state", type=random_state_arg, default=0, help="seed of the generated pose")
+    p.add_argument("--workers", type=positive_int_arg, default=1, help="parallel workers of the showcase benchmark")
     p.add_argument(
         "--no-bench",
         action="store_true",
@@ -56,14 +57,12 @@ def showcase_config(random_state: int = 0) -> dict:
             },
             {
                 "task": "keypoints",
-                "spectrum": {"k": 30},
                 "metrics": ["n_keypoints", "repeatability"],
                 "methods": [{"plugin": "adf-maxima", "preset": "sparse"}],
             },
             {
                 "task": "segmentation",
                 "corruptions": ["none", "noise"],
-                "spectrum": {"weighting": "gaussian", "k": 20, "use_mass": False},
                 "metrics": ["n_segments", "segmentation"],
                 "methods": [
                     {"plugin": "eigvec-gmm", "params": {"n_segments": 6}},
@@ -77,7 +76,6 @@ def showcase_config(random_state: int = 0) -> dict:
             {
                 "task": "matching",
                 "corruptions": ["none", "noise", "holes"],
-                "spectrum": {"k": 30},
                 "metrics": ["geodesic_error", "label_transfer", "coverage"],
                 "options": {"geodesic_method": "dijkstra", "truth_sample": 300},
                 "methods": [{"plugin": "eigvec-alignment"}],
@@ -142,7 +140,12 @@ def _plot(shape, spec, emb, out: Path) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     out = Path(args.output).resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise ParameterError(f"--output {args.output!r} is a file; the demo writes a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ParameterError(f"--output: cannot create the folder {args.output!r}: {exc.strerror or exc}") from None
     t0 = time.perf_counter()
     gen = articulated_shape(random_state=args.random_state)
     shape = gen.shape

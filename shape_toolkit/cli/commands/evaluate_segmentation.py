@@ -9,8 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shape_toolkit.cli.commands._common import print_json
-from shape_toolkit.data.datasets import read_labels
+from shape_toolkit.cli.commands._common import print_json, read_labels_file
 from shape_toolkit.errors import ShapeFileError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.metrics.segmentation import SEGMENTATION_METRICS, segmentation_scores
@@ -49,7 +48,7 @@ def _natural(p: Path) -> tuple:
 
 
 def _face_labels(path: Path, shape, what: str) -> np.ndarray:
-    labels = read_labels(path)
+    labels = read_labels_file(path)
     if len(labels) == shape.n_faces:
         return labels
     if len(labels) == shape.n_vertices:
@@ -63,7 +62,7 @@ def _face_labels(path: Path, shape, what: str) -> np.ndarray:
 def run(args: argparse.Namespace) -> int:
     shape = load_shape(args.shape)
     shape.require_faces("evaluate-segmentation")
-    pred = read_labels(args.prediction)
+    pred = read_labels_file(args.prediction)
     expected = shape.n_faces if args.faces else shape.n_vertices
     if len(pred) != expected:
         raise ShapeFileError(

@@ -24,6 +24,8 @@ def format_info(info: dict) -> str:
             lo = ", ".join(f"{x:.6g}" for x in value["min"])
             hi = ", ".join(f"{x:.6g}" for x in value["max"])
             value = f"[{lo}] .. [{hi}]"
+        elif isinstance(value, float) and value != value:
+            value = "-"
         elif isinstance(value, float):
             value = f"{value:.6g}"
         elif value is None:
@@ -34,7 +36,7 @@ def format_info(info: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    info = mesh_info(load_shape(args.shape))
+    info = mesh_info(load_shape(args.shape, duplicate_faces="keep"))  # info reports them
     info["path"] = str(args.shape)
     if args.json:
         print_json(info)

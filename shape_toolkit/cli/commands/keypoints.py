@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from shape_toolkit.api.registry import create_plugin
-from shape_toolkit.cli.commands._common import parse_params, print_json
+from shape_toolkit.cli.commands._common import check_output_path, parse_params, plugin_class, print_json
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 
@@ -26,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    params = parse_params(args.param)
+    check_output_path(args.output)
+    params = parse_params(args.param, plugin_class("keypoints", args.detector))
     detector = create_plugin("keypoints", args.detector, preset=args.preset, **params)
     shape = load_shape(args.shape)
     start = time.perf_counter()

@@ -8,10 +8,10 @@ import argparse
 import sys
 import time
 
-from shape_toolkit.cli.commands._common import print_json
+from shape_toolkit.cli.commands._common import check_distinct, check_output_path, print_json, read_seeds_file
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
-from shape_toolkit.pipeline import PRESETS, load_pipeline, read_seeds
+from shape_toolkit.pipeline import PRESETS, load_pipeline
 from shape_toolkit.results.correspondence import save_map
 
 
@@ -29,10 +29,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_path(args.output)
+    check_distinct(args.output, args.source, args.target, args.seeds)
     pipe = load_pipeline(args.pipeline)
     source = load_shape(args.source)
     target = load_shape(args.target)
-    seeds = read_seeds(args.seeds, source.n_vertices, target.n_vertices) if args.seeds else None
+    seeds = read_seeds_file(args.seeds, source.n_vertices, target.n_vertices) if args.seeds else None
     say = None if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     t0 = time.perf_counter()
     corr = pipe.run(source, target, seeds, progress=say)

@@ -10,9 +10,16 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.api.registry import create_plugin
-from shape_toolkit.cli.commands._common import parse_params, print_json
+from shape_toolkit.cli.commands._common import (
+    check_distinct,
+    check_output_path,
+    parse_params,
+    plugin_class,
+    positive_int_arg,
+    print_json,
+    random_state_arg,
+)
 from shape_toolkit.data.datasets import write_labels
-from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.results.labels import load_constraints, vertex_to_face_labels
 
@@ -21,10 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("segment", help="segment a shape with a segmenter plugin")
     p.add_argument("shape", help="mesh or point-cloud file")
     p.add_argument("--method", required=True, help="segmenter plugin (eigvec-gmm, csc, ...)")
-    p.add_argument("-k", "--n-segments", type=int, default=None,
+    p.add_argument("-k", "--n-segments", type=positive_int_arg, default=None,
                    help="number of segments (default: the method chooses, where it can)")
     p.add_argument("--constraints", help='JSON file {"must_link": [[i, j], ...], "cannot_link": [...]}')
-    p.add_argument("--random-state", type=int, default=None, help="seed of k-means / GMM (default 0)")
+    p.add_argument("--random-state", type=random_state_arg, default=None, help="seed of k-means / GMM (default 0)")
     p.add_argument("--preset", default=None, help="named parameter preset of the method")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="method parameter")
     p.add_argument("-o", "--output", help="labels file (default: SHAPE_STEM.METHOD.labels.txt, "
@@ -44,8 +51,13 @@ def _diagnostics(seg: Any) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    params = parse_params(args.param, plugin_class("segmenters", args.method))
+    out = Path(args.output) if args.output else Path(
+        f"{Path(args.shape).stem}.{args.method}.{'seg' if args.faces else 'labels.txt'}"
+    )
+    check_output_path(out)
+    check_distinct(out, args.shape, args.constraints)
     shape = load_shape(args.shape)
-    params = parse_params(args.param)
     if args.n_segments is not None:
         params["n_segments"] = args.n_segments
     if args.random_state is not None:
@@ -56,11 +68,6 @@ def run(args: argparse.Namespace) -> int:
     constraints = None
     if args.constraints:
         constraints = load_constraints(args.constraints, shape.n_vertices)
-    out = Path(args.output) if args.output else Path(
-        f"{Path(args.shape).stem}.{args.method}.{'seg' if args.faces else 'labels.txt'}"
-    )
-    if out.parent != Path("") and not out.parent.exists():
-        raise ParameterError(f"the output folder {out.parent} does not exist")
     t0 = time.perf_counter()
     labels = seg.segment(shape, constraints=constraints)
     elapsed = time.perf_counter() - t0

@@ -6,10 +6,16 @@ import argparse
 
 import numpy as np
 
-from shape_toolkit.cli.commands._common import parse_params, print_json
+from shape_toolkit.cli.commands._common import (
+    check_output_path,
+    parse_params,
+    plugin_class,
+    positive_float_arg,
+    positive_int_arg,
+    print_json,
+)
 from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.spectrum import LAPLACIANS, compute_spectrum
-from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 
 
@@ -21,8 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--laplacian", default="combinatorial", choices=LAPLACIANS)
     p.add_argument("--no-mass", action="store_true", help="ignore the weighting's mass matrix")
     p.add_argument("--connectivity", default="auto", choices=["auto", "mesh", "knn", "epsilon"])
-    p.add_argument("--neighbors", type=int, default=10, help="k of the kNN graph (point clouds)")
-    p.add_argument("--radius", type=float, default=None, help="radius of the epsilon graph")
+    p.add_argument("--neighbors", type=positive_int_arg, default=10, help="k of the kNN graph (point clouds)")
+    p.add_argument("--radius", type=positive_float_arg, default=None, help="radius of the epsilon graph")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="weighting parameter")
     p.add_argument("--largest-component", action="store_true",
                    help="analyse the largest connected component instead of refusing")
@@ -33,12 +39,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.output and not str(args.output).endswith(".npz"):
-        raise ParameterError(f"--output must end with .npz, got {args.output!r}")
+    check_output_path(args.output, suffixes=(".npz",))
+    params = parse_params(args.param, plugin_class("weightings", args.weighting))
     shape = load_shape(args.shape)
     graph = build_graph(
         shape, args.weighting, connectivity=args.connectivity, n_neighbors=args.neighbors,
-        radius=args.radius, **parse_params(args.param),
+        radius=args.radius, **params,
     )
     spec = compute_spectrum(
         graph, args.k, laplacian=args.laplacian, use_mass=False if args.no_mass else None,

@@ -8,10 +8,17 @@ import time
 
 import numpy as np
 
-from shape_toolkit.cli.commands._common import parse_params, print_json
-from shape_toolkit.data.datasets import read_labels, write_labels
+from shape_toolkit.cli.commands._common import (
+    check_distinct,
+    check_output_path,
+    parse_params,
+    plugin_class,
+    print_json,
+    read_labels_file,
+    read_seeds_file,
+)
+from shape_toolkit.data.datasets import write_labels
 from shape_toolkit.io.mesh import load_shape
-from shape_toolkit.pipeline import read_seeds
 from shape_toolkit.results.label_transfer import probabilistic_label_transfer
 
 
@@ -32,14 +39,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_path(args.output)
+    check_distinct(args.output, args.train, args.train_labels, args.test, args.truth, args.seeds)
+    params = parse_params(args.param, plugin_class("dense_matchers", args.matcher))
     train = load_shape(args.train)
     test = load_shape(args.test)
-    labels = read_labels(args.train_labels, train.n_vertices)
-    truth = read_labels(args.truth, test.n_vertices) if args.truth else None
-    seeds = read_seeds(args.seeds, train.n_vertices, test.n_vertices) if args.seeds else None
+    labels = read_labels_file(args.train_labels, train.n_vertices)
+    truth = read_labels_file(args.truth, test.n_vertices) if args.truth else None
+    seeds = read_seeds_file(args.seeds, train.n_vertices, test.n_vertices) if args.seeds else None
     t0 = time.perf_counter()
     out, corr = probabilistic_label_transfer(
-        train, labels, test, matcher=args.matcher, matcher_params=parse_params(args.param),
+        train, labels, test, matcher=args.matcher, matcher_params=params,
         preset=args.preset, seeds=seeds,
     )
     seconds = time.perf_counter() - t0

@@ -1,0 +1,514 @@
+"""Adversarial input corpus: every mesh-reading CLI subcommand on broken, hostile and odd files.
+
+Generates a folder of adversarial files (truncated, garbage, huge declared counts, NaN/inf and
+1e300 coordinates, out-of-range / negative / float indices, empty, non-manifold, disconnected,
+degenerate, duplicate faces, binary junk, wrong encodings, directories instead of files, ...) and
+adversarial side files (labels, maps, seeds, ``.vts``, constraints) and command-line arguments;
+runs ``shape-toolkit`` on each with a timeout and classifies every run:
+
+- ``rejected``: exit code 2, exactly one error line on stderr, no traceback (a clean refusal);
+- ``success``: exit code 0 and valid JSON on stdout (no NaN / Infinity);
+- ``failure``: anything else (traceback, internal error exit 1, other exit code, hang, bad JSON).
+
+Writes ``benchmarks/results/adversarial.md`` (corpus size, counts, every failure).
+
+    python benchmarks/adversarial_corpus.py [--out DIR] [--jobs 2] [--timeout 120] [--quick]
+
+``tests/test_adversarial.py`` runs a fast subset in-process through ``shape_toolkit.cli.main``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results" / "adversarial.md"
+
+# ------------------------------------------------------------------------------------------------
+# corpus
+# ------------------------------------------------------------------------------------------------
+_PLY_HEAD = "ply\nformat {fmt} 1.0\nelement vertex {nv}\nproperty float x\nproperty float y\nproperty float z\n"
+
+
+def _good_mesh():
+    from shape_toolkit.data.generate import icosphere
+
+    return icosphere(2)  # 162 vertices, 320 faces: fast for every command
+
+
+def _off(v, f) -> str:
+    head = f"OFF\n{len(v)} {len(f)} 0\n"
+    return head + "".join(" ".join(map(repr, map(float, r))) + "\n" for r in v) + "".join(
+        "3 " + " ".join(str(int(i)) for i in r) + "\n" for r in f
+    )
+
+
+def _ply_binary(v, f, *, nf=None, count_type="uchar", index_type="int", index_dtype="<i4", count_dtype="u1") -> bytes:
+    head = _PLY_HEAD.format(fmt="binary_little_endian", nv=len(v))
+    head += f"element face {len(f) if nf is None else nf}\n"
+    head += f"property list {count_type} {index_type} vertex_indices\nend_header\n"
+    body = np.asarray(v, dtype="<f4").tobytes()
+    for r in f:
+        body += np.array([len(r)], dtype=count_dtype).tobytes() + np.asarray(r, dtype=index_dtype).tobytes()
+    return head.encode() + body
+
+
+def mesh_corpus(folder: Path) -> dict[str, Path]:
+    """Write the adversarial mesh / point-cloud files; returns {case name: path}."""
+    from shape_toolkit.io.mesh import save_shape
+
+    folder.mkdir(parents=True, exist_ok=True)
+    s = _good_mesh()
+    v, f = s.vertices, s.faces
+    tri_v = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    files: dict[str, bytes | str | None] = {}
+    good_off = _off(v, f)
+    # -- controls (must succeed)
+    files["good.off"] = good_off
+    # -- emptiness, truncation, garbage
+    files["empty.off"] = ""
+    files["empty.ply"] = ""
+    files["empty.stl"] = ""
+    files["empty.pcd"] = ""
+    files["whitespace.obj"] = "\n\n   \n"
+    files["only_header.off"] = "OFF\n"
+    files["truncated_half.off"] = good_off[: len(good_off) // 2]
+    files["truncated_counts.off"] = "OFF\n10 2 0\n0 0 0\n1 0 0\n"
+    files["garbage_text.off"] = "OFF\n3 1 0\nhello world !\n1 0 0\n0 1 0\n3 0 1 2\n"
+    files["random_bytes.off"] = np.random.default_rng(0).bytes(4096)
+    files["random_bytes.ply"] = b"ply\n" + np.random.default_rng(1).bytes(4096)
+    files["random_bytes.stl"] = np.random.default_rng(2).bytes(84 + 50 * 3 + 7)
+    files["random_bytes.pcd"] = np.random.default_rng(3).bytes(2048)
+    files["random_bytes.obj"] = np.random.default_rng(4).bytes(2048)
+    files["random_bytes.xyz"] = np.random.default_rng(5).bytes(2048)
+    files["nul_bytes.off"] = b"\x00" * 1000
+    files["utf16.off"] = good_off.encode("utf-16")
+    files["latin1_comment.off"] = ("# caf\xe9 mesh\n" + good_off).encode("latin-1")
+    files["bom_utf8.obj"] = "\ufeffv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".encode()
+    files["wrong_magic.off"] = "COFFX\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    files["ply_as_off.off"] = _ply_binary(tri_v, [[0, 1, 2]])
+    files["off_as_ply.ply"] = good_off
+    # -- huge declared counts
+    files["huge_count.off"] = "OFF\n999999999999999999999 1 0\n0 0 0\n"
+    files["big_count.off"] = "OFF\n40000000 40000000 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    files["negative_count.off"] = "OFF\n-3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    files["huge_count_ascii.ply"] = (_PLY_HEAD.format(fmt="ascii", nv=30000000) + "end_header\n0 0 0\n")
+    files["huge_count_binary.ply"] = _ply_binary(tri_v, [[0, 1, 2]], nf=40000000)
+    files["empty_faces_binary.ply"] = _ply_binary(tri_v, [[]] * 200000)
+    files["huge_count.pcd"] = (b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\n"
+                               b"HEIGHT 1\nPOINTS 900000000\nDATA binary\n") + b"\x00" * 12
+    files["huge_count.stl"] = b"\x00" * 80 + struct.pack("<I", 4000000000) + b"\x00" * 50
+    # -- numbers
+    files["nan.off"] = "OFF\n3 1 0\n0 0 0\nnan 0 0\n0 1 0\n3 0 1 2\n"
+    files["inf.obj"] = "v 0 0 0\nv inf 0 0\nv 0 1 0\nf 1 2 3\n"
+    files["overflow_float.xyz"] = "0 0 0\n1e999 0 0\n0 1 0\n"
+    files["coords_1e300.off"] = _off(v * 1e300, f)
+    files["coords_1e-300.off"] = _off(v * 1e-300, f)
+    files["coords_1e-320_subnormal.off"] = _off(v * 1e-320, f)
+    files["coords_offset_1e15.off"] = _off(v + 1e15, f)
+    files["index_out_of_range.off"] = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n"
+    files["index_negative.off"] = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n"
+    files["index_huge.off"] = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 99999999999999999999999999\n"
+    files["index_float.off"] = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1.5 2\n"
+    files["index_zero.obj"] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n"
+    files["index_negative_rel.obj"] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -9\n"
+    files["index_float_ascii.ply"] = (_PLY_HEAD.format(fmt="ascii", nv=3) + "element face 1\n"
+                                      "property list uchar float vertex_indices\nend_header\n"
+                                      "0 0 0\n1 0 0\n0 1 0\n3 0.5 1 2\n")
+    files["index_float_binary.ply"] = _ply_binary(tri_v, [[0.5, 1, 2]], index_type="float", index_dtype="<f4")
+    files["index_nan_binary.ply"] = _ply_binary(tri_v, [[np.nan, 1, 2]], index_type="float", index_dtype="<f4")
+    files["list_count_negative.ply"] = _ply_binary(tri_v, [[0, 1, 2]], count_type="char", count_dtype="i1") \
+        .replace(b"end_header\n" + np.asarray(tri_v, "<f4").tobytes() + b"\x03",
+                 b"end_header\n" + np.asarray(tri_v, "<f4").tobytes() + b"\xff")
+    files["list_count_negative_ascii.ply"] = (_PLY_HEAD.format(fmt="ascii", nv=3) + "element face 1\n"
+                                              "property list char int vertex_indices\nend_header\n"
+                                              "0 0 0\n1 0 0\n0 1 0\n-1 0 1 2\n")
+    files["list_count_float.ply"] = _ply_binary(tri_v, [[0, 1, 2]], count_type="float", count_dtype="<f4")
+    files["pcd_count0.pcd"] = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 0 1\nWIDTH 2\n"
+                               "HEIGHT 1\nPOINTS 2\nDATA ascii\n1 2 3\n4 5 6\n")
+    files["pcd_size3.pcd"] = (b"VERSION 0.7\nFIELDS x y z\nSIZE 3 3 3\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\n"
+                              b"HEIGHT 1\nPOINTS 1\nDATA binary\n") + b"\x00" * 9
+    files["pcd_nodata.pcd"] = "VERSION 0.7\nFIELDS x y z\nPOINTS 1\n"
+    files["pcd_compressed_junk.pcd"] = (b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+                                        b"WIDTH 3\nHEIGHT 1\nPOINTS 3\nDATA binary_compressed\n") + b"\x01" * 20
+    files["stl_ascii_truncated.stl"] = "solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+    files["stl_ascii_text.stl"] = "solid x\nfacet normal 0 0 1\nouter loop\nvertex a b c\nvertex 1 0 0\n" \
+                                  "vertex 0 1 0\nendloop\nendfacet\nendsolid\n"
+    files["ply_unknown_format.ply"] = _PLY_HEAD.format(fmt="binary_middle_endian", nv=1) + "end_header\n"
+    files["ply_no_vertex.ply"] = "ply\nformat ascii 1.0\nelement face 0\nend_header\n"
+    files["ply_bad_property.ply"] = "ply\nformat ascii 1.0\nelement vertex 1\nproperty quad x\nend_header\n0\n"
+    files["ply_dup_property.ply"] = (b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n"
+                                     b"property float x\nproperty float z\nend_header\n") + b"\x00" * 12
+    # -- topology and geometry defects
+    dup = np.concatenate([f, f[:40]])
+    files["duplicate_faces.off"] = _off(v, dup)
+    files["flipped_duplicate_faces.off"] = _off(v, np.concatenate([f, f[:40, ::-1]]))
+    files["degenerate_faces.off"] = _off(np.r_[v, [[0.5, 0.5, 0.5]]], np.r_[f, [[0, 0, 1], [2, 2, 2]]])
+    files["zero_area.off"] = "OFF\n3 1 0\n0 0 0\n1 0 0\n2 0 0\n3 0 1 2\n"
+    files["all_same_point.xyz"] = "1 1 1\n" * 50
+    files["single_point.xyz"] = "1 2 3\n"
+    files["two_points.pcd"] = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\n"
+                               "HEIGHT 1\nPOINTS 2\nDATA ascii\n0 0 0\n1 0 0\n")
+    files["single_triangle.off"] = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    nm = np.r_[f, [[f[0, 0], f[0, 1], len(v)]]]
+    files["non_manifold_edge.off"] = _off(np.r_[v, [[3.0, 3.0, 3.0]]], nm)
+    bow = np.array([[0, 1, 2], [0, 3, 4]])
+    files["bowtie.off"] = _off([[0, 0, 0], [1, 0, 0], [1, 1, 0], [-1, 0, 0], [-1, -1, 0]], bow)
+    files["disconnected.off"] = _off(np.r_[v, v + 5.0], np.r_[f, f + len(v)])
+    files["unreferenced_vertices.off"] = _off(np.r_[v, [[9.0, 9.0, 9.0]] * 5], f)
+    files["polygons.obj"] = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nf 1 2 3 4\nf 1 2 5\n"
+    files["face_two_vertices.obj"] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n"
+    files["point_cloud.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in v.tolist())
+    for name, content in files.items():
+        p = folder / name
+        p.write_bytes(content.encode() if isinstance(content, str) else content)
+    save_shape(s, folder / "good_binary.ply", binary=True)
+    save_shape(s, folder / "good_binary.stl", binary=True)
+    save_shape(s, folder / "good.obj")
+    save_shape(s, folder / "good.pcd")
+    (folder / "directory.off").mkdir(exist_ok=True)
+    out = {p.name: p for p in sorted(folder.iterdir())}
+    out["missing.off"] = folder / "missing.off"
+    out["unknown_ext.abc"] = folder / "unknown_ext.abc"
+    (folder / "unknown_ext.abc").write_text("1 2 3\n")
+    return out
+
+
+def side_corpus(folder: Path, n_vertices: int, n_faces: int) -> dict[str, dict[str, Path]]:
+    """Adversarial labels / map / seeds / vts / constraints files and the good ones."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(0)
+
+    def ints(a) -> str:
+        return "".join(f"{int(x)}\n" for x in a)
+
+    bad_int_files: dict[str, bytes | str] = {
+        "empty": "",
+        "words": "1\n2\nthree\n",
+        "float": "1.5\n" * 3,
+        "double_minus": "1\n--5\n",
+        "underscore": "1_0\n2\n",
+        "unicode_digits": "\u0663\n\u0664\n",
+        "huge": "1\n99999999999999999999999\n",
+        "binary": rng.bytes(500),
+        "utf16": "1\n2\n".encode("utf-16"),
+        "latin1": "1\n\xe9\n".encode("latin-1"),
+        "nan": "nan\n1\n",
+    }
+    good = {
+        "labels": ints(rng.integers(0, 4, n_vertices)),
+        "seg": ints(rng.integers(0, 4, n_faces)),
+        "map": ints(np.arange(n_vertices)),
+        "vts": ints(np.arange(1, n_vertices + 1, 5)),
+        "seeds": "0 0\n5 5\n10 10\n",
+        "constraints.json": json.dumps({"must_link": [[0, 1]], "cannot_link": [[0, 100]]}),
+    }
+    out: dict[str, dict[str, Path]] = {"good": {}, "labels": {}, "map": {}, "vts": {}, "seeds": {}, "constraints": {}}
+    for kind, text in good.items():
+        p = folder / f"good.{kind}"
+        p.write_text(text)
+        out["good"][kind.split(".")[0]] = p
+    for kind in ("labels", "map", "vts", "seeds"):
+        for name, content in bad_int_files.items():
+            if kind == "seeds" and name not in ("empty", "binary", "utf16", "latin1"):
+                content = content if isinstance(content, bytes) else "".join(
+                    f"{t} {t}\n" for t in content.split()) or content
+            p = folder / f"{name}.{kind}"
+            p.write_bytes(content if isinstance(content, bytes) else content.encode("utf-8"))
+            out[kind][name] = p
+        d = folder / f"dir.{kind}"
+        d.mkdir(exist_ok=True)
+        out[kind]["directory"] = d
+        out[kind]["missing"] = folder / f"missing.{kind}"
+    out["labels"]["wrong_length"] = folder / "short.labels"
+    out["labels"]["wrong_length"].write_text(ints([0, 1, 2]))
+    out["labels"]["negative"] = folder / "negative.labels"
+    out["labels"]["negative"].write_text(ints(-rng.integers(1, 5, n_vertices)))
+    out["labels"]["all_unique"] = folder / "unique.labels"
+    out["labels"]["all_unique"].write_text(ints(np.arange(n_vertices) * 7919))
+    out["labels"]["extreme"] = folder / "extreme.labels"
+    out["labels"]["extreme"].write_text(ints(rng.choice([-(2**62), 2**62, 0], n_vertices)))
+    out["map"]["out_of_range"] = folder / "range.map"
+    out["map"]["out_of_range"].write_text(ints(np.full(n_vertices, n_vertices + 3)))
+    out["map"]["all_unmatched"] = folder / "unmatched.map"
+    out["map"]["all_unmatched"].write_text(ints(np.full(n_vertices, -1)))
+    out["map"]["below_minus_one"] = folder / "minus.map"
+    out["map"]["below_minus_one"].write_text(ints(np.full(n_vertices, -7)))
+    out["vts"]["zero_based"] = folder / "zero.vts"
+    out["vts"]["zero_based"].write_text(ints(np.arange(0, n_vertices, 5)))
+    out["vts"]["out_of_range"] = folder / "range.vts"
+    out["vts"]["out_of_range"].write_text(ints([1, n_vertices + 10]))
+    seeds_extra = {"three_columns": "0 1 2\n", "out_of_range": f"0 {n_vertices + 4}\n", "negative": "-1 3\n",
+                   "comma": "0,0\n1,1\n", "comment_only": "# nothing\n"}
+    for name, text in seeds_extra.items():
+        p = folder / f"{name}.seeds"
+        p.write_text(text)
+        out["seeds"][name] = p
+    cons = {
+        "not_json": "{must_link: [[0, 1]]}",
+        "list": "[[0, 1]]",
+        "unknown_key": '{"must": [[0, 1]]}',
+        "out_of_range": json.dumps({"must_link": [[0, n_vertices + 5]]}),
+        "self_pair": '{"must_link": [[3, 3]]}',
+        "contradiction": '{"must_link": [[0, 1], [1, 2]], "cannot_link": [[0, 2]]}',
+        "float_ids": '{"must_link": [[0.5, 1]]}',
+        "huge_ids": '{"must_link": [[0, 99999999999999999999999999]]}',
+        "nan_ids": '{"must_link": [[NaN, 1]]}',
+        "ragged": '{"must_link": [[0, 1], [2]]}',
+        "strings": '{"must_link": [["a", "b"]]}',
+        "bools": '{"must_link": [[true, false]]}',
+        "deep": "[" * 100000 + "]" * 100000,
+        "binary": rng.bytes(300),
+        "utf16": '{"must_link": [[0, 1]]}'.encode("utf-16"),
+        "empty": "",
+    }
+    for name, content in cons.items():
+        p = folder / f"{name}.constraints.json"
+        p.write_bytes(content if isinstance(content, bytes) else content.encode())
+        out["constraints"][name] = p
+    out["constraints"]["directory"] = folder / "dir.constraints"
+    out["constraints"]["directory"].mkdir(exist_ok=True)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# runs
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class Run:
+    case: str
+    argv: list[str]
+    code: int | None = None
+    stdout: str = ""
+    stderr: str = ""
+    seconds: float = 0.0
+    verdict: str = ""
+    why: str = ""
+
+
+def mesh_runs(mesh: Path, name: str, side: dict, out: Path, *, commands: tuple[str, ...] | None = None) -> list[Run]:
+    """Every mesh-reading subcommand with ``mesh`` in the position of the shape under test."""
+    g = side["good"]
+    good = side["good_mesh"]
+    o = out / name.replace("/", "_")
+    m = str(mesh)
+    runs = {
+        "info": ["info", m, "--json"],
+        "clean": ["clean", m, "-o", f"{o}.clean.off", "--json"],
+        "spectrum": ["spectrum", m, "-k", "6", "--json"],
+        "keypoints": ["keypoints", m, "--json"],
+        "segment": ["segment", m, "--method", "eigvec-gmm", "-k", "3", "-o", f"{o}.seg.txt", "--json"],
+        "match": ["match", m, str(good), "--pipeline", "seed-growing", "-o", f"{o}.map", "--json", "--quiet"],
+        "evaluate-map": ["evaluate-map", m, m, str(g["map"]), "--truth-src", str(g["vts"]),
+                         "--truth-dst", str(g["vts"]), "--geodesics", "dijkstra", "--json"],
+        "evaluate-segmentation": ["evaluate-segmentation", m, str(g["labels"]), "--truth", str(g["seg"]), "--json"],
+        "transfer-labels": ["transfer-labels", str(good), str(g["labels"]), m, "-o", f"{o}.transfer.txt", "--json"],
+    }
+    return [Run(f"{name} | {cmd}", argv) for cmd, argv in runs.items() if commands is None or cmd in commands]
+
+
+def side_runs(side: dict, out: Path) -> list[Run]:
+    """The side files (labels, maps, seeds, vts, constraints) and odd arguments on a good mesh."""
+    g, good = side["good"], str(side["good_mesh"])
+    runs: list[Run] = []
+    for name, p in side["labels"].items():
+        runs.append(Run(f"labels:{name} | evaluate-segmentation pred",
+                        ["evaluate-segmentation", good, str(p), "--truth", str(g["seg"]), "--json"]))
+        runs.append(Run(f"labels:{name} | evaluate-segmentation truth",
+                        ["evaluate-segmentation", good, str(g["labels"]), "--truth", str(p), "--json"]))
+        runs.append(Run(f"labels:{name} | transfer-labels",
+                        ["transfer-labels", good, str(p), good, "-o", str(out / "t.txt"), "--json"]))
+    for name, p in side["map"].items():
+        runs.append(Run(f"map:{name} | evaluate-map", ["evaluate-map", good, good, str(p), "--truth-src",
+                        str(g["vts"]), "--truth-dst", str(g["vts"]), "--geodesics", "dijkstra", "--json"]))
+    for name, p in side["vts"].items():
+        runs.append(Run(f"vts:{name} | evaluate-map", ["evaluate-map", good, good, str(g["map"]), "--truth-src",
+                        str(p), "--truth-dst", str(g["vts"]), "--geodesics", "dijkstra", "--json"]))
+    for name, p in side["seeds"].items():
+        runs.append(Run(f"seeds:{name} | match", ["match", good, good, "--pipeline", "seed-growing", "--seeds",
+                        str(p), "-o", str(out / "m.map"), "--json", "--quiet"]))
+    for name, p in side["constraints"].items():
+        runs.append(Run(f"constraints:{name} | segment", ["segment", good, "--method", "csc", "-k", "3",
+                        "--constraints", str(p), "-o", str(out / "c.txt"), "--json"]))
+    args = {
+        "output missing folder": ["spectrum", good, "-k", "4", "-o", str(out / "no" / "such" / "x.npz"), "--json"],
+        "output onto folder": ["clean", good, "-o", str(out), "--json"],
+        "output onto folder (segment)": ["segment", good, "--method", "eigvec-gmm", "-o", str(out), "--json"],
+        "output onto folder (match)": ["match", good, good, "--pipeline", "seed-growing", "-o", str(out), "--quiet"],
+        "output onto folder (keypoints)": ["keypoints", good, "-o", str(out), "--json"],
+        "output onto folder (transfer)": ["transfer-labels", good, str(g["labels"]), good, "-o", str(out)],
+        "output is the input": ["clean", good, "-o", good, "--json"],
+        "param not a number": ["spectrum", good, "--weighting", "gaussian", "--param", "bandwidth=abc", "--json"],
+        "param not a number (keypoints)": ["keypoints", good, "--param", "t=abc", "--json"],
+        "param not a number (segment)": ["segment", good, "--method", "eigvec-gmm", "--param", "n_init=many",
+                                         "-o", str(out / "s.txt"), "--json"],
+        "param NaN": ["keypoints", good, "--param", "t=NaN", "--json"],
+        "param without =": ["keypoints", good, "--param", "t", "--json"],
+        "param unknown": ["keypoints", good, "--param", "nope=1", "--json"],
+        "random state negative": ["segment", good, "--method", "eigvec-gmm", "--random-state", "-1",
+                                  "-o", str(out / "s.txt"), "--json"],
+        "random state huge": ["segment", good, "--method", "eigvec-gmm", "--random-state", "99999999999",
+                              "-o", str(out / "s.txt"), "--json"],
+        "k zero": ["spectrum", good, "-k", "0", "--json"],
+        "k huge": ["spectrum", good, "-k", "100000", "--json"],
+        "n segments zero": ["segment", good, "--method", "eigvec-gmm", "-k", "0", "-o", str(out / "s.txt")],
+        "remesh tiny edge": ["clean", good, "-o", str(out / "r.off"), "--remesh", "1e-9", "--json"],
+        "remesh negative edge": ["clean", good, "-o", str(out / "r.off"), "--remesh", "-1", "--json"],
+        "remesh nan edge": ["clean", good, "-o", str(out / "r.off"), "--remesh", "nan", "--json"],
+        "unknown plugin": ["keypoints", good, "--detector", "nope", "--json"],
+        "unknown preset": ["keypoints", good, "--preset", "nope", "--json"],
+        "unknown pipeline": ["match", good, good, "--pipeline", "nope", "-o", str(out / "m.map")],
+        "pipeline is a folder": ["match", good, good, "--pipeline", str(out), "-o", str(out / "m.map")],
+        "truth folder empty": ["evaluate-segmentation", good, str(g["labels"]), "--truth", str(side["empty_dir"])],
+        "map for the wrong shape": ["evaluate-map", good, str(side["other_mesh"]), str(g["map"]), "--truth-src",
+                                    str(g["vts"]), "--truth-dst", str(g["vts"]), "--json"],
+    }
+    runs.extend(Run(f"args:{name}", argv) for name, argv in args.items())
+    return runs
+
+
+def classify(run: Run) -> Run:
+    """Set ``run.verdict`` to rejected / success / failure (see the module doc)."""
+    err_lines = [ln for ln in run.stderr.splitlines() if ln.strip()]
+    problems = [ln for ln in err_lines if ": warning: " not in ln]
+    if run.code is None:
+        run.verdict, run.why = "failure", "timeout"
+    elif "Traceback" in run.stderr or "Traceback" in run.stdout:
+        run.verdict, run.why = "failure", "traceback"
+    elif run.code == 2:
+        if len(problems) == 1:
+            run.verdict = "rejected"
+        else:
+            run.verdict, run.why = "failure", f"exit 2 with {len(problems)} stderr lines"
+    elif run.code == 0:
+        try:
+            json.loads(run.stdout, parse_constant=_refuse_constant)
+            run.verdict = "success"
+        except ValueError as exc:
+            run.verdict, run.why = "failure", f"invalid JSON ({exc})"
+    else:
+        run.verdict, run.why = "failure", f"exit {run.code}: {(problems or [''])[-1][:200]}"
+    return run
+
+
+def _refuse_constant(name: str):
+    raise ValueError(f"{name} in JSON")
+
+
+def execute(run: Run, timeout: float, cwd: Path) -> Run:
+    """Run ``python -m shape_toolkit ARGV`` in a subprocess and classify it."""
+    env = dict(os.environ, PYTHONWARNINGS="ignore::DeprecationWarning", OMP_NUM_THREADS="1",
+               OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    t0 = time.perf_counter()
+    try:
+        r = subprocess.run([sys.executable, "-m", "shape_toolkit", *run.argv], capture_output=True, text=True,
+                           timeout=timeout, cwd=cwd, env=env, errors="replace")
+        run.code, run.stdout, run.stderr = r.returncode, r.stdout, r.stderr
+    except subprocess.TimeoutExpired:
+        run.code = None
+    run.seconds = time.perf_counter() - t0
+    return classify(run)
+
+
+def build(folder: Path, *, commands: tuple[str, ...] | None = None) -> list[Run]:
+    """Generate the corpus in ``folder`` and list its runs."""
+    from shape_toolkit.data.generate import icosphere
+    from shape_toolkit.io.mesh import save_shape
+
+    s = _good_mesh()
+    meshes = mesh_corpus(folder / "meshes")
+    side: dict = side_corpus(folder / "side", s.n_vertices, s.n_faces)
+    side["good_mesh"] = meshes["good.off"]
+    side["other_mesh"] = folder / "side" / "other.off"
+    save_shape(icosphere(1), side["other_mesh"])
+    side["empty_dir"] = folder / "side" / "empty_dir"
+    side["empty_dir"].mkdir(exist_ok=True)
+    out = folder / "out"
+    out.mkdir(exist_ok=True)
+    runs: list[Run] = []
+    for name, path in meshes.items():
+        runs.extend(mesh_runs(path, name, side, out, commands=commands))
+    runs.extend(side_runs(side, out))
+    return runs
+
+
+def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS) -> str:
+    counts = Counter(r.verdict for r in runs)
+    by_cmd: dict[str, Counter] = {}
+    for r in runs:
+        by_cmd.setdefault(r.argv[0], Counter())[r.verdict] += 1
+    lines = [
+        "# Adversarial input corpus",
+        "",
+        "Generated and run by `python benchmarks/adversarial_corpus.py` (every mesh-reading subcommand on",
+        "every adversarial file, plus adversarial labels / maps / seeds / `.vts` / constraints files and",
+        "arguments on a good mesh; subprocess per run, with a timeout).",
+        "",
+        f"- corpus: {n_files} files and folders; {len(runs)} runs; wall time {seconds:.0f} s",
+        f"- **rejected** cleanly (exit 2, one line, no traceback): {counts['rejected']}",
+        f"- **success** (exit 0, valid JSON without NaN/Infinity): {counts['success']}",
+        f"- **failure** (traceback, internal error, other exit code, hang, invalid JSON): {counts['failure']}",
+        "",
+        "| command | rejected | success | failure |",
+        "|---|---|---|---|",
+    ]
+    for cmd in sorted(by_cmd):
+        c = by_cmd[cmd]
+        lines.append(f"| {cmd} | {c['rejected']} | {c['success']} | {c['failure']} |")
+    fails = [r for r in runs if r.verdict == "failure"]
+    lines += ["", "## Failures", ""]
+    lines += [f"- `{r.case}`: {r.why}" for r in fails] or ["none"]
+    lines += ["", "## Successes (accepted inputs)", ""]
+    lines += [f"- `{r.case}`" for r in runs if r.verdict == "success"]
+    text = "\n".join(lines) + "\n"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return text
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", default=None, help="corpus folder (default: a temporary one)")
+    ap.add_argument("--jobs", type=int, default=2, help="parallel runs (default 2)")
+    ap.add_argument("--timeout", type=float, default=180.0, help="seconds per run (default 180)")
+    ap.add_argument("--commands", default=None, help="comma-separated subset of subcommands")
+    ap.add_argument("--report", default=str(RESULTS), help="markdown report path")
+    args = ap.parse_args(argv)
+    folder = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="adversarial-"))
+    commands = tuple(args.commands.split(",")) if args.commands else None
+    runs = build(folder, commands=commands)
+    n_files = sum(1 for _ in (folder / "meshes").iterdir()) + 1 + sum(1 for _ in (folder / "side").iterdir())
+    print(f"{len(runs)} runs on a corpus of {n_files} files in {folder}", flush=True)
+    t0 = time.perf_counter()
+    done = 0
+
+    def one(r: Run) -> Run:
+        return execute(r, args.timeout, folder / "out")
+
+    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        for r in pool.map(one, runs):
+            done += 1
+            if r.verdict == "failure":
+                print(f"[{done}/{len(runs)}] FAILURE {r.case}: {r.why}", flush=True)
+            elif done % 50 == 0:
+                print(f"[{done}/{len(runs)}] ...", flush=True)
+    text = report(runs, n_files, time.perf_counter() - t0, Path(args.report))
+    print(text.split("## Failures")[0])
+    return 1 if any(r.verdict == "failure" for r in runs) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
