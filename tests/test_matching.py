@@ -187,7 +187,7 @@ def test_pipeline_with_given_seeds(pair, seeds):
     A, B, _ = pair
     spec = {"descriptors": "heat-distance", "dense": "seed-growing", "refine": "em-registration"}
     c = run_pipeline(spec, A, B, seeds=seeds)
-    assert c.info["n_seeds"] == len(seeds) and set(c.info["timings"]) == {"descriptors", "dense", "refine"}
+    assert c.info["n_seeds"] == len(seeds) and set(c.info["timings"]) == {"spectra", "descriptors", "dense", "refine"}
     assert _err(B, c).mean() < 0.02
 
 

@@ -235,8 +235,6 @@ def test_mutated_seed_files_raise_only_typed_errors_through_the_cli_reader(rows,
     _only_typed(read_seeds_file, p, 41, 41)
 
 
-@pytest.mark.xfail(strict=False, reason="pipeline.read_seeds: UnicodeDecodeError / OverflowError not typed yet "
-                   "(owner of pipeline.py; the CLI goes through cli.commands._common.read_seeds_file)")
 @SETTINGS
 @given(rows=pairs, ops=mutations)
 def test_mutated_seed_files_raise_only_typed_errors(rows, ops):

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.core.eigen import smallest_eigenpairs
+from shape_toolkit.core.eigen import fix_signs, smallest_eigenpairs
 from shape_toolkit.core.graph import ShapeGraph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import DisconnectedGraphError, ParameterError, SpectrumMismatchError
@@ -162,23 +162,6 @@ def laplacian_matrix(W: sp.spmatrix, kind: str = "combinatorial") -> sp.csr_matr
         s = sp.diags(1.0 / np.sqrt(d))
         return sp.csr_matrix(s @ L @ s)
     return sp.csr_matrix(sp.diags(1.0 / d) @ L)
-
-
-def fix_signs(vectors: np.ndarray) -> np.ndarray:
-    """Flip each column of ``(n, k)`` ``vectors`` so that its third moment is positive, falling
-    back to its largest-magnitude entry; invariant to vertex permutation and to sign flips."""
-    out = np.array(vectors, dtype=np.float64, copy=True)
-    for j in range(out.shape[1]):
-        u = out[:, j]
-        skew = float(np.sum(u**3))
-        scale = float(np.sum(np.abs(u) ** 3))
-        if abs(skew) > 1e-8 * max(scale, 1e-300):
-            s = np.sign(skew)
-        else:
-            i = int(np.argmax(np.abs(u)))
-            s = np.sign(u[i]) or 1.0
-        out[:, j] = s * u
-    return out
 
 
 # -- cache ------------------------------------------------------------------------------------
@@ -538,7 +521,8 @@ def shape_spectrum(shape: Shape, k: int, *, kind: str = "lbo", **spec: Any) -> S
     """The toolkit's default spectrum of ``shape``, ``k`` eigenpairs (the one place that says what
     "default" means): ``kind='lbo'`` is the Laplace-Beltrami operator (cotangent weights with
     Voronoi mass, intrinsic Delaunay on point clouds); ``kind='graph'`` the combinatorial
-    Laplacian of the Gaussian-weighted graph (thesis ch. 2-3). Extra keywords override the spec."""
+    Laplacian of the Gaussian-weighted graph (thesis ch. 2-3; with another ``weighting``, its mass
+    matrix too when it has one). Extra keywords override the spec."""
     return default_spec(k, kind, **spec).compute(shape)
 
 
@@ -546,8 +530,8 @@ def default_spec(k: int, kind: str = "lbo", **overrides: Any) -> SpectrumSpec:
     """The :class:`SpectrumSpec` behind :func:`shape_spectrum`."""
     if kind == "lbo":
         base: dict[str, Any] = {"weighting": "cotangent", "laplacian": "combinatorial", "use_mass": True}
-    elif kind == "graph":
-        base = {"weighting": "gaussian", "laplacian": "combinatorial", "use_mass": False}
+    elif kind == "graph":  # the weighting's own operator: a mass only where the weighting has one
+        base = {"weighting": "gaussian", "laplacian": "combinatorial", "use_mass": None}
     else:
         raise ParameterError(f"unknown spectrum kind {kind!r}; choose 'lbo' or 'graph'")
     base.update(overrides)

@@ -17,7 +17,7 @@ import numpy as np
 
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError, ShapeFileError
-from shape_toolkit.results.labels import face_to_vertex_labels
+from shape_toolkit.results.labels import face_to_vertex_labels, read_int_file
 
 __all__ = [
     "read_vertex_ids",
@@ -38,24 +38,7 @@ __all__ = [
 
 
 def _read_ints(path: str | os.PathLike, what: str) -> np.ndarray:
-    p = Path(path)
-    if not p.exists():
-        raise ShapeFileError(p, "no such file")
-    if p.is_dir():
-        raise ShapeFileError(p, "is a directory, expected a file")
-    try:
-        text = p.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ShapeFileError(p, f"cannot read {what}: {exc}") from None
-    tokens = text.split()
-    if not tokens:
-        raise ShapeFileError(p, f"empty {what} file")
-    try:
-        values = np.array([int(t) for t in tokens], dtype=np.int64)
-    except ValueError:
-        bad = next(t for t in tokens if not t.lstrip("-").isdigit())
-        raise ShapeFileError(p, f"{what} must be integers, found {bad!r}") from None
-    return values
+    return read_int_file(path, what)
 
 
 def read_vertex_ids(

@@ -18,9 +18,11 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from shape_toolkit.errors import ParameterError, ShapeFileError
-from shape_toolkit.results.labels import read_int_file
+from shape_toolkit.results.labels import _INT_TOKEN, _MAX_ABS_INT, _read_small_text, read_int_file
+from shape_toolkit.validation import check_seeds
 
 __all__ = [
+    "read_seeds",
     "Correspondence",
     "from_pairs",
     "transfer_function",
@@ -319,3 +321,32 @@ def nearest_neighbors(
     if k == 1:
         return D[:, 0], I[:, 0]
     return D, I
+
+
+def read_seeds(
+    path: str | os.PathLike, n_source: int | None = None, n_target: int | None = None
+) -> np.ndarray:
+    """Seed matches from a text file: one ``source target`` pair of 0-based vertex ids per line
+    (``#`` comments, commas allowed), int64 ``(q, 2)``, checked against the vertex counts when
+    given. Every problem (not text, a token that is not a plain integer, out of range, empty)
+    raises :class:`ShapeFileError` naming the line."""
+    p = Path(path)
+    rows = []
+    for ln, line in enumerate(_read_small_text(p, "seed").splitlines(), 1):
+        parts = line.split("#", 1)[0].replace(",", " ").split()
+        if not parts:
+            continue
+        if len(parts) != 2:
+            raise ShapeFileError(p, f"line {ln}: expected 'source target' (two 0-based ids), got {line[:80]!r}")
+        for tok in parts:
+            if not _INT_TOKEN.match(tok) or abs(int(tok)) > _MAX_ABS_INT:
+                raise ShapeFileError(p, f"line {ln}: vertex ids must be integers in range, got {tok[:40]!r}")
+        rows.append((int(parts[0]), int(parts[1])))
+    if not rows:
+        raise ShapeFileError(p, "no seed pairs in the file")
+    s = np.asarray(rows, dtype=np.int64)
+    try:
+        return check_seeds(s, n_source or int(s[:, 0].max()) + 1, n_target or int(s[:, 1].max()) + 1,
+                           allow_empty=False)
+    except ParameterError as exc:
+        raise ShapeFileError(p, str(exc)) from None

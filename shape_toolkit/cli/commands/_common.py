@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from shape_toolkit.errors import ParameterError, ShapeFileError, ToolkitError
+from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.validation import check_random_state, dumps_json
 
 
@@ -196,20 +196,7 @@ def read_ids_file(path: str | os.PathLike, *, one_based: bool, n_vertices: int |
 
 
 def read_seeds_file(path: str | os.PathLike, n_source: int, n_target: int) -> np.ndarray:
-    """:func:`shape_toolkit.pipeline.read_seeds` with every failure typed: the file is first
-    checked to be UTF-8 text of plain integers within range (what ``read_seeds`` assumes)."""
-    from shape_toolkit.pipeline import read_seeds
-    from shape_toolkit.results.labels import _INT_TOKEN, _MAX_ABS_INT, _read_small_text
+    """:func:`shape_toolkit.results.correspondence.read_seeds` (every failure typed)."""
+    from shape_toolkit.results.correspondence import read_seeds
 
-    p = Path(path)
-    text = _read_small_text(p, "seed")
-    for ln, line in enumerate(text.splitlines(), 1):
-        for tok in line.split("#", 1)[0].replace(",", " ").split():
-            if not _INT_TOKEN.match(tok) or abs(int(tok)) > _MAX_ABS_INT:
-                raise ShapeFileError(p, f"line {ln}: vertex ids must be integers in range, got {tok[:40]!r}")
-    try:
-        return read_seeds(p, n_source, n_target)
-    except ToolkitError:
-        raise
-    except (ValueError, OverflowError, UnicodeError, IndexError) as exc:  # pragma: no cover - belt and braces
-        raise ShapeFileError(p, f"malformed seed file ({type(exc).__name__}: {exc})") from None
+    return read_seeds(path, n_source, n_target)
