@@ -200,3 +200,13 @@ def read_seeds_file(path: str | os.PathLike, n_source: int, n_target: int) -> np
     from shape_toolkit.results.correspondence import read_seeds
 
     return read_seeds(path, n_source, n_target)
+
+
+def declared_spectra(plugin: Any, shape: Any) -> tuple[list | None, list[dict]]:
+    """The spectra ``plugin`` declares (``spectrum_specs()``), computed once on ``shape`` through the
+    content cache, to pass in as ``spectrum=``; and their JSON descriptions for the output.
+    ``(None, [])`` for a plugin that needs none."""
+    specs = list(plugin.spectrum_specs()) if hasattr(plugin, "spectrum_specs") else []
+    if not specs:
+        return None, []
+    return [s.compute(shape) for s in specs], [s.for_shape(shape).to_dict() for s in specs]

@@ -8,7 +8,13 @@ import time
 import numpy as np
 
 from shape_toolkit.api.registry import create_plugin
-from shape_toolkit.cli.commands._common import check_output_path, parse_params, plugin_class, print_json
+from shape_toolkit.cli.commands._common import (
+    check_output_path,
+    declared_spectra,
+    parse_params,
+    plugin_class,
+    print_json,
+)
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 
@@ -31,7 +37,8 @@ def run(args: argparse.Namespace) -> int:
     detector = create_plugin("keypoints", args.detector, preset=args.preset, **params)
     shape = load_shape(args.shape)
     start = time.perf_counter()
-    ids = np.asarray(detector.detect(shape), dtype=np.int64)
+    spectra, used = declared_spectra(detector, shape)
+    ids = np.asarray(detector.detect(shape, spectrum=spectra), dtype=np.int64)
     seconds = time.perf_counter() - start
     if ids.ndim != 1 or (ids.size and (ids.min() < 0 or ids.max() >= shape.n_vertices)):
         raise ParameterError(f"detector {args.detector!r} returned invalid vertex ids")
@@ -41,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
         "keypoints": ids.tolist(),
         "detector": args.detector,
         "preset": args.preset,
-        "params": detector.get_params(),
+        "params": detector.get_params(deep=False),
+        "spectra": used,
         "n_keypoints": int(ids.size),
         "n_vertices": shape.n_vertices,
         "seconds": round(seconds, 4),

@@ -13,6 +13,7 @@ from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.cli.commands._common import (
     check_distinct,
     check_output_path,
+    declared_spectra,
     parse_params,
     plugin_class,
     positive_int_arg,
@@ -69,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
     if args.constraints:
         constraints = load_constraints(args.constraints, shape.n_vertices)
     t0 = time.perf_counter()
-    labels = seg.segment(shape, constraints=constraints)
+    spectra, used = declared_spectra(seg, shape)
+    labels = seg.segment(shape, spectrum=spectra, constraints=constraints)
     elapsed = time.perf_counter() - t0
     written = vertex_to_face_labels(shape.faces, labels) if args.faces else labels
     write_labels(out, written)
@@ -77,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
         "labels_file": str(out),
         "n_segments": int(len(np.unique(labels))),
         "method": args.method,
-        "params": seg.get_params(),
+        "params": seg.get_params(deep=False),
+        "spectra": used,
         "per": "face" if args.faces else "vertex",
         "n_vertices": shape.n_vertices,
         "n_faces": shape.n_faces,
