@@ -257,3 +257,112 @@ def test_highly_symmetric_graph_with_clusters_cut_at_k():
         np.testing.assert_allclose(vecs.T @ vecs, np.eye(20), atol=1e-10, err_msg=method)
         res = np.linalg.norm(A @ vecs - vecs * vals, axis=0)
         assert res.max() < 1e-6, method
+
+
+# -- the round sphere: analytic eigenvalues l(l+1) with multiplicity 2l+1 ------------------------------
+def sphere_cotangent(subdivisions: int) -> tuple[sp.csr_matrix, np.ndarray]:
+    """Cotangent Laplacian and barycentric lumped mass of the unit icosphere (computed here)."""
+    from shape_toolkit.data.generate import icosphere
+
+    shape = icosphere(subdivisions)
+    V, F = np.asarray(shape.vertices, dtype=float), np.asarray(shape.faces)
+    n = len(V)
+    rows, cols, vals = [], [], []
+    for a, b, c in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # the angle at c weighs the edge (a, b)
+        u, w = V[F[:, a]] - V[F[:, c]], V[F[:, b]] - V[F[:, c]]
+        cot = np.einsum("ij,ij->i", u, w) / np.linalg.norm(np.cross(u, w), axis=1)
+        rows += [F[:, a], F[:, b]]
+        cols += [F[:, b], F[:, a]]
+        vals += [0.5 * cot, 0.5 * cot]
+    W = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    A = sp.csr_matrix(sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W)
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    mass = np.bincount(F.ravel(), weights=np.repeat(area / 3, 3), minlength=n)
+    return A, mass
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    A, mass = sphere_cotangent(4)  # 2562 vertices: the sparse path
+    s = 1 / np.sqrt(mass)
+    ref = la.eigh(A.toarray() * s[:, None] * s[None, :], eigvals_only=True, subset_by_index=(0, 24))
+    return A, mass, ref
+
+
+@pytest.mark.parametrize("method", list(METHODS))
+def test_round_sphere_analytic_eigenvalues_and_multiplicities(sphere, method):
+    """l(l+1) with multiplicity 2l+1 (l = 0, 1, 2): every copy of each cluster is found."""
+    A, mass, ref = sphere
+    k = 9  # 1 + 3 + 5: the cut falls after the l = 2 cluster
+    vals, vecs = smallest_eigenpairs(A, k, mass, method=method)
+    if method.startswith("arpack"):
+        # single-vector Lanczos (documented): may return a later eigenvalue instead of a copy, but
+        # what it returns are eigenvalues, to 1e-10
+        gap = np.min(np.abs(vals[1:, None] - ref[None, 1:]) / ref[None, 1:], axis=1)
+        assert gap.max() <= 1e-10 and abs(vals[0]) < 1e-9
+        return
+    analytic = np.repeat([0.0, 2.0, 6.0], [1, 3, 5])
+    np.testing.assert_allclose(vals, analytic, rtol=5e-3, atol=1e-9)  # discretisation error only
+    np.testing.assert_allclose(vals[1:], ref[1:k], rtol=1e-10)  # the solver itself: to 1e-10
+    for lo, hi in ((1, 4), (4, 9)):  # exactly degenerate by the icosahedral symmetry
+        assert np.ptp(vals[lo:hi]) <= 1e-9 * vals[lo]
+    np.testing.assert_allclose(vecs.T @ (mass[:, None] * vecs), np.eye(k), atol=1e-10)
+
+
+@pytest.mark.parametrize("method", ["auto", "krylov", "dense"])
+def test_round_sphere_cut_inside_a_cluster(sphere, method):
+    """k = 6 cuts the 5-fold l = 2 cluster after two copies: the block solver returns two of them."""
+    A, mass, ref = sphere
+    vals, vecs = smallest_eigenpairs(A, 6, mass, method=method)
+    np.testing.assert_allclose(vals[1:], ref[1:6], rtol=1e-10)
+    np.testing.assert_allclose(vals[4:], 6.0, rtol=5e-3)
+    res = np.linalg.norm(A @ vecs - (mass[:, None] * vecs) * vals, axis=0)
+    assert res.max() < 1e-6
+
+
+# -- BLAS thread cap -----------------------------------------------------------------------------------
+def _blas_threads_now() -> list[int]:
+    from threadpoolctl import threadpool_info
+
+    return [d["num_threads"] for d in threadpool_info() if d.get("user_api") == "blas"]
+
+
+@pytest.mark.parametrize("threads", [1, 2, None, "auto"])
+def test_blas_threads_setting_keeps_accuracy_and_restores_pools(sphere, threads, monkeypatch):
+    pytest.importorskip("threadpoolctl")
+    import shape_toolkit.core.eigen as eigen
+
+    A, mass, ref = sphere
+    before = _blas_threads_now()
+    seen: list[list[int]] = []
+    real = eigen._cholmod_solver
+
+    def spying(S):
+        seen.append(_blas_threads_now())
+        return real(S)
+
+    monkeypatch.setattr(eigen, "_cholmod_solver", spying)
+    info: dict = {}
+    vals, _ = smallest_eigenpairs(A, 20, mass, blas_threads=threads, info=info)
+    np.testing.assert_allclose(vals[1:], ref[1:20], rtol=1e-10)
+    assert info["method"] == "krylov"
+    expected = eigen.DEFAULT_BLAS_THREADS if threads == "auto" else threads
+    assert info["blas_threads"] == expected
+    if expected is not None and seen and seen[0]:
+        assert max(seen[0]) <= max(expected, min(before))  # capped inside the solver
+    assert _blas_threads_now() == before  # and restored afterwards
+
+
+def test_capped_and_uncapped_agree(generalized):
+    A, d, _, _ = generalized
+    v1, u1 = smallest_eigenpairs(A, 12, d, blas_threads=1)
+    v2, u2 = smallest_eigenpairs(A, 12, d, blas_threads=None)
+    np.testing.assert_allclose(v1, v2, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(u1, u2, atol=1e-7)
+
+
+@pytest.mark.parametrize("bad", [0, -1, "two", True, 1.5])
+def test_bad_blas_threads_raise(grid, bad):
+    _, _, A = grid
+    with pytest.raises(ParameterError, match="blas_threads"):
+        smallest_eigenpairs(A, 3, blas_threads=bad)

@@ -12,7 +12,9 @@ against the usual ``scipy.sparse.linalg.eigsh`` shift-invert approach.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+import os
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import scipy.linalg as la
@@ -22,7 +24,7 @@ import scipy.sparse.linalg as sla
 
 from shape_toolkit.errors import ParameterError, SolverError
 
-__all__ = ["METHODS", "smallest_eigenpairs"]
+__all__ = ["DEFAULT_BLAS_THREADS", "METHODS", "fix_signs", "smallest_eigenpairs"]
 
 #: Accepted values of ``method``.
 METHODS = ("auto", "dense", "krylov", "arpack", "arpack-splu")
@@ -36,7 +38,46 @@ DENSE_LIMIT_N = 20000
 #: The block Krylov solver's tightest residual tolerance (``tol=0`` means this).
 KRYLOV_MIN_TOL = 1e-11
 
+#: BLAS threads inside the sparse solvers when ``blas_threads`` is None. Their dense operations are
+#: many small BLAS-3 calls (``n x basis`` times ``basis x block``) that a threaded BLAS splits badly:
+#: measured in ``benchmarks/results/eigensolver.md`` (rows ``krylov-threaded`` against ``auto``), two
+#: OpenBLAS threads cost up to 20x the CPU time of one on a shared 2-core machine at 500-50k vertices and
+#: never won there; the dense path (n <= 500) lost 100x. So every method runs single-threaded by default.
+DEFAULT_BLAS_THREADS = 1
+
 _Operator = Callable[[np.ndarray, np.ndarray], None]
+
+
+_CONTROLLER: list = []  # the process's threadpoolctl controller, made on first use (a library scan)
+
+
+def _env_threads() -> str | None:
+    """The BLAS thread count the environment sets (OpenBLAS's own variable first), if any."""
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+        if os.environ.get(var):
+            return os.environ[var].strip()
+    return None
+
+
+@contextlib.contextmanager
+def _blas_limit(threads: int | None) -> Iterator[None]:
+    """Cap the BLAS thread pools at ``threads`` inside the block (threadpoolctl), restoring them after.
+
+    A no-op for None, without threadpoolctl, or when the environment already asks for ``threads``
+    (the library scan behind the cap costs ~10 ms, as much as a whole small solve).
+    """
+    if threads is None or (os.cpu_count() or 1) <= int(threads) or _env_threads() == str(int(threads)):
+        yield
+        return
+    try:
+        from threadpoolctl import ThreadpoolController
+    except ImportError:  # optional: without it the caller's thread count is used
+        yield
+        return
+    if not _CONTROLLER:
+        _CONTROLLER.append(ThreadpoolController())
+    with _CONTROLLER[0].limit(limits=int(threads), user_api="blas"):
+        yield
 
 
 # -- input checks ------------------------------------------------------------------------------
@@ -202,6 +243,7 @@ def _block_krylov_schur(
     W = np.empty((n, b), order="F")
     Q[:, :b] = la.qr(rng.standard_normal((n, b)), mode="economic")[0]
     j, restarts, n_op = 0, 0, 0
+    next_check = k + b  # Rayleigh-Ritz (an eigh of the j x j projection) only at these basis sizes
     while True:
         Bin[...] = Q[:, j : j + b]
         op(Bin, Bout)
@@ -212,11 +254,13 @@ def _block_krylov_schur(
         H[j + b : j + 2 * b, j : j + b] = R
         Q[:, j + b : j + 2 * b] = W
         j += b
-        if j < k + b and j + b <= m:
+        if j < next_check and j + b <= m:
             continue
+        # the next check halfway to the full basis: O(log) eighs per cycle, not one per block
+        next_check = j + max(b, ((m - j) // 2) // b * b)
         T = np.triu(H[:j, :j])
         T += np.triu(T, 1).T
-        theta, S = la.eigh(T, check_finite=False)
+        theta, S = la.eigh(T, check_finite=False, driver="evd")
         order = np.argsort(-np.abs(theta), kind="stable")  # largest magnitude first
         want = order[:k]
         res = np.linalg.norm(R @ S[j - b : j, want], axis=0)
@@ -248,6 +292,7 @@ def _block_krylov_schur(
         H[p : p + b, :p] = C
         H[:p, p : p + b] = C.T
         j = p
+        next_check = max(k + b, p + max(b, ((m - p) // 2) // b * b))
 
 
 # -- the solvers ------------------------------------------------------------------------------------
@@ -337,6 +382,7 @@ def smallest_eigenpairs(
     block_size: int | None = None,
     max_basis: int | None = None,
     max_restarts: int = 100,
+    blas_threads: int | str | None = "auto",
     info: dict | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` smallest eigenpairs of ``A u = lambda M u`` (``M = I`` when None).
@@ -363,8 +409,11 @@ def smallest_eigenpairs(
     method can), which bounds the relative eigenvalue error; the eigenvalues returned by
     ``"krylov"`` are Rayleigh quotients, whose error is in practice about ``tol**2``.
     ``sigma`` (default ``-1e-8 * max(diag(A) / diag(M))``) must be negative. ``block_size``,
-    ``max_basis`` and ``max_restarts`` tune ``"krylov"``. ``info``, if given, is filled with what
-    was done (method, factorization backend, operator applications, restarts).
+    ``max_basis`` and ``max_restarts`` tune ``"krylov"``. ``blas_threads`` caps the BLAS thread
+    pools during the call (through ``threadpoolctl``, restored afterwards): ``"auto"`` uses
+    :data:`DEFAULT_BLAS_THREADS`, an integer is used as is, None leaves the process's setting.
+    ``info``, if given, is filled with what was done (method, factorization backend, operator
+    applications, restarts, BLAS threads).
 
     Raises :class:`ParameterError` for a bad ``k`` or input (including an ``A`` found not to be
     PSD) and :class:`SolverError` when the iteration does not converge.
@@ -372,6 +421,35 @@ def smallest_eigenpairs(
     info = {} if info is None else info
     if method not in METHODS:
         raise ParameterError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    if not (blas_threads is None or blas_threads == "auto" or (
+        isinstance(blas_threads, (int, np.integer)) and not isinstance(blas_threads, bool) and blas_threads >= 1
+    )):
+        raise ParameterError(f"blas_threads must be 'auto', None or a positive integer, got {blas_threads!r}")
+    kwargs = dict(tol=tol, method=method, sigma=sigma, block_size=block_size, max_basis=max_basis,
+                  max_restarts=max_restarts, info=info)
+    if blas_threads != "auto":
+        info["blas_threads"] = blas_threads
+        with _blas_limit(blas_threads):
+            return _smallest_eigenpairs(A, k, M, **kwargs)
+    info["blas_threads"] = DEFAULT_BLAS_THREADS
+    with _blas_limit(DEFAULT_BLAS_THREADS):
+        return _smallest_eigenpairs(A, k, M, **kwargs)
+
+
+def _smallest_eigenpairs(
+    A: sp.spmatrix,
+    k: int,
+    M: sp.spmatrix | np.ndarray | None,
+    *,
+    tol: float,
+    method: str,
+    sigma: float | None,
+    block_size: int | None,
+    max_basis: int | None,
+    max_restarts: int,
+    info: dict,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`smallest_eigenpairs` inside its BLAS thread limit."""
     A = _as_square_sparse(A, "A")
     n = A.shape[0]
     if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)):
@@ -406,17 +484,20 @@ def smallest_eigenpairs(
             kwargs = dict(tol=tol, sigma=sigma, block_size=block_size, max_basis=max_basis,
                           max_restarts=max_restarts, info=info)
             try:
-                return smallest_eigenpairs(A, k, M, method="krylov", **kwargs)
+                return _smallest_eigenpairs(A, k, M, method="krylov", **kwargs)
             except SolverError as exc:
+                threads = info.get("blas_threads")
                 info.clear()
-                info["fallback_from"] = f"krylov: {exc}"
-                return smallest_eigenpairs(A, k, M, method="arpack", **kwargs)
+                info.update(blas_threads=threads, fallback_from=f"krylov: {exc}")
+                return _smallest_eigenpairs(A, k, M, method="arpack", **kwargs)
     info["method"] = method
     if method == "dense":
         vals, vecs = _dense(A, k, Ms, dM)
         return vals, fix_signs(vecs, copy=False)
 
-    b = int(block_size) if block_size is not None else (4 if k <= 40 else 8)
+    # block 4 up to k = 64: at 5k vertices, k = 50 it needs 164 solves and 2 restarts against 224 and 4
+    # with block 8, for 10% less CPU time (benchmarks/results/eigensolver.md, "tuning")
+    b = int(block_size) if block_size is not None else (4 if k <= 64 else 8)
     if b < 1:
         raise ParameterError(f"block_size must be >= 1, got {block_size}")
     m = int(max_basis) if max_basis is not None else max(2 * k + 2 * b, k + 6 * b)
