@@ -56,7 +56,8 @@ def test_plugins_list_json(capsys):
     assert main(["plugins", "list", "--json"]) == 0
     fams = json.loads(capsys.readouterr().out)
     assert set(fams) == {"weightings", "keypoints", "descriptors", "sparse_matchers",
-                         "dense_matchers", "segmenters"}
+                         "dense_matchers", "segmenters", "pipelines"}
+    assert "zoomout" in fams["pipelines"]
     assert "cotangent" in fams["weightings"]
 
 
@@ -131,9 +132,16 @@ def test_demo_writes_results(tmp_path):
     r = run_cli("demo", "-o", str(out))
     assert r.returncode == 0, r.stderr
     assert str(out) in r.stdout
-    assert (out / "embedding.png").stat().st_size > 10_000
+    for name in ("eigenvectors.png", "spectrum.png", "match.png"):
+        assert (out / name).stat().st_size > 10_000
+    assert summary_ok(out)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["eigenvalues"][0] == pytest.approx(0, abs=1e-8)
+
+
+def summary_ok(out: Path) -> bool:
+    s = json.loads((out / "summary.json").read_text())
+    return s["match"]["pipeline"] == "zoomout" and s["match"]["mean_error_euclidean_sqrt_area"] < 0.1
 
 
 def _inprocess(capsys, *args: str) -> tuple[int, str, str]:

@@ -72,3 +72,61 @@ def test_match_colors_identity_transfers_exactly(body):
     assert np.allclose(ct2, ct2[0])  # all unmatched: uniform grey
     with pytest.raises(ParameterError):
         match_colors(s, s, np.arange(3))
+
+
+def test_pullback_colours_every_source_vertex(body):
+    from shape_toolkit.io.viz import pullback_colors
+
+    s, _ = body
+    rng = np.random.default_rng(0)
+    t = rng.integers(0, s.n_vertices, s.n_vertices)
+    cs, ct = pullback_colors(s, s, t)
+    np.testing.assert_allclose(cs, ct[t])  # every source vertex takes its image's colour
+    t[:5] = -1
+    cs, _ = pullback_colors(s, s, t)
+    assert np.allclose(cs[:5], cs[0]) and not np.allclose(cs[5:], cs[0])
+    with pytest.raises(ParameterError):
+        pullback_colors(s, s, np.full(s.n_vertices, s.n_vertices))
+
+
+def test_align_labels_hungarian_gives_the_truth_palette(body):
+    from shape_toolkit.io.viz import align_labels
+
+    _, labels = body
+    perm = np.array([3, 5, 0, 1, 2, 4])
+    pred = perm[labels]
+    aligned = align_labels(pred, labels)
+    np.testing.assert_array_equal(aligned, labels)
+    np.testing.assert_allclose(label_colors(aligned), label_colors(labels))
+    extra = pred.copy()
+    extra[:10] = 9  # a label without a partner gets a fresh value, not a truth colour
+    out = align_labels(extra, labels)
+    assert out[0] not in set(labels.tolist()) and set(out[10:].tolist()) <= set(labels.tolist())
+
+
+def test_label_colour_depends_on_value_only():
+    a = label_colors(np.array([0, 1, 2, -1]))
+    b = label_colors(np.array([2, 2, 0, 1]))
+    np.testing.assert_allclose(a[2], b[0])
+    np.testing.assert_allclose(a[0], b[2])
+    assert np.allclose(a[3], 0.75)
+
+
+def test_plotly_show_figure(body):
+    pytest.importorskip("plotly")
+    from shape_toolkit.io.viz import show
+
+    s, labels = body
+    fig = show(s, labels=labels, points=[0, 1], title="parts")
+    assert fig.data[0].type == "mesh3d" and len(fig.data[0].vertexcolor) == s.n_vertices
+    assert fig.data[1].type == "scatter3d"
+
+
+def test_colorbar_panel_and_long_title(body, tmp_path):
+    s, _ = body
+    u = s.vertices[:, 0] - s.vertices[:, 0].mean()
+    p = render_shapes(
+        [{"shape": s, "scalars": u, "cmap": "coolwarm", "vmin": -1, "vmax": 1, "colorbar": "value", "title": "x"}],
+        tmp_path / "cb.png", title="a very long title " * 8,
+    )
+    assert _pixels(p).shape[0] > 300

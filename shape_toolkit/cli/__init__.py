@@ -1,4 +1,4 @@
-"""The ``shape-shape_toolkit`` command line: subcommands are discovered in :mod:`shape_toolkit.cli.commands`.
+"""The ``shape-toolkit`` command line: subcommands are discovered in :mod:`shape_toolkit.cli.commands`.
 
 Each module there exposes ``register(subparsers)``, adding a parser whose ``func(args) -> int``
 does the work. A :class:`~shape_toolkit.errors.ToolkitError` becomes one line on stderr and a

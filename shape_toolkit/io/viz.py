@@ -4,8 +4,12 @@
 cloud with optional per-vertex ``scalars`` (colour map), ``labels`` (one colour per label) or
 explicit ``colors``, and highlights ``points`` (vertex ids, e.g. keypoints). Shapes are shown in
 their principal-axes frame (largest extent horizontal, smallest along the view direction), so no
-camera needs to be chosen. :func:`match_colors` shows a correspondence by colour transfer;
-:func:`save_colored_ply` writes vertex colours that MeshLab and Open3D display.
+camera needs to be chosen. :func:`pullback_colors` shows a correspondence by pull-back colour
+transfer (the source takes the colours of the target vertices it maps to, so every matched source
+vertex is coloured); :func:`match_colors` is the older push-forward. :func:`align_labels` renames a
+segmentation's labels to the ground truth's (Hungarian method) so both are drawn in one palette.
+:func:`save_colored_ply` writes vertex colours that MeshLab and Open3D display; :func:`show` returns
+an interactive plotly figure for notebooks (optional ``viz`` extra).
 """
 
 from __future__ import annotations
@@ -23,6 +27,10 @@ __all__ = [
     "scalar_colors",
     "coordinate_colors",
     "match_colors",
+    "pullback_colors",
+    "align_labels",
+    "eigenvector_colors",
+    "show",
     "render_shape",
     "render_shapes",
     "save_colored_ply",
@@ -40,17 +48,63 @@ def _mpl():
     return matplotlib, plt
 
 
-def label_colors(labels: np.ndarray) -> np.ndarray:
-    """RGB ``(n, 3)`` in [0, 1]: one distinct colour per label (tab20 cycle), grey for negatives."""
+def _palette(n: int) -> np.ndarray:
+    """``(n, 3)`` distinct colours: tab10, then the light halves of tab20, then a hue cycle."""
     matplotlib, _ = _mpl()
+    base = [matplotlib.colormaps["tab10"](i)[:3] for i in range(10)]
+    base += [matplotlib.colormaps["tab20"](2 * i + 1)[:3] for i in range(10)]
+    if n > len(base):
+        import colorsys
+
+        base += [colorsys.hsv_to_rgb((0.618034 * i) % 1.0, 0.65, 0.9) for i in range(n - len(base))]
+    return np.asarray(base[: max(n, 1)], dtype=np.float64)
+
+
+def label_colors(labels: np.ndarray) -> np.ndarray:
+    """RGB ``(n, 3)`` in [0, 1] for integer labels ``(n,)``: the colour depends on the label VALUE
+    (label ``j`` always gets palette entry ``j``), so two segmentations with aligned labels (see
+    :func:`align_labels`) share colours; grey for negative (unlabelled) entries."""
     lab = np.asarray(labels, dtype=np.int64).ravel()
-    uniq = np.unique(lab[lab >= 0])
-    idx = np.searchsorted(uniq, lab)
-    cmap = matplotlib.colormaps["tab20"]
-    pal = np.array([cmap((2 * i) % 20 + (i // 10) % 2)[:3] for i in range(max(len(uniq), 1))])
-    out = np.tile(_NEUTRAL, (len(lab), 1))
     ok = lab >= 0
-    out[ok] = pal[idx[ok] % len(pal)]
+    pal = _palette(int(lab[ok].max()) + 1 if ok.any() else 1)
+    out = np.tile(_NEUTRAL, (len(lab), 1))
+    out[ok] = pal[lab[ok]]
+    return out
+
+
+def align_labels(labels: np.ndarray, reference: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """``labels`` ``(n,)`` renamed to best agree with ``reference`` ``(n,)`` (Hungarian method,
+    :func:`scipy.optimize.linear_sum_assignment` on the overlap, weighted by ``weights`` ``(n,)``
+    such as face areas): each label takes the reference label it overlaps most under a one-to-one
+    assignment; labels left over get fresh values after the reference's. Negative labels stay."""
+    from scipy.optimize import linear_sum_assignment
+
+    a = np.asarray(labels, dtype=np.int64).ravel()
+    b = np.asarray(reference, dtype=np.int64).ravel()
+    if a.shape != b.shape:
+        raise ParameterError(f"labels {a.shape} and reference {b.shape} must have the same shape")
+    w = np.ones(a.size) if weights is None else np.asarray(weights, dtype=np.float64).ravel()
+    ua = np.unique(a[a >= 0])
+    ub = np.unique(b[b >= 0])
+    out = a.copy()
+    if ua.size == 0:
+        return out
+    ok = (a >= 0) & (b >= 0)
+    overlap = np.zeros((ua.size, max(ub.size, 1)))
+    if ub.size:
+        np.add.at(overlap, (np.searchsorted(ua, a[ok]), np.searchsorted(ub, b[ok])), w[ok])
+    rows, cols = linear_sum_assignment(-overlap)
+    new = {}
+    for r, c in zip(rows, cols):
+        if ub.size and overlap[r, c] > 0:
+            new[int(ua[r])] = int(ub[c])
+    nxt = int(max(ub.max() if ub.size else -1, -1)) + 1
+    for lab in ua:
+        if int(lab) not in new:
+            new[int(lab)] = nxt
+            nxt += 1
+    lut = np.array([new[int(x)] for x in ua])
+    out[a >= 0] = lut[np.searchsorted(ua, a[a >= 0])]
     return out
 
 
@@ -75,15 +129,47 @@ def coordinate_colors(shape: Shape) -> np.ndarray:
     return np.clip((shape.vertices - b[0]) / np.maximum(b[1] - b[0], 1e-300), 0, 1)
 
 
-def match_colors(source: Shape, target: Shape, target_of: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Colour transfer of a map ``target_of`` ``(n_source,)`` (-1 unmatched): source colours
-    from positions; each target vertex takes the mean colour of the source vertices mapped to
-    it (grey when none). Returns ``(source_rgb (n_s, 3), target_rgb (n_t, 3))``."""
+def eigenvector_colors(vector: np.ndarray) -> np.ndarray:
+    """RGB ``(n, 3)`` of a signed per-vertex function ``(n,)`` (an eigenvector): diverging map
+    symmetric about zero (blue negative, white zero, red positive)."""
+    x = np.asarray(vector, dtype=np.float64).ravel()
+    lim = float(np.nanmax(np.abs(x))) if x.size and np.isfinite(x).any() else 1.0
+    return scalar_colors(x, "coolwarm", -lim, lim if lim > 0 else 1.0)
+
+
+def _check_map(source: Shape, target: Shape, target_of: np.ndarray) -> np.ndarray:
     t = np.asarray(target_of, dtype=np.int64).ravel()
     if t.size != source.n_vertices:
         raise ParameterError(f"the map has {t.size} entries for {source.n_vertices} source vertices")
-    if t.size and t.max() >= target.n_vertices:
-        raise ParameterError("the map points past the target's vertices")
+    if t.size and (t.max() >= target.n_vertices or t.min() < -1):
+        raise ParameterError(f"the map must hold target vertex ids in [0, {target.n_vertices - 1}] or -1")
+    return t
+
+
+def pullback_colors(
+    source: Shape, target: Shape, target_of: np.ndarray, target_colors: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pull-back colour transfer of a map ``target_of`` ``(n_source,)`` (-1 unmatched): the target
+    is coloured smoothly (``target_colors`` ``(n_t, 3)`` in [0, 1], default its positions in its
+    bounding box) and each source vertex takes the colour of the target vertex it maps to, so every
+    matched source vertex is coloured and a correct map makes the two look alike (unmatched: grey).
+    Returns ``(source_rgb (n_s, 3), target_rgb (n_t, 3))``."""
+    t = _check_map(source, target, target_of)
+    ct = coordinate_colors(target) if target_colors is None else np.asarray(target_colors, dtype=np.float64)
+    if ct.shape != (target.n_vertices, 3):
+        raise ParameterError(f"target_colors must have shape ({target.n_vertices}, 3), got {ct.shape}")
+    cs = np.tile(_NEUTRAL, (source.n_vertices, 1))
+    ok = t >= 0
+    cs[ok] = ct[t[ok]]
+    return cs, ct
+
+
+def match_colors(source: Shape, target: Shape, target_of: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Push-forward colour transfer of a map ``target_of`` ``(n_source,)`` (-1 unmatched): source
+    colours from positions; each target vertex takes the mean colour of the source vertices mapped
+    to it (grey when none; prefer :func:`pullback_colors`, which leaves no hole).
+    Returns ``(source_rgb (n_s, 3), target_rgb (n_t, 3))``."""
+    t = _check_map(source, target, target_of)
     cs = coordinate_colors(source)
     ok = t >= 0
     acc = np.zeros((target.n_vertices, 3))
@@ -150,10 +236,10 @@ def _draw(
     ax.view_init(elev=12, azim=-90)
     ax.set_axis_off()
     if title:
-        ax.set_title(title, fontsize=9)
+        ax.set_title(title, fontsize=10, pad=2)
 
 
-def _colors_for(shape: Shape, scalars, labels, colors, cmap) -> np.ndarray:
+def _colors_for(shape: Shape, scalars, labels, colors, cmap, vmin=None, vmax=None) -> np.ndarray:
     given = [x is not None for x in (scalars, labels, colors)]
     if sum(given) > 1:
         raise ParameterError("give at most one of scalars, labels, colors")
@@ -167,13 +253,21 @@ def _colors_for(shape: Shape, scalars, labels, colors, cmap) -> np.ndarray:
         x = np.asarray(scalars)
         if x.shape != (n,):
             raise ParameterError(f"scalars must have shape ({n},), got {x.shape}")
-        return scalar_colors(x, cmap)
+        return scalar_colors(x, cmap, vmin, vmax)
     if colors is not None:
         c = np.asarray(colors, dtype=np.float64)
         if c.shape != (n, 3):
             raise ParameterError(f"colors must have shape ({n}, 3), got {c.shape}")
         return c / 255.0 if c.max() > 1.0 else c
     return np.tile(_NEUTRAL, (n, 1))
+
+
+def _wrap(text: str, width_in: float, fontsize: float) -> str:
+    """``text`` wrapped to lines that fit ``width_in`` inches at ``fontsize`` points (no clipping)."""
+    import textwrap
+
+    chars = max(12, int(width_in * 72 / (0.55 * fontsize)))
+    return "\n".join(textwrap.wrap(text, chars)) or text
 
 
 def render_shapes(
@@ -184,23 +278,45 @@ def render_shapes(
     dpi: int = 100,
     title: str | None = None,
 ) -> Path:
-    """Render several shapes side by side into one PNG; each panel is a dict of
-    :func:`render_shape` arguments (``shape`` plus optional scalars/labels/colors/points/title)."""
+    """Render several shapes side by side into one PNG (``panel_size`` inches per panel); each panel
+    is a dict of :func:`render_shape` arguments (``shape`` plus optional scalars/labels/colors/points/
+    title/cmap/vmin/vmax, and ``colorbar``: a label string to draw a colour bar of the scalars)."""
     _, plt = _mpl()
     if not panels:
         raise ParameterError("nothing to render")
-    fig = plt.figure(figsize=(panel_size * len(panels), panel_size + (0.3 if title else 0)))
+    width = panel_size * len(panels)
+    fs = 11
+    sup = _wrap(title, width, fs) if title else None
+    n_sup = sup.count("\n") + 1 if sup else 0
+    head = 0.28 * n_sup
+    foot = 0.45 if any(pn.get("colorbar") for pn in panels) else 0.0
+    fig = plt.figure(figsize=(width, panel_size + head + 0.3 + foot))
     for i, pnl in enumerate(panels):
         pnl = dict(pnl)
         shape = pnl.pop("shape")
         ax = fig.add_subplot(1, len(panels), i + 1, projection="3d")
+        cmap = pnl.get("cmap", "viridis")
         cols = _colors_for(
-            shape, pnl.get("scalars"), pnl.get("labels"), pnl.get("colors"), pnl.get("cmap", "viridis")
+            shape, pnl.get("scalars"), pnl.get("labels"), pnl.get("colors"), cmap, pnl.get("vmin"), pnl.get("vmax")
         )
-        _draw(ax, shape, cols, pnl.get("points"), pnl.get("title"), pnl.get("point_size", 30.0))
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.subplots_adjust(left=0, right=1, bottom=0, top=0.86 if title else 0.95, wspace=0)
+        sub = _wrap(pnl["title"], panel_size, 10) if pnl.get("title") else None
+        _draw(ax, shape, cols, pnl.get("points"), sub, pnl.get("point_size", 30.0))
+        if pnl.get("colorbar") and pnl.get("scalars") is not None:
+            import matplotlib as mpl
+
+            x = np.asarray(pnl["scalars"], dtype=np.float64)
+            fin = x[np.isfinite(x)]
+            lo = pnl.get("vmin", fin.min() if fin.size else 0.0)
+            hi = pnl.get("vmax", fin.max() if fin.size else 1.0)
+            sm = mpl.cm.ScalarMappable(norm=mpl.colors.Normalize(lo, hi if hi > lo else lo + 1), cmap=cmap)
+            cb = fig.colorbar(sm, ax=ax, orientation="horizontal", fraction=0.05, pad=0.02, shrink=0.8)
+            cb.set_label(str(pnl["colorbar"]), fontsize=9)
+            cb.ax.tick_params(labelsize=8)
+    total = panel_size + head + 0.3 + foot
+    top = 1 - (head + 0.1) / total
+    if sup:
+        fig.suptitle(sup, fontsize=fs, y=0.995, va="top")
+    fig.subplots_adjust(left=0, right=1, bottom=0.02 + foot / total, top=top, wspace=0.02)
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(p, dpi=dpi)
@@ -273,3 +389,46 @@ def save_colored_ply(shape: Shape, path: str | os.PathLike, colors: np.ndarray) 
     tmp.write_text("\n".join(lines + vrows + frows) + "\n")
     os.replace(tmp, p)
     return p
+
+
+def show(
+    shape: Shape,
+    *,
+    scalars: np.ndarray | None = None,
+    labels: np.ndarray | None = None,
+    colors: np.ndarray | None = None,
+    points: np.ndarray | None = None,
+    cmap: str = "viridis",
+    title: str | None = None,
+    height: int = 480,
+):
+    """An interactive 3D view for notebooks: a plotly ``Figure`` (``Mesh3d`` with per-vertex
+    colours, or a point cloud) showing ``scalars`` ``(n,)``, ``labels`` ``(n,)`` or RGB ``colors``
+    ``(n, 3)``, with ``points`` (vertex ids) as red markers; ``height`` in pixels. Displayed inline
+    when it is the last expression of a cell. Needs plotly (the ``viz`` extra)."""
+    try:
+        import plotly.graph_objects as go
+    except ImportError:
+        raise ParameterError(
+            "show() needs plotly, part of the optional 'viz' extra: pip install 'shape-toolkit[viz]'"
+        ) from None
+    cols = _colors_for(shape, scalars, labels, colors, cmap)
+    rgb = [f"rgb({r},{g},{b})" for r, g, b in np.clip(np.round(cols * 255), 0, 255).astype(int).tolist()]
+    v = shape.vertices
+    data = []
+    if shape.is_mesh:
+        f = shape.faces
+        data.append(go.Mesh3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], i=f[:, 0], j=f[:, 1], k=f[:, 2],
+                              vertexcolor=rgb, flatshading=False, hoverinfo="skip", name="shape"))
+    else:
+        data.append(go.Scatter3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], mode="markers",
+                                 marker={"size": 2, "color": rgb}, name="shape"))
+    if points is not None and len(points):
+        p = v[np.asarray(points, dtype=np.int64)]
+        data.append(go.Scatter3d(x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="markers",
+                                 marker={"size": 5, "color": "red"}, name="points"))
+    fig = go.Figure(data=data)
+    fig.update_layout(title=title, height=height, margin={"l": 0, "r": 0, "t": 30 if title else 0, "b": 0},
+                      scene={"aspectmode": "data", "xaxis": {"visible": False}, "yaxis": {"visible": False},
+                             "zaxis": {"visible": False}}, showlegend=False)
+    return fig

@@ -210,3 +210,130 @@ def declared_spectra(plugin: Any, shape: Any) -> tuple[list | None, list[dict]]:
     if not specs:
         return None, []
     return [s.compute(shape) for s in specs], [s.for_shape(shape).to_dict() for s in specs]
+
+
+# --------------------------------------------------------------------------------------------
+# one CLI policy: quiet/progress flag, default output names, progress of long steps
+# --------------------------------------------------------------------------------------------
+OUTPUT_POLICY = (
+    "-o is optional everywhere; a command whose product is a file writes it, by default, to "
+    "INPUT_STEM.<what>.<ext> in the current directory"
+)
+
+
+def add_quiet(p: argparse.ArgumentParser) -> None:
+    """``--quiet`` (no progress on stderr); ``--no-progress`` is a hidden alias of it."""
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
+
+
+def add_ply(p: argparse.ArgumentParser, what: str) -> None:
+    """``--ply OUT.ply``: also write the shape with coloured vertices (MeshLab, Open3D)."""
+    p.add_argument("--ply", metavar="OUT.ply", default=None,
+                   help=f"also write a PLY with vertex colours showing {what} (opens in MeshLab, Open3D)")
+
+
+def default_output(given: str | None, inp: str | os.PathLike, what: str) -> Path:
+    """The output path: ``given``, else ``INPUT_STEM.<what>`` in the current directory (the one
+    ``-o`` rule of every command that writes a file)."""
+    return Path(given) if given else Path(f"{Path(inp).stem}.{what}")
+
+
+def progress_enabled(args: argparse.Namespace) -> bool:
+    """Progress is drawn on a terminal only, and never under ``--quiet`` or ``--json``."""
+    if getattr(args, "quiet", False) or getattr(args, "json", False):
+        return False
+    return bool(getattr(sys.stderr, "isatty", lambda: False)())
+
+
+class _Status:
+    """A one-line spinner with elapsed seconds on stderr (tqdm), updated from a thread."""
+
+    def __init__(self, message: str, enabled: bool):
+        self.message, self.enabled = message, enabled
+        self._bar = None
+        self._stop = None
+
+    def __enter__(self) -> _Status:
+        if not self.enabled:
+            return self
+        import threading
+
+        from tqdm import tqdm
+
+        self._bar = tqdm(total=None, desc=self.message, bar_format="{desc} {elapsed}", file=sys.stderr,
+                         leave=False)
+        self._stop = threading.Event()
+
+        def tick() -> None:
+            while not self._stop.wait(0.25):
+                self._bar.refresh()
+
+        self._thread = threading.Thread(target=tick, daemon=True)
+        self._thread.start()
+        return self
+
+    def update(self, message: str) -> None:
+        """Change the shown step (e.g. a pipeline stage)."""
+        self.message = message
+        if self._bar is not None:
+            self._bar.set_description_str(message)
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._stop.set()
+            self._thread.join()
+            self._bar.close()
+
+
+def status(args: argparse.Namespace, message: str) -> _Status:
+    """Context manager showing ``message`` and the elapsed time while a long step runs (terminal
+    only; silent under ``--quiet`` / ``--json``); ``.update(msg)`` changes the message."""
+    return _Status(message, progress_enabled(args))
+
+
+def read_labels_arg(
+    path: str | os.PathLike, shape: Any, faces: bool, option: str = "labels"
+) -> np.ndarray:
+    """Per-vertex labels ``(n_vertices,)`` int64 from a file of one label per vertex, or per face
+    with ``faces`` (PSB ``.seg``; converted by face-area majority). A count that fits the other
+    kind is reported with the flag to use."""
+    from shape_toolkit.results.labels import face_to_vertex_labels
+
+    labels = read_labels_file(path)
+    n_f = shape.n_faces if shape.is_mesh else 0
+    if faces:
+        shape.require_faces(f"{option} with --faces")
+        if len(labels) != n_f:
+            hint = " (one per vertex: drop --faces)" if len(labels) == shape.n_vertices else ""
+            raise ShapeFileError(path, f"has {len(labels)} labels, expected one per face ({n_f}){hint}")
+        return face_to_vertex_labels(shape.faces, labels, shape.n_vertices, shape.face_areas)
+    if len(labels) != shape.n_vertices:
+        hint = " (one per face, PSB .seg: add --faces)" if n_f and len(labels) == n_f else ""
+        raise ShapeFileError(path, f"has {len(labels)} labels, expected one per vertex ({shape.n_vertices}){hint}")
+    return labels
+
+
+def write_ply(path: str | os.PathLike | None, shape: Any, colors: np.ndarray) -> str | None:
+    """Write ``shape`` with vertex ``colors`` ``(n, 3)`` in [0, 1] to ``path`` (PLY); None: nothing."""
+    if path is None:
+        return None
+    from shape_toolkit.io.viz import save_colored_ply
+
+    save_colored_ply(shape, path, colors)
+    return str(path)
+
+
+def check_ply(path: str | None, *inputs: str | None) -> None:
+    """Check a ``--ply`` output before any work."""
+    if path is not None:
+        check_output_path(path, "--ply", suffixes=(".ply",))
+        check_distinct(path, *inputs)
+
+
+def missing_extra(feature: str, module: str, extra: str = "viz") -> ParameterError:
+    """The one-line error for an optional dependency that is not installed."""
+    return ParameterError(
+        f"{feature} needs the optional '{extra}' extra ({module} is not installed): "
+        f"pip install 'shape-toolkit[{extra}]'"
+    )

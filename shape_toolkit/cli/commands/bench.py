@@ -8,7 +8,7 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from shape_toolkit.cli.commands._common import print_json
+from shape_toolkit.cli.commands._common import add_quiet, default_output, print_json
 
 RUN_EPILOG = """exit status:
   0  every row of the run folder succeeded
@@ -44,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     r.add_argument("config", help="TOML benchmark config")
     r.add_argument(
-        "-o", "--output", required=True, metavar="RUN_DIR", help="run folder (results.jsonl, cache)"
+        "-o", "--output", metavar="RUN_DIR",
+        help="run folder (results.jsonl, cache; default CONFIG_STEM.run in the current directory)",
     )
     r.add_argument(
         "--workers", type=int, default=1, help="local parallel workers (Dask LocalCluster when > 1)"
@@ -54,7 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     r.add_argument("--limit", type=int, metavar="N", help="keep the first N items of each dataset")
     r.add_argument("--retry-failed", action="store_true", help="run failed rows again")
-    r.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_quiet(r)
     r.add_argument("--report", action="store_true", help="write the report when the run ends")
     r.add_argument("--json", action="store_true", help='print {"rows", "failed", "reused", ...} at the end')
     r.set_defaults(func=run_cmd)
@@ -63,8 +64,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     rep.add_argument("-o", "--output", help="report folder (default RUN_DIR/report)")
     rep.add_argument("--renders", type=int, default=3, help="shapes rendered per task (default 3)")
     rep.add_argument("--json", action="store_true", help="print the written files as JSON")
+    add_quiet(rep)
     rep.set_defaults(func=report_cmd)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def _say(args: argparse.Namespace):
+    """Report-writing progress lines on stderr (none under --quiet / --json)."""
+    if args.quiet or args.json:
+        return None
+    return lambda msg: print(f"report: {msg}", file=sys.stderr, flush=True)
 
 
 def run_cmd(args: argparse.Namespace) -> int:
@@ -72,6 +81,7 @@ def run_cmd(args: argparse.Namespace) -> int:
     from shape_toolkit.bench.config import load_config
     from shape_toolkit.bench.executors import run_benchmark
 
+    args.output = str(default_output(args.output, args.config, "run"))
     with _one_line_warnings():
         cfg = load_config(args.config)  # every check happens before any work
         summary = run_benchmark(
@@ -80,14 +90,14 @@ def run_cmd(args: argparse.Namespace) -> int:
             workers=args.workers,
             scheduler=args.scheduler,
             limit=args.limit,
-            progress=not args.no_progress,
+            progress=not (args.quiet or args.json),
             retry_failed=args.retry_failed,
         )
         report = None
         if args.report:
             from shape_toolkit.bench.report import write_report
 
-            report = str(write_report(args.output)["html"])
+            report = str(write_report(args.output, progress=_say(args))["html"])
     if args.json:
         print_json(
             {
@@ -114,7 +124,7 @@ def report_cmd(args: argparse.Namespace) -> int:
     from shape_toolkit.bench.report import write_report
 
     with _one_line_warnings():
-        res = write_report(args.run_dir, output=args.output, renders=args.renders)
+        res = write_report(args.run_dir, output=args.output, renders=args.renders, progress=_say(args))
     if args.json:
         print_json({k: str(v) if not isinstance(v, list) else [str(x) for x in v] for k, v in res.items()})
     else:

@@ -7,6 +7,7 @@ import argparse
 from shape_toolkit.cli.commands._common import (
     check_distinct,
     check_output_path,
+    default_output,
     positive_float_arg,
     positive_int_arg,
     print_json,
@@ -22,7 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "keep the largest component and remesh",
     )
     p.add_argument("shape", help="input mesh or point-cloud file")
-    p.add_argument("-o", "--output", required=True, help="output file (OFF, PLY, OBJ, STL, XYZ)")
+    p.add_argument("-o", "--output",
+                   help="output file (OFF, PLY, OBJ, STL, XYZ; default SHAPE_STEM.clean.EXT in the current directory)")
     p.add_argument("--keep-largest", action="store_true", help="keep only the largest component")
     p.add_argument("--remesh", type=positive_float_arg, metavar="EDGE_LEN", default=None,
                    help="isotropic remeshing to this target edge length (file units)")
@@ -36,6 +38,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    ext = Path(args.shape).suffix.lower()
+    args.output = str(default_output(args.output, args.shape, f"clean{ext if ext in _WRITERS else '.ply'}"))
     check_output_path(args.output, suffixes=tuple(sorted(_WRITERS)))
     check_output_path(args.map, "--map", suffixes=(".npy",))
     check_distinct(args.output, args.shape)

@@ -84,6 +84,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(result)
     else:
-        print(f"mean geodesic error {result['mean_geodesic_error']:.4f} (sqrt-area units), "
+        print(f"mean geodesic error {result['mean_geodesic_error']:.4f} (sqrt-area units, lower is better), "
               f"{100 * result['within_0.05']:.1f}% within 0.05, coverage {result['coverage']:.3f}")
+        if "symmetric" in result:
+            print(f"symmetric-aware mean geodesic error {result['symmetric']['mean_geodesic_error']:.4f} "
+                  "(the better of the truth and its mirror, per point)")
     return 0

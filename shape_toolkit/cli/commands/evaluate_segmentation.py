@@ -65,9 +65,14 @@ def run(args: argparse.Namespace) -> int:
     pred = read_labels_file(args.prediction)
     expected = shape.n_faces if args.faces else shape.n_vertices
     if len(pred) != expected:
+        hint = ""
+        if not args.faces and len(pred) == shape.n_faces:
+            hint = " (it has one label per face: add --faces)"
+        elif args.faces and len(pred) == shape.n_vertices:
+            hint = " (it has one label per vertex: drop --faces)"
         raise ShapeFileError(
             args.prediction,
-            f"has {len(pred)} labels, expected one per {'face' if args.faces else 'vertex'} ({expected})",
+            f"has {len(pred)} labels, expected one per {'face' if args.faces else 'vertex'} ({expected}){hint}",
         )
     pred_faces = pred if args.faces else vertex_to_face_labels(shape.faces, pred)
     files = _truth_files(Path(args.truth))
@@ -85,5 +90,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"{shape!r} vs {len(truths)} ground truth(s):")
         for name in SEGMENTATION_METRICS:
             v = result[name]
-            print(f"  {name:18s} {'n/a' if v is None else f'{v:.4f}'}")
+            better = "higher is better" if name in ("recall", "precision") else "lower is better"
+            print(f"  {name:18s} {'n/a' if v is None else f'{v:.4f}'}   ({better})")
     return 0

@@ -9,11 +9,16 @@ import numpy as np
 
 from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.cli.commands._common import (
+    add_ply,
+    add_quiet,
     check_output_path,
+    check_ply,
     declared_spectra,
     parse_params,
     plugin_class,
     print_json,
+    status,
+    write_ply,
 )
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
@@ -27,24 +32,44 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--param", action="append", metavar="KEY=VALUE",
                    help="detector parameter (repeatable), overrides the preset")
     p.add_argument("-o", "--output", help="also write the ids, one per line, to this file")
+    add_ply(p, "the keypoints (red spots on a grey shape)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_quiet(p)
     p.set_defaults(func=run)
+
+
+def keypoint_colors(shape, ids: np.ndarray, radius: float = 0.015) -> np.ndarray:
+    """RGB ``(n, 3)``: grey shape, red discs of ``radius`` (fraction of the bounding-box diagonal)
+    around the keypoint vertices ``ids``, so they show on a per-vertex coloured mesh."""
+    from scipy.spatial import cKDTree
+
+    cols = np.tile([0.78, 0.78, 0.78], (shape.n_vertices, 1))
+    if len(ids):
+        near = cKDTree(shape.vertices).query_ball_point(shape.vertices[ids], radius * shape.diagonal)
+        hit = np.unique(np.concatenate([np.asarray(x, dtype=np.int64) for x in near] + [ids]))
+        cols[hit] = [0.85, 0.1, 0.1]
+    return cols
 
 
 def run(args: argparse.Namespace) -> int:
     check_output_path(args.output)
+    check_ply(args.ply, args.shape, args.output)
     params = parse_params(args.param, plugin_class("keypoints", args.detector))
     detector = create_plugin("keypoints", args.detector, preset=args.preset, **params)
     shape = load_shape(args.shape)
     start = time.perf_counter()
-    spectra, used = declared_spectra(detector, shape)
-    ids = np.asarray(detector.detect(shape, spectrum=spectra), dtype=np.int64)
+    with status(args, f"keypoints: {args.detector} on {shape.n_vertices} vertices"):
+        spectra, used = declared_spectra(detector, shape)
+        ids = np.asarray(detector.detect(shape, spectrum=spectra), dtype=np.int64)
     seconds = time.perf_counter() - start
     if ids.ndim != 1 or (ids.size and (ids.min() < 0 or ids.max() >= shape.n_vertices)):
         raise ParameterError(f"detector {args.detector!r} returned invalid vertex ids")
     if args.output:
         np.savetxt(args.output, ids, fmt="%d")
+    ply = write_ply(args.ply, shape, keypoint_colors(shape, ids))
     result = {
+        "output": args.output,
+        "ply": ply,
         "keypoints": ids.tolist(),
         "detector": args.detector,
         "preset": args.preset,

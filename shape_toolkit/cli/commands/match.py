@@ -1,14 +1,24 @@
-"""``shape-toolkit match SRC DST --pipeline NAME_OR_FILE -o map.txt``: dense correspondence
-by a named or TOML-described pipeline; the map file holds one 0-based target vertex per source
-vertex (-1 when unmatched)."""
+"""``shape-toolkit match SRC DST --pipeline NAME_OR_FILE [-o MAP]``: dense correspondence by a named
+or TOML-described pipeline; the map file holds one 0-based target vertex per source vertex (-1 when
+unmatched). Default output: ``SRC_STEM.to-DST_STEM.map.txt`` in the current directory."""
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
+from pathlib import Path
 
-from shape_toolkit.cli.commands._common import check_distinct, check_output_path, print_json, read_seeds_file
+from shape_toolkit.cli.commands._common import (
+    add_quiet,
+    check_distinct,
+    check_output_path,
+    check_ply,
+    default_output,
+    print_json,
+    read_seeds_file,
+    status,
+    write_ply,
+)
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.pipeline import PRESETS, load_pipeline
@@ -22,28 +32,48 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pipeline", default="zoomout",
                    help=f"preset ({', '.join(sorted(PRESETS))}) or a .toml spec (default zoomout)")
     p.add_argument("--seeds", help="seed matches: 'source target' 0-based ids per line")
-    p.add_argument("-o", "--output", required=True, help="map file to write")
+    p.add_argument("-o", "--output", help="map file to write (default SRC_STEM.to-DST_STEM.map.txt)")
+    p.add_argument("--ply", metavar="OUT.ply", default=None,
+                   help="also write OUT.source.ply and OUT.target.ply: the target coloured by position, "
+                        "the source by the colours pulled back through the map (MeshLab, Open3D)")
     p.add_argument("--json", action="store_true", help="print JSON")
-    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    add_quiet(p)
     p.set_defaults(func=run)
 
 
+def ply_pair(path: str) -> tuple[Path, Path]:
+    """``OUT.ply`` -> ``(OUT.source.ply, OUT.target.ply)``."""
+    p = Path(path)
+    stem = p.name[:-4] if p.name.lower().endswith(".ply") else p.name
+    return p.with_name(f"{stem}.source.ply"), p.with_name(f"{stem}.target.ply")
+
+
 def run(args: argparse.Namespace) -> int:
-    check_output_path(args.output)
-    check_distinct(args.output, args.source, args.target, args.seeds)
+    out = default_output(args.output, args.source, f"to-{Path(args.target).stem}.map.txt")
+    check_output_path(out)
+    check_distinct(out, args.source, args.target, args.seeds)
+    check_ply(args.ply, args.source, args.target, args.seeds, str(out))
     pipe = load_pipeline(args.pipeline)
     source = load_shape(args.source)
     target = load_shape(args.target)
     seeds = read_seeds_file(args.seeds, source.n_vertices, target.n_vertices) if args.seeds else None
-    say = None if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     t0 = time.perf_counter()
-    corr = pipe.run(source, target, seeds, progress=say)
+    with status(args, f"{pipe.name}: starting") as st:
+        corr = pipe.run(source, target, seeds, progress=st.update)
     seconds = time.perf_counter() - t0
     if corr.n_matched == 0:
         raise ParameterError(f"pipeline {pipe.name!r} matched no vertex; nothing written")
-    save_map(args.output, corr)
+    save_map(out, corr)
+    plys = None
+    if args.ply:
+        from shape_toolkit.io.viz import pullback_colors
+
+        ps, pt = ply_pair(args.ply)
+        cs, ct = pullback_colors(source, target, corr.target_of)
+        plys = [write_ply(ps, source, cs), write_ply(pt, target, ct)]
     result = {
-        "map_file": args.output,
+        "map_file": str(out),
+        "ply": plys,
         "n_matched": corr.n_matched,
         "n_source": corr.n_source,
         "n_target": corr.n_target,
@@ -55,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(result)
     else:
-        print(f"{pipe.name}: matched {corr.n_matched}/{corr.n_source} vertices in {seconds:.2f} s "
-              f"-> {args.output}")
+        print(f"{pipe.name}: matched {corr.n_matched}/{corr.n_source} vertices in {seconds:.2f} s -> {out}")
+        if plys:
+            print(f"coloured meshes: {plys[0]} (pull-back), {plys[1]}")
     return 0

@@ -1,30 +1,145 @@
-"""``shape-toolkit plugins list [--json]``: the registered plugins of every family."""
+"""``shape-toolkit plugins list [--json]`` (every family, plus the matching pipelines) and
+``shape-toolkit plugins show NAME`` (parameters, defaults, presets, declared spectrum)."""
 
 from __future__ import annotations
 
 import argparse
+import inspect
+from typing import Any
 
 from shape_toolkit.api.registry import get_registry
 from shape_toolkit.cli.commands._common import print_json
+from shape_toolkit.errors import ParameterError, PluginError, ToolkitError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("plugins", help="list the registered plugins")
+    p = sub.add_parser("plugins", help="list the registered plugins and pipelines, or show one")
     psub = p.add_subparsers(dest="plugins_command", metavar="ACTION")
-    lst = psub.add_parser("list", help="list plugins by family")
-    lst.add_argument("--json", action="store_true", help="print {family: [names...]}")
+    lst = psub.add_parser("list", help="list plugins by family, and the matching pipelines")
+    lst.add_argument("--json", action="store_true", help="print {family: [names...], 'pipelines': [...]}")
     lst.set_defaults(func=run)
+    show = psub.add_parser("show", help="parameters, defaults, presets and declared spectrum of a plugin")
+    show.add_argument("name", help="plugin or pipeline name (see plugins list)")
+    show.add_argument("--family", help="only this family (when a name exists in several)")
+    show.add_argument("--json", action="store_true", help="print JSON")
+    show.set_defaults(func=show_cmd)
     p.set_defaults(func=run, json=False)
 
 
 def run(args: argparse.Namespace) -> int:
+    from shape_toolkit.pipeline import PRESETS
+
     reg = get_registry()
-    fams = reg.families()
+    fams: dict[str, Any] = dict(reg.families())
+    fams["pipelines"] = sorted(PRESETS)
     if args.json:
         print_json(fams)
         return 0
+    width = max(len(f) for f in fams)
     for fam, names in fams.items():
-        print(f"{fam}: {', '.join(names) if names else '(none)'}")
+        print(f"{fam:<{width}}  {', '.join(names) if names else '(none)'}")
     for name, err in reg.broken.items():
         print(f"broken plugin {name}: {err}")
+    print("details: shape-toolkit plugins show NAME")
+    return 0
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, (str, int, float, bool)) or v is None:
+        return v
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    return repr(v)
+
+
+def plugin_info(family: str, name: str) -> dict[str, Any]:
+    """What ``plugins show`` prints for one plugin: doc line, parameters with defaults, presets and
+    the spectrum it declares with its default parameters (None when it needs none)."""
+    reg = get_registry()
+    cls = reg.get(family, name)
+    params = []
+    for par in list(inspect.signature(cls.__init__).parameters.values())[1:]:
+        if par.kind in (par.VAR_POSITIONAL, par.VAR_KEYWORD):
+            continue
+        params.append({"name": par.name,
+                       "default": None if par.default is par.empty else _jsonable(par.default),
+                       "required": par.default is par.empty})
+    spectra: Any = None
+    try:
+        spectra = [s.to_dict() for s in cls().spectrum_specs()] if hasattr(cls, "spectrum_specs") else []
+    except (TypeError, ToolkitError) as exc:  # required parameters: the spec depends on them
+        spectra = f"depends on the parameters ({' '.join(str(exc).split())[:80]})"
+    doc = (inspect.getdoc(cls) or "").strip().split("\n\n")[0].replace("\n", " ")
+    return {
+        "family": family,
+        "name": name,
+        "class": f"{cls.__module__}.{cls.__qualname__}",
+        "entry_point": reg.entry_point(family, name),
+        "doc": doc,
+        "randomized": any(p["name"] == "random_state" for p in params),
+        "parameters": params,
+        "presets": _jsonable(dict(getattr(cls, "presets", {}) or {})),
+        "spectra": spectra,
+    }
+
+
+def pipeline_info(name: str) -> dict[str, Any]:
+    """What ``plugins show`` prints for a pipeline preset: its stages and the spectra they declare."""
+    from shape_toolkit.pipeline import PRESETS, load_pipeline
+
+    spec = PRESETS[name]
+    pipe = load_pipeline(name)
+    return {
+        "family": "pipelines",
+        "name": name,
+        "doc": spec.get("description", ""),
+        "stages": {k: _jsonable(v) for k, v in spec.items() if k != "description"},
+        "spectra": [s.to_dict() for s in pipe.spectrum_specs()],
+    }
+
+
+def show_cmd(args: argparse.Namespace) -> int:
+    from shape_toolkit.pipeline import PRESETS
+
+    reg = get_registry()
+    fams = [args.family] if args.family else [*reg.families(), "pipelines"]
+    found = []
+    for fam in fams:
+        if fam == "pipelines":
+            if args.name in PRESETS:
+                found.append(pipeline_info(args.name))
+        elif fam not in reg.families():
+            raise ParameterError(f"--family {fam!r}: choose one of {', '.join([*reg.families(), 'pipelines'])}")
+        elif reg.has(fam, args.name):
+            found.append(plugin_info(fam, args.name))
+    if not found:
+        raise PluginError(f"no plugin or pipeline named {args.name!r}; see 'shape-toolkit plugins list'")
+    if args.json:
+        print_json(found if len(found) > 1 else found[0])
+        return 0
+    for i, info in enumerate(found):
+        if i:
+            print()
+        print(f"{info['name']} ({info['family']}): {info['doc']}")
+        if "stages" in info:
+            for stage, st in info["stages"].items():
+                print(f"  stage {stage}: {st}")
+        else:
+            ep = f"  [entry point {info['entry_point']}]" if info["entry_point"] else ""
+            print(f"  class: {info['class']}{ep}")
+            print("  parameters:" if info["parameters"] else "  parameters: none")
+            for par in info["parameters"]:
+                print(f"    {par['name']} = {'(required)' if par['required'] else repr(par['default'])}")
+            for pname, pvals in info["presets"].items():
+                print(f"  preset {pname}: {', '.join(f'{k}={v!r}' for k, v in pvals.items())}")
+        sp = info["spectra"]
+        if isinstance(sp, str):
+            print(f"  spectrum: {sp}")
+        elif sp:
+            for s in sp:
+                print(f"  spectrum: {', '.join(f'{k}={v}' for k, v in s.items())}")
+        else:
+            print("  spectrum: none")
     return 0

@@ -11,14 +11,19 @@ import numpy as np
 
 from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.cli.commands._common import (
+    add_ply,
+    add_quiet,
     check_distinct,
     check_output_path,
+    check_ply,
     declared_spectra,
     parse_params,
     plugin_class,
     positive_int_arg,
     print_json,
     random_state_arg,
+    status,
+    write_ply,
 )
 from shape_toolkit.data.datasets import write_labels
 from shape_toolkit.io.mesh import load_shape
@@ -39,7 +44,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "or .seg with --faces)")
     p.add_argument("--faces", action="store_true",
                    help="write one label per face (majority of its vertices), PSB .seg format")
+    add_ply(p, "the segments (one colour per label)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_quiet(p)
     p.set_defaults(func=run)
 
 
@@ -58,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     )
     check_output_path(out)
     check_distinct(out, args.shape, args.constraints)
+    check_ply(args.ply, args.shape, args.constraints, str(out))
     shape = load_shape(args.shape)
     if args.n_segments is not None:
         params["n_segments"] = args.n_segments
@@ -70,13 +78,19 @@ def run(args: argparse.Namespace) -> int:
     if args.constraints:
         constraints = load_constraints(args.constraints, shape.n_vertices)
     t0 = time.perf_counter()
-    spectra, used = declared_spectra(seg, shape)
-    labels = seg.segment(shape, spectrum=spectra, constraints=constraints)
+    with status(args, f"segment: {args.method} on {shape.n_vertices} vertices") as st:
+        spectra, used = declared_spectra(seg, shape)
+        st.update(f"segment: {args.method}")
+        labels = seg.segment(shape, spectrum=spectra, constraints=constraints)
     elapsed = time.perf_counter() - t0
     written = vertex_to_face_labels(shape.faces, labels) if args.faces else labels
     write_labels(out, written)
+    from shape_toolkit.io.viz import label_colors
+
+    ply = write_ply(args.ply, shape, label_colors(labels))
     result = {
         "labels_file": str(out),
+        "ply": ply,
         "n_segments": int(len(np.unique(labels))),
         "method": args.method,
         "params": seg.get_params(deep=False),

@@ -7,15 +7,21 @@ import argparse
 import numpy as np
 
 from shape_toolkit.cli.commands._common import (
+    add_ply,
+    add_quiet,
     check_output_path,
+    check_ply,
     parse_params,
     plugin_class,
     positive_float_arg,
     positive_int_arg,
     print_json,
+    status,
+    write_ply,
 )
 from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.spectrum import LAPLACIANS, compute_spectrum
+from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 
 
@@ -34,22 +40,37 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="analyse the largest connected component instead of refusing")
     p.add_argument("--sign-fix", action="store_true", help="deterministic eigenvector signs")
     p.add_argument("-o", "--output", help="write eigenvalues and eigenvectors to this .npz")
+    add_ply(p, "one eigenvector (blue negative, white zero, red positive)")
+    p.add_argument("--eigenvector", type=int, default=1, metavar="I",
+                   help="0-based index of the eigenvector written by --ply (default 1: the Fiedler vector)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_quiet(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     check_output_path(args.output, suffixes=(".npz",))
+    check_ply(args.ply, args.shape, args.output)
+    if args.ply and not 0 <= args.eigenvector < args.k:
+        raise ParameterError(f"--eigenvector {args.eigenvector}: must be in [0, {args.k - 1}] (-k {args.k})")
     params = parse_params(args.param, plugin_class("weightings", args.weighting))
     shape = load_shape(args.shape)
-    graph = build_graph(
-        shape, args.weighting, connectivity=args.connectivity, n_neighbors=args.neighbors,
-        radius=args.radius, **params,
-    )
-    spec = compute_spectrum(
-        graph, args.k, laplacian=args.laplacian, use_mass=False if args.no_mass else None,
-        sign_fix=args.sign_fix, components="largest" if args.largest_component else "raise",
-    )
+    with status(args, f"spectrum: {args.k} eigenpairs of {shape.n_vertices} vertices"):
+        graph = build_graph(
+            shape, args.weighting, connectivity=args.connectivity, n_neighbors=args.neighbors,
+            radius=args.radius, **params,
+        )
+        spec = compute_spectrum(
+            graph, args.k, laplacian=args.laplacian, use_mass=False if args.no_mass else None,
+            sign_fix=args.sign_fix or bool(args.ply),
+            components="largest" if args.largest_component else "raise",
+        )
+    ply = None
+    if args.ply:
+        from shape_toolkit.io.viz import eigenvector_colors
+
+        # with --largest-component the other vertices hold zeros (white)
+        ply = write_ply(args.ply, shape, eigenvector_colors(spec.eigenvectors[:, args.eigenvector]))
     if args.output:
         spec.save(args.output)
     result = {
@@ -61,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
         "generalized": spec.generalized,
         "graph": {"edges": graph.n_edges, **graph.info},
         "output": args.output,
+        "ply": ply,
+        "eigenvector": args.eigenvector if ply else None,
     }
     if args.json:
         print_json(result)

@@ -1,5 +1,7 @@
-"""``shape-toolkit transfer-labels TRAIN TRAIN_LABELS TEST -o labels.txt``: probabilistic label
-transfer (Algorithm 5) from a segmented shape to another."""
+"""``shape-toolkit transfer-labels TRAIN TRAIN_LABELS TEST [-o labels.txt]``: probabilistic label
+transfer (Algorithm 5) from a segmented shape to another. Labels are per vertex, or per face with
+``--faces`` (PSB ``.seg``: read, converted, and written per face). Default output:
+``TEST_STEM.labels.txt`` (``TEST_STEM.seg`` with ``--faces``) in the current directory."""
 
 from __future__ import annotations
 
@@ -9,54 +11,76 @@ import time
 import numpy as np
 
 from shape_toolkit.cli.commands._common import (
+    add_ply,
+    add_quiet,
     check_distinct,
     check_output_path,
+    check_ply,
+    default_output,
     parse_params,
     plugin_class,
     print_json,
-    read_labels_file,
+    read_labels_arg,
     read_seeds_file,
+    status,
+    write_ply,
 )
 from shape_toolkit.data.datasets import write_labels
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.results.label_transfer import probabilistic_label_transfer
+from shape_toolkit.results.labels import vertex_to_face_labels
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("transfer-labels", help="transfer vertex labels of a segmented shape to another")
     p.add_argument("train", help="segmented (training) shape")
-    p.add_argument("train_labels", help="one integer label per train vertex")
+    p.add_argument("train_labels", help="one integer label per train vertex (per face with --faces)")
     p.add_argument("test", help="shape to label")
-    p.add_argument("-o", "--output", required=True, help="write one label per test vertex here")
+    p.add_argument("-o", "--output", help="write one label per test vertex (face with --faces) here "
+                   "(default TEST_STEM.labels.txt, or TEST_STEM.seg with --faces)")
+    p.add_argument("--faces", action="store_true",
+                   help="label files hold one label per face (PSB .seg): TRAIN_LABELS, --truth and the output")
     p.add_argument("--matcher", default="eigvec-alignment",
                    help="dense matcher (default eigvec-alignment: histogram alignment + EM)")
     p.add_argument("--preset", default=None, help="preset of the matcher")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="matcher parameter")
     p.add_argument("--seeds", help="seed matches 'train test' (0-based) per line, e.g. for em-registration")
     p.add_argument("--truth", help="ground-truth test labels: report recall and precision")
+    add_ply(p, "the transferred labels")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_quiet(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_path(args.output)
-    check_distinct(args.output, args.train, args.train_labels, args.test, args.truth, args.seeds)
+    output = default_output(args.output, args.test, "seg" if args.faces else "labels.txt")
+    check_output_path(output)
+    check_distinct(output, args.train, args.train_labels, args.test, args.truth, args.seeds)
+    check_ply(args.ply, args.train, args.train_labels, args.test, args.truth, args.seeds, str(output))
     params = parse_params(args.param, plugin_class("dense_matchers", args.matcher))
     train = load_shape(args.train)
     test = load_shape(args.test)
-    labels = read_labels_file(args.train_labels, train.n_vertices)
-    truth = read_labels_file(args.truth, test.n_vertices) if args.truth else None
+    if args.faces:
+        test.require_faces("--faces")
+    labels = read_labels_arg(args.train_labels, train, args.faces, "TRAIN_LABELS")
+    truth = read_labels_arg(args.truth, test, args.faces, "--truth") if args.truth else None
     seeds = read_seeds_file(args.seeds, train.n_vertices, test.n_vertices) if args.seeds else None
     t0 = time.perf_counter()
-    out, corr = probabilistic_label_transfer(
-        train, labels, test, matcher=args.matcher, matcher_params=params,
-        preset=args.preset, seeds=seeds,
-    )
+    with status(args, f"transfer-labels: {args.matcher} {train.n_vertices} -> {test.n_vertices} vertices"):
+        out, corr = probabilistic_label_transfer(
+            train, labels, test, matcher=args.matcher, matcher_params=params,
+            preset=args.preset, seeds=seeds,
+        )
     seconds = time.perf_counter() - t0
-    write_labels(args.output, out)
+    write_labels(output, vertex_to_face_labels(test.faces, out) if args.faces else out)
+    from shape_toolkit.io.viz import label_colors
+
+    ply = write_ply(args.ply, test, label_colors(out))
     values, counts = np.unique(out, return_counts=True)
     result = {
-        "labels_file": args.output,
+        "labels_file": str(output),
+        "per": "face" if args.faces else "vertex",
+        "ply": ply,
         "n_vertices": test.n_vertices,
         "n_unlabelled": int(np.sum(out < 0)),
         "label_counts": {str(int(v)): int(c) for v, c in zip(values, counts)},
@@ -72,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(result)
     else:
-        print(f"wrote {test.n_vertices} labels to {args.output} ({args.matcher}, {seconds:.2f} s)")
+        n = test.n_faces if args.faces else test.n_vertices
+        print(f"wrote {n} {'face' if args.faces else 'vertex'} labels to {output} ({args.matcher}, {seconds:.2f} s)")
         if truth is not None:
             print(f"recall {result['recall']:.4f}  precision {result['precision']:.4f}")
     return 0

@@ -1,0 +1,199 @@
+"""The one consistent CLI (issue 12): --ply exports read back in Open3D, the -o default rule,
+--faces wherever labels are read, hints, new commands (describe, geodesics, plugins show, view,
+examples), one-line errors with exit 2."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shape_toolkit.cli import main
+from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.io.mesh import save_shape
+from shape_toolkit.results.labels import vertex_to_face_labels
+
+
+@pytest.fixture(scope="module")
+def pose(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    a = articulated_shape(subdivisions=2, random_state=1)
+    b = articulated_shape(subdivisions=2, random_state=2)
+    save_shape(a.shape, d / "a.off")
+    save_shape(b.shape, d / "b.off")
+    np.savetxt(d / "a.labels.txt", a.labels, fmt="%d")
+    np.savetxt(d / "a.seg", vertex_to_face_labels(a.shape.faces, a.labels), fmt="%d")
+    np.savetxt(d / "b.seg", vertex_to_face_labels(b.shape.faces, b.labels), fmt="%d")
+    return d, a, b
+
+
+def _run(capsys, *args: str) -> tuple[int, str, str]:
+    code = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def _ply_colors(path: Path, n: int) -> np.ndarray:
+    o3d = pytest.importorskip("open3d")
+    m = o3d.io.read_triangle_mesh(str(path))
+    assert len(m.vertices) == n and m.has_vertex_colors()
+    return np.asarray(m.vertex_colors)
+
+
+def test_segment_ply_and_default_output(pose, capsys, monkeypatch, tmp_path):
+    d, a, _ = pose
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _run(capsys, "segment", d / "a.off", "--method", "eigvec-gmm", "-k", "6",
+                          "--ply", tmp_path / "seg.ply", "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["labels_file"] == "a.eigvec-gmm.labels.txt" and (tmp_path / "a.eigvec-gmm.labels.txt").exists()
+    cols = _ply_colors(tmp_path / "seg.ply", a.shape.n_vertices)
+    assert len(np.unique(cols.round(3), axis=0)) == res["n_segments"]
+
+
+def test_keypoints_spectrum_ply(pose, capsys, tmp_path):
+    d, a, _ = pose
+    code, out, err = _run(capsys, "keypoints", d / "a.off", "--preset", "sparse", "--ply", tmp_path / "k.ply", "--json")
+    assert code == 0, err
+    ids = json.loads(out)["keypoints"]
+    cols = _ply_colors(tmp_path / "k.ply", a.shape.n_vertices)
+    assert np.allclose(cols[ids], [0.85, 0.1, 0.1], atol=0.01)
+    code, out, err = _run(capsys, "spectrum", d / "a.off", "-k", "6", "--ply", tmp_path / "e.ply",
+                          "--eigenvector", "2", "--json")
+    assert code == 0, err
+    cols = _ply_colors(tmp_path / "e.ply", a.shape.n_vertices)
+    assert cols[:, 0].max() > 0.6 and cols[:, 2].max() > 0.6  # both signs: red and blue
+    assert _run(capsys, "spectrum", d / "a.off", "-k", "6", "--ply", tmp_path / "e.ply", "--eigenvector", "9")[0] == 2
+
+
+def test_match_ply_pullback_every_source_vertex_coloured(pose, capsys, tmp_path):
+    d, a, _ = pose
+    code, out, err = _run(capsys, "match", d / "a.off", d / "b.off", "--pipeline", "zoomout-fast",
+                          "-o", tmp_path / "m.txt", "--ply", tmp_path / "m.ply", "--json", "--quiet")
+    assert code == 0, err and not err
+    res = json.loads(out)
+    cs = _ply_colors(tmp_path / "m.source.ply", a.shape.n_vertices)
+    ct = _ply_colors(tmp_path / "m.target.ply", a.shape.n_vertices)
+    t = np.loadtxt(tmp_path / "m.txt", dtype=int)
+    assert res["n_matched"] == a.shape.n_vertices
+    np.testing.assert_allclose(cs, ct[t], atol=1e-6)  # pull-back: source = target colour at its image
+
+
+def test_match_default_output_name(pose, capsys, monkeypatch, tmp_path):
+    d, _, _ = pose
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _run(capsys, "match", d / "a.off", d / "b.off", "--pipeline", "zoomout-fast", "--no-progress")
+    assert code == 0, err
+    assert (tmp_path / "a.to-b.map.txt").exists()
+
+
+def test_transfer_labels_accepts_psb_face_labels(pose, capsys, tmp_path):
+    d, a, b = pose
+    code, out, err = _run(capsys, "transfer-labels", d / "a.off", d / "a.seg", d / "b.off", "--faces",
+                          "--truth", d / "b.seg", "-o", tmp_path / "b.out.seg", "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["per"] == "face" and len(np.loadtxt(tmp_path / "b.out.seg")) == b.shape.n_faces
+    # without --faces: one line naming the flag
+    code, _, err = _run(capsys, "transfer-labels", d / "a.off", d / "a.seg", d / "b.off", "-o", tmp_path / "x.txt")
+    assert code == 2 and "--faces" in err and len(err.strip().splitlines()) == 1
+
+
+def test_evaluate_segmentation_suggests_faces(pose, capsys):
+    d, _, _ = pose
+    code, _, err = _run(capsys, "evaluate-segmentation", d / "a.off", d / "a.seg", "--truth", d / "a.seg")
+    assert code == 2 and "add --faces" in err and len(err.strip().splitlines()) == 1
+    code, out, err = _run(capsys, "evaluate-segmentation", d / "a.off", d / "a.seg", "--faces", "--truth", d / "a.seg")
+    assert code == 0 and "lower is better" in out
+
+
+def test_evaluate_map_prints_symmetric(pose, capsys, tmp_path):
+    d, a, _ = pose
+    n = a.shape.n_vertices
+    np.savetxt(tmp_path / "id.txt", np.arange(n), fmt="%d")
+    ids = np.arange(1, n + 1, 7)
+    np.savetxt(tmp_path / "t.vts", ids, fmt="%d")
+    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "a.off", tmp_path / "id.txt",
+                          "--truth-src", tmp_path / "t.vts", "--truth-dst", tmp_path / "t.vts",
+                          "--truth-dst-sym", tmp_path / "t.vts", "--geodesics", "dijkstra")
+    assert code == 0, err
+    assert "symmetric-aware mean geodesic error 0.0000" in out
+
+
+def test_describe_and_geodesics(pose, capsys, tmp_path, monkeypatch):
+    d, a, _ = pose
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _run(capsys, "describe", d / "a.off", "--descriptor", "hks", "--json")
+    assert code == 0, err
+    with np.load(tmp_path / "a.hks.npz") as z:
+        assert z["descriptor"].shape[0] == a.shape.n_vertices and np.isfinite(z["descriptor"]).all()
+    code, out, err = _run(capsys, "geodesics", d / "a.off", "--sources", "0,5", "--method", "dijkstra", "--json")
+    assert code == 0, err
+    with np.load(tmp_path / "a.geodesics.npz") as z:
+        assert z["distances"].shape == (2, a.shape.n_vertices) and z["distances"][0, 0] == 0
+    code, _, err = _run(capsys, "geodesics", d / "a.off", "--sources", "0,99999")
+    assert code == 2 and "out of range" in err
+
+
+def test_plugins_show(capsys):
+    code, out, _ = _run(capsys, "plugins", "show", "hks", "--json")
+    info = json.loads(out)
+    assert code == 0 and info["family"] == "descriptors"
+    assert {p["name"] for p in info["parameters"]} >= {"n_times"} and info["spectra"][0]["k"] >= 1
+    code, out, _ = _run(capsys, "plugins", "show", "adf-maxima")
+    assert code == 0 and "preset sparse" in out and "spectrum:" in out
+    code, out, _ = _run(capsys, "plugins", "show", "zoomout")
+    assert code == 0 and "pipelines" in out
+    code, _, err = _run(capsys, "plugins", "show", "nope")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+
+
+def test_view_missing_extra_and_colours(pose, capsys, monkeypatch, tmp_path):
+    d, a, _ = pose
+    monkeypatch.setitem(sys.modules, "polyscope", None)  # as if the extra were not installed
+    code, _, err = _run(capsys, "view", d / "a.off", "--labels", d / "a.labels.txt")
+    assert code == 2 and "viz" in err and "pip install" in err and len(err.strip().splitlines()) == 1
+    from argparse import Namespace
+
+    from shape_toolkit.cli.commands.view import view_items
+
+    base = dict(shape=str(d / "a.off"), labels=None, map=None, scalar=None, faces=False, column=0, points=None)
+    items = view_items(Namespace(**{**base, "labels": str(d / "a.seg"), "faces": True}))
+    assert items[0]["colors"].shape == (a.shape.n_vertices, 3)
+    n = a.shape.n_vertices
+    np.savetxt(tmp_path / "id.txt", np.arange(n), fmt="%d")
+    items = view_items(Namespace(**{**base, "map": [str(d / "a.off"), str(tmp_path / "id.txt")]}))
+    np.testing.assert_allclose(items[0]["colors"], items[1]["colors"])  # identity map: same colours
+    np.save(tmp_path / "s.npy", np.arange(n, dtype=float))
+    items = view_items(Namespace(**{**base, "scalar": str(tmp_path / "s.npy")}))
+    assert items[0]["colors"].std() > 0
+    with pytest.raises(Exception, match="--faces"):
+        view_items(Namespace(**{**base, "labels": str(d / "a.seg")}))
+
+
+def test_examples_copy(capsys, tmp_path):
+    code, out, err = _run(capsys, "examples", "copy", tmp_path / "ex")
+    assert code == 0, err
+    assert (tmp_path / "ex" / "README.md").exists() and (tmp_path / "ex" / "label_transfer" / "config.toml").exists()
+    assert _run(capsys, "examples", "copy", tmp_path / "ex")[0] == 2  # no silent overwrite
+
+
+def test_quiet_is_the_one_flag(pose, capsys):
+    d, _, _ = pose
+    from shape_toolkit.cli import build_parser
+
+    help_text = build_parser()._subparsers._group_actions[0].choices["bench"].format_help()
+    assert help_text
+    for cmd in ("segment", "match", "keypoints", "spectrum", "describe", "geodesics", "transfer-labels"):
+        h = build_parser()._subparsers._group_actions[0].choices[cmd].format_help()
+        assert "--quiet" in h and "--no-progress" not in h, cmd
+
+
+def test_terminal_progress_is_silent_without_tty(pose, capsys):
+    d, _, _ = pose
+    code, _, err = _run(capsys, "spectrum", d / "a.off", "-k", "5")
+    assert code == 0 and err == ""
