@@ -231,6 +231,12 @@ def _summary_section(summ: dict, tasks: list[str], rows: list[dict]) -> str:
             cols = sorted({c for v in sub.values() for c in v if metric_direction(c)} - {"seconds", "peak_memory_mb"})
             items = []
             for c in cols:
+                if len(methods) == 1:  # nothing to rank: the value, with its direction
+                    only = [v[c][0] for v in sub.values() if c in v]
+                    if only:
+                        items.append(f"<li><b>{html.escape(c)}</b> ({metric_direction(c)} is better): "
+                                     f"{_num(only[0])}</li>")
+                    continue
                 best = _best(sub, c)
                 if not best:
                     continue
@@ -239,7 +245,8 @@ def _summary_section(summ: dict, tasks: list[str], rows: list[dict]) -> str:
                 items.append(f"<li><b>{html.escape(c)}</b> ({metric_direction(c)} is better): "
                              f"<span class='best'>{html.escape(names)}</span> {val}</li>")
             what = f"{len(methods)} method{'s' if len(methods) != 1 else ''}: {', '.join(methods)}"
-            body = f"<ul>{''.join(items)}</ul>" if items else "<p>one method: nothing to compare.</p>"
+            body = (f"<ul>{''.join(items)}</ul>" if items
+                    else "<p>no metric with a better direction here; see the table below.</p>")
             out.append(f"<h3>{html.escape(task)} ({html.escape(kind)}) on {html.escape(ds)}, "
                        f"corruption {html.escape(corr)}</h3><p>{html.escape(what)}</p>{body}")
     return ("<h2>Summary</h2><p>Best method per metric (&uarr; higher is better, &darr; lower is better; "
