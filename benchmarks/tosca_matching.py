@@ -59,7 +59,8 @@ from shape_toolkit.metrics.correspondence import (  # noqa: E402
 )
 
 #: toolkit pipelines compared (every dense pipeline preset) plus the peer
-METHODS = ["zoomout", "zoomout-fast", "sharma2012", "seed-growing", "mateus2008", "ovsjanikov2010", "pyfm"]
+METHODS = ["zoomout", "zoomout-fast", "sharma2012", "topo-robust", "seed-growing", "mateus2008", "ovsjanikov2010",
+           "pyfm"]
 RESULTS = REPO / "benchmarks" / "results"
 
 
@@ -292,7 +293,10 @@ def write_results(summary: list[dict], output: Path, n_pairs: int, geodesics: st
         "`flipped pairs`: pairs whose mean error is more than twice (+0.02) the symmetric-aware one, i.e. "
         "maps that swap left and right. Left-right disambiguation: `zoomout` and `zoomout-fast` use the "
         "orientation-preserving term of Ren et al. 2018 in the functional map fit (outward normals); "
-        "the other toolkit pipelines are intrinsic only and match up to symmetry (thesis 7.2.1).",
+        "`sharma2012`, `topo-robust`, `seed-growing` and `ovsjanikov2010` check their keypoint matches with "
+        "the triple-product cue (`matching._common.orientation_score`) and take the mirror image through the "
+        "source's intrinsic symmetry when it is wrong; `em-registration` does the same on its dense map; "
+        "`mateus2008` is the published baseline and matches up to symmetry (thesis 7.2.1).",
         "",
         "## Per pair (mean error / seconds)",
         "",

@@ -38,7 +38,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, merge_specs, pick_spectrum
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.plugins.matching._common import paired_descriptors
-from shape_toolkit.results.correspondence import Correspondence
+from shape_toolkit.results.correspondence import Correspondence, read_seeds
 from shape_toolkit.validation import check_seeds
 
 __all__ = [
@@ -65,6 +65,17 @@ PRESETS: dict[str, dict[str, Any]] = {
         "descriptors": {"plugin": "heat-distance"},
         "dense": {"plugin": "seed-growing"},
         "refine": {"plugin": "em-registration"},
+    },
+    "topo-robust": {
+        "description": "thesis 7.4: ADF keypoints, replicator matching (orientation-checked), small-scale "
+        "heat-diffusion descriptors (eq. 6.61-6.63), seed growing (Alg. 6), EM on the thesis's embedding "
+        "(graph Laplacian, commute-time scaling, scree dimension; Alg. 7), coarse-to-fine refinement",
+        "keypoints": {"plugin": "adf-maxima", "preset": "dense"},
+        "sparse": {"plugin": "replicator"},
+        "descriptors": {"plugin": "heat-diffusion", "params": {"K": 50, "time_ratio": 1.5}},
+        "dense": {"plugin": "seed-growing", "params": {
+            "descriptor": "heat-diffusion", "descriptor_params": {"K": 50, "time_ratio": 1.5}}},
+        "refine": {"plugin": "em-registration", "preset": "thesis", "params": {"k_final": 40}},
     },
     "seed-growing": {
         "description": "ADF keypoints, replicator matching, heat-distance descriptors, seed growing",
@@ -266,35 +277,6 @@ def _spectrum_lists(spectra: Any) -> tuple[list[Spectrum], list[Spectrum]]:
         v = spectra[side]
         out.append([v] if isinstance(v, Spectrum) else list(v))
     return out[0], out[1]
-
-
-def read_seeds(
-    path: str | os.PathLike, n_source: int | None = None, n_target: int | None = None
-) -> np.ndarray:
-    """Read seed matches: one ``source target`` pair of 0-based vertex ids per line, int64 ``(q, 2)``."""
-    p = Path(path)
-    if not p.is_file():
-        raise ShapeFileError(p, "no such seed file")
-    rows = []
-    for ln, line in enumerate(p.read_text().splitlines(), 1):
-        line = line.split("#", 1)[0].strip()
-        if not line:
-            continue
-        parts = line.replace(",", " ").split()
-        if len(parts) != 2:
-            raise ShapeFileError(p, f"line {ln}: expected 'source target' (two 0-based ids), got {line!r}")
-        try:
-            rows.append((int(parts[0]), int(parts[1])))
-        except ValueError:
-            raise ShapeFileError(p, f"line {ln}: vertex ids must be integers, got {line!r}") from None
-    if not rows:
-        raise ShapeFileError(p, "no seed pairs in the file")
-    s = np.asarray(rows, dtype=np.int64)
-    try:
-        return check_seeds(s, n_source or int(s[:, 0].max()) + 1, n_target or int(s[:, 1].max()) + 1,
-                           allow_empty=False)
-    except ParameterError as exc:
-        raise ShapeFileError(p, str(exc)) from None
 
 
 def load_pipeline(spec_or_name: str | os.PathLike | dict[str, Any] | Pipeline) -> Pipeline:

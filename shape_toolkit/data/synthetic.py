@@ -17,7 +17,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.errors import ParameterError
 
-__all__ = ["ArticulatedShape", "articulated_shape", "synthetic_dataset", "DEFAULT_LIMBS"]
+__all__ = ["ArticulatedShape", "articulated_shape", "synthetic_dataset", "procedural_texture", "DEFAULT_LIMBS"]
 
 #: unit directions of the limbs of the default "starfish-humanoid" (two arms, two legs, head)
 DEFAULT_LIMBS = np.array(
@@ -27,12 +27,40 @@ DEFAULT_LIMBS = np.array(
 
 @dataclass(frozen=True)
 class ArticulatedShape:
-    """A generated shape: the mesh, per-vertex part ``labels`` (0 = body, ``j + 1`` = limb ``j``)
-    and the bend angles (radians) of the pose."""
+    """A generated shape: the mesh, per-vertex part ``labels`` (0 = body, ``j + 1`` = limb ``j``),
+    the bend angles (radians) of the pose and per-vertex RGB ``colors`` ``(n, 3)`` in [0, 1] of a
+    procedural texture painted on the rest sphere (:func:`procedural_texture`), so the colours
+    move with the surface: vertex ``i`` has the same colour in every pose (the photometric
+    consistency of a sequence, thesis 7.2.2). :class:`Shape` has no colour attribute, so they are
+    returned alongside."""
 
     shape: Shape
     labels: np.ndarray
     angles: np.ndarray
+    colors: np.ndarray | None = None
+
+
+def procedural_texture(points: np.ndarray, *, n_waves: int = 6, frequency: float = 4.0,
+                       random_state: int = 0) -> np.ndarray:
+    """RGB colours ``(n, 3)`` in [0, 1] of ``points`` ``(n, 3)`` (rest-pose coordinates, so the
+    texture moves with the surface): per channel, a sum of ``n_waves`` plane waves of random
+    directions, frequencies up to ``frequency`` (cycles per unit length) and phases, squashed by
+    a logistic; plus a fine checker (period ``1 / frequency``) on the value, so that nearby
+    points differ too. Deterministic given ``random_state``."""
+    if n_waves < 1 or not frequency > 0:
+        raise ParameterError("need n_waves >= 1 and frequency > 0")
+    rng = np.random.default_rng(random_state)
+    p = np.asarray(points, dtype=np.float64)
+    out = np.empty((len(p), 3))
+    for c in range(3):
+        d = rng.normal(size=(n_waves, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        f = rng.uniform(0.3, 1.0, n_waves) * frequency * 2 * np.pi
+        ph = rng.uniform(0, 2 * np.pi, n_waves)
+        v = np.sin((p @ d.T) * f + ph).sum(axis=1) / np.sqrt(n_waves)
+        out[:, c] = 1.0 / (1.0 + np.exp(-2.0 * v))
+    checker = (np.floor(p * frequency * 2).sum(axis=1) % 2) * 0.15
+    return np.clip(out * 0.85 + checker[:, None], 0.0, 1.0)
 
 
 def _perp(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -57,8 +85,11 @@ def articulated_shape(
     limb_length: float = 1.4,
     limb_radius: float = 0.28,
     random_state: int | None = None,
+    texture_seed: int = 0,
 ) -> ArticulatedShape:
     """An articulated mesh with one limb per row of ``limbs`` ``(L, 3)``, bent by ``angles`` ``(L,)``.
+    ``colors``: :func:`procedural_texture` of the rest sphere (seed ``texture_seed``), the same
+    for every pose.
 
     ``subdivisions`` sets the resolution (4: 2,562 vertices; 5: 10,242). ``random_state`` draws
     random bend angles in [-1, 1] rad when ``angles`` is None (zero angles when both are None).
@@ -119,7 +150,8 @@ def articulated_shape(
         local = out[inside] - joint_h * d
         bent = local @ R.T + joint_h * d
         out[inside] = (1 - wgt)[:, None] * out[inside] + wgt[:, None] * bent
-    return ArticulatedShape(Shape(out, sphere.faces, "articulated"), labels, angles)
+    colors = procedural_texture(p, random_state=texture_seed)
+    return ArticulatedShape(Shape(out, sphere.faces, "articulated"), labels, angles, colors)
 
 
 def synthetic_dataset(
@@ -143,5 +175,6 @@ def synthetic_dataset(
         n_limbs = len(DEFAULT_LIMBS)
         angles = np.zeros(n_limbs) if i == 0 else rng.uniform(-max_angle, max_angle, n_limbs)
         a = articulated_shape(angles, subdivisions=subdivisions)
-        out.append(ArticulatedShape(Shape(a.shape.vertices, a.shape.faces, f"pose{i}"), a.labels, a.angles))
+        out.append(ArticulatedShape(Shape(a.shape.vertices, a.shape.faces, f"pose{i}"), a.labels, a.angles,
+                                    a.colors))
     return out

@@ -133,19 +133,13 @@ def paired_descriptors(
     """Keypoint descriptors ``(n, M * tau)`` of both shapes on matched keypoints, and ``tau``.
 
     Multi-scale heat descriptors must use the *same* times on both shapes to be comparable
-    (thesis 7.3.1): when the plugin has a ``times`` parameter left to None, the times are chosen
-    on the source's spectrum (``multiscale_times``, K defaulting to 25 as in 7.3.1) and reused
-    on the target."""
+    (thesis 7.3.1): when the plugin has a ``times`` parameter left to None, the times it would use
+    on the source (its ``descriptor_times``, the scree rule on its own spectrum) are set on a copy
+    and reused on the target."""
     import copy
 
-    if hasattr(plugin, "times") and getattr(plugin, "times", None) is None:
-        from shape_toolkit.features.heat import multiscale_times
-
-        params = plugin.get_params(deep=False)
-        spec = plugin._spectrum(source, source_spectrum)
-        K = min(int(params.get("K") or 25), spec.k - 1)
-        times = multiscale_times(spec, int(params.get("n_times", 5)), K, alpha=float(params.get("alpha", 0.95)),
-                                 ratio=float(params.get("time_ratio", 2.0)))
+    if getattr(plugin, "times", "absent") is None and hasattr(plugin, "descriptor_times"):
+        times = plugin.descriptor_times(source, spectrum=source_spectrum)
         plugin = copy.deepcopy(plugin)
         plugin.set_params(times=[float(t) for t in times])
     ds = plugin.compute(source, spectrum=source_spectrum, keypoints=kp_source)
@@ -259,6 +253,74 @@ def association_graph(
     return AssociationGraph(nodes.astype(np.int64), W, unary)
 
 
+def outward_vertex_normals(shape: Shape) -> np.ndarray:
+    """Unit vertex normals ``(n, 3)`` (area-weighted face normals), oriented outwards: flipped
+    when the signed volume of the mesh is negative."""
+    V = np.asarray(shape.vertices, dtype=np.float64)
+    F = np.asarray(shape.require_faces("outward normals"))
+    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # length = 2 * area
+    vol = np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum()
+    if vol < 0:
+        fn = -fn
+    N = np.zeros_like(V)
+    for c in range(3):
+        np.add.at(N, F[:, c], fn)
+    return N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+
+
+def orientation_votes(
+    source: Shape, target: Shape, pairs: np.ndarray, n_neighbors: int = 5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-match orientation votes of :func:`orientation_score`: ``(vote, weight)`` ``(q,)``, the
+    weighted mean sign in ``[-1, 1]`` of the triplets centred on each match and their weight."""
+    p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    q = len(p)
+    if q < 3:
+        return np.zeros(q), np.zeros(q)
+    from scipy.spatial import cKDTree
+
+    Ps = np.asarray(source.vertices, dtype=np.float64)[p[:, 0]]
+    Pt = np.asarray(target.vertices, dtype=np.float64)[p[:, 1]]
+    Ns = outward_vertex_normals(source)[p[:, 0]]
+    Nt = outward_vertex_normals(target)[p[:, 1]]
+    kk = int(min(n_neighbors, q - 1))
+    _, nb = cKDTree(Ps).query(Ps, k=kk + 1)
+    nb = np.asarray(nb).reshape(q, kk + 1)[:, 1:]
+    jj, kk2 = np.triu_indices(kk, 1)
+    i = np.repeat(np.arange(q), len(jj))
+    j = nb[:, jj].ravel()
+    k = nb[:, kk2].ravel()
+
+    def triple(P: np.ndarray, N: np.ndarray) -> np.ndarray:
+        u, v = P[j] - P[i], P[k] - P[i]
+        den = np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1)
+        return np.einsum("ij,ij->i", np.cross(u, v), N[i]) / np.maximum(den, 1e-300)
+
+    ts, tt = triple(Ps, Ns), triple(Pt, Nt)
+    w = np.minimum(np.abs(ts), np.abs(tt))
+    wsum = np.bincount(i, w, minlength=q)
+    vote = np.bincount(i, np.sign(ts * tt) * w, minlength=q) / np.maximum(wsum, 1e-300)
+    return vote, wsum
+
+
+def orientation_score(
+    source: Shape, target: Shape, pairs: np.ndarray, n_neighbors: int = 5,
+) -> float:
+    """Extrinsic orientation of matches ``pairs`` ``(q, 2)`` in ``[-1, 1]``: +1 when they preserve
+    orientation, -1 when they are a mirror image (left and right swapped).
+
+    For each match ``(a_i, b_i)`` and each two of its ``n_neighbors`` nearest other matches
+    (Euclidean, on the source), the triple products ``det[p_j - p_i, p_k - p_i, n_i]`` on the
+    source and ``det[q_j - q_i, q_k - q_i, m_i]`` on the target (``n``, ``m`` outward vertex
+    normals, lengths normalized) vote with the sign of their product, weighted by the smaller of
+    the two magnitudes (near-degenerate triplets hardly count). Local triplets keep their
+    orientation under articulation, and an intrinsic isometry either keeps all or flips all."""
+    vote, w = orientation_votes(source, target, pairs, n_neighbors)
+    if w.sum() <= 0:
+        return 0.0
+    return float((vote * w).sum() / w.sum())
+
+
 def greedy_discretize(
     nodes: np.ndarray, scores: np.ndarray, min_score: float = 0.0
 ) -> np.ndarray:
@@ -293,18 +355,75 @@ class AssociationMatcherBase:
     def _solve(self, graph: AssociationGraph) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def _select(self, g: AssociationGraph, active: np.ndarray) -> np.ndarray:
+        """Chosen node indices of ``g`` restricted to the ``active`` nodes (bool ``(N,)``)."""
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            return idx
+        sub = AssociationGraph(g.nodes[idx], g.W[np.ix_(idx, idx)], g.unary[idx])
+        scores = self._solve(sub)
+        if not np.any(scores > 0):
+            return np.zeros(0, dtype=np.int64)
+        return idx[greedy_discretize(sub.nodes, scores, float(self.min_score) * float(scores.max()))]
+
     def match(self, source, target, source_keypoints, target_keypoints, *,
               source_spectrum=None, target_spectrum=None) -> np.ndarray:
-        """Matched ``[source_vertex, target_vertex]`` pairs, int64 ``(q, 2)``."""
+        """Matched ``[source_vertex, target_vertex]`` pairs, int64 ``(q, 2)``.
+
+        With ``orientation`` ``"preserving"`` (or ``"reversing"``) on two meshes, the intrinsic
+        solution is checked with the extrinsic cue of :func:`orientation_score` (signs of triple
+        products of nearby matched keypoints on outward normals). When it has the wrong sign, its
+        mirror image ``(S(a), b)`` -- ``S`` the source's intrinsic symmetry, :func:`symmetry_map`
+        -- replaces it if that scores higher. The symmetry matcher's spectrum is declared
+        through ``spectrum_specs()``."""
         if not self.sigma > 0 or not self.adf_ratio > 1 or self.max_candidates < 1:
             raise ParameterError("need sigma > 0, adf_ratio > 1 and max_candidates >= 1")
+        orientation = getattr(self, "orientation", "none")
+        if orientation not in ("preserving", "reversing", "none"):
+            raise ParameterError(f"orientation must be 'preserving', 'reversing' or 'none', got {orientation!r}")
         kp_s = check_keypoints(source_keypoints, source.n_vertices, "source")
         kp_t = check_keypoints(target_keypoints, target.n_vertices, "target")
         ss, st = self._spectrum(source, source_spectrum), self._spectrum(target, target_spectrum)
         g = association_graph(source, target, kp_s, kp_t, ss, st, **self._graph_params())
         if len(g.nodes) == 0:
             return np.zeros((0, 2), dtype=np.int64)
-        scores = self._solve(g)
-        chosen = greedy_discretize(g.nodes, scores, float(self.min_score) * float(scores.max()))
-        nodes = g.nodes[chosen]
-        return np.column_stack([kp_s[nodes[:, 0]], kp_t[nodes[:, 1]]]).astype(np.int64)
+
+        def pairs_of(chosen: np.ndarray) -> np.ndarray:
+            nodes = g.nodes[chosen]
+            return np.column_stack([kp_s[nodes[:, 0]], kp_t[nodes[:, 1]]]).astype(np.int64)
+
+        chosen = self._select(g, np.ones(len(g.nodes), dtype=bool))
+        pairs = pairs_of(chosen)
+        if orientation == "none" or not (source.is_mesh and target.is_mesh) or len(chosen) < 3:
+            return pairs
+        want = 1.0 if orientation == "preserving" else -1.0
+        o1 = want * orientation_score(source, target, pairs)
+        if o1 >= 0:
+            return pairs
+        # the mirror image: the source's intrinsic symmetry S applied to the source side
+        sym = symmetry_map(source, source_spectrum)
+        mirrored = np.column_stack([sym[pairs[:, 0]], pairs[:, 1]]).astype(np.int64)
+        _, first = np.unique(mirrored[:, 0], return_index=True)
+        mirrored = mirrored[np.sort(first)]
+        o2 = want * orientation_score(source, target, mirrored)
+        return mirrored if o2 > o1 else pairs
+
+    def _nested_plugins(self) -> list:
+        return [] if getattr(self, "orientation", "none") == "none" else [symmetry_matcher()]
+
+
+def symmetry_matcher():
+    """The functional map matcher with the orientation-*reversing* term: its self-map of a shape
+    is the shape's intrinsic (left-right) symmetry."""
+    from shape_toolkit.api.registry import create_plugin  # by name: fmap_zoomout imports this module
+
+    return create_plugin("dense_matchers", "fmap-zoomout", k=20, orientation="reversing", zoomout_iters=6,
+                         zoomout_step=5, zoomout_samples=1000)
+
+
+def symmetry_map(shape: Shape, spectrum: Spectrum | Sequence[Spectrum] | None = None) -> np.ndarray:
+    """The intrinsic symmetry of ``shape`` as a vertex map ``(n,)``: its self-map by
+    :func:`symmetry_matcher` (descriptor-preserving and orientation-reversing), computed on the
+    caller's spectra (``spectrum``: the list a pipeline hands the stages; None: the cache)."""
+    given = None if spectrum is None else (list(spectrum) if isinstance(spectrum, (list, tuple)) else [spectrum])
+    return symmetry_matcher().match(shape, shape, source_spectrum=given, target_spectrum=given).target_of

@@ -51,7 +51,10 @@ def histogram_alignment(
 
 class EigvecAlignmentMatcher(EMRegistrationMatcher):
     """Mateus et al. 2008: histogram alignment of eigenvector signs and order, then EM
-    registration (parameters as ``em-registration``, plus ``bins``). Seeds are ignored."""
+    registration (parameters as ``em-registration``, plus ``bins``). Seeds are ignored. The
+    baseline as published: its own embedding and no orientation cue (it matches up to symmetry)."""
+
+    presets: dict = {}
 
     def __init__(
         self,
@@ -68,6 +71,7 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         super().__init__(
             k=k, outlier_weight=outlier_weight, n_neighbors=n_neighbors, max_iter=max_iter,
             tol=tol, threshold=threshold, one_to_one=one_to_one, fill_unmatched=fill_unmatched,
+            orientation="none",
         )
         self.bins = bins
 

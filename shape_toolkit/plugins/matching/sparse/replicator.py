@@ -49,6 +49,7 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
         max_candidates: int = 8,
         min_score: float = 0.05,
         max_iter: int = 2000,
+        orientation: str = "preserving",
     ):
         self.k = k
         self.time = time
@@ -57,6 +58,7 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
         self.max_candidates = max_candidates
         self.min_score = min_score
         self.max_iter = max_iter
+        self.orientation = orientation
 
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
         A = graph.W + 0.5 * np.eye(len(graph.nodes))

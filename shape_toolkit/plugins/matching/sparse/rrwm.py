@@ -38,6 +38,7 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
         alpha: float = 0.2,
         inflation: float = 30.0,
         max_iter: int = 300,
+        orientation: str = "preserving",
     ):
         self.k = k
         self.time = time
@@ -48,6 +49,7 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
         self.alpha = alpha
         self.inflation = inflation
         self.max_iter = max_iter
+        self.orientation = orientation
 
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
         W = graph.W + np.diag(graph.unary)

@@ -24,6 +24,7 @@ class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
         adf_ratio: float = 2.0,
         max_candidates: int = 8,
         min_score: float = 0.1,
+        orientation: str = "preserving",
     ):
         self.k = k
         self.time = time
@@ -31,6 +32,7 @@ class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
         self.adf_ratio = adf_ratio
         self.max_candidates = max_candidates
         self.min_score = min_score
+        self.orientation = orientation
 
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
         M = graph.W + np.diag(graph.unary)

@@ -1,0 +1,209 @@
+"""Issue 14: orientation cues of the thesis pipelines, the thesis's EM embedding options, the
+`topo-robust` preset, the glued-contact corruption, procedural textures and photometric matching.
+
+Synthetic pair: two poses of the generated articulated shape (identity ground truth); its limbs
+are mirror images, so intrinsically the true map and its mirror image are equally good.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
+
+from shape_toolkit.api.registry import create_plugin
+from shape_toolkit.data.corruptions import CORRUPTIONS, apply_corruption, carry_correspondence, glue
+from shape_toolkit.data.synthetic import articulated_shape, procedural_texture, synthetic_dataset
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.pipeline import PRESETS, load_pipeline
+from shape_toolkit.plugins.matching._common import orientation_score, outward_vertex_normals
+from shape_toolkit.plugins.matching.dense.fmap_zoomout import farthest_point_sampling
+from shape_toolkit.plugins.matching.sparse.photometric import PhotometricMatcher
+
+ANGLES_A = [0.4, 0.4, -0.3, -0.3, 0.2]
+ANGLES_B = [-0.4, 0.4, 0.3, -0.3, -0.2]
+
+
+@pytest.fixture(scope="module")
+def pair():
+    A = articulated_shape(ANGLES_A, subdivisions=3)
+    B = articulated_shape(ANGLES_B, subdivisions=3)
+    rest = np.asarray(articulated_shape(np.zeros(5), subdivisions=3).shape.vertices)
+    mirror = cKDTree(rest).query(rest * [-1, 1, 1])[1]
+    return A, B, mirror
+
+
+def _graph(shape):
+    e, n = shape.edges, shape.n_vertices
+    return sp.coo_matrix((shape.edge_lengths, (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+
+
+# -- glued contacts -----------------------------------------------------------------------------
+def test_glue_welds_touching_parts_and_keeps_track_of_vertices(pair):
+    S = pair[0].shape
+    G, vm = glue(S, strength=3, radius=0.03, random_state=1)
+    assert "glue" in CORRUPTIONS
+    assert G.n_vertices < S.n_vertices and vm.shape == (G.n_vertices,)
+    assert np.unique(vm).size == vm.size and vm.min() >= 0 and vm.max() < S.n_vertices
+    np.testing.assert_array_equal(G.vertices, np.asarray(S.vertices)[vm])  # kept vertices do not move
+    n = G.n_vertices
+    e = G.edges
+    assert connected_components(sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)))[0] == 1
+    # a topological shortcut: some kept pair is much closer along the glued surface than before
+    ids = np.arange(0, n, 7)
+    d_new = dijkstra(_graph(G), directed=False, indices=ids)
+    d_old = dijkstra(_graph(S), directed=False, indices=vm[ids])[:, vm]
+    assert np.max(d_old - d_new) > 0.1 * np.sqrt(S.area)
+    # more strength, more welded vertices; 0 is the identity; the ground truth is carried through
+    G6, _ = glue(S, strength=6, random_state=1)
+    assert G6.n_vertices < G.n_vertices
+    G0, vm0 = apply_corruption(S, "glue", strength=0)
+    assert G0 is S and np.array_equal(vm0, np.arange(S.n_vertices))
+    truth = np.column_stack([np.arange(S.n_vertices)] * 2)
+    carried = carry_correspondence(truth, vm, S, resampled=True)
+    assert len(carried) > 0.95 * S.n_vertices
+    with pytest.raises(ParameterError):
+        glue(S, strength=2, radius=0)
+
+
+def test_glue_works_on_other_shapes_and_poses():
+    for seed in (3, 4):
+        s = articulated_shape(random_state=seed, subdivisions=3).shape
+        G, vm = glue(s, strength=4, random_state=seed)
+        assert 0 < s.n_vertices - G.n_vertices < 0.3 * s.n_vertices
+        assert np.all(np.isfinite(G.face_areas))
+
+
+# -- orientation cue ----------------------------------------------------------------------------
+def test_orientation_score_tells_a_map_from_its_mirror_image(pair):
+    A, B, mirror = pair
+    ids = farthest_point_sampling(np.asarray(A.shape.vertices), 80)
+    assert orientation_score(A.shape, B.shape, np.column_stack([ids, ids])) > 0.6
+    assert orientation_score(A.shape, B.shape, np.column_stack([ids, mirror[ids]])) < -0.6
+    N = outward_vertex_normals(A.shape)
+    c = np.asarray(A.shape.vertices).mean(axis=0)
+    assert np.mean(np.einsum("ij,ij->i", N, np.asarray(A.shape.vertices) - c) > 0) > 0.9  # outwards
+
+
+def test_replicator_orientation_parameter(pair):
+    A, B, mirror = pair
+    det = create_plugin("keypoints", "adf-maxima", "dense")
+    ka, kb = det.detect(A.shape), det.detect(B.shape)
+    for name in ("replicator", "rrwm", "spectral"):
+        m = create_plugin("sparse_matchers", name)
+        assert m.get_params()["orientation"] == "preserving"
+        with pytest.raises(ParameterError):
+            create_plugin("sparse_matchers", name, orientation="sideways").match(A.shape, B.shape, ka, kb)
+    P = create_plugin("sparse_matchers", "replicator").match(A.shape, B.shape, ka, kb)
+    pos = np.asarray(B.shape.vertices)
+    right = np.linalg.norm(pos[P[:, 1]] - pos[P[:, 0]], axis=1)
+    wrong = np.linalg.norm(pos[P[:, 1]] - pos[mirror[P[:, 0]]], axis=1)
+    assert np.mean(right <= wrong + 1e-9) >= 0.5
+
+
+# -- EM: the thesis's embedding -------------------------------------------------------------------
+def test_em_thesis_embedding_options_and_declared_spectrum(pair):
+    em = create_plugin("dense_matchers", "em-registration", "thesis")
+    spec = em.spectrum_spec()
+    assert spec.weighting == "gaussian" and spec.use_mass is False and spec.k == 31  # max(k, 30) + 1
+    assert create_plugin("dense_matchers", "em-registration", orientation="none").spectrum_spec().k == 9
+    assert create_plugin("dense_matchers", "em-registration", k_final=40).spectrum_spec().k == 41
+    kinds = {s.kind for s in em.spectrum_specs()}  # + the LBO of the symmetry self-map
+    assert len(kinds) == 2
+    A = pair[0].shape
+    bs, bt = em._bases(A, A, None, None)
+    K = em._dimension(bs, bt, A.n_vertices, A.n_vertices)
+    assert 3 <= K <= 10
+    X = em._embed(bs, 4)
+    np.testing.assert_allclose(X, bs.evecs[:, 1:5] / np.sqrt(bs.evals[1:5]))  # eq. 2.92
+    plain = create_plugin("dense_matchers", "em-registration", scaling="none")._embed(bs, 4)
+    np.testing.assert_allclose(plain, bs.evecs[:, 1:5])  # eq. 6.24 at t = 0
+    for bad in ({"scaling": "heat"}, {"dimension": "auto"}, {"spectrum": "x"}, {"k_final": 1000}):
+        with pytest.raises(ParameterError):
+            create_plugin("dense_matchers", "em-registration", **bad).match(A, A, seeds=np.array([[0, 0]]))
+
+
+def test_em_orientation_fixes_a_mirrored_start(pair):
+    A, B, mirror = pair
+    s = np.random.default_rng(0).choice(A.shape.n_vertices, 40, replace=False)
+    mirrored = np.column_stack([s, mirror[s]])
+    kw = dict(k=8, k_final=24)
+    fixed = create_plugin("dense_matchers", "em-registration", **kw).match(A.shape, B.shape, seeds=mirrored)
+    naive = create_plugin("dense_matchers", "em-registration", orientation="none", **kw).match(
+        A.shape, B.shape, seeds=mirrored)
+    ids = np.arange(A.shape.n_vertices)
+    pos = np.asarray(B.shape.vertices)
+
+    def err(c):
+        return np.mean(np.linalg.norm(pos[c.target_of] - pos[ids], axis=1))
+
+    assert err(fixed) < 0.5 * err(naive)
+    assert fixed.info["orientation_flipped"]
+
+
+# -- the topo-robust preset ------------------------------------------------------------------------
+def test_topo_robust_preset_under_glued_contacts(pair):
+    A, B, _ = pair
+    assert "topo-robust" in PRESETS
+    pipe = load_pipeline("topo-robust")
+    assert pipe.stages["descriptors"]["plugin"] == "heat-diffusion"
+    assert pipe.stages["refine"]["preset"] == "thesis"
+    # one contact: with more, the planar starfish's 180-degree rotation (an orientation-preserving
+    # intrinsic symmetry that real bodies do not have) competes with the true map
+    G, vm = glue(B.shape, strength=1, random_state=0)
+    c = pipe.run(A.shape, G)
+    assert c.target_of.shape == (A.shape.n_vertices,) and np.all(c.target_of >= 0)
+    pos = np.asarray(B.shape.vertices)
+    err = np.linalg.norm(pos[vm[c.target_of]] - pos, axis=1) / np.sqrt(B.shape.area)
+    assert np.mean(err) < 0.05
+    assert "refine" in c.info["spectra"]
+
+
+# -- colours ------------------------------------------------------------------------------------------
+def test_procedural_texture_moves_with_the_surface():
+    poses = synthetic_dataset(3, subdivisions=2, random_state=1)
+    for p in poses[1:]:
+        np.testing.assert_array_equal(p.colors, poses[0].colors)
+    c = poses[0].colors
+    assert c.shape == (poses[0].shape.n_vertices, 3) and c.min() >= 0 and c.max() <= 1
+    assert c.std(axis=0).min() > 0.05
+    other = procedural_texture(np.asarray(poses[0].shape.vertices), random_state=5)
+    assert not np.allclose(other, c)
+
+
+def test_photometric_matcher(pair):
+    A, B, mirror = pair
+    kp = farthest_point_sampling(np.asarray(A.shape.vertices), 30)
+    P = PhotometricMatcher().match(A.shape, B.shape, kp, kp, source_colors=A.colors, target_colors=B.colors)
+    assert len(P) >= 20 and np.mean(P[:, 0] == P[:, 1]) > 0.9  # colours break the symmetry
+    assert PhotometricMatcher().spectrum_spec() is None
+    with pytest.raises(ParameterError):
+        PhotometricMatcher(require_colors=True).match(A.shape, B.shape, kp, kp)
+    assert len(PhotometricMatcher().match(A.shape, B.shape, kp, kp)) > 0  # geometric texture stands in
+    with pytest.raises(ParameterError):
+        PhotometricMatcher().match(A.shape, B.shape, kp, kp, source_colors=A.colors)
+    with pytest.raises(ParameterError):
+        PhotometricMatcher().match(A.shape, B.shape, kp, kp, source_colors=A.colors, target_colors=B.colors[:5])
+
+
+# -- one real pair (skips without the shared data) -------------------------------------------------------
+def test_tosca_pair_sharma2012_not_flipped():
+    from pathlib import Path
+
+    from shape_toolkit.data.datasets import read_vts
+    from shape_toolkit.io.mesh import load_shape
+    from shape_toolkit.metrics import geodesic_errors
+
+    root = Path(__file__).resolve().parents[2] / "shared" / "data" / "tosca5k"
+    if not (root / "cat0.off").is_file():
+        pytest.skip(f"shared TOSCA data not found in {root}")
+    A, B = load_shape(root / "cat0.off"), load_shape(root / "cat2.off")  # came out mirrored before
+    ta = read_vts(root / "corres" / "cat0.vts")[::50]
+    tb = read_vts(root / "corres" / "cat2.vts")[::50]
+    tbs = read_vts(root / "corres" / "cat2.sym.vts")[::50]
+    c = load_pipeline("sharma2012").run(A, B)
+    e = geodesic_errors(B, c, ta, tb, method="dijkstra").mean()
+    es = geodesic_errors(B, c, ta, tb, truth_dst_sym=tbs, method="dijkstra").mean()
+    assert e < 2 * es + 0.02
