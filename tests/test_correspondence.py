@@ -178,6 +178,16 @@ def test_r_smoothness_and_coverage(ico):
     assert target_coverage(np.array([0, 0, 1, -1]), 4) == 0.5
 
 
+def test_r_smoothness_table(ico):
+    from shape_toolkit.metrics.correspondence import r_smoothness_table
+
+    ident = np.arange(ico.n_vertices)
+    table = r_smoothness_table(ico, ico, ident, rs=(5.0, 10.0), sample=20)
+    assert set(table) == {5.0, 10.0} and all(v == 100.0 for v in table.values())
+    shuffled = np.random.default_rng(0).permutation(ico.n_vertices)
+    assert r_smoothness_table(ico, ico, shuffled, rs=(5.0,), sample=20)[5.0] < 50.0
+
+
 def test_label_transfer_scores_hand_made():
     truth = np.array([0, 0, 0, 1, 1, 1])
     assert label_transfer_scores(truth, truth)["recall"] == 1.0

@@ -27,6 +27,7 @@ __all__ = [
     "correspondence_report",
     "check_truth",
     "r_smoothness",
+    "r_smoothness_table",
     "target_coverage",
     "label_transfer_scores",
 ]
@@ -193,6 +194,26 @@ def r_smoothness(
             continue
         smooth += np.isin(img, b).mean() >= theta - 1e-12
     return float(smooth / ids.size)
+
+
+def r_smoothness_table(
+    source: Shape,
+    target: Shape,
+    target_of: np.ndarray | Correspondence,
+    rs: tuple[float, ...] = (0.1, 0.2, 0.3, 0.4, 0.5, 0.8),
+    theta: float = 0.9,
+    *,
+    sample: int | None = 200,
+    method: str = "dijkstra",
+    random_state: int = 0,
+) -> dict[float, float]:
+    """Table 7.2: :func:`r_smoothness` in percent for each neighbourhood size ``r`` (percent of the
+    vertices) at ``theta`` (90 % in the thesis), on the same ``sample`` of source vertices."""
+    return {
+        float(r): 100.0 * r_smoothness(source, target, target_of, r, theta, sample=sample, method=method,
+                                       random_state=random_state)
+        for r in rs
+    }
 
 
 def target_coverage(target_of: np.ndarray | Correspondence, n_target: int | None = None) -> float:
