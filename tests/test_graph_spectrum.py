@@ -77,18 +77,37 @@ def test_cotangent_reports_and_clamps_negative_weights():
     assert (g.W.data < 0).sum() == 2 * g.info["negative_weights"]
 
 
-def test_gaussian_weights_eq_3_7_with_local_default_bandwidth(sphere):
-    g = build_graph(sphere, "gaussian")
+def test_gaussian_weights_eq_3_7_default_and_local_bandwidths(sphere):
     e, length = sphere.edges, sphere.edge_lengths
-    sigma_v = np.zeros(sphere.n_vertices)
-    np.maximum.at(sigma_v, e[:, 0], length)
-    np.maximum.at(sigma_v, e[:, 1], length)
+    # default: eq. 3.7 with one sigma, the mean edge length on a regular mesh
+    g = build_graph(sphere, "gaussian")
     w = np.asarray(g.W[e[:, 0], e[:, 1]]).ravel()
-    np.testing.assert_allclose(w, np.exp(-(length**2) / (2 * sigma_v[e[:, 0]] * sigma_v[e[:, 1]])))
-    assert g.info["bandwidth"] == "local" and (w >= np.exp(-0.5) - 1e-15).all() and (w <= 1).all()
+    assert length.max() < 4.29 * length.mean()
+    np.testing.assert_allclose(w, np.exp(-(length**2) / (2 * length.mean() ** 2)))
+    assert g.info["bandwidth"] == pytest.approx(length.mean())
     # scaling the shape does not change default weights
     g2 = build_graph(sphere.with_vertices(sphere.vertices * 7.0), "gaussian")
     np.testing.assert_allclose(g2.W.toarray(), g.W.toarray(), atol=1e-12)
+    # an irregular mesh: one long edge raises sigma until every weight is >= MIN_WEIGHT
+    from shape_toolkit.plugins.weightings.gaussian import MIN_WEIGHT
+
+    v = sphere.vertices.copy()
+    v[0] *= 6.0  # a spike: its edges are many times the mean length
+    spiky = sphere.with_vertices(v)
+    ls = spiky.edge_lengths
+    gs = build_graph(spiky, "gaussian")
+    ws = np.asarray(gs.W[spiky.edges[:, 0], spiky.edges[:, 1]]).ravel()
+    assert ws.min() == pytest.approx(MIN_WEIGHT, rel=1e-9) and ls.max() > 4.29 * ls.mean()
+    with pytest.raises(ParameterError, match="numerically disconnected"):  # the plain mean underflows
+        build_graph(spiky, "gaussian", bandwidth="mean")
+    # local scaling (Zelnik-Manor & Perona): sigma_ij = sqrt(sigma_i sigma_j), weights in [exp(-1/2), 1]
+    gl = build_graph(sphere, "gaussian", bandwidth="local")
+    sigma_v = np.zeros(sphere.n_vertices)
+    np.maximum.at(sigma_v, e[:, 0], length)
+    np.maximum.at(sigma_v, e[:, 1], length)
+    wl = np.asarray(gl.W[e[:, 0], e[:, 1]]).ravel()
+    np.testing.assert_allclose(wl, np.exp(-(length**2) / (2 * sigma_v[e[:, 0]] * sigma_v[e[:, 1]])))
+    assert gl.info["bandwidth"] == "local" and (wl >= np.exp(-0.5) - 1e-15).all() and (wl <= 1).all()
     # the former global default and an explicit global bandwidth follow eq. 3.7 with one sigma
     gm = build_graph(sphere, "gaussian", bandwidth="mean")
     assert gm.info["bandwidth"] == pytest.approx(length.mean())
@@ -111,6 +130,8 @@ def test_tiny_user_bandwidth_is_refused_with_what_to_do(sphere):
     assert g.W.data.min() >= 1e-8 * 0.99
     assert compute_spectrum(g, 4, cache=False).n_null == 1
     with pytest.raises(ParameterError, match="bandwidth_scale >= "):
+        build_graph(_horse_like(), "gaussian", bandwidth="local", bandwidth_scale=0.05)
+    with pytest.raises(ParameterError, match="numerically disconnected.*Use bandwidth >= "):
         build_graph(_horse_like(), "gaussian", bandwidth_scale=0.05)
 
 
@@ -129,7 +150,9 @@ def test_irregular_mesh_stays_connected_with_default_bandwidth():
     lengths = shape.edge_lengths
     assert lengths.max() / lengths.mean() > 10
     g = build_graph(shape, "gaussian")
-    assert g.W.data.min() >= np.exp(-0.5) - 1e-15  # provable: |v_i - v_j| <= sqrt(sigma_i sigma_j)
+    from shape_toolkit.plugins.weightings.gaussian import MIN_WEIGHT
+
+    assert g.W.data.min() >= MIN_WEIGHT * (1 - 1e-9)  # the automatic bandwidth's floor
     spec = compute_spectrum(g, 11, cache=False)
     assert spec.n_null == 1 and spec.eigenvalues[1] > 1e-4 * g.degrees.max()
     # the former default (one bandwidth, the mean edge length) underflows on the spike: the graph is

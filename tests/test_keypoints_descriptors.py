@@ -388,7 +388,7 @@ def test_plugins_declare_and_check_their_spectrum(family, name, params):
     plug = create_plugin(family, name, **params)
     assert "random_state" not in plug.get_params()  # deterministic
     spec = plug.spectrum_spec()
-    assert (spec.weighting, spec.laplacian, spec.use_mass) == ("gaussian", "combinatorial", False)
+    assert (spec.weighting, spec.laplacian, spec.use_mass) == ("gaussian", "combinatorial", None)
     out = _run(plug, shape, None, tips)
     np.testing.assert_allclose(_run(plug, shape, spec.compute(shape), tips), out)
     np.testing.assert_allclose(_run(clone(plug), shape, None, tips), out)

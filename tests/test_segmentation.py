@@ -244,7 +244,7 @@ def test_segmenters_declare_their_spectrum_and_clone(body, body_constraints, nam
     if name == "spectral-learning":  # its eigenproblem is the constraint-modified graph: no shape spectrum
         assert spec is None
     else:
-        assert spec.weighting == "gaussian" and spec.use_mass is False
+        assert spec.weighting == "gaussian" and spec.use_mass is None  # the weighting's own: gaussian has no mass
         given = spec.compute(shape)
         np.testing.assert_array_equal(seg.segment(shape, spectrum=given, constraints=body_constraints), labels)
         short = given.truncated(spec.k - 1)

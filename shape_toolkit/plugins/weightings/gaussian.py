@@ -1,19 +1,24 @@
 """Gaussian weights ``w_ij = exp(-||v_i - v_j||^2 / (2 sigma^2))`` (thesis eq. 3.7).
 
-Default bandwidth: *local scaling* (Zelnik-Manor and Perona, "Self-tuning spectral clustering",
-NIPS 2004): each vertex gets its own scale ``sigma_i``, the length of its longest graph edge (the
-distance to its farthest graph neighbour, their ``K``-th neighbour with ``K`` the neighbourhood),
-and edge ``ij`` uses ``sigma_ij = s * sqrt(sigma_i sigma_j)`` (``s = bandwidth_scale``). Because
-``||v_i - v_j|| <= min(sigma_i, sigma_j) <= sqrt(sigma_i sigma_j)``, every existing edge keeps
+Default bandwidth (``bandwidth=None``, "auto"): one global ``sigma``, the mean edge length (the
+thesis's choice, so that weights read the metric: a long edge is a weak link), raised only as far
+as needed for no edge of the graph to weigh less than ``MIN_WEIGHT`` (1e-4):
 
-    exp(-1 / (2 s^2)) <= w_ij <= 1          (exp(-1/2) ~ 0.61 for s = 1),
+    sigma = bandwidth_scale * max(mean edge length, longest edge / sqrt(2 ln(1 / MIN_WEIGHT)))
 
-which is the regime the thesis assumes for Gaussian shape graphs (sec. 5.3: ``0 < w_min <= w_ij <=
-w_max <= 1`` for close neighbours): no weight can underflow, whatever the spread of edge lengths of
-the triangulation, and the weights are invariant to a global scaling of the shape. A single global
-bandwidth (the former default, the mean edge length) cannot promise this: on an irregular
-remeshing the long edges of sparsely sampled regions weigh ~1e-11 and the graph falls apart
-numerically (Laplacian eigenvalues that are zero to solver precision).
+On a regular mesh (longest edge < 4.3 x the mean) this is exactly the mean edge length. On an
+irregular remeshing (a TOSCA horse, a PSB model) the plain mean lets the long edges of sparsely
+sampled regions weigh ~1e-11, and the graph falls apart numerically (Laplacian eigenvalues that are
+zero to solver precision); the floor keeps every weight four orders of magnitude above the
+eigensolver's relative resolution (1e-8), with no constant fitted to any data set. Both rules are
+invariant to a global scaling of the shape.
+
+``bandwidth="local"`` offers the self-tuning local scaling of Zelnik-Manor and Perona (2004),
+``sigma_ij = s sqrt(sigma_i sigma_j)`` with ``sigma_i`` the longest edge at vertex ``i``: every
+weight then lies in ``[exp(-1/(2 s^2)), 1]`` (0.61 to 1 for ``s = 1``), which also never underflows
+but makes the weights nearly uniform, i.e. close to the binary graph: the heat-kernel methods of
+chapter 6 then lose the metric signal they read (keypoints drift off protrusion tips). It is not the
+default for that reason.
 """
 
 from __future__ import annotations
@@ -31,17 +36,20 @@ from shape_toolkit.errors import ParameterError
 #: resolution of the eigensolver, ``shape_toolkit.core.eigen``: shift ``-1e-8 * scale``, tol 1e-8)
 NEGLIGIBLE_WEIGHT = 1e-8
 
-_MODES = ("local", "mean")
+#: the default bandwidth keeps every edge weight at or above this (1e4 x NEGLIGIBLE_WEIGHT)
+MIN_WEIGHT = 1e-4
+
+_MODES = ("auto", "local", "mean")
 
 
 class GaussianWeighting(Weighting):
     """Heat-kernel weights on graph edges (eq. 3.7).
 
-    ``bandwidth``: ``"local"`` (default, also ``None``) for the self-tuning local bandwidths
-    ``sigma_ij = bandwidth_scale * sqrt(sigma_i sigma_j)`` described in the module docstring (every
-    weight in ``[exp(-1/(2 bandwidth_scale^2)), 1]``); ``"mean"`` for one global ``sigma =
-    bandwidth_scale * mean edge length`` (the thesis-era default; long edges of irregular meshes may
-    underflow); or a positive number, a global ``sigma`` in the shape's length units.
+    ``bandwidth``: ``"auto"`` (default, also ``None``): the mean edge length, raised where needed so
+    that no edge weighs less than ``MIN_WEIGHT`` (module docstring); ``"mean"``: the plain mean edge
+    length (long edges of irregular meshes may underflow); ``"local"``: self-tuning local bandwidths
+    ``sigma_ij = bandwidth_scale * sqrt(sigma_i sigma_j)``; or a positive number, a global ``sigma`` in
+    the shape's length units. ``bandwidth_scale`` multiplies the automatic bandwidths.
 
     A global bandwidth that leaves some edges with weights below ``1e-8`` of the largest and thereby
     cuts the graph into more pieces than it structurally has (a numerically disconnected graph,
@@ -58,11 +66,11 @@ class GaussianWeighting(Weighting):
         n = shape.n_vertices
         edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
         length = np.linalg.norm(shape.vertices[edges[:, 0]] - shape.vertices[edges[:, 1]], axis=1)
-        bw = "local" if self.bandwidth is None else self.bandwidth
+        bw = "auto" if self.bandwidth is None else self.bandwidth
         if isinstance(bw, str):
             if bw not in _MODES:
                 raise ParameterError(
-                    f"bandwidth must be a positive number, 'local' or 'mean', got {bw!r}"
+                    f"bandwidth must be a positive number, 'auto', 'local' or 'mean', got {bw!r}"
                 )
             s = self.bandwidth_scale
             if isinstance(s, bool) or not isinstance(s, (int, float, np.number)) or not (0 < s < np.inf):
@@ -71,7 +79,7 @@ class GaussianWeighting(Weighting):
             if isinstance(bw, bool) or not isinstance(bw, (int, float, np.number)) or not (0 < bw < np.inf):
                 raise ParameterError(
                     f"Gaussian bandwidth must be a positive finite number (in the shape's length units), "
-                    f"'local' or 'mean', got {bw!r}"
+                    f"'auto', 'local' or 'mean', got {bw!r}"
                 )
         if len(edges) == 0:
             return Weights(weights_from_edges(n, edges, np.zeros(0)), info={"bandwidth": bw})
@@ -86,7 +94,13 @@ class GaussianWeighting(Weighting):
                         bandwidth_range=[float(sigma.min()), float(sigma.max())],
                         weight_lower_bound=float(np.exp(-0.5 / float(self.bandwidth_scale) ** 2)))
         else:
-            sigma = float(self.bandwidth_scale) * float(length.mean()) if bw == "mean" else float(bw)
+            if bw == "auto":
+                floor_sigma = float(length.max()) / np.sqrt(2.0 * np.log(1.0 / MIN_WEIGHT))
+                sigma = float(self.bandwidth_scale) * max(float(length.mean()), floor_sigma)
+            elif bw == "mean":
+                sigma = float(self.bandwidth_scale) * float(length.mean())
+            else:
+                sigma = float(bw)
             info["bandwidth"] = sigma
         with np.errstate(under="ignore", over="ignore", invalid="ignore", divide="ignore"):
             # an edge between coincident vertices weighs 1 (and may have sigma_ij = 0 when local)
@@ -129,7 +143,8 @@ class GaussianWeighting(Weighting):
             f"{length.min():.3g} to {length.max():.3g}): {int(np.sum(~keep))} of {len(w)} weights vanish "
             f"(below {NEGLIGIBLE_WEIGHT:g} of the largest), leaving a numerically disconnected graph "
             f"({numerical} pieces instead of {structural}) whose spectrum has spurious zero eigenvalues. "
-            f"Use bandwidth >= {safe:.3g}, or leave bandwidth unset for the scale-free local bandwidths"
+            f"Use bandwidth >= {safe:.3g}, or leave bandwidth unset (the automatic bandwidth keeps every "
+            "weight >= 1e-4)"
         )
 
 
