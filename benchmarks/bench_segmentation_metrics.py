@@ -67,7 +67,8 @@ def child(subdivisions: int) -> dict:
     traced = tracemalloc.get_traced_memory()[1] / 2**20
     tracemalloc.stop()
     return {
-        "faces": int(shape.n_faces), "peak_mb": traced, "rss_rise_mb": max(_status_mb("VmHWM") - base, 0.0), "wall_s": wall, "cpu_s": cpu,
+        "faces": int(shape.n_faces), "peak_mb": traced, "rss_rise_mb": max(_status_mb("VmHWM") - base, 0.0),
+        "wall_s": wall, "cpu_s": cpu,
         "rand_index_error": float(scores["rand_index_error"]) if "rand_index_error" in scores else None,
     }
 
@@ -90,7 +91,8 @@ def main() -> None:
         "Regenerate: `python benchmarks/bench_segmentation_metrics.py` (one fresh child process per size, one BLAS",
         f"thread; load average {load:.1f} on 2 cores while it ran). Metrics: Rand index, cut discrepancy, Hamming,",
         "GCE/LCE of a 12-part prediction against three 6-10-part segmentations (`segmentation_scores`, what",
-        "`shape-toolkit evaluate-segmentation` computes). Peak = tracemalloc's peak of the numpy/Python allocations during the metrics (the RSS rise, which reuses\nmemory freed earlier and so under-counts, is in the last column).",
+        "`shape-toolkit evaluate-segmentation` computes). Peak = tracemalloc's peak of the numpy/Python allocations",
+        "during the metrics (the RSS rise, which reuses memory freed earlier and so under-counts, is in the last column).",
         "",
         "| faces | peak MB | MB per 10k faces | wall s | CPU s | RSS rise MB |",
         "|---:|---:|---:|---:|---:|---:|",
