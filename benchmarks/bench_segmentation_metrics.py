@@ -92,7 +92,7 @@ def main() -> None:
         f"thread; load average {load:.1f} on 2 cores while it ran). Metrics: Rand index, cut discrepancy, Hamming,",
         "GCE/LCE of a 12-part prediction against three 6-10-part segmentations (`segmentation_scores`, what",
         "`shape-toolkit evaluate-segmentation` computes). Peak = tracemalloc's peak of the numpy/Python allocations",
-        "during the metrics (the RSS rise, which reuses memory freed earlier and so under-counts, is in the last column).",
+        "during the metrics (the RSS rise, reusing memory freed earlier, under-counts; last column).",
         "",
         "| faces | peak MB | MB per 10k faces | wall s | CPU s | RSS rise MB |",
         "|---:|---:|---:|---:|---:|---:|",
