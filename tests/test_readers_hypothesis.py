@@ -205,7 +205,7 @@ def test_mutated_map_files_raise_only_typed_errors(values, ops):
 @SETTINGS
 @given(values=st.lists(st.integers(1, 60), min_size=1, max_size=30), ops=mutations)
 def test_vts_files(values, ops):
-    from shape_toolkit.cli.commands._common import read_ids_file
+    from shape_toolkit.results.labels import read_vertex_ids as read_ids_file
 
     p = _tmp(".vts")
     p.write_text("".join(f"{v}\n" for v in values))

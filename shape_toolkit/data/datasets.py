@@ -17,7 +17,7 @@ import numpy as np
 
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError, ShapeFileError
-from shape_toolkit.results.labels import face_to_vertex_labels, read_int_file
+from shape_toolkit.results.labels import face_to_vertex_labels, read_int_file, read_vertex_ids
 
 __all__ = [
     "read_vertex_ids",
@@ -39,25 +39,6 @@ __all__ = [
 
 def _read_ints(path: str | os.PathLike, what: str) -> np.ndarray:
     return read_int_file(path, what)
-
-
-def read_vertex_ids(
-    path: str | os.PathLike, *, one_based: bool, n_vertices: int | None = None
-) -> np.ndarray:
-    """Read one vertex index per line as 0-based int64 ``(p,)``; ``one_based`` says how the file
-    counts. With ``n_vertices``, indices outside the shape raise :class:`ShapeFileError`."""
-    ids = _read_ints(path, "vertex indices")
-    if one_based:
-        if ids.min() < 1:
-            raise ShapeFileError(path, f"1-based indices expected, found {int(ids.min())}")
-        ids = ids - 1
-    elif ids.min() < 0:
-        raise ShapeFileError(path, f"negative vertex index {int(ids.min())}")
-    if n_vertices is not None and ids.max() >= n_vertices:
-        raise ShapeFileError(
-            path, f"vertex index {int(ids.max()) + one_based} is out of range for {n_vertices} vertices"
-        )
-    return ids
 
 
 def read_vts(path: str | os.PathLike, n_vertices: int | None = None) -> np.ndarray:

@@ -22,6 +22,7 @@ import scipy.sparse as sp
 from shape_toolkit.errors import ParameterError, ShapeFileError
 
 __all__ = [
+    "read_vertex_ids",
     "read_int_file",
     "Constraints",
     "ConstraintError",
@@ -82,6 +83,25 @@ def read_int_file(path: str | os.PathLike, what: str = "labels") -> np.ndarray:
         if abs(int(t)) > _MAX_ABS_INT:
             raise ShapeFileError(p, f"value {k + 1} ({t[:40]}) is out of range for {what}")
     raise ShapeFileError(p, f"malformed {what} file")  # pragma: no cover - the loop names the token
+
+
+def read_vertex_ids(
+    path: str | os.PathLike, *, one_based: bool, n_vertices: int | None = None
+) -> np.ndarray:
+    """One vertex index per line (``.vts`` files count from 1) as 0-based int64 ``(p,)``; ``one_based``
+    says how the file counts. With ``n_vertices``, indices outside the shape raise :class:`ShapeFileError`."""
+    ids = read_int_file(path, "vertex indices")
+    if one_based:
+        if ids.min() < 1:
+            raise ShapeFileError(path, f"1-based indices expected, found {int(ids.min())}")
+        ids = ids - 1
+    elif ids.min() < 0:
+        raise ShapeFileError(path, f"negative vertex index {int(ids.min())}")
+    if n_vertices is not None and ids.max() >= n_vertices:
+        raise ShapeFileError(
+            path, f"vertex index {int(ids.max()) + one_based} is out of range for {n_vertices} vertices"
+        )
+    return ids
 
 
 def _as_pairs(value: Any, what: str) -> np.ndarray:

@@ -177,24 +177,6 @@ def read_labels_file(path: str | os.PathLike, n_expected: int | None = None) -> 
     return labels
 
 
-def read_ids_file(path: str | os.PathLike, *, one_based: bool, n_vertices: int | None = None) -> np.ndarray:
-    """One vertex id per line (``.vts`` files are 1-based) as 0-based int64; typed errors."""
-    from shape_toolkit.results.labels import read_int_file
-
-    ids = read_int_file(path, "vertex indices")
-    if one_based:
-        if ids.min() < 1:
-            raise ShapeFileError(path, f"1-based indices expected, found {int(ids.min())}")
-        ids = ids - 1
-    elif ids.min() < 0:
-        raise ShapeFileError(path, f"negative vertex index {int(ids.min())}")
-    if n_vertices is not None and ids.max() >= n_vertices:
-        raise ShapeFileError(
-            path, f"vertex index {int(ids.max()) + one_based} is out of range for {n_vertices} vertices"
-        )
-    return ids
-
-
 def read_seeds_file(path: str | os.PathLike, n_source: int, n_target: int) -> np.ndarray:
     """:func:`shape_toolkit.results.correspondence.read_seeds` (every failure typed)."""
     from shape_toolkit.results.correspondence import read_seeds

@@ -19,11 +19,11 @@ from shape_toolkit.cli.commands._common import (
     parse_params,
     plugin_class,
     print_json,
-    read_ids_file,
     status,
 )
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
+from shape_toolkit.results.labels import read_vertex_ids
 from shape_toolkit.validation import dumps_json
 
 
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     params = parse_params(args.param, plugin_class("descriptors", args.descriptor))
     desc = create_plugin("descriptors", args.descriptor, preset=args.preset, **params)
     shape = load_shape(args.shape)
-    kp = read_ids_file(args.keypoints, one_based=False, n_vertices=shape.n_vertices) if args.keypoints else None
+    kp = read_vertex_ids(args.keypoints, one_based=False, n_vertices=shape.n_vertices) if args.keypoints else None
     t0 = time.perf_counter()
     with status(args, f"describe: {args.descriptor} on {shape.n_vertices} vertices"):
         spectra, used = declared_spectra(desc, shape)

@@ -7,7 +7,7 @@ import argparse
 
 import numpy as np
 
-from shape_toolkit.cli.commands._common import print_json, read_ids_file
+from shape_toolkit.cli.commands._common import print_json
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.metrics.correspondence import (
@@ -17,6 +17,7 @@ from shape_toolkit.metrics.correspondence import (
     target_coverage,
 )
 from shape_toolkit.results.correspondence import load_map
+from shape_toolkit.results.labels import read_vertex_ids
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _truth(path: str, n: int, one_based: bool):
     try:
-        return read_ids_file(path, one_based=one_based, n_vertices=n)
+        return read_vertex_ids(path, one_based=one_based, n_vertices=n)
     except ShapeFileError as exc:
         hint = " (use --zero-based for 0-based files)" if one_based and "1-based" in str(exc) else ""
         raise ShapeFileError(path, exc.problem + hint) from None

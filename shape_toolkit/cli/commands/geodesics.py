@@ -18,13 +18,13 @@ from shape_toolkit.cli.commands._common import (
     check_ply,
     default_output,
     print_json,
-    read_ids_file,
     status,
     write_ply,
 )
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.geodesics import geodesic_distances
 from shape_toolkit.io.mesh import load_shape
+from shape_toolkit.results.labels import read_vertex_ids
 
 METHODS = ("exact", "heat", "fmm", "dijkstra")
 
@@ -33,7 +33,7 @@ def parse_sources(text: str, n_vertices: int) -> np.ndarray:
     """``--sources``: comma-separated 0-based ids (``0,15,200``) or a file of one id per line;
     int64 ``(s,)`` checked against ``n_vertices``."""
     if Path(text).is_file():
-        return read_ids_file(text, one_based=False, n_vertices=n_vertices)
+        return read_vertex_ids(text, one_based=False, n_vertices=n_vertices)
     try:
         ids = np.array([int(t) for t in text.replace(" ", "").split(",") if t != ""], dtype=np.int64)
     except ValueError:

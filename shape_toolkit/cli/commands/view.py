@@ -67,9 +67,9 @@ def view_items(args: argparse.Namespace) -> list[dict[str, Any]]:
     shape = load_shape(args.shape)
     points = None
     if args.points:
-        from shape_toolkit.cli.commands._common import read_ids_file
+        from shape_toolkit.results.labels import read_vertex_ids
 
-        points = read_ids_file(args.points, one_based=False, n_vertices=shape.n_vertices)
+        points = read_vertex_ids(args.points, one_based=False, n_vertices=shape.n_vertices)
     if args.faces and not args.labels:
         raise ParameterError("--faces applies to --labels")
     name = Path(args.shape).stem
