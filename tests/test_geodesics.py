@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from shape_toolkit.features import geodesics as g
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.errors import InvalidShapeError, ParameterError
+from shape_toolkit.features import geodesics as g
 
 SOURCES = [0, 37, 200, 641]
 

@@ -19,7 +19,7 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.features.heat import descriptor_matching_score
+from shape_toolkit.features.descriptor_score import descriptor_matching_score
 from shape_toolkit.plugins.matching._common import (
     UsesDescriptor,
     check_descriptors,
