@@ -118,6 +118,17 @@ class ShapeGraph:
         return h.hexdigest()
 
 
+def edge_length_graph(shape: Shape, n_neighbors: int = 8) -> sp.csr_matrix:
+    """Symmetric ``(n, n)`` CSR matrix of Euclidean edge lengths (shape length units) over the mesh
+    edges, or the ``n_neighbors``-nearest-neighbour graph of a point cloud; coincident vertices keep
+    their edge (length 1e-300, not 0)."""
+    n = shape.n_vertices
+    e = np.asarray(shape.edges, dtype=np.int64) if shape.is_mesh else knn_edges(shape.vertices, min(n_neighbors, n - 1))
+    w = np.maximum(np.linalg.norm(shape.vertices[e[:, 0]] - shape.vertices[e[:, 1]], axis=1), 1e-300)
+    ij = (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])
+    return sp.csr_matrix((np.r_[w, w], ij), shape=(n, n))
+
+
 def knn_edges(points: np.ndarray, n_neighbors: int) -> np.ndarray:
     """Symmetrised k-nearest-neighbour edges of ``(n, 3)`` points as ``(e, 2)`` int64, ``i < j``."""
     n = len(points)

@@ -27,8 +27,10 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.csgraph import dijkstra as _csgraph_dijkstra
 
+from shape_toolkit.core.graph import edge_length_graph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError, SolverError
+from shape_toolkit.validation import check_vertex_ids
 
 __all__ = [
     "GEODESIC_METHODS",
@@ -62,23 +64,6 @@ def clear_geodesic_cache() -> None:
     _ROW_ENTRIES = 0
 
 
-def _check_vertex_ids(ids: object, n: int, what: str) -> np.ndarray:
-    a = np.atleast_1d(np.asarray(ids))
-    if a.size == 0:
-        return np.zeros(0, dtype=np.int64)
-    if a.ndim != 1:
-        raise ParameterError(f"{what} must be a 1-D array of vertex ids")
-    if not np.issubdtype(a.dtype, np.integer):
-        if not (np.issubdtype(a.dtype, np.floating) and np.all(np.mod(a, 1) == 0)):
-            raise ParameterError(f"{what} must be integer vertex ids, got dtype {a.dtype}")
-    a = a.astype(np.int64)
-    if a.min() < 0 or a.max() >= n:
-        raise ParameterError(
-            f"{what} must be vertex ids in [0, {n - 1}], found range [{a.min()}, {a.max()}]"
-        )
-    return a
-
-
 def _solver(shape: Shape, method: str) -> Any:
     key = (shape.content_hash, method)
     if key in _SOLVERS:
@@ -107,18 +92,7 @@ def _solver(shape: Shape, method: str) -> Any:
 
 
 def _edge_graph(shape: Shape) -> sp.csr_matrix:
-    """Symmetric ``(n, n)`` CSR matrix of Euclidean edge lengths (mesh edges or kNN graph)."""
-    n = shape.n_vertices
-    if shape.is_mesh:
-        e = np.asarray(shape.edges, dtype=np.int64)
-    else:
-        from shape_toolkit.core.graph import knn_edges
-
-        e = knn_edges(shape.vertices, min(_KNN_NEIGHBORS, n - 1))
-    w = np.linalg.norm(shape.vertices[e[:, 0]] - shape.vertices[e[:, 1]], axis=1)
-    w = np.maximum(w, 1e-300)  # coincident vertices: keep the edge (0 would drop it)
-    G = sp.coo_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), (n, n))
-    return G.tocsr()
+    return edge_length_graph(shape, _KNN_NEIGHBORS)
 
 
 def _components(shape: Shape) -> np.ndarray:
@@ -183,8 +157,8 @@ def geodesic_distances(
     global _ROW_ENTRIES
     _check_method(shape, method)
     n = shape.n_vertices
-    src = _check_vertex_ids(sources, n, "sources")
-    tgt = None if targets is None else _check_vertex_ids(targets, n, "targets")
+    src = check_vertex_ids(sources, n, "sources")
+    tgt = None if targets is None else check_vertex_ids(targets, n, "targets")
     rows = np.empty((src.size, n))
     key0 = shape.content_hash
     todo = []
@@ -220,7 +194,7 @@ def geodesic_distance_to_set(
     float64 ``(n,)`` in length units."""
     _check_method(shape, method)
     n = shape.n_vertices
-    src = np.unique(_check_vertex_ids(sources, n, "sources"))
+    src = np.unique(check_vertex_ids(sources, n, "sources"))
     if src.size == 0:
         raise ParameterError("geodesic_distance_to_set needs at least one source vertex")
     solver = _solver(shape, method)
@@ -270,7 +244,7 @@ def k_ring(shape: Shape, vertex: int, k: int) -> np.ndarray:
     """Sorted int64 ids of the vertices at most ``k`` edges away from ``vertex`` (itself
     included), by breadth-first search on :func:`adjacency`."""
     n = shape.n_vertices
-    v = int(_check_vertex_ids([vertex], n, "vertex")[0])
+    v = int(check_vertex_ids([vertex], n, "vertex")[0])
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
         raise ParameterError(f"k must be a non-negative integer, got {k!r}")
     A = adjacency(shape)
@@ -335,7 +309,7 @@ def relative_geodesic_neighbourhood(
     """The ``ceil(r_percent / 100 * n)`` vertices geodesically closest to ``vertex`` (itself
     first), sorted by distance: the relative r-neighbourhood of thesis section 7.5.2, int64."""
     n = shape.n_vertices
-    v = int(_check_vertex_ids([vertex], n, "vertex")[0])
+    v = int(check_vertex_ids([vertex], n, "vertex")[0])
     r = float(r_percent)
     if not np.isfinite(r) or not 0 < r <= 100:
         raise ParameterError(f"r_percent must be in (0, 100], got {r_percent!r}")

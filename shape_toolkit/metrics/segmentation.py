@@ -26,6 +26,7 @@ import scipy.sparse as sp
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse.csgraph import dijkstra, min_weight_full_bipartite_matching
 
+from shape_toolkit.core.graph import edge_length_graph
 from shape_toolkit.errors import ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -203,15 +204,6 @@ def _cut_edges(faces: np.ndarray, face_labels: np.ndarray) -> np.ndarray:
     return np.unique(key[i[diff]], axis=0).reshape(-1, 2)
 
 
-def _edge_graph(shape: Shape) -> sp.csr_matrix:
-    e = shape.edges
-    length = np.linalg.norm(shape.vertices[e[:, 0]] - shape.vertices[e[:, 1]], axis=1)
-    length = np.maximum(length, 1e-300)
-    n = shape.n_vertices
-    ij = (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])
-    return sp.csr_matrix((np.r_[length, length], ij), shape=(n, n))
-
-
 def _average_radius(shape: Shape) -> float:
     """Area-weighted mean Euclidean distance from the face centroids to the surface centroid."""
     c = shape.vertices[shape.faces].mean(axis=1)
@@ -247,7 +239,7 @@ def cut_discrepancy(
         return 0.0
     if len(ca) == 0 or len(cb) == 0:
         return float("nan")
-    G = _graph if _graph is not None else _edge_graph(mesh)
+    G = _graph if _graph is not None else edge_length_graph(mesh)
     v = mesh.vertices
     return (_directed_cd(G, v, ca, cb) + _directed_cd(G, v, cb, ca)) / _average_radius(mesh)
 
@@ -275,7 +267,7 @@ def segmentation_scores(
             raise ParameterError(f"{len(pred)} predicted labels for {mesh.n_faces} faces")
         if face_areas is None:
             face_areas = mesh.face_areas
-    G = _edge_graph(mesh) if mesh is not None else None
+    G = edge_length_graph(mesh) if mesh is not None else None
     per = []
     for t, truth in enumerate(truths):
         truth = np.asarray(truth).ravel()
