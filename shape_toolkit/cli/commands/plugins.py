@@ -10,6 +10,7 @@ from typing import Any
 from shape_toolkit.api.registry import get_registry
 from shape_toolkit.cli.commands._common import print_json
 from shape_toolkit.errors import ParameterError, PluginError, ToolkitError
+from shape_toolkit.validation import jsonable
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,16 +45,6 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, (str, int, float, bool)) or v is None:
-        return v
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    return repr(v)
-
-
 def plugin_info(family: str, name: str) -> dict[str, Any]:
     """What ``plugins show`` prints for one plugin: doc line, parameters with defaults, presets and
     the spectrum it declares with its default parameters (None when it needs none)."""
@@ -64,7 +55,7 @@ def plugin_info(family: str, name: str) -> dict[str, Any]:
         if par.kind in (par.VAR_POSITIONAL, par.VAR_KEYWORD):
             continue
         params.append({"name": par.name,
-                       "default": None if par.default is par.empty else _jsonable(par.default),
+                       "default": None if par.default is par.empty else jsonable(par.default),
                        "required": par.default is par.empty})
     spectra: Any = None
     try:
@@ -80,7 +71,7 @@ def plugin_info(family: str, name: str) -> dict[str, Any]:
         "doc": doc,
         "randomized": any(p["name"] == "random_state" for p in params),
         "parameters": params,
-        "presets": _jsonable(dict(getattr(cls, "presets", {}) or {})),
+        "presets": jsonable(dict(getattr(cls, "presets", {}) or {})),
         "spectra": spectra,
     }
 
@@ -95,7 +86,7 @@ def pipeline_info(name: str) -> dict[str, Any]:
         "family": "pipelines",
         "name": name,
         "doc": spec.get("description", ""),
-        "stages": {k: _jsonable(v) for k, v in spec.items() if k != "description"},
+        "stages": {k: jsonable(v) for k, v in spec.items() if k != "description"},
         "spectra": [s.to_dict() for s in pipe.spectrum_specs()],
     }
 
