@@ -332,6 +332,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-alternatives", action="store_true", help="skip PRIMME, LOBPCG, ...")
     ap.add_argument("--meshes", nargs="+", choices=list(MESHES), help="only these meshes of the plan")
     ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--raw", type=Path, default=None, help="also write the rows as JSON here")
     ap.add_argument("--child", nargs=3, metavar=("NPZ", "METHOD", "K"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
@@ -387,7 +388,8 @@ def main(argv: list[str] | None = None) -> int:
     table = render(rows, args, time.perf_counter() - t_start, skipped)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(table)
-    (args.out.with_suffix(".json")).write_text(json.dumps(rows, indent=1))
+    if args.raw:
+        args.raw.write_text(json.dumps(rows, indent=1))
     print(table)
     return 0
 
@@ -412,7 +414,7 @@ def render(rows: list[dict], args: argparse.Namespace, total: float, skipped: li
     lines = [
         "# Eigensolver benchmark" + (" (--quick smoke test)" if args.quick else ""),
         "",
-        f"Regenerate: `{cmd}` (one run, {total / 60:.0f} min; raw rows in `{args.out.with_suffix('.json').name}`).",
+        f"Regenerate: `{cmd}` (one run, {total / 60:.0f} min).",
         "",
         f"**The machine was loaded**: {os.cpu_count()} cores shared with other jobs, load average at the start "
         f"{l1:.1f} / {l5:.1f} / {l15:.1f} (1 / 5 / 15 min) and {os.getloadavg()[0]:.1f} at the end; every row "

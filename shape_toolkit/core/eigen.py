@@ -40,9 +40,10 @@ KRYLOV_MIN_TOL = 1e-11
 
 #: BLAS threads inside the sparse solvers when ``blas_threads`` is None. Their dense operations are
 #: many small BLAS-3 calls (``n x basis`` times ``basis x block``) that a threaded BLAS splits badly:
-#: measured in ``benchmarks/results/eigensolver.md`` (rows ``krylov-threaded`` against ``auto``), two
-#: OpenBLAS threads cost up to 20x the CPU time of one on a shared 2-core machine at 500-50k vertices and
-#: never won there; the dense path (n <= 500) lost 100x. So every method runs single-threaded by default.
+#: measured in ``benchmarks/results/eigensolver_notes.md`` (``krylov-threaded`` against ``auto``), two
+#: OpenBLAS threads cost 1.4x (200k vertices) to 48x (500) the CPU time of one on a shared 2-core machine
+#: and never won in CPU or wall time; the dense path (n <= 500) lost 100x. So every method runs
+#: single-threaded by default.
 DEFAULT_BLAS_THREADS = 1
 
 _Operator = Callable[[np.ndarray, np.ndarray], None]
