@@ -400,3 +400,12 @@ def test_graph_repr_and_hash(sphere):
     assert "642 vertices" in repr(g) and g.n_edges == len(sphere.edges)
     h = ShapeGraph(sphere, sp.csr_matrix(g.W * 2.0)).content_hash
     assert h != g.content_hash
+
+
+def test_point_cloud_with_coincident_points_is_refused_not_crashed():
+    from shape_toolkit.errors import InvalidShapeError
+
+    pts = np.random.default_rng(0).normal(size=(60, 3))
+    pts[10:20] = pts[0]  # ten copies of one point: geometry-central would abort
+    with pytest.raises(InvalidShapeError, match="coincide"):
+        build_graph(Shape(pts), "intrinsic-delaunay")

@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Weighting, Weights
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.errors import ParameterError
+from shape_toolkit.errors import InvalidShapeError, ParameterError
 
 
 class IntrinsicDelaunayWeighting(Weighting):
@@ -42,6 +42,12 @@ class IntrinsicDelaunayWeighting(Weighting):
             if not 3 <= self.n_neighbors < shape.n_vertices:
                 raise ParameterError(
                     f"n_neighbors must be in [3, {shape.n_vertices - 1}], got {self.n_neighbors}"
+                )
+            n_distinct = len(np.unique(v, axis=0))
+            if n_distinct < shape.n_vertices:  # geometry-central aborts on coincident points
+                raise InvalidShapeError(
+                    f"{shape!r}: {shape.n_vertices - n_distinct} points coincide with others, which a local "
+                    "Delaunay triangulation cannot take: merge them first (shape-toolkit clean)"
                 )
             L, M = robust_laplacian.point_cloud_laplacian(
                 v, mollify_factor=self.mollify_factor, n_neighbors=self.n_neighbors
