@@ -34,18 +34,45 @@ class PluginError(ToolkitError):
     """A plugin is unknown, broken, or does not implement its family's interface."""
 
 
+#: what to do with a graph of several components (named by every disconnection error)
+COMPONENT_OPTIONS = (
+    "compute_spectrum(..., components='largest') analyses the largest component only; "
+    "component_spectra(graph, k) gives one spectrum per component; "
+    "Shape cleanup (keep_largest_component) removes the small pieces"
+)
+
+
 class DisconnectedGraphError(ToolkitError):
-    """A graph has several connected components where one is required."""
+    """A graph has several connected components where one is required; the message names the sizes
+    and every option (largest component, per-component spectra, cleanup)."""
 
     def __init__(self, n_components: int, sizes: list[int]):
-        self.n_components = n_components
-        self.sizes = sizes
-        shown = ", ".join(str(s) for s in sizes[:8]) + (", ..." if len(sizes) > 8 else "")
+        self.n_components = int(n_components)
+        self.sizes = [int(s) for s in sizes]
+        shown = ", ".join(str(s) for s in self.sizes[:8]) + (", ..." if len(self.sizes) > 8 else "")
         super().__init__(
-            f"the shape graph has {n_components} connected components (sizes {shown}); "
-            "a spectrum of a disconnected graph mixes its components: clean the shape "
-            "(keep_largest_component), or ask for components='largest' or a per-component analysis"
+            f"the shape graph has {self.n_components} connected components (sizes {shown}); a spectrum "
+            f"of a disconnected graph mixes its components. Options: {COMPONENT_OPTIONS}"
         )
+
+    def __reduce__(self):  # picklable (Dask workers send errors back)
+        return (type(self), (self.n_components, self.sizes))
+
+
+class NumericallyDisconnectedGraphError(DisconnectedGraphError):
+    """A graph that is connected (or has ``n_components`` components) structurally, but whose
+    Laplacian has more eigenvalues that are zero to solver precision than it has components: some
+    cut of its edges weighs (next to) nothing, so its spectrum would mix unrelated pieces and every
+    eigenpair count downstream would be off."""
+
+    def __init__(self, message: str, n_null: int = 0, n_components: int = 1, sizes: list[int] | None = None):
+        self.n_null = int(n_null)
+        self.n_components = int(n_components)
+        self.sizes = list(sizes) if sizes is not None else []
+        ToolkitError.__init__(self, message)
+
+    def __reduce__(self):
+        return (type(self), (str(self), self.n_null, self.n_components, self.sizes))
 
 
 class SolverError(ToolkitError):

@@ -19,7 +19,7 @@ from shape_toolkit import (
     compute_spectrum,
     laplacian_matrix,
 )
-from shape_toolkit.core.graph import NumericallyDisconnectedGraphError, ShapeGraph, epsilon_edges, knn_edges
+from shape_toolkit.core.graph import ShapeGraph, epsilon_edges, knn_edges
 from shape_toolkit.core.spectrum import (
     Spectrum,
     clear_cache,
@@ -30,6 +30,7 @@ from shape_toolkit.core.spectrum import (
 )
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.errors import NumericallyDisconnectedGraphError
 
 
 @pytest.fixture(scope="module")

@@ -13,54 +13,9 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.errors import DisconnectedGraphError, InvalidShapeError, ParameterError
+from shape_toolkit.errors import InvalidShapeError, ParameterError
 
-__all__ = [
-    "ShapeGraph", "build_graph", "knn_edges", "epsilon_edges", "weights_from_edges",
-    "NumericallyDisconnectedGraphError", "ComponentsError", "COMPONENT_OPTIONS",
-]
-
-#: what to do with a graph that has several components (named by every such error)
-COMPONENT_OPTIONS = (
-    "compute_spectrum(..., components='largest') analyses the largest component only; "
-    "component_spectra(graph, k) gives one spectrum per component; "
-    "Shape cleanup (keep_largest_component) removes the small pieces"
-)
-
-
-class ComponentsError(DisconnectedGraphError):
-    """A graph with several connected components given where one is required; the message names
-    the sizes and every option (largest component, per-component spectra, cleanup)."""
-
-    def __init__(self, n_components: int, sizes: list[int]):
-        self.n_components = int(n_components)
-        self.sizes = list(sizes)
-        shown = ", ".join(str(x) for x in self.sizes[:8]) + (", ..." if len(self.sizes) > 8 else "")
-        Exception.__init__(
-            self,
-            f"the shape graph has {self.n_components} connected components (sizes {shown}); a spectrum "
-            f"of a disconnected graph mixes its components. Options: {COMPONENT_OPTIONS}",
-        )
-
-    def __reduce__(self):
-        return (type(self), (self.n_components, self.sizes))
-
-
-class NumericallyDisconnectedGraphError(DisconnectedGraphError):
-    """A graph that is connected (or has ``n_components`` components) structurally, but whose
-    Laplacian has more eigenvalues that are zero to solver precision than it has components: some
-    cut of its edges weighs (next to) nothing, so its spectrum would mix unrelated pieces and every
-    eigenpair count (``K``) downstream would be off. Raised by
-    :func:`~shape_toolkit.core.spectrum.compute_spectrum`."""
-
-    def __init__(self, message: str, n_null: int = 0, n_components: int = 1, sizes: list[int] | None = None):
-        self.n_null = int(n_null)
-        self.n_components = int(n_components)
-        self.sizes = list(sizes) if sizes is not None else []
-        Exception.__init__(self, message)
-
-    def __reduce__(self):
-        return (type(self), (str(self), self.n_null, self.n_components, self.sizes))
+__all__ = ["ShapeGraph", "build_graph", "knn_edges", "epsilon_edges", "weights_from_edges", "edge_length_graph"]
 
 
 @dataclass(frozen=True, eq=False, repr=False)

@@ -306,10 +306,7 @@ def compute_spectrum(
     if n_comp > 1:
         sizes = np.bincount(labels)
         if components == "raise":
-            from shape_toolkit.core.graph import ComponentsError
-
-            err: DisconnectedGraphError = ComponentsError(n_comp, sorted(sizes.tolist(), reverse=True))
-            raise err  # a DisconnectedGraphError whose message names every option
+            raise DisconnectedGraphError(n_comp, sorted(sizes.tolist(), reverse=True))
         vertices = np.flatnonzero(labels == int(np.argmax(sizes)))
         if not 1 <= k <= len(vertices):
             raise ParameterError(f"k must be in [1, {len(vertices)}] (largest component)")
@@ -332,7 +329,7 @@ def compute_spectrum(
     null_tol = 1e-8 * max(scale, 0.0)
     n_null = max(int(np.sum(vals <= null_tol)), null_count(vals))
     if n_null > 1:
-        from shape_toolkit.core.graph import COMPONENT_OPTIONS, NumericallyDisconnectedGraphError
+        from shape_toolkit.errors import COMPONENT_OPTIONS, NumericallyDisconnectedGraphError
 
         shown = ", ".join(f"{x:.2e}" for x in vals[: min(len(vals), n_null + 1)])
         what = "connected" if vertices is None else f"largest component ({len(vertices)} vertices) is connected"
