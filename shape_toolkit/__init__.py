@@ -8,14 +8,16 @@ from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.registry import available_plugins, create_plugin, get_plugin, get_registry
 from shape_toolkit.core.graph import ShapeGraph, build_graph
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, compute_spectrum, laplacian_matrix
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, compute_spectrum, default_spec, laplacian_matrix
 from shape_toolkit.errors import (
     DisconnectedGraphError,
     InvalidShapeError,
+    NumericallyDisconnectedGraphError,
     ParameterError,
     PluginError,
     ShapeFileError,
     SolverError,
+    SpectrumMismatchError,
     ToolkitError,
 )
 
@@ -25,6 +27,8 @@ __all__ = [
     "Shape",
     "ShapeGraph",
     "Spectrum",
+    "SpectrumSpec",
+    "default_spec",
     "build_graph",
     "compute_spectrum",
     "laplacian_matrix",
@@ -39,6 +43,8 @@ __all__ = [
     "ParameterError",
     "PluginError",
     "DisconnectedGraphError",
+    "NumericallyDisconnectedGraphError",
     "SolverError",
+    "SpectrumMismatchError",
     "__version__",
 ]
