@@ -130,3 +130,12 @@ def test_colorbar_panel_and_long_title(body, tmp_path):
         tmp_path / "cb.png", title="a very long title " * 8,
     )
     assert _pixels(p).shape[0] > 300
+
+
+def test_label_colors_cost_grows_with_distinct_labels_not_their_values():
+    from shape_toolkit.io.viz import label_colors
+
+    lab = np.array([0, 2**62, -1, 2**62, 3])  # a palette sized by the largest value would need exabytes
+    c = label_colors(lab)
+    assert c.shape == (5, 3) and np.allclose(c[1], c[3]) and not np.allclose(c[0], c[1])
+    assert np.allclose(label_colors(np.array([3]))[0], c[4])  # a label's colour depends on its value only

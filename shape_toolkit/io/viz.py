@@ -48,27 +48,30 @@ def _mpl():
     return matplotlib, plt
 
 
-def _palette(n: int) -> np.ndarray:
-    """``(n, 3)`` distinct colours: tab10, then the light halves of tab20, then a hue cycle."""
+def _label_color(value: int) -> tuple[float, float, float]:
+    """The colour of label ``value`` (>= 0): tab10, then the light halves of tab20, then a golden-ratio
+    hue cycle (computed from the value, so huge label values cost nothing)."""
     matplotlib, _ = _mpl()
-    base = [matplotlib.colormaps["tab10"](i)[:3] for i in range(10)]
-    base += [matplotlib.colormaps["tab20"](2 * i + 1)[:3] for i in range(10)]
-    if n > len(base):
-        import colorsys
+    if value < 10:
+        return tuple(matplotlib.colormaps["tab10"](value)[:3])
+    if value < 20:
+        return tuple(matplotlib.colormaps["tab20"](2 * (value - 10) + 1)[:3])
+    import colorsys
 
-        base += [colorsys.hsv_to_rgb((0.618034 * i) % 1.0, 0.65, 0.9) for i in range(n - len(base))]
-    return np.asarray(base[: max(n, 1)], dtype=np.float64)
+    return colorsys.hsv_to_rgb((0.618034 * ((value - 20) % 10**9)) % 1.0, 0.65, 0.9)
 
 
 def label_colors(labels: np.ndarray) -> np.ndarray:
     """RGB ``(n, 3)`` in [0, 1] for integer labels ``(n,)``: the colour depends on the label VALUE
-    (label ``j`` always gets palette entry ``j``), so two segmentations with aligned labels (see
-    :func:`align_labels`) share colours; grey for negative (unlabelled) entries."""
+    (label ``j`` always gets the same colour), so two segmentations with aligned labels (see
+    :func:`align_labels`) share colours; grey for negative (unlabelled) entries. Memory and time grow
+    with the number of distinct labels, never with their values."""
     lab = np.asarray(labels, dtype=np.int64).ravel()
     ok = lab >= 0
-    pal = _palette(int(lab[ok].max()) + 1 if ok.any() else 1)
     out = np.tile(_NEUTRAL, (len(lab), 1))
-    out[ok] = pal[lab[ok]]
+    if ok.any():
+        values, inv = np.unique(lab[ok], return_inverse=True)
+        out[ok] = np.asarray([_label_color(int(v)) for v in values], dtype=np.float64)[inv]
     return out
 
 
