@@ -43,6 +43,9 @@ import numpy as np  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from tosca_matching import run_pyfm  # noqa: E402  (one copy of pyFM's README pipeline)
 
 from shape_toolkit.data.corruptions import glue  # noqa: E402
 from shape_toolkit.data.datasets import read_vts  # noqa: E402
@@ -75,20 +78,6 @@ def choose_pairs(dataset: str, n: int, split: str) -> list[tuple[str, str]]:
     if n >= len(rest):
         return rest
     return [rest[i] for i in np.linspace(0, len(rest) - 1, n).round().astype(int)]
-
-
-def run_pyfm(A, B) -> np.ndarray:
-    """pyFM's README quick start, returning the A -> B vertex map."""
-    from pyFM.functional import FunctionalMapping
-    from pyFM.mesh import TriMesh
-
-    mesh1 = TriMesh(np.array(B.vertices), np.array(B.faces), area_normalize=True, center=True)
-    mesh2 = TriMesh(np.array(A.vertices), np.array(A.faces), area_normalize=True, center=True)
-    model = FunctionalMapping(mesh1, mesh2)
-    model.preprocess(descr_type="WKS", subsample_step=2, verbose=False)
-    model.fit(K=30, w_descr=1e0, w_lap=1e-1, w_dcomm=1e0, w_orient=1e0, verbose=False)
-    fm = model.zoomout_refine(nit=16, step=5)
-    return np.asarray(model.get_p2p(fm), dtype=np.int64)
 
 
 def truth_rows(B, tb: np.ndarray, tbs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
