@@ -410,3 +410,21 @@ def test_point_cloud_with_coincident_points_is_refused_not_crashed():
     pts[10:20] = pts[0]  # ten copies of one point: geometry-central would abort
     with pytest.raises(InvalidShapeError, match="coincide"):
         build_graph(Shape(pts), "intrinsic-delaunay")
+
+
+def test_a_planted_cache_file_is_validated_not_trusted(tmp_path, sphere):
+    from shape_toolkit.core import spectrum as spm
+
+    spm.set_cache_dir(tmp_path)
+    try:
+        g = build_graph(sphere, "cotangent")
+        good = compute_spectrum(g, 6)
+        (f,) = list(tmp_path.glob("*.npz"))
+        np.savez(f, eigenvalues=np.zeros(3), eigenvectors=np.zeros((5, 2)), laplacian="combinatorial",
+                 weighting="cotangent", mass=np.zeros(0), degrees=np.zeros(5), sign_fixed=False)
+        spm.clear_cache()
+        again = compute_spectrum(g, 6)  # the inconsistent file is a cache miss: recomputed, not returned
+        np.testing.assert_allclose(again.eigenvalues, good.eigenvalues, atol=1e-10)
+    finally:
+        spm.set_cache_dir(None)
+        spm.clear_cache()

@@ -120,16 +120,26 @@ class Spectrum:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Spectrum:
-        """Read a spectrum written by :meth:`save` (``allow_pickle=False``)."""
+        """Read a spectrum written by :meth:`save` (``allow_pickle=False``), validated: array shapes
+        and dtypes consistent, values finite, a known Laplacian; else ``ValueError``."""
         with np.load(path, allow_pickle=False) as z:
-            mass = z["mass"]
+            vals, vecs = np.asarray(z["eigenvalues"], np.float64), np.asarray(z["eigenvectors"], np.float64)
+            mass, degrees = np.asarray(z["mass"], np.float64), np.asarray(z["degrees"], np.float64)
+            laplacian = str(z["laplacian"])
             meta = json.loads(str(z["meta"])) if "meta" in z.files else {}
+            if not isinstance(meta, dict):
+                raise ValueError("spectrum meta is not a JSON object")
             if "has_vertices" in z.files and bool(z["has_vertices"]):
-                meta["vertices"] = z["vertices"]
-            return cls(
-                z["eigenvalues"], z["eigenvectors"], str(z["laplacian"]), str(z["weighting"]),
-                mass if mass.size else None, z["degrees"], bool(z["sign_fixed"]), meta,
-            )
+                meta["vertices"] = np.asarray(z["vertices"], np.int64)
+            weighting, sign_fixed = str(z["weighting"]), bool(z["sign_fixed"])
+        n = vecs.shape[0] if vecs.ndim == 2 else -1
+        if (vals.ndim != 1 or vecs.ndim != 2 or vecs.shape[1] != vals.size or degrees.shape != (n,)
+                or mass.size not in (0, n) or laplacian not in LAPLACIANS):
+            raise ValueError(f"{path}: not a consistent spectrum file")
+        if not (np.isfinite(vals).all() and np.isfinite(vecs).all() and np.isfinite(degrees).all()
+                and np.isfinite(mass).all()):
+            raise ValueError(f"{path}: non-finite values in a spectrum file")
+        return cls(vals, vecs, laplacian, weighting, mass if mass.size else None, degrees, sign_fixed, meta)
 
 
 def _json_default(obj: Any) -> Any:
