@@ -189,14 +189,12 @@ def test_photometric_matcher(pair):
 
 
 # -- one real pair (skips without the shared data) -------------------------------------------------------
-def test_tosca_pair_sharma2012_not_flipped():
-    from pathlib import Path
-
+def test_tosca_pair_sharma2012_not_flipped(shared_data):
     from shape_toolkit.data.datasets import read_vts
     from shape_toolkit.io.mesh import load_shape
     from shape_toolkit.metrics import geodesic_errors
 
-    root = Path(__file__).resolve().parents[2] / "shared" / "data" / "tosca5k"
+    root = shared_data / "tosca5k"
     if not (root / "cat0.off").is_file():
         pytest.skip(f"shared TOSCA data not found in {root}")
     A, B = load_shape(root / "cat0.off"), load_shape(root / "cat2.off")  # came out mirrored before
