@@ -237,3 +237,43 @@ def test_row_records_the_spectrum_the_method_received(tmp_path, recorder):
     assert given["k=0"] is None and rows["k=0"]["spectra"] == []  # declared none, given none
     preps = [json.loads(x) for x in (run / "prepare.jsonl").read_text().splitlines()]
     assert [e["spectrum"]["k"] for p in preps for e in p["spectra"]] == [9]
+
+
+class _TwoKinds(_Recorder):
+    """Needs two spectra of different kinds (as a matcher with a nested descriptor does)."""
+
+    def spectrum_specs(self):
+        return [SpectrumSpec(self.k, "gaussian", "normalized", False),
+                SpectrumSpec(4, "binary", "combinatorial", False)]
+
+    def segment(self, shape, *, spectrum=None, constraints=None):
+        RECEIVED.append(("two", spectrum))
+        for spec in self.spectrum_specs():  # each part finds its own among what it was given
+            spec.pick(spectrum, shape)
+        return np.zeros(shape.n_vertices, dtype=np.int64)
+
+
+class _TwoKindsPlugin:
+    @hookimpl
+    def toolkit_segmenters(self):
+        return {"two-kinds-test": _TwoKinds}
+
+
+def test_a_method_declaring_two_kinds_receives_both(tmp_path):
+    reg = get_registry()
+    reg.register(_TwoKindsPlugin(), name="two-kinds-test")
+    RECEIVED.clear()
+    try:
+        text = CONFIG.replace(
+            'plugin = "spectral-clustering"\npreset = "luxburg-unnormalized"\nparams = { n_segments = 3 }',
+            'plugin = "two-kinds-test"\nparams = { k = 5 }',
+        )
+        run = tmp_path / "run"
+        s = run_benchmark(load_config(_write(tmp_path, text)), run, progress=False)
+        rows = read_rows(run)
+        assert s.failed == 0, [r["error"] for r in rows]
+        (name, given), = RECEIVED
+        assert isinstance(given, list) and {g.weighting for g in given} == {"gaussian", "binary"}
+        assert sorted(r["weighting"] for r in rows[0]["spectra"]) == ["binary", "gaussian"]
+    finally:
+        reg.unregister("two-kinds-test")

@@ -254,7 +254,7 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
             detector = create_detector(job.keypoints)
             own, det_spec = method_specs(method, detector)
             got = _Received(job, prep, sides)
-            if job.family == "pipelines":
+            if job.family == "pipelines" or len(own) > 1:  # several kinds: each part picks its own
                 spectra = got.several(own)
             else:
                 spectra = got.single(own[0] if own else None)
