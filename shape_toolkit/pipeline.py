@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, merge_specs, pick_spectrum
+from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, merge_specs
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.plugins.matching._common import paired_descriptors
 from shape_toolkit.results.correspondence import Correspondence, read_seeds
@@ -169,7 +169,7 @@ class Pipeline:
     def spectrum_specs(self) -> list[SpectrumSpec]:
         """Every spectrum the stages need (one per kind, the largest ``k``): what a caller computes
         once per shape and passes to :meth:`run`."""
-        return merge_specs(s for plugin in self.plugins().values() for s in _specs_of(plugin))
+        return merge_specs(s for specs in _declared(self.plugins()).values() for s in specs)
 
     def run(
         self,
@@ -197,20 +197,20 @@ class Pipeline:
             timings[stage] = time.perf_counter() - t0
             return out
 
+        declared = _declared(plugins)
         if spectra is None:
-            specs = merge_specs(s for p in plugins.values() for s in _specs_of(p))
+            specs = merge_specs(s for specs in declared.values() for s in specs)
             t0 = time.perf_counter()
             say(f"{self.name}: spectra ({', '.join(str(s.to_dict()) for s in specs) or 'none'})")
             spectra = {"source": [s.compute(source) for s in specs], "target": [s.compute(target) for s in specs]}
             timings["spectra"] = time.perf_counter() - t0
-        src_spectra, tgt_spectra = _spectrum_lists(spectra)
-        info["spectra"] = {
-            stage: [s.for_shape(source).to_dict() for s in _specs_of(p)] for stage, p in plugins.items()
-        }
-        for p in plugins.values():  # fail before any work when a given spectrum does not fit
-            for spec in _specs_of(p):
-                pick_spectrum(src_spectra, spec, source)
-                pick_spectrum(tgt_spectra, spec, target)
+            src_spectra, tgt_spectra = spectra["source"], spectra["target"]
+        else:  # given by the caller: fail before any work when one does not fit a stage
+            src_spectra, tgt_spectra = _spectrum_lists(spectra)
+            for spec in (s for specs in declared.values() for s in specs):
+                spec.pick(src_spectra, source)
+                spec.pick(tgt_spectra, target)
+        info["spectra"] = {stage: [s.for_shape(source).to_dict() for s in specs] for stage, specs in declared.items()}
         sides = {"source_spectrum": src_spectra, "target_spectrum": tgt_spectra}
 
         if seeds is not None:
@@ -263,10 +263,10 @@ class Pipeline:
         return Correspondence(corr.target_of, corr.n_target, corr.confidence, corr.posteriors, merged)
 
 
-def _specs_of(plugin: Any) -> list[SpectrumSpec]:
-    """The spectra a plugin declares (third-party plugins without the method declare none)."""
-    fn = getattr(plugin, "spectrum_specs", None)
-    return list(fn()) if fn is not None else []
+def _declared(plugins: dict[str, Any]) -> dict[str, list[SpectrumSpec]]:
+    """``{stage: [SpectrumSpec, ...]}`` the stage plugins declare (third-party plugins without
+    ``spectrum_specs`` declare none)."""
+    return {stage: list(p.spectrum_specs()) if hasattr(p, "spectrum_specs") else [] for stage, p in plugins.items()}
 
 
 def _spectrum_lists(spectra: Any) -> tuple[list[Spectrum], list[Spectrum]]:

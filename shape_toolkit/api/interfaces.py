@@ -82,17 +82,10 @@ class BasePlugin:
 
     def spectrum_specs(self) -> list[SpectrumSpec]:
         """Every spectrum this plugin needs: its own and its nested plugins', one per kind."""
-        out: list[SpectrumSpec] = []
         own = self.spectrum_spec()
-        nested = [s for p in self._nested_plugins() for s in p.spectrum_specs()]
-        for spec in ([own] if own is not None else []) + nested:
-            for i, have in enumerate(out):
-                if (merged := have.merge(spec)) is not None:
-                    out[i] = merged
-                    break
-            else:
-                out.append(spec)
-        return out
+        specs = ([own] if own is not None else []) + [s for p in self._nested_plugins() for s in p.spectrum_specs()]
+        # SpectrumSpec.merge_all, reached through the spec (this layer does not import the core)
+        return type(specs[0]).merge_all(specs) if specs else []
 
     def _nested_plugins(self) -> list[BasePlugin]:
         """Plugins this one calls (e.g. a matcher's descriptor), for :meth:`spectrum_specs`."""

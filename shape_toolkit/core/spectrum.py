@@ -34,7 +34,6 @@ __all__ = [
     "null_count",
     "default_spec",
     "merge_specs",
-    "pick_spectrum",
 ]
 
 LAPLACIANS = ("combinatorial", "normalized", "random-walk")
@@ -459,6 +458,21 @@ class SpectrumSpec:
             return None
         return self if self.k >= other.k else other
 
+    @classmethod
+    def merge_all(cls, specs: Iterable[SpectrumSpec | None]) -> list[SpectrumSpec]:
+        """One spec per kind (the largest ``k`` of each), in first-seen order; None entries skipped."""
+        out: list[SpectrumSpec] = []
+        for spec in specs:
+            if spec is None:
+                continue
+            for i, have in enumerate(out):
+                if (merged := have.merge(spec)) is not None:
+                    out[i] = merged
+                    break
+            else:
+                out.append(spec)
+        return out
+
     @property
     def kind(self) -> tuple[Any, ...]:
         """Everything but ``k``: two specs of one kind share their eigenpairs."""
@@ -546,23 +560,7 @@ def default_spec(k: int, kind: str = "lbo", **overrides: Any) -> SpectrumSpec:
 
 
 def merge_specs(specs: Iterable[SpectrumSpec | None]) -> list[SpectrumSpec]:
-    """One spec per kind (the largest ``k`` of each), in first-seen order; None entries are skipped.
-    A caller computes these once and every method picks its own with :func:`pick_spectrum`."""
-    out: list[SpectrumSpec] = []
-    for spec in specs:
-        if spec is None:
-            continue
-        for i, have in enumerate(out):
-            merged = have.merge(spec)
-            if merged is not None:
-                out[i] = merged
-                break
-        else:
-            out.append(spec)
-    return out
-
-
-def pick_spectrum(spectra: Iterable[Spectrum], spec: SpectrumSpec | None, shape: Shape) -> Spectrum | None:
-    """The first of ``spectra`` that satisfies ``spec`` on ``shape`` (see :meth:`SpectrumSpec.check`),
-    or None when ``spec`` is None; :class:`~shape_toolkit.errors.SpectrumMismatchError` when none does."""
-    return None if spec is None else spec.pick(spectra, shape)
+    """One spec per kind (the largest ``k`` of each), in first-seen order; None entries are skipped
+    (:meth:`SpectrumSpec.merge_all`). A caller computes these once and every method picks its own
+    with :meth:`SpectrumSpec.pick`."""
+    return SpectrumSpec.merge_all(specs)
