@@ -227,16 +227,6 @@ def test_seed_round_trip(rows):
 
 @SETTINGS
 @given(rows=pairs, ops=mutations)
-def test_mutated_seed_files_raise_only_typed_errors_through_the_cli_reader(rows, ops):
-    from shape_toolkit.cli.commands._common import read_seeds_file
-
-    p = _tmp(".seeds")
-    p.write_bytes(_mutate("".join(f"{a} {b}\n" for a, b in rows).encode(), ops))
-    _only_typed(read_seeds_file, p, 41, 41)
-
-
-@SETTINGS
-@given(rows=pairs, ops=mutations)
 def test_mutated_seed_files_raise_only_typed_errors(rows, ops):
     p = _tmp(".seeds")
     p.write_bytes(_mutate("".join(f"{a} {b}\n" for a, b in rows).encode(), ops))

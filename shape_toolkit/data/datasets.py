@@ -37,10 +37,6 @@ __all__ = [
 ]
 
 
-def _read_ints(path: str | os.PathLike, what: str) -> np.ndarray:
-    return read_int_file(path, what)
-
-
 def read_vts(path: str | os.PathLike, n_vertices: int | None = None) -> np.ndarray:
     """Read a TOSCA ``.vts`` correspondence file (1-based) as 0-based int64 vertex ids."""
     return read_vertex_ids(path, one_based=True, n_vertices=n_vertices)
@@ -49,7 +45,7 @@ def read_vts(path: str | os.PathLike, n_vertices: int | None = None) -> np.ndarr
 def read_labels(path: str | os.PathLike, n_expected: int | None = None) -> np.ndarray:
     """Read one integer label per line (vertex labels, or face labels of a PSB ``.seg`` file)
     as int64 ``(n,)``; a length other than ``n_expected`` raises :class:`ShapeFileError`."""
-    labels = _read_ints(path, "labels")
+    labels = read_int_file(path, "labels")
     if n_expected is not None and len(labels) != n_expected:
         raise ShapeFileError(path, f"has {len(labels)} labels, expected {n_expected}")
     return labels

@@ -177,13 +177,6 @@ def read_labels_file(path: str | os.PathLike, n_expected: int | None = None) -> 
     return labels
 
 
-def read_seeds_file(path: str | os.PathLike, n_source: int, n_target: int) -> np.ndarray:
-    """:func:`shape_toolkit.results.correspondence.read_seeds` (every failure typed)."""
-    from shape_toolkit.results.correspondence import read_seeds
-
-    return read_seeds(path, n_source, n_target)
-
-
 def declared_spectra(plugin: Any, shape: Any) -> tuple[list | None, list[dict]]:
     """The spectra ``plugin`` declares (``spectrum_specs()``), computed once on ``shape`` through the
     content cache, to pass in as ``spectrum=``; and their JSON descriptions for the output.

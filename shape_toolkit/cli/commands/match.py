@@ -15,14 +15,13 @@ from shape_toolkit.cli.commands._common import (
     check_ply,
     default_output,
     print_json,
-    read_seeds_file,
     status,
     write_ply,
 )
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.pipeline import PRESETS, load_pipeline
-from shape_toolkit.results.correspondence import save_map
+from shape_toolkit.results.correspondence import read_seeds, save_map
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -56,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     pipe = load_pipeline(args.pipeline)
     source = load_shape(args.source)
     target = load_shape(args.target)
-    seeds = read_seeds_file(args.seeds, source.n_vertices, target.n_vertices) if args.seeds else None
+    seeds = read_seeds(args.seeds, source.n_vertices, target.n_vertices) if args.seeds else None
     t0 = time.perf_counter()
     with status(args, f"{pipe.name}: starting") as st:
         corr = pipe.run(source, target, seeds, progress=st.update)

@@ -21,12 +21,12 @@ from shape_toolkit.cli.commands._common import (
     plugin_class,
     print_json,
     read_labels_arg,
-    read_seeds_file,
     status,
     write_ply,
 )
 from shape_toolkit.data.datasets import write_labels
 from shape_toolkit.io.mesh import load_shape
+from shape_toolkit.results.correspondence import read_seeds
 from shape_toolkit.results.label_transfer import probabilistic_label_transfer
 from shape_toolkit.results.labels import vertex_to_face_labels
 
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
         test.require_faces("--faces")
     labels = read_labels_arg(args.train_labels, train, args.faces, "TRAIN_LABELS")
     truth = read_labels_arg(args.truth, test, args.faces, "--truth") if args.truth else None
-    seeds = read_seeds_file(args.seeds, train.n_vertices, test.n_vertices) if args.seeds else None
+    seeds = read_seeds(args.seeds, train.n_vertices, test.n_vertices) if args.seeds else None
     t0 = time.perf_counter()
     with status(args, f"transfer-labels: {args.matcher} {train.n_vertices} -> {test.n_vertices} vertices"):
         out, corr = probabilistic_label_transfer(
