@@ -81,3 +81,8 @@ class SolverError(ToolkitError):
 
 class SpectrumMismatchError(ParameterError):
     """A spectrum handed to a method is too short or of another kind than the one it declares."""
+
+
+class TimeLimitError(ToolkitError):
+    """A computation stopped because it ran, or would clearly run, past the time limit its caller
+    set; the message says how far it got and the estimated total."""
