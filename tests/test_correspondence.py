@@ -196,3 +196,104 @@ def test_label_transfer_scores_hand_made():
     # class 0: recall 2/3, precision 1; class 1: recall 1, precision 3/4
     assert s["recall"] == pytest.approx((2 / 3 + 1) / 2)
     assert s["precision"] == pytest.approx((1 + 0.75) / 2)
+
+
+# -- r-smoothness (eq. 7.4-7.5, Table 7.2) and segment transfer (Table 7.3) --------------------
+def _antipode(shape):
+    """The map v -> -v: an isometry of the (centrally symmetric) icosphere onto itself."""
+    _, j = cKDTree(shape.vertices).query(-shape.vertices)
+    assert np.allclose(shape.vertices[j], -shape.vertices)
+    return j
+
+
+def _r_smooth_by_definition(src, tgt, t, r, theta, ids):
+    """Eq. 7.4-7.5 written out vertex by vertex with relative_geodesic_neighbourhood."""
+    from shape_toolkit.features.geodesics import relative_geodesic_neighbourhood
+
+    smooth = 0
+    for i in ids:
+        if t[i] < 0:
+            continue
+        img = t[relative_geodesic_neighbourhood(src, int(i), r, method="dijkstra")]
+        img = img[img >= 0]
+        ball = relative_geodesic_neighbourhood(tgt, int(t[i]), r, method="dijkstra")
+        smooth += img.size > 0 and np.isin(img, ball).mean() >= theta
+    return 100.0 * smooth / len(ids)
+
+
+def _isometric_copy(shape, seed=0):
+    """A generic (tie-free) copy of ``shape`` and a mirrored, id-shuffled copy of it, with the
+    true map between them: an isometry whose vertex ids are unrelated."""
+    from shape_toolkit.core.shape import Shape
+
+    rng = np.random.default_rng(seed)
+    v = shape.vertices + rng.normal(scale=0.01, size=shape.vertices.shape)
+    src = Shape(v, shape.faces)
+    perm = rng.permutation(shape.n_vertices)  # new id -> old id
+    new_of = np.argsort(perm)  # old id -> new id
+    tgt = Shape(v[perm] * [-1.0, 1.0, 1.0], new_of[shape.faces][:, ::-1])
+    return src, tgt, new_of
+
+
+def test_r_smoothness_is_isometry_invariant(ico):
+    from shape_toolkit.metrics.correspondence import r_smoothness_table
+
+    rs = (0.5, 2.0, 8.0)
+    src, tgt, truth = _isometric_copy(ico)
+    assert r_smoothness_table(src, tgt, truth, rs, sample=None) == {0.5: 100.0, 2.0: 100.0, 8.0: 100.0}
+    noisy = truth.copy()
+    rng = np.random.default_rng(1)
+    hit = rng.choice(ico.n_vertices, 100, replace=False)
+    noisy[hit] = rng.integers(0, ico.n_vertices, hit.size)
+    noisy[hit[:20]] = -1
+    table = r_smoothness_table(src, tgt, noisy, rs, theta=0.9, sample=None)
+    for r in rs:  # the vectorised table is the definition, vertex by vertex
+        ref = _r_smooth_by_definition(src, tgt, noisy, r, 0.9, np.arange(ico.n_vertices))
+        assert table[r] == pytest.approx(ref)
+        assert table[r] < 100.0
+    assert r_smoothness(src, tgt, noisy, r=2.0, sample=None) == pytest.approx(table[2.0] / 100)
+
+
+def test_r_smoothness_sampling_and_validation(ico):
+    from shape_toolkit.metrics.correspondence import r_smoothness_table
+
+    anti = _antipode(ico)
+    noisy = anti.copy()
+    noisy[::3] = np.random.default_rng(0).permutation(ico.n_vertices)[::3]
+    a = r_smoothness_table(ico, ico, noisy, (2.0,), sample=100, random_state=3)
+    assert a == r_smoothness_table(ico, ico, noisy, (2.0,), sample=100, random_state=3)
+    full = r_smoothness_table(ico, ico, noisy, (2.0,), sample=None)[2.0]
+    assert abs(a[2.0] - full) < 20  # a 100-vertex sample estimates the full value
+    seen = []
+    r_smoothness_table(ico, ico, noisy, (2.0,), sample=10, progress=lambda d, t: seen.append((d, t)))
+    assert seen[-1] == (20, 20)  # one distance row per evaluated vertex on each shape
+    for bad in [dict(rs=()), dict(rs=(0.0,)), dict(rs=(101,)), dict(theta=0.0), dict(theta=1.5),
+                dict(sample=0)]:
+        with pytest.raises(ParameterError):
+            r_smoothness_table(ico, ico, anti, **bad)
+    with pytest.raises(ParameterError):
+        r_smoothness_table(ico, ico, anti[:-1])
+
+
+def test_map_label_scores_and_truth_segments(ico):
+    from shape_toolkit.metrics.correspondence import map_label_scores, truth_segments
+
+    anti = _antipode(ico)
+    ident = np.arange(ico.n_vertices)
+    # truth through the antipodal isometry: the target's segments are the source's, moved
+    ls, lt = truth_segments(ico, ico, ident, anti, n_segments=6)
+    assert sorted(np.unique(ls)) == list(range(6)) and (lt[anti] == ls).all()
+    s = map_label_scores(anti, ls, lt, ico)
+    assert s["recall"] == 1.0 and s["precision"] == 1.0 and s["filled"] == 0.0
+    wrong = map_label_scores(ident, ls, lt, ico)  # the identity is wrong for this truth
+    assert wrong["recall"] < 0.5
+    half = anti.copy()
+    half[::2] = -1  # half the source unmatched: holes on the target
+    s_fill = map_label_scores(half, ls, lt, ico)
+    s_hole = map_label_scores(half, ls, lt)
+    assert s_fill["filled"] > 0.3 and s_fill["recall"] > 0.85
+    assert s_hole["filled"] == 0.0 and s_hole["precision"] == 1.0 and s_hole["recall"] < 0.6
+    with pytest.raises(ParameterError):
+        map_label_scores(anti, ls[:-1], lt)
+    with pytest.raises(ParameterError):
+        truth_segments(ico, ico, ident, anti, n_segments=0)

@@ -159,3 +159,83 @@ def test_other_components_are_unreachable(method):
     assert np.all(np.isfinite(near))
     np.testing.assert_allclose(near[:n], d[0, :n], rtol=0.1, atol=0.05)
     np.testing.assert_allclose(near[n:], d[1, n:], rtol=0.1, atol=0.05)
+
+
+# -- nearest vertices, Voronoi cells, farthest points, time limit and progress -----------------
+@pytest.mark.parametrize("method", ["dijkstra", "heat"])
+def test_geodesic_nearest_equals_sorting_full_rows(sphere3, method):
+    src = np.array([0, 37, 200, 641, 37])
+    full = g.geodesic_distances(sphere3, src, method=method, cache=False)
+    for count in (1, 7, 40):
+        near = g.geodesic_nearest(sphere3, src, count, method=method)
+        assert near.shape == (src.size, count)
+        for k, s in enumerate(src):
+            np.testing.assert_array_equal(near[k], g.order_by_distance(full[k], s)[:count])
+            assert near[k, 0] == s
+
+
+def test_geodesic_nearest_pads_small_components():
+    a = icosphere(1)
+    n = a.n_vertices
+    two = Shape(np.r_[a.vertices, a.vertices + [5.0, 0, 0]], np.r_[a.faces, a.faces + n])
+    near = g.geodesic_nearest(two, [0], n + 3)
+    assert set(near[0, :n]) == set(range(n)) and (near[0, n:] == -1).all()
+
+
+def test_nearest_source_is_the_geodesic_voronoi_cell(sphere3):
+    src = np.array([3, 100, 400])
+    owner = g.nearest_source(sphere3, src)
+    rows = g.geodesic_distances(sphere3, src, method="dijkstra", cache=False)
+    best = rows.min(axis=0)
+    assert set(np.unique(owner)) == set(src)
+    np.testing.assert_allclose(rows[np.searchsorted(src, owner), np.arange(sphere3.n_vertices)], best)
+
+
+def test_geodesic_farthest_points(sphere3):
+    pts = g.geodesic_farthest_points(sphere3, 6, start=5)
+    assert pts[0] == 5 and np.unique(pts).size == 6
+    for k in range(1, 6):  # each point is the farthest from those before it
+        d = g.geodesic_distances(sphere3, pts[:k], method="dijkstra", cache=False).min(axis=0)
+        assert d[pts[k]] == pytest.approx(d.max())
+    assert g.geodesic_farthest_points(sphere3, 4).tolist() == g.geodesic_farthest_points(sphere3, 4).tolist()
+    with pytest.raises(ParameterError):
+        g.geodesic_farthest_points(sphere3, 0)
+
+
+def test_progress_counts_every_solved_source(sphere3):
+    seen = []
+    g.geodesic_distances(sphere3, [1, 2, 3, 2], method="heat", cache=False,
+                         progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(1, 3), (2, 3), (3, 3)]  # the repeated source is solved once
+    seen.clear()
+    g.geodesic_distances(sphere3, np.arange(300), method="dijkstra", cache=False,
+                         progress=lambda done, total: seen.append((done, total)))
+    assert seen[-1] == (300, 300) and len(seen) == 2  # blocks of 256 sources
+
+
+def test_time_limit_raises_the_typed_error(sphere3):
+    from shape_toolkit.errors import TimeLimitError
+
+    with pytest.raises(TimeLimitError, match="time limit of 1e-06 s exceeded after 1 of 5 sources"):
+        g.geodesic_distances(sphere3, [0, 1, 2, 3, 4], method="exact", cache=False, time_limit=1e-6)
+    # a generous limit changes nothing
+    d = g.geodesic_distances(sphere3, [0, 1], method="exact", cache=False, time_limit=1e6)
+    np.testing.assert_allclose(d, g.geodesic_distances(sphere3, [0, 1], method="exact", cache=False))
+    for bad in (0, -1.0, float("nan"), True):
+        with pytest.raises(ParameterError):
+            g.geodesic_distances(sphere3, [0], method="dijkstra", time_limit=bad)
+
+
+def test_time_limit_projection_stops_hopeless_runs_early():
+    from shape_toolkit.errors import TimeLimitError
+
+    b = g.GeodesicBudget(time_limit=100.0, total=1000)
+    b.t0 -= 2.0  # as if 2 s had passed: 3 sources in 2 s project 667 s for 1000, over 2 x 100 s
+    b.tick()
+    b.tick()
+    with pytest.raises(TimeLimitError, match=r"3 of 1000 sources took .* about 6\d\d s for all"):
+        b.tick()
+    ok = g.GeodesicBudget(time_limit=100.0, total=10)
+    ok.t0 -= 2.0
+    for _ in range(10):  # 10 sources in 2 s: well inside the limit
+        ok.tick()

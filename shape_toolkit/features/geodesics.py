@@ -14,12 +14,19 @@ Methods of :func:`geodesic_distances`:
 
 Distances are in the shape's length units. Rows (one per source vertex) are cached by shape
 content and method, so a benchmark that asks twice computes once.
+
+Long solves (exact geodesics take about a second per source on a 5,000-vertex mesh) take a
+:class:`GeodesicBudget`: a time limit, checked after every source, that raises
+:class:`~shape_toolkit.errors.TimeLimitError` when it is passed or when the projected total is
+clearly over it, and a ``progress(done, total)`` callback (the library itself never prints).
 """
 
 from __future__ import annotations
 
+import math
+import time
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -29,11 +36,12 @@ from scipy.sparse.csgraph import dijkstra as _csgraph_dijkstra
 
 from shape_toolkit.core.graph import edge_length_graph
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.errors import InvalidShapeError, ParameterError, SolverError
+from shape_toolkit.errors import InvalidShapeError, ParameterError, SolverError, TimeLimitError
 from shape_toolkit.validation import check_vertex_ids
 
 __all__ = [
     "GEODESIC_METHODS",
+    "GeodesicBudget",
     "geodesic_distances",
     "geodesic_distance_to_set",
     "adjacency",
@@ -41,6 +49,11 @@ __all__ = [
     "k_ring_all",
     "ring_maxima",
     "relative_geodesic_neighbourhood",
+    "relative_neighbourhood_size",
+    "geodesic_nearest",
+    "nearest_source",
+    "geodesic_farthest_points",
+    "order_by_distance",
     "clear_geodesic_cache",
 ]
 
@@ -54,6 +67,78 @@ _ROW_ENTRIES = 0
 _SOLVERS: OrderedDict[tuple[str, str], Any] = OrderedDict()
 _SOLVERS_MAX = 8
 _KNN_NEIGHBORS = 8
+
+
+#: sources solved in one call of scipy's Dijkstra between two budget checks
+_DIJKSTRA_BLOCK = 256
+
+
+class GeodesicBudget:
+    """Time limit and progress shared by the geodesic solves of one job (possibly several
+    :func:`geodesic_distances` calls): ``time_limit`` in seconds (None: no limit), ``total`` the
+    number of sources the job will solve (for the projection and the progress fraction; None when
+    unknown), ``progress(done, total)`` called after each solved source or block of sources.
+
+    :meth:`tick` raises :class:`TimeLimitError` once the elapsed time passes ``time_limit``, or
+    earlier, after at least 3 sources, when the projected total (elapsed / done * total) is more
+    than twice the limit: a run that would take far too long fails within seconds, not minutes.
+    """
+
+    #: sources solved before the projection may stop a run
+    MIN_SOURCES_FOR_PROJECTION = 3
+    #: the projection stops a run when it exceeds the limit by this factor
+    PROJECTION_FACTOR = 2.0
+
+    def __init__(
+        self,
+        time_limit: float | None = None,
+        total: int | None = None,
+        progress: Callable[[int, int | None], None] | None = None,
+        what: str = "geodesics",
+    ):
+        if time_limit is not None:
+            if isinstance(time_limit, bool) or not isinstance(time_limit, (int, float)) or not (
+                math.isfinite(time_limit) and time_limit > 0
+            ):
+                raise ParameterError(f"time_limit must be a positive number of seconds, got {time_limit!r}")
+        self.time_limit = None if time_limit is None else float(time_limit)
+        self.total = None if total is None else int(total)
+        self.progress = progress
+        self.what = what
+        self.done = 0
+        self.t0 = time.perf_counter()
+
+    @property
+    def elapsed(self) -> float:
+        """Seconds since the budget was created."""
+        return time.perf_counter() - self.t0
+
+    def tick(self, n: int = 1) -> None:
+        """Count ``n`` solved sources, report progress, and enforce the time limit."""
+        self.done += int(n)
+        if self.progress is not None:
+            self.progress(self.done, self.total)
+        self.check()
+
+    def check(self) -> None:
+        """Raise :class:`TimeLimitError` when the limit is passed or clearly will be."""
+        if self.time_limit is None:
+            return
+        el = self.elapsed
+        of = f" of {self.total}" if self.total else ""
+        if el > self.time_limit:
+            raise TimeLimitError(
+                f"{self.what}: time limit of {self.time_limit:g} s exceeded after {self.done}{of} sources "
+                f"({el:.1f} s); use a faster geodesic method (heat, fmm, dijkstra) or a larger time limit"
+            )
+        if self.total and self.done >= self.MIN_SOURCES_FOR_PROJECTION and self.done < self.total:
+            projected = el / self.done * self.total
+            if projected > self.PROJECTION_FACTOR * self.time_limit:
+                raise TimeLimitError(
+                    f"{self.what}: {self.done}{of} sources took {el:.1f} s, about {projected:.0f} s for all, "
+                    f"over the time limit of {self.time_limit:g} s; use a faster geodesic method "
+                    "(heat, fmm, dijkstra) or a larger time limit"
+                )
 
 
 def clear_geodesic_cache() -> None:
@@ -103,12 +188,19 @@ def _components(shape: Shape) -> np.ndarray:
     return _SOLVERS[key]
 
 
-def _compute_rows(shape: Shape, sources: np.ndarray, method: str) -> np.ndarray:
+def _compute_rows(
+    shape: Shape, sources: np.ndarray, method: str, budget: GeodesicBudget | None = None
+) -> np.ndarray:
     n = shape.n_vertices
     solver = _solver(shape, method)
     out = np.empty((sources.size, n))
     if method == "dijkstra":
-        out[:] = _csgraph_dijkstra(solver, directed=False, indices=sources)
+        block = sources.size if budget is None else _DIJKSTRA_BLOCK
+        for b in range(0, sources.size, block):
+            idx = sources[b : b + block]
+            out[b : b + idx.size] = _csgraph_dijkstra(solver, directed=False, indices=idx)
+            if budget is not None:
+                budget.tick(idx.size)
         return out
     labels = _components(shape)
     for r, s in enumerate(sources):
@@ -128,6 +220,8 @@ def _compute_rows(shape: Shape, sources: np.ndarray, method: str) -> np.ndarray:
             raise SolverError(f"{method} geodesics returned {d.shape[0]} values for {n} vertices")
         d[labels != labels[s]] = np.inf  # libigl says 0 and the heat method guesses there
         out[r] = d
+        if budget is not None:
+            budget.tick()
     return out
 
 
@@ -150,10 +244,15 @@ def geodesic_distances(
     *,
     method: str = "exact",
     cache: bool = True,
+    time_limit: float | None = None,
+    progress: Callable[[int, int | None], None] | None = None,
+    budget: GeodesicBudget | None = None,
 ) -> np.ndarray:
     """Geodesic distances from each source vertex, float64 ``(len(sources), n)`` or
     ``(len(sources), len(targets))``, in length units; ``method`` in :data:`GEODESIC_METHODS`.
-    Unreachable vertices (other components) get ``inf``."""
+    Unreachable vertices (other components) get ``inf``. ``time_limit`` (seconds) and
+    ``progress(done, total)`` make a :class:`GeodesicBudget` for this call (``budget`` shares one
+    across calls); past the limit :class:`~shape_toolkit.errors.TimeLimitError` is raised."""
     global _ROW_ENTRIES
     _check_method(shape, method)
     n = shape.n_vertices
@@ -169,9 +268,13 @@ def geodesic_distances(
             rows[r] = hit
         else:
             todo.append(r)
+    if budget is None and (time_limit is not None or progress is not None):
+        budget = GeodesicBudget(
+            time_limit, int(np.unique(src[todo]).size) if todo else 0, progress, f"{method} geodesics"
+        )
     if todo:
         uniq, inv = np.unique(src[todo], return_inverse=True)
-        new = _compute_rows(shape, uniq, method)
+        new = _compute_rows(shape, uniq, method, budget)
         rows[todo] = new[inv]
         if cache and n <= CACHE_MAX_ENTRIES:
             for s, row in zip(uniq, new):
@@ -303,21 +406,124 @@ def ring_maxima(
     return peaks[np.argsort(-rank[peaks], kind="stable")].astype(np.int64)
 
 
+def relative_neighbourhood_size(r_percent: float, n: int) -> int:
+    """Size ``ceil(r_percent / 100 * n)`` (at least 1) of the relative r-neighbourhood of thesis
+    section 7.5.2 on a shape of ``n`` vertices; ``r_percent`` in (0, 100]."""
+    r = float(r_percent)
+    if not np.isfinite(r) or not 0 < r <= 100:
+        raise ParameterError(f"r_percent must be in (0, 100], got {r_percent!r}")
+    return max(1, int(np.ceil(r / 100.0 * n - 1e-9)))
+
+
+def order_by_distance(distances: np.ndarray, vertex: int) -> np.ndarray:
+    """Vertex ids ``(n,)`` int64 sorted by the distance row ``distances`` ``(n,)`` from
+    ``vertex``: itself first (even with a zero-length edge), ties broken by the smaller id."""
+    d = np.array(distances, dtype=np.float64, copy=True).ravel()
+    d[int(vertex)] = -1.0
+    return np.lexsort((np.arange(d.size), d)).astype(np.int64)
+
+
+def geodesic_nearest(
+    shape: Shape,
+    sources: Sequence[int] | np.ndarray,
+    count: int,
+    *,
+    method: str = "dijkstra",
+    budget: GeodesicBudget | None = None,
+    chunk: int = 64,
+) -> np.ndarray:
+    """The ``count`` vertices geodesically closest to each source, int64 ``(len(sources), count)``,
+    sorted as :func:`order_by_distance` (the source first, ties by id); ``-1`` pads a row whose
+    component has fewer vertices. With ``"dijkstra"`` the search stops at a radius estimated from
+    the area that ``count`` vertices cover (a row that did not reach ``count`` vertices strictly
+    inside it is searched again without limit), so the answer is exact and the cost local."""
+    n = shape.n_vertices
+    src = check_vertex_ids(sources, n, "sources")
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or not 1 <= count <= n:
+        raise ParameterError(f"count must be an integer in [1, {n}], got {count!r}")
+    _check_method(shape, method)
+    count = int(count)
+    out = np.full((src.size, count), -1, dtype=np.int64)
+
+    def fill(rows: np.ndarray, block: np.ndarray, at: int) -> None:
+        for k in range(block.size):  # order_by_distance, on the reached vertices only
+            cand = np.flatnonzero(np.isfinite(rows[k]))
+            d = rows[k][cand]
+            d[cand == block[k]] = -1.0
+            order = cand[np.lexsort((cand, d))][:count]
+            out[at + k, : order.size] = order
+
+    if method != "dijkstra" or count >= n:
+        for b in range(0, src.size, chunk):
+            block = src[b : b + chunk]
+            fill(geodesic_distances(shape, block, method=method, cache=False, budget=budget), block, b)
+        return out
+    G = _solver(shape, "dijkstra")
+    area = shape.area if shape.is_mesh else 0.0
+    step = float(np.median(G.data)) if G.nnz else 0.0
+    # twice the radius of a geodesic disc holding count / n of the area, plus two typical edges
+    radius = 2.0 * np.sqrt(count / n * area / np.pi) + 2.0 * step if area > 0 else np.inf
+    for b in range(0, src.size, chunk):
+        block = src[b : b + chunk]
+        rows = np.asarray(_csgraph_dijkstra(G, directed=False, indices=block, limit=radius))
+        for k in range(block.size):
+            fin = np.flatnonzero(np.isfinite(rows[k]))
+            if fin.size < count or np.partition(rows[k][fin], count - 1)[count - 1] >= radius:
+                rows[k] = _csgraph_dijkstra(G, directed=False, indices=int(block[k]))
+        fill(rows, block, b)
+        if budget is not None:
+            budget.tick(block.size)
+    return out
+
+
 def relative_geodesic_neighbourhood(
     shape: Shape, vertex: int, r_percent: float, *, method: str = "fmm"
 ) -> np.ndarray:
     """The ``ceil(r_percent / 100 * n)`` vertices geodesically closest to ``vertex`` (itself
-    first), sorted by distance: the relative r-neighbourhood of thesis section 7.5.2, int64."""
+    first), sorted by distance (ties by id): the relative r-neighbourhood of thesis section 7.5.2,
+    int64."""
     n = shape.n_vertices
     v = int(check_vertex_ids([vertex], n, "vertex")[0])
-    r = float(r_percent)
-    if not np.isfinite(r) or not 0 < r <= 100:
-        raise ParameterError(f"r_percent must be in (0, 100], got {r_percent!r}")
-    count = max(1, int(np.ceil(r / 100.0 * n - 1e-9)))
-    d = geodesic_distances(shape, [v], method=method)[0]
-    d[v] = -1.0  # the vertex itself first, even with a zero-length edge
-    if count < n:
-        part = np.argpartition(d, count - 1)[:count]
-    else:
-        part = np.arange(n)
-    return part[np.lexsort((part, d[part]))].astype(np.int64)
+    count = relative_neighbourhood_size(r_percent, n)
+    row = geodesic_nearest(shape, [v], count, method=method)[0]
+    return row[row >= 0]
+
+
+def nearest_source(shape: Shape, sources: Sequence[int] | np.ndarray) -> np.ndarray:
+    """For every vertex the nearest of ``sources`` along the mesh edges (kNN graph for point
+    clouds): int64 ``(n,)`` vertex ids, ``-1`` where no source is reachable. These are the
+    geodesic (edge-path) Voronoi cells of the sources; one multi-source Dijkstra."""
+    n = shape.n_vertices
+    src = np.unique(check_vertex_ids(sources, n, "sources"))
+    if src.size == 0:
+        raise ParameterError("nearest_source needs at least one source vertex")
+    _, _, owner = _csgraph_dijkstra(
+        _solver(shape, "dijkstra"), directed=False, indices=src, min_only=True, return_predecessors=True
+    )
+    owner = np.asarray(owner, dtype=np.int64)
+    owner[owner < 0] = -1
+    return owner
+
+
+def geodesic_farthest_points(shape: Shape, n_points: int, start: int | None = None) -> np.ndarray:
+    """``n_points`` vertex ids (int64) spread by farthest point sampling along the mesh edges
+    (Dijkstra): the first is ``start`` (default the vertex farthest from vertex 0), each next one
+    the vertex farthest from those chosen (a vertex of a component not reached yet comes first, so
+    every component gets a point while points last). Deterministic."""
+    n = shape.n_vertices
+    if isinstance(n_points, bool) or not isinstance(n_points, (int, np.integer)) or not 1 <= n_points <= n:
+        raise ParameterError(f"n_points must be an integer in [1, {n}], got {n_points!r}")
+    G = _solver(shape, "dijkstra")
+    if start is None:
+        d0 = _csgraph_dijkstra(G, directed=False, indices=0)
+        start = int(np.argmax(np.where(np.isfinite(d0), d0, -1.0)))
+    first = int(check_vertex_ids([start], n, "start")[0])
+    chosen = [first]
+    d = np.asarray(_csgraph_dijkstra(G, directed=False, indices=first), dtype=np.float64)
+    for _ in range(int(n_points) - 1):
+        score = np.where(np.isfinite(d), d, np.finfo(np.float64).max)
+        score[chosen] = -1.0
+        nxt = int(np.argmax(score))
+        chosen.append(nxt)
+        d = np.minimum(d, _csgraph_dijkstra(G, directed=False, indices=nxt))
+    return np.asarray(chosen, dtype=np.int64)
