@@ -14,7 +14,8 @@ import errno
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -35,7 +36,7 @@ from shape_toolkit.bench.worker import execute_job, lost_row, prepare_job
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.validation import dumps_json
 
-__all__ = ["RunSummary", "run_benchmark", "run_local", "run_dask"]
+__all__ = ["RunSummary", "run_benchmark", "run_local", "run_dask", "dask_client"]
 
 
 @dataclass
@@ -173,28 +174,9 @@ def run_dask(
     log: Callable[[dict], None],
 ) -> None:
     """On a local Dask cluster of ``workers`` processes, or on the scheduler at ``scheduler``."""
-    import logging
+    from distributed import as_completed
 
-    from distributed import Client, LocalCluster, as_completed
-
-    cluster = None
-    for name in ("distributed", "distributed.worker", "distributed.scheduler", "distributed.nanny"):
-        logging.getLogger(name).setLevel(logging.ERROR)
-    if scheduler is None:
-        cluster = LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address=None,
-            silence_logs=logging.ERROR,
-        )
-        client = Client(cluster)
-    else:
-        client = Client(scheduler, timeout="30s")
-    try:
-        # workers must import the same toolkit: forward sys.path entries of this process
-        client.run(_extend_path, [p for p in sys.path if p])
+    with dask_client(workers, scheduler) as client:
         pfuts = {k: client.submit(prepare_job, p, key=f"prepare-{k}", pure=False) for k, p in preps.items()}
         by_key = {f"row-{j.key}": j for j in todo}
         rfuts = [
@@ -214,6 +196,36 @@ def run_dask(
                         log(pf.result())
                     except Exception as exc:  # pragma: no cover - the worker died while preparing
                         log({"key": k, "error": f"worker lost: {type(exc).__name__}: {exc}", "spectra": []})
+
+
+@contextmanager
+def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[Any]:
+    """A ``distributed.Client``: on a local cluster of ``workers`` processes (one thread each,
+    loopback, no dashboard) or on the scheduler at ``scheduler`` (``tcp://host:port``); workers get
+    this process's ``sys.path`` so they import the same toolkit. Closed (and the local cluster
+    shut down) on exit."""
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    cluster = None
+    for name in ("distributed", "distributed.worker", "distributed.scheduler", "distributed.nanny"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    if scheduler is None:
+        cluster = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+        )
+        client = Client(cluster)
+    else:
+        client = Client(scheduler, timeout="30s")
+    try:
+        client.run(_extend_path, [p for p in sys.path if p])
+        yield client
     finally:
         client.close()
         if cluster is not None:

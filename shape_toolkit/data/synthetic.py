@@ -4,12 +4,15 @@ A sphere is mapped onto a "body with limbs": each limb is a spherical cap of the
 smoothly mapped onto a capsule. Because the map is a deformation of one closed sphere, the
 result is a closed, connected, manifold triangle mesh. Poses bend each limb at its joint by linear
 blend skinning, so every pose keeps the vertex order: the ground-truth map between two poses
-is the identity, and limb labels give a ground-truth segmentation.
+is the identity, and limb labels give a ground-truth segmentation. :func:`pose_sequence` makes a
+smoothly moving sequence of such poses, with the feet glued together in chosen frames (thesis
+7.5.3) and the ground truth carried through.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -17,7 +20,16 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.errors import ParameterError
 
-__all__ = ["ArticulatedShape", "articulated_shape", "synthetic_dataset", "procedural_texture", "DEFAULT_LIMBS"]
+__all__ = [
+    "ArticulatedShape",
+    "articulated_shape",
+    "synthetic_dataset",
+    "procedural_texture",
+    "DEFAULT_LIMBS",
+    "PoseSequence",
+    "pose_sequence",
+    "SEQUENCE_LIMB_LENGTHS",
+]
 
 #: unit directions of the limbs of the default "starfish-humanoid" (two arms, two legs, head)
 DEFAULT_LIMBS = np.array(
@@ -82,14 +94,19 @@ def articulated_shape(
     subdivisions: int = 4,
     limbs: np.ndarray | None = None,
     cap_angle: float = 0.6,
-    limb_length: float = 1.4,
+    limb_length: float | np.ndarray = 1.4,
     limb_radius: float = 0.28,
     random_state: int | None = None,
     texture_seed: int = 0,
+    bend_axes: np.ndarray | None = None,
 ) -> ArticulatedShape:
     """An articulated mesh with one limb per row of ``limbs`` ``(L, 3)``, bent by ``angles`` ``(L,)``.
     ``colors``: :func:`procedural_texture` of the rest sphere (seed ``texture_seed``), the same
     for every pose.
+
+    ``limb_length``: one length for every limb, or one per limb ``(L,)``. ``bend_axes`` ``(L, 3)``:
+    the axis each joint turns about (its component along the limb is removed); default a fixed
+    perpendicular of the limb (limbs in the xy-plane then bend out of it).
 
     ``subdivisions`` sets the resolution (4: 2,562 vertices; 5: 10,242). ``random_state`` draws
     random bend angles in [-1, 1] rad when ``angles`` is None (zero angles when both are None).
@@ -107,8 +124,22 @@ def articulated_shape(
     angles = np.asarray(angles, dtype=np.float64).ravel()
     if angles.shape != (len(dirs),):
         raise ParameterError(f"angles must have one value per limb ({len(dirs)})")
-    if not 0 < cap_angle < 1.2 or limb_length <= 0 or not 0 < limb_radius < np.sin(cap_angle):
+    lengths = np.broadcast_to(np.asarray(limb_length, dtype=np.float64), (len(dirs),)) \
+        if np.ndim(limb_length) == 0 else np.asarray(limb_length, dtype=np.float64).ravel()
+    if lengths.shape != (len(dirs),) or not np.all(np.isfinite(lengths)):
+        raise ParameterError(f"limb_length must be a number or one finite length per limb ({len(dirs)})")
+    if not 0 < cap_angle < 1.2 or np.any(lengths <= 0) or not 0 < limb_radius < np.sin(cap_angle):
         raise ParameterError("need 0 < cap_angle < 1.2, limb_length > 0, limb_radius < sin(cap_angle)")
+    axes = None
+    if bend_axes is not None:
+        axes = np.asarray(bend_axes, dtype=np.float64)
+        if axes.shape != dirs.shape:
+            raise ParameterError(f"bend_axes must have shape {dirs.shape}, got {axes.shape}")
+        axes = axes - (axes * dirs).sum(axis=1, keepdims=True) * dirs
+        norms = np.linalg.norm(axes, axis=1)
+        if not np.all(np.isfinite(norms)) or np.any(norms < 1e-9):
+            raise ParameterError("every bend axis must be finite and not parallel to its limb")
+        axes = axes / norms[:, None]
     cosines = dirs @ dirs.T - 2 * np.eye(len(dirs))
     if np.any(np.arccos(np.clip(cosines, -1, 1)) < 2 * cap_angle):
         raise ParameterError("limbs are too close to each other for this cap_angle")
@@ -119,6 +150,7 @@ def articulated_shape(
     labels = np.zeros(len(p), dtype=np.int64)
     rim_h, rim_r = np.cos(cap_angle), np.sin(cap_angle)
     for j, d in enumerate(dirs):
+        limb_length = float(lengths[j])
         e1, e2 = _perp(d)
         theta = np.arccos(np.clip(p @ d, -1.0, 1.0))
         inside = np.flatnonzero(theta < cap_angle)
@@ -144,7 +176,7 @@ def articulated_shape(
         out[inside] = h[:, None] * d + r[:, None] * radial
         # bend at the joint (middle of the tube) with a smooth blend over +-0.15 limb lengths
         joint_h = rim_h + 0.55 * limb_length
-        R = _rotation(e1, angles[j])
+        R = _rotation(e1 if axes is None else axes[j], angles[j])
         wgt = np.clip((h - joint_h) / (0.3 * limb_length) + 0.5, 0.0, 1.0)
         wgt = wgt * wgt * (3 - 2 * wgt)
         local = out[inside] - joint_h * d
@@ -178,3 +210,210 @@ def synthetic_dataset(
         out.append(ArticulatedShape(Shape(a.shape.vertices, a.shape.faces, f"pose{i}"), a.labels, a.angles,
                                     a.colors))
     return out
+
+
+#: distinct limb lengths of :func:`pose_sequence` (right arm, left arm, right leg, left leg, head):
+#: identical limbs would make limb swaps as good as the truth for an intrinsic matcher
+SEQUENCE_LIMB_LENGTHS = np.array([1.4, 1.2, 1.55, 1.35, 0.8])
+
+
+@dataclass(frozen=True, eq=False)
+class PoseSequence:
+    """``T`` frames of one articulated shape in motion, with exact ground truth.
+
+    ``frames``: the shapes a matcher sees (glued in merge frames, vertices shuffled with
+    ``permute``). ``colors``: per frame RGB ``(n_t, 3)`` in [0, 1] of the procedural texture,
+    which moves with the surface. ``material``: per frame int64 ``(n_t,)``, the material point
+    (vertex of the clean mesh) each vertex of the frame is. ``clean``: the unglued, unshuffled
+    frames (vertex ``i`` = material point ``i`` in every frame), where drift is measured.
+    ``labels`` ``(n,)``: part of each material point (0 body, ``j + 1`` limb ``j``); ``angles``
+    ``(T, L)`` bend angles (rad); ``contacts``: glued contacts per frame (0: not merged)."""
+
+    frames: tuple[Shape, ...]
+    colors: tuple[np.ndarray, ...]
+    material: tuple[np.ndarray, ...]
+    clean: tuple[Shape, ...]
+    labels: np.ndarray
+    angles: np.ndarray
+    contacts: tuple[int, ...]
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames ``T``."""
+        return len(self.frames)
+
+    def frame_labels(self, t: int) -> np.ndarray:
+        """Part labels ``(n_t,)`` of the vertices of frame ``t``."""
+        return self.labels[self.material[t]]
+
+    def truth(self) -> np.ndarray:
+        """Ground-truth trajectories: int64 ``(n_0, T)``, the vertex of frame ``t`` that is the
+        material point of vertex ``j`` of frame 0. A point welded away by a glued contact goes
+        to the vertex nearest to it on the clean frame (within two mean edge lengths, else -1;
+        ``data.corruptions.invert_vertex_map``)."""
+        from shape_toolkit.data.corruptions import invert_vertex_map
+
+        m0 = self.material[0]
+        out = np.empty((m0.size, self.n_frames), dtype=np.int64)
+        for t in range(self.n_frames):
+            inv = invert_vertex_map(self.material[t], self.clean[t], resampled=self.contacts[t] > 0)
+            out[:, t] = inv[m0]
+        return out
+
+    def drift(
+        self, trajectories: Any, *, method: str = "dijkstra", radius: float = 0.05, sample: int | None = None
+    ) -> dict[str, Any]:
+        """Per-frame drift of ``trajectories`` (``Trajectories`` or ids ``(n_0, T)`` on
+        :attr:`frames`) against the truth, measured on the clean frames
+        (``results.trajectories.trajectory_drift``, units of ``sqrt(area)``). Material points
+        welded away in a glued frame have no true vertex there and are left out of that frame."""
+        from shape_toolkit.results.trajectories import trajectory_drift
+
+        m0 = self.material[0]
+        truth = np.stack([np.where(np.isin(m0, m), m0, -1) for m in self.material], axis=1)
+        return trajectory_drift(trajectories, self.clean, truth, vertex_maps=self.material,
+                                method=method, radius=radius, sample=sample)
+
+
+def _smooth_curves(rng: np.random.RandomState, n_frames: int, n_curves: int, max_angle: float) -> np.ndarray:
+    """``(n_frames, n_curves)`` angles: random keys in ``[-max_angle, max_angle]`` every ~3 frames,
+    joined by monotone cubic (PCHIP) interpolation, so the motion is smooth and stays in range."""
+    from scipy.interpolate import PchipInterpolator
+
+    n_keys = max(2, int(np.ceil((n_frames - 1) / 3)) + 1)
+    knots = np.linspace(0.0, n_frames - 1, n_keys)
+    keys = rng.uniform(-max_angle, max_angle, size=(n_keys, n_curves))
+    return PchipInterpolator(knots, keys, axis=0)(np.arange(n_frames, dtype=np.float64))
+
+
+def _contact_angle(
+    pair: tuple[int, int], dirs: np.ndarray, lengths: np.ndarray, axes: np.ndarray, subdivisions: int
+) -> tuple[float, float]:
+    """``(angle, gap)``: the bend angle (rad, in [1.2, 2.6]) of both limbs of ``pair`` at which
+    their lower halves (beyond the joints) come closest while staying at least 1.3 times as far
+    from the body (so the feet touch each other, not the crotch), found by a scan with only
+    those joints bent; and that smallest vertex-to-vertex gap (length units)."""
+    from scipy.spatial import cKDTree
+
+    rest = articulated_shape(np.zeros(len(dirs)), subdivisions=subdivisions, limbs=dirs,
+                             limb_length=lengths, bend_axes=axes)
+    lower = []
+    for j in pair:
+        h = rest.shape.vertices @ dirs[j]
+        lower.append(np.flatnonzero((rest.labels == j + 1) & (h > np.cos(0.6) + 0.55 * lengths[j])))
+    best, best_gap = 2.0, np.inf
+    for a in np.linspace(1.2, 2.6, 29):
+        ang = np.zeros(len(dirs))
+        ang[list(pair)] = a
+        a_shape = articulated_shape(ang, subdivisions=subdivisions, limbs=dirs, limb_length=lengths,
+                                    bend_axes=axes)
+        v = a_shape.shape.vertices
+        gap = float(cKDTree(v[lower[1]]).query(v[lower[0]])[0].min())
+        body = cKDTree(v[a_shape.labels == 0])
+        to_body = min(float(body.query(v[ids])[0].min()) for ids in lower)
+        if gap < best_gap and to_body >= 1.3 * gap:
+            best, best_gap = float(a), gap
+    return best, best_gap
+
+
+def pose_sequence(
+    n_frames: int = 8,
+    *,
+    subdivisions: int = 3,
+    merge_frames: tuple[int, ...] | list[int] = (),
+    max_angle: float = 0.8,
+    limb_lengths: np.ndarray | None = None,
+    permute: bool = False,
+    texture_seed: int = 0,
+    random_state: Any = 0,
+) -> PoseSequence:
+    """A smoothly moving articulated shape whose feet are glued together in ``merge_frames``.
+
+    Every joint follows a smooth curve through random key angles in ``[-max_angle, max_angle]``
+    rad (PCHIP, keys every ~3 frames); the legs bend in the body's plane (inwards for positive
+    angles), the arms and head out of it. Around each merge frame both knees bend inwards
+    (raised-cosine blend over +-2 frames) to the angle where the feet come closest (a scan of
+    the pose); in the merge frame itself that contact is welded with ``data.corruptions.glue``
+    (one contact of patches of radius ``0.06 sqrt(area)``, about a limb's radius; every vertex a
+    candidate; gap at most 1.5 times the closest approach; parts
+    more than ``0.3 sqrt(area)`` apart along the surface), as a visual hull fuses touching
+    parts. Limbs have distinct lengths (``limb_lengths``, default
+    :data:`SEQUENCE_LIMB_LENGTHS`; pass five equal ones for the symmetric body of
+    :func:`articulated_shape`). ``permute`` shuffles the vertex order of every frame (faces
+    renumbered), so a map must be found, not assumed. ``subdivisions`` 3: 642 vertices per
+    clean frame, 4: 2,562. All randomness (angles, glue sampling,
+    permutations) comes from ``random_state``.
+    """
+    from shape_toolkit.data.corruptions import glue
+    from shape_toolkit.validation import check_random_state
+
+    if not isinstance(n_frames, (int, np.integer)) or isinstance(n_frames, bool) or n_frames < 2:
+        raise ParameterError(f"n_frames must be an integer >= 2, got {n_frames!r}")
+    if not 0 <= max_angle <= 1.5:
+        raise ParameterError(f"max_angle must be in [0, 1.5] rad, got {max_angle}")
+    merges = sorted({int(m) for m in merge_frames})
+    if merges and (merges[0] < 0 or merges[-1] >= n_frames):
+        raise ParameterError(f"merge_frames must lie in [0, {n_frames - 1}], got {list(merge_frames)}")
+    rng = check_random_state(random_state)
+    dirs = DEFAULT_LIMBS / np.linalg.norm(DEFAULT_LIMBS, axis=1, keepdims=True)
+    lengths = SEQUENCE_LIMB_LENGTHS if limb_lengths is None else np.asarray(limb_lengths, dtype=np.float64)
+    if lengths.shape != (len(dirs),):
+        raise ParameterError(f"limb_lengths must hold {len(dirs)} lengths, got shape {lengths.shape}")
+    # legs (limbs 2, 3) turn in the body's plane, towards the midline for positive angles
+    axes = np.array([np.cross(d, [-np.sign(d[0]), 0.0, 0.0]) if j in (2, 3) else _perp(d)[0]
+                     for j, d in enumerate(dirs)])
+    angles = _smooth_curves(rng, int(n_frames), len(dirs), max_angle)
+    if merges:
+        reach = np.zeros(n_frames)
+        for m in merges:
+            x = np.abs(np.arange(n_frames) - m) / 2.0
+            reach = np.maximum(reach, np.where(x < 1, 0.5 * (1 + np.cos(np.pi * x)), 0.0))
+        contact, gap = _contact_angle((2, 3), dirs, lengths, axes, subdivisions)
+        for j in (2, 3):
+            angles[:, j] = (1 - reach) * angles[:, j] + reach * contact
+    texture = None
+    frames, colors, material, clean, contacts = [], [], [], [], []
+    labels = None
+    for t in range(int(n_frames)):
+        a = articulated_shape(angles[t], subdivisions=subdivisions, limbs=dirs, limb_length=lengths,
+                              bend_axes=axes, texture_seed=texture_seed)
+        if texture is None:
+            texture, labels = a.colors, a.labels
+        base = Shape(a.shape.vertices, a.shape.faces, f"frame{t:03d}")
+        shape, vm = base, np.arange(base.n_vertices, dtype=np.int64)
+        n_contacts = 0
+        if t in merges:
+            limit = 1.5 * gap / np.sqrt(base.area)
+            shape, vm = glue(base, strength=1, radius=0.06, min_geodesic=0.3, max_gap=limit, candidates=base.n_vertices,
+                             random_state=int(rng.randint(0, 2**31 - 1)))
+            shape = Shape(shape.vertices, shape.faces, base.name)
+            n_contacts = _count_contacts(base, vm)
+        if permute:
+            perm = rng.permutation(shape.n_vertices)  # new vertex k is old vertex perm[k]
+            inv = np.empty_like(perm)
+            inv[perm] = np.arange(perm.size)
+            shape = Shape(shape.vertices[perm], inv[shape.faces], shape.name)
+            vm = vm[perm]
+        frames.append(shape)
+        material.append(vm.astype(np.int64))
+        colors.append(texture[vm])
+        clean.append(base)
+        contacts.append(n_contacts)
+    return PoseSequence(tuple(frames), tuple(colors), tuple(material), tuple(clean), labels, angles,
+                        tuple(contacts))
+
+
+def _count_contacts(base: Shape, kept: np.ndarray) -> int:
+    """Number of welded patches: connected groups (along ``base``'s edges) of removed vertices."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    gone = np.setdiff1d(np.arange(base.n_vertices), kept)
+    if gone.size == 0:
+        return 0
+    e = base.edges
+    sel = np.isin(e[:, 0], gone) & np.isin(e[:, 1], gone)
+    pos = np.full(base.n_vertices, -1)
+    pos[gone] = np.arange(gone.size)
+    A = sp.coo_matrix((np.ones(int(sel.sum())), (pos[e[sel, 0]], pos[e[sel, 1]])), shape=(gone.size, gone.size))
+    return int(connected_components(A, directed=False)[0])

@@ -34,6 +34,7 @@ __all__ = [
     "render_shape",
     "render_shapes",
     "save_colored_ply",
+    "render_trajectories",
 ]
 
 _NEUTRAL = np.array([0.75, 0.75, 0.75])
@@ -435,3 +436,142 @@ def show(
                       scene={"aspectmode": "data", "xaxis": {"visible": False}, "yaxis": {"visible": False},
                              "zaxis": {"visible": False}}, showlegend=False)
     return fig
+
+
+def render_trajectories(
+    shapes: list[Shape],
+    trajectories: np.ndarray,
+    path: str | os.PathLike,
+    *,
+    colors: list[np.ndarray | None] | None = None,
+    frames: list[int] | None = None,
+    n_tracks: int = 150,
+    tail: int = 5,
+    panel_size: float = 3.0,
+    dpi: int = 100,
+    fps: float = 3.0,
+    title: str | None = None,
+) -> Path:
+    """Dense trajectories over a sequence, as in thesis Figs. 7.17-7.18: a PNG with the chosen
+    ``frames`` side by side (default all, at most 9 evenly spaced), or an animated GIF (``path``
+    ending in ``.gif``, one frame per sequence frame, ``fps`` frames per second, Pillow).
+
+    ``shapes``: the ``T`` frames; ``trajectories`` int ``(n_0, T)``: vertex of frame ``t`` reached
+    by the trajectory of vertex ``j`` of frame 0 (``-1`` lost). Each frame is drawn with its
+    vertex ``colors`` (``(n_t, 3)`` in [0, 1], e.g. pull-back colours; default grey) and the tails
+    of ``n_tracks`` trajectories (farthest-point sample of frame 0, deterministic) over the last
+    ``tail`` frames as polylines, blue (oldest) to green (current) as in the thesis. All frames
+    share one view: the principal-axes frame of frame 0, the same rule as :func:`render_shape`."""
+    _, plt = _mpl()
+    T = len(shapes)
+    ids = np.asarray(trajectories)
+    if T < 1 or ids.ndim != 2 or ids.shape[1] != T or not np.issubdtype(ids.dtype, np.integer):
+        raise ParameterError(f"trajectories must be an integer (n_0, {T}) array, got {ids.dtype} {ids.shape}")
+    ids = ids.astype(np.int64)
+    if ids.shape[0] != shapes[0].n_vertices:
+        raise ParameterError(f"{ids.shape[0]} trajectories for the {shapes[0].n_vertices} vertices of frame 0")
+    for t, s in enumerate(shapes):
+        if ids[:, t].min() < -1 or ids[:, t].max() >= s.n_vertices:
+            raise ParameterError(f"trajectory ids of frame {t} must lie in [-1, {s.n_vertices - 1}]")
+    if colors is not None and len(colors) != T:
+        raise ParameterError(f"{len(colors)} colour arrays for {T} frames")
+    if n_tracks < 0 or tail < 1:
+        raise ParameterError("need n_tracks >= 0 and tail >= 1")
+    cols = [_colors_for(s, None, None, None if colors is None else colors[t], "viridis") for t, s in enumerate(shapes)]
+    if frames is None:
+        frames = sorted({int(round(x)) for x in np.linspace(0, T - 1, min(T, 9))})
+    frames = [int(f) for f in frames]
+    if not frames or min(frames) < 0 or max(frames) >= T:
+        raise ParameterError(f"frames must be a non-empty list of frame indices in [0, {T - 1}]")
+    # one view for every frame: the affine map that _frame applies to frame 0
+    v0 = shapes[0].vertices
+    c0 = v0.mean(axis=0)
+    lin = np.linalg.lstsq(v0 - c0, _frame(v0), rcond=None)[0]
+    views = [(s.vertices - c0) @ lin for s in shapes]
+    lo = np.min([v.min(axis=0) for v in views], axis=0)
+    hi = np.max([v.max(axis=0) for v in views], axis=0)
+    ext = np.maximum(hi - lo, 1e-3 * max(float((hi - lo).max()), 1e-300))
+    tracks = _spread_tracks(views[0], ids, n_tracks)
+    blue_green = np.array([[0.1, 0.3, 1.0], [0.1, 0.85, 0.2]])
+
+    def draw(ax, t: int) -> None:
+        from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
+
+        ax.computed_zorder = False  # mesh first, trajectories on top
+        v, s = views[t], shapes[t]
+        if s.is_mesh:
+            tri = v[s.faces]
+            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+            light = np.array([0.3, -1.0, 0.6]) / np.linalg.norm([0.3, -1.0, 0.6])
+            fc = np.clip(cols[t][s.faces].mean(axis=1) * (0.35 + 0.65 * np.abs(n @ light))[:, None], 0, 1)
+            ax.add_collection3d(Poly3DCollection(tri, facecolors=fc, edgecolors=fc, linewidths=0.2, zorder=1))
+        else:
+            ax.scatter(v[:, 0], v[:, 1], v[:, 2], c=cols[t], s=2, depthshade=False, zorder=1)
+        segs, segc = [], []
+        first = max(0, t - tail)
+        for k in range(first, t):
+            a, b = ids[tracks, k], ids[tracks, k + 1]
+            ok = (a >= 0) & (b >= 0)
+            segs.append(np.stack([views[k][a[ok]], views[k + 1][b[ok]]], axis=1))
+            w = (k + 1 - first) / max(t - first, 1)
+            segc += [blue_green[0] * (1 - w) + blue_green[1] * w] * int(ok.sum())
+        if segs and sum(len(x) for x in segs):
+            ax.add_collection3d(Line3DCollection(np.concatenate(segs), colors=segc, linewidths=1.2, zorder=5))
+        alive = ids[tracks, t]
+        p = v[alive[alive >= 0]]
+        if len(p):
+            ax.scatter(p[:, 0], p[:, 1], p[:, 2], c=[blue_green[1]], s=4, depthshade=False, zorder=6)
+        ax.set_xlim(lo[0], lo[0] + ext[0])
+        ax.set_ylim(lo[1], lo[1] + ext[1])
+        ax.set_zlim(lo[2], lo[2] + ext[2])
+        ax.set_box_aspect(tuple(ext / ext.max()), zoom=0.95)
+        ax.view_init(elev=12, azim=-90)
+        ax.set_axis_off()
+        ax.set_title(f"frame {t}", fontsize=10, pad=2)
+
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    head = 0.35 if title else 0.0
+    if p.suffix.lower() == ".gif":
+        from matplotlib.animation import FuncAnimation, PillowWriter
+
+        fig = plt.figure(figsize=(panel_size * 1.3, panel_size * 1.3 + head))
+        ax = fig.add_subplot(1, 1, 1, projection="3d")
+
+        def update(t: int) -> list:
+            ax.clear()
+            draw(ax, t)
+            return []
+
+        if title:
+            fig.suptitle(_wrap(title, panel_size * 1.3, 10), fontsize=10)
+        anim = FuncAnimation(fig, update, frames=range(T), blit=False)
+        anim.save(p, writer=PillowWriter(fps=float(fps)), dpi=dpi)
+        plt.close(fig)
+        return p
+    fig = plt.figure(figsize=(panel_size * len(frames), panel_size + 0.3 + head))
+    for i, t in enumerate(frames):
+        draw(fig.add_subplot(1, len(frames), i + 1, projection="3d"), t)
+    if title:
+        fig.suptitle(_wrap(title, panel_size * len(frames), 11), fontsize=11, y=0.995, va="top")
+    fig.subplots_adjust(left=0, right=1, bottom=0.02, top=1 - (head + 0.1) / (panel_size + 0.3 + head), wspace=0.02)
+    fig.savefig(p, dpi=dpi)
+    plt.close(fig)
+    return p
+
+
+def _spread_tracks(points: np.ndarray, ids: np.ndarray, n: int) -> np.ndarray:
+    """Up to ``n`` trajectory indices spread over frame 0 (farthest-point sampling from the vertex
+    nearest the centroid, among trajectories alive in frame 1 or the only frame)."""
+    cand = np.flatnonzero(ids[:, min(1, ids.shape[1] - 1)] >= 0)
+    if n == 0 or cand.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    p = points[cand]
+    chosen = [int(np.argmin(np.linalg.norm(p - p.mean(axis=0), axis=1)))]
+    d = np.linalg.norm(p - p[chosen[0]], axis=1)
+    while len(chosen) < min(n, cand.size):
+        k = int(np.argmax(d))
+        chosen.append(k)
+        d = np.minimum(d, np.linalg.norm(p - p[k], axis=1))
+    return cand[np.asarray(chosen, dtype=np.int64)]

@@ -1,0 +1,280 @@
+"""``shape-toolkit track FRAME_0 FRAME_1 ... --pipeline NAME -o traj.npz``: dense trajectories
+through a sequence of shapes (thesis 7.5.3, Figs. 7.17-7.18).
+
+Consecutive frames are matched with any pipeline (sequentially, or in parallel on Dask with
+``--dask local|tcp://...``), the maps are chained into dense trajectories
+(:class:`~shape_toolkit.results.trajectories.Trajectories`, an ``.npz``), and optionally drawn: a
+PNG with the frames side by side and trajectory tails (``--png``), an animated GIF (``--gif``) or a
+PLY sequence with pull-back colours (``--ply-dir``). Default output: ``FRAME_0_STEM.traj.npz``.
+
+:func:`match_pairs` and :func:`track_frames` are the Python entry points (the benchmark uses them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from shape_toolkit.cli.commands._common import (
+    add_quiet,
+    check_distinct,
+    check_output_path,
+    default_output,
+    positive_int_arg,
+    print_json,
+    status,
+)
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.results.correspondence import Correspondence
+from shape_toolkit.results.trajectories import Trajectories, chain_maps, compose_maps
+
+__all__ = ["match_pairs", "track_frames", "pullback_sequence_colors", "register", "run"]
+
+
+def _match_pair(spec: dict[str, Any], source: Shape, target: Shape, seeds: np.ndarray | None) -> dict[str, Any]:
+    """One frame pair (runs in the caller or on a Dask worker): the pipeline with one BLAS thread,
+    so that the result does not depend on where it runs; the map, wall and CPU seconds."""
+    from threadpoolctl import threadpool_limits
+
+    from shape_toolkit.pipeline import load_pipeline
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    with threadpool_limits(limits=1):
+        corr = load_pipeline(spec).run(source, target, seeds)
+    return {"target_of": np.asarray(corr.target_of), "n_target": corr.n_target,
+            "wall": time.perf_counter() - t0, "cpu": time.process_time() - c0,
+            "n_matched": corr.n_matched}
+
+
+def match_pairs(
+    frames: Sequence[Shape],
+    pairs: Sequence[tuple[int, int]],
+    pipeline: Any,
+    *,
+    seeds: Sequence[np.ndarray | None] | None = None,
+    client: Any = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[tuple[Correspondence, dict[str, float]]]:
+    """Match ``frames[i] -> frames[j]`` for every ``(i, j)`` in ``pairs`` with ``pipeline`` (a
+    preset name, TOML path, dict or :class:`~shape_toolkit.pipeline.Pipeline`); ``seeds``: one
+    ``(q, 2)`` array or None per pair. With a ``distributed.Client`` the pairs run in parallel on
+    its workers, else one after the other; either way each runs with one BLAS thread, so both
+    give the same maps. ``progress(done, total)`` after each pair. Returns, per pair, the
+    :class:`Correspondence` and ``{"wall": s, "cpu": s}`` measured where it ran."""
+    from shape_toolkit.pipeline import load_pipeline
+
+    spec = load_pipeline(pipeline).to_dict()
+    n = len(frames)
+    pairs = [(int(i), int(j)) for i, j in pairs]
+    if any(not (0 <= i < n and 0 <= j < n) for i, j in pairs):
+        raise ParameterError(f"frame pairs must index the {n} frames")
+    seeds = [None] * len(pairs) if seeds is None else list(seeds)
+    if len(seeds) != len(pairs):
+        raise ParameterError(f"{len(seeds)} seed arrays for {len(pairs)} frame pairs")
+    say = progress or (lambda _d, _t: None)
+    results: list[dict[str, Any] | None] = [None] * len(pairs)
+    if client is None:
+        for k, (i, j) in enumerate(pairs):
+            results[k] = _match_pair(spec, frames[i], frames[j], seeds[k])
+            say(k + 1, len(pairs))
+    else:
+        from distributed import as_completed
+
+        futs = {client.submit(_match_pair, spec, frames[i], frames[j], seeds[k], pure=False): k
+                for k, (i, j) in enumerate(pairs)}
+        for done, fut in enumerate(as_completed(list(futs)), 1):
+            results[futs[fut]] = fut.result()
+            say(done, len(pairs))
+    out = []
+    for r in results:
+        assert r is not None
+        out.append((Correspondence(r["target_of"], r["n_target"]),
+                    {"wall": float(r["wall"]), "cpu": float(r["cpu"]), "n_matched": int(r["n_matched"])}))
+    return out
+
+
+def track_frames(
+    frames: Sequence[Shape],
+    pipeline: Any,
+    *,
+    seeds: Sequence[np.ndarray | None] | None = None,
+    client: Any = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[Trajectories, list[Correspondence]]:
+    """Dense trajectories through ``frames`` (at least 2): match each frame to the next
+    (:func:`match_pairs`) and chain the maps (:func:`~shape_toolkit.results.trajectories.chain_maps`).
+    Returns the trajectories (``info``: pipeline, per-pair wall/CPU seconds and matched counts)
+    and the ``T - 1`` frame maps."""
+    from shape_toolkit.pipeline import load_pipeline
+
+    if len(frames) < 2:
+        raise ParameterError(f"tracking needs at least 2 frames, got {len(frames)}")
+    pipe = load_pipeline(pipeline)
+    res = match_pairs(frames, [(t, t + 1) for t in range(len(frames) - 1)], pipe, seeds=seeds,
+                      client=client, progress=progress)
+    maps = [c for c, _ in res]
+    info = {"pipeline": pipe.name, "pairs": [dict(s) for _, s in res],
+            "frames": [f.name for f in frames]}
+    return chain_maps(maps, n_vertices=[f.n_vertices for f in frames], info=info), maps
+
+
+def pullback_sequence_colors(
+    frames: Sequence[Shape], maps: Sequence[Correspondence], reference_colors: np.ndarray | None = None
+) -> list[np.ndarray]:
+    """Per-frame RGB ``(n_t, 3)``: the last frame is coloured by ``reference_colors`` (default its
+    positions in its bounding box) and every frame ``t`` takes, vertex by vertex, the colour of
+    the last-frame vertex its chained maps ``t -> ... -> T-1`` reach (grey where lost), so a good
+    tracking makes all frames look alike (pull-back, as ``match --ply``)."""
+    from shape_toolkit.io.viz import pullback_colors
+
+    last = frames[-1]
+    out = []
+    for t in range(len(frames)):
+        target_of = np.arange(last.n_vertices) if t == len(frames) - 1 else compose_maps(
+            maps[t:], n_vertices=[f.n_vertices for f in frames[t:]])
+        cs, _ = pullback_colors(frames[t], last, target_of, reference_colors)
+        out.append(cs)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# command line
+# --------------------------------------------------------------------------------------------
+def register(sub: argparse._SubParsersAction) -> None:
+    from shape_toolkit.pipeline import PRESETS
+
+    p = sub.add_parser("track", help="dense trajectories through a sequence of shapes (thesis 7.5.3)",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("frames", nargs="+", metavar="FRAME", help="the frames, in order (at least 2)")
+    p.add_argument("--pipeline", default="zoomout",
+                   help=f"preset ({', '.join(sorted(PRESETS))}) or a .toml spec (default zoomout)")
+    p.add_argument("--seeds", nargs="+", metavar="FILE",
+                   help="seed matches per frame pair: T-1 files of 'source target' 0-based ids per line")
+    p.add_argument("-o", "--output", help="trajectory file (.npz; default FRAME_0_STEM.traj.npz)")
+    p.add_argument("--png", metavar="FIG.png", help="draw the frames side by side with trajectory tails")
+    vis = p.add_mutually_exclusive_group()
+    vis.add_argument("--gif", metavar="ANIM.gif", help="animated GIF of the frames with trajectory tails")
+    vis.add_argument("--ply-dir", metavar="DIR",
+                     help="write DIR/frame_NNN.ply, each frame with pull-back colours of the last frame")
+    p.add_argument("--tracks", type=positive_int_arg, default=150, help="trajectories drawn (default 150)")
+    p.add_argument("--tail", type=positive_int_arg, default=5, help="frames of trajectory drawn (default 5)")
+    p.add_argument("--dask", metavar="SCHEDULER",
+                   help="match frame pairs in parallel on Dask: 'local' (a local cluster) or tcp://host:port")
+    p.add_argument("--workers", type=positive_int_arg, default=2, help="local Dask workers (default 2)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    add_quiet(p)
+    p.set_defaults(func=run)
+
+
+def _check_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | None, Path | None]:
+    if len(args.frames) < 2:
+        raise ParameterError(f"tracking needs at least 2 frames, got {len(args.frames)}")
+    out = default_output(args.output, args.frames[0], "traj.npz")
+    check_output_path(out, "--output", suffixes=(".npz",))
+    check_distinct(out, *args.frames)
+    png = check_output_path(args.png, "--png", suffixes=(".png",))
+    gif = check_output_path(args.gif, "--gif", suffixes=(".gif",))
+    for extra in (png, gif):
+        if extra is not None:
+            check_distinct(extra, *args.frames, out)
+    ply_dir = None
+    if args.ply_dir is not None:
+        ply_dir = Path(args.ply_dir)
+        if ply_dir.exists() and not ply_dir.is_dir():
+            raise ParameterError(f"--ply-dir {args.ply_dir!r} exists and is not a folder")
+        if not ply_dir.exists() and not (ply_dir.parent if str(ply_dir.parent) else Path(".")).is_dir():
+            raise ParameterError(f"--ply-dir: the parent folder of {args.ply_dir!r} does not exist")
+    if args.seeds is not None and len(args.seeds) != len(args.frames) - 1:
+        raise ParameterError(f"--seeds needs one file per frame pair ({len(args.frames) - 1}), got {len(args.seeds)}")
+    if args.dask is not None and args.dask != "local" and "://" not in args.dask:
+        raise ParameterError(f"--dask must be 'local' or a scheduler address like tcp://host:8786, got {args.dask!r}")
+    return out, png, gif, ply_dir
+
+
+def run(args: argparse.Namespace) -> int:
+    from shape_toolkit.io.mesh import load_shape
+    from shape_toolkit.pipeline import load_pipeline
+    from shape_toolkit.results.correspondence import read_seeds
+
+    out, png, gif, ply_dir = _check_inputs(args)
+    pipe = load_pipeline(args.pipeline)
+    frames = [load_shape(f) for f in args.frames]
+    kinds = {("mesh" if f.is_mesh else "point cloud") for f in frames}
+    if len(kinds) > 1:
+        bad = next(i for i, f in enumerate(frames) if f.is_mesh != frames[0].is_mesh)
+        raise ParameterError(
+            f"frames must all be meshes or all point clouds: {args.frames[0]} is a "
+            f"{'mesh' if frames[0].is_mesh else 'point cloud'}, {args.frames[bad]} is not"
+        )
+    seeds = None
+    if args.seeds:
+        seeds = [read_seeds(s, frames[t].n_vertices, frames[t + 1].n_vertices) for t, s in enumerate(args.seeds)]
+    n_pairs = len(frames) - 1
+    t0 = time.perf_counter()
+    with status(args, f"track ({pipe.name}): 0/{n_pairs} frame pairs") as st:
+        def progress(done: int, total: int) -> None:
+            st.update(f"track ({pipe.name}): {done}/{total} frame pairs")
+
+        if args.dask is not None:
+            from shape_toolkit.bench.executors import dask_client
+
+            st.update(f"track ({pipe.name}): starting Dask")
+            with dask_client(args.workers, None if args.dask == "local" else args.dask) as client:
+                st.update(f"track ({pipe.name}): 0/{n_pairs} frame pairs on Dask")
+                traj, maps = track_frames(frames, pipe, seeds=seeds, client=client, progress=progress)
+        else:
+            traj, maps = track_frames(frames, pipe, seeds=seeds, progress=progress)
+        traj.info["files"] = [str(f) for f in args.frames]
+        traj.save(out)
+        written: dict[str, Any] = {"npz": str(out)}
+        if png or gif or ply_dir:
+            st.update("track: drawing")
+            colors = pullback_sequence_colors(frames, maps)
+            title = f"{pipe.name}: {traj.n_tracks} trajectories through {traj.n_frames} frames"
+            if png:
+                from shape_toolkit.io.viz import render_trajectories
+
+                render_trajectories(frames, traj.ids, png, colors=colors, n_tracks=args.tracks,
+                                    tail=args.tail, title=title)
+                written["png"] = str(png)
+            if gif:
+                from shape_toolkit.io.viz import render_trajectories
+
+                render_trajectories(frames, traj.ids, gif, colors=colors, n_tracks=args.tracks,
+                                    tail=args.tail, title=title)
+                written["gif"] = str(gif)
+            if ply_dir:
+                from shape_toolkit.io.viz import save_colored_ply
+
+                ply_dir.mkdir(exist_ok=True)
+                written["ply"] = [str(save_colored_ply(f, ply_dir / f"frame_{t:03d}.ply", c))
+                                  for t, (f, c) in enumerate(zip(frames, colors))]
+    seconds = time.perf_counter() - t0
+    alive = traj.alive[:, -1].mean()
+    result = {
+        "pipeline": pipe.name,
+        "n_frames": traj.n_frames,
+        "n_tracks": traj.n_tracks,
+        "alive_last_frame": float(alive),
+        "dask": args.dask,
+        "seconds": round(seconds, 3),
+        "pairs": [{k: (round(v, 3) if isinstance(v, float) else v) for k, v in p.items()} for p in traj.info["pairs"]],
+        "outputs": written,
+    }
+    if args.json:
+        print_json(result)
+    else:
+        print(f"{pipe.name}: {traj.n_tracks} trajectories through {traj.n_frames} frames "
+              f"({100 * alive:.1f}% reach the last) in {seconds:.1f} s -> {out}")
+        for k in ("png", "gif"):
+            if k in written:
+                print(f"{k}: {written[k]}")
+        if "ply" in written:
+            print(f"ply: {len(written['ply'])} files in {ply_dir}")
+    return 0
