@@ -158,3 +158,67 @@ def test_missing_dataset_folder_mentions_toolkit_data(tmp_path, monkeypatch):
         load_config(_write(tmp_path, bad))
     assert f"$TOOLKIT_DATA={tmp_path / 'data'}" in str(ei.value)
     assert str(tmp_path / "data" / "no" / "such" / "folder") in str(ei.value)
+
+
+R_SMOOTH = """
+[[datasets]]
+name = "synth"
+kind = "synthetic"
+params = { n_poses = 2, subdivisions = 2 }
+[[tasks]]
+task = "matching"
+metrics = ["geodesic_error", "r_smoothness", "label_transfer"]
+[tasks.options]
+geodesic_method = "dijkstra"
+truth_sample = 50
+r_smooth_rs = [1, 5]
+r_smooth_sample = 60
+label_segments = 5
+[[tasks.methods]]
+plugin = "eigvec-alignment"
+"""
+
+
+def test_matching_metrics_r_smoothness_and_derived_labels(tmp_path):
+    from shape_toolkit.bench.report import write_report
+    from shape_toolkit.bench.runner import read_rows, run_benchmark
+    from shape_toolkit.bench.store import load_output, load_prepared, prepared_path
+    from shape_toolkit.metrics import map_label_scores, r_smoothness_table, truth_segments
+
+    cfg = load_config(_write(tmp_path, R_SMOOTH))
+    run = tmp_path / "run"
+    s = run_benchmark(cfg, run, limit=1, progress=False)
+    (row,) = read_rows(run)
+    assert s.failed == 0, row.get("error")
+    m = row["metrics"]
+    assert {"r_smooth@1", "r_smooth@5", "r_smoothness_curve", "label_recall", "label_precision"} <= set(m)
+    # the columns are the metric functions called directly on the run's shapes and map
+    prep = load_prepared(prepared_path(run, row["prepare_key"]))
+    t = load_output(run, row["output"])["target_of"]
+    table = r_smoothness_table(prep.source, prep.target, t, (1, 5), sample=60)
+    assert m["r_smooth@1"] == table[1.0] and m["r_smooth@5"] == table[5.0]
+    assert m["r_smoothness_curve"] == [[1.0, table[1.0]], [5.0, table[5.0]]]
+    ls, lt = truth_segments(prep.source, prep.target, prep.truth[:, 0], prep.truth[:, 1], 5)
+    sc = map_label_scores(t, ls, lt, prep.target)
+    assert m["label_recall"] == sc["recall"] and m["label_precision"] == sc["precision"]
+    html = write_report(run, renders=0)["html"].read_text()
+    assert "r_smooth@5 (%) &uarr;" in html and "label_recall" in html
+
+
+@pytest.mark.parametrize(
+    "old,new,problem",
+    [
+        ('"r_smoothness", ', '"r_smoothnes", ', "unknown matching metric 'r_smoothnes'; known: coverage, "
+         "geodesic_error, label_transfer, r_smoothness"),
+        ("r_smooth_rs = [1, 5]", "r_smooth_rs = [0, 5]", "r_smooth_rs must be a non-empty list"),
+        ("r_smooth_sample = 60", "r_smooth_sample = 0", "r_smooth_sample must be a positive integer"),
+        ("label_segments = 5", "label_segments = true", "label_segments must be a positive integer"),
+        ("truth_sample = 50", "r_smooth_theta = 2\ntruth_sample = 50", "r_smooth_theta must be in (0, 1]"),
+        ("truth_sample = 50", "r_smooth_typo = 2\ntruth_sample = 50", "unknown matching option 'r_smooth_typo'"),
+    ],
+)
+def test_matching_metric_and_option_errors_list_the_valid_ones(tmp_path, old, new, problem):
+    with pytest.raises(ConfigError) as e:
+        load_config(_write(tmp_path, R_SMOOTH.replace(old, new)))
+    assert problem in str(e.value)
+    assert e.value.key.startswith("tasks[0].metrics[1]" if "metric " in problem else "tasks[0].options")

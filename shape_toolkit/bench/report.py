@@ -38,7 +38,8 @@ from shape_toolkit.errors import ParameterError
 __all__ = ["write_report", "summarize", "method_id", "metric_direction"]
 
 #: metrics where a larger value is better (everything else with a direction: lower is better)
-_HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc")
+_HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
+           "smooth")
 _LOWER = ("error", "discrepancy", "gce", "lce", "hamming", "seconds", "memory", "chance")
 #: units of known columns, shown in the headers
 _UNITS = {"seconds": "s", "peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
@@ -64,7 +65,8 @@ def _arrow(name: str) -> str:
 
 
 def _header(name: str) -> str:
-    unit = f" ({_UNITS[name]})" if name in _UNITS else ""
+    unit = _UNITS.get(name) or ("%" if name.startswith("r_smooth@") else None)
+    unit = f" ({unit})" if unit else ""
     d = metric_direction(name)
     tip = {"higher": "higher is better", "lower": "lower is better"}.get(d, "no better direction")
     return f"<th title='{tip}'>{html.escape(name)}{unit}{_arrow(name)}</th>"
@@ -112,13 +114,15 @@ def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str
 
 
 class _Figs:
-    def __init__(self, folder: Path):
+    def __init__(self, folder: Path, say: Callable[[str], None] | None = None):
         self.folder = folder
         self.files: list[Path] = []
+        self.say = say or (lambda _msg: None)
 
     def save(self, fig, name: str) -> Path:
         import matplotlib.pyplot as plt
 
+        self.say(f"figure {len(self.files) + 1}: {name}")  # the layout and PNG encoding take the time
         p = self.folder / f"{len(self.files):02d}-{safe_name(name)}.png"
         fig.savefig(p, dpi=100, bbox_inches="tight", pad_inches=0.15)
         plt.close(fig)
@@ -269,6 +273,7 @@ _AXES = {  # curve metric -> (x label, y label, log x)
     "alpha_vs_t": ("diffusion time t", "alpha(K, t)", True),
     "alpha_vs_K": ("K (% of computed eigenpairs)", "alpha(K, t)", False),
     "eigenvalues": ("eigenvalue index", "eigenvalue (1 / length^2)", False),
+    "r_smoothness_curve": ("neighbourhood size r (% of the vertices)", "r-smooth source vertices (%)", False),
 }
 
 
@@ -463,6 +468,7 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
                 ]
             else:
                 continue
+            figs.say(f"figure {len(figs.files) + 1}: render of {method_id(r)} on {r['item']}")
             p = render_shapes(
                 panels,
                 figs.folder / f"{len(figs.files):02d}-render-{safe_name(r['key'])}.png",
@@ -547,12 +553,13 @@ def write_report(
     run = Path(run_dir)
     if not (run / RESULTS).exists():
         raise ParameterError(f"{run} is not a run folder: {RESULTS} not found (run 'bench run' first)")
+    say(f"reading {run / RESULTS}")
     rows = read_rows(run)
     out = Path(output) if output else run / "report"
     (out / "figures").mkdir(parents=True, exist_ok=True)
     for old in (out / "figures").glob("*.png"):
         old.unlink()
-    figs = _Figs(out / "figures")
+    figs = _Figs(out / "figures", say)
     summ = summarize(rows)
     n_ok = sum(r.get("status") == "ok" for r in rows)
     failed = [r for r in rows if r.get("status") != "ok"]

@@ -469,23 +469,43 @@ def _m_coverage(p, o, opt):
     return {"target_coverage": fn(np.asarray(o["target_of"]), p.target.n_vertices)}
 
 
-def _m_label_transfer(p, o, opt):
-    fn = lookup_metric("label_transfer_scores")
+def _labels_for(p: Prepared, opt: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-truth segmentations of source and target: the dataset's (first) labels, or with the
+    ``label_segments`` option, that many geodesic Voronoi segments of the source carried to the
+    target by the ground-truth map (:func:`shape_toolkit.metrics.truth_segments`; TOSCA, FAUST)."""
+    k = opt.get("label_segments")
+    if k:
+        if p.truth is None or not len(p.truth):
+            raise ParameterError(f"item {p.name!r} has no ground-truth map to carry segments with")
+        return lookup_metric("truth_segments")(p.source, p.target, p.truth[:, 0], p.truth[:, 1], int(k))
     if not p.source_labels or not p.target_labels:
-        raise ParameterError(f"item {p.name!r} has no ground-truth labels on both shapes")
-    inv = np.full(p.target.n_vertices, -1, dtype=np.int64)  # pull labels back: target vertex -> a source
-    t = np.asarray(o["target_of"])
-    src = np.flatnonzero(t >= 0)
-    inv[t[src]] = src
-    pred = np.where(inv >= 0, p.source_labels[0][np.maximum(inv, 0)], -1)
-    if (pred < 0).any() and (inv >= 0).any():  # unmatched target vertices take the nearest matched one
-        from scipy.spatial import cKDTree
+        raise ParameterError(
+            f"item {p.name!r} has no ground-truth labels on both shapes "
+            "(set the matching option label_segments = K to derive K segments from the ground-truth map)"
+        )
+    return np.asarray(p.source_labels[0]), np.asarray(p.target_labels[0])
 
-        have = np.flatnonzero(inv >= 0)
-        miss = np.flatnonzero(inv < 0)
-        pred[miss] = pred[have[cKDTree(p.target.vertices[have]).query(p.target.vertices[miss])[1]]]
-    res = fn(pred, p.target_labels[0])
+
+def _m_label_transfer(p, o, opt):
+    """Table 7.3: mean recall and precision of the source's segmentation carried through the map
+    (:func:`shape_toolkit.metrics.map_label_scores`; target vertices that no source vertex reaches
+    take the label of the nearest reached one along the edges)."""
+    src, tgt = _labels_for(p, opt)
+    res = lookup_metric("map_label_scores")(np.asarray(o["target_of"]), src, tgt, p.target)
     return {"label_recall": res["recall"], "label_precision": res["precision"]}
+
+
+def _m_r_smoothness(p, o, opt):
+    """Table 7.2: percent of r-smooth source vertices (eq. 7.4-7.5) per neighbourhood size r
+    (:func:`shape_toolkit.metrics.r_smoothness_table`): a column ``r_smooth@R`` per r and the curve."""
+    table = lookup_metric("r_smoothness_table")(
+        p.source, p.target, np.asarray(o["target_of"]), tuple(opt["r_smooth_rs"]), opt["r_smooth_theta"],
+        sample=opt["r_smooth_sample"], method=opt["r_smooth_geodesics"],
+        random_state=opt["r_smooth_random_state"],
+    )
+    out: dict[str, Any] = {f"r_smooth@{r:g}": v for r, v in table.items()}
+    out["r_smoothness_curve"] = _curve(list(table), list(table.values()))
+    return out
 
 
 class MatchingTask(TaskAdapter):
@@ -496,24 +516,49 @@ class MatchingTask(TaskAdapter):
     families = ("dense_matchers", "sparse_matchers")
     pairwise = True
     needs_keypoints = ("sparse_matchers",)
-    option_defaults = {"truth_sample": 500, "geodesic_method": "heat"}
+    option_defaults = {
+        "truth_sample": 500,
+        "geodesic_method": "heat",
+        # r_smoothness (Table 7.2): neighbourhood sizes in percent of the vertices, theta, evaluated
+        # source vertices (None: all, as the thesis) drawn with r_smooth_random_state, geodesics
+        "r_smooth_rs": [0.1, 0.2, 0.3, 0.4, 0.5, 0.8],
+        "r_smooth_theta": 0.9,
+        "r_smooth_sample": None,
+        "r_smooth_random_state": 0,
+        "r_smooth_geodesics": "dijkstra",
+        # label_transfer (Table 7.3): None uses the dataset's segmentations; K derives K segments
+        "label_segments": None,
+    }
     default_metrics = ("geodesic_error",)
     metrics = {
         "geodesic_error": (_m_geodesic, ("correspondence_report",)),
         "coverage": (_m_coverage, ("target_coverage",)),
-        "label_transfer": (_m_label_transfer, ("label_transfer_scores",)),
+        "label_transfer": (_m_label_transfer, ("map_label_scores", "truth_segments")),
+        "r_smoothness": (_m_r_smoothness, ("r_smoothness_table",)),
     }
 
     def check_options(self, options):
         from shape_toolkit.features.geodesics import GEODESIC_METHODS
 
         o = super().check_options(options)
-        if o["geodesic_method"] not in GEODESIC_METHODS:
-            raise ParameterError(f"geodesic_method must be one of {', '.join(GEODESIC_METHODS)}")
-        if o["truth_sample"] is not None and (
-            not isinstance(o["truth_sample"], int) or o["truth_sample"] < 1
+        for key in ("geodesic_method", "r_smooth_geodesics"):
+            if o[key] not in GEODESIC_METHODS:
+                raise ParameterError(f"{key} must be one of {', '.join(GEODESIC_METHODS)}, got {o[key]!r}")
+        for key in ("truth_sample", "r_smooth_sample", "label_segments"):
+            v = o[key]
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+                raise ParameterError(f"{key} must be a positive integer, got {v!r}")
+        rs = o["r_smooth_rs"]
+        if not isinstance(rs, list) or not rs or not all(
+            isinstance(r, (int, float)) and not isinstance(r, bool) and 0 < r <= 100 for r in rs
         ):
-            raise ParameterError("truth_sample must be a positive integer")
+            raise ParameterError(f"r_smooth_rs must be a non-empty list of percents in (0, 100], got {rs!r}")
+        th = o["r_smooth_theta"]
+        if isinstance(th, bool) or not isinstance(th, (int, float)) or not 0 < th <= 1:
+            raise ParameterError(f"r_smooth_theta must be in (0, 1], got {th!r}")
+        rsd = o["r_smooth_random_state"]
+        if isinstance(rsd, bool) or not isinstance(rsd, int) or rsd < 0:
+            raise ParameterError(f"r_smooth_random_state must be a non-negative integer, got {rsd!r}")
         return o
 
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):

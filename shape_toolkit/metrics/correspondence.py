@@ -41,13 +41,22 @@ DEFAULT_THRESHOLDS = np.round(np.linspace(0.0, 0.25, 26), 6)
 
 
 def paired_geodesic_distances(
-    shape: Shape, a: np.ndarray, b: np.ndarray, *, method: str = "exact", chunk: int = 128
+    shape: Shape,
+    a: np.ndarray,
+    b: np.ndarray,
+    *,
+    method: str = "exact",
+    chunk: int = 128,
+    time_limit: float | None = None,
+    progress: Callable[[int, int | None], None] | None = None,
 ) -> np.ndarray:
     """Geodesic distances ``d(a_i, b_i)`` on ``shape`` for vertex ids ``a`` ``(p,)`` and ``b``
     ``(p,)`` or ``(p, r)`` (``r`` partners per ``a_i``, e.g. the images of several maps), same
     shape as ``b``, in length units. One distance row per distinct ``a``, computed in chunks
-    (memory ``chunk * n``)."""
-    from shape_toolkit.features.geodesics import geodesic_distances
+    (memory ``chunk * n``). ``progress(done, total)`` counts the rows; past ``time_limit``
+    seconds (or when the projection is far over it) :class:`~shape_toolkit.errors.TimeLimitError`
+    is raised."""
+    from shape_toolkit.features.geodesics import GeodesicBudget, geodesic_distances
 
     a = np.asarray(a, dtype=np.int64).ravel()
     b = np.asarray(b, dtype=np.int64)
@@ -62,8 +71,13 @@ def paired_geodesic_distances(
     uniq, inv = np.unique(a, return_inverse=True)
     order = np.argsort(inv, kind="stable")
     bounds = np.searchsorted(inv[order], np.arange(uniq.size + 1))
+    budget = None
+    if time_limit is not None or progress is not None:
+        budget = GeodesicBudget(time_limit, uniq.size, progress, f"{method} geodesics")
     for s in range(0, uniq.size, chunk):
-        rows = np.asarray(geodesic_distances(shape, uniq[s : s + chunk], method=method, cache=False))
+        rows = np.asarray(
+            geodesic_distances(shape, uniq[s : s + chunk], method=method, cache=False, budget=budget)
+        )
         for r in range(rows.shape[0]):
             sel = order[bounds[s + r] : bounds[s + r + 1]]
             out[sel] = rows[r][b2[sel]]
@@ -100,11 +114,14 @@ def geodesic_errors(
     truth_dst_sym: np.ndarray | None = None,
     method: str = "exact",
     normalize: bool = True,
+    time_limit: float | None = None,
+    progress: Callable[[int, int | None], None] | None = None,
 ) -> np.ndarray:
     """Error ``(p,)`` of each ground-truth pair: geodesic distance on ``target`` between the
     image of ``truth_src[i]`` and ``truth_dst[i]`` (divided by ``sqrt(target.area)`` when
     ``normalize``); with ``truth_dst_sym`` the smaller of the errors to the true and symmetric
-    vertex; ``inf`` when the source vertex is unmatched."""
+    vertex; ``inf`` when the source vertex is unmatched. ``time_limit`` and ``progress`` as in
+    :func:`paired_geodesic_distances`."""
     t = target_of.target_of if isinstance(target_of, Correspondence) else np.asarray(target_of)
     t = np.asarray(t, dtype=np.int64)
     ts = np.asarray(truth_src, dtype=np.int64)
@@ -120,7 +137,9 @@ def geodesic_errors(
         partners = td[ok] if truth_dst_sym is None else np.column_stack(
             [td[ok], np.asarray(truth_dst_sym, dtype=np.int64)[ok]]
         )
-        d = paired_geodesic_distances(target, pred[ok], partners, method=method)
+        d = paired_geodesic_distances(
+            target, pred[ok], partners, method=method, time_limit=time_limit, progress=progress
+        )
         err[ok] = d if d.ndim == 1 else d.min(axis=1)
     if normalize:
         err = err / np.sqrt(target.area)
