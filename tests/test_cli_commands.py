@@ -197,3 +197,116 @@ def test_terminal_progress_is_silent_without_tty(pose, capsys):
     d, _, _ = pose
     code, _, err = _run(capsys, "spectrum", d / "a.off", "-k", "5")
     assert code == 0 and err == ""
+
+
+# -- evaluate-map: r-smoothness (Table 7.2), label transfer (Table 7.3), time limit ---------------
+def _strict_json(text: str):
+    def no_constant(name):
+        raise AssertionError(f"{name} in JSON output")
+
+    return json.loads(text, parse_constant=no_constant)
+
+
+@pytest.fixture(scope="module")
+def noisy_map(pose, tmp_path_factory):
+    d, a, b = pose
+    n = a.shape.n_vertices
+    rng = np.random.default_rng(0)
+    t = np.arange(n)  # the poses share their connectivity: the identity is the truth
+    hit = rng.choice(n, n // 5, replace=False)
+    t[hit] = rng.integers(0, n, hit.size)
+    t[hit[:10]] = -1
+    path = tmp_path_factory.mktemp("map") / "noisy.map.txt"
+    np.savetxt(path, t, fmt="%d")
+    return path, t
+
+
+def test_evaluate_map_r_smoothness_equals_the_metric(pose, noisy_map, capsys):
+    from shape_toolkit.metrics import R_SMOOTH_RS, r_smoothness_table
+
+    d, a, b = pose
+    path, t = noisy_map
+    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--r-smoothness", "--json")
+    assert code == 0, err
+    res = _strict_json(out)
+    direct = r_smoothness_table(a.shape, b.shape, t, R_SMOOTH_RS, 0.9, sample=None)
+    assert res["r_smoothness"]["table"] == [[r, v] for r, v in direct.items()]
+    assert res["r_smoothness"]["n_evaluated"] == a.shape.n_vertices and "mean_geodesic_error" not in res
+    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--r-smoothness", "2", "5",
+                          "--r-theta", "0.8", "--r-sample", "100", "--random-state", "4")
+    assert code == 0, err
+    direct = r_smoothness_table(a.shape, b.shape, t, (2, 5), 0.8, sample=100, random_state=4)
+    assert f"r=2%: {direct[2.0]:.2f}  r=5%: {direct[5.0]:.2f}" in out and "100 source vertices" in out
+
+
+def test_evaluate_map_labels_equal_the_metric(pose, noisy_map, capsys, tmp_path):
+    from shape_toolkit.metrics import map_label_scores
+    from shape_toolkit.results.labels import face_to_vertex_labels
+
+    d, a, b = pose
+    path, t = noisy_map
+    np.savetxt(tmp_path / "b.labels.txt", b.labels, fmt="%d")
+    ids = np.arange(1, a.shape.n_vertices + 1)
+    np.savetxt(tmp_path / "t.vts", ids, fmt="%d")
+    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--labels",
+                          d / "a.labels.txt", tmp_path / "b.labels.txt", "--truth-src", tmp_path / "t.vts",
+                          "--truth-dst", tmp_path / "t.vts", "--geodesics", "dijkstra", "--json")
+    assert code == 0, err
+    res = _strict_json(out)
+    direct = map_label_scores(t, a.labels, b.labels, b.shape)
+    assert res["labels"]["recall"] == direct["recall"] and res["labels"]["precision"] == direct["precision"]
+    assert res["labels"]["per"] == "vertex" and 0 < res["mean_geodesic_error"] < 1
+    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--labels",
+                          d / "a.seg", d / "b.seg", "--faces")
+    assert code == 0, err
+    fa = face_to_vertex_labels(a.shape.faces, np.loadtxt(d / "a.seg", dtype=int), a.shape.n_vertices,
+                               a.shape.face_areas)
+    fb = face_to_vertex_labels(b.shape.faces, np.loadtxt(d / "b.seg", dtype=int), b.shape.n_vertices,
+                               b.shape.face_areas)
+    direct = map_label_scores(t, fa, fb, b.shape)
+    assert f"mean recall {direct['recall']:.4f}  mean precision {direct['precision']:.4f}" in out
+    # per-face files without --faces: one line naming the flag
+    code, _, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--labels", d / "a.seg", d / "b.seg")
+    assert code == 2 and "--faces" in err and len(err.strip().splitlines()) == 1
+
+
+def test_evaluate_map_json_has_no_nan(pose, capsys, tmp_path):
+    d, a, _ = pose
+    n = a.shape.n_vertices
+    t = np.arange(n)
+    t[:5] = -1  # every ground-truth point unmatched: the mean error is undefined
+    np.savetxt(tmp_path / "m.txt", t, fmt="%d")
+    np.savetxt(tmp_path / "t.vts", np.arange(1, 6), fmt="%d")
+    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "a.off", tmp_path / "m.txt", "--truth-src",
+                          tmp_path / "t.vts", "--truth-dst", tmp_path / "t.vts", "--geodesics", "dijkstra",
+                          "--json")
+    assert code == 0, err
+    assert _strict_json(out)["mean_geodesic_error"] is None
+
+
+@pytest.mark.parametrize("extra, problem", [
+    ([], "nothing to evaluate"),
+    (["--truth-src", "X.vts"], "--truth-src and --truth-dst go together"),
+    (["--r-smoothness", "0"], "must be a percent of the vertices in (0, 100]"),
+    (["--r-smoothness", "--r-theta", "1.5"], "must be a fraction in (0, 1]"),
+    (["--r-smoothness", "--faces"], "--faces applies to --labels"),
+])
+def test_evaluate_map_usage_errors_are_one_line(pose, noisy_map, capsys, extra, problem):
+    d, _, _ = pose
+    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", noisy_map[0], *extra)
+    assert code == 2 and problem in err and len(err.strip().splitlines()) == 1 and not out
+
+
+def test_evaluate_map_time_limit_exits_2_with_one_line(pose, capsys, tmp_path):
+    d, a, _ = pose
+    n = a.shape.n_vertices
+    np.savetxt(tmp_path / "id.txt", np.arange(n), fmt="%d")
+    np.savetxt(tmp_path / "t.vts", np.arange(1, n + 1, 5), fmt="%d")
+    args = ["evaluate-map", d / "a.off", d / "a.off", tmp_path / "id.txt", "--truth-src", tmp_path / "t.vts",
+            "--truth-dst", tmp_path / "t.vts", "--geodesics", "exact"]
+    code, out, err = _run(capsys, *args, "--time-limit", "0.000001")
+    assert code == 2 and not out
+    assert len(err.strip().splitlines()) == 1
+    assert "time limit of 1e-06 s exceeded" in err and "(--time-limit 1e-06)" in err and "heat" in err
+    code, out, err = _run(capsys, *args, "--time-limit", "-3")
+    assert code == 2 and "--time-limit" in err

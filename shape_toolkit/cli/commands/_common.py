@@ -214,31 +214,52 @@ def default_output(given: str | None, inp: str | os.PathLike, what: str) -> Path
     return Path(given) if given else Path(f"{Path(inp).stem}.{what}")
 
 
+#: environment variable forcing progress on (``1``) even off a terminal (logs, tests) or off (``0``)
+PROGRESS_ENV = "SHAPE_TOOLKIT_PROGRESS"
+
+
 def progress_enabled(args: argparse.Namespace) -> bool:
-    """Progress is drawn on a terminal only, and never under ``--quiet`` or ``--json``."""
+    """Progress is drawn on a terminal only, and never under ``--quiet`` or ``--json``;
+    ``SHAPE_TOOLKIT_PROGRESS=1`` forces it on stderr anyway, ``=0`` turns it off."""
     if getattr(args, "quiet", False) or getattr(args, "json", False):
         return False
+    forced = os.environ.get(PROGRESS_ENV, "").strip()
+    if forced in ("0", "1"):
+        return forced == "1"
     return bool(getattr(sys.stderr, "isatty", lambda: False)())
 
 
+def _eta(seconds: float) -> str:
+    s = max(0, int(round(seconds)))
+    return f"{s // 60}m{s % 60:02d}s" if s >= 60 else f"{s}s"
+
+
 class _Status:
-    """A one-line spinner with elapsed seconds on stderr (tqdm), updated from a thread."""
+    """A one-line spinner with elapsed seconds on stderr (tqdm), updated from a thread; a step
+    with a known size shows ``done/total (percent), ETA`` too (:meth:`count`)."""
 
     def __init__(self, message: str, enabled: bool):
         self.message, self.enabled = message, enabled
         self._bar = None
         self._stop = None
+        self._counts = ""
+        self._t0 = 0.0
 
     def __enter__(self) -> _Status:
         if not self.enabled:
             return self
+        import shutil
         import threading
+        import time
 
         from tqdm import tqdm
 
+        # a terminal that reports 0 columns (some pseudo-terminals) would truncate the line to nothing
+        width = max(40, shutil.get_terminal_size((100, 24)).columns - 1)
         self._bar = tqdm(total=None, desc=self.message, bar_format="{desc} {elapsed}", file=sys.stderr,
-                         leave=False)
+                         leave=False, ncols=width, dynamic_ncols=False)
         self._stop = threading.Event()
+        self._t0 = time.perf_counter()
 
         def tick() -> None:
             while not self._stop.wait(0.25):
@@ -248,11 +269,30 @@ class _Status:
         self._thread.start()
         return self
 
-    def update(self, message: str) -> None:
-        """Change the shown step (e.g. a pipeline stage)."""
-        self.message = message
+    def _show(self, refresh: bool = True) -> None:
         if self._bar is not None:
-            self._bar.set_description_str(message)
+            self._bar.set_description_str(self.message + self._counts, refresh=refresh)
+
+    def update(self, message: str) -> None:
+        """Change the shown step (e.g. a pipeline stage); clears the counts of the previous step."""
+        self.message, self._counts = message, ""
+        self._t0 = __import__("time").perf_counter()
+        self._show()
+
+    def count(self, done: int, total: int | None = None) -> None:
+        """Show progress within the step: ``done`` of ``total`` units, percent and ETA (a
+        ``progress(done, total)`` callback of the library, e.g. geodesic sources)."""
+        if self._bar is None:
+            return
+        if total:
+            import time
+
+            el = time.perf_counter() - self._t0
+            eta = f", ETA {_eta(el / done * (total - done))}" if 0 < done < total else ""
+            self._counts = f": {done}/{total} ({100.0 * done / total:.0f}%{eta})"
+        else:
+            self._counts = f": {done}"
+        self._show(refresh=False)  # the ticker thread redraws 4 times a second
 
     def __exit__(self, *exc: object) -> None:
         if self._bar is not None:
@@ -263,7 +303,8 @@ class _Status:
 
 def status(args: argparse.Namespace, message: str) -> _Status:
     """Context manager showing ``message`` and the elapsed time while a long step runs (terminal
-    only; silent under ``--quiet`` / ``--json``); ``.update(msg)`` changes the message."""
+    only, or forced by ``SHAPE_TOOLKIT_PROGRESS=1``; silent under ``--quiet`` / ``--json``);
+    ``.update(msg)`` changes the message, ``.count(done, total)`` shows progress within it."""
     return _Status(message, progress_enabled(args))
 
 

@@ -157,22 +157,23 @@ def _match_demo(out: Path, random_state: int, args: argparse.Namespace) -> dict:
     t0 = time.perf_counter()
     with status(args, "zoomout: matching two poses") as st:
         corr = pipe.run(a.shape, b.shape, seeds, progress=st.update)
-    seconds = time.perf_counter() - t0
-    # same mesh connectivity in every pose: the true map is the identity
-    truth = np.arange(a.shape.n_vertices)
-    ok = corr.target_of >= 0
-    d = np.linalg.norm(b.shape.vertices[corr.target_of[ok]] - b.shape.vertices[truth[ok]], axis=1)
-    err = float(d.mean() / np.sqrt(b.shape.area))
-    cs, ct = pullback_colors(a.shape, b.shape, corr.target_of)
-    render_shapes(
-        [{"shape": b.shape, "colors": ct, "title": "target: colour = position"},
-         {"shape": a.shape, "colors": cs, "title": "source: target colours pulled back through the map"}],
-        out / "match.png", panel_size=4.5, dpi=110,
-        title=f"zoomout pipeline with {len(tips)} limb-tip seeds, pull-back colour transfer "
-              f"(mean error {err:.3f} sqrt(area), lower is better)",
-    )
-    save_colored_ply(a.shape, out / "match.source.ply", cs)
-    save_colored_ply(b.shape, out / "match.target.ply", ct)
+        seconds = time.perf_counter() - t0
+        # same mesh connectivity in every pose: the true map is the identity
+        truth = np.arange(a.shape.n_vertices)
+        ok = corr.target_of >= 0
+        d = np.linalg.norm(b.shape.vertices[corr.target_of[ok]] - b.shape.vertices[truth[ok]], axis=1)
+        err = float(d.mean() / np.sqrt(b.shape.area))
+        st.update("demo: drawing match.png")
+        cs, ct = pullback_colors(a.shape, b.shape, corr.target_of)
+        render_shapes(
+            [{"shape": b.shape, "colors": ct, "title": "target: colour = position"},
+             {"shape": a.shape, "colors": cs, "title": "source: target colours pulled back through the map"}],
+            out / "match.png", panel_size=4.5, dpi=110,
+            title=f"zoomout pipeline with {len(tips)} limb-tip seeds, pull-back colour transfer "
+                  f"(mean error {err:.3f} sqrt(area), lower is better)",
+        )
+        save_colored_ply(a.shape, out / "match.source.ply", cs)
+        save_colored_ply(b.shape, out / "match.target.ply", ct)
     return {"pipeline": "zoomout", "n_seeds": len(tips), "mean_error_euclidean_sqrt_area": round(err, 4),
             "seconds": round(seconds, 2),
             "figure": "match.png", "ply": ["match.source.ply", "match.target.ply"]}
@@ -187,14 +188,16 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ParameterError(f"--output: cannot create the folder {args.output!r}: {exc.strerror or exc}") from None
     t0 = time.perf_counter()
-    gen = articulated_shape(random_state=args.random_state)
-    shape = gen.shape
-    save_shape(shape, out / "shape.off")
-    with status(args, f"spectrum: {args.k} eigenpairs"):
+    with status(args, "demo: generating an articulated shape") as st:
+        gen = articulated_shape(random_state=args.random_state)
+        shape = gen.shape
+        save_shape(shape, out / "shape.off")
+        st.update(f"demo: spectrum, {args.k} eigenpairs of {shape.n_vertices} vertices")
         graph = build_graph(shape, "cotangent")
         spec = compute_spectrum(graph, args.k, sign_fix=True)
-    spec.save(out / "spectrum.npz")
-    figures = _spectrum_figures(shape, spec, out)
+        spec.save(out / "spectrum.npz")
+        st.update("demo: drawing spectrum.png and eigenvectors.png")
+        figures = _spectrum_figures(shape, spec, out)
     print(f"shape: {shape!r}")
     print(f"first eigenvalues: {np.array2string(spec.eigenvalues[:6], precision=4)}")
     match = _match_demo(out, args.random_state, args)

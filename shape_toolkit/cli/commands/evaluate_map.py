@@ -1,5 +1,16 @@
-"""``shape-toolkit evaluate-map SRC DST MAP --truth-src A.vts --truth-dst B.vts``: normalized
-geodesic error of a map against ground truth (Kim et al. 2011 protocol)."""
+"""``shape-toolkit evaluate-map SRC DST MAP``: quality of a correspondence map.
+
+* ``--truth-src A.vts --truth-dst B.vts``: normalized geodesic error against ground truth (Kim et al.
+  2011 protocol), its cumulative curve, and with ``--truth-dst-sym`` the symmetric-aware error.
+* ``--r-smoothness [R ...]``: thesis Table 7.2, the percent of r-smooth source vertices (eq. 7.4-7.5)
+  for neighbourhoods of R percent of the vertices (default the thesis's 0.1 ... 0.8), no ground
+  truth needed.
+* ``--labels SRC_LABELS TGT_LABELS``: thesis Table 7.3, mean recall and precision of the source's
+  segmentation carried through the map onto the target's (per face with ``--faces``).
+
+Geodesic computations show their progress on a terminal and stop, with one line and exit 2, past
+``--time-limit`` seconds (exact geodesics take about a second per ground-truth point on 5k meshes).
+"""
 
 from __future__ import annotations
 
@@ -7,31 +18,101 @@ import argparse
 
 import numpy as np
 
-from shape_toolkit.cli.commands._common import print_json
-from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.cli.commands._common import (
+    add_quiet,
+    positive_int_arg,
+    print_json,
+    random_state_arg,
+    read_labels_arg,
+    status,
+)
+from shape_toolkit.errors import ParameterError, ShapeFileError, TimeLimitError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.metrics.correspondence import (
+    R_SMOOTH_RS,
     correspondence_report,
     geodesic_errors,
+    map_label_scores,
     paired_geodesic_distances,
+    r_smoothness_table,
     target_coverage,
 )
 from shape_toolkit.results.correspondence import load_map
 from shape_toolkit.results.labels import read_vertex_ids
 
+#: default --time-limit of each geodesic computation, in seconds
+DEFAULT_TIME_LIMIT = 300.0
+#: geodesics of the r-neighbourhoods: Dijkstra along edges ranks the nearest vertices like the
+#: surface distance does, and explores only a small disc around each vertex
+R_SMOOTH_GEODESICS = "dijkstra"
+
+
+def _time_limit_arg(text: str) -> float | None:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
+    if not np.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds >= 0, got {text!r}")
+    return None if value == 0 else value
+
+
+def _percent_arg(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a percent of the vertices in (0, 100], got {text!r}") from None
+    if not (np.isfinite(value) and 0 < value <= 100):
+        raise argparse.ArgumentTypeError(f"must be a percent of the vertices in (0, 100], got {text!r}")
+    return value
+
+
+def _theta_arg(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a fraction in (0, 1], got {text!r}") from None
+    if not (np.isfinite(value) and 0 < value <= 1):
+        raise argparse.ArgumentTypeError(f"must be a fraction in (0, 1], got {text!r}")
+    return value
+
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("evaluate-map", help="geodesic error of a correspondence map")
+    p = sub.add_parser(
+        "evaluate-map",
+        help="geodesic error, r-smoothness and label transfer of a correspondence map",
+        description="Evaluate a map (one 0-based target vertex per source vertex, -1 unmatched) by its "
+        "geodesic error against ground truth, its r-smoothness (thesis Table 7.2) and the recall and "
+        "precision of a segmentation carried through it (Table 7.3). Give at least one of them.",
+    )
     p.add_argument("source", help="source shape")
     p.add_argument("target", help="target shape")
     p.add_argument("map", help="map file: one 0-based target vertex per source vertex, -1 unmatched")
-    p.add_argument("--truth-src", required=True, help="ground-truth source vertex ids (TOSCA .vts)")
-    p.add_argument("--truth-dst", required=True, help="ground-truth target vertex ids, same length")
+    p.add_argument("--truth-src", help="ground-truth source vertex ids (TOSCA .vts)")
+    p.add_argument("--truth-dst", help="ground-truth target vertex ids, same length")
     p.add_argument("--truth-dst-sym", help="symmetric ground truth on the target (.sym.vts)")
     p.add_argument("--zero-based", action="store_true", help="truth files count from 0 (default: 1, .vts)")
     p.add_argument("--geodesics", default="heat", choices=["exact", "heat", "fmm", "dijkstra"],
-                   help="geodesic distance method (default heat)")
+                   help="geodesic distance method of the error (default heat)")
+    p.add_argument("--time-limit", type=_time_limit_arg, default=DEFAULT_TIME_LIMIT, metavar="SECONDS",
+                   help=f"stop a geodesic computation past this many seconds, or as soon as it is clearly "
+                   f"going to (default {DEFAULT_TIME_LIMIT:g}; 0: no limit); exact geodesics take about "
+                   "1 s per ground-truth point on a 5,000-vertex mesh")
+    p.add_argument("--r-smoothness", nargs="*", type=_percent_arg, metavar="R",
+                   help="percent of r-smooth source vertices (thesis eq. 7.4-7.5, Table 7.2) for "
+                   "neighbourhoods of R percent of the vertices (no R: "
+                   f"{' '.join(f'{r:g}' for r in R_SMOOTH_RS)}, the thesis's)")
+    p.add_argument("--r-theta", type=_theta_arg, default=0.9,
+                   help="fraction of a neighbourhood that must land in the image's neighbourhood (default 0.9)")
+    p.add_argument("--r-sample", type=positive_int_arg, default=None, metavar="N",
+                   help="evaluate r-smoothness on N random source vertices (default: all of them)")
+    p.add_argument("--random-state", type=random_state_arg, default=0, help="seed of --r-sample (default 0)")
+    p.add_argument("--labels", nargs=2, metavar=("SRC_LABELS", "TGT_LABELS"),
+                   help="segmentations of both shapes (same label = same part): mean recall and precision "
+                   "of the source's labels carried onto the target through the map (Table 7.3)")
+    p.add_argument("--faces", action="store_true", help="--labels files hold one label per face (PSB .seg)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_quiet(p)
     p.set_defaults(func=run)
 
 
@@ -43,16 +124,24 @@ def _truth(path: str, n: int, one_based: bool):
         raise ShapeFileError(path, exc.problem + hint) from None
 
 
-def run(args: argparse.Namespace) -> int:
-    source = load_shape(args.source)
-    target = load_shape(args.target)
-    # The error is in units of sqrt(area): scale-free. Evaluate on coordinates divided by a power
-    # of two near their magnitude (an exact rescaling), so 1e-300 or 1e300 coordinates neither
-    # underflow nor overflow in the geodesic solvers (they did: NaN heat-method matrices).
-    target = target.with_vertices(target.vertices / target.scale)
-    corr = load_map(args.map, source.n_vertices, target.n_vertices)
-    if corr.n_matched == 0:
-        raise ParameterError(f"{args.map}: the map matches no vertex (all -1)")
+def _limit_hint(exc: TimeLimitError, args: argparse.Namespace) -> TimeLimitError:
+    return TimeLimitError(f"{exc} (--time-limit {args.time_limit:g})")
+
+
+def _check_args(args: argparse.Namespace) -> None:
+    if (args.truth_src is None) != (args.truth_dst is None):
+        raise ParameterError("--truth-src and --truth-dst go together")
+    if args.truth_dst_sym and args.truth_src is None:
+        raise ParameterError("--truth-dst-sym needs --truth-src and --truth-dst")
+    if args.faces and not args.labels:
+        raise ParameterError("--faces applies to --labels files; give --labels SRC_LABELS TGT_LABELS")
+    if args.truth_src is None and args.r_smoothness is None and not args.labels:
+        raise ParameterError(
+            "nothing to evaluate: give --truth-src/--truth-dst (geodesic error), --r-smoothness or --labels"
+        )
+
+
+def _geodesic_error(args, source, target, corr, st) -> dict:
     one = not args.zero_based
     ts = _truth(args.truth_src, source.n_vertices, one)
     td = _truth(args.truth_dst, target.n_vertices, one)
@@ -66,28 +155,97 @@ def run(args: argparse.Namespace) -> int:
         sym = _truth(args.truth_dst_sym, target.n_vertices, one)
         if sym.size != td.size:
             raise ShapeFileError(args.truth_dst_sym, f"has {sym.size} ids, expected {td.size}")
-    if sym is None:
-        err = geodesic_errors(target, corr, ts, td, method=args.geodesics)
-        result = correspondence_report(err)
-    else:  # one pass of distance rows from the predicted vertices serves both truths
-        pred = corr.target_of[ts]
-        ok = pred >= 0
-        both = np.full((ts.size, 2), np.inf)
-        both[ok] = paired_geodesic_distances(
-            target, pred[ok], np.column_stack([td[ok], sym[ok]]), method=args.geodesics
-        ) / np.sqrt(target.area)
-        result = correspondence_report(both[:, 0])
-        rs = correspondence_report(both.min(axis=1))
-        result["symmetric"] = {"mean_geodesic_error": rs["mean_geodesic_error"], "curve": rs["curve"]}
+    st.update(f"evaluate-map: {args.geodesics} geodesics from the predicted images")
+    try:
+        if sym is None:
+            err = geodesic_errors(target, corr, ts, td, method=args.geodesics, time_limit=args.time_limit,
+                                  progress=st.count)
+            result = correspondence_report(err)
+        else:  # one pass of distance rows from the predicted vertices serves both truths
+            pred = corr.target_of[ts]
+            ok = pred >= 0
+            both = np.full((ts.size, 2), np.inf)
+            both[ok] = paired_geodesic_distances(
+                target, pred[ok], np.column_stack([td[ok], sym[ok]]), method=args.geodesics,
+                time_limit=args.time_limit, progress=st.count,
+            ) / np.sqrt(target.area)
+            result = correspondence_report(both[:, 0])
+            rs = correspondence_report(both.min(axis=1))
+            result["symmetric"] = {"mean_geodesic_error": rs["mean_geodesic_error"], "curve": rs["curve"]}
+    except TimeLimitError as exc:
+        raise _limit_hint(exc, args) from None
+    result["geodesics"] = args.geodesics
+    return result
+
+
+def run(args: argparse.Namespace) -> int:
+    _check_args(args)
+    source = load_shape(args.source)
+    target = load_shape(args.target)
+    # Every score is scale-free (errors in units of sqrt(area), neighbourhoods by vertex counts).
+    # Evaluate on coordinates divided by a power of two near their magnitude (an exact rescaling),
+    # so 1e-300 or 1e300 coordinates neither underflow nor overflow in the geodesic solvers (they
+    # did: NaN heat-method matrices).
+    target = target.with_vertices(target.vertices / target.scale)
+    source = source.with_vertices(source.vertices / source.scale)
+    corr = load_map(args.map, source.n_vertices, target.n_vertices)
+    if corr.n_matched == 0:
+        raise ParameterError(f"{args.map}: the map matches no vertex (all -1)")
+    labels = None
+    if args.labels:
+        labels = (read_labels_arg(args.labels[0], source, args.faces, "SRC_LABELS"),
+                  read_labels_arg(args.labels[1], target, args.faces, "TGT_LABELS"))
+        if not np.any(labels[1] >= 0):
+            raise ShapeFileError(args.labels[1], "has no label >= 0 (negative labels mean unlabelled)")
+    result: dict = {}
+    with status(args, "evaluate-map") as st:
+        if args.truth_src is not None:
+            result.update(_geodesic_error(args, source, target, corr, st))
+        if args.r_smoothness is not None:
+            rs = tuple(args.r_smoothness) or R_SMOOTH_RS
+            st.update("evaluate-map: r-smoothness (geodesic neighbourhoods on both shapes)")
+            try:
+                table = r_smoothness_table(
+                    source, target, corr, rs, args.r_theta, sample=args.r_sample,
+                    method=R_SMOOTH_GEODESICS, random_state=args.random_state,
+                    time_limit=args.time_limit, progress=st.count,
+                )
+            except TimeLimitError as exc:
+                raise _limit_hint(exc, args) from None
+            result["r_smoothness"] = {
+                "theta": args.r_theta,
+                "n_evaluated": min(args.r_sample or source.n_vertices, source.n_vertices),
+                "geodesics": R_SMOOTH_GEODESICS,
+                "table": [[r, pct] for r, pct in table.items()],
+            }
+        if labels is not None:
+            st.update("evaluate-map: label transfer")
+            s = map_label_scores(corr, labels[0], labels[1], target)
+            result["labels"] = {
+                "recall": s["recall"], "precision": s["precision"], "filled": s["filled"],
+                "n_labels": len(s["labels"]), "per": "face" if args.faces else "vertex",
+            }
     result["coverage"] = target_coverage(corr)
     result["n_matched"] = corr.n_matched
-    result["geodesics"] = args.geodesics
     if args.json:
         print_json(result)
-    else:
+        return 0
+    if "mean_geodesic_error" in result:
         print(f"mean geodesic error {result['mean_geodesic_error']:.4f} (sqrt-area units, lower is better), "
               f"{100 * result['within_0.05']:.1f}% within 0.05, coverage {result['coverage']:.3f}")
         if "symmetric" in result:
             print(f"symmetric-aware mean geodesic error {result['symmetric']['mean_geodesic_error']:.4f} "
                   "(the better of the truth and its mirror, per point)")
+    else:
+        print(f"coverage {result['coverage']:.3f} ({corr.n_matched}/{corr.n_source} source vertices matched)")
+    if "r_smoothness" in result:
+        r = result["r_smoothness"]
+        cells = "  ".join(f"r={a:g}%: {b:.2f}" for a, b in r["table"])
+        print(f"r-smooth vertices in percent (theta {r['theta']:g}, {r['n_evaluated']} source vertices, "
+              f"higher is smoother): {cells}")
+    if "labels" in result:
+        lab = result["labels"]
+        print(f"label transfer over {lab['n_labels']} labels: mean recall {lab['recall']:.4f}  "
+              f"mean precision {lab['precision']:.4f} (higher is better; {100 * lab['filled']:.1f}% of the "
+              "target reached by no source vertex took its nearest neighbour's label)")
     return 0
