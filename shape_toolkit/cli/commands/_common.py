@@ -254,10 +254,16 @@ class _Status:
 
         from tqdm import tqdm
 
-        # a terminal that reports 0 columns (some pseudo-terminals) would truncate the line to nothing
-        width = max(40, shutil.get_terminal_size((100, 24)).columns - 1)
+        # the size of stderr's terminal; one that reports 0 columns and rows (some pseudo-terminals)
+        # made tqdm draw nothing, so fall back to $COLUMNS / stdout's terminal / 100 x 24
+        try:
+            cols, rows = os.get_terminal_size(sys.stderr.fileno())
+        except (OSError, ValueError, AttributeError):
+            cols, rows = 0, 0
+        if cols <= 0 or rows <= 0:
+            cols, rows = shutil.get_terminal_size((100, 24))
         self._bar = tqdm(total=None, desc=self.message, bar_format="{desc} {elapsed}", file=sys.stderr,
-                         leave=False, ncols=width, dynamic_ncols=False)
+                         leave=False, ncols=max(40, cols - 1), nrows=max(4, rows), dynamic_ncols=False)
         self._stop = threading.Event()
         self._t0 = time.perf_counter()
 
