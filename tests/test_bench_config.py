@@ -222,3 +222,42 @@ def test_matching_metric_and_option_errors_list_the_valid_ones(tmp_path, old, ne
         load_config(_write(tmp_path, R_SMOOTH.replace(old, new)))
     assert problem in str(e.value)
     assert e.value.key.startswith("tasks[0].metrics[1]" if "metric " in problem else "tasks[0].options")
+
+
+def test_peer_methods_run_side_by_side(tmp_path, monkeypatch):
+    import numpy as np
+
+    from shape_toolkit.bench import peers
+    from shape_toolkit.bench.runner import read_rows, run_benchmark
+
+    calls = []
+
+    def identity(source, target):  # a stand-in peer: the exact map of the generated poses
+        calls.append(source.n_vertices)
+        return np.arange(source.n_vertices)
+
+    monkeypatch.setitem(peers.PEERS, "identity", (identity, "numpy", "numpy"))
+    text = R_SMOOTH.replace('plugin = "eigvec-alignment"', 'peer = "identity"\nlabel = "exact"')
+    cfg = load_config(_write(tmp_path, text))
+    (m,) = cfg.tasks[0].methods
+    assert (m.family, m.plugin, m.method_label) == ("peers", "identity", "exact")
+    run_benchmark(cfg, tmp_path / "run", limit=1, progress=False)
+    (row,) = read_rows(tmp_path / "run")
+    assert row["status"] == "ok", row.get("error")
+    assert calls and row["method_label"] == "exact"
+    assert row["metrics"]["mean_geodesic_error"] == 0.0 and row["metrics"]["label_recall"] == 1.0
+    assert row["metrics"]["r_smooth@5"] > 50  # the poses are near-isometric, not isometric
+
+
+@pytest.mark.parametrize("method, key, problem", [
+    ('peer = "nope"', "peer", "unknown peer 'nope'; known: pyfm"),
+    ('peer = "pyfm"\nparams = { k = 3 }', "params", "not allowed with peer"),
+])
+def test_peer_errors_name_the_key(tmp_path, method, key, problem):
+    with pytest.raises(ConfigError) as e:
+        load_config(_write(tmp_path, R_SMOOTH.replace('plugin = "eigvec-alignment"', method)))
+    assert e.value.key == f"tasks[0].methods[0].{key}" and problem in str(e.value)
+    seg = BASE.replace('plugin = "spectral-clustering"\npreset = "luxburg-unnormalized"\n'
+                       'params = { n_segments = [3, 6] }', 'peer = "pyfm"')
+    with pytest.raises(ConfigError, match="peers are matching methods"):
+        load_config(_write(tmp_path, seg, "seg.toml"))

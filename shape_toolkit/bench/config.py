@@ -31,6 +31,10 @@ Layout (every key is checked; an error names the key, e.g. ``tasks[0].methods[1]
     label = "..."              # optional display name
     params = { n_segments = [4, 6] }
 
+A matching method may instead be ``pipeline = "zoomout"`` (a preset, TOML file or inline table of
+:mod:`shape_toolkit.pipeline`) or ``peer = "pyfm"`` (a peer's published pipeline,
+:mod:`shape_toolkit.bench.peers`), each with an optional ``label``.
+
 Spectra: methods receive the spectra they declare (``spectrum_spec()`` of a plugin and of its
 keypoint detector, ``spectrum_specs()`` of a pipeline), so a ``spectrum`` table belongs to the
 ``spectrum`` task only, where the spectrum is the subject (``{ k = 40, laplacian = ..., use_mass
@@ -331,6 +335,26 @@ def _pipeline_method(task: str, m: dict, where: str) -> MethodSpec:
     )
 
 
+def _peer_method(task: str, m: dict, where: str) -> MethodSpec:
+    """A matching method run by a peer implementation (:mod:`shape_toolkit.bench.peers`, e.g.
+    ``peer = "pyfm"``), side by side with the toolkit's methods."""
+    from shape_toolkit.bench.peers import create_peer
+
+    if task != "matching":
+        raise ConfigError(f"{where}.peer", 'peers are matching methods (task = "matching")')
+    extra = sorted(set(m) - {"peer", "label"})
+    if extra:
+        raise ConfigError(f"{where}.{extra[0]}", "not allowed with peer (a peer runs its own published pipeline)")
+    name = m["peer"]
+    if not isinstance(name, str):
+        raise ConfigError(f"{where}.peer", f"must be a peer name, got {name!r}")
+    try:
+        create_peer(name)
+    except ToolkitError as exc:
+        raise ConfigError(f"{where}.peer", str(exc)) from None
+    return MethodSpec(name, "peers", None, {}, m.get("label", f"peer:{name}"))
+
+
 def parse_config(raw: dict[str, Any], *, base: Path | None = None, source: str = "") -> BenchConfig:
     """Validate a config dict (as read from TOML) and list the dataset items; raises
     :class:`ConfigError` naming the first bad key."""
@@ -448,12 +472,17 @@ def parse_config(raw: dict[str, Any], *, base: Path | None = None, source: str =
         methods = []
         for j, m in enumerate(t["methods"]):
             mw = f"{w}.methods[{j}]"
-            _check_keys(m, {"plugin", "pipeline", "preset", "label", "params", "spectrum", "keypoints"}, mw)
+            _check_keys(m, {"plugin", "pipeline", "peer", "preset", "label", "params", "spectrum", "keypoints"}, mw)
             if "pipeline" in m:
                 methods.append(_pipeline_method(kind, m, mw))
                 continue
+            if "peer" in m:
+                methods.append(_peer_method(kind, m, mw))
+                continue
             if "plugin" not in m:
-                raise ConfigError(f"{mw}.plugin", "is required (or pipeline = ... for a matching pipeline)")
+                raise ConfigError(
+                    f"{mw}.plugin", "is required (or pipeline = ... / peer = ... for a matching method)"
+                )
             fam = _family_for(kind, m["plugin"], mw)
             prm = m.get("params", {}) or {}
             if not isinstance(prm, dict):

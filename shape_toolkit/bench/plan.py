@@ -104,11 +104,15 @@ def subject_spec(task: TaskSpec, method: MethodSpec) -> SpectrumSpec:
 
 
 def create_method(family: str, plugin: str, preset: str | None, params: dict, random_state: int) -> Any:
-    """The method object of a row: a pipeline, or a plugin seeded with the run's random state."""
+    """The method object of a row: a pipeline, a peer, or a plugin seeded with the run's random state."""
     if family == "pipelines":
         from shape_toolkit.pipeline import load_pipeline
 
         return load_pipeline(params["pipeline"])
+    if family == "peers":
+        from shape_toolkit.bench.peers import create_peer
+
+        return create_peer(plugin)
     from shape_toolkit.bench.tasks import _with_random_state
 
     return _with_random_state(family, plugin, preset, params, random_state)

@@ -1,0 +1,87 @@
+"""Peer implementations run side by side with the toolkit in benchmarks (``peer = "NAME"`` in a
+matching task of a config): the one copy of each peer's pipeline.
+
+``pyfm``: pyFM (pip ``pyfmaps``, pinned to 1.3.1 in the ``bench`` extra), the quick-start pipeline
+of its README: ``TriMesh(..., area_normalize=True, center=True)``, ``preprocess(descr_type="WKS",
+subsample_step=2)``, ``fit(K=30, w_descr=1, w_lap=0.1, w_dcomm=1, w_orient=1)``,
+``zoomout_refine(nit=16, step=5)``, ``get_p2p``. pyFM's ``p2p_21`` maps its second mesh to its
+first, so its first mesh is our target. A peer computes its own Laplacian spectrum inside its
+timed call (the toolkit's methods get theirs from the run's cache, timed separately).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.results.correspondence import Correspondence
+
+__all__ = ["PEERS", "Peer", "create_peer", "pyfm_map"]
+
+
+def pyfm_map(source: Shape, target: Shape) -> np.ndarray:
+    """pyFM's README quick start from ``source`` to ``target``: int64 ``(n_source,)`` target vertex
+    of each source vertex."""
+    from pyFM.functional import FunctionalMapping
+    from pyFM.mesh import TriMesh
+
+    source.require_faces("pyFM")
+    target.require_faces("pyFM")
+    mesh1 = TriMesh(np.array(target.vertices), np.array(target.faces), area_normalize=True, center=True)
+    mesh2 = TriMesh(np.array(source.vertices), np.array(source.faces), area_normalize=True, center=True)
+    model = FunctionalMapping(mesh1, mesh2)
+    model.preprocess(descr_type="WKS", subsample_step=2, verbose=False)
+    model.fit(K=30, w_descr=1e0, w_lap=1e-1, w_dcomm=1e0, w_orient=1e0, verbose=False)
+    fm = model.zoomout_refine(nit=16, step=5, verbose=False)
+    return np.asarray(model.get_p2p(fm), dtype=np.int64)
+
+
+class Peer:
+    """A peer method with the dense-matcher call of the benchmark (``match(source, target, **_)``
+    returning a :class:`Correspondence`); it declares no spectrum (it computes its own)."""
+
+    def __init__(self, name: str, fn: Callable[[Shape, Shape], np.ndarray], package: str):
+        self.name, self.fn, self.package = name, fn, package
+
+    def match(self, source: Shape, target: Shape, **_: Any) -> Correspondence:
+        """The peer's map from ``source`` to ``target``."""
+        import warnings
+
+        with warnings.catch_warnings():  # a peer's own deprecation chatter is not ours to show
+            warnings.simplefilter("ignore")
+            t = self.fn(source, target)
+        return Correspondence(t, target.n_vertices, info={"peer": self.name, "package": self.package})
+
+    def __repr__(self) -> str:
+        return f"Peer({self.name!r}, {self.package})"
+
+
+#: peer name -> (function, distribution, import module)
+PEERS: dict[str, tuple[Callable[[Shape, Shape], np.ndarray], str, str]] = {
+    "pyfm": (pyfm_map, "pyfmaps", "pyFM"),
+}
+
+
+def create_peer(name: str) -> Peer:
+    """The peer ``name`` of :data:`PEERS`; :class:`ParameterError` when unknown or not installed."""
+    import importlib.util
+
+    if name not in PEERS:
+        raise ParameterError(f"unknown peer {name!r}; known: {', '.join(sorted(PEERS))}")
+    fn, dist, module = PEERS[name]
+    if importlib.util.find_spec(module) is None:
+        raise ParameterError(
+            f"peer {name!r} needs {dist} (import {module}), which is not installed: "
+            "pip install 'shape-toolkit[bench]'"
+        )
+    import importlib.metadata
+
+    try:
+        version = importlib.metadata.version(dist)
+    except importlib.metadata.PackageNotFoundError:  # pragma: no cover - installed from source
+        version = "unknown"
+    return Peer(name, fn, f"{dist} {version}")
