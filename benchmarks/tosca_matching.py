@@ -83,17 +83,11 @@ def read_pairs(tosca: Path) -> list[tuple[str, str]]:
 
 
 def run_pyfm(A, B) -> np.ndarray:
-    """pyFM's README quick start, returning the A -> B vertex map."""
-    from pyFM.functional import FunctionalMapping
-    from pyFM.mesh import TriMesh
+    """pyFM's README quick start, returning the A -> B vertex map (the package's one copy of it,
+    :func:`shape_toolkit.bench.peers.pyfm_map`, also run by ``peer = "pyfm"`` in bench configs)."""
+    from shape_toolkit.bench.peers import pyfm_map
 
-    mesh1 = TriMesh(np.array(B.vertices), np.array(B.faces), area_normalize=True, center=True)
-    mesh2 = TriMesh(np.array(A.vertices), np.array(A.faces), area_normalize=True, center=True)
-    model = FunctionalMapping(mesh1, mesh2)
-    model.preprocess(descr_type="WKS", subsample_step=2, verbose=False)
-    model.fit(K=30, w_descr=1e0, w_lap=1e-1, w_dcomm=1e0, w_orient=1e0, verbose=False)
-    fm = model.zoomout_refine(nit=16, step=5)
-    return np.asarray(model.get_p2p(fm), dtype=np.int64)
+    return pyfm_map(A, B)
 
 
 def peak_rss_mb() -> float:
