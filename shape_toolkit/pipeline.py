@@ -104,6 +104,15 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
 }
 
+#: the 7.4 chain seeded by colour features (7.2.2): topo-robust with its sparse stage swapped
+PRESETS["topo-robust-photometric"] = {
+    **copy.deepcopy(PRESETS["topo-robust"]),
+    "description": "thesis 7.4 with the colour-feature seeds of 7.2.2: ADF keypoints matched by the shapes' "
+    "surface colours (photometric: ring colour descriptors, mutual nearest neighbours, ratio test, target "
+    "refined by colour; a geometric texture when neither shape is coloured), then the topo-robust chain",
+    "sparse": {"plugin": "photometric"},
+}
+
 _STAGE_KEYS = {"plugin", "preset", "params"}
 
 

@@ -114,6 +114,83 @@ def test_mesh_round_trip(ext, binary, shape):
         np.testing.assert_array_equal(back.faces, shape.faces)
 
 
+@st.composite
+def colored_meshes(draw):
+    """A mesh with per-vertex colours: 8-bit (uint8) or floats in [0, 1]."""
+    shape = draw(meshes())
+    n = shape.n_vertices
+    if draw(st.booleans()):
+        c = np.array(draw(st.lists(st.integers(0, 255), min_size=3 * n, max_size=3 * n)), dtype=np.uint8)
+    else:
+        unit = st.floats(0.0, 1.0, allow_nan=False, allow_subnormal=False)
+        c = np.array(draw(st.lists(unit, min_size=3 * n, max_size=3 * n)), dtype=np.float64)
+    return shape.with_colors(c.reshape(n, 3))
+
+
+COLOR_WRITES = [(".off", False), (".ply", False), (".ply", True), (".obj", False)]
+
+
+@pytest.mark.parametrize("ext,binary", COLOR_WRITES)
+@SETTINGS
+@given(shape=colored_meshes())
+def test_colored_mesh_round_trip(ext, binary, shape):
+    """OFF (as COFF) and OBJ keep colours exactly; PLY stores 8 bits (exact for 8-bit colours)."""
+    p = _tmp(ext)
+    save_shape(shape, p, binary=binary)
+    back = load_shape(p)
+    np.testing.assert_array_equal(back.vertices, shape.vertices)
+    np.testing.assert_array_equal(back.faces, shape.faces)
+    if ext == ".ply":
+        np.testing.assert_allclose(back.colors, shape.colors, rtol=0, atol=0.5 / 255 + 1e-12)
+        np.testing.assert_array_equal(back.colors, np.round(shape.colors * 255) / 255)
+    else:
+        np.testing.assert_array_equal(back.colors, shape.colors)
+
+
+@pytest.mark.parametrize("ext,binary", COLOR_WRITES)
+@SETTINGS
+@given(shape=colored_meshes(), ops=mutations)
+def test_mutated_colored_files_raise_only_typed_errors(ext, binary, shape, ops):
+    p = _tmp(ext)
+    save_shape(shape, p, binary=binary)
+    p.write_bytes(_mutate(p.read_bytes(), ops))
+    out = _only_typed(load_shape, p)
+    if out is not None and out.colors is not None:
+        assert out.colors.shape == (out.n_vertices, 3)
+        assert np.isfinite(out.colors).all() and out.colors.min() >= 0 and out.colors.max() <= 1
+
+
+def _textured_obj(shape: Shape) -> Path:
+    """``shape`` as a texture-mapped OBJ (its own UV per vertex) with an MTL file and a 4x4 PNG."""
+    from PIL import Image
+
+    p = _tmp(".obj")
+    img = (np.arange(48).reshape(4, 4, 3) * 5).astype(np.uint8)
+    Image.fromarray(img).save(p.parent / "tex.png")
+    (p.parent / "m.mtl").write_text("newmtl skin\nKd 1 1 1\nmap_Kd tex.png\n")
+    v = shape.vertices
+    uv = (v[:, :2] - v[:, :2].min(axis=0)) / np.maximum(np.ptp(v[:, :2], axis=0), 1e-9)
+    lines = ["mtllib m.mtl"] + [f"v {x!r} {y!r} {z!r}" for x, y, z in v.tolist()]
+    lines += [f"vt {a!r} {b!r}" for a, b in uv.tolist()] + ["usemtl skin"]
+    lines += [f"f {a + 1}/{a + 1} {b + 1}/{b + 1} {c + 1}/{c + 1}" for a, b, c in shape.faces.tolist()]
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+@SETTINGS
+@given(shape=meshes(), ops=mutations, target=st.sampled_from(["obj", "mtl", "png"]))
+def test_mutated_textured_obj_raises_only_typed_errors(shape, ops, target):
+    """The OBJ, its material library or its image damaged: a ShapeFileError, never another error."""
+    p = _textured_obj(shape)
+    clean = load_shape(p)
+    assert clean.colors is not None and np.array_equal(clean.vertices, shape.vertices)
+    victim = {"obj": p, "mtl": p.parent / "m.mtl", "png": p.parent / "tex.png"}[target]
+    victim.write_bytes(_mutate(victim.read_bytes(), ops))
+    out = _only_typed(load_shape, p)
+    if out is not None and out.colors is not None:
+        assert np.isfinite(out.colors).all() and out.colors.min() >= 0 and out.colors.max() <= 1
+
+
 @pytest.mark.parametrize("ext", [".xyz", ".pcd", ".ply"])
 @SETTINGS
 @given(shape=meshes())

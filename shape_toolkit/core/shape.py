@@ -1,4 +1,5 @@
-"""The immutable :class:`Shape`: vertices, optional triangle faces, cheap cached properties."""
+"""The immutable :class:`Shape`: vertices, optional triangle faces, optional per-vertex colours,
+cheap cached properties."""
 
 from __future__ import annotations
 
@@ -10,7 +11,11 @@ import numpy as np
 
 from shape_toolkit.errors import InvalidShapeError
 
-__all__ = ["Shape", "coordinate_scale", "duplicate_face_pairs", "check_no_duplicate_faces"]
+__all__ = ["Shape", "check_colors", "coordinate_scale", "duplicate_face_pairs", "check_no_duplicate_faces"]
+
+#: Float colours may exceed [0, 1] by this much (rounding of computed colours) and are clipped;
+#: anything further out is refused.
+COLOR_TOLERANCE = 1e-6
 
 
 def coordinate_scale(vertices: np.ndarray) -> float:
@@ -65,6 +70,43 @@ def check_no_duplicate_faces(faces: np.ndarray, where: str = "") -> None:
         )
 
 
+def check_colors(colors: np.ndarray, n_vertices: int, where: str = "") -> np.ndarray:
+    """Per-vertex RGB colours as float64 ``(n_vertices, 3)`` in [0, 1], or :class:`InvalidShapeError`.
+
+    ``uint16`` values are divided by 65535, other integer types must lie in 0..255 and are divided
+    by 255 (8-bit channels); floats must be finite and in [0, 1] (values off by at most
+    :data:`COLOR_TOLERANCE` are clipped). Out-of-range values are refused, never clipped: float
+    colours in 0..255, say, would otherwise all turn white.
+    """
+    c = np.asarray(colors)
+    if c.ndim != 2 or c.shape != (n_vertices, 3):
+        raise InvalidShapeError(f"colors must be an ({n_vertices}, 3) RGB array, got shape {c.shape}{where}")
+    if c.dtype == np.bool_ or not np.issubdtype(c.dtype, np.number) or np.iscomplexobj(c):
+        raise InvalidShapeError(f"colors must be real numbers, got {c.dtype}{where}")
+    if np.issubdtype(c.dtype, np.integer):
+        top = 65535 if c.dtype == np.uint16 else 255
+        bad = (c < 0) | (c > top)
+        if bad.any():
+            i = int(np.flatnonzero(bad.any(axis=1))[0])
+            raise InvalidShapeError(
+                f"{int(bad.any(axis=1).sum())} vertex colours outside the integer range 0..{top} "
+                f"(first: vertex {i}, {c[i].tolist()}){where}"
+            )
+        return c.astype(np.float64) / top
+    c = c.astype(np.float64, copy=True)
+    if not np.isfinite(c).all():
+        i = int(np.flatnonzero(~np.isfinite(c).all(axis=1))[0])
+        raise InvalidShapeError(f"vertex colours must be finite (first bad: vertex {i}, {c[i].tolist()}){where}")
+    bad = (c < -COLOR_TOLERANCE) | (c > 1 + COLOR_TOLERANCE)
+    if bad.any():
+        i = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise InvalidShapeError(
+            f"{int(bad.any(axis=1).sum())} vertex colours outside [0, 1] (first: vertex {i}, {c[i].tolist()}); "
+            f"float colours are in [0, 1] -- 8-bit values go in a uint8 array{where}"
+        )
+    return np.clip(c, 0.0, 1.0, out=c)
+
+
 def _readonly(a: np.ndarray) -> np.ndarray:
     a = np.ascontiguousarray(a)
     a.setflags(write=False)
@@ -78,11 +120,16 @@ class Shape:
     ``vertices`` is a float64 ``(n, 3)`` array, ``faces`` an int64 ``(m, 3)`` array of 0-based
     vertex indices. Both are validated and made read-only on construction: a Shape never holds
     NaN/inf coordinates or out-of-range face indices, so native code (libigl) is safe to call.
+    ``colors`` (optional) are per-vertex RGB, stored as a read-only float64 ``(n, 3)`` array in
+    [0, 1] (see :func:`check_colors`: uint8 input is divided by 255, out-of-range values refused).
+    Colours are appearance, not geometry: :attr:`content_hash` ignores them, so spectra and other
+    geometry caches are shared between a shape and its recoloured copies.
     """
 
     vertices: np.ndarray
     faces: np.ndarray | None = None
     name: str = field(default="")
+    colors: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         v = np.asarray(self.vertices)
@@ -118,6 +165,8 @@ class Shape:
                     f"face indices must lie in [0, {v.shape[0] - 1}], found range [{lo}, {hi}]{where}"
                 )
             object.__setattr__(self, "faces", _readonly(f))
+        if self.colors is not None:
+            object.__setattr__(self, "colors", _readonly(check_colors(self.colors, v.shape[0], where)))
 
     # -- basic facts -------------------------------------------------------------------------
     @property
@@ -135,10 +184,16 @@ class Shape:
         """True for a triangle mesh, False for a point cloud."""
         return self.faces is not None
 
+    @property
+    def has_colors(self) -> bool:
+        """True when the shape carries per-vertex colours."""
+        return self.colors is not None
+
     def __repr__(self) -> str:
         kind = f"{self.n_faces} faces" if self.is_mesh else "point cloud"
         nm = f"{self.name!r}, " if self.name else ""
-        return f"Shape({nm}{self.n_vertices} vertices, {kind})"
+        col = ", coloured" if self.colors is not None else ""
+        return f"Shape({nm}{self.n_vertices} vertices, {kind}{col})"
 
     def require_faces(self, what: str) -> np.ndarray:
         """Return the faces or raise :class:`InvalidShapeError` naming ``what`` needs them."""
@@ -227,7 +282,10 @@ class Shape:
 
     @cached_property
     def content_hash(self) -> str:
-        """SHA-1 of the vertex and face bytes: equal shapes share cached spectra."""
+        """SHA-1 of the vertex and face bytes: equal geometries share cached spectra.
+
+        Colours are deliberately left out: nothing keyed by this hash (spectra, geodesics,
+        adjacency, SDF) depends on them, so recolouring a shape keeps its caches."""
         h = hashlib.sha1()
         h.update(self.vertices.tobytes())
         if self.faces is not None:
@@ -248,11 +306,15 @@ class Shape:
         d = float(np.linalg.norm(b[1] - b[0]))
         if d == 0.0:
             d = 1.0
-        return Shape(v / d, self.faces, self.name), centre * s, d * s
+        return Shape(v / d, self.faces, self.name, self.colors), centre * s, d * s
 
     def with_vertices(self, vertices: np.ndarray) -> Shape:
-        """Same connectivity, new ``(n, 3)`` coordinates."""
-        return Shape(vertices, self.faces, self.name)
+        """Same connectivity and colours, new ``(n, 3)`` coordinates."""
+        return Shape(vertices, self.faces, self.name, self.colors)
+
+    def with_colors(self, colors: np.ndarray | None) -> Shape:
+        """Same geometry, new per-vertex ``(n, 3)`` colours (None drops them); see :func:`check_colors`."""
+        return Shape(self.vertices, self.faces, self.name, colors)
 
     def submesh(self, vertex_ids: np.ndarray) -> tuple[Shape, np.ndarray]:
         """Keep the given vertices (and the faces entirely inside them).
@@ -269,4 +331,5 @@ class Shape:
             ff = remap[self.faces]
             ff = ff[(ff >= 0).all(axis=1)]
             faces = ff if len(ff) else None
-        return Shape(self.vertices[keep], faces, self.name), keep
+        colors = None if self.colors is None else self.colors[keep]
+        return Shape(self.vertices[keep], faces, self.name, colors), keep

@@ -5,6 +5,17 @@ as a :class:`ShapeFileError` naming the file and the line; PCD is read with Open
 soups are welded (exactly coincident corners merged, first-occurrence order). Polygons are
 triangulated as fans. Indices are 0-based in the API and in every file written, except where the
 format itself is 1-based (OBJ).
+
+Per-vertex colours (``Shape.colors``, RGB in [0, 1]) are read from PLY (vertex ``red green blue``,
+also ``r g b`` or ``diffuse_*``, any numeric type: integer types are 8-bit except ``ushort``,
+16-bit; float types are in [0, 1]; alpha ignored), COFF/CNOFF (RGB or RGBA after the coordinates
+or normals), OBJ ``v x y z r g b`` and texture-mapped OBJ (``mtllib`` + ``usemtl`` + ``map_Kd``
+image + ``vt``: the image is sampled bilinearly, repeating, at every corner's UV with Pillow; a
+vertex with several UVs gets the mean). In text formats, colours whose values are all integers
+with one above 1 are 8-bit (0..255), otherwise they are in [0, 1]. A missing or unreadable
+texture or material library is a :class:`ShapeFileError` naming that file (nothing is silently
+dropped; ``load_shape(..., colors=False)`` reads the geometry alone). Writers keep colours: PLY as
+``uchar`` (8-bit, what viewers read), OFF as COFF and OBJ as ``v x y z r g b`` (both exact).
 """
 
 from __future__ import annotations
@@ -12,7 +23,7 @@ from __future__ import annotations
 import re
 import sys
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +53,12 @@ MIN_TEXT_BYTES_PER_ELEMENT = 2
 MESH_FORMATS = (".off", ".ply", ".obj", ".stl")
 POINT_FORMATS = (".ply", ".xyz", ".pcd", ".off", ".obj")
 
+#: Texture images with more pixels than this are refused (they are sampled, never decoded to floats).
+MAX_TEXTURE_PIXELS = 2**27
+
 _Parsed = tuple[np.ndarray, "np.ndarray | None"]
+#: vertices, faces, colours (float64 ``(n, 3)`` in [0, 1], or integer 8-bit / uint16 values)
+_ParsedColors = tuple[np.ndarray, "np.ndarray | None", "np.ndarray | None"]
 
 
 class _Err(Exception):
@@ -53,17 +69,25 @@ class DuplicateFacesWarning(UserWarning):
     """Exactly duplicated faces were dropped on load (``duplicate_faces="drop"``)."""
 
 
+class ColorWarning(UserWarning):
+    """Some vertices of a texture-mapped OBJ received no colour sample (they are given mid grey)."""
+
+
 # --------------------------------------------------------------------------------------------
 # public API
 # --------------------------------------------------------------------------------------------
-def load_shape(path: str | Path, *, kind: str = "auto", duplicate_faces: str = "error") -> Shape:
+def load_shape(
+    path: str | Path, *, kind: str = "auto", duplicate_faces: str = "error", colors: bool = True
+) -> Shape:
     """Read a mesh or point cloud file into a :class:`Shape` (vertices in file units).
 
     ``kind``: "auto" (faces if the file has any), "mesh" (faces required), "points" (faces
     dropped). ``duplicate_faces`` (faces with the same three vertices, which silently change every
     spectrum): "error" (default: refuse, naming ``shape-toolkit clean``), "drop" (keep the first of
     each, with a :class:`DuplicateFacesWarning`) or "keep" (for inspection and repair: ``info``,
-    ``clean``). Raises :class:`ShapeFileError` naming the file for any problem.
+    ``clean``). ``colors``: read per-vertex colours (and sample OBJ textures) into
+    ``Shape.colors`` when the file has them; False reads the geometry alone. Raises
+    :class:`ShapeFileError` naming the file (or the texture / material file) for any problem.
     """
     if kind not in ("auto", "mesh", "points"):
         raise ParameterError(f"kind must be 'auto', 'mesh' or 'points', got {kind!r}")
@@ -92,9 +116,9 @@ def load_shape(path: str | Path, *, kind: str = "auto", duplicate_faces: str = "
             f"{MAX_FILE_BYTES / 1024**3:.1f} GiB (shape_toolkit.io.mesh.MAX_FILE_BYTES)",
         )
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # numpy's loadtxt warnings; problems are raised below
-            vertices, faces = reader(p)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")  # numpy's loadtxt warnings are dropped; problems are raised below
+            vertices, faces, vcolors = reader(p, bool(colors))
     except _Err as e:
         raise ShapeFileError(p, str(e)) from None
     except OSError as e:
@@ -105,6 +129,9 @@ def load_shape(path: str | Path, *, kind: str = "auto", duplicate_faces: str = "
         # a malformation the parsers above do not name precisely: still the file's fault
         raise ShapeFileError(p, f"malformed {ext[1:].upper()} file ({type(e).__name__}: {e})") from None
 
+    for w in caught:  # ours are passed on (naming the file), the parsers' are not
+        if issubclass(w.category, ColorWarning):
+            warnings.warn(f"{p}: {w.message}", ColorWarning, stacklevel=2)
     if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.shape[0] == 0:
         raise ShapeFileError(p, "the file contains no vertices")
     if faces is not None and faces.shape[0] == 0:
@@ -144,7 +171,7 @@ def load_shape(path: str | Path, *, kind: str = "auto", duplicate_faces: str = "
                     stacklevel=2,
                 )
     try:
-        return Shape(vertices, faces, name=p.stem)
+        return Shape(vertices, faces, name=p.stem, colors=vcolors)
     except InvalidShapeError as e:
         raise ShapeFileError(p, str(e)) from None
 
@@ -153,7 +180,9 @@ def save_shape(shape: Shape, path: str | Path, *, binary: bool = False) -> None:
     """Write a shape as OFF, PLY, OBJ, STL (meshes) or XYZ, PCD (vertices only).
 
     ``binary`` selects binary PLY/STL (little endian); other formats are always text. Coordinates
-    are written with full float64 precision (except STL, which stores float32).
+    are written with full float64 precision (except STL, which stores float32). Colours are written
+    to PLY (``uchar red green blue``, rounded to 8 bits), OFF (as COFF, RGBA floats, exact) and OBJ
+    (``v x y z r g b``, exact); STL, XYZ and PCD store geometry only.
     """
     p = Path(path)
     ext = p.suffix.lower()
@@ -240,6 +269,17 @@ def _floats(rows: list[tuple[int, str]], cols: int | list[int], what: str) -> np
     raise _Err(f"malformed {what} data")  # pragma: no cover
 
 
+def _text_colors(c: np.ndarray, what: str) -> np.ndarray:
+    """Colour columns of a text format: 8-bit integers (int64) when every value is an integer and
+    one is above 1, else floats for [0, 1] (range checks: :func:`~shape_toolkit.core.shape.check_colors`)."""
+    if c.size and np.isfinite(c).all() and (c == np.round(c)).all() and c.max() > 1:
+        if c.min() < 0 or c.max() > 255:
+            bad = int(np.flatnonzero(((c < 0) | (c > 255)).any(axis=1))[0])
+            raise _Err(f"{what} colour of vertex {bad} {c[bad].tolist()} outside the 8-bit range 0..255")
+        return c.astype(np.int64)
+    return c
+
+
 def _int(tok: str, ln: int, what: str) -> int:
     try:
         v = int(tok)
@@ -266,7 +306,7 @@ def _fan(polys: list[list[int]], where: list[int] | None = None) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # OFF
 # --------------------------------------------------------------------------------------------
-def _read_off(p: Path) -> _Parsed:
+def _read_off(p: Path, want_colors: bool = True) -> _ParsedColors:
     lines = _content(_read_text(p))
     if not lines:
         raise _Err("file has no content")
@@ -296,7 +336,13 @@ def _read_off(p: Path) -> _Parsed:
     body = lines[k:]
     if len(body) < nv:
         raise _Err(f"truncated: header declares {nv} vertices but the file has {len(body)} lines")
-    vertices = _floats(body[:nv], 3, "vertex")
+    colors = None
+    if head.startswith("C") and want_colors:  # COFF: x y z r g b [a]; CNOFF: x y z nx ny nz r g b [a]
+        s = 6 if head == "CNOFF" else 3
+        table = _floats(body[:nv], [0, 1, 2, s, s + 1, s + 2], f"{head} vertex (coordinates and colour)")
+        vertices, colors = table[:, :3], _text_colors(table[:, 3:], head)
+    else:
+        vertices = _floats(body[:nv], 3, "vertex")
     frows = body[nv:]
     if len(frows) < nf:
         raise _Err(
@@ -306,8 +352,8 @@ def _read_off(p: Path) -> _Parsed:
         ln = frows[nf][0]
         raise _Err(f"line {ln}: unexpected content after the {nf} declared faces")
     if nf == 0:
-        return vertices, None
-    return vertices, _parse_counted_faces(frows)
+        return vertices, None, colors
+    return vertices, _parse_counted_faces(frows), colors
 
 
 def _parse_counted_faces(rows: list[tuple[int, str]]) -> np.ndarray:
@@ -336,14 +382,27 @@ def _parse_counted_faces(rows: list[tuple[int, str]]) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # OBJ
 # --------------------------------------------------------------------------------------------
-def _read_obj(p: Path) -> _Parsed:
+def _read_obj(p: Path, want_colors: bool = True) -> _ParsedColors:
     lines = [(ln, line.lstrip()) for ln, line in _content(_read_text(p))]
     vrows = [(ln, line[2:]) for ln, line in lines if line[:2] in ("v ", "v\t")]
     _check_count(len(vrows), "vertices")
-    vertices = _floats(vrows, 3, "vertex")
+    colors = None
+    if want_colors and vrows and len(_tokens(vrows[0][1])) >= 6:  # v x y z r g b: then on every vertex
+        table = _floats(vrows, 6, "vertex with colour (v x y z r g b)")
+        vertices, colors = table[:, :3], _text_colors(table[:, 3:], "OBJ vertex")
+    else:
+        vertices = _floats(vrows, 3, "vertex")
+    faces = _obj_faces(lines)
+    if want_colors and colors is None and faces is not None:
+        colors = _obj_texture_colors(p, lines, len(vertices))
+    return vertices, faces, colors
+
+
+def _obj_faces(lines: list[tuple[int, str]]) -> np.ndarray | None:
+    """Fan-triangulated 0-based faces of the OBJ ``f`` lines (None without any)."""
     frows = [(ln, line[2:]) for ln, line in lines if line[:2] in ("f ", "f\t")]
     if not frows:
-        return vertices, None
+        return None
     if not any("-" in line for _, line in frows):  # fast path: absolute indices, triangles
         stripped = frows
         if any("/" in line for _, line in frows):
@@ -354,7 +413,7 @@ def _read_obj(p: Path) -> _Parsed:
         except (ValueError, OverflowError):
             arr = None
         if arr is not None and arr.shape[1] == 3 and arr.min() > 0:
-            return vertices, arr - 1
+            return arr - 1
     # general path: polygons and negative indices (relative to the vertices read so far)
     polys: list[list[int]] = []
     where: list[int] = []
@@ -371,7 +430,204 @@ def _read_obj(p: Path) -> _Parsed:
                 idx.append(i - 1 if i > 0 else nv + i)
             polys.append(idx)
             where.append(ln)
-    return vertices, _fan(polys, where)
+    return _fan(polys, where)
+
+
+def _obj_refs(rest: str, base: Path) -> list[Path]:
+    """File names on an ``mtllib`` / ``map_Kd`` line, relative to ``base``: the whole remainder when
+    it names an existing file (names with spaces), else the whitespace-separated names."""
+    rest = rest.strip().replace("\\", "/")
+    whole = base / rest
+    if rest and whole.is_file():
+        return [whole]
+    return [base / t for t in rest.split()]
+
+
+#: map_Kd options and the number of arguments each takes (their effect is not modelled)
+_MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1,
+                "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1}
+
+
+def _read_mtl(mtl: Path) -> dict[str, dict]:
+    """Materials of an MTL file: ``{name: {"Kd": (3,) or None, "map": Path or None, "line": int}}``."""
+    if not mtl.is_file():
+        raise _Err(f"material library {str(mtl)!r} (mtllib) not found; put it next to the OBJ file, "
+                   "or remove the mtllib line to load the geometry without colours")
+    try:
+        text = mtl.read_bytes().decode("utf-8", errors="replace")
+    except OSError as e:
+        raise _Err(f"material library {str(mtl)!r}: cannot read ({e.strerror or e})") from None
+    mats: dict[str, dict] = {}
+    cur: dict | None = None
+    for ln, raw in enumerate(text.splitlines(), 1):
+        t = raw.split("#", 1)[0].strip()
+        if not t:
+            continue
+        key, _, rest = t.partition(" ")
+        key = key.strip()
+        if key == "newmtl":
+            cur = mats.setdefault(rest.strip(), {"Kd": None, "map": None, "line": ln})
+        elif cur is None:
+            continue
+        elif key == "Kd":
+            vals = rest.split()
+            try:
+                kd = np.array([float(x) for x in vals[:3]])
+            except ValueError:
+                raise _Err(f"material library {str(mtl)!r} line {ln}: non-numeric Kd {rest.strip()!r}") from None
+            if kd.shape != (3,) or not np.isfinite(kd).all() or kd.min() < 0 or kd.max() > 1:
+                raise _Err(f"material library {str(mtl)!r} line {ln}: Kd needs three values in [0, 1]")
+            cur["Kd"] = kd
+        elif key == "map_Kd":
+            toks = rest.split()
+            i = 0
+            while i < len(toks) and toks[i] in _MAP_OPTIONS:
+                i += 1 + _MAP_OPTIONS[toks[i]]
+            names = " ".join(toks[i:])
+            if not names:
+                raise _Err(f"material library {str(mtl)!r} line {ln}: map_Kd names no image")
+            cur["map"] = _obj_refs(names, mtl.parent)[0]
+            cur["map_line"] = ln
+    return mats
+
+
+def _load_texture(tex: Path, mtl: Path, material: str) -> np.ndarray:
+    """The texture image as a ``(H, W, 3)`` uint8 or uint16 array (Pillow)."""
+    where = f"texture image {str(tex)!r} (map_Kd of material {material!r} in {str(mtl)!r})"
+    if not tex.is_file():
+        raise _Err(f"{where} not found; put the image next to the material file, or remove the "
+                   "map_Kd line to load the geometry without colours")
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - Pillow is a dependency
+        raise _Err(f"{where}: reading textures needs Pillow (pip install Pillow)") from None
+    try:
+        with Image.open(tex) as im:
+            w, h = im.size
+            if w * h > MAX_TEXTURE_PIXELS or w < 1 or h < 1:
+                raise _Err(f"{where} is {w} x {h} pixels, outside 1 .. {MAX_TEXTURE_PIXELS} pixels "
+                           "(shape_toolkit.io.mesh.MAX_TEXTURE_PIXELS)")
+            if im.mode.startswith("I;16"):
+                a = np.asarray(im).astype(np.uint16)
+                return np.repeat(a[:, :, None], 3, axis=2)
+            a = np.asarray(im.convert("RGB"))
+    except _Err:
+        raise
+    except Exception as e:  # Pillow's decoders raise many types (OSError, SyntaxError, DecompressionBombError, ...)
+        raise _Err(f"{where}: not a readable image ({type(e).__name__}: {e})") from None
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise _Err(f"{where}: unexpected image layout {a.shape}")
+    return a
+
+
+def _sample_bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear samples ``(k, 3)`` in [0, 1] of an ``(H, W, 3)`` image at OBJ texture coordinates
+    ``uv`` ``(k, 2)`` (v = 0 at the bottom row; repeating outside [0, 1), pixel centres at half
+    pixels)."""
+    h, w = img.shape[:2]
+    top = 65535.0 if img.dtype == np.uint16 else 255.0
+    x = np.mod(uv[:, 0], 1.0) * w - 0.5
+    y = (1.0 - np.mod(uv[:, 1], 1.0)) * h - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    xa, ya = x0.astype(np.int64) % w, y0.astype(np.int64) % h
+    xb, yb = (xa + 1) % w, (ya + 1) % h
+    px = [img[yy, xx].astype(np.float64) for yy, xx in ((ya, xa), (ya, xb), (yb, xa), (yb, xb))]
+    out = (1 - fy) * ((1 - fx) * px[0] + fx * px[1]) + fy * ((1 - fx) * px[2] + fx * px[3])
+    return np.clip(out / top, 0.0, 1.0)
+
+
+def _obj_texture_colors(p: Path, lines: Sequence[tuple[int, str]], n_vertices: int) -> np.ndarray | None:
+    """Vertex colours of a texture-mapped OBJ (None when it is not one: no ``mtllib``, no ``vt``
+    referenced by faces, or no ``map_Kd`` among the materials used). Each distinct (vertex, UV,
+    material) corner contributes the bilinear texture sample (or, without a UV or an image, the
+    material's ``Kd`` when it has one); a vertex gets the mean of its contributions."""
+    libs = [rest for _, line in lines if line.startswith("mtllib") for rest in [line[6:]] if rest[:1].isspace()]
+    if not libs or not any(line[:3] in ("vt ", "vt\t") for _, line in lines):
+        return None
+    mats: dict[str, dict] = {}
+    mtl_of: dict[str, Path] = {}
+    for rest in libs:
+        for mtl in _obj_refs(rest.split("#", 1)[0], p.parent):
+            for name, m in _read_mtl(mtl).items():
+                mats.setdefault(name, m)
+                mtl_of.setdefault(name, mtl)
+    # corners: vertex id, vt id (-1: none), material id (-1: none), in file order
+    names: list[str] = []
+    mat_id = {}
+    cur = -1
+    nv = nt = 0
+    cv: list[int] = []
+    ct: list[int] = []
+    cm: list[int] = []
+    trows: list[tuple[int, str]] = []
+    for ln, line in lines:
+        head = line[:2]
+        if head in ("v ", "v\t"):
+            nv += 1
+        elif line[:3] in ("vt ", "vt\t"):
+            nt += 1
+            trows.append((ln, line[3:]))
+        elif line.startswith("usemtl") and line[6:7].isspace():
+            name = line[6:].split("#", 1)[0].strip()
+            if name not in mat_id:
+                mat_id[name] = len(names)
+                names.append(name)
+            cur = mat_id[name]
+        elif head in ("f ", "f\t"):
+            for tok in _tokens(line)[1:]:
+                parts = tok.split("/")
+                i = _int(parts[0], ln, "face index")
+                cv.append(i - 1 if i > 0 else nv + i)
+                if len(parts) > 1 and parts[1]:
+                    t = _int(parts[1], ln, "texture coordinate index")
+                    if t == 0:
+                        raise _Err(f"line {ln}: texture coordinate index 0 is invalid in OBJ (1-based)")
+                    t = t - 1 if t > 0 else nt + t
+                    if not 0 <= t < nt:
+                        raise _Err(f"line {ln}: texture coordinate index {parts[1]} out of range "
+                                   f"({nt} vt lines so far)")
+                    ct.append(t)
+                else:
+                    ct.append(-1)
+                cm.append(cur)
+    if not any(m["map"] is not None for m in mats.values()) or not ct or max(ct) < 0:
+        return None  # no texture image, or no face with texture coordinates
+    for nm in names:
+        if nm not in mats:
+            raise _Err(f"material {nm!r} (usemtl) is not defined in the material libraries "
+                       f"{', '.join(repr(str(m)) for m in dict.fromkeys(mtl_of.values())) or '(none)'}")
+    if not any(mats[nm]["map"] is not None for nm in names):
+        return None
+    uv = _floats(trows, 2, "texture coordinate (vt u v)")
+    if not np.isfinite(uv).all():
+        raise _Err("texture coordinates (vt) must be finite")
+    corners = np.unique(np.array([cv, ct, cm], dtype=np.int64).T, axis=0)  # distinct (vertex, uv, material)
+    corners = corners[(corners[:, 0] >= 0) & (corners[:, 0] < n_vertices)]
+    total = np.zeros((n_vertices, 3))
+    count = np.zeros(n_vertices)
+    for k, nm in enumerate(names):
+        m = mats[nm]
+        mine = corners[corners[:, 2] == k]
+        with_uv = mine[mine[:, 1] >= 0] if m["map"] is not None else mine[:0]
+        if len(with_uv):
+            img = _load_texture(m["map"], mtl_of[nm], nm)
+            np.add.at(total, with_uv[:, 0], _sample_bilinear(img, uv[with_uv[:, 1]]))
+            np.add.at(count, with_uv[:, 0], 1.0)
+        rest = mine[mine[:, 1] < 0] if m["map"] is not None else mine
+        if len(rest) and m["Kd"] is not None:
+            np.add.at(total, rest[:, 0], m["Kd"])
+            np.add.at(count, rest[:, 0], 1.0)
+    missing = count == 0
+    if missing.any():
+        warnings.warn(
+            f"{int(missing.sum())} of {n_vertices} vertices have no texture sample or material colour "
+            f"(first: vertex {int(np.flatnonzero(missing)[0])}); they are mid grey",
+            ColorWarning,
+            stacklevel=2,
+        )
+        total[missing], count[missing] = 0.5, 1.0
+    return total / count[:, None]
 
 
 # --------------------------------------------------------------------------------------------
@@ -395,7 +651,36 @@ _PLY_TYPES = {
 }  # fmt: skip
 
 
-def _read_ply(p: Path) -> _Parsed:
+#: PLY vertex colour property names, in order of preference
+_PLY_COLOR_NAMES = (("red", "green", "blue"), ("r", "g", "b"), ("diffuse_red", "diffuse_green", "diffuse_blue"))
+
+
+def _ply_colors(vert: dict, types: dict[str, str]) -> np.ndarray | None:
+    """Vertex colours of a PLY file by declared type: ``ushort`` is 16-bit, other integer types 8-bit
+    (0..255), float types in [0, 1]; None when the vertices have no colour properties."""
+    names = next((nm for nm in _PLY_COLOR_NAMES if all(c in vert for c in nm)), None)
+    if names is None:
+        return None
+    cols = []
+    for nm in names:
+        a = np.asarray(vert[nm])
+        t = np.dtype(types[nm])
+        if t.kind == "f":
+            cols.append(a.astype(np.float64))
+            continue
+        top = 65535 if t.itemsize == 2 and t.kind == "u" else 255
+        a = a.astype(np.float64)  # ascii bodies are parsed as floats
+        bad = ~np.isfinite(a) | (a != np.round(a)) | (a < 0) | (a > top)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise _Err(f"vertex {i}: colour property {nm!r} ({t.name}) is {a[i]!r}, not an integer in 0..{top}")
+        cols.append(a.astype(np.uint16 if top == 65535 else np.int64))
+    if len({c.dtype.kind for c in cols}) > 1 or len({c.dtype for c in cols}) > 1:
+        raise _Err(f"PLY colour properties {', '.join(names)} have different types")
+    return np.stack(cols, axis=1)
+
+
+def _read_ply(p: Path, want_colors: bool = True) -> _ParsedColors:
     data = p.read_bytes()
     end = data.find(b"end_header")
     if not data.startswith(b"ply") or end < 0:
@@ -444,6 +729,10 @@ def _read_ply(p: Path) -> _Parsed:
         if c not in vert:
             raise _Err(f"PLY vertex element has no '{c}' property")
     vertices = np.stack([np.asarray(vert[c], dtype=np.float64) for c in "xyz"], axis=1)
+    colors = None
+    if want_colors:
+        vprops = next(props for name, _, props in elements if name == "vertex")
+        colors = _ply_colors(vert, {pr[0]: pr[1] for pr in vprops if len(pr) == 2})
     faces = None
     face = parsed.get("face")
     if face is not None:
@@ -453,7 +742,7 @@ def _read_ply(p: Path) -> _Parsed:
         faces = face[key]
         if isinstance(faces, list):
             faces = _fan(faces)
-    return vertices, faces
+    return vertices, faces, colors
 
 
 def _check_ply_size(elements: list, fmt: str, n_bytes: int) -> None:
@@ -713,14 +1002,20 @@ def _fmt_rows(a: np.ndarray, prefix: str = "") -> str:
 
 
 def _write_off(fh, shape: Shape, binary: bool) -> None:
-    fh.write(f"OFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode())
-    fh.write(_fmt_rows(shape.vertices).encode())
+    if shape.colors is None:
+        fh.write(f"OFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode())
+        fh.write(_fmt_rows(shape.vertices).encode())
+    else:  # COFF: x y z r g b a, colours as floats in [0, 1]
+        fh.write(f"COFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode())
+        rgba = np.column_stack([shape.vertices, shape.colors, np.ones(shape.n_vertices)])
+        fh.write(_fmt_rows(rgba).encode())
     if shape.faces is not None:
         fh.write(_fmt_rows(shape.faces, "3 ").encode())
 
 
 def _write_obj(fh, shape: Shape, binary: bool) -> None:
-    fh.write(_fmt_rows(shape.vertices, "v ").encode())
+    v = shape.vertices if shape.colors is None else np.column_stack([shape.vertices, shape.colors])
+    fh.write(_fmt_rows(v, "v ").encode())
     if shape.faces is not None:
         fh.write(_fmt_rows(shape.faces + 1, "f ").encode())
 
@@ -745,15 +1040,28 @@ def _write_ply(fh, shape: Shape, binary: bool) -> None:
     fmt = f"binary_{sys.byteorder}_endian" if binary else "ascii"
     head = f"ply\nformat {fmt} 1.0\nelement vertex {shape.n_vertices}\n"
     head += "property double x\nproperty double y\nproperty double z\n"
+    rgb = None
+    if shape.colors is not None:  # 8-bit, as viewers expect
+        rgb = np.round(shape.colors * 255.0).astype(np.uint8)
+        head += "property uchar red\nproperty uchar green\nproperty uchar blue\n"
     if shape.faces is not None:
         head += f"element face {shape.n_faces}\nproperty list uchar int vertex_indices\n"
     fh.write((head + "end_header\n").encode())
     if not binary:
-        fh.write(_fmt_rows(shape.vertices).encode())
+        if rgb is None:
+            fh.write(_fmt_rows(shape.vertices).encode())
+        else:
+            fh.write("".join(f"{x!r} {y!r} {z!r} {r} {g} {b}\n" for (x, y, z), (r, g, b)
+                             in zip(shape.vertices.tolist(), rgb.tolist())).encode())
         if shape.faces is not None:
             fh.write(_fmt_rows(shape.faces, "3 ").encode())
         return
-    fh.write(np.ascontiguousarray(shape.vertices, dtype="=f8").tobytes())
+    if rgb is None:
+        fh.write(np.ascontiguousarray(shape.vertices, dtype="=f8").tobytes())
+    else:
+        rec = np.empty(shape.n_vertices, dtype=[("v", "=f8", (3,)), ("c", "u1", (3,))])
+        rec["v"], rec["c"] = shape.vertices, rgb
+        fh.write(rec.tobytes())
     if shape.faces is not None:
         rec = np.empty(shape.n_faces, dtype=[("n", "u1"), ("i", "=i4", (3,))])
         rec["n"] = 3
@@ -781,13 +1089,22 @@ def _write_stl(fh, shape: Shape, binary: bool) -> None:
     fh.write("".join(parts).encode())
 
 
-_READERS: dict[str, Callable[[Path], _Parsed]] = {
+def _geometry_only(reader: Callable[[Path], _Parsed]) -> Callable[[Path, bool], _ParsedColors]:
+    """A reader of a format without colours, in the ``(path, want_colors) -> (v, f, None)`` form."""
+
+    def read(p: Path, want_colors: bool = True) -> _ParsedColors:
+        return (*reader(p), None)
+
+    return read
+
+
+_READERS: dict[str, Callable[[Path, bool], _ParsedColors]] = {
     ".off": _read_off,
     ".obj": _read_obj,
     ".ply": _read_ply,
-    ".stl": _read_stl,
-    ".xyz": _read_xyz,
-    ".pcd": _read_pcd,
+    ".stl": _geometry_only(_read_stl),
+    ".xyz": _geometry_only(_read_xyz),
+    ".pcd": _geometry_only(_read_pcd),
 }
 _WRITERS = {
     ".off": _write_off,

@@ -6,9 +6,11 @@ The thesis adapts the SIFT-based matching of Ahmed et al. 2008 on textured meshe
 keypoint gets an intrinsic, rotation-invariant colour descriptor -- the mean and the standard
 deviation of the vertex colours on ``n_rings`` concentric geodesic rings (k-ring shells of the
 mesh graph, radius ``ring_width`` rings each) -- and matches are mutual nearest neighbours that
-pass Lowe's ratio test. Colours are an argument of :meth:`PhotometricMatcher.match` (per-vertex
-``(n, 3)`` arrays, any colour space), since :class:`~shape_toolkit.core.shape.Shape` has no
-colour attribute yet.
+pass Lowe's ratio test. The colours are the shapes' own (``Shape.colors``, read from PLY, COFF,
+OBJ vertex colours or an OBJ texture by :func:`shape_toolkit.io.mesh.load_shape`), or per-vertex
+``(n, channels)`` arrays (any colour space) passed to :meth:`PhotometricMatcher.match`, which take
+precedence. A pipeline uses it as its seed stage with ``[sparse] plugin = "photometric"`` (preset
+``topo-robust-photometric``).
 """
 
 from __future__ import annotations
@@ -43,8 +45,9 @@ def _check_colors(colors: np.ndarray | None, shape: Shape, what: str, required: 
     if colors is None:
         if required:
             raise ParameterError(
-                f"the photometric matcher needs per-vertex colours of the {what} shape "
-                f"({what}_colors=(n, 3) array); Shape does not carry colours"
+                f"the photometric matcher needs per-vertex colours of the {what} shape: "
+                f"{shape!r} has none (load a coloured PLY/COFF/OBJ, use Shape.with_colors, "
+                f"or pass {what}_colors=(n, 3))"
             )
         return geometric_texture(shape)
     c = np.asarray(colors, dtype=np.float64)
@@ -55,58 +58,97 @@ def _check_colors(colors: np.ndarray | None, shape: Shape, what: str, required: 
     return c
 
 
+def _balls(shape: Shape, vertices: np.ndarray, radii: list[int]) -> list[sp.csr_matrix]:
+    """For each radius ``r`` of the increasing ``radii``, a boolean ``(len(vertices), n)`` CSR whose
+    row ``i`` marks the vertices at most ``r`` edges from ``vertices[i]`` (itself included)."""
+    from shape_toolkit.features.geodesics import adjacency
+
+    n = shape.n_vertices
+    R = (adjacency(shape) + sp.identity(n, format="csr")).tocsr()
+    R.data[:] = 1.0
+    q = len(vertices)
+    F = sp.csr_matrix((np.ones(q), (np.arange(q), vertices)), shape=(q, n))
+    out, hops = [], 0
+    for r in radii:
+        for _ in range(r - hops):
+            F = F @ R
+            F.data[:] = 1.0
+        hops = r
+        out.append(F.copy())
+    return out
+
+
 def ring_color_descriptors(
     shape: Shape, colors: np.ndarray, vertices: np.ndarray, n_rings: int = 4, ring_width: int = 2
 ) -> np.ndarray:
     """Descriptor ``(len(vertices), 2 * n_rings * channels)``: mean and standard deviation of
     ``colors`` on the shells ``[r * ring_width, (r + 1) * ring_width)`` rings around each vertex
-    (shell 0 includes the vertex itself)."""
-    from shape_toolkit.features.geodesics import adjacency
-
-    A = adjacency(shape).tocsr()
-    A = ((A + sp.eye(A.shape[0], format="csr")) > 0).astype(np.float64)
+    (shell 0 includes the vertex itself; an empty shell, on a small mesh, takes the vertex's own
+    colour and zero deviation)."""
+    v = np.asarray(vertices, dtype=np.int64).ravel()
     c = np.asarray(colors, dtype=np.float64)
-    out = []
-    for v in np.asarray(vertices, dtype=np.int64):
-        reached = np.zeros(shape.n_vertices, dtype=bool)
-        front = np.zeros(shape.n_vertices)
-        front[v] = 1.0
-        feats = []
-        for _ in range(int(n_rings)):
-            shell = np.zeros(shape.n_vertices, dtype=bool)
-            for _ in range(int(ring_width)):
-                front = (A @ front > 0).astype(np.float64)
-                new = (front > 0) & ~reached
-                shell |= new
-                reached |= new
-            vals = c[shell] if shell.any() else c[[v]]
-            feats += [vals.mean(axis=0), vals.std(axis=0)]
-        out.append(np.concatenate(feats))
-    return np.asarray(out)
+    if v.size == 0:
+        return np.zeros((0, 2 * int(n_rings) * c.shape[1]))
+    balls = _balls(shape, v, [(r + 1) * int(ring_width) for r in range(int(n_rings))])
+    feats, inner = [], None
+    for ball in balls:
+        shell = ball if inner is None else ball - inner
+        shell.eliminate_zeros()
+        inner = ball
+        cnt = np.asarray(shell.sum(axis=1)).ravel()
+        empty = cnt == 0
+        safe = np.where(empty, 1.0, cnt)[:, None]
+        mean = (shell @ c) / safe
+        var = np.maximum((shell @ (c * c)) / safe - mean * mean, 0.0)
+        mean[empty], var[empty] = c[v[empty]], 0.0
+        feats += [mean, np.sqrt(var)]
+    return np.concatenate(feats, axis=1)
 
 
 class PhotometricMatcher(SparseMatcher):
     """Mutual nearest neighbours of ring colour descriptors (:func:`ring_color_descriptors`)
-    with Lowe's ratio test ``ratio``, on ``source_colors`` and ``target_colors``. Without
-    colours, ``require_colors=True`` raises; ``False`` (default, so the matcher runs wherever a
-    sparse matcher does) falls back to :func:`geometric_texture` on both shapes. Uses no
-    spectrum (``spectrum_spec()`` is None)."""
+    with Lowe's ratio test ``ratio``, on ``source_colors`` and ``target_colors`` when given, else
+    on ``source.colors`` and ``target.colors``. When only one shape is coloured it raises (a
+    colour lost on the way, e.g. by a corruption, must not pass unnoticed). When neither is,
+    ``require_colors=True`` raises; ``False`` (default, so the matcher runs wherever a sparse
+    matcher does) falls back to :func:`geometric_texture` on both shapes. Uses no spectrum
+    (``spectrum_spec()`` is None).
 
-    def __init__(self, n_rings: int = 4, ring_width: int = 2, ratio: float = 0.8, require_colors: bool = False):
+    ``refine_rings``: keypoint detectors are not exactly repeatable (least of all where the
+    topology changed, which moves heat-diffusion maxima), colours are; so each matched target
+    keypoint moves to the vertex within ``refine_rings`` rings of it whose descriptor is nearest
+    the source keypoint's (None: the descriptor's own radius ``n_rings * ring_width``; 0: keep
+    the keypoints). Matches stay one-to-one (a target vertex reached twice keeps the closer
+    descriptor)."""
+
+    def __init__(self, n_rings: int = 4, ring_width: int = 2, ratio: float = 0.8, require_colors: bool = False,
+                 refine_rings: int | None = None):
         self.n_rings = n_rings
         self.ring_width = ring_width
         self.ratio = ratio
         self.require_colors = require_colors
+        self.refine_rings = refine_rings
 
     def match(self, source, target, source_keypoints, target_keypoints, *,
               source_spectrum=None, target_spectrum=None, source_colors=None, target_colors=None) -> np.ndarray:
         """Matched ``[source_vertex, target_vertex]`` pairs, int64 ``(q, 2)``."""
         if int(self.n_rings) < 1 or int(self.ring_width) < 1 or not 0 < self.ratio <= 1:
             raise ParameterError("need n_rings >= 1, ring_width >= 1 and 0 < ratio <= 1")
+        refine = int(self.n_rings) * int(self.ring_width) if self.refine_rings is None else self.refine_rings
+        if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 0:
+            raise ParameterError(f"refine_rings must be None or an integer >= 0, got {self.refine_rings!r}")
         source.require_faces("photometric matching")
         target.require_faces("photometric matching")
         if (source_colors is None) != (target_colors is None):
             raise ParameterError("give colours for both shapes or for neither")
+        if source_colors is None:
+            source_colors, target_colors = source.colors, target.colors
+            if (source_colors is None) != (target_colors is None):
+                have, lack = (source, target) if target_colors is None else (target, source)
+                raise ParameterError(
+                    f"photometric matching: {have!r} carries colours but {lack!r} has none; "
+                    "colour both shapes (Shape.with_colors) or pass source_colors and target_colors"
+                )
         cs = _check_colors(source_colors, source, "source", bool(self.require_colors))
         ct = _check_colors(target_colors, target, "target", bool(self.require_colors))
         if cs.shape[1] != ct.shape[1]:
@@ -126,8 +168,34 @@ class PhotometricMatcher(SparseMatcher):
                 second = np.partition(D[a], 1)[1]
                 if D[a, b] > self.ratio * second:
                     continue
-            pairs.append((kp_s[a], kp_t[b]))
-        return np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+            pairs.append((a, b))
+        if not pairs:
+            return np.zeros((0, 2), dtype=np.int64)
+        ia, ib = np.asarray(pairs, dtype=np.int64).T
+        src, tgt, cost = kp_s[ia], kp_t[ib], D[ia, ib]
+        if refine > 0:
+            tgt, cost = self._refine(target, ct, ds[ia], tgt, int(refine))
+        order = np.lexsort((src, cost))  # one-to-one: the closest descriptor keeps a shared target
+        _, first = np.unique(tgt[order], return_index=True)
+        keep = np.sort(order[first])
+        return np.column_stack([src[keep], tgt[keep]]).astype(np.int64)
+
+    def _refine(self, target: Shape, colors: np.ndarray, desc: np.ndarray, tgt: np.ndarray,
+                rings: int) -> tuple[np.ndarray, np.ndarray]:
+        """Move each target vertex to the vertex of its ``rings``-ring whose descriptor is nearest
+        the matching row of ``desc``; the new vertices and their descriptor distances."""
+        ball = _balls(target, tgt, [rings])[0].tocsr()
+        cand = np.unique(ball.indices)
+        dc = ring_color_descriptors(target, colors, cand, int(self.n_rings), int(self.ring_width))
+        where = np.searchsorted(cand, ball.indices)
+        rows = np.repeat(np.arange(len(tgt)), np.diff(ball.indptr))
+        d = np.sqrt(((dc[where] - desc[rows]) ** 2).sum(axis=1))
+        new, cost = tgt.copy(), np.empty(len(tgt))
+        for i in range(len(tgt)):
+            lo, hi = ball.indptr[i], ball.indptr[i + 1]
+            j = lo + int(np.argmin(d[lo:hi]))
+            new[i], cost[i] = ball.indices[j], d[j]
+        return new, cost
 
 
 @hookimpl
