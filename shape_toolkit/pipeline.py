@@ -193,7 +193,8 @@ class Pipeline:
         sparse stages. ``spectra`` ``{"source": [...], "target": [...]}`` holds the spectra of
         :meth:`spectrum_specs` (computed here through the content cache when None); every stage
         receives them and picks the one it declares. ``info['spectra']`` records, per stage, the
-        spectra each stage declared and received."""
+        spectra each stage declared and received. ``progress(message)`` hears each stage, and the
+        iterations of a stage plugin whose ``match`` takes ``progress=(done, total)``."""
         say = progress or (lambda _msg: None)
         timings: dict[str, float] = {}
         info: dict[str, Any] = {"pipeline": self.name}
@@ -205,6 +206,13 @@ class Pipeline:
             out = fn()
             timings[stage] = time.perf_counter() - t0
             return out
+
+        def counts(stage: str, plugin: Any) -> dict[str, Any]:
+            """``progress=(done, total)`` for a stage plugin whose ``match`` reports its iterations."""
+            if progress is None or "progress" not in inspect.signature(plugin.match).parameters:
+                return {}
+            head = f"{self.name}: {stage} ({self.stages[stage]['plugin']})"
+            return {"progress": lambda done, total=None: say(f"{head} {done}/{total}" if total else f"{head} {done}")}
 
         declared = _declared(plugins)
         if spectra is None:
@@ -231,7 +239,8 @@ class Pipeline:
                                               det.detect(target, spectrum=tgt_spectra)))
             info["n_keypoints"] = [int(len(kps[0])), int(len(kps[1]))]
             matcher = plugins["sparse"]
-            seeds = timed("sparse", lambda: matcher.match(source, target, kps[0], kps[1], **sides))
+            seeds = timed("sparse", lambda: matcher.match(source, target, kps[0], kps[1], **sides,
+                                                          **counts("sparse", matcher)))
             seeds = np.asarray(seeds, dtype=np.int64).reshape(-1, 2)
             if len(seeds) == 0:
                 raise ParameterError(
@@ -257,6 +266,7 @@ class Pipeline:
                 kwargs["source_descriptors"], kwargs["target_descriptors"] = ds, dt
             if "n_times" in accepted:
                 kwargs["n_times"] = n_times
+        kwargs.update(counts("dense", dense))
         corr = timed("dense", lambda: dense.match(source, target, **kwargs))
         info["n_dense"] = corr.n_matched
         if "refine" in self.stages:
@@ -264,7 +274,7 @@ class Pipeline:
             if len(pairs) == 0:
                 raise ParameterError(f"pipeline {self.name!r}: the dense stage matched no vertex")
             ref = plugins["refine"]
-            corr = timed("refine", lambda: ref.match(source, target, seeds=pairs, **sides))
+            corr = timed("refine", lambda: ref.match(source, target, seeds=pairs, **sides, **counts("refine", ref)))
         info["timings"] = timings
         info["seconds"] = float(sum(timings.values()))
         merged = dict(corr.info)
