@@ -181,3 +181,25 @@ def test_library_code_is_silent(pair, capsys):
     Pipeline({"dense": {"plugin": "fmap-zoomout", "params": {"k": 10, "zoomout_iters": 1}}}).run(a.shape, b.shape)
     out = capsys.readouterr()
     assert out.out == "" and out.err == ""
+
+
+def test_pipeline_passes_iteration_progress_to_stages_that_take_it(pair, monkeypatch):
+    from shape_toolkit.api.registry import get_plugin
+    from shape_toolkit.pipeline import Pipeline
+
+    d, a, b = pair
+    cls = get_plugin("dense_matchers", "fmap-zoomout")
+    plain = cls.match
+
+    def counting(self, source, target, progress=None, **kw):  # a matcher that reports its iterations
+        for i in range(3):
+            if progress is not None:
+                progress(i + 1, 3)
+        return plain(self, source, target, **kw)
+
+    monkeypatch.setattr(cls, "match", counting)
+    pipe = Pipeline({"name": "p", "dense": {"plugin": "fmap-zoomout", "params": {"k": 10, "zoomout_iters": 1}}})
+    heard: list[str] = []
+    pipe.run(a.shape, b.shape, progress=heard.append)
+    assert [m for m in heard if "/" in m] == [f"p: dense (fmap-zoomout) {i}/3" for i in (1, 2, 3)]
+    pipe.run(a.shape, b.shape)  # no progress asked: the stage is not given a callback either
