@@ -289,3 +289,23 @@ def test_pipeline_with_photometric_seeds(textured_pair):
     pos = np.asarray(B.vertices)
     err = np.linalg.norm(pos[vm[c.target_of]] - pos, axis=1) / np.sqrt(B.area)
     assert np.mean(err) < 0.05
+
+
+# -- generated data, corruptions and the benchmark store keep the texture -----------------------------------
+def test_generated_items_corruptions_and_prepared_items_keep_colours(tmp_path):
+    from shape_toolkit.bench.store import load_prepared, save_prepared
+    from shape_toolkit.bench.tasks import prepare
+    from shape_toolkit.data.corruptions import apply_corruption
+    from shape_toolkit.data.datasets import load_item, synthetic_refs
+
+    item = load_item(synthetic_refs(2, subdivisions=2)[0])
+    assert item.shape.colors is not None
+    np.testing.assert_array_equal(item.shape.colors, item.target.colors)  # the texture moves with the surface
+    G, vm = apply_corruption(item.target, "glue", strength=1, random_state=0)
+    assert G.n_vertices < item.target.n_vertices
+    np.testing.assert_array_equal(G.colors, item.target.colors[vm])
+    prep = prepare(item, "glue", {"strength": 1}, pairwise=True, random_state=0)
+    save_prepared(tmp_path / "p.npz", prep)
+    back = load_prepared(tmp_path / "p.npz")
+    np.testing.assert_array_equal(back.source.colors, prep.source.colors)
+    np.testing.assert_array_equal(back.target.colors, item.target.colors[back.vertex_map])

@@ -275,7 +275,7 @@ def run_lock(run: Path) -> Iterator[None]:
 # --------------------------------------------------------------------------------------------
 # prepared items (npz, no pickle)
 # --------------------------------------------------------------------------------------------
-_PREP_VERSION = 1
+_PREP_VERSION = 2  # 2: shapes keep their colours
 _OPTIONAL = ("truth", "truth_sym", "truth_eval", "truth_eval_sym", "geodesic_rows", "geodesic_rows_sym")
 _LISTS = ("source_labels", "target_labels", "target_face_labels")
 
@@ -303,7 +303,10 @@ def save_prepared(path: Path, prep: Any) -> None:
         arrays[f"{side}_vertices"] = np.asarray(shape.vertices, np.float64)
         if shape.faces is not None:
             arrays[f"{side}_faces"] = np.asarray(shape.faces, np.int64)
-        header["shapes"][side] = {"name": shape.name, "faces": shape.faces is not None}
+        if shape.colors is not None:
+            arrays[f"{side}_colors"] = np.asarray(shape.colors, np.float64)
+        header["shapes"][side] = {"name": shape.name, "faces": shape.faces is not None,
+                                  "colors": shape.colors is not None}
     arrays["vertex_map"] = np.asarray(prep.vertex_map)
     for k in _OPTIONAL:
         v = getattr(prep, k)
@@ -351,7 +354,8 @@ def load_prepared(path: Path):
             bad_faces = faces is not None and not np.issubdtype(faces.dtype, np.integer)
             if not np.issubdtype(v.dtype, np.floating) or bad_faces:
                 raise ValueError(f"{side}: bad dtypes")
-            shapes[side] = Shape(v, faces, name=str(info["name"]))
+            colors = arrays[f"{side}_colors"] if info.get("colors") else None
+            shapes[side] = Shape(v, faces, name=str(info["name"]), colors=colors)
         n_s, n_t = shapes["source"].n_vertices, shapes["target"].n_vertices
         vmap = _int_array(arrays["vertex_map"], "vertex_map", lambda a: a.ndim == 1 and len(a) == n_t)
         opt: dict[str, Any] = {k: None for k in _OPTIONAL}

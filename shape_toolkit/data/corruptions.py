@@ -375,7 +375,10 @@ def apply_corruption(shape: Shape, name: str, *, random_state: int = 0, **params
         raise ParameterError(
             f"corruption {name!r} has no parameter {', '.join(bad)}; valid: {', '.join(valid)}"
         )
-    return fn(shape, random_state=random_state, **params)
+    out, vmap = fn(shape, random_state=random_state, **params)
+    if shape.colors is not None and out.colors is None:  # colours move with the surface
+        out = out.with_colors(shape.colors[vmap])
+    return out, vmap
 
 
 #: corruptions that resample the surface: their maps name the *nearest* original vertex, so an

@@ -246,8 +246,9 @@ def load_item(ref: ItemRef) -> DatasetItem:
         poses = synthetic_dataset(**prm)
         a, b = poses[i], poses[(i + 1) % len(poses)]
         ident = np.arange(a.shape.n_vertices, dtype=np.int64)
+        src, tgt = (x.shape if x.colors is None else x.shape.with_colors(x.colors) for x in (a, b))
         return DatasetItem(
-            ref.name, a.shape, labels=[a.labels], target=b.shape,
+            ref.name, src, labels=[a.labels], target=tgt,
             correspondence=np.stack([ident, ident], axis=1), target_labels=[b.labels],
             meta={"angles": a.angles.tolist(), "target_angles": b.angles.tolist()},
         )

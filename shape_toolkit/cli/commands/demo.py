@@ -190,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with status(args, "demo: generating an articulated shape") as st:
         gen = articulated_shape(random_state=args.random_state)
-        shape = gen.shape
+        shape = gen.shape.with_colors(gen.colors)  # its procedural texture: shape.off is written as COFF
         save_shape(shape, out / "shape.off")
         st.update(f"demo: spectrum, {args.k} eigenpairs of {shape.n_vertices} vertices")
         graph = build_graph(shape, "cotangent")
