@@ -117,9 +117,10 @@ class PhotometricMatcher(SparseMatcher):
     ``refine_rings``: keypoint detectors are not exactly repeatable (least of all where the
     topology changed, which moves heat-diffusion maxima), colours are; so each matched target
     keypoint moves to the vertex within ``refine_rings`` rings of it whose descriptor is nearest
-    the source keypoint's (None: the descriptor's own radius ``n_rings * ring_width``; 0: keep
-    the keypoints). Matches stay one-to-one (a target vertex reached twice keeps the closer
-    descriptor)."""
+    the source keypoint's, when that distance beats the keypoint's own by the ratio-test margin
+    (``< ratio *`` it; so colour noise alone does not move a well-placed keypoint). None: the
+    descriptor's own radius ``n_rings * ring_width``; 0: keep the keypoints. Matches stay
+    one-to-one (a target vertex reached twice keeps the closer descriptor)."""
 
     def __init__(self, n_rings: int = 4, ring_width: int = 2, ratio: float = 0.8, require_colors: bool = False,
                  refine_rings: int | None = None):
@@ -174,7 +175,9 @@ class PhotometricMatcher(SparseMatcher):
         ia, ib = np.asarray(pairs, dtype=np.int64).T
         src, tgt, cost = kp_s[ia], kp_t[ib], D[ia, ib]
         if refine > 0:
-            tgt, cost = self._refine(target, ct, ds[ia], tgt, int(refine))
+            moved, moved_cost = self._refine(target, ct, ds[ia], tgt, int(refine))
+            better = moved_cost < self.ratio * cost  # a move must win by the ratio test's margin
+            tgt, cost = np.where(better, moved, tgt), np.where(better, moved_cost, cost)
         order = np.lexsort((src, cost))  # one-to-one: the closest descriptor keeps a shared target
         _, first = np.unique(tgt[order], return_index=True)
         keep = np.sort(order[first])
