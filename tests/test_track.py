@@ -52,6 +52,7 @@ def test_sequence_ground_truth_is_exact(seq):
         # each vertex of a frame sits exactly at its material point on the clean frame
         np.testing.assert_array_equal(f.vertices, clean.vertices[m])
         np.testing.assert_array_equal(seq.colors[t], texture[m])
+        np.testing.assert_array_equal(f.colors, texture[m])  # the frame carries its texture
         assert not np.array_equal(m, np.arange(m.size))  # shuffled: the identity is not the answer
     assert seq.frames[2].n_vertices < seq.clean[2].n_vertices  # welded vertices are gone
     # the weld changes the topology (Euler characteristic of the closed sphere, 2, drops) and joins
@@ -81,6 +82,22 @@ def test_sequence_is_smooth_reproducible_and_checked():
                 {"random_state": "x"}):
         with pytest.raises(ParameterError):
             pose_sequence(**{"n_frames": 4, **bad})
+
+
+def test_remeshed_sequence_truth_is_within_the_rounding():
+    seq = pose_sequence(3, subdivisions=3, remesh=300, merge_frames=(1,), random_state=4)
+    assert seq.welded[0].size == 0 and seq.welded[1].size > 0
+    for t in range(3):
+        f, m = seq.frames[t], seq.material[t]
+        assert abs(f.n_vertices - 300) < 60 and f.n_vertices != seq.clean[t].n_vertices
+        # each new vertex stands for its nearest material point: within about an edge of it
+        gap = np.linalg.norm(f.vertices - seq.clean[t].vertices[m], axis=1)
+        assert np.median(gap) < 0.5 * f.mean_edge_length and gap.max() < 2 * f.mean_edge_length
+        assert not np.isin(m, seq.welded[t]).any()
+    d = seq.drift(seq.truth())
+    assert d["mean"][0] == 0.0 and 0 < max(d["mean"]) < 0.02 and min(d["within"]) > 0.97
+    with pytest.raises(ParameterError):
+        pose_sequence(3, remesh=5)
 
 
 def test_default_articulated_shape_unchanged_by_per_limb_options():

@@ -219,15 +219,18 @@ SEQUENCE_LIMB_LENGTHS = np.array([1.4, 1.2, 1.55, 1.35, 0.8])
 
 @dataclass(frozen=True, eq=False)
 class PoseSequence:
-    """``T`` frames of one articulated shape in motion, with exact ground truth.
+    """``T`` frames of one articulated shape in motion, with ground truth carried through.
 
-    ``frames``: the shapes a matcher sees (glued in merge frames, vertices shuffled with
-    ``permute``). ``colors``: per frame RGB ``(n_t, 3)`` in [0, 1] of the procedural texture,
-    which moves with the surface. ``material``: per frame int64 ``(n_t,)``, the material point
-    (vertex of the clean mesh) each vertex of the frame is. ``clean``: the unglued, unshuffled
-    frames (vertex ``i`` = material point ``i`` in every frame), where drift is measured.
-    ``labels`` ``(n,)``: part of each material point (0 body, ``j + 1`` limb ``j``); ``angles``
-    ``(T, L)`` bend angles (rad); ``contacts``: glued contacts per frame (0: not merged)."""
+    ``frames``: the shapes a matcher sees (glued in merge frames, remeshed and/or vertices
+    shuffled on request), each with its ``Shape.colors``. ``colors``: the same per-frame RGB
+    ``(n_t, 3)`` in [0, 1] of the procedural texture, which moves with the surface.
+    ``material``: per frame int64 ``(n_t,)``, the material point (vertex of the clean mesh) each
+    vertex of the frame is: exact, or the nearest one for a remeshed frame. ``clean``: the
+    unglued, unshuffled, not remeshed frames (vertex ``i`` = material point ``i`` in every
+    frame), where drift is measured. ``welded``: per frame, the material points welded away by a
+    glued contact (empty when not merged). ``labels`` ``(n,)``: part of each material point (0
+    body, ``j + 1`` limb ``j``); ``angles`` ``(T, L)`` bend angles (rad); ``contacts``: glued
+    contacts per frame (0: not merged)."""
 
     frames: tuple[Shape, ...]
     colors: tuple[np.ndarray, ...]
@@ -236,6 +239,7 @@ class PoseSequence:
     labels: np.ndarray
     angles: np.ndarray
     contacts: tuple[int, ...]
+    welded: tuple[np.ndarray, ...] = ()
 
     @property
     def n_frames(self) -> int:
@@ -247,16 +251,19 @@ class PoseSequence:
         return self.labels[self.material[t]]
 
     def truth(self) -> np.ndarray:
-        """Ground-truth trajectories: int64 ``(n_0, T)``, the vertex of frame ``t`` that is the
-        material point of vertex ``j`` of frame 0. A point welded away by a glued contact goes
-        to the vertex nearest to it on the clean frame (within two mean edge lengths, else -1;
-        ``data.corruptions.invert_vertex_map``)."""
+        """Ground-truth trajectories: int64 ``(n_0, T)``, the vertex of frame ``t`` that is (or,
+        remeshed, stands nearest to) the material point of vertex ``j`` of frame 0. A point
+        welded away by a glued contact goes to the vertex standing nearest to it on the clean
+        frame (``data.corruptions.invert_vertex_map``; -1 when none is within three mean edge
+        lengths of the frame)."""
         from shape_toolkit.data.corruptions import invert_vertex_map
 
         m0 = self.material[0]
         out = np.empty((m0.size, self.n_frames), dtype=np.int64)
         for t in range(self.n_frames):
-            inv = invert_vertex_map(self.material[t], self.clean[t], resampled=self.contacts[t] > 0)
+            exact = np.unique(self.material[t]).size == self.clean[t].n_vertices
+            inv = invert_vertex_map(self.material[t], self.clean[t], resampled=not exact,
+                                    max_distance=3.0 * self.frames[t].mean_edge_length)
             out[:, t] = inv[m0]
         return out
 
@@ -266,11 +273,14 @@ class PoseSequence:
         """Per-frame drift of ``trajectories`` (``Trajectories`` or ids ``(n_0, T)`` on
         :attr:`frames`) against the truth, measured on the clean frames
         (``results.trajectories.trajectory_drift``, units of ``sqrt(area)``). Material points
-        welded away in a glued frame have no true vertex there and are left out of that frame."""
+        welded away in a glued frame have no true vertex there and are left out of that frame.
+        On remeshed frames the truth itself drifts by the rounding to the nearest material point
+        (about half an edge); ``drift(truth())`` measures that floor."""
         from shape_toolkit.results.trajectories import trajectory_drift
 
         m0 = self.material[0]
-        truth = np.stack([np.where(np.isin(m0, m), m0, -1) for m in self.material], axis=1)
+        gone = self.welded or tuple(np.zeros(0, dtype=np.int64) for _ in range(self.n_frames))
+        truth = np.stack([np.where(np.isin(m0, g), -1, m0) for g in gone], axis=1)
         return trajectory_drift(trajectories, self.clean, truth, vertex_maps=self.material,
                                 method=method, radius=radius, sample=sample)
 
@@ -323,6 +333,7 @@ def pose_sequence(
     merge_frames: tuple[int, ...] | list[int] = (),
     max_angle: float = 0.8,
     limb_lengths: np.ndarray | None = None,
+    remesh: int | None = None,
     permute: bool = False,
     texture_seed: int = 0,
     random_state: Any = 0,
@@ -339,12 +350,16 @@ def pose_sequence(
     more than ``0.3 sqrt(area)`` apart along the surface), as a visual hull fuses touching
     parts. Limbs have distinct lengths (``limb_lengths``, default
     :data:`SEQUENCE_LIMB_LENGTHS`; pass five equal ones for the symmetric body of
-    :func:`articulated_shape`). ``permute`` shuffles the vertex order of every frame (faces
-    renumbered), so a map must be found, not assumed. ``subdivisions`` 3: 642 vertices per
+    :func:`articulated_shape`). ``remesh`` (a vertex count): every frame is independently
+    remeshed (``data.corruptions.remesh``, isotropic, after the gluing), as independently
+    reconstructed frames are, and each new vertex stands for its nearest material point.
+    ``permute`` shuffles the vertex order of every frame (faces renumbered), so a map must be
+    found, not assumed. ``subdivisions`` 3: 642 vertices per
     clean frame, 4: 2,562. All randomness (angles, glue sampling,
     permutations) comes from ``random_state``.
     """
     from shape_toolkit.data.corruptions import glue
+    from shape_toolkit.data.corruptions import remesh as remesh_shape
     from shape_toolkit.validation import check_random_state
 
     if not isinstance(n_frames, (int, np.integer)) or isinstance(n_frames, bool) or n_frames < 2:
@@ -354,6 +369,8 @@ def pose_sequence(
     merges = sorted({int(m) for m in merge_frames})
     if merges and (merges[0] < 0 or merges[-1] >= n_frames):
         raise ParameterError(f"merge_frames must lie in [0, {n_frames - 1}], got {list(merge_frames)}")
+    if remesh is not None and (isinstance(remesh, bool) or not isinstance(remesh, (int, np.integer)) or remesh < 20):
+        raise ParameterError(f"remesh must be a vertex count >= 20 or None, got {remesh!r}")
     rng = check_random_state(random_state)
     dirs = DEFAULT_LIMBS / np.linalg.norm(DEFAULT_LIMBS, axis=1, keepdims=True)
     lengths = SEQUENCE_LIMB_LENGTHS if limb_lengths is None else np.asarray(limb_lengths, dtype=np.float64)
@@ -372,7 +389,7 @@ def pose_sequence(
         for j in (2, 3):
             angles[:, j] = (1 - reach) * angles[:, j] + reach * contact
     texture = None
-    frames, colors, material, clean, contacts = [], [], [], [], []
+    frames, colors, material, clean, contacts, welded = [], [], [], [], [], []
     labels = None
     for t in range(int(n_frames)):
         a = articulated_shape(angles[t], subdivisions=subdivisions, limbs=dirs, limb_length=lengths,
@@ -388,19 +405,23 @@ def pose_sequence(
                              random_state=int(rng.randint(0, 2**31 - 1)))
             shape = Shape(shape.vertices, shape.faces, base.name)
             n_contacts = _count_contacts(base, vm)
+        welded.append(np.setdiff1d(np.arange(base.n_vertices), vm))
+        if remesh is not None:
+            shape, near = remesh_shape(shape, n_vertices=int(remesh), random_state=int(rng.randint(0, 2**31 - 1)))
+            shape, vm = Shape(shape.vertices, shape.faces, base.name), vm[near]
         if permute:
             perm = rng.permutation(shape.n_vertices)  # new vertex k is old vertex perm[k]
             inv = np.empty_like(perm)
             inv[perm] = np.arange(perm.size)
             shape = Shape(shape.vertices[perm], inv[shape.faces], shape.name)
             vm = vm[perm]
-        frames.append(shape)
+        frames.append(Shape(shape.vertices, shape.faces, shape.name, texture[vm]))
         material.append(vm.astype(np.int64))
         colors.append(texture[vm])
         clean.append(base)
         contacts.append(n_contacts)
     return PoseSequence(tuple(frames), tuple(colors), tuple(material), tuple(clean), labels, angles,
-                        tuple(contacts))
+                        tuple(contacts), tuple(welded))
 
 
 def _count_contacts(base: Shape, kept: np.ndarray) -> int:

@@ -458,7 +458,8 @@ def render_trajectories(
 
     ``shapes``: the ``T`` frames; ``trajectories`` int ``(n_0, T)``: vertex of frame ``t`` reached
     by the trajectory of vertex ``j`` of frame 0 (``-1`` lost). Each frame is drawn with its
-    vertex ``colors`` (``(n_t, 3)`` in [0, 1], e.g. pull-back colours; default grey) and the tails
+    vertex ``colors`` (``(n_t, 3)`` in [0, 1], e.g. pull-back colours; default the shape's own
+    colours, else grey) and the tails
     of ``n_tracks`` trajectories (farthest-point sample of frame 0, deterministic) over the last
     ``tail`` frames as polylines, blue (oldest) to green (current) as in the thesis. All frames
     share one view: the principal-axes frame of frame 0, the same rule as :func:`render_shape`."""
@@ -477,7 +478,8 @@ def render_trajectories(
         raise ParameterError(f"{len(colors)} colour arrays for {T} frames")
     if n_tracks < 0 or tail < 1:
         raise ParameterError("need n_tracks >= 0 and tail >= 1")
-    cols = [_colors_for(s, None, None, None if colors is None else colors[t], "viridis") for t, s in enumerate(shapes)]
+    cols = [_colors_for(s, None, None, getattr(s, "colors", None) if colors is None else colors[t], "viridis")
+            for t, s in enumerate(shapes)]
     if frames is None:
         frames = sorted({int(round(x)) for x in np.linspace(0, T - 1, min(T, 9))})
     frames = [int(f) for f in frames]
