@@ -29,8 +29,17 @@ __all__ = ["DEFAULT_BLAS_THREADS", "METHODS", "fix_signs", "smallest_eigenpairs"
 #: Accepted values of ``method``.
 METHODS = ("auto", "dense", "krylov", "arpack", "arpack-splu")
 
-#: Below this many rows ``method="auto"`` uses the dense solver.
-DENSE_MAX_N = 500
+#: ``method="auto"`` uses the dense solver when ``n <= max(DENSE_MAX_N, DENSE_PER_K * k)`` (or ``3 k >= n``):
+#: dense LAPACK costs ~n^3 whatever k, the block Krylov solver grows with k. Measured crossover (one BLAS
+#: thread, CPU time, bumpy spheres n = 252 ... 1962, ``python benchmarks/bench_eigensolver.py
+#: --crossover``, table in ``benchmarks/results/eigensolver_crossover.md``).
+DENSE_MAX_N = 400
+DENSE_PER_K = 8
+
+#: LAPACK driver of the dense solver for a diagonal M: bisection + inverse iteration on the wanted k only
+#: (``evx``) measured 0-10% faster than MRRR (``evr``) at n = 492 ... 1212, k = 20 ... 100, and 2-3x faster
+#: than divide and conquer (``evd``) on all n eigenpairs (same crossover run).
+DENSE_DRIVER = "evx"
 
 #: Largest problem the dense solver accepts (an ``n x n`` dense matrix is formed).
 DENSE_LIMIT_N = 20000
@@ -345,6 +354,11 @@ def _block_krylov_schur(
 
 
 # -- the solvers ------------------------------------------------------------------------------------
+def _prefer_dense(n: int, k: int) -> bool:
+    """Whether ``method="auto"`` solves an ``n x n`` problem for ``k`` eigenpairs with dense LAPACK."""
+    return n <= max(DENSE_MAX_N, DENSE_PER_K * k) or 3 * k >= n
+
+
 def _dense(
     A: sp.csr_matrix, k: int, M: sp.csr_matrix | None, dM: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -360,7 +374,7 @@ def _dense(
             B = A.toarray()
             B *= s[:, None]
             B *= s[None, :]
-            vals, Y = la.eigh(B, subset_by_index=(0, k - 1), overwrite_a=True)
+            vals, Y = la.eigh(B, subset_by_index=(0, k - 1), overwrite_a=True, driver=DENSE_DRIVER)
             return vals, Y * s[:, None]
         return la.eigh(A.toarray(), M.toarray(), subset_by_index=(0, k - 1))
     except la.LinAlgError as exc:
@@ -411,9 +425,11 @@ def fix_signs(vectors: np.ndarray, *, copy: bool = True) -> np.ndarray:
     U = np.array(vectors, dtype=np.float64, copy=True) if copy else vectors
     if U.size == 0:
         return U
-    skew = np.einsum("ij,ij,ij->j", U, U, U)
-    scale = np.einsum("ij->j", np.abs(U) ** 3)
-    peak = U[np.argmax(np.abs(U), axis=0), np.arange(U.shape[1])]
+    sq = U * U
+    skew = np.einsum("ij,ij->j", sq, U)
+    absu = np.abs(U)
+    scale = np.einsum("ij,ij->j", sq, absu)  # sum |u|^3 (no pow: this is a hot path at 5k x 200)
+    peak = U[np.argmax(absu, axis=0), np.arange(U.shape[1])]
     s = np.where(np.abs(skew) > 1e-8 * np.maximum(scale, 1e-300), np.sign(skew), np.sign(peak))
     s[s == 0] = 1.0
     U *= s
@@ -450,7 +466,8 @@ def smallest_eigenpairs(
       Lanczos: on very symmetric shapes it can miss a copy of a multiple eigenvalue at the cut).
     - ``"arpack-splu"``: ``eigsh`` shift-invert with SuperLU, what most peers do.
     - ``"dense"``: LAPACK on a dense copy (``n <= DENSE_LIMIT_N``).
-    - ``"auto"``: ``"dense"`` for ``n <= DENSE_MAX_N`` or ``3 k >= n``, else ``"krylov"``, falling
+    - ``"auto"``: ``"dense"`` for ``n <= max(DENSE_MAX_N, DENSE_PER_K * k)`` or ``3 k >= n`` (measured
+      crossover), else ``"krylov"``, falling
       back to ``"arpack"`` if the block iteration does not converge (``info['fallback_from']``).
 
     CHOLMOD comes from the ``cholespy`` wheel; if it is missing or fails, SuperLU is used. ``tol``
@@ -523,22 +540,46 @@ def _smallest_eigenpairs(
             _check_symmetric(Ms, "M")
         if not np.all(Ms.diagonal() > 0):
             raise ParameterError("M must be positive definite (its diagonal must be > 0)")
-    dM = np.ones(n) if Ms is None else _diagonal_of(Ms)
-
+    if Ms is None:
+        dM = np.ones(n)
+    elif isinstance(M, np.ndarray) and M.ndim == 1:
+        dM = Ms.diagonal()  # given as its diagonal: no need to look for off-diagonal entries
+    else:
+        dM = _diagonal_of(Ms)
+    kwargs = dict(tol=tol, sigma=sigma, block_size=block_size, max_basis=max_basis,
+                  max_restarts=max_restarts, info=info)
     if method == "auto":
-        if n <= DENSE_MAX_N or 3 * k >= n:
+        if _prefer_dense(n, k):
             method = "dense"
         else:
             # the block solver is the fast path; single-vector ARPACK is the safety net
-            kwargs = dict(tol=tol, sigma=sigma, block_size=block_size, max_basis=max_basis,
-                          max_restarts=max_restarts, info=info)
             try:
-                return _smallest_eigenpairs(A, k, M, method="krylov", **kwargs)
+                return _solve_checked(A, k, Ms, dM, method="krylov", **kwargs)
             except SolverError as exc:
                 threads = info.get("blas_threads")
                 info.clear()
                 info.update(blas_threads=threads, fallback_from=f"krylov: {exc}")
-                return _smallest_eigenpairs(A, k, M, method="arpack", **kwargs)
+                return _solve_checked(A, k, Ms, dM, method="arpack", **kwargs)
+    return _solve_checked(A, k, Ms, dM, method=method, **kwargs)
+
+
+def _solve_checked(
+    A: sp.csr_matrix,
+    k: int,
+    Ms: sp.csr_matrix | None,
+    dM: np.ndarray | None,
+    *,
+    tol: float,
+    method: str,
+    sigma: float | None,
+    block_size: int | None,
+    max_basis: int | None,
+    max_restarts: int,
+    info: dict,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`smallest_eigenpairs` by one ``method`` on validated input (``dM``: the diagonal of ``Ms``
+    when ``Ms`` is diagonal, else None)."""
+    n = A.shape[0]
     info["method"] = method
     if method == "dense":
         vals, vecs = _dense(A, k, Ms, dM)
@@ -549,7 +590,9 @@ def _smallest_eigenpairs(
     b = int(block_size) if block_size is not None else (4 if k <= 64 else 8)
     if b < 1:
         raise ParameterError(f"block_size must be >= 1, got {block_size}")
-    m = int(max_basis) if max_basis is not None else max(2 * k + 2 * b, k + 6 * b)
+    # a basis of at least 16 blocks: at k = 20 (5k vertices) 64 columns instead of 48 halve the restarts for
+    # 5-15% less CPU time (5 meshes of 500-5k vertices, best of 7-9 interleaved runs; eigensolver_notes.md)
+    m = int(max_basis) if max_basis is not None else max(2 * k + 2 * b, k + 6 * b, 16 * b)
     m = min(m, n - b)
     if m < k + 2 * b:
         raise ParameterError(
