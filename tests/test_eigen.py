@@ -366,3 +366,108 @@ def test_bad_blas_threads_raise(grid, bad):
     _, _, A = grid
     with pytest.raises(ParameterError, match="blas_threads"):
         smallest_eigenpairs(A, 3, blas_threads=bad)
+
+
+# -- the method chosen by size: both sides of every crossover --------------------------------------------
+def _grid_case(nx: int, ny: int, k: int, seed: int = 3):
+    """A grid Laplacian with a random diagonal mass (simple eigenvalues) and its dense reference."""
+    A = grid_laplacian(nx, ny)
+    d = np.random.default_rng(seed).uniform(0.5, 2.0, A.shape[0])
+    s = 1 / np.sqrt(d)
+    vals, y = la.eigh(A.toarray() * s[:, None] * s[None, :], subset_by_index=(0, k - 1))
+    return A, d, vals, y * s[:, None]
+
+
+@pytest.mark.parametrize(
+    "nx, ny, k, expected",
+    [
+        (18, 22, 10, "dense"),  # n = 396 <= DENSE_MAX_N = 400
+        (17, 24, 10, "krylov"),  # n = 408
+        (14, 34, 60, "dense"),  # n = 476 <= DENSE_PER_K * k = 480
+        (18, 27, 60, "krylov"),  # n = 486
+        (20, 22, 150, "dense"),  # n = 440 <= 3 k
+    ],
+)
+def test_auto_choice_on_both_sides_of_the_crossover_matches_dense_reference(nx, ny, k, expected):
+    """auto's method at each side of DENSE_MAX_N / DENSE_PER_K: the choice, and 1e-10 accuracy with it."""
+    import shape_toolkit.core.eigen as eigen
+
+    A, d, ref, ref_vecs = _grid_case(nx, ny, k)
+    n = A.shape[0]
+    assert eigen._prefer_dense(n, k) == (expected == "dense")
+    info: dict = {}
+    vals, vecs = smallest_eigenpairs(A, k, d, info=info)
+    assert info["method"] == expected
+    # both methods forced, on the same problem: the same answer to 1e-10
+    for method in ("dense", "krylov") if 3 * k < n - 8 else ("dense",):
+        v, u = smallest_eigenpairs(A, k, d, method=method)
+        np.testing.assert_allclose(v[1:], ref[1:], rtol=1e-10, err_msg=method)
+        assert abs(v[0]) <= 1e-10 * ref[1]
+        np.testing.assert_allclose(u.T @ (d[:, None] * u), np.eye(k), atol=1e-10, err_msg=method)
+        cos = np.abs(np.einsum("ij,ij->j", u, d[:, None] * ref_vecs))
+        np.testing.assert_allclose(cos[1:], 1.0, atol=1e-7, err_msg=method)
+    np.testing.assert_allclose(vals[1:], ref[1:], rtol=1e-10)
+
+
+def test_crossover_rule_is_monotone_in_n():
+    """Dense below the crossover, the block solver above it, for every k (no islands)."""
+    import shape_toolkit.core.eigen as eigen
+
+    for k in (1, 5, 20, 50, 64, 100, 200):
+        picks = [eigen._prefer_dense(n, k) for n in range(k, 4000, 7)]
+        switch = picks.index(False)
+        assert all(picks[:switch]) and not any(picks[switch:]), k
+        n_cross = range(k, 4000, 7)[switch]
+        assert n_cross > max(eigen.DENSE_MAX_N, eigen.DENSE_PER_K * k, 3 * k) - 7
+
+
+@pytest.mark.parametrize("method", ["dense", "krylov"])
+def test_round_sphere_small_mesh_every_size_path(method):
+    """642-vertex round icosphere, cotangent + lumped mass: l(l+1) clusters, 1e-10 against LAPACK."""
+    A, mass = sphere_cotangent(3)
+    s = 1 / np.sqrt(mass)
+    ref = la.eigh(A.toarray() * s[:, None] * s[None, :], eigvals_only=True, subset_by_index=(0, 15))
+    vals, vecs = smallest_eigenpairs(A, 16, mass, method=method)  # 1 + 3 + 5 + 7: cut after l = 3
+    np.testing.assert_allclose(vals[1:], ref[1:16], rtol=1e-10)
+    np.testing.assert_allclose(vals[:9], np.repeat([0.0, 2.0, 6.0], [1, 3, 5]), rtol=2e-2, atol=1e-9)
+    np.testing.assert_allclose(vecs.T @ (mass[:, None] * vecs), np.eye(16), atol=1e-10)
+
+
+@pytest.mark.parametrize("method", ["auto", "dense", "krylov"])
+def test_deterministic_and_sign_invariant_under_vertex_permutation(method):
+    """Same input, same bits; a permuted problem gives the permuted vectors, signs included."""
+    A, d, _, _ = _grid_case(21, 23, 12, seed=5)
+    v1, u1 = smallest_eigenpairs(A, 12, d, method=method)
+    v2, u2 = smallest_eigenpairs(A, 12, d, method=method)
+    assert np.array_equal(v1, v2) and np.array_equal(u1, u2)
+    perm = np.random.default_rng(7).permutation(A.shape[0])
+    Ap = sp.csr_matrix(A[perm][:, perm])
+    vp, up = smallest_eigenpairs(Ap, 12, d[perm], method=method)
+    np.testing.assert_allclose(vp, v1, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(up, u1[perm], atol=1e-7)  # the sign rule does not depend on vertex order
+
+
+def test_fix_signs_is_invariant_to_sign_flips():
+    from shape_toolkit.core.eigen import fix_signs
+
+    U = np.random.default_rng(2).standard_normal((300, 9))
+    U[:, 3] = np.r_[np.ones(150), -np.ones(150)] / np.sqrt(300)  # zero third moment: the peak rule
+    flips = np.where(np.arange(9) % 2 == 0, 1.0, -1.0)
+    np.testing.assert_array_equal(fix_signs(U), fix_signs(U * flips))
+    assert np.all(np.einsum("ij,ij,ij->j", fix_signs(U), fix_signs(U), fix_signs(U))[[0, 1, 2, 4]] > 0)
+
+
+def test_local_gram_schmidt_falls_back_to_full_passes_when_needed():
+    """A block with large components along the whole basis (not Lanczos-local) still comes out
+    orthogonal to it: the DGKS criterion adds the second full pass."""
+    from shape_toolkit.core.eigen import _orthonormalize_block
+
+    rng = np.random.default_rng(0)
+    n, j, b = 500, 40, 4
+    P = np.asfortranarray(la.qr(rng.standard_normal((n, j + b)), mode="economic")[0])
+    W0 = P @ rng.standard_normal((j + b, b)) * 1e6 + rng.standard_normal((n, b))
+    W = np.asfortranarray(W0.copy())
+    h, R = _orthonormalize_block(P, W, np.empty((n, b), order="F"), rng, local=j - b)
+    assert np.abs(P.T @ W).max() < 1e-12
+    np.testing.assert_allclose(W.T @ W, np.eye(b), atol=1e-12)
+    np.testing.assert_allclose(P @ h + W @ R, W0, rtol=0, atol=1e-8 * np.abs(W0).max())

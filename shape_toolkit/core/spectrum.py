@@ -238,12 +238,12 @@ def _cache_put(key: str, spec: Spectrum, disk: bool = True) -> None:
 def _solve(W: sp.csr_matrix, mass: np.ndarray | None, k: int, laplacian: str):
     d = np.asarray(W.sum(axis=1)).ravel()
     L = sp.csr_matrix(sp.diags(d) - W)
+    # a diagonal mass goes to the solver as its diagonal vector: no sparse diagonal matrix to build and scan
     if laplacian == "combinatorial":
-        M = sp.diags(mass) if mass is not None else None
-        return smallest_eigenpairs(L, k, M)
+        return smallest_eigenpairs(L, k, None if mass is None else np.asarray(mass, dtype=np.float64))
     _require_positive_degrees(d, laplacian)
     # both go through the better-conditioned generalized problem (D - W) v = lambda D v (eq. 2.79)
-    vals, v = smallest_eigenpairs(L, k, sp.diags(d))
+    vals, v = smallest_eigenpairs(L, k, d)
     if laplacian == "normalized":
         u = v * np.sqrt(d)[:, None]
         return vals, u / np.linalg.norm(u, axis=0)
