@@ -288,11 +288,14 @@ def load_map(
 
 
 def nearest_neighbors(
-    points: np.ndarray, queries: np.ndarray, k: int = 1, *, chunk: int = 1024
+    points: np.ndarray, queries: np.ndarray, k: int = 1, *, chunk: int = 1024,
+    dtype: type = np.float64,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Euclidean ``k`` nearest ``points`` ``(n, d)`` of each query ``(q, d)``: squared distances
     and indices ``(q, k)`` (``(q,)`` when k == 1). KD-tree in low dimension, chunked BLAS brute
-    force in high dimension (memory ``chunk * n``, never ``q * n``)."""
+    force in high dimension (memory ``chunk * n``, never ``q * n``). ``dtype=np.float32`` runs the
+    brute force in single precision (about 3x faster; near-ties within ~1e-6 relative may resolve
+    differently)."""
     X = np.ascontiguousarray(points, dtype=np.float64)
     Q = np.ascontiguousarray(queries, dtype=np.float64)
     if X.ndim != 2 or Q.ndim != 2 or X.shape[1] != Q.shape[1]:
@@ -303,6 +306,7 @@ def nearest_neighbors(
         d = np.asarray(d) ** 2
         i = np.asarray(i, dtype=np.int64)
         return d, i
+    X, Q = X.astype(dtype, copy=False), Q.astype(dtype, copy=False)
     xx = np.einsum("ij,ij->i", X, X)
     D = np.empty((len(Q), k))
     I = np.empty((len(Q), k), dtype=np.int64)

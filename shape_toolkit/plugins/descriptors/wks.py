@@ -13,6 +13,34 @@ from shape_toolkit.features.basis import spectral_basis
 from shape_toolkit.plugins.descriptors._common import check_K, own_spectrum
 from shape_toolkit.plugins.descriptors.hks import DEFAULT_K
 
+__all__ = ["WKSDescriptor", "wave_kernel_signature"]
+
+
+def wave_kernel_signature(
+    vals: np.ndarray, U: np.ndarray, n_energies: int = 100, variance: float = 7.0
+) -> np.ndarray:
+    """WKS ``(n, n_energies)`` of the non-null eigenpairs ``vals`` ``(K,)``, ``U`` ``(n, K)``
+    (ascending, orthonormal in the spectrum's inner product): log-energies ``e`` evenly spaced in
+    ``[log vals[0] + 2 sigma, log vals[-1] - 2 sigma]``, ``sigma = variance * (log vals[-1] -
+    log vals[0]) / n_energies``, each column normalized by its sum of Gaussian weights (Aubry et
+    al. 2011). The one place of the WKS formula: the ``wks`` plugin and ``fmap-zoomout`` call it."""
+    vals = np.asarray(vals, dtype=np.float64)
+    if vals.size < 2 or not vals[0] > 0:
+        raise ParameterError("the WKS needs at least two positive eigenvalues")
+    loge = np.log(vals)
+    sigma = variance * (loge[-1] - loge[0]) / n_energies
+    e = np.linspace(loge[0] + 2 * sigma, loge[-1] - 2 * sigma, int(n_energies))
+    if sigma == 0:
+        sigma = 1.0
+    G = np.exp(-((e[None, :] - loge[:, None]) ** 2) / (2 * sigma**2))  # (K, E)
+    norm = G.sum(axis=0)
+    norm[norm == 0] = 1.0
+    out = np.empty((U.shape[0], e.size))
+    for s in range(0, U.shape[0], 16384):
+        b = U[s : s + 16384]
+        out[s : s + 16384] = (b * b) @ G
+    return out / norm[None, :]
+
 
 class WKSDescriptor(Descriptor):
     """WKS at ``n_energies`` log-energies ``e`` evenly spaced in
@@ -55,21 +83,7 @@ class WKSDescriptor(Descriptor):
             raise ParameterError(f"variance must be positive, got {self.variance!r}")
         spectrum = own_spectrum(self, shape, spectrum)
         vals, U = spectral_basis(spectrum, self.K)
-        if vals.size < 2 or not vals[0] > 0:
-            raise ParameterError("the WKS needs at least two positive eigenvalues")
-        loge = np.log(vals)
-        sigma = self.variance * (loge[-1] - loge[0]) / self.n_energies
-        e = np.linspace(loge[0] + 2 * sigma, loge[-1] - 2 * sigma, int(self.n_energies))
-        if sigma == 0:
-            sigma = 1.0
-        G = np.exp(-((e[None, :] - loge[:, None]) ** 2) / (2 * sigma**2))  # (K, E)
-        norm = G.sum(axis=0)
-        norm[norm == 0] = 1.0
-        out = np.empty((U.shape[0], e.size))
-        for s in range(0, U.shape[0], 16384):
-            b = U[s : s + 16384]
-            out[s : s + 16384] = (b * b) @ G
-        return out / norm[None, :]
+        return wave_kernel_signature(vals, U, int(self.n_energies), float(self.variance))
 
 
 @hookimpl

@@ -11,9 +11,19 @@ maps. Normals are made outward (positive signed volume) on both shapes before it
 Solver: the energy is quadratic in ``vec(C)`` (``k_s k_t`` unknowns, 900 for k = 30), so instead
 of an iterative L-BFGS we assemble its normal equations with Kronecker identities and solve one
 small dense SPD system, exactly.
+
+Speed: the energy is invariant under one orthogonal mixing ``D -> D V`` of the descriptor columns
+applied to both shapes (every term sums over columns, and the operators are linear in the
+descriptor), so the columns are first rotated onto the principal directions of both shapes'
+descriptors together and the directions carrying a negligible share of their energy dropped
+(:func:`compress_descriptors`; 50 WKS columns keep about 15). The ZoomOut nearest-neighbour
+queries run as single-precision brute force (BLAS), the fastest of the searches measured in
+``benchmarks/results/matching_profile.md``.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
@@ -22,6 +32,7 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins.descriptors.wks import wave_kernel_signature as _wks
 from shape_toolkit.plugins.matching._common import (
     Basis,
     UsesDescriptor,
@@ -30,11 +41,13 @@ from shape_toolkit.plugins.matching._common import (
     check_seeds,
     fmap_from_p2p,
     normalize_columns,
-    p2p_from_fmap,
 )
-from shape_toolkit.results.correspondence import Correspondence
+from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
 
-__all__ = ["FmapZoomOutMatcher", "fit_functional_map", "zoomout", "orientation_operators", "wave_kernel_signature"]
+__all__ = [
+    "FmapZoomOutMatcher", "fit_functional_map", "zoomout", "orientation_operators", "multiplication_operators",
+    "compress_descriptors", "wave_kernel_signature", "farthest_point_sampling",
+]
 
 
 def _outward_face_normals(shape: Shape) -> np.ndarray:
@@ -53,34 +66,73 @@ def orientation_operators(
 
     F = np.asarray(shape.faces)
     m = F.shape[0]
-    G = igl.grad(np.asarray(shape.vertices), F).tocsr()
+    G = igl.grad(np.asarray(shape.vertices, dtype=np.float64), F).tocsr()
     N = _outward_face_normals(shape)
     # per-face area weights redistributed to the three corners (lumped, mass-normalized)
-    area = np.asarray(shape.face_areas) / (3.0 * float(np.asarray(shape.face_areas).sum()))
-    total = float(np.asarray(shape.face_areas).sum())
+    fa = np.asarray(shape.face_areas, dtype=np.float64)
+    total = float(fa.sum())
     phi = basis.evecs[:, :k]
-    phi_face = (phi[F[:, 0]] + phi[F[:, 1]] + phi[F[:, 2]]) * area[:, None]  # (m, k)
+    phi_face = (phi[F[:, 0]] + phi[F[:, 1]] + phi[F[:, 2]]) * (fa / (3.0 * total))[:, None]  # (m, k)
     gphi = (G @ phi).reshape(3, m, k)
+    # <n x grad f, grad phi_j> = <grad f, grad phi_j x n>: rotate the k basis gradients once
+    Q = np.stack([
+        gphi[1] * N[:, 2, None] - gphi[2] * N[:, 1, None],
+        gphi[2] * N[:, 0, None] - gphi[0] * N[:, 2, None],
+        gphi[0] * N[:, 1, None] - gphi[1] * N[:, 0, None],
+    ])  # (3, m, k)
     gf = (G @ descriptors).reshape(3, m, -1)  # (3, m, d)
-    # rotated gradient field n x grad f, then its dot product with grad phi_j per face
-    rot = np.stack(
-        [
-            N[:, 1, None] * gf[2] - N[:, 2, None] * gf[1],
-            N[:, 2, None] * gf[0] - N[:, 0, None] * gf[2],
-            N[:, 0, None] * gf[1] - N[:, 1, None] * gf[0],
-        ]
-    )  # (3, m, d)
-    d = rot.shape[2]
-    ops = np.zeros((d, k, k))
-    step = max(1, 2_000_000 // max(1, m * k))  # descriptors per block: memory ~ 16 MB
+    d = gf.shape[2]
+    ops = np.empty((d, k, k))
+    step = max(1, 4_000_000 // max(1, m * k))  # descriptors per block: memory ~ 32 MB
     for s in range(0, d, step):
         e = min(d, s + step)
-        acc = np.zeros((k * (e - s), k))
-        for x in range(3):  # sum over faces as one BLAS product per coordinate
-            acc += (phi_face[:, :, None] * rot[x][:, None, s:e]).reshape(m, -1).T @ gphi[x]
-        ops[s:e] = acc.reshape(k, e - s, k).transpose(1, 0, 2)
+        Z = gf[0][:, s:e, None] * Q[0][:, None, :]  # (m, e - s, k): sum_x grad_x f * Q_x
+        Z += gf[1][:, s:e, None] * Q[1][:, None, :]
+        Z += gf[2][:, s:e, None] * Q[2][:, None, :]
+        ops[s:e] = (phi_face.T @ Z.reshape(m, -1)).reshape(k, e - s, k).transpose(1, 0, 2)
     # gradients carry 1/length: rescale to the unit-area normalization of the basis
     return ops * total
+
+
+def multiplication_operators(basis: Basis, k: int, descriptors: np.ndarray) -> np.ndarray:
+    """Multiplication operators ``(d, k, k)``: ``X(f)_ij = <phi_i, f phi_j>_M`` for each descriptor
+    column ``f`` ``(n,)`` of ``descriptors`` ``(n, d)``, as one BLAS product over the upper triangle."""
+    phi = basis.evecs[:, :k]
+    iu, ju = np.triu_indices(k)
+    vals = (phi[:, iu] * phi[:, ju]).T @ (basis.mass[:, None] * descriptors)  # (k(k+1)/2, d)
+    ops = np.empty((descriptors.shape[1], k, k))
+    ops[:, iu, ju] = vals.T
+    ops[:, ju, iu] = vals.T
+    return ops
+
+
+def compress_descriptors(
+    desc_src: np.ndarray, desc_tgt: np.ndarray, mass_src: np.ndarray, mass_tgt: np.ndarray,
+    rtol: float = 1e-10,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Both shapes' descriptors ``(n_s, d)``, ``(n_t, d)`` mixed by one orthogonal ``V`` ``(d, r)``:
+    the principal directions of the mass-weighted columns of both shapes together, keeping those
+    whose squared singular value exceeds ``rtol`` times the largest. Every term of the functional
+    map energy sums over descriptor columns and is linear in each operator, so it is unchanged by
+    the full ``V`` and changes by about ``rtol`` relative when the weak directions are dropped."""
+    S = np.vstack([np.sqrt(mass_src)[:, None] * desc_src, np.sqrt(mass_tgt)[:, None] * desc_tgt])
+    _, sv, Vt = np.linalg.svd(S.T @ S if S.shape[0] > 4 * S.shape[1] else S, full_matrices=False)
+    ev = sv if S.shape[0] > 4 * S.shape[1] else sv**2  # eigenvalues of the Gram matrix
+    r = max(1, int(np.sum(ev > rtol * ev[0]))) if ev.size and ev[0] > 0 else desc_src.shape[1]
+    V = Vt[:r].T
+    return desc_src @ V, desc_tgt @ V
+
+
+def _commutativity_hessian(Xs: np.ndarray, Xt: np.ndarray) -> np.ndarray:
+    """Hessian ``(k^2, k^2)`` of ``sum_f ||C X_t(f) - X_s(f) C||^2 / 2`` in column-major
+    ``vec(C)``: ``sum_f (X_t X_t^T kron I + I kron X_s^T X_s - X_t kron X_s^T - X_t^T kron X_s)``."""
+    d, k, _ = Xs.shape
+    kk = k * k
+    eye = np.eye(k)
+    XtXt = np.tensordot(Xt, Xt, axes=([0, 2], [0, 2]))
+    XsXs = np.tensordot(Xs, Xs, axes=([0, 1], [0, 1]))
+    cross = (Xt.reshape(d, kk).T @ Xs.reshape(d, kk)).reshape(k, k, k, k).transpose(0, 2, 1, 3).reshape(kk, kk)
+    return np.kron(XtXt, eye) + np.kron(eye, XsXs) - cross - cross.T
 
 
 def fit_functional_map(
@@ -116,20 +168,13 @@ def fit_functional_map(
     H[np.diag_indices(kk)] += w_lap / sl * D.ravel(order="F")
 
     def add_commutativity(Xs: np.ndarray, Xt: np.ndarray, w: float) -> None:
-        # ||C X_t - X_s C||^2 with M = X_t^T kron I - I kron X_s
         if w <= 0 or len(Xs) == 0:
             return
-        scale = max(float(sum((x**2).sum() for x in Xs)), 1e-300)
-        I = np.eye(k)
-        XtXt = np.einsum("fab,fcb->ac", Xt, Xt)
-        XsXs = np.einsum("fba,fbc->ac", Xs, Xs)
-        cross = np.einsum("fab,fcd->acbd", Xt, Xs).reshape(kk, kk)
-        Hc = np.kron(XtXt, I) + np.kron(I, XsXs) - cross - cross.T
-        H[:] += w / scale * Hc
+        scale = max(float((Xs**2).sum()), 1e-300)
+        H[:] += w / scale * _commutativity_hessian(Xs, Xt)
 
     if w_dcomm > 0:
-        Xs = np.stack([src.evecs[:, :k].T @ ((src.mass * f)[:, None] * src.evecs[:, :k]) for f in desc_src.T])
-        Xt = np.stack([tgt.evecs[:, :k].T @ ((tgt.mass * f)[:, None] * tgt.evecs[:, :k]) for f in desc_tgt.T])
+        Xs, Xt = multiplication_operators(src, k, desc_src), multiplication_operators(tgt, k, desc_tgt)
         add_commutativity(Xs, Xt, w_dcomm)
     if w_orient > 0 and orient_src is not None and orient_tgt is not None:
         add_commutativity(orient_src[:, :k, :k], orient_tgt[:, :k, :k], w_orient)
@@ -138,56 +183,77 @@ def fit_functional_map(
     return c.reshape(k, k, order="F")
 
 
+def _point_map(C: np.ndarray, emb_s: np.ndarray, emb_t: np.ndarray) -> np.ndarray:
+    """Nearest row of ``emb_t[:, :kt] @ C.T`` for each row of ``emb_s[:, :ks]`` (single precision)."""
+    ks, kt = C.shape
+    points = emb_t[:, :kt] @ C.T.astype(emb_t.dtype)
+    return nearest_neighbors(points, emb_s[:, :ks], dtype=np.float32)[1]
+
+
 def zoomout(
     C: np.ndarray, src: Basis, tgt: Basis, k_final: int, step: int = 1,
     rows: np.ndarray | None = None, cols: np.ndarray | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """ZoomOut (Melzi et al. 2019): alternate point map and functional map while the basis grows
     from ``C.shape`` to ``k_final`` by ``step``; returns the final ``C_ts`` and the point map of
     every source vertex. ``rows``/``cols`` (source/target vertex samples) speed up the inner
-    iterations (the final point map always covers every source vertex)."""
+    iterations (the final point map always covers every source vertex). Point maps are nearest
+    neighbours in single precision (:func:`~shape_toolkit.results.correspondence.nearest_neighbors`);
+    ``progress`` receives one message per iteration."""
     k = C.shape[0]
-    sub_t = tgt if cols is None else Basis(tgt.evals, tgt.evecs[cols], tgt.mass[cols])
+    e_s = np.asarray(src.evecs[:, :k_final], dtype=np.float32)
+    e_t = np.asarray(tgt.evecs[:, :k_final], dtype=np.float32)
+    q_s = e_s if rows is None else e_s[rows]
+    q_t = e_t if cols is None else e_t[cols]
+    n_iter = max(0, -(-(k_final - k) // step))
+    it = 0
     while k < k_final:
-        T = p2p_from_fmap(C, src, sub_t, rows)
+        T = _point_map(C, q_s, q_t)
         if cols is not None:
             T = cols[T]
         k = min(k + step, k_final)
         C = fmap_from_p2p(src, tgt, T, k, k, rows=rows)
-    return C, p2p_from_fmap(C, src, tgt)
+        it += 1
+        if progress is not None:
+            progress(f"zoomout: iteration {it}/{n_iter} (k = {k})")
+    return C, _point_map(C, e_s, e_t)
 
 
 def wave_kernel_signature(spectrum: Spectrum, n_energies: int = 100, variance: float = 7.0) -> np.ndarray:
-    """WKS (Aubry et al. 2011) ``(n, n_energies)`` on every non-null eigenpair of ``spectrum``:
-    what ``fmap-zoomout`` uses by default, on its own Laplace-Beltrami spectrum (cotangent weights
-    *with* the mass matrix). The ``wks`` descriptor plugin declares a graph spectrum without the
-    mass matrix, which depends on the sampling and made ZoomOut's maps much worse on independently
-    remeshed pairs (TOSCA cat0-cat1: mean error 0.132 instead of 0.034)."""
+    """WKS (Aubry et al. 2011) ``(n, n_energies)`` on every non-null eigenpair of ``spectrum``
+    (:func:`shape_toolkit.plugins.descriptors.wks.wave_kernel_signature`): what ``fmap-zoomout``
+    uses by default, on its own Laplace-Beltrami spectrum (cotangent weights *with* the mass
+    matrix). The ``wks`` descriptor plugin declares a graph spectrum without the mass matrix, which
+    depends on the sampling and made ZoomOut's maps much worse on independently remeshed pairs
+    (TOSCA cat0-cat1: mean error 0.132 instead of 0.034)."""
     from shape_toolkit.features.basis import spectral_basis
 
     vals, U = spectral_basis(spectrum)
-    if vals.size < 2 or not vals[0] > 0:
-        raise ParameterError("the WKS needs at least two positive eigenvalues")
-    loge = np.log(vals)
-    sigma = variance * (loge[-1] - loge[0]) / n_energies
-    e = np.linspace(loge[0] + 2 * sigma, loge[-1] - 2 * sigma, int(n_energies))
-    if sigma == 0:
-        sigma = 1.0
-    G = np.exp(-((e[None, :] - loge[:, None]) ** 2) / (2 * sigma**2))
-    norm = G.sum(axis=0)
-    norm[norm == 0] = 1.0
-    return ((U * U) @ G) / norm[None, :]
+    return _wks(vals, U, n_energies, variance)
 
 
 def farthest_point_sampling(points: np.ndarray, n: int, start: int = 0) -> np.ndarray:
     """``n`` indices of ``points`` ``(N, d)`` chosen by Euclidean farthest point sampling."""
-    n = min(n, len(points))
+    P = np.asarray(points, dtype=np.float64)
+    n = min(n, len(P))
     idx = np.empty(n, dtype=np.int64)
+    if n == 0:
+        return idx
     idx[0] = start
-    d = np.sum((points - points[start]) ** 2, axis=1)
-    for i in range(1, n):
-        idx[i] = int(d.argmax())
-        d = np.minimum(d, np.sum((points - points[idx[i]]) ** 2, axis=1))
+    coords = [np.ascontiguousarray(P[:, c]) for c in range(P.shape[1])]
+    d = np.full(len(P), np.inf)
+    t, u = np.empty(len(P)), np.empty(len(P))
+    j = int(start)
+    for i in range(1, n):  # squared distance to the newest sample, in place (no temporaries)
+        t.fill(0.0)
+        for c, x in zip(coords, P[j]):
+            np.subtract(c, x, out=u)
+            np.multiply(u, u, out=u)
+            t += u
+        np.minimum(d, t, out=d)
+        j = int(d.argmax())
+        idx[i] = j
     return idx
 
 
@@ -202,7 +268,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     columns are kept. ``k``: size of the fitted map; ZoomOut then grows it by ``zoomout_step`` for
     ``zoomout_iters`` iterations (``zoomout_iters=0`` disables it). ``orientation``:
     ``"preserving"`` (default), ``"reversing"`` or ``"none"`` (weight ``w_orient``).
-    ``zoomout_samples``: source vertices (farthest point sampling) used inside ZoomOut iterations
+    ``zoomout_samples``: target vertices (farthest point sampling) the source vertices are matched
+    to inside ZoomOut iterations
     (None: all). Seeds, when given, add one heat-kernel descriptor per seed pair.
     """
 
@@ -285,9 +352,11 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         target_spectrum: Spectrum | None = None,
         source_descriptors: np.ndarray | None = None,
         target_descriptors: np.ndarray | None = None,
+        progress: Callable[[str], None] | None = None,
     ) -> Correspondence:
         """Dense map source -> target (every source vertex matched); ``info['C']`` holds the
-        final functional map ``(k, k)`` pulling target functions back to the source."""
+        final functional map ``(k, k)`` pulling target functions back to the source.
+        ``progress`` (optional) receives one message per stage and per ZoomOut iteration."""
         self._check()
         source.require_faces("fmap-zoomout")
         target.require_faces("fmap-zoomout")
@@ -323,6 +392,9 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
             ds = np.hstack([ds, seed_maps(spec_s, seeds[:, 0])])
             dt = np.hstack([dt, seed_maps(spec_t, seeds[:, 1])])
         ds, dt = normalize_columns(ds, bs.mass), normalize_columns(dt, bt.mass)
+        ds, dt = compress_descriptors(ds, dt, bs.mass, bt.mass)
+        if progress is not None:
+            progress(f"fmap-zoomout: functional map fit (k = {k0}, {ds.shape[1]} descriptor directions)")
         w_orient = 0.0 if self.orientation == "none" else self.w_orient
         Os = Ot = None
         if w_orient > 0:
@@ -334,12 +406,13 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
             bs, bt, ds, dt, k0, w_descr=self.w_descr, w_lap=self.w_lap, w_dcomm=self.w_dcomm,
             w_orient=w_orient, orient_src=Os, orient_tgt=Ot,
         )
-        rows = cols = None
-        if self.zoomout_samples and self.zoomout_samples < source.n_vertices:
-            rows = farthest_point_sampling(np.asarray(source.vertices), int(self.zoomout_samples))
+        # every source vertex queries (the functional map of each iteration is then the exact
+        # projection of the point map); only the candidate target vertices are sampled: sampling the
+        # queries too fits C on a sample and cost FAUST tuning pairs 5-15 % of accuracy
+        cols = None
         if self.zoomout_samples and self.zoomout_samples < target.n_vertices:
             cols = farthest_point_sampling(np.asarray(target.vertices), int(self.zoomout_samples))
-        C, T = zoomout(C, bs, bt, k_final, self.zoomout_step, rows, cols)
+        C, T = zoomout(C, bs, bt, k_final, self.zoomout_step, None, cols, progress=progress)
         return Correspondence(T, target.n_vertices, info={"C": C, "k_final": k_final})
 
 

@@ -1,0 +1,295 @@
+"""Where the CPU time of a 5k-vertex match goes: the `zoomout` preset and pyFM's README pipeline,
+stage by stage, plus the nearest-neighbour searches ZoomOut could use, on real spectral embeddings.
+
+    python benchmarks/profile_matching.py [--data DIR] [--pairs faust5k:tr_reg_000:tr_reg_001,...]
+                                          [--repeat R] [--output FILE]
+
+Regenerates ``benchmarks/results/matching_profile.md`` and ``.json``.
+
+Protocol: each (method, pair) runs in a fresh child process (empty spectrum cache, one BLAS thread
+unless ``OPENBLAS_NUM_THREADS`` is set), under ``cProfile`` with ``time.process_time`` as its
+clock, so the stage times are CPU seconds and robust to other load on the machine; a stage is the
+cumulative time of the functions listed in ``STAGES`` (a function called inside another stage
+counts in both only where said). The ZoomOut final point map (every source vertex against every
+target vertex) is timed apart from the iterations by a wrapper around ``fmap_zoomout._point_map``.
+The best of ``--repeat`` runs (by total) is kept. The nearest-neighbour table times each search
+on the embeddings ``Phi_t C^T`` / ``Phi_s`` of a real match at three basis sizes.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+import cProfile  # noqa: E402
+import json  # noqa: E402
+import pstats  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
+RESULTS = REPO / "benchmarks" / "results"
+DEFAULT_PAIRS = "faust5k:tr_reg_000:tr_reg_001,tosca5k:cat0:cat1"
+
+#: stage -> (module path fragment, function name) whose cumulative CPU time is the stage's
+STAGES = {
+    "zoomout": [
+        ("spectra (both shapes)", "core/spectrum.py", "compute_spectrum"),
+        ("WKS descriptors (both)", "plugins/descriptors/wks.py", "wave_kernel_signature"),
+        ("descriptor compression", "fmap_zoomout.py", "compress_descriptors"),
+        ("orientation operators (both)", "fmap_zoomout.py", "orientation_operators"),
+        ("functional map fit (incl. multiplication operators)", "fmap_zoomout.py", "fit_functional_map"),
+        ("farthest point samples (both)", "fmap_zoomout.py", "farthest_point_sampling"),
+        ("ZoomOut: point maps (nearest neighbours)", "fmap_zoomout.py", "_point_map"),
+        ("ZoomOut: functional maps from point maps", "matching/_common.py", "fmap_from_p2p"),
+        ("ZoomOut total (incl. final point map)", "fmap_zoomout.py", "zoomout"),
+    ],
+    "pyfm": [
+        ("spectra (both shapes, 200 eigenpairs)", "mesh/trimesh.py", "process"),
+        ("WKS descriptors (both)", "pyFM/functional.py", "compute_spectral_descriptors"),
+        ("descriptor multiplication operators", "pyFM/functional.py", "_compute_descr_op"),
+        ("orientation operators", "pyFM/functional.py", "_compute_orientation_op"),
+        ("functional map fit (L-BFGS-B, incl. operators)", "pyFM/functional.py", "fit"),
+        ("ZoomOut iterations", "pyFM/functional.py", "zoomout_refine"),
+        ("final point map", "pyFM/functional.py", "get_p2p"),
+    ],
+}
+
+
+def _data(arg: str | None) -> Path:
+    if arg:
+        return Path(arg)
+    return Path(os.environ.get("TOOLKIT_DATA", REPO.parent / "shared" / "data"))
+
+
+def _cumulative(stats: pstats.Stats, fragment: str, name: str) -> tuple[float, int]:
+    """Cumulative CPU seconds and primitive call count of the functions ``name`` whose file path
+    contains ``fragment`` (outermost calls only: recursion is not double counted by cProfile)."""
+    tot, calls = 0.0, 0
+    for (fname, _line, func), (cc, _nc, _tt, ct, _callers) in stats.stats.items():  # type: ignore[attr-defined]
+        if func == name and fragment in fname.replace("\\", "/"):
+            tot += ct
+            calls += cc
+    return tot, calls
+
+
+def child(method: str, data: Path, ds: str, a: str, b: str) -> dict:
+    """Profile one match in this (fresh) process; returns the stage table."""
+    import warnings
+
+    warnings.filterwarnings("ignore")
+    from threadpoolctl import threadpool_info
+
+    from shape_toolkit.io.mesh import load_shape
+
+    A, B = load_shape(data / ds / f"{a}.off"), load_shape(data / ds / f"{b}.off")
+    final = {"cpu": 0.0}
+    if method == "zoomout":
+        from shape_toolkit.pipeline import load_pipeline
+        from shape_toolkit.plugins.matching.dense import fmap_zoomout as fz
+
+        inner = fz._point_map
+
+        def timed_point_map(C, emb_s, emb_t):  # the final map queries every source vertex
+            c0 = time.process_time()
+            out = inner(C, emb_s, emb_t)
+            if len(emb_s) == A.n_vertices and len(emb_t) == B.n_vertices:
+                final["cpu"] += time.process_time() - c0
+            return out
+
+        fz._point_map = timed_point_map
+        pipe = load_pipeline("zoomout")
+
+        def run():
+            return pipe.run(A, B).target_of
+    else:
+        from tosca_matching import run_pyfm
+
+        def run():
+            return run_pyfm(A, B)
+
+    prof = cProfile.Profile(time.process_time)
+    c0, w0 = time.process_time(), time.perf_counter()
+    prof.enable()
+    run()
+    prof.disable()
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    stats = pstats.Stats(prof)
+    rows = []
+    for label, frag, name in STAGES[method]:
+        t, calls = _cumulative(stats, frag, name)
+        rows.append({"stage": label, "function": name, "calls": calls, "cpu_seconds": t})
+    if method == "zoomout":
+        rows.append({"stage": "ZoomOut: final point map (all vertices, in the two rows above)",
+                     "function": "_point_map", "calls": 1, "cpu_seconds": final["cpu"]})
+    blas = [{"api": i.get("internal_api"), "threads": i.get("num_threads")} for i in threadpool_info()]
+    return {"method": method, "pair": f"{a}-{b}", "dataset": ds, "n": [A.n_vertices, B.n_vertices],
+            "cpu_seconds": cpu, "wall_seconds": wall, "stages": rows, "blas": blas}
+
+
+def nn_table(data: Path, ds: str, a: str, b: str) -> list[dict]:
+    """Time the candidate nearest-neighbour searches on the embeddings of a real match."""
+    import warnings
+
+    warnings.filterwarnings("ignore")
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.io.mesh import load_shape
+    from shape_toolkit.plugins.matching._common import basis_of
+    from shape_toolkit.plugins.matching.dense.fmap_zoomout import FmapZoomOutMatcher
+    from shape_toolkit.results.correspondence import nearest_neighbors
+
+    A, B = load_shape(data / ds / f"{a}.off"), load_shape(data / ds / f"{b}.off")
+    m = FmapZoomOutMatcher()
+    C = m.match(A, B).info["C"]
+    kf = C.shape[0]
+    bs = basis_of(m._spectrum(A, None), kf)
+    bt = basis_of(m._spectrum(B, None), kf)
+    searches = {
+        "toolkit brute force, float64": lambda X, Q: nearest_neighbors(X, Q)[1],
+        "toolkit brute force, float32 (used)": lambda X, Q: nearest_neighbors(X, Q, dtype=np.float32)[1],
+        "scipy cKDTree": lambda X, Q: cKDTree(X).query(Q, k=1)[1],
+    }
+    try:
+        from pykdtree.kdtree import KDTree
+
+        searches["pykdtree"] = lambda X, Q: KDTree(X).query(Q, k=1)[1]
+    except ImportError:
+        pass
+    try:
+        import faiss
+
+        def faiss_flat(X, Q):
+            faiss.omp_set_num_threads(1)
+            index = faiss.IndexFlatL2(X.shape[1])
+            index.add(np.ascontiguousarray(X, dtype=np.float32))
+            return index.search(np.ascontiguousarray(Q, dtype=np.float32), 1)[1][:, 0]
+
+        searches["faiss IndexFlatL2 (float32)"] = faiss_flat
+    except ImportError:
+        pass
+    try:
+        from sklearn.neighbors import NearestNeighbors
+
+        searches["scikit-learn NearestNeighbors (auto)"] = (
+            lambda X, Q: NearestNeighbors(n_neighbors=1).fit(X).kneighbors(Q, return_distance=False)[:, 0])
+    except ImportError:
+        pass
+    rows = []
+    for k in (30, 70, kf):
+        X = bt.evecs[:, :k] @ C[:k, :k].T
+        Q = bs.evecs[:, :k]
+        ref = nearest_neighbors(X, Q)[1]
+        for name, fn in searches.items():
+            c0 = time.process_time()
+            got = np.asarray(fn(X, Q)).astype(np.int64).ravel()
+            rows.append({"k": k, "search": name, "n": [len(X), len(Q)], "cpu_seconds": time.process_time() - c0,
+                         "agree_with_float64": float(np.mean(got == ref))})
+    return rows
+
+
+def _run_child(args: list[str]) -> dict:
+    out = Path(f"/tmp/profile_matching_{os.getpid()}_{time.time_ns()}.json")
+    r = subprocess.run([sys.executable, __file__, *args, "--child-out", str(out)])
+    if r.returncode != 0 or not out.exists():
+        return {"error": f"exit code {r.returncode}"}
+    res = json.loads(out.read_text())
+    out.unlink()
+    return res
+
+
+def write_results(profiles: list[dict], nn: list[dict], output: Path) -> None:
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.with_suffix(".json").write_text(json.dumps({"profiles": profiles, "nearest_neighbours": nn}, indent=1))
+    blas = next((p["blas"] for p in profiles if "blas" in p), [])
+    lines = [
+        "# Where a 5k-vertex match spends its CPU time (`zoomout` preset and pyFM's README pipeline)",
+        "",
+        "Regenerate: `python benchmarks/profile_matching.py` (protocol in its docstring: fresh process per "
+        "run, empty spectrum cache, cProfile with a CPU clock, best of the repeats).",
+        "BLAS: " + (", ".join(f"{b['api']} {b['threads']} thread(s)" for b in blas) or "unknown") + ". "
+        "CPU seconds (process time); wall seconds depend on the load of the shared 2-core machine.",
+        "",
+    ]
+    for p in profiles:
+        if "error" in p:
+            lines += [f"- {p.get('method')} {p.get('pair')}: failed ({p['error']})", ""]
+            continue
+        lines += [
+            f"## {p['method']}: {p['dataset']} {p['pair']} ({p['n'][0]} -> {p['n'][1]} vertices)",
+            "",
+            f"Total: **{p['cpu_seconds']:.2f} s CPU** ({p['wall_seconds']:.2f} s wall).",
+            "",
+            "| stage | function | calls | CPU s | share |",
+            "|---|---|---|---|---|",
+        ]
+        for r in p["stages"]:
+            share = r["cpu_seconds"] / p["cpu_seconds"] if p["cpu_seconds"] > 0 else float("nan")
+            lines.append(f"| {r['stage']} | `{r['function']}` | {r['calls']} | {r['cpu_seconds']:.3f} "
+                         f"| {100 * share:.0f}% |")
+        lines.append("")
+    if nn:
+        lines += [
+            "## Nearest-neighbour search on real ZoomOut embeddings (one call, CPU seconds)",
+            "",
+            "Points `Phi_t[:, :k] C^T`, queries `Phi_s[:, :k]` of the first pair's final map; `agree` is the "
+            "fraction of queries with the same answer as the float64 brute force (single precision differs "
+            "only on near-ties).",
+            "",
+            "| k | search | points x queries | CPU s | agree |",
+            "|---|---|---|---|---|",
+        ]
+        for r in nn:
+            lines.append(f"| {r['k']} | {r['search']} | {r['n'][0]} x {r['n'][1]} | {r['cpu_seconds']:.3f} "
+                         f"| {100 * r['agree_with_float64']:.2f}% |")
+        lines.append("")
+    output.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", help="shared data directory (default $TOOLKIT_DATA or ../shared/data)")
+    ap.add_argument("--pairs", default=DEFAULT_PAIRS, help="comma-separated dataset:A:B")
+    ap.add_argument("--methods", default="zoomout,pyfm")
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--no-nn", action="store_true", help="skip the nearest-neighbour table")
+    ap.add_argument("--output", default=str(RESULTS / "matching_profile.md"))
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    ap.add_argument("--child-out", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    data = _data(args.data)
+    if args.child:
+        kind, ds, a, b = args.child.split(":")
+        res = nn_table(data, ds, a, b) if kind == "nn" else child(kind, data, ds, a, b)
+        Path(args.child_out).write_text(json.dumps(res))
+        return 0
+    pairs = [tuple(p.split(":")) for p in args.pairs.split(",") if p.strip()]
+    if not all((data / ds / f"{a}.off").exists() for ds, a, _ in pairs):
+        print(f"data not found under {data}: pass --data or set TOOLKIT_DATA", file=sys.stderr)
+        return 2
+    profiles = []
+    for ds, a, b in pairs:
+        for method in [m.strip() for m in args.methods.split(",") if m.strip()]:
+            runs = [_run_child(["--child", f"{method}:{ds}:{a}:{b}", "--data", str(data)])
+                    for _ in range(max(1, args.repeat))]
+            ok = [r for r in runs if "error" not in r]
+            best = min(ok, key=lambda r: r["cpu_seconds"]) if ok else {**runs[0], "method": method, "pair": f"{a}-{b}"}
+            profiles.append(best)
+            print(f"[{method} {a}-{b}] {best.get('cpu_seconds', float('nan')):.2f} s CPU", file=sys.stderr, flush=True)
+    nn = [] if args.no_nn else _run_child(["--child", "nn:{}:{}:{}".format(*pairs[0]), "--data", str(data)])
+    write_results(profiles, nn if isinstance(nn, list) else [], Path(args.output))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
