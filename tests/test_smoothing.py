@@ -11,7 +11,9 @@ from shape_toolkit.core.shape import Shape  # noqa: E402
 from shape_toolkit.errors import ParameterError  # noqa: E402
 from shape_toolkit.features.smoothing import (  # noqa: E402
     alpha_expansion,
+    concavity_weights,
     dihedral_edge_costs,
+    dual_adjacency,
     dual_graph,
     potts_energy,
     smooth_labels,
@@ -129,3 +131,45 @@ def test_several_components_and_bad_input():
         smooth_labels(s, lab, smoothing_lambda=-1)
     with pytest.raises(ParameterError):
         smooth_labels(s)
+
+
+def test_concavity_weights_drop_across_a_concave_crease_only():
+    # a step: concave crease at x = 0.3, convex crease of the same angle at x = 0.7, flat elsewhere
+    step = _grid(41, 11, lambda x, y: 0.6 * np.abs(x - 0.3) - 0.6 * np.abs(x - 0.7))
+    # sigma is relative to the mean angular distance, which is tiny on this piecewise-flat shape: a
+    # larger concavity_scale keeps the convex crease above the floor
+    pairs, w = concavity_weights(step, length_weighted=False, concavity_scale=20.0)
+    _, theta, concave = dihedral_edge_costs(step)
+    sharp = theta > 0.5
+    flat = theta < 1e-6
+    assert sharp.any() and flat.any() and concave[sharp].any() and not concave[sharp].all()
+    cc, cx = sharp & concave, sharp & ~concave
+    # 1 on flat parts, low across the concave crease, far higher across the convex one
+    assert np.allclose(w[flat], 1.0)
+    assert w[cc].max() < 0.05 and w[cx].min() > 10 * w[cc].max()
+    # convex creases count like concave ones when convex_factor = 1
+    _, w1 = concavity_weights(step, length_weighted=False, convex_factor=1.0, concavity_scale=20.0)
+    assert np.allclose(w1[cx], w1[cc])
+    # with the default scale both sharp creases of this shape are far above the mean: the floor
+    _, w0 = concavity_weights(step, length_weighted=False)
+    assert np.allclose(w0[sharp], 1e-3)
+    # the floor bounds the contrast
+    _, wf = concavity_weights(step, length_weighted=False, min_weight=0.05, concavity_scale=20.0)
+    assert wf.min() >= 0.05 - 1e-12
+    # edge lengths scale the affinities (relative to their mean)
+    _, wl = concavity_weights(step, concavity_scale=20.0)
+    assert not np.allclose(wl, w) and np.allclose(wl[flat].mean(), w[flat].mean(), rtol=0.3)
+
+
+def test_concavity_weights_are_scale_invariant_and_validated():
+    v = _valley()
+    big = Shape(v.vertices * 250.0, v.faces)
+    p1, w1 = concavity_weights(v)
+    p2, w2 = concavity_weights(big)
+    assert np.array_equal(p1, p2) and np.allclose(w1, w2)
+    for bad in ({"concavity_scale": 0.0}, {"convex_factor": -0.1}, {"min_weight": 0.0}, {"min_weight": 2.0},
+                {"concavity_scale": float("nan")}):
+        with pytest.raises(ParameterError):
+            concavity_weights(v, **bad)
+    A = dual_adjacency(v.n_faces, p1, w1)
+    assert A.shape == (v.n_faces, v.n_faces) and abs(A - A.T).max() == 0 and np.isclose(A.sum(), 2 * w1.sum())

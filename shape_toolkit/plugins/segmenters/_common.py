@@ -14,9 +14,10 @@ import scipy.sparse as sp
 from sklearn.cluster import KMeans
 from threadpoolctl import threadpool_limits
 
+from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import SpectrumSpec, default_spec, fix_signs
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.results.labels import relabel_consecutive
+from shape_toolkit.results.labels import face_to_vertex_labels, relabel_consecutive
 
 
 def check_n_segments(k: Any, n: int, *, allow_none: bool) -> int | None:
@@ -88,3 +89,83 @@ def laplacian_embedding_of(W: sp.csr_matrix, k: int) -> tuple[np.ndarray, np.nda
     L = sp.csr_matrix(sp.diags(d) - W)
     vals, vecs = smallest_eigenpairs(L, min(k + 1, W.shape[0]))
     return vals[1:], vecs[:, 1:]
+
+
+def face_segments_to_vertices(shape: Shape, face_labels: np.ndarray) -> np.ndarray:
+    """Per-vertex labels ``(n,)`` from face labels ``(m,)``: the label of the largest incident area;
+    vertices in no face take their nearest vertex's (what :meth:`Segmenter.segment` returns for a
+    face-based segmenter)."""
+    vl = face_to_vertex_labels(shape.faces, face_labels, shape.n_vertices, shape.face_areas)
+    lone = vl < 0
+    if lone.any():
+        from scipy.spatial import cKDTree
+
+        ok = np.flatnonzero(~lone)
+        _, j = cKDTree(shape.vertices[ok]).query(shape.vertices[lone])
+        vl[lone] = vl[ok[j]]
+    return vl
+
+
+def merge_to_segments(
+    face_labels: np.ndarray, pairs: np.ndarray, areas: np.ndarray, k: int | None
+) -> np.ndarray:
+    """Segments = connected components of equal labels on the dual graph (CGAL's rule); with ``k``,
+    the smallest segment is merged into the neighbour it shares the most dual edges with until ``k``
+    remain (segments without a neighbour, i.e. whole mesh components, are never merged). Returns
+    consecutive labels numbered by decreasing area (ties: smallest face id), independent of the face
+    order up to those ties."""
+    from scipy.sparse.csgraph import connected_components
+
+    from shape_toolkit.features.smoothing import dual_adjacency
+
+    face_labels = np.asarray(face_labels).ravel()
+    m = len(face_labels)
+    same = face_labels[pairs[:, 0]] == face_labels[pairs[:, 1]]
+    A = dual_adjacency(m, pairs[same], np.ones(int(same.sum())))
+    n_comp, comp = connected_components(A, directed=False)
+    if k is not None and n_comp > k:
+        area = np.bincount(comp, weights=areas, minlength=n_comp)
+        cross = pairs[comp[pairs[:, 0]] != comp[pairs[:, 1]]]
+        ca, cb = comp[cross[:, 0]], comp[cross[:, 1]]
+        nb: list[dict[int, int]] = [dict() for _ in range(n_comp)]
+        for a, b in zip(ca.tolist(), cb.tolist()):
+            nb[a][b] = nb[a].get(b, 0) + 1
+            nb[b][a] = nb[b].get(a, 0) + 1
+        parent = np.arange(n_comp)
+        alive = n_comp
+        import heapq
+
+        heap = [(float(area[i]), i) for i in range(n_comp)]
+        heapq.heapify(heap)
+        while alive > k and heap:
+            ar, i = heapq.heappop(heap)
+            if parent[i] != i or ar != area[i] or not nb[i]:
+                continue
+            j = max(nb[i].items(), key=lambda t: (t[1], -t[0]))[0]
+            parent[i] = j
+            area[j] += area[i]
+            for q, c in nb[i].items():
+                if q == j:
+                    continue
+                nb[j][q] = nb[j].get(q, 0) + c
+                del nb[q][i]
+                nb[q][j] = nb[q].get(j, 0) + c
+            del nb[j][i]
+            nb[i] = {}
+            alive -= 1
+            heapq.heappush(heap, (float(area[j]), j))
+        root = parent.copy()
+        while True:
+            nxt = root[root]
+            if np.array_equal(nxt, root):
+                break
+            root = nxt
+        comp = root[comp]
+    uniq, comp = np.unique(comp, return_inverse=True)
+    comp = comp.ravel()
+    tot = np.bincount(comp, weights=areas, minlength=len(uniq))
+    first = np.full(len(uniq), m)
+    np.minimum.at(first, comp, np.arange(m))
+    rank = np.empty(len(uniq), dtype=np.int64)
+    rank[np.lexsort((first, -tot))] = np.arange(len(uniq))
+    return rank[comp]

@@ -38,8 +38,10 @@ from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import BasePlugin, Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.features.smoothing import EPS, dual_graph, smooth_labels
-from shape_toolkit.results.labels import face_to_vertex_labels, vertex_to_face_labels
+from shape_toolkit.features.smoothing import EPS, dual_adjacency, dual_graph, smooth_labels
+from shape_toolkit.plugins.segmenters._common import face_segments_to_vertices as _vertex_labels
+from shape_toolkit.plugins.segmenters._common import merge_to_segments
+from shape_toolkit.results.labels import vertex_to_face_labels
 from shape_toolkit.validation import seed_of
 
 _GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
@@ -107,11 +109,6 @@ def face_sdf(shape: Shape, n_rays: int = 25, cone_angle: float = 2.0 * np.pi / 3
     return best * diag
 
 
-def _dual_matrix(m: int, pairs: np.ndarray) -> sp.csr_matrix:
-    i, j = pairs[:, 0], pairs[:, 1]
-    return sp.coo_matrix((np.ones(2 * len(pairs)), (np.r_[i, j], np.r_[j, i])), shape=(m, m)).tocsr()
-
-
 def _fill_and_filter(x: np.ndarray, A: sp.csr_matrix, areas: np.ndarray, iterations: int) -> np.ndarray:
     """NaNs filled from their neighbours (else the median), then ``iterations`` bilateral steps."""
     x = x.copy()
@@ -159,7 +156,7 @@ def normalized_sdf(
         return _SDF_CACHE[key].copy()
     raw = face_sdf(shape, n_rays, cone_angle)
     pairs, _, _ = dual_graph(faces)
-    A = _dual_matrix(len(faces), pairs)
+    A = dual_adjacency(len(faces), pairs, np.ones(len(pairs)))
     areas = np.asarray(shape.face_areas, dtype=np.float64) + 1e-300
     x = _fill_and_filter(raw, A, areas, filter_iterations)
     lo, hi = np.percentile(x, [1.0, 99.0])
@@ -170,81 +167,6 @@ def normalized_sdf(
         _SDF_CACHE.pop(next(iter(_SDF_CACHE)))
     _SDF_CACHE[key] = x
     return x.copy()
-
-
-def _vertex_labels(shape: Shape, face_labels: np.ndarray) -> np.ndarray:
-    """Per-vertex labels (largest incident area); vertices in no face take their nearest vertex's."""
-    vl = face_to_vertex_labels(shape.faces, face_labels, shape.n_vertices, shape.face_areas)
-    lone = vl < 0
-    if lone.any():
-        from scipy.spatial import cKDTree
-
-        ok = np.flatnonzero(~lone)
-        _, j = cKDTree(shape.vertices[ok]).query(shape.vertices[lone])
-        vl[lone] = vl[ok[j]]
-    return vl
-
-
-def merge_to_segments(
-    face_labels: np.ndarray, pairs: np.ndarray, areas: np.ndarray, k: int | None
-) -> np.ndarray:
-    """Segments = connected components of equal labels on the dual graph (CGAL's rule); with ``k``,
-    the smallest segment is merged into the neighbour it shares the most dual edges with until ``k``
-    remain (segments without a neighbour, i.e. whole mesh components, are never merged). Returns
-    consecutive labels numbered by decreasing area (ties: smallest face id), independent of the face
-    order up to those ties."""
-    from scipy.sparse.csgraph import connected_components
-
-    m = len(face_labels)
-    same = face_labels[pairs[:, 0]] == face_labels[pairs[:, 1]]
-    A = _dual_matrix(m, pairs[same])
-    n_comp, comp = connected_components(A, directed=False)
-    if k is not None and n_comp > k:
-        area = np.bincount(comp, weights=areas, minlength=n_comp)
-        cross = pairs[comp[pairs[:, 0]] != comp[pairs[:, 1]]]
-        ca, cb = comp[cross[:, 0]], comp[cross[:, 1]]
-        nb: list[dict[int, int]] = [dict() for _ in range(n_comp)]
-        for a, b in zip(ca.tolist(), cb.tolist()):
-            nb[a][b] = nb[a].get(b, 0) + 1
-            nb[b][a] = nb[b].get(a, 0) + 1
-        parent = np.arange(n_comp)
-        alive = n_comp
-        import heapq
-
-        heap = [(float(area[i]), i) for i in range(n_comp)]
-        heapq.heapify(heap)
-        while alive > k and heap:
-            ar, i = heapq.heappop(heap)
-            if parent[i] != i or ar != area[i] or not nb[i]:
-                continue
-            j = max(nb[i].items(), key=lambda t: (t[1], -t[0]))[0]
-            parent[i] = j
-            area[j] += area[i]
-            for q, c in nb[i].items():
-                if q == j:
-                    continue
-                nb[j][q] = nb[j].get(q, 0) + c
-                del nb[q][i]
-                nb[q][j] = nb[q].get(j, 0) + c
-            del nb[j][i]
-            nb[i] = {}
-            alive -= 1
-            heapq.heappush(heap, (float(area[j]), j))
-        root = parent.copy()
-        while True:
-            nxt = root[root]
-            if np.array_equal(nxt, root):
-                break
-            root = nxt
-        comp = root[comp]
-    uniq, comp = np.unique(comp, return_inverse=True)
-    comp = comp.ravel()
-    tot = np.bincount(comp, weights=areas, minlength=len(uniq))
-    first = np.full(len(uniq), m)
-    np.minimum.at(first, comp, np.arange(m))
-    rank = np.empty(len(uniq), dtype=np.int64)
-    rank[np.lexsort((first, -tot))] = np.arange(len(uniq))
-    return rank[comp]
 
 
 def _check_k(k: Any, m: int) -> int:
