@@ -1,5 +1,6 @@
-"""Vertex-order independence of every matcher (issue 11): renumbering the vertices of the shapes gives
-the renumbered result. Segmenters are checked in tests/test_segmentation.py.
+"""Vertex-order independence of every matcher (issue 11) and every segmenter (issue 13): renumbering
+the vertices of the shapes gives the renumbered result. (tests/test_segmentation.py checks the
+vertex-based segmenters again on the articulated shape.)
 
 The shapes are asymmetric (four protrusions of different heights), so every spectrum is simple and
 the result is defined without ties; answers are compared as 3D points (a renumbered vertex is the
@@ -98,3 +99,50 @@ def test_sparse_matchers_are_vertex_order_independent(pair, name):
     assert len(got) > 0
     agree = len(got & back) / max(len(got), len(back))
     assert agree >= 0.9, (sorted(got), sorted(back))
+
+
+def _segmenter_names():
+    from tests.test_segmentation_parts import ensure_registered
+
+    ensure_registered()
+    return st.available_plugins()["segmenters"]
+
+
+def _tip_constraints(shape: Shape):
+    """Clicks a user would give on the bumpy shape: a must-link along each protrusion (its two most
+    extreme vertices), one on the body (opposite the first protrusion), a cannot-link between the
+    first protrusion and the body."""
+    from shape_toolkit.results.labels import Constraints
+
+    v = shape.vertices
+    d = DIRS / np.linalg.norm(DIRS, axis=1, keepdims=True)
+    must = [np.argsort(-(v @ di))[[0, 3]] for di in d]
+    body = np.argsort(v @ (d[0] + d[1] + d[2] + d[3]))[[0, 3]]
+    must.append(body)
+    return Constraints(np.array(must), np.array([[must[0][0], body[0]]]))
+
+
+@pytest.mark.parametrize("name", _segmenter_names())
+def test_segmenters_are_vertex_order_independent(pair, name):
+    """Same labels up to renaming (per face when the segmenter has face labels, else per vertex)."""
+    from sklearn.metrics import adjusted_rand_score
+
+    from shape_toolkit.results.labels import Constraints
+
+    a, _, pa, _, perm_a, inv_a, _, _, _ = pair
+    cons = _tip_constraints(a)
+    cons_p = Constraints(inv_a[cons.must_link], inv_a[cons.cannot_link])
+
+    def run(shape, c):
+        params = {"n_segments": 5} if "n_segments" in st.create_plugin("segmenters", name).get_params() else {}
+        seg = st.create_plugin("segmenters", name, **params)
+        labels = seg.segment(shape, constraints=c)
+        return labels, getattr(seg, "face_labels_", None)
+
+    lab, fl = run(a, cons)
+    lab_p, fl_p = run(pa, cons_p)
+    assert len(np.unique(lab)) >= 2
+    # vertex i of a is vertex inv_a[i] of pa
+    assert adjusted_rand_score(lab, lab_p[inv_a]) > 0.99, name
+    if fl is not None:  # faces keep their order when the vertices are renumbered
+        assert adjusted_rand_score(fl, fl_p) > 0.99, name
