@@ -122,8 +122,8 @@ def _tip_constraints(shape: Shape):
     return Constraints(np.array(must), np.array([[must[0][0], body[0]]]))
 
 
-@pytest.mark.parametrize("name", _segmenter_names())
-def test_segmenters_are_vertex_order_independent(pair, name):
+@pytest.mark.parametrize("name, extra", [(n, {}) for n in _segmenter_names()] + [("csc", {"graph": "dual"})])
+def test_segmenters_are_vertex_order_independent(pair, name, extra):
     """Same labels up to renaming (per face when the segmenter has face labels, else per vertex)."""
     from sklearn.metrics import adjusted_rand_score
 
@@ -135,7 +135,7 @@ def test_segmenters_are_vertex_order_independent(pair, name):
 
     def run(shape, c):
         params = {"n_segments": 5} if "n_segments" in st.create_plugin("segmenters", name).get_params() else {}
-        seg = st.create_plugin("segmenters", name, **params)
+        seg = st.create_plugin("segmenters", name, **params, **extra)
         labels = seg.segment(shape, constraints=c)
         return labels, getattr(seg, "face_labels_", None)
 

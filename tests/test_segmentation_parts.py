@@ -187,3 +187,20 @@ def test_seeded_walk_smoothing_option(body):
     seg = create_plugin("segmenters", "seeded-walk", smoothing_lambda=0.5)
     seg.segment(b.shape, constraints=cons)
     assert rand_index_error(seg.face_labels_, truth) < 0.2
+
+
+# -- csc on the dual graph ----------------------------------------------------------------------
+def test_csc_on_the_dual_graph(body):
+    b, truth = body
+    cons = draw_constraints(b.labels, b.shape.edges, n_must_per_segment=1, n_cannot_per_boundary=1, random_state=0)
+    seg = create_plugin("segmenters", "csc", n_segments=6, graph="dual")
+    assert seg.spectrum_spec() is None and seg.spectrum_specs() == []
+    v = seg.segment(b.shape, constraints=cons)
+    assert v.shape == (b.shape.n_vertices,) and seg.face_labels_.shape == (b.shape.n_faces,)
+    assert len(np.unique(seg.face_labels_)) == 6
+    assert rand_index_error(seg.face_labels_, truth) < 0.2 < 0.5 * _baselines(truth)
+    assert seg.n_must_edges_ > 0 and seg.n_cannot_edges_ > 0
+    W = seg.modified_weights(b.shape, cons)
+    assert W.shape == (b.shape.n_faces, b.shape.n_faces) and 0 < W.data.min() and W.data.max() <= 1.0
+    with pytest.raises(ParameterError, match="graph"):
+        create_plugin("segmenters", "csc", n_segments=6, graph="faces").segment(b.shape, constraints=cons)
