@@ -148,3 +148,15 @@ def test_remesh_correspondence_keeps_every_point_nearby(body):
     assert len(pairs) > 0.95 * s.n_vertices
     d = np.linalg.norm(c.vertices[pairs[:, 1]] - s.vertices[pairs[:, 0]], axis=1)
     assert np.median(d) < 1.0 * s.mean_edge_length
+
+
+@pytest.mark.parametrize("name", sorted(CORRUPTIONS))
+def test_every_corruption_carries_colours_with_the_surface(body, name):
+    """Called directly (not only through apply_corruption), each corruption gives every new
+    vertex the colour of the original vertex its map names: a texture moves with the surface."""
+    shape = body[0] if isinstance(body, tuple) else body
+    rng = np.random.default_rng(0)
+    coloured = shape.with_colors(rng.random((shape.n_vertices, 3)))
+    out, vmap = CORRUPTIONS[name](coloured, random_state=1)
+    assert out.colors is not None
+    np.testing.assert_array_equal(out.colors, coloured.colors[vmap])

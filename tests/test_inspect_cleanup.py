@@ -338,3 +338,16 @@ def test_remesh_refuses_targets_beyond_the_vertex_budget():
     big = Shape(s.vertices * 1e300, s.faces)
     with pytest.raises(ParameterError, match="budget"):
         clean_shape(big, remesh_target_edge=1e290)
+
+
+def test_cleanup_keeps_colours(sphere):
+    """Kept vertices keep their colour; vertices made by remeshing take the nearest input's."""
+    rng = np.random.default_rng(0)
+    coloured = sphere.with_colors(rng.random((sphere.n_vertices, 3)))
+    out, rep = clean_shape(coloured, remesh_target_edge=1.5 * sphere.mean_edge_length)
+    assert out.colors is not None and out.colors.shape == (out.n_vertices, 3)
+    kept = rep.vertex_map >= 0
+    np.testing.assert_array_equal(out.colors[kept], coloured.colors[rep.vertex_map[kept]])
+    new = np.flatnonzero(~kept)
+    d = np.linalg.norm(out.vertices[new, None] - sphere.vertices[None], axis=2)
+    np.testing.assert_array_equal(out.colors[new], coloured.colors[d.argmin(axis=1)])

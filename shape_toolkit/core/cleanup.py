@@ -170,7 +170,16 @@ def estimate_remesh_vertices(shape: Shape, target_edge: float) -> float:
 
 
 def _finish(shape: Shape, v, f, vmap, rep: CleanupReport) -> tuple[Shape, CleanupReport]:
-    out = Shape(v, f, shape.name)
+    colors = None
+    if shape.colors is not None:  # kept vertices keep theirs; remeshed ones take the nearest input's
+        src = np.array(vmap, dtype=np.int64)
+        new = src < 0
+        if new.any():
+            from scipy.spatial import cKDTree
+
+            src[new] = cKDTree(shape.vertices).query(v[new])[1]
+        colors = shape.colors[src]
+    out = Shape(v, f, shape.name, colors=colors)
     rep.n_vertices_after, rep.n_faces_after = out.n_vertices, out.n_faces
     rep.vertex_map = vmap.astype(np.int64)
     return out, rep

@@ -116,6 +116,12 @@ def shot_noise(
     return shape.with_vertices(v), _identity(shape)
 
 
+def _carried_colors(shape: Shape, vmap: np.ndarray) -> np.ndarray | None:
+    """Colours of the corrupted shape: they move with the surface, so each new vertex takes the
+    colour of the original vertex ``vmap`` names (None when ``shape`` has none)."""
+    return None if shape.colors is None else shape.colors[vmap]
+
+
 def _nearest(original: np.ndarray, points: np.ndarray) -> np.ndarray:
     return cKDTree(original).query(points)[1].astype(np.int64)
 
@@ -155,7 +161,8 @@ def remesh(
     used[nf.ravel()] = True
     remap = np.cumsum(used) - 1
     nv, nf = nv[used], remap[nf]
-    return Shape(nv, nf, shape.name), _nearest(shape.vertices, nv)
+    vmap = _nearest(shape.vertices, nv)
+    return Shape(nv, nf, shape.name, _carried_colors(shape, vmap)), vmap
 
 
 def _keep(shape: Shape, keep: np.ndarray, largest: bool = True) -> Corruption:
@@ -175,7 +182,7 @@ def _keep(shape: Shape, keep: np.ndarray, largest: bool = True) -> Corruption:
         big = int(np.argmax(sizes))
         used &= lab == big
     sub2, ids2 = sub.submesh(np.flatnonzero(used))
-    return Shape(sub2.vertices, sub2.faces, shape.name), ids[ids2]
+    return Shape(sub2.vertices, sub2.faces, shape.name, sub2.colors), ids[ids2]
 
 
 def holes(
@@ -247,7 +254,7 @@ def shortcut(
             f"shortcut: no vertex pair with geodesic/Euclidean ratio above {min_ratio}"
         )
     faces = np.concatenate([f, np.array(new_faces, dtype=np.int64).reshape(-1, 3)])
-    return Shape(v, faces, shape.name), _identity(shape)
+    return Shape(v, faces, shape.name, shape.colors), _identity(shape)
 
 
 def glue(
@@ -327,7 +334,7 @@ def glue(
     ids = np.flatnonzero(keep)
     remap = np.full(n, -1, dtype=np.int64)
     remap[ids] = np.arange(ids.size)
-    return Shape(v[ids], remap[nf], shape.name), ids.astype(np.int64)
+    return Shape(v[ids], remap[nf], shape.name, _carried_colors(shape, ids)), ids.astype(np.int64)
 
 
 def partial(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Corruption:
@@ -375,10 +382,7 @@ def apply_corruption(shape: Shape, name: str, *, random_state: int = 0, **params
         raise ParameterError(
             f"corruption {name!r} has no parameter {', '.join(bad)}; valid: {', '.join(valid)}"
         )
-    out, vmap = fn(shape, random_state=random_state, **params)
-    if shape.colors is not None and out.colors is None:  # colours move with the surface
-        out = out.with_colors(shape.colors[vmap])
-    return out, vmap
+    return fn(shape, random_state=random_state, **params)
 
 
 #: corruptions that resample the surface: their maps name the *nearest* original vertex, so an
