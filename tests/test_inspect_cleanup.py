@@ -351,3 +351,8 @@ def test_cleanup_keeps_colours(sphere):
     new = np.flatnonzero(~kept)
     d = np.linalg.norm(out.vertices[new, None] - sphere.vertices[None], axis=2)
     np.testing.assert_array_equal(out.colors[new], coloured.colors[d.argmin(axis=1)])
+
+
+def test_mesh_info_says_whether_colours_were_read(sphere):
+    assert mesh_info(sphere)["has_colors"] is False
+    assert mesh_info(sphere.with_colors(np.full((sphere.n_vertices, 3), 0.5)))["has_colors"] is True
