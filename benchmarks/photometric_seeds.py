@@ -55,6 +55,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from shape_toolkit.api.registry import create_plugin  # noqa: E402
+from shape_toolkit.bench.peers import PEERS, create_peer  # noqa: E402
 from shape_toolkit.data.corruptions import apply_corruption  # noqa: E402
 from shape_toolkit.data.synthetic import synthetic_dataset  # noqa: E402
 from shape_toolkit.features.geodesics import geodesic_distances  # noqa: E402
@@ -110,16 +111,20 @@ def random_precision(clean, n_probe: int = 40) -> float:
 def dense_error(method: str, A, G, B, vmap) -> dict:
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        c = load_pipeline(method).run(A, G)
+        if method in PEERS:
+            target_of, n_seeds = create_peer(method).match(A, G).target_of, 0
+        else:
+            c = load_pipeline(method).run(A, G)
+            target_of, n_seeds = c.target_of, int(c.info.get("n_seeds", 0))
     except Exception as exc:  # a failed run is a row, not the end of the benchmark
         return {"error": f"{type(exc).__name__}: {exc}"[:200]}
     ids = np.linspace(0, A.n_vertices - 1, 200).round().astype(int)
-    img = c.target_of[ids]
+    img = target_of[ids]
     ok = img >= 0
     D = geodesic_distances(B, ids[ok])
     d = D[np.arange(ok.sum()), vmap[img[ok]]] / np.sqrt(B.area)
     err = float(np.mean(np.r_[d, np.full((~ok).sum(), np.nan)])) if ok.all() else float("nan")
-    return {"mean_error": err, "n_seeds": int(c.info.get("n_seeds", 0)), "cpu": time.process_time() - c0,
+    return {"mean_error": err, "n_seeds": n_seeds, "cpu": time.process_time() - c0,
             "wall": time.perf_counter() - t0}
 
 
@@ -146,7 +151,7 @@ def run(args) -> list[dict]:
                     cpu = time.process_time() - c0
                     row["matchers"][label + suffix] = {**seed_scores(B, pairs, vmap), "cpu": cpu}
             if args.dense:
-                for method in PIPELINES:
+                for method in PIPELINES + args.extra_list:
                     row["dense"][method] = dense_error(method, A, G, B, vmap)
             rows.append(row)
             mm = row["matchers"]
@@ -154,6 +159,17 @@ def run(args) -> list[dict]:
                   " ".join(f"{m}={v.get('mean_error', float('nan')):.3f}" for m, v in row["dense"].items()),
                   flush=True)
     return rows
+
+
+def add_dense(rows: list[dict], args) -> None:
+    """Add the ``--extra`` dense methods to saved rows: the same pairs and glued targets as :func:`run`."""
+    by_key = {(r["pair"], r["strength"]): r for r in rows}
+    for k, (name, A, B) in enumerate(pairs_of(args.seed_list)):
+        for s in sorted({r["strength"] for r in rows if r["pair"] == name}):
+            G, vmap = apply_corruption(B, "glue", strength=s, random_state=k)
+            for method in args.extra_list:
+                by_key[name, s]["dense"][method] = v = dense_error(method, A, G, B, vmap)
+                print(name, s, method, f"{v.get('mean_error', float('nan')):.3f}", flush=True)
 
 
 def report(rows: list[dict], args, wall: float) -> str:
@@ -211,10 +227,11 @@ def report(rows: list[dict], args, wall: float) -> str:
               + ", ".join(f"{lab} {v:.3f}" for lab, v in cpu.items())
               + f"; photometric / replicator = {cpu['photometric'] / max(cpu['replicator'], 1e-12):.2f}x."]
     if any(r["dense"] for r in rows):
-        lines += ["", "## Dense error of the topo-robust chain by seed source (mean / sqrt(area), clean target)", "",
+        methods = PIPELINES + sorted({m for r in rows for m in r["dense"]} - set(PIPELINES))
+        lines += ["", "## Dense error by seed source and against the peers (mean / sqrt(area), clean target)", "",
                   "| pipeline | " + " | ".join(f"s={s}" for s in strengths) + " | mean CPU s |",
                   "|---|" + "---|" * (len(strengths) + 1)]
-        for m in PIPELINES:
+        for m in methods:
             cells, cpus = [], []
             for s in strengths:
                 vs = [r["dense"][m] for r in rows if r["strength"] == s and m in r["dense"]]
@@ -224,8 +241,19 @@ def report(rows: list[dict], args, wall: float) -> str:
                 big = sum(1 for e in errs if not e <= 0.1)
                 cells.append(f"{np.mean(errs):.4f} ({big} above 0.1{f', {fails} failed' if fails else ''})")
             lines.append(f"| {m} | " + " | ".join(cells) + f" | {np.mean(cpus):.1f} |")
-        lines += ["", "Same chain after the seeds (heat-diffusion descriptors, seed growing, EM on the thesis's "
-                  "embedding); only the sparse stage differs. CPU per run includes the spectra and keypoints."]
+        lines += ["", "The two topo-robust rows run the same chain after the seeds (heat-diffusion descriptors, seed "
+                  "growing, EM on the thesis's embedding); only the sparse stage differs. `zoomout` and `pyfm` "
+                  "(pyFM's README pipeline) see geometry only. CPU per run includes the spectra and keypoints."]
+        best = "topo-robust-photometric"
+        for peer in [m for m in ("pyfm", "zoomout") if m in methods]:
+            for s in strengths:
+                eb = [r["dense"][best]["mean_error"] for r in rows
+                      if r["strength"] == s and "mean_error" in r["dense"].get(best, {})]
+                ep = [r["dense"][peer]["mean_error"] for r in rows
+                      if r["strength"] == s and "mean_error" in r["dense"].get(peer, {})]
+                if eb and ep:
+                    lines.append(f"- s={s}: {best} / {peer} mean error = {np.mean(eb):.4f} / {np.mean(ep):.4f} "
+                                 f"= {np.mean(eb) / max(np.mean(ep), 1e-12):.2f}x")
     c0, n0, _ = pooled("replicator", strengths[0])
     kp = [k for r in rows for k in r["keypoints"]]
     lines += [
@@ -263,17 +291,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--color-noise", type=float, default=0.05, help="noise sigma of the noisy-colour condition "
                     "(0: exact colours only)")
     ap.add_argument("--dense", action="store_true", help="also run the two topo-robust presets")
+    ap.add_argument("--extra", default="", help="comma-separated more dense methods (pipelines, or the peer "
+                    "'pyfm'); with --add-dense they are added to the saved rows without re-running the rest")
+    ap.add_argument("--add-dense", action="store_true", help="run only the --extra dense methods on the saved pairs")
     ap.add_argument("--output", default=str(RESULTS / "photometric_seeds.md"))
     ap.add_argument("--report-only", action="store_true", help="rewrite the markdown from the saved JSON")
     args = ap.parse_args(argv)
     args.seed_list = [int(x) for x in args.seeds.split(",")] if args.seeds else SPLITS[args.split]
     args.strength_list = [int(x) for x in args.strengths.split(",")]
+    args.extra_list = [m for m in args.extra.split(",") if m]
     args.command = "python benchmarks/photometric_seeds.py " + " ".join(argv if argv is not None else sys.argv[1:])
     out = Path(args.output)
-    if args.report_only:
+    if args.report_only or args.add_dense:
         saved = json.loads(out.with_suffix(".json").read_text())
         rows, wall = saved["rows"], saved["wall"]
         args.command, args.split, args.seed_list = saved["command"], saved["split"], saved["seeds"]
+        if args.add_dense:
+            t0 = time.perf_counter()
+            add_dense(rows, args)
+            wall += time.perf_counter() - t0
+            args.command += " --extra " + ",".join(sorted({m for r in rows for m in r["dense"]} - set(PIPELINES)))
+            saved.update(rows=rows, wall=wall, command=args.command)
+            out.with_suffix(".json").write_text(dumps_json(saved, indent=1))
     else:
         t0 = time.perf_counter()
         rows = run(args)
