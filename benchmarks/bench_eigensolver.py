@@ -32,6 +32,7 @@ import argparse
 import json
 import os
 import platform
+import re
 import signal
 import subprocess
 import sys
@@ -508,7 +509,9 @@ def render(rows: list[dict], meta: dict) -> str:
 
     base = {(r["mesh"], r["k"], r["threads"]): r for r in rows if r["method"] == "baseline"}
     l1, l5, l15 = meta["load_start"]
-    cmds = "; ".join(f"`{c}`" for c in meta["commands"])
+    # the measuring commands, without where they wrote (--raw/--out files are not part of the recipe)
+    clean = [re.sub(r" --(raw|out) \S+", "", c) for c in meta["commands"]]
+    cmds = "; ".join(f"`{c}`" for c in clean)
     loads = [r["load"] for r in rows]
     lines = [
         "# Eigensolver benchmark",
@@ -633,7 +636,7 @@ def crossover(args: argparse.Namespace) -> int:
     lines = ["# Dense LAPACK vs block Krylov-Schur at small n (the `auto` crossover)", "",
              f"Regenerate: `python benchmarks/bench_eigensolver.py --crossover --repeats {args.repeats}` "
              f"({(time.perf_counter() - t0) / 60:.1f} min). Bumpy icospheres (cotangent + Voronoi mass), one BLAS "
-             f"thread, CPU time (process), best of {args.repeats} interleaved runs, each in a fork. 1-min load "
+             f"thread, CPU time (process), best of {args.repeats} runs interleaved in one process. 1-min load "
              f"average {load0[0]:.1f} at the start, {os.getloadavg()[0]:.1f} at the end.", "",
              f"Rule in `core/eigen.py`: dense when n <= max(DENSE_MAX_N = {DENSE_MAX_N}, DENSE_PER_K = "
              f"{DENSE_PER_K} x k) or 3k >= n.", "",
