@@ -455,7 +455,7 @@ def smallest_eigenpairs(
     ``A`` is a symmetric PSD ``(n, n)`` sparse matrix, ``M`` a symmetric positive definite
     (usually diagonal) ``(n, n)`` matrix or a positive ``(n,)`` vector of its diagonal. Returns
     eigenvalues ``(k,)`` ascending and eigenvectors ``(n, k)``, M-orthonormal
-    (``U.T @ M @ U = I``), each signed so that its largest-magnitude entry is positive.
+    (``U.T @ M @ U = I``), each signed by :func:`fix_signs` (positive third moment).
     Deterministic: the same call gives bit-identical results.
 
     ``method``:
@@ -586,7 +586,8 @@ def _solve_checked(
         return vals, fix_signs(vecs, copy=False)
 
     # block 4 up to k = 64: at 5k vertices, k = 50 it needs 164 solves and 2 restarts against 224 and 4
-    # with block 8, for 10% less CPU time (benchmarks/results/eigensolver.md, "tuning")
+    # with block 8, for 10% less CPU time; blocks 1-2 miss copies of multiple eigenvalues on round spheres
+    # (benchmarks/results/eigensolver_notes.md)
     b = int(block_size) if block_size is not None else (4 if k <= 64 else 8)
     if b < 1:
         raise ParameterError(f"block_size must be >= 1, got {block_size}")
