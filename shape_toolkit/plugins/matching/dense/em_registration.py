@@ -14,6 +14,8 @@ kept ones and are dropped. Posteriors are returned as a sparse ``(n_src, n_tgt)`
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
@@ -24,7 +26,8 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.matching._common import Basis, basis_of, check_seeds
-from shape_toolkit.results.correspondence import Correspondence
+from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
+from shape_toolkit.validation import check_random_state
 
 __all__ = ["EMRegistrationMatcher", "em_register", "procrustes"]
 
@@ -33,6 +36,19 @@ def procrustes(S: np.ndarray) -> np.ndarray:
     """The orthogonal ``Q`` maximizing ``tr(Q^T S)`` for a ``(k, k)`` correlation ``S``."""
     U, _, Vt = np.linalg.svd(S)
     return U @ Vt
+
+
+def _e_step(tree: cKDTree, Y: np.ndarray, sigma: float, log_out: float, nn: int) -> tuple[np.ndarray, np.ndarray]:
+    """Truncated posteriors of eq. 7.3 for targets ``Y`` ``(q, k)``: the ``nn`` nearest transformed
+    source means (``tree``) of each, ``alpha`` and their indices, both ``(q, nn)``; never ``(q, n)``."""
+    d, idx = tree.query(Y, k=nn)
+    d = np.asarray(d).reshape(len(Y), nn)
+    idx = np.asarray(idx).reshape(len(Y), nn)
+    logits = -(d**2) / (2.0 * sigma)
+    top = np.maximum(logits.max(axis=1), log_out)
+    e = np.exp(logits - top[:, None])
+    denom = e.sum(axis=1) + np.exp(log_out - top)
+    return e / denom[:, None], idx
 
 
 def em_register(
@@ -45,10 +61,18 @@ def em_register(
     n_neighbors: int = 10,
     max_iter: int = 50,
     tol: float = 1e-5,
+    max_samples: int | None = None,
+    random_state: Any = 0,
 ) -> tuple[np.ndarray, float, sp.csr_matrix]:
     """EM of Algorithm 7 on source means ``X`` ``(n, k)`` and target data ``Y`` ``(n', k)`` from an
     initial orthogonal ``Q0``; returns ``Q``, ``sigma`` and the truncated posteriors
-    ``alpha`` as CSR ``(n, n')`` (entry ``(i, j)`` = ``P(i | y_j)``, eq. 7.3)."""
+    ``alpha`` as CSR ``(n, n')`` (entry ``(i, j)`` = ``P(i | y_j)``, eq. 7.3).
+
+    Memory is ``O((n + n') (k + n_neighbors))``: each E-step keeps the ``n_neighbors`` nearest means
+    of each target point (KD-tree), never an ``(n, n')`` block. With ``max_samples`` below ``n'``,
+    the iterations fit ``Q`` and ``sigma`` to a fixed uniform sample of that many target points
+    (drawn with ``random_state``; the M-step sums are then unbiased estimates of the full ones)
+    and one last E-step on every target point gives the posteriors."""
     n, k = X.shape
     m = Y.shape[0]
     if Y.shape[1] != k or Q0.shape != (k, k):
@@ -57,44 +81,54 @@ def em_register(
     Q = Q0.copy()
     # uniform outlier density over the target's bounding box
     volume = float(np.prod(np.maximum(Y.max(0) - Y.min(0), 1e-12)))
+    sample = None
+    if max_samples is not None and m > int(max_samples):
+        sample = np.sort(check_random_state(random_state).choice(m, int(max_samples), replace=False))
+    Ys = Y if sample is None else Y[sample]
     if sigma0 is None:
-        d, _ = cKDTree(X @ Q.T).query(Y, k=1)
+        d, _ = cKDTree(X @ Q.T).query(Ys, k=1)
         sigma0 = float(np.mean(d**2)) / k * 4.0
     sigma = max(float(sigma0), 1e-12)
     w = float(np.clip(outlier_weight, 0.0, 0.99))
-    cols = np.repeat(np.arange(m), nn)
-    P = None
-    for _ in range(max_iter):
-        MX = X @ Q.T
-        d, idx = cKDTree(MX).query(Y, k=nn)
-        d = np.asarray(d).reshape(m, nn)
-        idx = np.asarray(idx).reshape(m, nn)
-        logits = -(d**2) / (2.0 * sigma)
+
+    def log_outlier(sigma: float) -> float:
         # outlier term theta sigma^(k/2): (2 pi sigma)^(k/2) w/(1-w) n / V   (CPD-style constant)
-        log_out = -np.inf
-        if w > 0:
-            log_out = (k / 2.0) * np.log(2 * np.pi * sigma) + np.log(w / (1 - w) * n / volume)
-        top = np.maximum(logits.max(axis=1), log_out)
-        e = np.exp(logits - top[:, None])
-        denom = e.sum(axis=1) + np.exp(log_out - top)
-        alpha = e / denom[:, None]  # (m, nn)
-        P = sp.csr_matrix((alpha.ravel(), (idx.ravel(), cols)), shape=(n, m))
-        # M-step: weighted orthogonal Procrustes and the variance
+        if w <= 0:
+            return -np.inf
+        return (k / 2.0) * np.log(2 * np.pi * sigma) + np.log(w / (1 - w) * n / volume)
+
+    alpha = idx = None
+    for _ in range(max_iter):
+        alpha, idx = _e_step(cKDTree(X @ Q.T), Ys, sigma, log_outlier(sigma), nn)
+        # M-step: weighted orthogonal Procrustes and the variance, one neighbour rank at a time
         S = np.zeros((k, k))
         for c in range(nn):
-            S += (Y * alpha[:, c : c + 1]).T @ X[idx[:, c]]
+            S += (Ys * alpha[:, c : c + 1]).T @ X[idx[:, c]]
         Q_new = procrustes(S)
         MX = X @ Q_new.T
         total = float(alpha.sum())
         if total <= 1e-12:
             break
-        resid = np.einsum("jc,jc->", alpha, ((Y[:, None, :] - MX[idx]) ** 2).sum(axis=2))
+        resid = 0.0
+        for c in range(nn):
+            resid += float(alpha[:, c] @ ((Ys - MX[idx[:, c]]) ** 2).sum(axis=1))
         sigma_new = max(resid / (k * total), 1e-12)
         change = abs(sigma_new - sigma) / sigma + np.abs(Q_new - Q).max()
         Q, sigma = Q_new, sigma_new
         if change < tol:
             break
+    if sample is not None or alpha is None:  # posteriors of every target point under the final fit
+        alpha, idx = _e_step(cKDTree(X @ Q.T), Y, sigma, log_outlier(sigma), nn)
+    cols = np.repeat(np.arange(m), nn)
+    P = sp.csr_matrix((alpha.ravel(), (idx.ravel(), cols)), shape=(n, m))
     return Q, sigma, P
+
+
+def _nearest(points: np.ndarray, queries: np.ndarray) -> np.ndarray:
+    """Index of the nearest of ``points`` ``(m, d)`` for each query ``(q, d)``: int64 ``(q,)``; in
+    high dimension a brute force in chunks of at most ``2**23`` distances (never ``q x m``)."""
+    chunk = int(np.clip(2**23 // max(1, len(points)), 16, 1024))
+    return np.asarray(nearest_neighbors(points, queries, k=1, chunk=chunk)[1], dtype=np.int64)
 
 
 def hard_map(
@@ -134,6 +168,21 @@ class EMRegistrationMatcher(DenseMatcher):
     without a confident match the target nearest to its transformed embedding point
     (confidence 0), for a map defined everywhere. ``n_neighbors`` caps the posteriors kept per
     target vertex (memory ``O(n' n_neighbors)``).
+
+    Scale (memory linear in the vertex counts, never an ``n x n'`` block; see
+    ``benchmarks/results/scale.md``):
+
+    - ``refine_samples`` (default 5000): the intermediate steps of the coarse-to-fine refinements
+      (``k_final`` and the orientation scoring, below) estimate their ``Q`` on at most this many
+      source vertices (a uniform sample drawn with ``random_state``); only the last step maps every
+      vertex (the orientation scoring: only its 120 samples). None: always all (time ``O(n n' k)``
+      per step). Nearest neighbours in more than 12 dimensions are a chunked BLAS brute force (a
+      KD-tree is no faster there), at most ``2**23`` distances at a time.
+    - ``max_samples`` (default None: off): the EM iterations fit ``Q`` and ``sigma`` to at most
+      this many target vertices (uniform sample), then one E-step on every target vertex gives the
+      posteriors. Faster (an EM iteration costs ``O(n' log n)``), but not always as accurate: on
+      the thesis embedding, where EM leaves ``Q`` poorly determined, a 10,000-vertex sample of a
+      20k-vertex TOSCA pair moved the final error from 0.062 to 0.068.
 
     The embedding (section 7.4.1):
 
@@ -199,6 +248,9 @@ class EMRegistrationMatcher(DenseMatcher):
         orientation_margin: float = 0.5,
         k_final: int | None = None,
         refine_step: int = 4,
+        max_samples: int | None = None,
+        refine_samples: int | None = 5000,
+        random_state: Any = 0,
     ):
         self.k = k
         self.outlier_weight = outlier_weight
@@ -218,6 +270,9 @@ class EMRegistrationMatcher(DenseMatcher):
         self.orientation_margin = orientation_margin
         self.k_final = k_final
         self.refine_step = refine_step
+        self.max_samples = max_samples
+        self.refine_samples = refine_samples
+        self.random_state = random_state
 
     def _check(self) -> None:
         if not isinstance(self.k, (int, np.integer)) or not 1 <= self.k <= 100:
@@ -237,6 +292,11 @@ class EMRegistrationMatcher(DenseMatcher):
             raise ParameterError(f"k_final must be None or an integer <= 200, got {self.k_final!r}")
         if self.refine_step < 1 or not self.flip_tolerance >= 1:
             raise ParameterError("need refine_step >= 1 and flip_tolerance >= 1")
+        for name in ("max_samples", "refine_samples"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
+                raise ParameterError(f"{name} must be None or a positive integer, got {v!r}")
+        check_random_state(self.random_state)
 
     #: embedding size of the refined maps the orientation is scored on (see :meth:`_orientation`)
     ORIENTATION_K = 30
@@ -284,20 +344,37 @@ class EMRegistrationMatcher(DenseMatcher):
             return self._embed(bs, K), self._embed(bt, K), bs, bt
         return self._embed(bs, K), self._embed(bt, K)
 
-    def _refine(self, t: np.ndarray, bs: Basis, bt: Basis, K: int, k_final: int | None = None) -> np.ndarray:
+    def _refine(self, t: np.ndarray, bs: Basis, bt: Basis, K: int, k_final: int | None = None,
+                rows: np.ndarray | None = None) -> np.ndarray:
         """Coarse-to-fine extension (``k_final``): the hard map re-estimated while the embedding
         grows from ``K`` to ``k_final`` by ``refine_step`` -- at each size, the orthogonal ``Q``
         of the current map by mass-weighted Procrustes (the M-step of Algorithm 7 with hard
         posteriors), then nearest neighbours (the assignment step), on the unscaled eigenvectors.
-        The map keeps the orientation found by EM."""
+        The map keeps the orientation found by EM.
+
+        Intermediate steps use a uniform sample of ``refine_samples`` source vertices (all when
+        there are fewer); the last step maps the source vertices ``rows`` (None: all). The other
+        entries of the returned map are those of ``t`` or of an intermediate step: only ``rows``
+        are refined."""
         kf = int(min(self.k_final if k_final is None else k_final, bs.k - 1, bt.k - 1))
+        n = len(t)
+        sample = self._sample(n, self.refine_samples)
         k = K
+        t = np.array(t, dtype=np.int64)
         while k < kf:
             k = min(k + int(self.refine_step), kf)
             Xs, Yt = bs.evecs[:, 1 : k + 1], bt.evecs[:, 1 : k + 1]  # unscaled: every frequency counts
-            Q = procrustes(Yt[t].T @ (bs.mass[:, None] * Xs))
-            t = np.asarray(cKDTree(Yt).query(Xs @ Q.T, k=1)[1], dtype=np.int64)
+            use = slice(None) if sample is None else sample
+            Q = procrustes(Yt[t[use]].T @ (bs.mass[use, None] * Xs[use]))
+            q = (slice(None) if rows is None else rows) if k >= kf else use
+            t[q] = _nearest(Yt, Xs[q] @ Q.T)
         return t
+
+    def _sample(self, n: int, size: int | None) -> np.ndarray | None:
+        """Sorted uniform sample of ``size`` of ``n`` ids (``random_state``), None when ``size >= n``."""
+        if size is None or n <= int(size):
+            return None
+        return np.sort(check_random_state(self.random_state).choice(n, int(size), replace=False))
 
     def _initial_transform(self, X, Y, seeds, source, target, **kw) -> np.ndarray:
         if seeds is None or len(seeds) == 0:
@@ -310,7 +387,8 @@ class EMRegistrationMatcher(DenseMatcher):
     def _em(self, X, Y, Q0):
         return em_register(
             X, Y, Q0, outlier_weight=self.outlier_weight, n_neighbors=self.n_neighbors,
-            max_iter=self.max_iter, tol=self.tol,
+            max_iter=self.max_iter, tol=self.tol, max_samples=self.max_samples,
+            random_state=self.random_state,
         )
 
     def _solve(self, X, Y, Q0, bases):
@@ -342,10 +420,9 @@ class EMRegistrationMatcher(DenseMatcher):
         EM map is too noisy locally for its triplets to vote reliably)."""
         from shape_toolkit.plugins.matching._common import orientation_score
 
-        if bases is not None and 0 < K < self.ORIENTATION_K and np.all(t >= 0):
-            t = self._refine(t, bases[0], bases[1], K, self.ORIENTATION_K)
-
         rows = self._orientation_rows(source)
+        if bases is not None and 0 < K < self.ORIENTATION_K and np.all(t >= 0):
+            t = self._refine(t, bases[0], bases[1], K, self.ORIENTATION_K, rows=rows)
         rows = rows[t[rows] >= 0]
         want = 1.0 if self.orientation == "preserving" else -1.0
         return want * orientation_score(source, target, np.column_stack([rows, t[rows]]))
