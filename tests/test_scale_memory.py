@@ -156,8 +156,25 @@ def test_chunked_nearest_matches_kdtree():
     rng = np.random.default_rng(3)
     for d in (3, 30):
         P, Q = rng.normal(size=(3000, d)), rng.normal(size=(700, d))
-        got = em_mod._nearest(P, Q)
-        np.testing.assert_array_equal(got, cKDTree(P).query(Q, k=1)[1])
+        got = em_mod._nearest(P, Q)  # 30-D: single-precision brute force in chunks of 1024 rows
+        dist, want = cKDTree(P).query(Q, k=1)
+        assert np.mean(got == want) > 0.995
+        np.testing.assert_allclose(np.linalg.norm(P[got] - Q, axis=1), dist, rtol=1e-5)
+
+
+def test_single_precision_neighbours_on_real_embeddings(pair):
+    """Float32 is accurate enough for the refinement: on 30-D eigenvector embeddings the chosen
+    targets are those of double precision up to near-ties (distances equal to 1e-5)."""
+    A, B, seeds = pair
+    em = create_plugin("dense_matchers", "em-registration")
+    bs, bt = em._bases(A, B, None, None)
+    Xs, Yt = bs.evecs[:, 1:31], bt.evecs[:, 1:31]
+    Q = em_mod.procrustes(Yt[seeds[:, 1]].T @ Xs[seeds[:, 0]])
+    q = Xs @ Q.T
+    got = em_mod._nearest(Yt, q)
+    dist, want = cKDTree(Yt).query(q, k=1)
+    assert np.mean(got == want) > 0.999
+    np.testing.assert_allclose(np.linalg.norm(Yt[got] - q, axis=1), dist, rtol=1e-5)
 
 
 def test_em_register_sampled_path(pair):

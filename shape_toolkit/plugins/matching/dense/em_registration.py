@@ -126,9 +126,10 @@ def em_register(
 
 def _nearest(points: np.ndarray, queries: np.ndarray) -> np.ndarray:
     """Index of the nearest of ``points`` ``(m, d)`` for each query ``(q, d)``: int64 ``(q,)``; in
-    high dimension a brute force in chunks of at most ``2**23`` distances (never ``q x m``)."""
+    high dimension a single-precision brute force in chunks of at most ``2**23`` distances (never
+    ``q x m``; near-ties within ~1e-6 relative may resolve differently from double precision)."""
     chunk = int(np.clip(2**23 // max(1, len(points)), 16, 1024))
-    return np.asarray(nearest_neighbors(points, queries, k=1, chunk=chunk)[1], dtype=np.int64)
+    return np.asarray(nearest_neighbors(points, queries, k=1, chunk=chunk, dtype=np.float32)[1], dtype=np.int64)
 
 
 def hard_map(
@@ -176,8 +177,8 @@ class EMRegistrationMatcher(DenseMatcher):
       (``k_final`` and the orientation scoring, below) estimate their ``Q`` on at most this many
       source vertices (a uniform sample drawn with ``random_state``); only the last step maps every
       vertex (the orientation scoring: only its 120 samples). None: always all (time ``O(n n' k)``
-      per step). Nearest neighbours in more than 12 dimensions are a chunked BLAS brute force (a
-      KD-tree is no faster there), at most ``2**23`` distances at a time.
+      per step). Nearest neighbours in more than 12 dimensions are a chunked single-precision BLAS
+      brute force (a KD-tree is no faster there), at most ``2**23`` distances at a time.
     - ``max_samples`` (default None: off): the EM iterations fit ``Q`` and ``sigma`` to at most
       this many target vertices (uniform sample), then one E-step on every target vertex gives the
       posteriors. Faster (an EM iteration costs ``O(n' log n)``), but not always as accurate: on
