@@ -365,4 +365,4 @@ def test_tosca_pair_zoomout(shared_data):
     tb = read_vts(d / "corres" / "cat1.vts", B.n_vertices)
     c = run_pipeline("zoomout-fast", A, B)
     e = geodesic_errors(B, c, ta, tb, method="dijkstra")
-    assert e.mean() < 0.06  # measured 0.044 (pyFM's quick start: 0.040 with the same geodesics)
+    assert e.mean() < 0.06  # measured 0.047 (pyFM's quick start: 0.039 with the same geodesics)
