@@ -411,10 +411,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--full-200k", action="store_true", help="all four k at 200k (else k = 20, 50)")
     ap.add_argument("--meshes", nargs="+", choices=list(MESHES), help="only these meshes of the plan")
     ap.add_argument("--skip-meshes", nargs="+", choices=list(MESHES), default=[], help="not these")
+    ap.add_argument("--ks", type=int, nargs="+", help="only these k of the plan")
     ap.add_argument("--repeats", type=int, default=5, help="rounds of interleaved runs (best of)")
     ap.add_argument("--budget", type=float, default=40.0,
                     help="a method whose runs took this many seconds in total is not run again for that k")
     ap.add_argument("--extras", action="store_true", help="also the uncapped block solver at default threads")
+    ap.add_argument("--threads", nargs="+", choices=["1", "default"], default=["1", "default"],
+                    help="BLAS settings to run (default both; the reference is computed with the first)")
+    ap.add_argument("--ref-from", type=Path, nargs="*", default=[],
+                    help="saved rows (JSON) whose reference eigenvalues to reuse when '1' is not run")
     ap.add_argument("--alternatives", nargs="*", default=[], choices=["arpack", "krylov-sksparse", "primme",
                     "lobpcg", "dense", "krylov"], help="also these solvers (one BLAS thread)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=RESULTS)
@@ -448,10 +453,14 @@ def main(argv: list[str] | None = None) -> int:
     t_start = time.perf_counter()
     load_start = os.getloadavg()
     rows: list[dict] = []
+    references: list[dict] = []
     skipped: list[str] = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, ks in plan(args.quick, args.full_200k):
             if (args.meshes and name not in args.meshes) or name in args.skip_meshes:
+                continue
+            ks = [k for k in ks if not args.ks or k in args.ks]
+            if not ks:
                 continue
             case = build_case(name)
             if case is None:
@@ -463,20 +472,26 @@ def main(argv: list[str] | None = None) -> int:
             np.savez(npz, data=A.data, indices=A.indices, indptr=A.indptr, shape=np.array(A.shape), mass=mass)
             repeats = args.repeats if n <= 25000 else max(1, min(args.repeats, 2 if n <= 100000 else 1))
             refs: dict[int, np.ndarray] = {}
-            for threads in (1, None):
+            for saved in args.ref_from:
+                for r in json.loads(saved.read_text()).get("references", []):
+                    if r["mesh"] == name:
+                        refs[r["k"]] = np.array(r["vals"])
+            for threads in [1 if t == "1" else None for t in args.threads]:
                 methods = methods_for(n, threads, args.extras)
                 if threads == 1:
                     methods += args.alternatives
                 print(f"[{time.perf_counter() - t_start:6.0f}s] {name} n={n} k={ks} BLAS={threads or 'default'} "
                       f"load {os.getloadavg()[0]:.1f}", file=sys.stderr, flush=True)  # fmt: skip
-                for res in run_worker(npz, ks, methods, threads, repeats, args.budget, reference=threads == 1):
+                need_ref = threads == 1 or any(k not in refs for k in ks)
+                for res in run_worker(npz, ks, methods, threads, repeats, args.budget, reference=need_ref):
                     k = res["k"]
-                    if threads == 1:
+                    if "reference" in res:
                         ref_run = res["reference"]
                         if "failed" in ref_run:
                             skipped.append(f"{name} k={k} (reference failed: {ref_run['failed']})")
                             continue
                         refs[k] = np.array(ref_run["vals"])
+                        references.append({"mesh": name, "k": k, "vals": ref_run["vals"]})
                     if k not in refs:
                         continue
                     for m, runs in res["runs"].items():
@@ -491,7 +506,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"commands": [cmd.strip()], "minutes": (time.perf_counter() - t_start) / 60,
             "load_start": list(load_start), "load_end": list(os.getloadavg()), "skipped": skipped}  # fmt: skip
     if args.raw:
-        args.raw.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+        args.raw.write_text(json.dumps({"meta": meta, "rows": rows, "references": references}, indent=1))
     table = render(rows, meta)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(table)
@@ -564,7 +579,7 @@ def render(rows: list[dict], meta: dict) -> str:
         lines.append(
             f"| {r['mesh']} | {r['n']} | {r['k']} | {r['threads']} | {b['cpu']:.3f} | {b['thread_cpu']:.3f} "
             f"| {b['wall']:.3f} | {r['cpu']:.3f} | {r['thread_cpu']:.3f} | {r['wall']:.3f} | {_x(b['cpu'], r['cpu'])} "
-            f"| {_x(b['wall'], r['wall'])} | {r['info'].get('method', '?')} | {r['err']:.1e} | {b['err']:.1e} "
+            f"| {_x(b['wall'], r['wall'])} | {r.get('info', {}).get('method', '?')} | {r['err']:.1e} | {b['err']:.1e} "
             f"| {r['peak_mb']:.0f} / {b['peak_mb']:.0f} | {r['runs']} / {b['runs']} | {verdict} | {r['load']:.1f} |"
         )
     lines += ["", f"**{wins} wins, {misses} misses** (a win: less CPU time and less wall time than SciPy, "
