@@ -36,10 +36,11 @@ SHAPE_FAMILIES = ("keypoints", "descriptors", "segmenters")
 #: keypoint descriptors get the keypoints of the default detector (as in the thesis pipeline, ch. 7)
 KEYPOINT_DESCRIPTORS = ("heat-diffusion", "heat-distance")
 #: required parameters without a default, given explicitly (reported in the output)
-REQUIRED_PARAMS = {("segmenters", "csc"): {"n_segments": 6}}
+REQUIRED_PARAMS = {("segmenters", "csc"): {"n_segments": 6}, ("segmenters", "ncut"): {"n_segments": 6}}
 NEEDS_INPUT = {
     ("segmenters", "ccskl"): "needs user constraints (must-link/cannot-link pairs)",
     ("segmenters", "spectral-learning"): "needs user constraints (labelled vertices)",
+    ("segmenters", "seeded-walk"): "needs user constraints (one must-link group per segment)",
 }
 
 

@@ -585,10 +585,11 @@ def _solve_checked(
         vals, vecs = _dense(A, k, Ms, dM)
         return vals, fix_signs(vecs, copy=False)
 
-    # block 4 up to k = 64: at 5k vertices, k = 50 it needs 164 solves and 2 restarts against 224 and 4
-    # with block 8, for 10% less CPU time; blocks 1-2 miss copies of multiple eigenvalues on round spheres
-    # (benchmarks/results/eigensolver_notes.md)
-    b = int(block_size) if block_size is not None else (4 if k <= 64 else 8)
+    # block 8: a block Krylov method finds at most b copies of a repeated eigenvalue in exact arithmetic.
+    # Block 4 was 10% cheaper at 5k / k = 50 but missed one copy of the 5-fold l = 2 cluster of a round
+    # sphere in a full test run (the 5th copy came only from rounding); symmetric shapes (generated
+    # bodies with alike limbs) have such clusters, and a missed eigenvalue is a silently wrong spectrum.
+    b = int(block_size) if block_size is not None else 8
     if b < 1:
         raise ParameterError(f"block_size must be >= 1, got {block_size}")
     # a basis of at least 16 blocks: at k = 20 (5k vertices) 64 columns instead of 48 halve the restarts for
