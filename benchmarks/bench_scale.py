@@ -59,7 +59,7 @@ RESULTS = REPO / "benchmarks" / "results" / "scale.md"
 N_SEEDS = 30
 MEMORY_BUDGET_MB = 4096.0
 #: seconds after which a child is stopped
-CHILD_TIMEOUT = 3600
+CHILD_TIMEOUT = 10800
 
 
 def data_dir(arg: str | None = None) -> Path:

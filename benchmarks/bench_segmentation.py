@@ -1,4 +1,4 @@
-"""Speed and memory of eigvec-gmm and csc end to end, against the cost of the spectrum alone.
+"""Speed and memory of every segmenter end to end, against the cost of the spectrum alone.
 
     python benchmarks/bench_segmentation.py [--subdivisions 5 6] [--output FILE]
 
@@ -9,12 +9,17 @@ Each stage runs in a fresh subprocess (no spectrum cache shared between stages):
   (what both segmenters need with their defaults, p = 10);
 - ``eigvec-gmm``: the whole segmentation with k = 6, spectrum included;
 - ``csc``: the whole segmentation with k = 6 and constraints drawn from the limb labels,
-  spectrum and the second eigensolve of the modified Laplacian included.
+  spectrum and the second eigensolve of the modified Laplacian included;
+- ``csc-dual``: the same on the concavity-weighted dual graph (``graph="dual"``);
+- ``ncut``: recursive normalized cuts on the dual graph, k = 6;
+- ``sdf``: shape diameter function (Open3D ray casting), GMM, graph cut, k = 6;
+- ``seeded-walk``: random walks from the same constraints' must-link groups.
 
 Reported: wall time, ratio to the spectrum stage, and peak resident memory added by the stage
-(``ru_maxrss`` after minus before; imports and plugin loading happen before), per 1,000
-vertices: a constant across sizes means memory linear in ``n`` (a dense ``n x n`` matrix would
-be 13 GB at 41k vertices). Writes ``benchmarks/results/bench_segmentation.md``.
+(``ru_maxrss`` after minus before; imports and plugin loading happen before; native buffers of
+Open3D, PyMaxflow and SuperLU included), per 1,000 vertices and per 10,000 faces: a constant across
+sizes means memory linear in ``n`` (a dense ``n x n`` matrix would be 13 GB at 41k vertices).
+Writes ``benchmarks/results/bench_segmentation.md``.
 """
 
 from __future__ import annotations
@@ -42,9 +47,15 @@ art = articulated_shape(subdivisions={sub})
 shape = art.shape
 cons = draw_constraints(art.labels, shape.edges, random_state=0)
 _ = shape.edges, shape.face_areas
-from shape_toolkit.api.registry import available_plugins
+from shape_toolkit.api.registry import available_plugins, get_registry
+import importlib
+for _name, _mod in (("ncut", "ncut"), ("seeded-walk", "seeded_walk")):  # older installed metadata
+    if not get_registry().has("segmenters", _name):
+        get_registry().register(importlib.import_module("shape_toolkit.plugins.segmenters." + _mod), name="b-" + _name)
 available_plugins()  # load every plugin module (sklearn, igl imports) before timing
 import shape_toolkit.plugins.segmenters.csc, shape_toolkit.plugins.segmenters.eigvec_gmm  # noqa: E401
+import shape_toolkit.plugins.segmenters.sdf, shape_toolkit.plugins.segmenters.ncut  # noqa: E401
+import shape_toolkit.plugins.segmenters.seeded_walk, open3d, maxflow  # noqa: E401
 import sklearn.cluster, sklearn.mixture  # noqa: E401
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 t = time.perf_counter()
@@ -55,12 +66,22 @@ with threadpool_limits({threads}):
         compute_spectrum(build_graph(shape, "gaussian"), 11, laplacian="normalized", cache=False)
     elif {stage!r} == "eigvec-gmm":
         create_plugin("segmenters", "eigvec-gmm", n_segments=6).segment(shape)
-    else:
+    elif {stage!r} == "csc":
         create_plugin("segmenters", "csc", n_segments=6).segment(shape, constraints=cons)
+    elif {stage!r} == "csc-dual":
+        create_plugin("segmenters", "csc", n_segments=6, graph="dual").segment(shape, constraints=cons)
+    elif {stage!r} == "seeded-walk":
+        create_plugin("segmenters", "seeded-walk").segment(shape, constraints=cons)
+    else:
+        create_plugin("segmenters", {stage!r}, n_segments=6).segment(shape)
 dt = time.perf_counter() - t
 after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps({{"n": shape.n_vertices, "seconds": dt, "peak_kb": after - before}}))
+print(json.dumps({{"n": shape.n_vertices, "m": shape.n_faces, "seconds": dt, "peak_kb": after - before}}))
 """
+
+
+#: the segmenter stages, each timed against the spectrum stage
+STAGES = ("eigvec-gmm", "csc", "csc-dual", "ncut", "sdf", "seeded-walk")
 
 
 def run_stage(sub: int, stage: str, threads: int) -> dict:
@@ -81,8 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for sub in args.subdivisions:
         spec = {}
-        for stage, ref in (("spectrum-combinatorial", None), ("eigvec-gmm", "spectrum-combinatorial"),
-                           ("csc", "spectrum-combinatorial")):
+        for stage, ref in [("spectrum-combinatorial", None)] + [(st, "spectrum-combinatorial") for st in STAGES]:
             print(f"subdivisions {sub}: {stage} ...", file=sys.stderr, flush=True)
             r = run_stage(sub, stage, args.threads)
             if ref is None:
@@ -93,20 +113,22 @@ def main(argv: list[str] | None = None) -> int:
                   f"+{r['peak_kb'] / 1024:.0f} MB peak", file=sys.stderr, flush=True)
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else ["?"]
     lines = [
-        "# Segmentation speed and memory (eigvec-gmm, csc) vs the spectrum alone",
+        "# Segmentation speed and memory of every segmenter vs the spectrum alone",
         "",
         "Regenerate with `python benchmarks/bench_segmentation.py`. "
         "Shapes: `articulated_shape(subdivisions=s)`;",
         f"k = 6; {args.threads} BLAS/OpenMP thread(s); load average at the end {' '.join(load)} "
         "(a shared machine: ratios are more meaningful than absolute times).",
         "",
-        "| vertices | stage | seconds | x spectrum | peak MB added | MB per 1k vertices |",
-        "|---|---|---|---|---|---|",
+        "| vertices | faces | stage | seconds | seconds per 10k faces | x spectrum | peak MB added | "
+        "MB per 1k vertices | MB per 10k faces |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         mb = r["peak_kb"] / 1024
-        lines.append(f"| {r['n']} | {r['stage']} | {r['seconds']:.2f} | {r['ratio']:.2f} | {mb:.0f} | "
-                     f"{mb / (r['n'] / 1000):.2f} |")
+        m10 = r["m"] / 1e4
+        lines.append(f"| {r['n']} | {r['m']} | {r['stage']} | {r['seconds']:.2f} | {r['seconds'] / m10:.2f} | "
+                     f"{r['ratio']:.2f} | {mb:.0f} | {mb / (r['n'] / 1000):.2f} | {mb / m10:.1f} |")
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(lines) + "\n")

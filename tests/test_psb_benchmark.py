@@ -30,9 +30,36 @@ def test_categories_and_split(bench):
     assert split["47"] == "held-out"  # a lone mesh is never used for tuning
 
 
-def test_human_k(bench):
+def _segs(counts):
+    return [np.arange(c) for c in counts]
+
+
+def test_human_k_is_the_mode_as_in_psb(bench):
+    """PSB's nSeg-ByModel.txt: the most frequent count; ties to the count closest to the median, then
+    the larger (segment counts of shared meshes 7, 307, 381, 1 and their PSB values)."""
+    assert bench.human_k(_segs([2, 6, 6, 6, 6, 8, 9, 9, 10, 12, 13, 15, 16, 17, 20])) == 6  # median would be 9
+    assert bench.human_k(_segs([2, 2, 3, 3, 6, 7, 8, 9])) == 3
+    assert bench.human_k(_segs([3, 6, 9, 10, 11, 11, 14, 15, 15, 16, 17, 17, 26])) == 15
+    assert bench.human_k(_segs([6, 6, 6, 8, 8, 13, 14, 15, 15, 15, 15, 16, 17, 21, 23, 60])) == 15
     assert bench.human_k([np.array([0, 1, 2]), np.array([0, 1, 1]), np.array([0, 0, 0])]) == 2
-    assert bench.human_k([np.arange(5), np.arange(6)]) == 6  # median 5.5 rounds half up
+    assert bench.human_k(_segs([5, 6])) == 6  # a tie at equal distance from the median: the larger
+    assert bench.human_k(_segs([1, 1])) == 2  # at least 2
+
+
+def test_benchmark_constraints_one_click_pair_per_big_segment(bench):
+    from shape_toolkit.data.synthetic import articulated_shape
+    from shape_toolkit.results.labels import face_to_vertex_labels, segment_adjacency, vertex_to_face_labels
+
+    b = articulated_shape(subdivisions=3, random_state=0)
+    faces = vertex_to_face_labels(b.shape.faces, b.labels)
+    vt = face_to_vertex_labels(b.shape.faces, faces, b.shape.n_vertices, b.shape.face_areas)
+    one = bench.benchmark_constraints(b.shape, faces, 1, 0)
+    two = bench.benchmark_constraints(b.shape, faces, 2, 0)
+    assert one.n_must == 6 and two.n_must == 12  # 6 parts, each >= 1% of the vertices
+    assert np.all(vt[one.must_link[:, 0]] == vt[one.must_link[:, 1]])
+    assert np.all(vt[one.cannot_link[:, 0]] != vt[one.cannot_link[:, 1]])
+    n_pairs = len(segment_adjacency(vt, b.shape.edges))
+    assert one.n_cannot == two.n_cannot == 3 * n_pairs  # 3 per pair of neighbouring parts
 
 
 @pytest.mark.slow
@@ -47,4 +74,22 @@ def test_one_real_mesh(bench, shared_data):
         row = r["rows"][name]
         assert "error" not in row, row
         assert 0.0 <= row["rand_index_error"] < 0.5
+        assert 0.0 <= row["rand_index_error_area"] < 0.5
     assert r["rows"]["human"]["rand_index_error"] < 0.2
+
+
+@pytest.mark.slow
+def test_new_segmenters_on_a_real_mesh(bench, shared_data):
+    """ncut and seeded-walk (one click pair per part) on the octopus 121 (a tuning mesh): near the
+    humans' own consistency, far from a constant labelling."""
+    psb = shared_data / "psb"
+    if not (psb / "off" / "121.off").is_file():
+        pytest.skip("PSB mesh 121 not in the shared data")
+    bench.ensure_builtins()
+    methods = [m for m in bench.METHODS if m[0] in ("ncut", "seeded-walk-1ml")]
+    r = bench.run_mesh(psb, "121", 0, lambda s: None, methods, {})
+    human = r["rows"]["human"]["rand_index_error"]
+    for name in ("ncut", "seeded-walk-1ml"):
+        row = r["rows"][name]
+        assert "error" not in row, row
+        assert row["rand_index_error"] < max(0.1, 3 * human), (name, row["rand_index_error"], human)
