@@ -63,6 +63,35 @@ def test_colored_ply_roundtrip_open3d(body, tmp_path):
     np.testing.assert_allclose(np.asarray(m.vertices), s.vertices)
 
 
+def test_colored_ply_is_the_mesh_writer(body, tmp_path):
+    """save_colored_ply writes exactly what save_shape writes for the shape with those colours (one
+    PLY writer), reads back through load_shape to 8-bit colours, takes 0..255 input alike, and
+    refuses out-of-range or NaN colours instead of clipping them."""
+    from shape_toolkit.io.mesh import load_shape, save_shape
+
+    s, labels = body
+    cols = label_colors(labels)
+    p = save_colored_ply(s, tmp_path / "v.ply", cols)
+    save_shape(s.with_colors(cols), tmp_path / "m.ply")
+    assert p.read_bytes() == (tmp_path / "m.ply").read_bytes()
+    back = load_shape(p)
+    np.testing.assert_array_equal(back.faces, s.faces)
+    np.testing.assert_allclose(back.colors, np.round(cols * 255) / 255, atol=1e-12)
+    q = save_colored_ply(s, tmp_path / "b.ply", np.round(cols * 255))
+    assert q.read_bytes() == p.read_bytes()
+    assert not list(tmp_path.glob(".*.tmp"))
+    bad = cols.copy()
+    bad[3, 0] = -0.5
+    with pytest.raises(ParameterError):
+        save_colored_ply(s, tmp_path / "x.ply", bad)
+    bad[3, 0] = np.nan
+    with pytest.raises(ParameterError):
+        save_colored_ply(s, tmp_path / "x.ply", bad)
+    with pytest.raises(ParameterError):
+        save_colored_ply(s, tmp_path / "x.ply", cols * 300)
+    assert not (tmp_path / "x.ply").exists()
+
+
 def test_match_colors_identity_transfers_exactly(body):
     s, _ = body
     cs, ct = match_colors(s, s, np.arange(s.n_vertices))

@@ -20,6 +20,7 @@ dropped; ``load_shape(..., colors=False)`` reads the geometry alone). Writers ke
 
 from __future__ import annotations
 
+import os
 import re
 import sys
 import warnings
@@ -177,7 +178,8 @@ def load_shape(
 
 
 def save_shape(shape: Shape, path: str | Path, *, binary: bool = False) -> None:
-    """Write a shape as OFF, PLY, OBJ, STL (meshes) or XYZ, PCD (vertices only).
+    """Write a shape as OFF, PLY, OBJ, STL (meshes) or XYZ, PCD (vertices only), atomically (a
+    temporary file next to ``path``, then renamed).
 
     ``binary`` selects binary PLY/STL (little endian); other formats are always text. Coordinates
     are written with full float64 precision (except STL, which stores float32). Colours are written
@@ -194,11 +196,15 @@ def save_shape(shape: Shape, path: str | Path, *, binary: bool = False) -> None:
         raise ShapeFileError(p, "STL stores triangles only; this shape is a point cloud")
     if p.is_dir():
         raise ShapeFileError(p, "is a directory")
+    tmp = p.with_name(f".{p.name}.tmp")  # written whole, then renamed: never a half-written file
     try:
-        with open(p, "wb") as fh:
+        with open(tmp, "wb") as fh:
             writer(fh, shape, binary)
+        os.replace(tmp, p)
     except OSError as e:
         raise ShapeFileError(p, f"cannot write: {e.strerror or e}") from None
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 # --------------------------------------------------------------------------------------------

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.errors import ParameterError
+from shape_toolkit.errors import InvalidShapeError, ParameterError
+from shape_toolkit.io.mesh import save_shape
 
 __all__ = [
     "label_colors",
@@ -361,37 +362,22 @@ def render_shape(
 
 def save_colored_ply(shape: Shape, path: str | os.PathLike, colors: np.ndarray) -> Path:
     """Write ``shape`` as ASCII PLY with per-vertex RGB ``colors`` ``(n, 3)`` (0..1 floats or
-    0..255 integers) as ``uchar red, green, blue`` properties."""
+    0..255 integers) as ``uchar red, green, blue`` properties: the shape with these colours,
+    written by :func:`shape_toolkit.io.mesh.save_shape` (the one PLY writer). Colours outside
+    those ranges, or not finite, raise :class:`ParameterError`. Returns the path."""
     c = np.asarray(colors, dtype=np.float64)
     if c.shape != (shape.n_vertices, 3):
         raise ParameterError(f"colors must have shape ({shape.n_vertices}, 3), got {c.shape}")
-    if c.max(initial=0) <= 1.0:
-        c = c * 255.0
-    c = np.clip(np.round(c), 0, 255).astype(np.int64)
+    if not np.isfinite(c).all():
+        raise ParameterError("colors must be finite")
+    if c.max(initial=0) > 1.0:  # 8-bit values
+        c = c / 255.0
+    try:
+        coloured = shape.with_colors(c)
+    except InvalidShapeError as e:
+        raise ParameterError(f"colors must lie in [0, 1] or 0..255: {e}") from None
     p = Path(path)
-    head = [
-        "ply",
-        "format ascii 1.0",
-        "comment written by shape-toolkit",
-        f"element vertex {shape.n_vertices}",
-        "property double x",
-        "property double y",
-        "property double z",
-        "property uchar red",
-        "property uchar green",
-        "property uchar blue",
-    ]
-    if shape.is_mesh:
-        head += [f"element face {shape.n_faces}", "property list uchar int vertex_indices"]
-    head.append("end_header")
-    lines = [" ".join(head[:1])] + head[1:]
-    vrows = [
-        f"{x!r} {y!r} {z!r} {r} {g} {b}" for (x, y, z), (r, g, b) in zip(shape.vertices.tolist(), c.tolist())
-    ]
-    frows = [f"3 {a} {b} {d}" for a, b, d in shape.faces.tolist()] if shape.is_mesh else []
-    tmp = p.with_name(f".{p.name}.tmp")
-    tmp.write_text("\n".join(lines + vrows + frows) + "\n")
-    os.replace(tmp, p)
+    save_shape(coloured, p)
     return p
 
 
