@@ -139,6 +139,32 @@ def test_describe_and_geodesics(pose, capsys, tmp_path, monkeypatch):
     assert code == 2 and "out of range" in err
 
 
+def test_geodesics_time_limit_exits_2_with_one_line(pose, capsys, tmp_path, monkeypatch):
+    """geodesics takes evaluate-map's --time-limit: a tiny limit on an exact solve stops it with one
+    line naming the option and exit 2, writing nothing; without a limit it reports its progress
+    (source counts) to the status line."""
+    from shape_toolkit.cli.commands import _common
+
+    d, a, _ = pose
+    monkeypatch.chdir(tmp_path)
+    args = ["geodesics", d / "a.off", "--sources", "3,7,11", "--method", "exact"]
+    code, out, err = _run(capsys, *args, "--time-limit", "0.000001")
+    assert code == 2 and not out
+    assert len(err.strip().splitlines()) == 1
+    assert "time limit of 1e-06 s exceeded after 1 of 3 sources" in err and "(--time-limit 1e-06)" in err
+    assert not (tmp_path / "a.geodesics.npz").exists()
+    code, out, err = _run(capsys, *args, "--time-limit", "-3")
+    assert code == 2 and "--time-limit" in err and len(err.strip().splitlines()) == 1
+    seen = []
+    monkeypatch.setattr(_common._Status, "count", lambda self, done, total=None: seen.append((done, total)))
+    monkeypatch.setenv(_common.PROGRESS_ENV, "1")
+    code, out, err = _run(capsys, *args[:-2], "--method", "dijkstra", "--time-limit", "0")  # 0: no limit
+    assert code == 0, err
+    assert seen == [(3, 3)]
+    with np.load(tmp_path / "a.geodesics.npz") as z:
+        assert z["distances"].shape == (3, a.shape.n_vertices)
+
+
 def test_plugins_show(capsys):
     code, out, _ = _run(capsys, "plugins", "show", "hks", "--json")
     info = json.loads(out)

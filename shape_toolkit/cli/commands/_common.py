@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.errors import ParameterError, ShapeFileError, TimeLimitError
 from shape_toolkit.validation import check_random_state, dumps_json
 
 
@@ -206,6 +206,35 @@ def add_ply(p: argparse.ArgumentParser, what: str) -> None:
     """``--ply OUT.ply``: also write the shape with coloured vertices (MeshLab, Open3D)."""
     p.add_argument("--ply", metavar="OUT.ply", default=None,
                    help=f"also write a PLY with vertex colours showing {what} (opens in MeshLab, Open3D)")
+
+
+#: default ``--time-limit`` of each geodesic computation, in seconds
+DEFAULT_TIME_LIMIT = 300.0
+
+
+def time_limit_arg(text: str) -> float | None:
+    """``--time-limit SECONDS``: a finite number >= 0 (0: no limit, returned as None)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
+    if not np.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds >= 0, got {text!r}")
+    return None if value == 0 else value
+
+
+def add_time_limit(p: argparse.ArgumentParser, hint: str = "") -> None:
+    """``--time-limit SECONDS`` of geodesic computations (default :data:`DEFAULT_TIME_LIMIT`; 0: none):
+    they stop with :class:`~shape_toolkit.errors.TimeLimitError` (one line, exit 2) past it, or as soon
+    as the projection says they will; ``hint`` is appended to the help (typical run times)."""
+    p.add_argument("--time-limit", type=time_limit_arg, default=DEFAULT_TIME_LIMIT, metavar="SECONDS",
+                   help=f"stop a geodesic computation past this many seconds, or as soon as it is clearly "
+                   f"going to (default {DEFAULT_TIME_LIMIT:g}; 0: no limit){hint}")
+
+
+def time_limit_hint(exc: TimeLimitError, args: argparse.Namespace) -> TimeLimitError:
+    """``exc`` naming the ``--time-limit`` option that set the limit (re-raise it ``from None``)."""
+    return TimeLimitError(f"{exc} (--time-limit {args.time_limit:g})")
 
 
 def default_output(given: str | None, inp: str | os.PathLike, what: str) -> Path:

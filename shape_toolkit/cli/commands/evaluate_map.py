@@ -20,11 +20,13 @@ import numpy as np
 
 from shape_toolkit.cli.commands._common import (
     add_quiet,
+    add_time_limit,
     positive_int_arg,
     print_json,
     random_state_arg,
     read_labels_arg,
     status,
+    time_limit_hint,
 )
 from shape_toolkit.errors import ParameterError, ShapeFileError, TimeLimitError
 from shape_toolkit.io.mesh import load_shape
@@ -40,21 +42,9 @@ from shape_toolkit.metrics.correspondence import (
 from shape_toolkit.results.correspondence import load_map
 from shape_toolkit.results.labels import read_vertex_ids
 
-#: default --time-limit of each geodesic computation, in seconds
-DEFAULT_TIME_LIMIT = 300.0
 #: geodesics of the r-neighbourhoods: Dijkstra along edges ranks the nearest vertices like the
 #: surface distance does, and explores only a small disc around each vertex
 R_SMOOTH_GEODESICS = "dijkstra"
-
-
-def _time_limit_arg(text: str) -> float | None:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
-    if not np.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number of seconds >= 0, got {text!r}")
-    return None if value == 0 else value
 
 
 def _percent_arg(text: str) -> float:
@@ -94,10 +84,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--zero-based", action="store_true", help="truth files count from 0 (default: 1, .vts)")
     p.add_argument("--geodesics", default="heat", choices=["exact", "heat", "fmm", "dijkstra"],
                    help="geodesic distance method of the error (default heat)")
-    p.add_argument("--time-limit", type=_time_limit_arg, default=DEFAULT_TIME_LIMIT, metavar="SECONDS",
-                   help=f"stop a geodesic computation past this many seconds, or as soon as it is clearly "
-                   f"going to (default {DEFAULT_TIME_LIMIT:g}; 0: no limit); exact geodesics take about "
-                   "1 s per ground-truth point on a 5,000-vertex mesh")
+    add_time_limit(p, "; exact geodesics take about 1 s per ground-truth point on a 5,000-vertex mesh")
     p.add_argument("--r-smoothness", nargs="*", type=_percent_arg, metavar="R",
                    help="percent of r-smooth source vertices (thesis eq. 7.4-7.5, Table 7.2) for "
                    "neighbourhoods of R percent of the vertices (no R: "
@@ -122,10 +109,6 @@ def _truth(path: str, n: int, one_based: bool):
     except ShapeFileError as exc:
         hint = " (use --zero-based for 0-based files)" if one_based and "1-based" in str(exc) else ""
         raise ShapeFileError(path, exc.problem + hint) from None
-
-
-def _limit_hint(exc: TimeLimitError, args: argparse.Namespace) -> TimeLimitError:
-    return TimeLimitError(f"{exc} (--time-limit {args.time_limit:g})")
 
 
 def _check_args(args: argparse.Namespace) -> None:
@@ -173,7 +156,7 @@ def _geodesic_error(args, source, target, corr, st) -> dict:
             rs = correspondence_report(both.min(axis=1))
             result["symmetric"] = {"mean_geodesic_error": rs["mean_geodesic_error"], "curve": rs["curve"]}
     except TimeLimitError as exc:
-        raise _limit_hint(exc, args) from None
+        raise time_limit_hint(exc, args) from None
     result["geodesics"] = args.geodesics
     return result
 
@@ -211,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
                     time_limit=args.time_limit, progress=st.count,
                 )
             except TimeLimitError as exc:
-                raise _limit_hint(exc, args) from None
+                raise time_limit_hint(exc, args) from None
             result["r_smoothness"] = {
                 "theta": args.r_theta,
                 "n_evaluated": min(args.r_sample or source.n_vertices, source.n_vertices),
