@@ -80,7 +80,8 @@ def test_recolouring_keeps_the_hash_and_the_cached_spectrum(small, rgb8):
 
 
 # -- readers and writers --------------------------------------------------------------------------------
-@pytest.mark.parametrize("name,binary", [("a.ply", False), ("b.ply", True), ("c.off", False), ("d.obj", False)])
+@pytest.mark.parametrize("name,binary", [("a.ply", False), ("b.ply", True), ("c.off", False), ("d.obj", False),
+                                         ("e.xyz", False), ("f.pcd", False)])
 def test_8bit_colours_round_trip_exactly(small, rgb8, tmp_path, name, binary):
     s = small.with_colors(rgb8)
     save_shape(s, tmp_path / name, binary=binary)
@@ -103,8 +104,12 @@ def test_writers_formats(small, tmp_path):
     assert np.abs(load_shape(tmp_path / "a.ply").colors - c).max() <= 0.5 / 255 + 1e-12
     save_shape(small, tmp_path / "plain.off")
     assert (tmp_path / "plain.off").read_text().startswith("OFF\n")
-    save_shape(s, tmp_path / "a.xyz")  # geometry-only formats just drop them
-    assert load_shape(tmp_path / "a.xyz").colors is None
+    save_shape(s, tmp_path / "a.xyz")  # x y z r g b floats: exact
+    np.testing.assert_array_equal(load_shape(tmp_path / "a.xyz").colors, c)
+    save_shape(s, tmp_path / "a.pcd")  # packed rgb: 8 bits
+    assert np.abs(load_shape(tmp_path / "a.pcd").colors - c).max() <= 0.5 / 255 + 1e-12
+    save_shape(s, tmp_path / "a.stl")  # geometry-only formats just drop them
+    assert load_shape(tmp_path / "a.stl").colors is None
 
 
 TRI = "3 0 1 2\n"
@@ -121,6 +126,95 @@ TRI = "3 0 1 2\n"
 def test_off_colour_variants(tmp_path, text, expected):
     (tmp_path / "a.off").write_text(text)
     np.testing.assert_allclose(load_shape(tmp_path / "a.off").colors, expected, atol=1e-15)
+
+
+XYZ3 = ["0 0 0", "1 0 0", "0 1 0"]
+
+
+@pytest.mark.parametrize("rows,expected", [
+    (["255 0 0", "0 128 0", "0 0 51"], [[1, 0, 0], [0, 128 / 255, 0], [0, 0, .2]]),  # 8-bit
+    (["1 0 0", "0 .5 0", "0 0 0.25"], [[1, 0, 0], [0, .5, 0], [0, 0, .25]]),  # [0, 1] floats
+    (["1 0 0", "0 1 0", "0 0 1"], np.eye(3)),  # 0/1 only: floats
+    (["255.0 0 0", "0 255 0", "0 0 255"], np.eye(3)),  # integral floats above 1: 8-bit
+    (["0 0 -1", "0 1 0", "0.6 -0.8 0"], None),  # x y z nx ny nz: unit normals, not colours
+])
+def test_xyz_colour_columns(tmp_path, rows, expected):
+    p = tmp_path / "a.xyz"
+    p.write_text("".join(f"{x} {r}\n" for x, r in zip(XYZ3, rows)))
+    s = load_shape(p)
+    np.testing.assert_array_equal(s.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    if expected is None:
+        assert s.colors is None
+    else:
+        np.testing.assert_allclose(s.colors, expected, atol=1e-15)
+    assert load_shape(p, colors=False).colors is None
+    p.write_text("".join(f"{x},{r.replace(' ', ',')}\n" for x, r in zip(XYZ3, rows)))  # comma-separated
+    assert (load_shape(p).colors is None) == (expected is None)
+
+
+@pytest.mark.parametrize("rows,problem", [
+    (["255 0 0", "0 300 0", "0 0 1"], "outside the 8-bit range"),
+    (["1 0 0", "0 1.5 0", "0 0 1"], r"outside \[0, 1\]"),
+    (["1 0 0", "0 -0.5 0", "0 0 1"], r"outside \[0, 1\]"),  # negative, but not unit normals
+    (["1 0 0", "0 1", "0 0 1"], "needs 6 numbers"),
+])
+def test_xyz_bad_colours_are_file_errors(tmp_path, rows, problem):
+    p = tmp_path / "a.xyz"
+    p.write_text("".join(f"{x} {r}\n" for x, r in zip(XYZ3, rows)))
+    with pytest.raises(ShapeFileError, match=problem) as e:
+        load_shape(p)
+    assert "a.xyz" in str(e.value)
+
+
+def _pcd(fields: str, size: str, typ: str, rows: list[str]) -> str:
+    n = len(rows)
+    return (f"VERSION 0.7\nFIELDS x y z {fields}\nSIZE 4 4 4 {size}\nTYPE F F F {typ}\n"
+            f"COUNT 1 1 1 {' '.join('1' * len(fields.split()))}\nWIDTH {n}\nHEIGHT 1\nPOINTS {n}\nDATA ascii\n"
+            + "".join(f"{x} {r}\n" for x, r in zip(XYZ3, rows)))
+
+
+@pytest.mark.parametrize("text,expected", [
+    (_pcd("rgba", "4", "U", [str(0xFF_FF0000), str(0x00_008000), str(0x7F_000033)]),
+     [[1, 0, 0], [0, 128 / 255, 0], [0, 0, .2]]),  # packed uint32, alpha ignored
+    (_pcd("rgb", "4", "F", [repr(float(np.array(v, np.uint32).view(np.float32))) for v in (0xFF0000, 0x8000, 0x33)]),
+     [[1, 0, 0], [0, 128 / 255, 0], [0, 0, .2]]),  # PCL's packed float
+    (_pcd("r g b", "1 1 1", "U U U", ["255 0 0", "0 128 0", "0 0 51"]), [[1, 0, 0], [0, 128 / 255, 0], [0, 0, .2]]),
+    (_pcd("r g b", "4 4 4", "F F F", ["1 0 0", "0 .5 0", "0 0 .25"]), [[1, 0, 0], [0, .5, 0], [0, 0, .25]]),
+])
+def test_pcd_colour_fields(tmp_path, text, expected):
+    p = tmp_path / "a.pcd"
+    p.write_text(text)
+    np.testing.assert_allclose(load_shape(p).colors, expected, atol=1e-7)
+    assert load_shape(p, colors=False).colors is None
+
+
+@pytest.mark.parametrize("text,problem", [
+    (_pcd("r g b", "1 1 1", "U U U", ["255 0 0", "0 300 0", "0 0 51"]), "not an integer in 0..255"),
+    (_pcd("r g b", "4 4 4", "F F F", ["1 0 0", "0 1.5 0", "0 0 1"]), r"outside \[0, 1\]"),
+    (_pcd("rgb", "8", "F", ["1", "2", "3"]), "must be one 4-byte value"),
+])
+def test_pcd_bad_colours_are_file_errors(tmp_path, text, problem):
+    p = tmp_path / "a.pcd"
+    p.write_text(text)
+    with pytest.raises(ShapeFileError, match=problem):
+        load_shape(p)
+
+
+def test_pcd_colours_interoperate_with_open3d(small, rgb8, tmp_path):
+    """Open3D's PCD files (ascii, binary, LZF-compressed) read with their colours, and ours read
+    in Open3D with the same colours: the packed-rgb convention is PCL's."""
+    o3d = pytest.importorskip("open3d")
+    c = rgb8 / 255.0
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(small.vertices.copy()))
+    pc.colors = o3d.utility.Vector3dVector(c)
+    for name, kw in [("a.pcd", {"write_ascii": True}), ("b.pcd", {}), ("c.pcd", {"compressed": True})]:
+        o3d.io.write_point_cloud(str(tmp_path / name), pc, **kw)
+        back = load_shape(tmp_path / name)
+        np.testing.assert_allclose(back.colors, c, atol=1e-12, err_msg=name)
+    save_shape(small.with_colors(rgb8), tmp_path / "ours.pcd")
+    theirs = o3d.io.read_point_cloud(str(tmp_path / "ours.pcd"))
+    np.testing.assert_allclose(np.asarray(theirs.colors), c, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(theirs.points), small.vertices)
 
 
 def _ply(body: str, props: str) -> str:

@@ -11,11 +11,14 @@ also ``r g b`` or ``diffuse_*``, any numeric type: integer types are 8-bit excep
 16-bit; float types are in [0, 1]; alpha ignored), COFF/CNOFF (RGB or RGBA after the coordinates
 or normals), OBJ ``v x y z r g b`` and texture-mapped OBJ (``mtllib`` + ``usemtl`` + ``map_Kd``
 image + ``vt``: the image is sampled bilinearly, repeating, at every corner's UV with Pillow; a
-vertex with several UVs gets the mean). In text formats, colours whose values are all integers
-with one above 1 are 8-bit (0..255), otherwise they are in [0, 1]. A missing or unreadable
+vertex with several UVs gets the mean), XYZ ``x y z r g b`` rows (six columns; ``x y z nx ny nz``
+unit normals are told apart and ignored) and PCD (PCL's packed ``rgb`` / ``rgba`` field, or separate
+``r g b`` fields typed as in PLY; LZF-compressed files through Open3D). In text formats, colours
+whose values are all integers with one above 1 are 8-bit (0..255), otherwise they are in [0, 1]. A missing or unreadable
 texture or material library is a :class:`ShapeFileError` naming that file (nothing is silently
 dropped; ``load_shape(..., colors=False)`` reads the geometry alone). Writers keep colours: PLY as
-``uchar`` (8-bit, what viewers read), OFF as COFF and OBJ as ``v x y z r g b`` (both exact).
+``uchar`` (8-bit, what viewers read), OFF as COFF, OBJ as ``v x y z r g b`` and XYZ as
+``x y z r g b`` (all three exact floats), PCD as PCL's packed float ``rgb`` (8-bit).
 """
 
 from __future__ import annotations
@@ -183,8 +186,9 @@ def save_shape(shape: Shape, path: str | Path, *, binary: bool = False) -> None:
 
     ``binary`` selects binary PLY/STL (little endian); other formats are always text. Coordinates
     are written with full float64 precision (except STL, which stores float32). Colours are written
-    to PLY (``uchar red green blue``, rounded to 8 bits), OFF (as COFF, RGBA floats, exact) and OBJ
-    (``v x y z r g b``, exact); STL, XYZ and PCD store geometry only.
+    to PLY (``uchar red green blue``, rounded to 8 bits), OFF (as COFF, RGBA floats, exact), OBJ
+    (``v x y z r g b``, exact), XYZ (``x y z r g b``, exact) and PCD (packed ``rgb``, 8 bits); STL
+    stores geometry only.
     """
     p = Path(path)
     ext = p.suffix.lower()
@@ -639,11 +643,20 @@ def _obj_texture_colors(p: Path, lines: Sequence[tuple[int, str]], n_vertices: i
 # --------------------------------------------------------------------------------------------
 # XYZ
 # --------------------------------------------------------------------------------------------
-def _read_xyz(p: Path) -> _Parsed:
+def _read_xyz(p: Path, want_colors: bool = True) -> _ParsedColors:
+    """``x y z`` rows (spaces or commas); rows of exactly six columns in the first line are
+    ``x y z r g b`` (8-bit or [0, 1], see :func:`_text_colors`), unless the last three columns are
+    unit vectors with a negative entry: ``x y z nx ny nz`` normals, which are ignored."""
     text = _read_text(p)
     rows = _content(text.replace(",", " ") if "," in text else text)
     _check_count(len(rows), "points")
-    return _floats(rows, 3, "point"), None
+    if not (want_colors and rows and len(_tokens(rows[0][1])) == 6):
+        return _floats(rows, 3, "point"), None, None
+    table = _floats(rows, 6, "point with colour (x y z r g b)")
+    extra = table[:, 3:]
+    if (extra < 0).any() and np.allclose(np.linalg.norm(extra, axis=1), 1.0, atol=1e-3):
+        return table[:, :3], None, None  # normals
+    return table[:, :3], None, _text_colors(extra, "XYZ point")
 
 
 # --------------------------------------------------------------------------------------------
@@ -917,7 +930,39 @@ def _isfloat(t: str) -> bool:
 # --------------------------------------------------------------------------------------------
 # PCD (Open3D)
 # --------------------------------------------------------------------------------------------
-def _read_pcd(p: Path) -> _Parsed:
+#: PCD fields holding packed colour (PCL's ``rgb`` float / ``rgba`` uint32: bits 0x00RRGGBB)
+_PCD_PACKED = ("rgb", "rgba")
+
+
+def _unpack_rgb(bits: np.ndarray) -> np.ndarray:
+    """8-bit ``(n, 3)`` int64 colours of packed uint32 values 0x??RRGGBB (alpha ignored)."""
+    b = bits.astype(np.uint32).astype(np.int64)
+    return np.stack([(b >> 16) & 255, (b >> 8) & 255, b & 255], axis=1)
+
+
+def _pcd_colors(names: list[str], sizes: list[int], types: list[str], counts: list[int],
+                column: Callable[[str], np.ndarray]) -> np.ndarray | None:
+    """Colours of a PCD file: a packed ``rgb``/``rgba`` field (4 bytes; float fields are
+    reinterpreted bit for bit, as PCL writes them) or separate ``r g b`` / ``red green blue``
+    fields (typed as in PLY: integer types 8-bit except 2-byte unsigned, floats in [0, 1]).
+    ``column(name)`` returns a field's values (float32 for float fields, else integers); None
+    without colour fields."""
+    packed = next((nm for nm in _PCD_PACKED if nm in names), None)
+    if packed is not None:
+        i = names.index(packed)
+        if sizes[i] != 4 or counts[i] != 1:
+            raise _Err(f"PCD colour field {packed!r} must be one 4-byte value (SIZE 4, COUNT 1), "
+                       f"got SIZE {sizes[i]} COUNT {counts[i]}")
+        v = column(packed)
+        bits = v.astype(np.float32).view(np.uint32) if types[i].upper() == "F" else v.astype(np.int64)
+        return _unpack_rgb(bits)
+    kinds = {"F": "f", "I": "i", "U": "u"}
+    vert = {nm: column(nm) for nm in names if nm in {c for trio in _PLY_COLOR_NAMES for c in trio}}
+    typ = {nm: kinds.get(types[names.index(nm)].upper(), "f") + str(sizes[names.index(nm)]) for nm in vert}
+    return _ply_colors(vert, typ)
+
+
+def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedColors:
     data = p.read_bytes()
     fields: dict[str, list[str]] = {}
     pos = 0
@@ -964,9 +1009,14 @@ def _read_pcd(p: Path) -> _Parsed:
         short = [ln for ln, r in rows if len(r.split()) < width]
         if short:
             raise _Err(f"data line {short[0]} has fewer than the {width} declared values")
-        cols = [sum(counts[: names.index(c)]) for c in "xyz"]
-        table = _floats(rows, cols, "point")
-        return table, None
+        def at(name: str) -> int:
+            return sum(counts[: names.index(name)])
+
+        table = _floats(rows, [at(c) for c in "xyz"], "point")
+        colors = None
+        if want_colors:
+            colors = _pcd_colors(names, sizes, types, counts, lambda nm: _floats(rows, [at(nm)], nm)[:, 0])
+        return table, None, colors
     if mode == "binary":
         kinds = {"F": "f", "I": "i", "U": "u"}
         try:
@@ -983,7 +1033,10 @@ def _read_pcd(p: Path) -> _Parsed:
         if len(data) - pos < dt.itemsize * n:
             raise _Err(f"truncated: binary data too short for {n} points")
         arr = np.frombuffer(data, dtype=dt, count=n, offset=pos)
-        return np.stack([arr[c].astype(np.float64) for c in "xyz"], axis=1), None
+        colors = None
+        if want_colors:
+            colors = _pcd_colors(names, sizes, types, counts, lambda nm: np.ascontiguousarray(arr[nm]))
+        return np.stack([arr[c].astype(np.float64) for c in "xyz"], axis=1), None, colors
     if mode != "binary_compressed":
         raise _Err(f"unknown PCD DATA mode {mode!r}")
     del data
@@ -996,7 +1049,8 @@ def _read_pcd(p: Path) -> _Parsed:
     pts = np.asarray(pc.points, dtype=np.float64)
     if pts.shape[0] != n:  # Open3D returns an empty cloud instead of raising
         raise _Err(f"header declares {n} points but Open3D could read {pts.shape[0]}")
-    return pts, None
+    colors = np.asarray(pc.colors, dtype=np.float64) if want_colors and pc.has_colors() else None
+    return pts, None, colors
 
 
 # --------------------------------------------------------------------------------------------
@@ -1027,19 +1081,30 @@ def _write_obj(fh, shape: Shape, binary: bool) -> None:
 
 
 def _write_xyz(fh, shape: Shape, binary: bool) -> None:
-    fh.write(_fmt_rows(shape.vertices).encode())
+    v = shape.vertices if shape.colors is None else np.column_stack([shape.vertices, shape.colors])
+    fh.write(_fmt_rows(v).encode())
 
 
 def _write_pcd(fh, shape: Shape, binary: bool) -> None:
     n = shape.n_vertices
+    fields, size, typ, count = "x y z", "8 8 8", "F F F", "1 1 1"
+    if shape.colors is not None:  # PCL's packed float rgb (bits 0x00RRGGBB), as PCL and Open3D write it
+        fields, size, typ, count = fields + " rgb", size + " 4", typ + " F", count + " 1"
     fh.write(
         (
-            "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z\n"
-            f"SIZE 8 8 8\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\n"
+            f"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS {fields}\n"
+            f"SIZE {size}\nTYPE {typ}\nCOUNT {count}\nWIDTH {n}\nHEIGHT 1\n"
             f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA ascii\n"
         ).encode()
     )
-    fh.write(_fmt_rows(shape.vertices).encode())
+    if shape.colors is None:
+        fh.write(_fmt_rows(shape.vertices).encode())
+        return
+    c = np.round(shape.colors * 255.0).astype(np.uint32)
+    packed = ((c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]).view(np.float32)
+    # repr of the float32 value as a double is exact, and reads back to the same 32 bits
+    fh.write("".join(f"{x!r} {y!r} {z!r} {float(w)!r}\n"
+                     for (x, y, z), w in zip(shape.vertices.tolist(), packed)).encode())
 
 
 def _write_ply(fh, shape: Shape, binary: bool) -> None:
@@ -1109,8 +1174,8 @@ _READERS: dict[str, Callable[[Path, bool], _ParsedColors]] = {
     ".obj": _read_obj,
     ".ply": _read_ply,
     ".stl": _geometry_only(_read_stl),
-    ".xyz": _geometry_only(_read_xyz),
-    ".pcd": _geometry_only(_read_pcd),
+    ".xyz": _read_xyz,
+    ".pcd": _read_pcd,
 }
 _WRITERS = {
     ".off": _write_off,
