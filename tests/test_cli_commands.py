@@ -336,3 +336,25 @@ def test_evaluate_map_time_limit_exits_2_with_one_line(pose, capsys, tmp_path):
     assert "time limit of 1e-06 s exceeded" in err and "(--time-limit 1e-06)" in err and "heat" in err
     code, out, err = _run(capsys, *args, "--time-limit", "-3")
     assert code == 2 and "--time-limit" in err
+
+
+def test_number_args_share_one_parser():
+    """Every numeric option is one number_arg: finite, inside its interval with the ends as
+    declared, and refused with 'must be <what>' otherwise (NaN, inf and words alike)."""
+    import argparse
+
+    from shape_toolkit.cli.commands._common import number_arg, positive_float_arg, time_limit_arg
+    from shape_toolkit.cli.commands.evaluate_map import _percent_arg, _theta_arg
+
+    half_open = number_arg("in (0, 1]", 0, 1, open_low=True)
+    assert half_open("1") == 1.0 and half_open("1e-300") == 1e-300
+    assert _percent_arg("100") == 100.0 and _theta_arg("0.9") == 0.9 and positive_float_arg("2.5") == 2.5
+    assert time_limit_arg("0") is None and time_limit_arg("1.5") == 1.5
+    for parse, bad in [(half_open, "0"), (half_open, "1.0000001"), (_percent_arg, "0"), (_percent_arg, "100.5"),
+                       (_theta_arg, "-0.1"), (positive_float_arg, "0"), (positive_float_arg, "inf"),
+                       (positive_float_arg, "nan"), (time_limit_arg, "-1"), (time_limit_arg, "inf"),
+                       (time_limit_arg, "ten"), (number_arg("x", open_high=True), "1e999")]:
+        with pytest.raises(argparse.ArgumentTypeError, match="must be "):
+            parse(bad)
+    closed = number_arg("in [0, 1]", 0, 1)
+    assert closed("0") == 0.0 and closed("1") == 1.0

@@ -6,8 +6,10 @@ from __future__ import annotations
 import argparse
 import inspect
 import json
+import math
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -92,15 +94,28 @@ def positive_int_arg(text: str) -> int:
     return value
 
 
-def positive_float_arg(text: str) -> float:
-    """argparse ``type=`` for finite lengths > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}") from None
-    if not (np.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite positive number, got {text!r}")
-    return value
+def number_arg(
+    what: str, low: float = -math.inf, high: float = math.inf, *, open_low: bool = False, open_high: bool = False
+) -> Callable[[str], float]:
+    """An argparse ``type=`` for a finite number between ``low`` and ``high`` (each end included
+    unless ``open_low`` / ``open_high``); anything else is refused as ``must be {what}, got ...``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        above = value > low if open_low else value >= low
+        below = value < high if open_high else value <= high
+        if not (math.isfinite(value) and above and below):
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+        return value
+
+    return parse
+
+
+#: argparse ``type=`` for finite lengths > 0
+positive_float_arg = number_arg("a finite positive number", 0.0, open_low=True)
 
 
 def parse_params(items: list[str] | None, plugin: type | None = None, what: str = "--param") -> dict[str, Any]:
@@ -212,14 +227,12 @@ def add_ply(p: argparse.ArgumentParser, what: str) -> None:
 DEFAULT_TIME_LIMIT = 300.0
 
 
+_seconds_arg = number_arg("a finite number of seconds >= 0", 0.0)
+
+
 def time_limit_arg(text: str) -> float | None:
     """``--time-limit SECONDS``: a finite number >= 0 (0: no limit, returned as None)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds, got {text!r}") from None
-    if not np.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number of seconds >= 0, got {text!r}")
+    value = _seconds_arg(text)
     return None if value == 0 else value
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from shape_toolkit.cli.commands._common import (
     add_quiet,
     add_time_limit,
+    number_arg,
     positive_int_arg,
     print_json,
     random_state_arg,
@@ -47,24 +48,8 @@ from shape_toolkit.results.labels import read_vertex_ids
 R_SMOOTH_GEODESICS = "dijkstra"
 
 
-def _percent_arg(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a percent of the vertices in (0, 100], got {text!r}") from None
-    if not (np.isfinite(value) and 0 < value <= 100):
-        raise argparse.ArgumentTypeError(f"must be a percent of the vertices in (0, 100], got {text!r}")
-    return value
-
-
-def _theta_arg(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a fraction in (0, 1], got {text!r}") from None
-    if not (np.isfinite(value) and 0 < value <= 1):
-        raise argparse.ArgumentTypeError(f"must be a fraction in (0, 1], got {text!r}")
-    return value
+_percent_arg = number_arg("a percent of the vertices in (0, 100]", 0.0, 100.0, open_low=True)
+_theta_arg = number_arg("a fraction in (0, 1]", 0.0, 1.0, open_low=True)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
