@@ -239,3 +239,27 @@ def test_time_limit_projection_stops_hopeless_runs_early():
     ok.t0 -= 2.0
     for _ in range(10):  # 10 sources in 2 s: well inside the limit
         ok.tick()
+
+
+def test_paired_distances_are_the_entries_of_the_rows(sphere3):
+    """paired_geodesic_distances (the one chunked pair loop: metrics and trajectories use it) gives
+    d(a_i, b_i) = geodesic_distances(a)[i, b_i] for repeated, unsorted a, across chunk borders,
+    and for several partners per a_i; the exact values follow the great circle."""
+    from shape_toolkit.metrics import correspondence as mc
+    from shape_toolkit.results import trajectories as tj
+
+    assert mc.paired_geodesic_distances is g.paired_geodesic_distances
+    rng = np.random.default_rng(4)
+    a = rng.integers(0, sphere3.n_vertices, 40)
+    a[5:9] = a[0]  # repeats
+    b = rng.integers(0, sphere3.n_vertices, (40, 2))
+    full = g.geodesic_distances(sphere3, a, method="dijkstra", cache=False)
+    d = g.paired_geodesic_distances(sphere3, a, b, method="dijkstra", chunk=3)
+    np.testing.assert_array_equal(d, np.take_along_axis(full, b, axis=1))
+    np.testing.assert_array_equal(tj._distances(sphere3, a, b[:, 0], "dijkstra"), d[:, 0])
+    ex = g.paired_geodesic_distances(sphere3, a[:6], b[:6, 0], method="exact")
+    np.testing.assert_allclose(ex, _great_circle(sphere3, a[:6])[np.arange(6), b[:6, 0]], atol=0.02)
+    with pytest.raises(ParameterError):
+        g.paired_geodesic_distances(sphere3, a, b[:-1], method="dijkstra")
+    with pytest.raises(ParameterError):
+        g.paired_geodesic_distances(sphere3, a, b + sphere3.n_vertices, method="dijkstra")

@@ -18,6 +18,7 @@ import numpy as np
 
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.features.geodesics import paired_geodesic_distances  # re-exported: its old home
 from shape_toolkit.results.correspondence import Correspondence
 
 __all__ = [
@@ -38,50 +39,6 @@ __all__ = [
 
 #: thresholds of the cumulative error curve: 0, 0.01, ..., 0.25 (units of sqrt(area))
 DEFAULT_THRESHOLDS = np.round(np.linspace(0.0, 0.25, 26), 6)
-
-
-def paired_geodesic_distances(
-    shape: Shape,
-    a: np.ndarray,
-    b: np.ndarray,
-    *,
-    method: str = "exact",
-    chunk: int = 128,
-    time_limit: float | None = None,
-    progress: Callable[[int, int | None], None] | None = None,
-) -> np.ndarray:
-    """Geodesic distances ``d(a_i, b_i)`` on ``shape`` for vertex ids ``a`` ``(p,)`` and ``b``
-    ``(p,)`` or ``(p, r)`` (``r`` partners per ``a_i``, e.g. the images of several maps), same
-    shape as ``b``, in length units. One distance row per distinct ``a``, computed in chunks
-    (memory ``chunk * n``). ``progress(done, total)`` counts the rows; past ``time_limit``
-    seconds (or when the projection is far over it) :class:`~shape_toolkit.errors.TimeLimitError`
-    is raised."""
-    from shape_toolkit.features.geodesics import GeodesicBudget, geodesic_distances
-
-    a = np.asarray(a, dtype=np.int64).ravel()
-    b = np.asarray(b, dtype=np.int64)
-    b2 = b.reshape(b.shape[0], -1) if b.ndim else b.reshape(1, 1)
-    if b2.shape[0] != a.size:
-        raise ParameterError(f"paired ids must have equal lengths, got {a.size} and {b2.shape[0]}")
-    n = shape.n_vertices
-    for name, ids in (("a", a), ("b", b2)):
-        if ids.size and (ids.min() < 0 or ids.max() >= n):
-            raise ParameterError(f"vertex ids {name} must lie in [0, {n - 1}]")
-    out = np.empty(b2.shape)
-    uniq, inv = np.unique(a, return_inverse=True)
-    order = np.argsort(inv, kind="stable")
-    bounds = np.searchsorted(inv[order], np.arange(uniq.size + 1))
-    budget = None
-    if time_limit is not None or progress is not None:
-        budget = GeodesicBudget(time_limit, uniq.size, progress, f"{method} geodesics")
-    for s in range(0, uniq.size, chunk):
-        rows = np.asarray(
-            geodesic_distances(shape, uniq[s : s + chunk], method=method, cache=False, budget=budget)
-        )
-        for r in range(rows.shape[0]):
-            sel = order[bounds[s + r] : bounds[s + r + 1]]
-            out[sel] = rows[r][b2[sel]]
-    return out.reshape(b.shape)
 
 
 def check_truth(

@@ -225,20 +225,14 @@ def compose_maps(
     return chain_maps(maps, n_vertices=n_vertices).ids[:, -1].copy()
 
 
-def _distances(shape: Shape, a: np.ndarray, b: np.ndarray, method: str, chunk: int = 256) -> np.ndarray:
+def _distances(shape: Shape, a: np.ndarray, b: np.ndarray, method: str) -> np.ndarray:
     """``d(a_i, b_i)`` on ``shape`` for vertex ids ``a``, ``b`` ``(p,)``: Euclidean, or geodesic
-    with one distance row per distinct ``a`` (``features.geodesics``), computed in chunks."""
+    (:func:`~shape_toolkit.features.geodesics.paired_geodesic_distances`)."""
     if method == "euclidean":
         return np.linalg.norm(shape.vertices[a] - shape.vertices[b], axis=1)
-    from shape_toolkit.features.geodesics import geodesic_distances
+    from shape_toolkit.features.geodesics import paired_geodesic_distances
 
-    out = np.empty(a.size)
-    uniq, inv = np.unique(a, return_inverse=True)
-    for s in range(0, uniq.size, chunk):
-        rows = np.asarray(geodesic_distances(shape, uniq[s : s + chunk], method=method, cache=False))
-        sel = np.flatnonzero((inv >= s) & (inv < s + chunk))
-        out[sel] = rows[inv[sel] - s, b[sel]]
-    return out
+    return paired_geodesic_distances(shape, a, b, method=method)
 
 
 def trajectory_drift(
