@@ -168,3 +168,31 @@ def test_label_colors_cost_grows_with_distinct_labels_not_their_values():
     c = label_colors(lab)
     assert c.shape == (5, 3) and np.allclose(c[1], c[3]) and not np.allclose(c[0], c[1])
     assert np.allclose(label_colors(np.array([3]))[0], c[4])  # a label's colour depends on its value only
+
+
+def test_both_renderers_share_one_lambert_shading(body, tmp_path, monkeypatch):
+    """_shaded_faces: a face turned to the light keeps its colour, one edge-on to it keeps the
+    ambient share, a flipped face shades like the front; render_shape and render_trajectories
+    both draw meshes through it."""
+    from shape_toolkit.io import viz
+
+    light = viz._LIGHT
+    e1 = np.cross(light, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(light, e1)  # (e1, e2, light) right-handed: the face (0, e1, e2) has normal +light
+    v = np.array([np.zeros(3), e1, e2, light])  # face (0, 1, 3) contains the light: edge-on
+    faces = np.array([[0, 1, 2], [0, 2, 1], [0, 1, 3]])
+    cols = np.array([[0.8, 0.4, 0.2]] * 4)
+    tri, fc = viz._shaded_faces(v, faces, cols)
+    assert tri.shape == (3, 3, 3)
+    np.testing.assert_allclose(fc[0], [0.8, 0.4, 0.2], atol=1e-12)
+    np.testing.assert_allclose(fc[1], fc[0], atol=1e-12)
+    np.testing.assert_allclose(fc[2], viz._AMBIENT * np.array([0.8, 0.4, 0.2]), atol=1e-12)
+    calls = []
+    real = viz._shaded_faces
+    monkeypatch.setattr(viz, "_shaded_faces", lambda *a: calls.append(1) or real(*a))
+    s, _ = body
+    render_shape(s, tmp_path / "a.png")
+    viz.render_trajectories([s, s], np.column_stack([np.arange(s.n_vertices)] * 2), tmp_path / "t.png",
+                            n_tracks=5)
+    assert len(calls) == 3  # one panel, two frames

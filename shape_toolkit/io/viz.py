@@ -200,6 +200,23 @@ def _frame(v: np.ndarray) -> np.ndarray:
     return np.stack([p[:, 0], p[:, 2], p[:, 1]], axis=1)
 
 
+#: direction of the light of every render (view frame: x right, y into the screen, z up)
+_LIGHT = np.array([0.3, -1.0, 0.6]) / np.linalg.norm([0.3, -1.0, 0.6])
+#: Lambert shading: ambient share, the rest scales with |cos| of the normal to the light
+_AMBIENT = 0.35
+
+
+def _shaded_faces(v: np.ndarray, faces: np.ndarray, colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles ``(m, 3, 3)`` of view-frame vertices ``v`` and their Lambert-shaded face colours
+    ``(m, 3)`` in [0, 1]: the mean vertex colour times ``ambient + (1 - ambient) |n . light|``
+    (two-sided, so no face goes black when seen from behind)."""
+    tri = v[faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    shade = _AMBIENT + (1.0 - _AMBIENT) * np.abs(n @ _LIGHT)
+    return tri, np.clip(colors[faces].mean(axis=1) * shade[:, None], 0, 1)
+
+
 def _draw(
     ax, shape: Shape, colors: np.ndarray, points: np.ndarray | None, title: str | None, point_size: float
 ) -> None:
@@ -207,14 +224,7 @@ def _draw(
 
     v = _frame(shape.vertices)
     if shape.is_mesh:
-        f = shape.faces
-        tri = v[f]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        light = np.array([0.3, -1.0, 0.6])
-        light /= np.linalg.norm(light)
-        shade = 0.35 + 0.65 * np.abs(n @ light)
-        fc = np.clip(colors[f].mean(axis=1) * shade[:, None], 0, 1)
+        tri, fc = _shaded_faces(v, shape.faces, colors)
         coll = Poly3DCollection(tri, facecolors=fc, edgecolors=fc, linewidths=0.2)
         ax.add_collection3d(coll)
     else:
@@ -488,11 +498,7 @@ def render_trajectories(
         ax.computed_zorder = False  # mesh first, trajectories on top
         v, s = views[t], shapes[t]
         if s.is_mesh:
-            tri = v[s.faces]
-            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-            light = np.array([0.3, -1.0, 0.6]) / np.linalg.norm([0.3, -1.0, 0.6])
-            fc = np.clip(cols[t][s.faces].mean(axis=1) * (0.35 + 0.65 * np.abs(n @ light))[:, None], 0, 1)
+            tri, fc = _shaded_faces(v, s.faces, cols[t])
             ax.add_collection3d(Poly3DCollection(tri, facecolors=fc, edgecolors=fc, linewidths=0.2, zorder=1))
         else:
             ax.scatter(v[:, 0], v[:, 1], v[:, 2], c=cols[t], s=2, depthshade=False, zorder=1)
