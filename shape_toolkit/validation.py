@@ -39,9 +39,12 @@ def seed_of(random_state: Any) -> int:
     return int(check_random_state(random_state).randint(0, 2**31 - 1))
 
 
-def check_vertex_ids(ids: object, n: int, what: str = "vertex ids", *, allow_empty: bool = True) -> np.ndarray:
+def check_vertex_ids(
+    ids: object, n: int, what: str = "vertex ids", *, allow_empty: bool = True, unique: bool = False
+) -> np.ndarray:
     """``ids`` as a 1-D int64 array of 0-based vertex ids in ``[0, n)``; integral floats are accepted,
-    anything else raises :class:`ParameterError` naming ``what``."""
+    anything else (booleans too: a mask is not a list of ids) raises :class:`ParameterError` naming
+    ``what``. ``unique``: repeated ids are dropped, keeping the first occurrences in their order."""
     a = np.atleast_1d(np.asarray(ids))
     if a.size == 0:
         if not allow_empty:
@@ -52,6 +55,8 @@ def check_vertex_ids(ids: object, n: int, what: str = "vertex ids", *, allow_emp
     a = _integral(a, what)
     if a.min() < 0 or a.max() >= n:
         raise ParameterError(f"{what} must be vertex ids in [0, {n - 1}] (0-based), found [{a.min()}, {a.max()}]")
+    if unique:
+        a = a[np.sort(np.unique(a, return_index=True)[1])]
     return a
 
 
@@ -75,7 +80,9 @@ def check_seeds(seeds: object, n_source: int, n_target: int, *, allow_empty: boo
 def _integral(a: np.ndarray, what: str) -> np.ndarray:
     if np.issubdtype(a.dtype, np.integer):
         return a.astype(np.int64)
-    if a.dtype.kind not in "fb" or not np.all(np.isfinite(a)) or not np.all(np.mod(a, 1) == 0):
+    if a.dtype.kind == "b":  # True/False would silently become vertices 1 and 0
+        raise ParameterError(f"{what} must be integer vertex ids, got booleans (a mask? use np.flatnonzero(mask))")
+    if a.dtype.kind != "f" or not np.all(np.isfinite(a)) or not np.all(np.mod(a, 1) == 0):
         raise ParameterError(f"{what} must be integer vertex ids")
     if np.abs(a).max() > 2**62:
         raise ParameterError(f"{what} are out of range")

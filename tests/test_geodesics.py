@@ -263,3 +263,19 @@ def test_paired_distances_are_the_entries_of_the_rows(sphere3):
         g.paired_geodesic_distances(sphere3, a, b[:-1], method="dijkstra")
     with pytest.raises(ParameterError):
         g.paired_geodesic_distances(sphere3, a, b + sphere3.n_vertices, method="dijkstra")
+
+
+def test_vertex_ids_refuse_masks_and_can_drop_repeats(sphere3):
+    """A boolean mask passed where vertex ids go used to become vertices 0 and 1 silently;
+    check_vertex_ids(unique=True) keeps first occurrences in order (what keypoint lists need)."""
+    from shape_toolkit.validation import check_seeds, check_vertex_ids
+
+    mask = np.zeros(sphere3.n_vertices, dtype=bool)
+    mask[[3, 9]] = True
+    with pytest.raises(ParameterError, match="booleans"):
+        g.geodesic_distances(sphere3, mask, method="dijkstra")
+    with pytest.raises(ParameterError, match="booleans"):
+        check_seeds(np.ones((2, 2), dtype=bool), 5, 5)
+    np.testing.assert_array_equal(check_vertex_ids([7, 2, 7, 5, 2.0], 10, unique=True), [7, 2, 5])
+    np.testing.assert_array_equal(check_vertex_ids([7, 2, 7], 10), [7, 2, 7])
+    assert check_vertex_ids([], 10, unique=True).shape == (0,)
