@@ -1,4 +1,5 @@
-"""Validation of the inputs every layer shares: random states, vertex ids, seed pairs, JSON output.
+"""Validation of the inputs every layer shares: random states, vertex ids, seed pairs, JSON output,
+output files written whole (:func:`atomic_output`).
 
 One helper per kind of input, so that a bad value gets the same typed error and message wherever
 it enters the toolkit.
@@ -8,13 +9,17 @@ from __future__ import annotations
 
 import json
 import math
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from shape_toolkit.errors import ParameterError
+from shape_toolkit.errors import ParameterError, ShapeFileError
 
-__all__ = ["check_random_state", "check_vertex_ids", "check_seeds", "jsonable", "dumps_json"]
+__all__ = ["check_random_state", "check_vertex_ids", "check_seeds", "jsonable", "dumps_json", "atomic_output"]
 
 
 def check_random_state(random_state: Any) -> np.random.RandomState:
@@ -115,3 +120,25 @@ def jsonable(obj: Any) -> Any:
 def dumps_json(obj: Any, **kwargs: Any) -> str:
     """``json.dumps(jsonable(obj))``, refusing NaN and infinities (``allow_nan=False``)."""
     return json.dumps(jsonable(obj), allow_nan=False, **kwargs)
+
+
+@contextmanager
+def atomic_output(path: str | os.PathLike, what: str = "file", suffix: str = "") -> Iterator[Path]:
+    """Write ``path`` whole or not at all: checks that its folder exists and that it is not a
+    directory (:class:`ShapeFileError` naming ``what``), yields a temporary path next to it (ending
+    in ``suffix``, for writers that append one, e.g. ``.npz``) and renames it to ``path`` when the
+    block ends; on any error the temporary file is removed and ``path`` is left as it was.
+    ``OSError`` becomes :class:`ShapeFileError` ("cannot write")."""
+    p = Path(path)
+    if p.is_dir():
+        raise ShapeFileError(p, f"is a directory, expected a {what} to write")
+    if not (p.parent if str(p.parent) else Path(".")).is_dir():
+        raise ShapeFileError(p, "the output folder does not exist")
+    tmp = p.with_name(f".{p.name}.tmp{suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, p)
+    except OSError as e:
+        raise ShapeFileError(p, f"cannot write: {e.strerror or e}") from None
+    finally:
+        tmp.unlink(missing_ok=True)

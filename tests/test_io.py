@@ -220,8 +220,40 @@ def test_save_errors(sphere, tmp_mesh_dir):
         save_shape(sphere, tmp_mesh_dir / "a.abc")
     with pytest.raises(ShapeFileError, match="point cloud"):
         save_shape(Shape(sphere.vertices), tmp_mesh_dir / "a.stl")
-    with pytest.raises(ShapeFileError, match="cannot write"):
+    with pytest.raises(ShapeFileError, match="output folder does not exist"):
         save_shape(sphere, tmp_mesh_dir / "missing_dir" / "a.off")
+    (tmp_mesh_dir / "d.off").mkdir()
+    with pytest.raises(ShapeFileError, match="is a directory"):
+        save_shape(sphere, tmp_mesh_dir / "d.off")
+
+
+def test_save_is_all_or_nothing(sphere, tmp_path, monkeypatch):
+    """A writer failing half-way (here: a full disk) leaves the old file as it was and no
+    temporary file behind; the same holds for maps and trajectories (one atomic_output)."""
+    from shape_toolkit.results.correspondence import save_map
+    from shape_toolkit.results.trajectories import Trajectories
+
+    p = tmp_path / "a.off"
+    save_shape(sphere, p)
+    before = p.read_bytes()
+
+    def full_disk(fh, shape, binary):
+        fh.write(b"OFF\n")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setitem(tio._WRITERS, ".off", full_disk)
+    with pytest.raises(ShapeFileError, match="cannot write: No space left on device"):
+        save_shape(sphere, p)
+    assert p.read_bytes() == before
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["a.off"]
+    for save, name in [(lambda q: save_map(q, np.arange(4)), "m.txt"),
+                       (lambda q: Trajectories(np.arange(4)[:, None], (4,)).save(q), "t.npz")]:
+        save(tmp_path / name)
+        with pytest.raises(ShapeFileError, match="output folder does not exist"):
+            save(tmp_path / "nope" / name)
+        with pytest.raises(ShapeFileError, match="is a directory"):
+            save(tmp_path)
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["a.off", "m.txt", "t.npz"]
 
 
 # -- real data ----------------------------------------------------------------------------------

@@ -23,7 +23,6 @@ dropped; ``load_shape(..., colors=False)`` reads the geometry alone). Writers ke
 
 from __future__ import annotations
 
-import os
 import re
 import sys
 import warnings
@@ -34,6 +33,7 @@ import numpy as np
 
 from shape_toolkit.core.shape import Shape, check_no_duplicate_faces, duplicate_face_pairs
 from shape_toolkit.errors import InvalidShapeError, ParameterError, ShapeFileError
+from shape_toolkit.validation import atomic_output
 
 __all__ = [
     "MAX_FILE_BYTES",
@@ -198,17 +198,8 @@ def save_shape(shape: Shape, path: str | Path, *, binary: bool = False) -> None:
         raise ShapeFileError(p, f"cannot write format {ext or '(no extension)'!r}; known: {known}")
     if ext == ".stl" and not shape.is_mesh:
         raise ShapeFileError(p, "STL stores triangles only; this shape is a point cloud")
-    if p.is_dir():
-        raise ShapeFileError(p, "is a directory")
-    tmp = p.with_name(f".{p.name}.tmp")  # written whole, then renamed: never a half-written file
-    try:
-        with open(tmp, "wb") as fh:
-            writer(fh, shape, binary)
-        os.replace(tmp, p)
-    except OSError as e:
-        raise ShapeFileError(p, f"cannot write: {e.strerror or e}") from None
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_output(p, f"{ext[1:].upper()} file") as tmp, open(tmp, "wb") as fh:
+        writer(fh, shape, binary)
 
 
 # --------------------------------------------------------------------------------------------

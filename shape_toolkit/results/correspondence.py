@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.results.labels import _INT_TOKEN, _MAX_ABS_INT, _read_small_text, read_int_file
-from shape_toolkit.validation import check_seeds
+from shape_toolkit.validation import atomic_output, check_seeds
 
 __all__ = [
     "read_seeds",
@@ -257,14 +257,8 @@ def transfer_labels(
 def save_map(path: str | os.PathLike, corr: Correspondence | np.ndarray) -> None:
     """Write one 0-based target vertex per source vertex (``-1`` when unmatched), one per line."""
     t = corr.target_of if isinstance(corr, Correspondence) else np.asarray(corr, dtype=np.int64)
-    p = Path(path)
-    if not p.parent.exists():
-        raise ShapeFileError(p, "the output folder does not exist")
-    if p.is_dir():
-        raise ShapeFileError(p, "is a directory, expected a map file to write")
-    tmp = p.with_name(f".{p.name}.tmp")
-    np.savetxt(tmp, t, fmt="%d")
-    os.replace(tmp, p)
+    with atomic_output(path, "map file") as tmp:
+        np.savetxt(tmp, t, fmt="%d")
 
 
 def load_map(

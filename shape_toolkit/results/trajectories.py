@@ -24,7 +24,7 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.results.correspondence import Correspondence
-from shape_toolkit.validation import dumps_json
+from shape_toolkit.validation import atomic_output, dumps_json
 
 __all__ = [
     "Trajectories",
@@ -112,16 +112,11 @@ class Trajectories:
         """Write ``path`` (``.npz``): arrays ``ids``, ``n_vertices`` and ``info`` (a JSON string,
         NaN as null), plus a format tag; written to a temporary file, then renamed."""
         p = Path(path)
-        if not p.parent.exists():
-            raise ShapeFileError(p, "the output folder does not exist")
-        if p.is_dir():
-            raise ShapeFileError(p, "is a directory, expected a .npz file to write")
-        tmp = p.with_name(f".{p.name}.tmp.npz")
-        np.savez_compressed(
-            tmp, ids=self.ids, n_vertices=np.asarray(self.n_vertices, dtype=np.int64),
-            info=np.asarray(dumps_json(self.info)), format=np.asarray(FORMAT),
-        )
-        os.replace(tmp, p)
+        with atomic_output(p, ".npz file", suffix=".npz") as tmp:
+            np.savez_compressed(
+                tmp, ids=self.ids, n_vertices=np.asarray(self.n_vertices, dtype=np.int64),
+                info=np.asarray(dumps_json(self.info)), format=np.asarray(FORMAT),
+            )
         return p
 
     @classmethod
