@@ -370,12 +370,11 @@ class AssociationMatcherBase:
               source_spectrum=None, target_spectrum=None) -> np.ndarray:
         """Matched ``[source_vertex, target_vertex]`` pairs, int64 ``(q, 2)``.
 
-        With ``orientation`` ``"preserving"`` (or ``"reversing"``) on two meshes, the intrinsic
-        solution is checked with the extrinsic cue of :func:`orientation_score` (signs of triple
-        products of nearby matched keypoints on outward normals). When it has the wrong sign, its
-        mirror image ``(S(a), b)`` -- ``S`` the source's intrinsic symmetry, :func:`symmetry_map`
-        -- replaces it if that scores higher. The symmetry matcher's spectrum is declared
-        through ``spectrum_specs()``."""
+        With ``orientation`` ``"preserving"`` (or ``"reversing"``) on two meshes, the side of each
+        match is decided by :func:`orient_pairs`: ``(a, b)`` or its mirror image ``(S(a), b)``
+        (``S`` the source's intrinsic symmetry), whichever agrees better with an orientation-aware
+        functional map (:func:`side_reference`). The spectra of the symmetry and reference
+        matchers are declared through ``spectrum_specs()``."""
         if not self.sigma > 0 or not self.adf_ratio > 1 or self.max_candidates < 1:
             raise ParameterError("need sigma > 0, adf_ratio > 1 and max_candidates >= 1")
         orientation = getattr(self, "orientation", "none")
@@ -396,34 +395,117 @@ class AssociationMatcherBase:
         pairs = pairs_of(chosen)
         if orientation == "none" or not (source.is_mesh and target.is_mesh) or len(chosen) < 3:
             return pairs
-        want = 1.0 if orientation == "preserving" else -1.0
-        o1 = want * orientation_score(source, target, pairs)
-        if o1 >= 0:
-            return pairs
-        # the mirror image: the source's intrinsic symmetry S applied to the source side
-        sym = symmetry_map(source, source_spectrum)
-        mirrored = np.column_stack([sym[pairs[:, 0]], pairs[:, 1]]).astype(np.int64)
-        _, first = np.unique(mirrored[:, 0], return_index=True)
-        mirrored = mirrored[np.sort(first)]
-        o2 = want * orientation_score(source, target, mirrored)
-        return mirrored if o2 > o1 else pairs
+        return orient_pairs(source, target, pairs, source_spectrum, target_spectrum, orientation)
 
     def _nested_plugins(self) -> list:
-        return [] if getattr(self, "orientation", "none") == "none" else [symmetry_matcher()]
+        orientation = getattr(self, "orientation", "none")
+        return [] if orientation == "none" else [symmetry_matcher(), side_matcher(orientation)]
+
+
+def side_matcher(orientation: str = "preserving"):
+    """The coarse functional map matcher with the orientation term of Ren et al. 2018
+    (``fmap-zoomout``: WKS, k = 20, ZoomOut to 50 on 1000 target samples) that the thesis
+    pipelines use to tell left from right: ``orientation`` ``"preserving"`` between two shapes
+    (:func:`side_reference`), ``"reversing"`` for a shape's self-symmetry (:func:`symmetry_map`)."""
+    from shape_toolkit.api.registry import create_plugin  # by name: fmap_zoomout imports this module
+
+    return create_plugin("dense_matchers", "fmap-zoomout", k=20, orientation=orientation, zoomout_iters=6,
+                         zoomout_step=5, zoomout_samples=1000)
 
 
 def symmetry_matcher():
     """The functional map matcher with the orientation-*reversing* term: its self-map of a shape
     is the shape's intrinsic (left-right) symmetry."""
-    from shape_toolkit.api.registry import create_plugin  # by name: fmap_zoomout imports this module
-
-    return create_plugin("dense_matchers", "fmap-zoomout", k=20, orientation="reversing", zoomout_iters=6,
-                         zoomout_step=5, zoomout_samples=1000)
+    return side_matcher("reversing")
 
 
 def symmetry_map(shape: Shape, spectrum: Spectrum | Sequence[Spectrum] | None = None) -> np.ndarray:
     """The intrinsic symmetry of ``shape`` as a vertex map ``(n,)``: its self-map by
     :func:`symmetry_matcher` (descriptor-preserving and orientation-reversing), computed on the
     caller's spectra (``spectrum``: the list a pipeline hands the stages; None: the cache)."""
-    given = None if spectrum is None else (list(spectrum) if isinstance(spectrum, (list, tuple)) else [spectrum])
+    given = _given(spectrum)
     return symmetry_matcher().match(shape, shape, source_spectrum=given, target_spectrum=given).target_of
+
+
+def _given(spectrum: Spectrum | Sequence[Spectrum] | None) -> list[Spectrum] | None:
+    return None if spectrum is None else (list(spectrum) if isinstance(spectrum, (list, tuple)) else [spectrum])
+
+
+@dataclass(frozen=True)
+class SideReference:
+    """An orientation-aware functional map source -> target as a yardstick for left and right:
+    the source vertices' spectral coordinates ``source_points`` ``(n_s, k)``, the target vertices
+    carried into the same coordinates by the map ``target_points`` ``(n_t, k)`` (rows of
+    ``Phi_t C^T``, as :func:`p2p_from_fmap` compares them; ``k`` = the map's size after ZoomOut),
+    the source ``basis``, and ``k_smooth``, the size of the map fitted before ZoomOut: the
+    resolution at which :meth:`prefer` decides sides."""
+
+    source_points: np.ndarray
+    target_points: np.ndarray
+    basis: Basis
+    k_smooth: int
+
+    def sq_distances(self, src: np.ndarray, tgt: np.ndarray) -> np.ndarray:
+        """Squared spectral distances ``(q,)`` between source vertices ``src`` and the reference
+        images of target vertices ``tgt`` (both ``(q,)``): small when ``(src, tgt)`` agrees with the map."""
+        return ((self.source_points[src] - self.target_points[tgt]) ** 2).sum(axis=1)
+
+    def mean_sq_distance(self, target_of: np.ndarray) -> float:
+        """Area-weighted mean of :meth:`sq_distances` of a dense map ``target_of`` ``(n_s,)``
+        (unmatched entries, -1, are left out): how well the map agrees with the reference."""
+        ok = np.flatnonzero(np.asarray(target_of) >= 0)
+        w = self.basis.mass[ok]
+        return float((w * self.sq_distances(ok, target_of[ok])).sum() / max(w.sum(), 1e-300))
+
+    def prefer(self, target_of: np.ndarray, alternative: np.ndarray) -> np.ndarray:
+        """Boolean ``(n_s,)``: where the dense map ``alternative`` agrees better with the reference
+        than ``target_of``, decided per region -- the per-vertex difference of squared distances,
+        low-pass filtered on the source's first ``k_smooth`` eigenfunctions (a part is judged as a
+        whole; near the symmetry plane, where both candidates coincide, the vote is ~0)."""
+        t, a = np.asarray(target_of), np.asarray(alternative)
+        ok = (t >= 0) & (a >= 0)
+        ids = np.flatnonzero(ok)
+        vote = np.zeros(len(t))
+        vote[ids] = self.sq_distances(ids, t[ids]) - self.sq_distances(ids, a[ids])
+        phi = self.basis.evecs[:, : self.k_smooth]
+        smooth = phi @ (phi.T @ (self.basis.mass * vote))
+        return ok & (smooth > 0)
+
+
+def side_reference(
+    source: Shape, target: Shape, source_spectrum: Spectrum | Sequence[Spectrum] | None = None,
+    target_spectrum: Spectrum | Sequence[Spectrum] | None = None, orientation: str = "preserving",
+) -> SideReference:
+    """The :class:`SideReference` of :func:`side_matcher` (``orientation``) from ``source`` to
+    ``target``, on the caller's spectra (lists as a pipeline hands them; None: the cache).
+
+    Intrinsic descriptors and embeddings cannot tell a map from its mirror image; the functional
+    map's orientation term (``sum_f ||C O_t(f) - O_s(f) C||^2``, outward normals) can, and being
+    fitted globally at low frequency it also tells which of two mirror-image limbs is which --
+    what local triple products of matched points (:func:`orientation_score`) cannot when a
+    tubular limb is mapped onto its mirror twin with a twist."""
+    m = side_matcher(orientation)
+    gs, gt = _given(source_spectrum), _given(target_spectrum)
+    C = np.asarray(m.match(source, target, source_spectrum=gs, target_spectrum=gt).info["C"])
+    k = C.shape[0]
+    bs, bt = basis_of(m._spectrum(source, gs), k), basis_of(m._spectrum(target, gt), k)
+    return SideReference(bs.evecs[:, :k], bt.evecs[:, : C.shape[1]] @ C.T, bs, int(min(m.k, k)))
+
+
+def orient_pairs(
+    source: Shape, target: Shape, pairs: np.ndarray, source_spectrum: Spectrum | Sequence[Spectrum] | None = None,
+    target_spectrum: Spectrum | Sequence[Spectrum] | None = None, orientation: str = "preserving",
+) -> np.ndarray:
+    """Matches ``pairs`` ``(q, 2)`` with each one's side decided: ``(a, b)`` is replaced by its
+    mirror image ``(S(a), b)`` (``S`` = :func:`symmetry_map` of the source) when that agrees better
+    with :func:`side_reference`; duplicate source vertices keep their first match. int64 ``(q', 2)``."""
+    p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    if len(p) == 0:
+        return p
+    ref = side_reference(source, target, source_spectrum, target_spectrum, orientation)
+    sym = symmetry_map(source, source_spectrum)
+    mirrored = sym[p[:, 0]]
+    swap = ref.sq_distances(mirrored, p[:, 1]) < ref.sq_distances(p[:, 0], p[:, 1])
+    out = np.column_stack([np.where(swap, mirrored, p[:, 0]), p[:, 1]])
+    _, first = np.unique(out[:, 0], return_index=True)
+    return out[np.sort(first)]
