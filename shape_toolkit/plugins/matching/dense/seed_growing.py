@@ -19,7 +19,6 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.features.descriptor_score import descriptor_matching_score
 from shape_toolkit.plugins.matching._common import (
     UsesDescriptor,
     check_descriptors,
@@ -36,6 +35,20 @@ def _rings(shape: Shape, ring: int):
 
     R = k_ring_all(shape, ring).tocsr()
     return R.indptr, R.indices
+
+
+def _scale_major(desc: np.ndarray, n: int, tau: int) -> np.ndarray:
+    """Keypoint-major descriptors ``(n, M * tau)`` as a contiguous float64 ``(n, tau, M)`` cube."""
+    return np.ascontiguousarray(np.asarray(desc, dtype=np.float64).reshape(n, -1, tau).transpose(0, 2, 1))
+
+
+def _pair_scores(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Eq. 6.66 for every row pair of scale-major cubes ``a`` ``(p, tau, M)`` and ``b`` ``(q, tau, M)``:
+    ``(p, q)`` sums over the ``M`` keypoints of the max over the ``tau`` scales."""
+    d = np.abs(a[:, None, 0] - b[None, :, 0])
+    for t in range(1, a.shape[1]):
+        np.maximum(d, np.abs(a[:, None, t] - b[None, :, t]), out=d)
+    return d.sum(axis=2)
 
 
 def seed_growing(
@@ -56,16 +69,20 @@ def seed_growing(
     ip_s, ix_s = _rings(source, ring)
     ip_t, ix_t = _rings(target, ring)
     tau = int(n_times)
-    A = np.asarray(desc_src, dtype=np.float64).reshape(n, -1, tau)
-    B = np.asarray(desc_tgt, dtype=np.float64).reshape(m, -1, tau)
+    # scale-major copies (n, tau, M): the eq. 6.66 max over the tau scales becomes tau - 1
+    # elementwise maxima of contiguous (|na|, |nk|, M) blocks instead of a reduction over a short
+    # last axis (same values and summation order as descriptor_matching_score; about 2x faster)
+    A = _scale_major(desc_src, n, tau)
+    B = _scale_major(desc_tgt, m, tau)
     free_s = np.ones(n, dtype=bool)
     free_t = np.ones(m, dtype=bool)
     target_of = np.full(n, -1, dtype=np.int64)
     score = np.full(n, np.inf)
     heap = [(0.0, int(i), int(j)) for i, j in seeds]
     heapq.heapify(heap)
+    push, pop = heapq.heappush, heapq.heappop
     while heap:
-        s, i, j = heapq.heappop(heap)
+        s, i, j = pop(heap)
         if not (free_s[i] and free_t[j]) or not s < beta:
             continue
         free_s[i] = free_t[j] = False
@@ -78,12 +95,12 @@ def seed_growing(
         if na.size == 0 or nk.size == 0:
             continue
         # scores of every (a, k) pair at once: (|na|, |nk|)
-        sc = descriptor_matching_score(A, B, na, nk, pairwise=True)
+        sc = _pair_scores(A[na], B[nk])
         best = sc.argmin(axis=1)
         vals = sc[np.arange(na.size), best]
-        for a, kk, v in zip(na, nk[best], vals):
-            if v < beta:
-                heapq.heappush(heap, (float(v), int(a), int(kk)))
+        ok = vals < beta
+        for a, kk, v in zip(na[ok].tolist(), nk[best[ok]].tolist(), vals[ok].tolist()):
+            push(heap, (v, a, kk))
     return target_of, score
 
 
