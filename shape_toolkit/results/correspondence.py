@@ -282,12 +282,14 @@ def load_map(
 
 
 def nearest_neighbors(
-    points: np.ndarray, queries: np.ndarray, k: int = 1, *, chunk: int = 1024,
+    points: np.ndarray, queries: np.ndarray, k: int = 1, *, chunk: int | None = None,
     dtype: type = np.float64,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Euclidean ``k`` nearest ``points`` ``(n, d)`` of each query ``(q, d)``: squared distances
     and indices ``(q, k)`` (``(q,)`` when k == 1). KD-tree in low dimension, chunked BLAS brute
-    force in high dimension (memory ``chunk * n``, never ``q * n``). ``dtype=np.float32`` runs the
+    force in high dimension (memory ``chunk * n``, never ``q * n``; ``chunk`` None: at most 1024
+    queries and ``2**23`` distances per block, 64 MB in double precision whatever ``n``, so a
+    245k-vertex target does not take 2 GB of temporaries). ``dtype=np.float32`` runs the
     brute force in single precision (about 3x faster; near-ties within ~1e-6 relative may resolve
     differently)."""
     X = np.ascontiguousarray(points, dtype=np.float64)
@@ -301,6 +303,8 @@ def nearest_neighbors(
         i = np.asarray(i, dtype=np.int64)
         return d, i
     X, Q = X.astype(dtype, copy=False), Q.astype(dtype, copy=False)
+    if chunk is None:
+        chunk = int(np.clip(2**23 // max(1, len(X)), 16, 1024))
     xx = np.einsum("ij,ij->i", X, X)
     D = np.empty((len(Q), k))
     I = np.empty((len(Q), k), dtype=np.int64)
