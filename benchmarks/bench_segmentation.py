@@ -8,9 +8,10 @@ Each stage runs in a fresh subprocess (no spectrum cache shared between stages):
 - ``spectrum-combinatorial``: Gaussian shape graph + the 11 smallest eigenpairs of ``L = D - W``
   (what both segmenters need with their defaults, p = 10);
 - ``eigvec-gmm``: the whole segmentation with k = 6, spectrum included;
-- ``csc``: the whole segmentation with k = 6 and constraints drawn from the limb labels,
-  spectrum and the second eigensolve of the modified Laplacian included;
-- ``csc-dual``: the same on the concavity-weighted dual graph (``graph="dual"``);
+- ``csc``: the whole segmentation with its defaults (on a mesh: the concavity-weighted dual graph,
+  k-means seeded by the must-link groups), k = 6 and constraints drawn from the limb labels, both
+  eigensolves (the L-embedding and the modified Laplacian) included;
+- ``csc-vertex``: the same on the vertex graph (``graph="vertex"``, thesis 5.2), spectrum included;
 - ``ncut``: recursive normalized cuts on the dual graph, k = 6;
 - ``sdf``: shape diameter function (Open3D ray casting), GMM, graph cut, k = 6;
 - ``seeded-walk``: random walks from the same constraints' must-link groups.
@@ -68,8 +69,8 @@ with threadpool_limits({threads}):
         create_plugin("segmenters", "eigvec-gmm", n_segments=6).segment(shape)
     elif {stage!r} == "csc":
         create_plugin("segmenters", "csc", n_segments=6).segment(shape, constraints=cons)
-    elif {stage!r} == "csc-dual":
-        create_plugin("segmenters", "csc", n_segments=6, graph="dual").segment(shape, constraints=cons)
+    elif {stage!r} == "csc-vertex":
+        create_plugin("segmenters", "csc", n_segments=6, graph="vertex").segment(shape, constraints=cons)
     elif {stage!r} == "seeded-walk":
         create_plugin("segmenters", "seeded-walk").segment(shape, constraints=cons)
     else:
@@ -81,7 +82,7 @@ print(json.dumps({{"n": shape.n_vertices, "m": shape.n_faces, "seconds": dt, "pe
 
 
 #: the segmenter stages, each timed against the spectrum stage
-STAGES = ("eigvec-gmm", "csc", "csc-dual", "ncut", "sdf", "seeded-walk")
+STAGES = ("eigvec-gmm", "csc", "csc-vertex", "ncut", "sdf", "seeded-walk")
 
 
 def run_stage(sub: int, stage: str, threads: int) -> dict:

@@ -32,7 +32,9 @@ Protocol (stated again in the results file):
   8 edges either side of the cut); ``seeded-walk`` / ``seeded-walk-1ml``: the ``seeded-walk`` plugin
   (random walks from the must-link groups on the concavity-weighted dual graph) with the same
   constraints. The generator is :func:`shape_toolkit.results.labels.draw_constraints` with the
-  arguments in :func:`benchmark_constraints`.
+  arguments in :func:`benchmark_constraints`. ``csc``/``csc-1ml`` run on the vertex graph (thesis 5.2),
+  ``csc-dual``/``csc-dual-1ml`` on the concavity-weighted dual graph (CSC's default on meshes);
+  ``csc-dual-1ml-km++`` starts k-means at random rows instead of the must-link groups (ablation).
 - Time and peak memory (``tracemalloc``: numpy and Python allocations; native buffers of Open3D,
   PyMaxflow and ARPACK are not seen) per method, also per 10k faces. Spectra are computed once per
   mesh for all methods (``spectrum_specs()`` merged) and not counted in a method's time.
@@ -90,12 +92,13 @@ METHODS = [
     ("sdf-no-cut", "sdf", {"smoothing_lambda": 0.0}, None),
     ("sdf-cgal", "sdf", {"n_segments": None}, None),
     ("ncut", "ncut", {}, None),
-    ("csc", "csc", {}, "default"),
-    ("csc+smooth", "smoothed", {"base": "csc"}, "default"),
-    ("csc-1ml", "csc", {}, "one-must-link"),
-    ("csc-volume", "csc", {"cannot_mode": "volume", "epsilon": 0.05}, "default"),
+    ("csc", "csc", {"graph": "vertex"}, "default"),
+    ("csc+smooth", "smoothed", {"base": "csc", "base_params": {"graph": "vertex"}}, "default"),
+    ("csc-1ml", "csc", {"graph": "vertex"}, "one-must-link"),
+    ("csc-volume", "csc", {"graph": "vertex", "cannot_mode": "volume", "epsilon": 0.05}, "default"),
     ("csc-dual", "csc", {"graph": "dual"}, "default"),
     ("csc-dual-1ml", "csc", {"graph": "dual"}, "one-must-link"),
+    ("csc-dual-1ml-km++", "csc", {"graph": "dual", "kmeans_init": "k-means++"}, "one-must-link"),
     ("spectral-learning", "spectral-learning", {}, "default"),
     ("ccskl", "ccskl", {}, "default"),
     ("seeded-walk", "seeded-walk", {}, "default"),
@@ -497,8 +500,12 @@ def write_report(results: list[dict], out: Path, seed: int, elapsed: float, tune
         "the cut on each side, 2 clicks each) and are scored against the others. `-1ml`: the same with ONE "
         "must-link per segment (2 clicks per segment, both at least 3 rings inside it). `csc-volume` is CSC "
         "with the literal cannot-link rule (every edge of the volume set to epsilon = 0.05) instead of the "
-        "default bisector cut. `csc-dual`: CSC (Algorithm 4 unchanged) on the dual graph with the "
-        "concavity-aware affinities in (0, 1] instead of the vertex graph with Gaussian weights. "
+        "default bisector cut. `csc`, `csc-1ml`, `csc-volume`, `csc+smooth`: CSC on the vertex graph with "
+        "Gaussian weights (thesis 5.2). `csc-dual`: CSC (Algorithm 4's steps) on the dual graph with the "
+        "concavity-aware affinities in (0, 1], CSC's default on meshes (`graph='auto'`). Every CSC row "
+        "re-weights monotonically (a cannot-link gives min(w, epsilon), a must-link max(w, 1)) and starts "
+        "k-means from the must-link groups' centres (`kmeans_init='constraints'`, seeded k-means); "
+        "`csc-dual-1ml-km++` is csc-dual-1ml with random k-means starts instead (the ablation). "
         "`seeded-walk`: random walks from the must-link groups on the "
         "concavity-weighted dual graph (Lai et al. 2008 with the user's seeds; a separate method, not "
         "chapter 5's CSC). `human` = each human segmentation against the others. `eigvec-gmm-bic` chooses "
@@ -547,8 +554,10 @@ def write_report(results: list[dict], out: Path, seed: int, elapsed: float, tune
                   f"{'met' if vb <= 0.13 else 'NOT met'}); tuning split "
                   f"{_fmt(_category_mean(tune_res, best, 'rand_index_error'))}; all meshes "
                   f"{_fmt(_category_mean(results, best, 'rand_index_error'))}"]
-        for cname, what in (("csc-1ml", "csc with one must-link per segment (csc-1ml, vertex graph, thesis default)"),
-                            ("csc-dual-1ml", "csc on the concavity-weighted dual graph, same clicks (csc-dual-1ml)"),
+        for cname, what in (("csc-dual-1ml", "csc with one must-link per segment, its default on meshes "
+                                             "(csc-dual-1ml: concavity-weighted dual graph)"),
+                            ("csc-1ml", "csc on the vertex graph (thesis 5.2), same clicks (csc-1ml)"),
+                            ("csc-dual-1ml-km++", "csc-dual-1ml with random k-means starts (csc-dual-1ml-km++)"),
                             ("seeded-walk-1ml", "seeded-walk with the same clicks (seeded-walk-1ml)")):
             if cname in names:
                 vc = _category_mean(held, cname, "rand_index_error")

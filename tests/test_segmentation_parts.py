@@ -204,3 +204,96 @@ def test_csc_on_the_dual_graph(body):
     assert W.shape == (b.shape.n_faces, b.shape.n_faces) and 0 < W.data.min() and W.data.max() <= 1.0
     with pytest.raises(ParameterError, match="graph"):
         create_plugin("segmenters", "csc", n_segments=6, graph="faces").segment(b.shape, constraints=cons)
+
+
+def _slab_with_two_bumps(nx: int = 120, ny: int = 10, size: int = 4, height: float = 0.3) -> tuple[Shape, np.ndarray]:
+    """An open flat strip ``nx`` x ``ny`` grid cells (0.1 apart) with a square bump of ``size`` cells
+    near each end: one large elongated part and two small ones behind concave creases (the shape of
+    PSB's mechanical part 328). Returns the mesh and the vertex labels (0 strip, 1 and 2 the bumps)."""
+    xs, ys = np.meshgrid(np.arange(nx + 1) * 0.1, np.arange(ny + 1) * 0.1, indexing="ij")
+    z = np.zeros_like(xs)
+    lab = np.zeros(xs.shape, dtype=np.int64)
+    for b, i0 in enumerate((10, nx - 10 - size), start=1):
+        z[i0:i0 + size + 1, 2:2 + size + 1] = height
+        lab[i0:i0 + size + 1, 2:2 + size + 1] = b
+    idx = np.arange(xs.size).reshape(xs.shape)
+    a, b_, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    faces = np.concatenate([np.column_stack([a, b_, c]), np.column_stack([a, c, d])])
+    return Shape(np.column_stack([xs.ravel(), ys.ravel(), z.ravel()]), faces), lab.ravel()
+
+
+def test_csc_constraints_never_raise_a_cannot_link_or_lower_a_must_link_affinity():
+    """On the dual graph sharp concave creases weigh ``min_weight`` (1e-3) < ``epsilon`` (1e-2): setting
+    a cannot-link edge *to* epsilon (the literal rule) made the crease between the constrained parts
+    10x stronger, the opposite of the constraint. Now ``min(w, epsilon)`` / ``max(w, must_weight)``."""
+    shape, vl = _slab_with_two_bumps()
+    cons = draw_constraints(vl, shape.edges, n_must_per_segment=1, n_cannot_per_boundary=3, random_state=0)
+    seg = create_plugin("segmenters", "csc", n_segments=3, graph="dual")
+    W = seg._dual_graph(shape)[0]
+    assert W.data.min() < seg.epsilon  # the creases are cheaper than epsilon: the case that broke
+    cannot_only = seg.modified_weights(shape, Constraints(None, cons.cannot_link))
+    assert seg.n_cannot_edges_ > 0 and (cannot_only - W).max() <= 0
+    must_only = seg.modified_weights(shape, Constraints(cons.must_link, None))
+    assert seg.n_must_edges_ > 0 and (must_only - W).min() >= 0
+    assert must_only.nnz == cannot_only.nnz == W.nnz  # the topology is kept
+    # the vertex graph (Gaussian weights well above epsilon): the literal rule, unchanged
+    vseg = create_plugin("segmenters", "csc", n_segments=3, graph="vertex")
+    Wv0 = vseg.modified_weights(shape, None)
+    Wv = vseg.modified_weights(shape, Constraints(None, cons.cannot_link))
+    changed = (Wv != Wv0).data if (Wv != Wv0).nnz else np.zeros(0)
+    assert vseg.n_cannot_edges_ > 0 and Wv0.data.min() > vseg.epsilon and len(changed)
+    assert np.allclose(Wv[Wv != Wv0], vseg.epsilon)
+
+
+def test_csc_kmeans_starts_from_the_clicks():
+    """A large elongated part and two small ones: k-means from random rows (k-means++) of the modified
+    embedding splits the strip (a lower k-means objective than the clicked parts: PSB mech 328 went
+    to a Rand index error of 0.43); started from the must-link groups' centres (seeded k-means) it
+    returns the clicked parts."""
+    shape, vl = _slab_with_two_bumps()
+    truth = vertex_to_face_labels(shape.faces, vl)
+    cons = draw_constraints(vl, shape.edges, n_must_per_segment=1, n_cannot_per_boundary=3, random_state=0)
+    seeded = create_plugin("segmenters", "csc", n_segments=3)  # defaults: dual graph on a mesh, seeded
+    seeded.segment(shape, constraints=cons)
+    assert seeded.n_seed_groups_ == 3 and len(np.unique(seeded.face_labels_)) == 3
+    assert rand_index_error(seeded.face_labels_, truth) < 0.06
+    free = create_plugin("segmenters", "csc", n_segments=3, kmeans_init="k-means++")
+    free.segment(shape, constraints=cons)
+    assert rand_index_error(free.face_labels_, truth) > 0.3
+    with pytest.raises(ParameterError, match="kmeans_init"):
+        create_plugin("segmenters", "csc", n_segments=3, kmeans_init="random").segment(shape, constraints=cons)
+
+
+def test_seeded_kmeans_groups_and_order_independence():
+    from shape_toolkit.plugins.segmenters._common import must_link_groups, seeded_kmeans_labels
+
+    groups = must_link_groups(np.array([[5, 1], [1, 7], [2, 3]]))
+    assert sorted(map(list, groups)) == [[1, 5, 7], [2, 3]] and must_link_groups(np.zeros((0, 2))) == []
+    rng = np.random.default_rng(0)
+    centres = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0]])
+    X = np.concatenate([c + rng.normal(scale=0.5, size=(30, 2)) for c in centres])
+    truth = np.repeat(np.arange(4), 30)
+    seeds = [np.array([0, 1]), np.array([30, 31]), np.array([60]), np.array([90, 91])]
+    for k, g in ((4, seeds), (4, seeds[:2]), (2, seeds)):  # as many groups as k, fewer, more
+        lab = seeded_kmeans_labels(X, k, g, 0)
+        assert len(np.unique(lab)) == k
+        if k == 4:
+            assert rand_index_error(lab, truth) == 0.0
+        perm = rng.permutation(len(X))
+        inv = np.argsort(perm)
+        lab_p = seeded_kmeans_labels(X[perm], k, [inv[s] for s in g], 0)
+        assert rand_index_error(lab_p[inv], lab) == 0.0
+
+
+def test_csc_graph_auto_is_dual_on_meshes_and_vertex_on_point_clouds(body):
+    b, _ = body
+    cons = draw_constraints(b.labels, b.shape.edges, n_must_per_segment=1, n_cannot_per_boundary=1, random_state=0)
+    seg = create_plugin("segmenters", "csc", n_segments=6)
+    assert seg.graph == "auto" and seg.spectrum_spec() is None
+    seg.segment(b.shape, constraints=cons)
+    assert seg.face_labels_.shape == (b.shape.n_faces,)
+    cloud = Shape(b.shape.vertices)
+    seg_c = create_plugin("segmenters", "csc", n_segments=6)
+    v = seg_c.segment(cloud, constraints=cons)
+    assert v.shape == (cloud.n_vertices,) and not hasattr(seg_c, "face_labels_")
+    assert rand_index_error(v, b.labels) < 0.25

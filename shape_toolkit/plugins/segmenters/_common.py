@@ -68,6 +68,69 @@ def kmeans_labels(X: np.ndarray, k: int, random_state: Any, n_init: int = 10) ->
         return relabel_consecutive(fit_predict_invariant(km, X))
 
 
+def must_link_groups(must_link: np.ndarray) -> list[np.ndarray]:
+    """The node sets ``[ids, ...]`` joined by the ``(m, 2)`` must-link pairs: connected components of
+    the must-link graph over the constrained nodes (a chain of clicks is one group), each sorted."""
+    from scipy.sparse.csgraph import connected_components
+
+    ml = np.asarray(must_link, dtype=np.int64).reshape(-1, 2)
+    if len(ml) == 0:
+        return []
+    nodes, inv = np.unique(ml, return_inverse=True)
+    inv = inv.reshape(-1, 2)
+    g = sp.coo_matrix((np.ones(len(ml)), (inv[:, 0], inv[:, 1])), shape=(len(nodes), len(nodes)))
+    _, comp = connected_components(g, directed=False)
+    return [nodes[comp == c] for c in range(int(comp.max()) + 1)]
+
+
+def seeded_kmeans_labels(
+    X: np.ndarray, k: int, groups: list[np.ndarray], random_state: Any, n_init: int = 10
+) -> np.ndarray:
+    """K-means labels of the rows of ``X`` ``(n, d)`` started from the user's must-link ``groups`` (row
+    ids; seeded k-means, Basu, Banerjee & Mooney 2002): the initial centres are the groups' mean rows;
+    with more than ``k`` groups, ``k`` of them by farthest-first traversal (from the one farthest from
+    their mean); with fewer, the missing centres are drawn by k-means++ given the seeded ones (best
+    inertia of ``n_init`` draws, ``random_state`` an int seed). The k-means objective is unchanged, only
+    its starting point comes from the clicks instead of random rows; independent of the row order
+    (:func:`canonical_order`). Renumbered by first appearance."""
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    cents = np.array([X[np.asarray(g)].mean(axis=0) for g in groups]).reshape(-1, X.shape[1])
+    if len(cents) == 0:
+        return kmeans_labels(X, k, random_state, n_init)
+
+    def sq(A: np.ndarray, c: np.ndarray) -> np.ndarray:
+        return ((A - c) ** 2).sum(axis=1)
+
+    if len(cents) >= k:
+        sel = [int(np.argmax(sq(cents, cents.mean(axis=0))))]
+        d = sq(cents, cents[sel[0]])
+        while len(sel) < k:
+            sel.append(int(np.argmax(d)))
+            d = np.minimum(d, sq(cents, cents[sel[-1]]))
+        inits = [cents[sel]]
+        Xo = X
+    else:
+        Xo = X[canonical_order(X)]
+        rng = np.random.default_rng(random_state)
+        d0 = np.min(np.stack([sq(Xo, c) for c in cents]), axis=0)
+        inits = []
+        for _ in range(max(1, int(n_init))):
+            c, d = list(cents), d0.copy()
+            while len(c) < k:
+                tot = float(d.sum())
+                j = int(rng.choice(len(Xo), p=d / tot)) if tot > 0 else int(rng.integers(len(Xo)))
+                c.append(Xo[j])
+                d = np.minimum(d, sq(Xo, Xo[j]))
+            inits.append(np.array(c))
+    best, best_inertia = None, np.inf
+    with single_thread():
+        for init in inits:
+            km = KMeans(n_clusters=k, init=init, n_init=1).fit(Xo)
+            if km.inertia_ < best_inertia:
+                best, best_inertia = km, km.inertia_
+    return relabel_consecutive(np.asarray(best.predict(X), dtype=np.int64))
+
+
 def single_thread() -> threadpool_limits:
     """Context limiting OpenMP/BLAS pools to one thread: k-means and GMM fits on a few thousand
     low-dimensional points are much faster without thread start-up and contention."""
