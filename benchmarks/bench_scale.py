@@ -297,7 +297,9 @@ def write_report(res: dict, out: Path) -> None:
     """``scale.md`` (and ``scale.json`` next to it) from the rows of a run."""
     out.with_suffix(".json").write_text(json.dumps(res, indent=1))
     rows = res["rows"]
-    cur = [r for r in rows if r.get("kind") == "scale" and r["impl"] == "current" and "error" not in r]
+    order = {name: i for i, name in enumerate(["spectrum", *MATCHERS])}
+    cur = sorted((r for r in rows if r.get("kind") == "scale" and r["impl"] == "current" and "error" not in r),
+                 key=lambda r: (r["split"], order.get(r["stage"], 99)))
     lines = [
         "# Scale: EM registration and seed growing on 20k-245k-vertex pairs",
         "",
@@ -387,12 +389,26 @@ def main(argv: list[str] | None = None) -> int:
                     help="held-out tosca5k pairs for the before/after accuracy check ('' to skip)")
     ap.add_argument("--output", type=Path, default=RESULTS)
     ap.add_argument("--report-only", action="store_true", help="rewrite the .md from the .json")
+    ap.add_argument("--merge", nargs="+", type=Path, metavar="JSON",
+                    help="write the report of the rows of these earlier runs' .json files together "
+                    "(e.g. runs with different --stages and --splits)")
+    ap.add_argument("--notes", default="", help="text added at the end of the report")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--split", type=int, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     data = data_dir(args.data)
     if args.child:
         print(json.dumps(child(args.child.split(","), data, *args.pair, args.split, args.baseline_dir)))
+        return 0
+    if args.merge:
+        parts = [json.loads(p.read_text()) for p in args.merge]
+        res = {**parts[0], "rows": [r for p in parts for r in p["rows"]],
+               "command": "; ".join(p["command"] for p in parts) + " (merged)",
+               "date": ", ".join(dict.fromkeys(p["date"] for p in parts)),
+               "load": [min(p["load"][0] for p in parts), max(p["load"][1] for p in parts)],
+               "notes": args.notes or parts[0].get("notes", "")}
+        write_report(res, args.output)
+        print(args.output.read_text())
         return 0
     if args.report_only:
         write_report(json.loads(args.output.with_suffix(".json").read_text()), args.output)
@@ -405,7 +421,7 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     res = {"command": "python benchmarks/bench_scale.py " + " ".join(argv if argv is not None else sys.argv[1:]),
            "date": time.strftime("%Y-%m-%d %H:%M"), "machine": platform.platform(),
-           "load": [os.getloadavg()[0], 0.0], "rows": rows}
+           "load": [os.getloadavg()[0], 0.0], "rows": rows, "notes": args.notes}
     with tempfile.TemporaryDirectory() as tmp:
         base = args.baseline_dir
         if args.baseline_commit:

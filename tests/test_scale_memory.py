@@ -242,3 +242,44 @@ def test_bench_subdivision_keeps_original_ids():
 
 def _area(V: np.ndarray, F: np.ndarray) -> float:
     return 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
+
+
+# -- memory growth with the vertex count (tracemalloc, in process) ----------------------------------
+def _traced_peak_mb(which: str, s: int) -> tuple[int, float]:
+    """Vertex count and tracemalloc peak (MB, numpy buffers included) of one ``match`` call of the
+    matcher ``which`` on the synthetic pair split ``s x s``; spectra computed before tracing."""
+    import tracemalloc
+
+    spec = importlib.util.spec_from_file_location("bench_scale", REPO / "benchmarks" / "bench_scale.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    from shape_toolkit.core.shape import Shape
+
+    shapes = []
+    for angles in (ANGLES_A, ANGLES_B):
+        S = articulated_shape(angles, subdivisions=4).shape
+        shapes.append(Shape(*mod.subdivide_keep_ids(np.asarray(S.vertices), np.asarray(S.faces), s)))
+    A, B = shapes
+    ids = np.random.default_rng(0).choice(2562, 30, replace=False)  # original vertices: same on every s
+    m = create_plugin("dense_matchers", which)
+    specs = m.spectrum_specs()
+    sa, sb = [x.compute(A) for x in specs], [x.compute(B) for x in specs]
+    tracemalloc.start()
+    try:
+        c = m.match(A, B, seeds=np.column_stack([ids, ids]), source_spectrum=sa, target_spectrum=sb)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert c.n_matched > 0.8 * A.n_vertices
+    return A.n_vertices, peak / 2**20
+
+
+@pytest.mark.parametrize("which", ["seed-growing", "em-registration"])
+def test_matcher_memory_grows_linearly(which):
+    """Peak traced memory of a whole ``match`` at 2,562 and 10,242 vertices (4x): linear growth gives
+    a ratio near 4 (less with fixed costs), any ``n x n'`` block gives about 16. The bound, 2x the
+    size ratio, fails on quadratic memory without asserting anything about time."""
+    n1, p1 = _traced_peak_mb(which, 1)
+    n2, p2 = _traced_peak_mb(which, 2)
+    assert n2 / n1 == pytest.approx(10242 / 2562)
+    assert p2 / p1 < 2.0 * (n2 / n1), (p1, p2)
