@@ -164,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
     ap.add_argument("--geodesics", default="dijkstra", choices=["dijkstra", "heat", "fmm", "exact"])
     ap.add_argument("--output", default=str(RESULTS / "tosca_matching.md"))
+    ap.add_argument("--note", default="", help="a paragraph written under the summary table")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--pairs-json", help=argparse.SUPPRESS)
     ap.add_argument("--out-dir", help=argparse.SUPPRESS)
@@ -226,11 +227,18 @@ def main(argv: list[str] | None = None) -> int:
                 for p, x, s in zip(per[m]["pairs"], per[m]["err"], secs)
             ],
         })
-    write_results(summary, Path(args.output), len(pairs), args.geodesics, time.time() - t_start)
+    shown = [a for a in (argv if argv is not None else sys.argv[1:])]
+    if "--note" in shown:  # the note is printed below the table, not in the command line
+        i = shown.index("--note")
+        del shown[i : i + 2]
+    command = " ".join(["python benchmarks/tosca_matching.py", *shown])
+    write_results(summary, Path(args.output), len(pairs), args.geodesics, time.time() - t_start,
+                  command, args.note)
     return 0
 
 
-def write_results(summary: list[dict], output: Path, n_pairs: int, geodesics: str, wall: float) -> None:
+def write_results(summary: list[dict], output: Path, n_pairs: int, geodesics: str, wall: float,
+                  command: str = "python benchmarks/tosca_matching.py", note: str = "") -> None:
     """Markdown table + JSON + PNG curves."""
     output.parent.mkdir(parents=True, exist_ok=True)
     output.with_suffix(".json").write_text(json.dumps(summary, indent=1))
@@ -262,7 +270,7 @@ def write_results(summary: list[dict], output: Path, n_pairs: int, geodesics: st
     lines = [
         "# Dense correspondence on TOSCA (tosca5k, pairs.txt)",
         "",
-        f"Regenerate: `python benchmarks/tosca_matching.py` ({n_pairs} pairs, geodesics: {geodesics}, "
+        f"Regenerate: `{command}` ({n_pairs} pairs, geodesics: {geodesics}, "
         f"whole run {wall / 60:.1f} min on a shared 2-core machine, one BLAS thread; speed ratios use "
         "CPU time, wall times depend on the machine's load while each method ran).",
         "Protocol: see the docstring of `benchmarks/tosca_matching.py` (A -> B maps, error on B divided by "
@@ -284,12 +292,14 @@ def write_results(summary: list[dict], output: Path, n_pairs: int, geodesics: st
         "",
         f"![error curves]({png.name})",
         "",
+        *([note, ""] if note else []),
         "`flipped pairs`: pairs whose mean error is more than twice (+0.02) the symmetric-aware one, i.e. "
         "maps that swap left and right. Left-right disambiguation: `zoomout` and `zoomout-fast` use the "
         "orientation-preserving term of Ren et al. 2018 in the functional map fit (outward normals); "
-        "`sharma2012`, `topo-robust`, `seed-growing` and `ovsjanikov2010` check their keypoint matches with "
-        "the triple-product cue (`matching._common.orientation_score`) and take the mirror image through the "
-        "source's intrinsic symmetry when it is wrong; `em-registration` does the same on its dense map; "
+        "`sharma2012`, `topo-robust`, `seed-growing` and `ovsjanikov2010` decide the side of each keypoint "
+        "match against a coarse functional map with that term (`matching._common.side_reference`): a match "
+        "(a, b) or its mirror image (S(a), b), S the source's intrinsic symmetry, whichever agrees better; "
+        "`em-registration` decides per region of its dense map between T(x) and T(S(x)) the same way; "
         "`mateus2008` is the published baseline and matches up to symmetry (thesis 7.2.1).",
         "",
         "## Per pair (mean error / seconds)",
