@@ -471,3 +471,44 @@ def test_local_gram_schmidt_falls_back_to_full_passes_when_needed():
     assert np.abs(P.T @ W).max() < 1e-12
     np.testing.assert_allclose(W.T @ W, np.eye(b), atol=1e-12)
     np.testing.assert_allclose(P @ h + W @ R, W0, rtol=0, atol=1e-8 * np.abs(W0).max())
+
+
+# -- default block size: escalation when a cluster fills the block ------------------------------------
+def test_largest_cluster_counts_equal_neighbours():
+    from shape_toolkit.core.eigen import _largest_cluster
+
+    vals = np.array([0.0, 1e-14, 2.0, 2.0 * (1 + 1e-12), 2.0, 6.0, 6.0 * (1 + 1e-6)])
+    assert _largest_cluster(vals, 1e-8, 1e-10) == 3  # the 2s; 0 twice; 6 and 6(1 + 1e-6) are distinct
+    assert _largest_cluster(vals, 1e-5, 1e-10) == 3
+    assert _largest_cluster(np.array([3.0]), 1e-8, 0.0) == 1
+
+
+@pytest.mark.parametrize("k", [9, 25])
+def test_default_block_escalates_until_every_copy_of_a_round_sphere_cluster_is_found(sphere, k):
+    """k = 9 / 25 end on the l = 2 / l = 4 cluster (5 / 9 copies; on the icosphere the icosahedral symmetry
+    keeps l = 2 exactly 5-fold and splits l = 4 into exact 4 + 5): a cluster as large as the default block
+    of 4 makes it double, and every copy comes back (1e-10 against LAPACK)."""
+    from shape_toolkit.core.eigen import _largest_cluster
+
+    A, mass, _ = sphere
+    s = 1 / np.sqrt(mass)
+    ref = la.eigh(A.toarray() * s[:, None] * s[None, :], eigvals_only=True, subset_by_index=(0, k - 1))
+    info: dict = {}
+    vals, vecs = smallest_eigenpairs(A, k, mass, info=info)
+    np.testing.assert_allclose(vals[1:], ref[1:], rtol=1e-10)
+    ell = int(round(np.sqrt(k))) - 1  # the last full cluster: l(l + 1), 2l + 1 copies
+    assert np.sum(np.abs(vals - ell * (ell + 1)) < 0.05 * ell * (ell + 1)) == 2 * ell + 1
+    exact = _largest_cluster(ref[1:], 1e-9, 0.0)
+    assert exact == 5  # the l = 2 cluster (and l = 4's 5-fold part)
+    assert info["escalated_from"][0]["block_size"] == 4  # it started at 4 and saw a full block
+    assert info["block_size"] == 8 > exact  # and stopped at the first block larger than every cluster
+    np.testing.assert_allclose(vecs.T @ (mass[:, None] * vecs), np.eye(k), atol=1e-10)
+
+
+def test_default_block_does_not_escalate_without_symmetry():
+    """A grid with a random mass (no repeated eigenvalues) keeps the first block: one solve."""
+    A, d, ref, _ = _grid_case(31, 37, 20, seed=3)
+    info: dict = {}
+    vals, _ = smallest_eigenpairs(A, 20, d, info=info)
+    assert info["method"] == "krylov" and info["block_size"] == 4 and "escalated_from" not in info
+    np.testing.assert_allclose(vals[1:], ref[1:20], rtol=1e-10)

@@ -354,6 +354,28 @@ def _block_krylov_schur(
 
 
 # -- the solvers ------------------------------------------------------------------------------------
+def _basis_size(n: int, k: int, b: int, max_basis: int | None) -> int:
+    """The block solver's basis size (columns) for ``k`` eigenpairs in blocks of ``b`` on ``n`` unknowns."""
+    # a basis of at least 16 blocks: at k = 20 (5k vertices) 64 columns instead of 48 halve the restarts for
+    # 5-15% less CPU time (5 meshes of 500-5k vertices, best of 7-9 interleaved runs; eigensolver_notes.md)
+    m = int(max_basis) if max_basis is not None else max(2 * k + 2 * b, k + 6 * b, 16 * b)
+    return min(m, n - b)
+
+
+def _largest_cluster(vals: np.ndarray, rtol: float, atol: float) -> int:
+    """The size of the largest group of equal values in ``vals`` ``(k,)``: neighbours (sorted) within
+    ``rtol`` of their magnitude plus ``atol`` are one group."""
+    v = np.sort(np.asarray(vals, dtype=np.float64))
+    if v.size == 0:
+        return 0
+    close = np.diff(v) <= rtol * np.maximum(np.abs(v[1:]), np.abs(v[:-1])) + atol
+    best = run = 1
+    for c in close:
+        run = run + 1 if c else 1
+        best = max(best, run)
+    return best
+
+
 def _prefer_dense(n: int, k: int) -> bool:
     """Whether ``method="auto"`` solves an ``n x n`` problem for ``k`` eigenpairs with dense LAPACK."""
     return n <= max(DENSE_MAX_N, DENSE_PER_K * k) or 3 * k >= n
@@ -475,8 +497,11 @@ def smallest_eigenpairs(
     method can), which bounds the relative eigenvalue error; the eigenvalues returned by
     ``"krylov"`` are Rayleigh quotients, whose error is in practice about ``tol**2``.
     ``sigma`` (default ``-1e-8 * max(diag(A) / diag(M))``) must be negative. ``block_size``,
-    ``max_basis`` and ``max_restarts`` tune ``"krylov"``. ``blas_threads`` caps the BLAS thread
-    pools during the call (through ``threadpoolctl``, restored afterwards): ``"auto"`` uses
+    ``max_basis`` and ``max_restarts`` tune ``"krylov"``; by default the block is 4 vectors up to k = 64,
+    else 8, and doubles (a new solve) while a returned eigenvalue has as many copies as the block
+    (``info['escalated_from']``), since a block of b vectors can miss copies beyond b.
+    ``blas_threads`` caps the BLAS thread pools during the call (through ``threadpoolctl``, restored
+    afterwards): ``"auto"`` uses
     :data:`DEFAULT_BLAS_THREADS`, an integer is used as is, None leaves the process's setting.
     ``info``, if given, is filled with what was done (method, factorization backend, operator
     applications, restarts, BLAS threads).
@@ -585,17 +610,15 @@ def _solve_checked(
         vals, vecs = _dense(A, k, Ms, dM)
         return vals, fix_signs(vecs, copy=False)
 
-    # block 8: a block Krylov method finds at most b copies of a repeated eigenvalue in exact arithmetic.
-    # Block 4 was 10% cheaper at 5k / k = 50 but missed one copy of the 5-fold l = 2 cluster of a round
-    # sphere in a full test run (the 5th copy came only from rounding); symmetric shapes (generated
-    # bodies with alike limbs) have such clusters, and a missed eigenvalue is a silently wrong spectrum.
-    b = int(block_size) if block_size is not None else 8
+    # block 4 up to k = 64 (at 5k vertices, k = 50: 10% less CPU than block 8; at 2k / k = 20: 20% less), else
+    # 8. A block Krylov method finds at most b copies of a repeated eigenvalue in exact arithmetic, so when
+    # b copies (or more) of one eigenvalue come back, more may have been missed (block 4 once returned 4 of
+    # a round sphere's 5-fold l = 2 cluster): the default block then doubles until every cluster found is
+    # smaller than the block (_escalate_block). Shapes without exact symmetry never pay for this.
+    b = int(block_size) if block_size is not None else (4 if k <= 64 else 8)
     if b < 1:
         raise ParameterError(f"block_size must be >= 1, got {block_size}")
-    # a basis of at least 16 blocks: at k = 20 (5k vertices) 64 columns instead of 48 halve the restarts for
-    # 5-15% less CPU time (5 meshes of 500-5k vertices, best of 7-9 interleaved runs; eigensolver_notes.md)
-    m = int(max_basis) if max_basis is not None else max(2 * k + 2 * b, k + 6 * b, 16 * b)
-    m = min(m, n - b)
+    m = _basis_size(n, k, b, max_basis)
     if m < k + 2 * b:
         raise ParameterError(
             f"k={k} is too close to n={n} for a sparse solver: use method='dense'"
@@ -637,10 +660,21 @@ def _solve_checked(
             solve(B, X)
             X *= sqc
 
-        theta, Y, stats = _block_krylov_schur(
-            op, n, k, tol=max(tol, KRYLOV_MIN_TOL), block=b, max_basis=m, max_restarts=max_restarts
-        )
-        info.update(stats, block_size=b, max_basis=m)
+        while True:
+            theta, Y, stats = _block_krylov_schur(
+                op, n, k, tol=max(tol, KRYLOV_MIN_TOL), block=b, max_basis=m, max_restarts=max_restarts
+            )
+            info.update(stats, block_size=b, max_basis=m)
+            if block_size is not None:
+                break
+            cluster = _largest_cluster(sigma + 1.0 / theta, max(tol, KRYLOV_MIN_TOL), abs(sigma))
+            b2 = 2 * b
+            m2 = _basis_size(n, k, b2, max_basis)
+            if cluster < b or m2 < k + 2 * b2:
+                break
+            info.setdefault("escalated_from", []).append({"block_size": b, "cluster": cluster,
+                                                          "n_op": stats["n_op"]})  # fmt: skip
+            b, m = b2, m2
         vecs = Y
         vecs /= sqc  # in place: the (n, k) blocks are the memory peak after the basis
         lam_theta = sigma + 1.0 / theta
