@@ -18,7 +18,13 @@ from shape_toolkit.data.corruptions import CORRUPTIONS, apply_corruption, carry_
 from shape_toolkit.data.synthetic import articulated_shape, procedural_texture, synthetic_dataset
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.pipeline import PRESETS, load_pipeline
-from shape_toolkit.plugins.matching._common import orientation_score, outward_vertex_normals
+from shape_toolkit.plugins.matching._common import (
+    orient_pairs,
+    orientation_score,
+    outward_vertex_normals,
+    side_reference,
+    symmetry_map,
+)
 from shape_toolkit.plugins.matching.dense.fmap_zoomout import farthest_point_sampling
 from shape_toolkit.plugins.matching.sparse.photometric import PhotometricMatcher
 
@@ -101,6 +107,59 @@ def test_replicator_orientation_parameter(pair):
     right = np.linalg.norm(pos[P[:, 1]] - pos[P[:, 0]], axis=1)
     wrong = np.linalg.norm(pos[P[:, 1]] - pos[mirror[P[:, 0]]], axis=1)
     assert np.mean(right <= wrong + 1e-9) >= 0.5
+
+
+def _legs_swapped(A, mirror):
+    """The FAUST failure mode: right on the body, arms and head, the two legs (limbs 3 and 4 of
+    the generator) swapped with their mirror images."""
+    legs = np.isin(A.labels, [3, 4])
+    ids = np.arange(A.shape.n_vertices)
+    return np.where(legs, mirror, ids), legs
+
+
+def _mean_err(B, target_of):
+    pos = np.asarray(B.shape.vertices)
+    return float(np.mean(np.linalg.norm(pos[target_of] - pos, axis=1)) / np.sqrt(B.shape.area))
+
+
+def test_side_reference_finds_and_fixes_swapped_legs(pair):
+    """Local triple products cannot see a limb mapped onto its mirror twin; the orientation-aware
+    functional map must: it prefers the true map to its mirror image, and per region it puts
+    exactly the swapped legs back (ground truth: the identity)."""
+    A, B, mirror = pair
+    ids = np.arange(A.shape.n_vertices)
+    ref = side_reference(A.shape, B.shape)
+    assert ref.mean_sq_distance(ids) < 0.5 * ref.mean_sq_distance(mirror)
+    flipped = side_reference(A.shape, B.shape, orientation="reversing")  # the other convention
+    assert flipped.mean_sq_distance(mirror) < 0.5 * flipped.mean_sq_distance(ids)
+    sym = symmetry_map(A.shape)
+    pos = np.asarray(A.shape.vertices)
+    assert np.median(np.linalg.norm(pos[sym] - pos[mirror], axis=1)) < 0.1  # the intrinsic symmetry
+    partial, legs = _legs_swapped(A, mirror)
+    swap = ref.prefer(partial, partial[sym])
+    far = np.abs(np.asarray(A.shape.vertices)[:, 0]) > 0.3  # away from the symmetry plane
+    assert np.mean(swap[legs & far]) > 0.9 and np.mean(swap[~legs & far]) < 0.1
+    fixed = np.where(swap, partial[sym], partial)
+    assert _mean_err(B, partial) > 0.04 and _mean_err(B, fixed) < 0.01  # measured 0.058 and 0.005
+    assert not ref.prefer(ids, ids[sym])[far].any()  # a right map is left alone
+
+
+def test_sparse_and_em_stages_fix_swapped_legs(pair):
+    A, B, mirror = pair
+    partial, legs = _legs_swapped(A, mirror)
+    s = farthest_point_sampling(np.asarray(A.shape.vertices), 40)
+    pairs = np.column_stack([s, partial[s]])
+    fixed = orient_pairs(A.shape, B.shape, pairs)
+    pos = np.asarray(B.shape.vertices)
+    right = np.linalg.norm(pos[fixed[:, 1]] - pos[fixed[:, 0]], axis=1) < 0.2
+    assert np.mean(right) > 0.9 and np.mean(legs[s]) > 0.2  # the legs were in the sample
+    kw = dict(k=8, k_final=24)
+    em = create_plugin("dense_matchers", "em-registration", **kw).match(A.shape, B.shape, seeds=pairs)
+    naive = create_plugin("dense_matchers", "em-registration", orientation="none", **kw).match(
+        A.shape, B.shape, seeds=pairs)
+    # from the legs-swapped seeds: measured 0.0014 with the side decision, 0.022 without
+    assert _mean_err(B, em.target_of) < 0.01 < 0.015 < _mean_err(B, naive.target_of)
+    assert em.info["orientation_flipped"] == "local" and 0 < em.info["orientation_mirrored_area"] < 0.5
 
 
 # -- EM: the thesis's embedding -------------------------------------------------------------------
