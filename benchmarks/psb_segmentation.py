@@ -611,6 +611,22 @@ def write_report(results: list[dict], out: Path, seed: int, elapsed: float, tune
         "the others, so where that person disagrees with the rest (`human-0` rows, e.g. a cup, a table, a vase of "
         "the held-out split) a method that follows the clicks inherits the disagreement; the `-loo` rows average "
         "over every human as the clicking person, which is what the human consistency averages too.",
+        "- CSC failures diagnosed on single meshes (`--meshes ID --methods csc-dual-1ml --no-tune`), before the "
+        "two changes now in every CSC row: (1) mech 328 (tuning), 0.43 with the clicks of a person at 0.003: the "
+        "modified embedding's k-means optimum split the large plate in two rather than separate the two small "
+        "clicked parts (its objective is lower there: the unnormalized Laplacian's balance bias); started from "
+        "the must-link groups it gives 0.003 (`csc-dual-1ml-km++` keeps random starts: 0.351 with the other "
+        "change alone). (2) On the dual graph a sharp concave crease weighs 1e-3, below epsilon = 1e-2: the "
+        "literal rule set cannot-link edges *to* epsilon, i.e. made such creases 10x stronger; re-weighting is "
+        "now monotone (min(w, epsilon), max(w, 1)). (3) cup 28 (held-out), 0.497: not a CSC defect: the "
+        "clicking person split the cup into 4 parts (inner wall, outer wall, bottom, handle; `human-0` 0.421) "
+        "where 12 of the other 13 made 2 (k = 2); CSC followed the cannot-link between the walls. With 4 "
+        "clicked groups for k = 2 it now starts from the two most separated groups (farthest-first), handle "
+        "and body, and lands on the majority's cut (0.043), which no rule can guarantee when the clicks "
+        "name more parts than k. (4) fish (0.214 / 0.429) and bust: the humans disagree (0.18, 0.20), the "
+        "clicker names 5 fish parts for k = 6 (small fins of 250-600 faces behind weak creases), so k-means "
+        "splits the body or tail to make the sixth segment; seeded starts help mech and cup but cost fish, "
+        "bust and one airplane on the held-out split (per-category table).",
         "",
     ]
     for label, subset in (("held-out split", held), ("tuning split", tune_res), ("all meshes", results)):
