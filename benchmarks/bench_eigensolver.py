@@ -268,7 +268,7 @@ def run_method(method: str, A: sp.csr_matrix, mass: np.ndarray, k: int) -> tuple
         vals = solve_lobpcg(A, mass, k, sigma)
     else:
         raise ValueError(f"unknown method {method!r}")
-    keep = ("method", "backend", "blas_threads", "n_op", "restarts", "block_size", "max_basis")
+    keep = ("method", "backend", "blas_threads", "n_op", "restarts", "block_size", "max_basis", "escalated_from")
     return np.sort(vals), {key: info[key] for key in keep if key in info}
 
 
@@ -440,11 +440,20 @@ def main(argv: list[str] | None = None) -> int:
         return crossover(args)
     if args.from_raw:
         saved = [json.loads(p.read_text()) for p in args.from_raw]
-        rows = [r for s in saved for r in s["rows"]]
+        # a later file re-measures cells of an earlier one: its rows replace theirs (the old ones are listed)
+        by_key: dict[tuple, dict] = {}
+        superseded: list[dict] = []
+        for s in saved:
+            for r in s["rows"]:
+                key = (r["mesh"], r["k"], r["threads"], r["method"])
+                if key in by_key:
+                    superseded.append(by_key[key])
+                by_key[key] = r
+        rows = list(by_key.values())
         meta = {"commands": [c for s in saved for c in s["meta"]["commands"]],
                 "minutes": sum(s["meta"]["minutes"] for s in saved),
                 "load_start": saved[0]["meta"]["load_start"], "load_end": saved[-1]["meta"]["load_end"],
-                "skipped": [x for s in saved for x in s["meta"]["skipped"]]}  # fmt: skip
+                "skipped": [x for s in saved for x in s["meta"]["skipped"]], "superseded": superseded}  # fmt: skip
         table = render(rows, meta)
         args.out.write_text(table)
         print(table)
@@ -606,6 +615,26 @@ def render(rows: list[dict], meta: dict) -> str:
         lines.append("")
     if any(r.get("deterministic") is False for r in rows if r["method"] == "auto"):
         lines += ["**Warning**: the toolkit returned different eigenvalues across runs of one case.", ""]
+    old = meta.get("superseded", [])
+    old_base = {(r["mesh"], r["k"], r["threads"]): r for r in old if r["method"] == "baseline"}
+    old_auto = [r for r in old if r["method"] == "auto" and "failed" not in r]
+    if old_auto:
+        lines += ["## Superseded cells", "",
+                  "Measured by an earlier command above and re-measured by a later one (the table above has the "
+                  "later run); kept because the code may have changed in between (the block size column says "
+                  "what the toolkit ran).", "",
+                  "| mesh | n | k | BLAS | SciPy CPU s | toolkit CPU s | CPU speed-up | wall speed-up | block | "
+                  "verdict | load |", "|---|---:|---:|---|---:|---:|---:|---:|---:|---|---:|"]  # fmt: skip
+        for r in old_auto:
+            b = old_base.get((r["mesh"], r["k"], r["threads"]))
+            if b is None or "failed" in b:
+                continue
+            bad = r["err"] > ERR_OK or r["cpu"] >= b["cpu"] or r["wall"] >= b["wall"]
+            lines.append(f"| {r['mesh']} | {r['n']} | {r['k']} | {r['threads']} | {b['cpu']:.3f} | {r['cpu']:.3f} "
+                         f"| {_x(b['cpu'], r['cpu'])} | {_x(b['wall'], r['wall'])} "
+                         f"| {r.get('info', {}).get('block_size', '?')} | {'MISS' if bad else 'win'} "
+                         f"| {r['load']:.1f} |")  # fmt: skip
+        lines.append("")
     if meta["skipped"]:
         lines += ["Skipped: " + "; ".join(meta["skipped"]) + ".", ""]
     return "\n".join(lines)
