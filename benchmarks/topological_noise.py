@@ -240,14 +240,23 @@ def report(args) -> None:
             )
         lines.append("")
     lines += [
-        "## Observations (written for the 2026-11-29 run; re-check when the numbers change)", "",
-        "- The thesis's claim (small-scale heat descriptors + seed growing + EM are robust to merged parts) holds "
-        "only partly here: on TOSCA, `topo-robust` is within 1.1x of zoomout on clean pairs and beats zoomout at 6 "
-        "contacts, but it does not beat pyFM by the asked 20 %; on FAUST it loses clearly.",
-        "- FAUST failures are orientation failures (sym-aware error 0.05 vs plain 0.15 on clean pairs): the maps "
-        "swap left and right on some limbs, or mirror the body while twisting tubular limbs, which the local "
-        "triple-product cue scores as orientation-preserving. The sparse stage (ADF keypoints at limb tips, "
-        "replicator) gives about half-right, half-mirrored keypoint matches on these humans.",
+        "## Observations (written for the 2026-12-01 run; re-check when the numbers change)", "",
+        "- Left and right (issue 14 item 1): the sparse stage and EM now decide sides against an orientation-aware "
+        "functional map (`matching._common.side_reference`, Ren et al. 2018's term) instead of local triple "
+        "products. Rows of `topo-robust` and `sharma2012` are from this code; `seed-growing` and `ovsjanikov2010` "
+        "(whose sparse stage changed too), `mateus2008`, `zoomout` and pyFM are the 2026-11-29 rows, not re-run.",
+        "- TOSCA (held-out): `topo-robust` flips 0/0/1 pairs at 0/3/6 contacts (before: 0/0/0) and is 0.80x "
+        "zoomout's error on clean pairs (before 1.10x); `sharma2012` flips 0/0/0 (before 2/0/2). Under glue "
+        "`topo-robust` got worse at 3 contacts (0.148, before 0.106; cat3-cat5 0.288, wolf1-wolf2 0.197): "
+        "accuracy failures, not flips (sym-aware error about as large).",
+        "- FAUST (held-out): flips are NOT fixed: `topo-robust` still flips 3 of 5 clean pairs (tr_reg_013-032, "
+        "023-029, 028-038; before 3), `sharma2012` 3 (before 3 on FAUST, 5 in all). Diagnosed after the run, on "
+        "held-out pairs (nothing was changed from it): on 028-038 the source's intrinsic symmetry (the "
+        "orientation-reversing self-map) is wrong (0.35 mean error against 0.03 on other FAUST shapes), so "
+        "T(S(x)) is no mirror image; on 023-029 both arms go onto the same target arm (13 % of the points), so "
+        "T(x) and T(S(x)) land on that arm and neither agrees with the reference (squared spectral distance "
+        "~120 against ~3 for the truth). The reference map itself is right on both (mean error 0.019, 0.022): "
+        "what fails is choosing only between T and its mirror through S.",
         "- Under glue, the keypoints themselves change (ADF maxima of glued hands disappear), so the sparse stage "
         "degrades before the local descriptors can help; thesis 7.4 relies on texture (photometric) seeds for "
         "exactly this reason, which these datasets do not have.",
