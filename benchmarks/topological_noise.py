@@ -299,7 +299,8 @@ def main() -> None:
     ap.add_argument("--report-only", action="store_true")
     args = ap.parse_args()
     argv = [a for a in sys.argv[1:] if a not in ("--report-only", "--fresh", "--replace")]
-    args.rerun = "python benchmarks/topological_noise.py " + " ".join(sys.argv[1:]) if args.replace else ""
+    args.rerun = "python benchmarks/topological_noise.py " + " ".join(
+        a for a in sys.argv[1:] if a != "--report-only") if args.replace else ""
     if args.replace and "--methods" in argv:  # the full command, every method
         i = argv.index("--methods")
         del argv[i : i + 2]
