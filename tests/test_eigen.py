@@ -512,3 +512,20 @@ def test_default_block_does_not_escalate_without_symmetry():
     vals, _ = smallest_eigenpairs(A, 20, d, info=info)
     assert info["method"] == "krylov" and info["block_size"] == 4 and "escalated_from" not in info
     np.testing.assert_allclose(vals[1:], ref[1:20], rtol=1e-10)
+
+
+def test_default_block_does_not_escalate_when_the_shift_exceeds_the_gaps():
+    """One tiny mass entry makes |sigma| = 1e-8 max(diag(A) / M) larger than the gaps between the wanted
+    eigenvalues (as on a 1M-vertex mesh): distinct eigenvalues must not be taken for copies."""
+    A, d, _, _ = _grid_case(31, 37, 20, seed=3)
+    d = d.copy()
+    d[500] = 1e-7
+    s = 1 / np.sqrt(d)
+    ref = la.eigh(A.toarray() * s[:, None] * s[None, :], eigvals_only=True, subset_by_index=(0, 19))
+    sigma = 1e-8 * np.max(A.diagonal() / d)
+    assert sigma > np.min(np.diff(ref))  # the situation this test is about
+    info: dict = {}
+    vals, _ = smallest_eigenpairs(A, 20, d, info=info)
+    assert "escalated_from" not in info and info["block_size"] == 4
+    # the dense reference itself is off by ~eps * max(diag(A) / d) ~ 4e-9 here (1e-6 relative)
+    np.testing.assert_allclose(vals[1:], ref[1:], rtol=1e-5)
