@@ -27,7 +27,9 @@ edges, divided by ``sqrt(area)``): the same ruler on every size.
 - ``em``: ``em-registration`` (defaults) from the seeds: EM, hard map, orientation check (which computes
   the source's symmetry map with ``fmap-zoomout`` on the same spectrum);
 - ``seed``: ``seed-growing`` (defaults): heat-distance descriptors on the seeds as keypoints, then
-  Algorithm 6.
+  Algorithm 6;
+- ``em-core``: ``em-registration`` without the orientation check (EM, hard map, filling);
+- ``em-thesis`` (opt-in): the topo-robust refinement (graph spectrum, k_final = 40).
 
 Times are the stage call's wall clock and process CPU time (``process_time``). Memory: the child's peak
 resident set (``VmHWM``, native allocations included) over the stage, reset after loading the meshes and
@@ -385,7 +387,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", help="shared data directory (default $TOOLKIT_DATA or ../shared/data)")
     ap.add_argument("--pair", nargs=2, default=["cat0", "cat1"])
     ap.add_argument("--splits", nargs="+", type=int, default=[2, 3, 5, 7])
-    ap.add_argument("--stages", default="spectrum,em,seed,em-thesis")
+    ap.add_argument("--stages", default="spectrum,seed,em-core,em",
+                    help="stages to run (also: em-thesis, whose final refinement is quadratic in time)")
     ap.add_argument("--baseline-commit", help="also run the matcher files of this commit (git show, read only)")
     ap.add_argument("--baseline-dir", help="... or those found in this directory")
     ap.add_argument("--baseline-max-split", type=int,
