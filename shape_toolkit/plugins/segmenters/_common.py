@@ -70,7 +70,8 @@ def kmeans_labels(X: np.ndarray, k: int, random_state: Any, n_init: int = 10) ->
 
 def must_link_groups(must_link: np.ndarray) -> list[np.ndarray]:
     """The node sets ``[ids, ...]`` joined by the ``(m, 2)`` must-link pairs: connected components of
-    the must-link graph over the constrained nodes (a chain of clicks is one group), each sorted."""
+    the must-link graph over the constrained nodes (a chain of clicks is one group), each sorted, the
+    groups in order of first appearance in ``must_link`` (row-major)."""
     from scipy.sparse.csgraph import connected_components
 
     ml = np.asarray(must_link, dtype=np.int64).reshape(-1, 2)
@@ -80,7 +81,8 @@ def must_link_groups(must_link: np.ndarray) -> list[np.ndarray]:
     inv = inv.reshape(-1, 2)
     g = sp.coo_matrix((np.ones(len(ml)), (inv[:, 0], inv[:, 1])), shape=(len(nodes), len(nodes)))
     _, comp = connected_components(g, directed=False)
-    return [nodes[comp == c] for c in range(int(comp.max()) + 1)]
+    seen, first = np.unique(comp[inv.ravel()], return_index=True)
+    return [nodes[comp == c] for c in seen[np.argsort(first)]]
 
 
 def seeded_kmeans_labels(

@@ -38,27 +38,8 @@ from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, concavity_weights, dual_adjacency, smooth_labels
-from shape_toolkit.plugins.segmenters._common import face_segments_to_vertices
+from shape_toolkit.plugins.segmenters._common import face_segments_to_vertices, must_link_groups
 from shape_toolkit.results.labels import ConstraintError, coerce_constraints
-
-
-def must_link_groups(must_link: np.ndarray, n_vertices: int) -> np.ndarray:
-    """Group id ``(n_vertices,)`` of every vertex (-1 when in no must-link): connected components of
-    the must-link graph, numbered by their first appearance in ``must_link`` ``(p, 2)``."""
-    out = np.full(n_vertices, -1, dtype=np.int64)
-    must = np.asarray(must_link, dtype=np.int64).reshape(-1, 2)
-    if len(must) == 0:
-        return out
-    from scipy.sparse.csgraph import connected_components
-
-    A = sp.coo_matrix((np.ones(len(must)), (must[:, 0], must[:, 1])), shape=(n_vertices, n_vertices))
-    _, comp = connected_components(A, directed=False)
-    seen: dict[int, int] = {}
-    for v in must.ravel().tolist():
-        seen.setdefault(int(comp[v]), len(seen))
-    used = np.unique(must)
-    out[used] = [seen[int(comp[v])] for v in used.tolist()]
-    return out
 
 
 class SeededWalkSegmenter(Segmenter):
@@ -104,7 +85,9 @@ class SeededWalkSegmenter(Segmenter):
         if cons is None or cons.n_must == 0:
             raise ParameterError("seeded-walk needs must-link constraints: each group of must-linked "
                                  "vertices seeds one segment")
-        group = must_link_groups(cons.must_link, n)
+        group = np.full(n, -1, dtype=np.int64)  # group id of every vertex, -1: in no must-link
+        for g, ids in enumerate(must_link_groups(cons.must_link)):
+            group[ids] = g
         cl = cons.cannot_link
         if len(cl):
             same = (group[cl[:, 0]] >= 0) & (group[cl[:, 0]] == group[cl[:, 1]])
