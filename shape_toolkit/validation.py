@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import secrets
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -123,22 +124,47 @@ def dumps_json(obj: Any, **kwargs: Any) -> str:
 
 
 @contextmanager
-def atomic_output(path: str | os.PathLike, what: str = "file", suffix: str = "") -> Iterator[Path]:
-    """Write ``path`` whole or not at all: checks that its folder exists and that it is not a
-    directory (:class:`ShapeFileError` naming ``what``), yields a temporary path next to it (ending
-    in ``suffix``, for writers that append one, e.g. ``.npz``) and renames it to ``path`` when the
-    block ends; on any error the temporary file is removed and ``path`` is left as it was.
-    ``OSError`` becomes :class:`ShapeFileError` ("cannot write")."""
+def atomic_output(
+    path: str | os.PathLike,
+    what: str = "file",
+    suffix: str = "",
+    *,
+    make_parents: bool = False,
+    durable: bool = False,
+) -> Iterator[Path]:
+    """Write ``path`` whole or not at all: checks that its folder exists (``make_parents``: creates
+    it) and that ``path`` is not a directory (:class:`ShapeFileError` naming ``what``), yields a
+    temporary path next to it, unique to this writer (ending in ``suffix``, for writers that append
+    one, e.g. ``.npz``), and renames it to ``path`` when the block ends (``durable``: after an
+    ``fsync`` of its contents). Readers see the old file or the new one, never a part; concurrent
+    writers of one path do not share a temporary file (the last rename wins). On any error the
+    temporary file is removed and ``path`` is left as it was; ``OSError`` becomes
+    :class:`ShapeFileError` ("cannot write")."""
     p = Path(path)
     if p.is_dir():
         raise ShapeFileError(p, f"is a directory, expected a {what} to write")
-    if not (p.parent if str(p.parent) else Path(".")).is_dir():
+    if make_parents:
+        try:
+            p.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise ShapeFileError(p, f"cannot create the output folder: {e.strerror or e}") from None
+    elif not p.parent.is_dir():
         raise ShapeFileError(p, "the output folder does not exist")
-    tmp = p.with_name(f".{p.name}.tmp{suffix}")
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp{suffix}")
     try:
         yield tmp
+        if durable:
+            _fsync(tmp)
         os.replace(tmp, p)
     except OSError as e:
         raise ShapeFileError(p, f"cannot write: {e.strerror or e}") from None
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -254,6 +256,102 @@ def test_save_is_all_or_nothing(sphere, tmp_path, monkeypatch):
         with pytest.raises(ShapeFileError, match="is a directory"):
             save(tmp_path)
     assert sorted(x.name for x in tmp_path.iterdir()) == ["a.off", "m.txt", "t.npz"]
+
+
+def test_atomic_output_interrupted_write_keeps_old_file_and_no_temp(tmp_path):
+    from shape_toolkit.validation import atomic_output
+
+    p = tmp_path / "a.txt"
+    p.write_text("old")
+    for exc in (RuntimeError("interrupted"), KeyboardInterrupt()):
+        with pytest.raises(type(exc)):
+            with atomic_output(p) as tmp:
+                tmp.write_text("half written")
+                raise exc
+        assert p.read_text() == "old"
+        assert [x.name for x in tmp_path.iterdir()] == ["a.txt"]
+    # two writers of one path at once get their own temporary files: the last rename wins, never a mix
+    with atomic_output(p) as t1, atomic_output(p) as t2:
+        assert t1 != t2 and t1.parent == t2.parent == tmp_path
+        t1.write_text("one")
+        t2.write_text("two")
+    assert p.read_text() == "one"  # t2's block closed first
+    assert [x.name for x in tmp_path.iterdir()] == ["a.txt"]
+    q = tmp_path / "x" / "y" / "b.npz"
+    with atomic_output(q, suffix=".npz", make_parents=True, durable=True) as tmp:
+        assert tmp.name.endswith(".npz") and tmp.parent == q.parent
+        np.savez(tmp, a=np.arange(3))
+    with np.load(q) as z:
+        assert z["a"].tolist() == [0, 1, 2]
+    assert [x.name for x in q.parent.iterdir()] == ["b.npz"]
+    with pytest.raises(ShapeFileError, match="cannot create the output folder"):
+        with atomic_output(p / "c.txt", make_parents=True):
+            pass  # a file stands where the folder should be
+
+
+def _half_then_full_disk(file, *args, **kwargs):
+    """A stand-in writer that writes part of its file, then finds the disk full."""
+    with open(file, "wb") as fh:
+        fh.write(b"partial")
+    raise OSError(28, "No space left on device")
+
+
+@pytest.mark.filterwarnings("ignore:.*results.jsonl. skipped 1 invalid line")
+def test_every_whole_file_writer_survives_an_interrupted_write(sphere, tmp_path, monkeypatch):
+    """Labels, the spectrum cache, prepared items, method outputs, the results file and the
+    prepare log all go through atomic_output: a write failing half-way leaves the old file byte
+    for byte and no temporary file, as a typed error."""
+    from shape_toolkit.bench import executors, store
+    from shape_toolkit.bench.tasks import prepare
+    from shape_toolkit.core import spectrum as spm
+    from shape_toolkit.core.graph import build_graph
+    from shape_toolkit.data.datasets import load_item, synthetic_refs, write_labels
+
+    row = {"key": "k", "status": "ok", "task_name": "t", "task_kind": "x", "item": "i",
+           "method_label": "m", "metrics": {}}
+    results = tmp_path / "run" / "results.jsonl"
+    results.parent.mkdir()
+    log = tmp_path / "run" / "prepare.jsonl"
+    item = load_item(synthetic_refs(1, subdivisions=1)[0])
+    prep = prepare(item, "none", {}, pairwise=True, random_state=0)
+    spm.set_cache_dir(tmp_path / "cache")
+    try:
+        g = build_graph(sphere, "binary")
+        spec = spm.compute_spectrum(g, 4)
+        (cached,) = (tmp_path / "cache").glob("*.npz")
+        key = cached.stem
+        cases = [  # (file, write it, the function to break, how to break it)
+            (tmp_path / "l.txt", lambda: write_labels(tmp_path / "l.txt", [1, 2]), (np, "savetxt"),
+             _half_then_full_disk),
+            (cached, lambda: spm._cache_put(key, spec), (np, "savez"), _half_then_full_disk),
+            (tmp_path / "run" / "p.npz", lambda: store.save_prepared(tmp_path / "run" / "p.npz", prep),
+             (np, "savez"), _half_then_full_disk),
+            (tmp_path / "run" / "outputs" / "o.npz", lambda: store.save_output(tmp_path / "run", "o", {"a": [1]}),
+             (np, "savez_compressed"), _half_then_full_disk),
+            (results, lambda: store.clean_results(results), (store, "dumps_json"),
+             lambda r: (_ for _ in ()).throw(OSError(28, "No space left on device"))),
+            (log, lambda: executors.clean_results_log(log), (type(log), "write_bytes"), _half_then_full_disk),
+        ]
+        for path, write, (owner, name), broken in cases:
+            if path == results:
+                results.write_text(json.dumps(row) + "\n" + '{"key": "torn')
+            elif path == log:
+                log.write_text('{"key": "a", "spectra": []}\n{"key": "to')
+            else:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_bytes(b"old contents")
+            before = path.read_bytes()
+            with monkeypatch.context() as m:
+                m.setattr(owner, name, broken)
+                with pytest.raises(ShapeFileError, match="No space left on device"):
+                    write()
+            assert path.read_bytes() == before, path
+            assert not [x for x in path.parent.iterdir() if ".tmp" in x.name], path
+            write()  # and unbroken, the same writer replaces the file
+            assert path.read_bytes() != before, path
+    finally:
+        spm.set_cache_dir(None)
+        spm.clear_cache()
 
 
 # -- real data ----------------------------------------------------------------------------------

@@ -33,8 +33,8 @@ from shape_toolkit.bench.store import (
     run_lock,
 )
 from shape_toolkit.bench.worker import execute_job, lost_row, prepare_job
-from shape_toolkit.errors import ParameterError
-from shape_toolkit.validation import dumps_json
+from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.validation import atomic_output, dumps_json
 
 __all__ = ["RunSummary", "run_benchmark", "run_local", "run_dask", "dask_client"]
 
@@ -101,8 +101,11 @@ def run_benchmark(
 def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed) -> RunSummary:
     (run / "config.json").write_text(dumps_json(config.raw, indent=2))
     results = run / RESULTS
-    clean_results(results, keep_failed=not retry_failed)
-    clean_results_log(run / PREPARED)
+    try:
+        clean_results(results, keep_failed=not retry_failed)
+        clean_results_log(run / PREPARED)
+    except ShapeFileError as exc:  # atomic_output's typed write failure, as the OSError below
+        raise RunFolderError(f"cannot write to run folder {run}: {exc.problem}") from None
     done = {r["key"] for r in read_rows(run)}
     jobs, preps = plan(config, run, limit=limit)
     todo = [j for j in jobs if j.key not in done]
@@ -141,9 +144,8 @@ def clean_results_log(path: Path) -> None:
     if data.endswith(b"\n"):
         return
     cut = data.rfind(b"\n") + 1
-    tmp = path.with_name(f".{path.name}.repair")
-    tmp.write_bytes(data[:cut])
-    os.replace(tmp, path)
+    with atomic_output(path, "prepare log") as tmp:
+        tmp.write_bytes(data[:cut])
 
 
 def run_local(

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.validation import dumps_json, jsonable
+from shape_toolkit.validation import atomic_output, dumps_json, jsonable
 
 __all__ = [
     "RESULTS",
@@ -102,6 +102,7 @@ class Row:
     status: str = "ok"
     error: str | None = None
     seconds: float | None = None
+    cpu_seconds: float | None = None
     peak_memory_mb: float | None = None
     metrics: dict[str, Any] = field(default_factory=dict)
     spectra: list[dict[str, Any]] = field(default_factory=list)
@@ -225,12 +226,8 @@ def clean_results(path: Path, *, keep_failed: bool = True) -> None:
     if bad:
         with open(path.with_name(path.name + INVALID_SUFFIX), "a", encoding="utf-8") as fh:
             fh.writelines(line + "\n" for _, line, _ in bad)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
+    with atomic_output(path, "results file", durable=True) as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.writelines(dumps_json(r) + "\n" for r in keep)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 class Appender:
@@ -318,10 +315,8 @@ def save_prepared(path: Path, prep: Any) -> None:
         header["lists"][k] = len(items)
         for i, a in enumerate(items):
             arrays[f"{k}_{i}"] = np.asarray(a)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
-    np.savez(tmp, header=np.array(dumps_json(header)), **arrays)
-    os.replace(tmp, path)
+    with atomic_output(path, "prepared item", suffix=".npz", make_parents=True) as tmp:
+        np.savez(tmp, header=np.array(dumps_json(header)), **arrays)
 
 
 def _int_array(a: np.ndarray, what: str, shape_ok) -> np.ndarray:
@@ -422,12 +417,10 @@ def save_output(run_dir: str | os.PathLike, key: str, output: dict) -> str | Non
                 arrays[k] = a
     if not arrays:
         return None
-    d = Path(run_dir) / "outputs"
-    d.mkdir(parents=True, exist_ok=True)
     name = safe_name(key)
-    tmp = d / f".{name}.{os.getpid()}.tmp.npz"
-    np.savez_compressed(tmp, **arrays)
-    os.replace(tmp, d / f"{name}.npz")
+    with atomic_output(Path(run_dir) / "outputs" / f"{name}.npz", "output file", suffix=".npz",
+                       make_parents=True) as tmp:
+        np.savez_compressed(tmp, **arrays)
     return f"outputs/{name}.npz"
 
 

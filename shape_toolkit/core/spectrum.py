@@ -18,6 +18,7 @@ from shape_toolkit.core.eigen import fix_signs, smallest_eigenpairs
 from shape_toolkit.core.graph import ShapeGraph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import DisconnectedGraphError, ParameterError, SpectrumMismatchError
+from shape_toolkit.validation import atomic_output
 
 __all__ = [
     "LAPLACIANS",
@@ -228,10 +229,8 @@ def _cache_put(key: str, spec: Spectrum, disk: bool = True) -> None:
         _MEMORY.popitem(last=False)
     d = _cache_dir()
     if disk and d is not None:
-        d.mkdir(parents=True, exist_ok=True)
-        tmp = d / f".{key}.{os.getpid()}.tmp.npz"
-        spec.save(tmp)
-        os.replace(tmp, d / f"{key}.npz")
+        with atomic_output(d / f"{key}.npz", "spectrum cache file", suffix=".npz", make_parents=True) as tmp:
+            spec.save(tmp)
 
 
 # -- solving ----------------------------------------------------------------------------------

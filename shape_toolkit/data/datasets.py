@@ -18,6 +18,7 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.results.labels import face_to_vertex_labels, read_int_file, read_vertex_ids
+from shape_toolkit.validation import atomic_output
 
 __all__ = [
     "read_vertex_ids",
@@ -58,12 +59,8 @@ def read_face_labels(path: str | os.PathLike, n_faces: int | None = None) -> np.
 
 def write_labels(path: str | os.PathLike, labels: np.ndarray) -> None:
     """Write one integer per line (labels, or 0-based vertex ids with -1 for unmatched)."""
-    p = Path(path)
-    if p.parent and not p.parent.exists():
-        raise ShapeFileError(p, "the output folder does not exist")
-    tmp = p.with_name(f".{p.name}.tmp")
-    np.savetxt(tmp, np.asarray(labels, dtype=np.int64), fmt="%d")
-    os.replace(tmp, p)
+    with atomic_output(path, "labels file") as tmp:
+        np.savetxt(tmp, np.asarray(labels, dtype=np.int64), fmt="%d")
 
 
 # --------------------------------------------------------------------------------------------
