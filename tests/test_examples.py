@@ -9,9 +9,13 @@ Examples reading the shared data are skipped when it is absent.
 from __future__ import annotations
 
 import copy
+import importlib.util
+import json
+import math
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from shape_toolkit.bench.config import load_config, parse_config
@@ -78,3 +82,94 @@ def test_example_runs_on_a_subset(config, tmp_path, request, monkeypatch):
     assert not errors, errors
     for r in rows:
         assert r["metrics"], r
+        assert r["cpu_seconds"] is not None and r["cpu_seconds"] >= 0, r  # CPU time of the method's call
+
+
+def _tosca_results():
+    spec = importlib.util.spec_from_file_location("tosca_results", EXAMPLES / "tosca_matching" / "results.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _fake_row(key, method, item, smooth, recall, status="ok"):
+    metrics = {f"r_smooth@{r:g}": smooth for r in (0.1, 0.2, 0.3, 0.4, 0.5, 0.8)}
+    metrics.update(label_recall=recall, label_precision=recall, mean_geodesic_error=0.1,
+                   geodesic_error_curve=[[0.0, 0.0], [0.1, 1.0]])
+    return {"key": key, "status": status, "task_name": "dense", "task_kind": "matching", "item": item,
+            "method_label": method, "metrics": metrics if status == "ok" else {}, "seconds": 2.0,
+            "cpu_seconds": 1.0}
+
+
+def test_tosca_results_combine_run_folders(tmp_path):
+    """results.py: a later run folder's row replaces an earlier one's (method and pair), means are
+    over the pairs, failures are counted, each method lists the commits of its rows."""
+    res = _tosca_results()
+    a, b = tmp_path / "a", tmp_path / "b"
+    for run, rows, revs in (
+        (a, [_fake_row("k1", "pipeline:zoomout", "cat0-cat1", 20.0, 0.8),
+             _fake_row("k2", "pipeline:zoomout", "cat0-cat2", 40.0, 0.6),
+             _fake_row("k3", "pipeline:topo-robust", "cat0-cat1", 99.0, 0.99)],
+         [{"key": "k1", "commit": "c1", "dirty": []}, {"key": "k2", "commit": "c1", "dirty": []},
+          {"key": "k3", "commit": "c1", "dirty": ["shape_toolkit/x.py"]}]),
+        (b, [_fake_row("k4", "pipeline:topo-robust", "cat0-cat1", 10.0, 0.5),
+             _fake_row("k5", "pipeline:topo-robust", "cat0-cat2", 30.0, 0.7),
+             _fake_row("k6", "pipeline:topo-robust", "cat1-cat2", 0.0, 0.0, status="failed")],
+         [{"key": "k4", "commit": "c2", "dirty": []}, {"key": "k5", "commit": "c2", "dirty": []}]),
+    ):
+        run.mkdir()
+        (run / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+        (run / "revisions.jsonl").write_text("".join(json.dumps(r) + "\n" for r in revs))
+    summ = res.write_results([a, b], tmp_path / "out")
+    z, t = summ["zoomout"], summ["topo-robust"]
+    assert (z["pairs"], z["failed"], t["pairs"], t["failed"]) == (2, 0, 2, 1)
+    assert z["r_smooth@0.8"] == pytest.approx(30.0) and z["label_recall"] == pytest.approx(0.7)
+    assert t["r_smooth@0.1"] == pytest.approx(20.0)  # folder b's cat0-cat1 (10) replaced folder a's (99)
+    assert t["commits"] == ["c2", "unrecorded"] and z["commits"] == ["c1"]
+    md = (tmp_path / "out" / "results.md").read_text()
+    assert md.index("| topo-robust |") < md.index("| zoomout |") < md.index("*thesis: proposed method*")
+    assert (tmp_path / "out" / "results_curves.png").stat().st_size > 0
+    # the thesis's own numbers: Table 7.2's proposed method at r = 0.8 averaged over its 6 pairs
+    assert res._thesis_mean("proposed", 0.8) == pytest.approx((65.10 + 78.88 + 82.83 + 55.82 + 55.76 + 58.06) / 6)
+
+
+def test_r_smoothness_equals_eq_7_4_by_hand():
+    """Table 7.2's column against a direct implementation of eq. 7.4-7.5 (every vertex, SciPy
+    Dijkstra along the edges, neighbourhoods = the ceil(r% n) closest vertices, ties by id): a
+    permuted map, an identity (100 %) and a map with unmatched vertices (not smooth)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    from shape_toolkit.data.generate import icosphere
+    from shape_toolkit.metrics import r_smoothness_table
+
+    s = icosphere(2)  # 162 vertices
+    n = s.n_vertices
+    f = np.asarray(s.faces)
+    e = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
+    w = np.linalg.norm(np.asarray(s.vertices)[e[:, 0]] - np.asarray(s.vertices)[e[:, 1]], axis=1)
+    d = dijkstra(coo_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr())
+    order = np.lexsort((np.broadcast_to(np.arange(n), d.shape), d), axis=1)  # closest first, ties by id
+
+    def by_hand(t, r, theta=0.9):
+        c = math.ceil(r / 100 * n)
+        smooth = 0
+        for i in range(n):
+            if t[i] < 0:
+                continue
+            img = [t[j] for j in order[i, :c] if t[j] >= 0]
+            ball = set(order[t[i], :c].tolist())
+            smooth += bool(img) and sum(x in ball for x in img) / len(img) >= theta - 1e-12
+        return 100.0 * smooth / n
+
+    rng = np.random.default_rng(3)
+    noisy = np.arange(n)
+    hit = rng.choice(n, n // 6, replace=False)
+    noisy[hit] = rng.integers(0, n, hit.size)
+    noisy[hit[:5]] = -1
+    rs = (2.0, 5.0, 10.0)
+    assert r_smoothness_table(s, s, np.arange(n), rs, sample=None) == {r: 100.0 for r in rs}
+    got = r_smoothness_table(s, s, noisy, rs, sample=None)
+    want = {r: by_hand(noisy, r) for r in rs}
+    assert got == pytest.approx(want, abs=1e-9)
+    assert all(0 < v < 100 for v in got.values())

@@ -264,7 +264,7 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
             row.spectrum_seconds = got.seconds
             row.spectrum_cache_hit = all(got.hits) if got.hits else None
         with MemoryMonitor() as mon:
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             if job.subject_spectrum is not None:  # the spectrum *is* the result: timed as the method
                 spec = job.subject_spectrum
                 spectra["target"], row.spectrum_cache_hit = compute_spectrum_cached(spec, prep.target)
@@ -275,6 +275,7 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
                 detector=detector, detector_spectra=detector_spectra,
             )
             row.seconds = time.perf_counter() - t0
+            row.cpu_seconds = time.process_time() - c0  # the process's CPU (all its threads)
         row.peak_memory_mb = mon.peak_mb
         t0 = time.perf_counter()
         row.metrics = adapter.evaluate(job.metrics, prep, output, job.options)
