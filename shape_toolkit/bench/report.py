@@ -347,7 +347,7 @@ def _curve_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = 
                 x, y = arr[0, :, 0], arr[:, :, 1].mean(axis=0)
                 ys.extend(arr[:, :, 1].ravel())
                 label = mid if corr == "none" else f"{mid} {corr[len(g):]}".strip()
-                ax.plot(x, y, "-", lw=1.8, label=label[:48])
+                ax.plot(x, y, "-o" if len(x) <= 12 else "-", ms=4, lw=1.8, label=label[:48])  # few points: marked
                 if len(cs) > 1:
                     ax.fill_between(x, arr[:, :, 1].min(axis=0), arr[:, :, 1].max(axis=0), alpha=0.12)
             ax.set_title("uncorrupted" if g == "none" else f"corruption: {g}", fontsize=11)
