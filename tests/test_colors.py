@@ -166,6 +166,56 @@ def test_xyz_bad_colours_are_file_errors(tmp_path, rows, problem):
     assert "a.xyz" in str(e.value)
 
 
+NORMALS3 = ["0 0 -1", "0 1 0", "0.6 -0.8 0"]  # unit vectors
+
+
+@pytest.mark.parametrize("rows,expected", [
+    (["255 0 0", "0 128 0", "0 0 51"], [[1, 0, 0], [0, 128 / 255, 0], [0, 0, .2]]),  # 8-bit
+    (["1 0 0", "0 .5 0", "0 0 0.25"], [[1, 0, 0], [0, .5, 0], [0, 0, .25]]),  # [0, 1] floats
+    (["1 0 0", "0 1 0", "0 0 1"], np.eye(3)),  # unit vectors too: the first layout is taken
+])
+@pytest.mark.parametrize("normals_first", [True, False])
+def test_xyz_nine_columns_normals_and_colours(tmp_path, rows, expected, normals_first):
+    """x y z nx ny nz r g b (and x y z r g b nx ny nz): colours by the same rule as six columns,
+    the unit-normal columns told apart and ignored."""
+    if not normals_first and np.array_equal(expected, np.eye(3)):
+        pytest.skip("both triples are unit vectors: only the documented first layout is defined")
+    extra = [f"{n} {c}" if normals_first else f"{c} {n}" for n, c in zip(NORMALS3, rows)]
+    p = tmp_path / "a.xyz"
+    p.write_text("".join(f"{x} {e}\n" for x, e in zip(XYZ3, extra)))
+    s = load_shape(p)
+    np.testing.assert_array_equal(s.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_allclose(s.colors, expected, atol=1e-15)
+    assert load_shape(p, colors=False).colors is None
+    p.write_text("".join(f"{x},{e.replace(' ', ',')}\n" for x, e in zip(XYZ3, extra)))  # comma-separated
+    np.testing.assert_allclose(load_shape(p).colors, expected, atol=1e-15)
+
+
+@pytest.mark.parametrize("rows,problem", [
+    ([f"{n} {c}" for n, c in zip(NORMALS3, ["255 0 0", "0 300 0", "0 0 1"])], "outside the 8-bit range"),
+    ([f"{n} {c}" for n, c in zip(NORMALS3, ["1 0 0", "0 1.5 0", "0 0 1"])], r"outside \[0, 1\]"),
+    (["0 0 -1 255 0 0", "0 1 0 0 128", "0.6 -0.8 0 0 0 51"], "line 2: .*needs 9 numbers, found 8"),
+    (["0 0 -1 255 0 0", "0 1 0 0 128 0 1", "0.6 -0.8 0 0 0 51"], "line 2: .*needs 9 numbers, found 10"),
+    (["0 0 -1", "0 1 0 0 128 0", "0.6 -0.8 0"], "line 2: .*needs 6 numbers, found 9"),  # 6, then 9
+    (["0 0 -1 255 0 0", "0 1 0 0 128 x", "0.6 -0.8 0 0 0 51"], "line 2: non-numeric .* 'x'"),
+])
+def test_xyz_nine_column_problems_are_file_errors(tmp_path, rows, problem):
+    p = tmp_path / "a.xyz"
+    p.write_text("".join(f"{x} {r}\n" for x, r in zip(XYZ3, rows)))
+    with pytest.raises(ShapeFileError, match=problem) as e:
+        load_shape(p)
+    assert "a.xyz" in str(e.value)
+
+
+def test_xyz_nine_columns_without_unit_normals_warn_and_read_the_points(tmp_path):
+    p = tmp_path / "a.xyz"
+    p.write_text("".join(f"{x} 5 6 7 0.5 0.5 0.5\n" for x in XYZ3))  # x y z + six scalar fields
+    with pytest.warns(ColorWarning, match="a.xyz: nine columns.*without colour"):
+        s = load_shape(p)
+    assert s.colors is None
+    np.testing.assert_array_equal(s.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+
+
 def _pcd(fields: str, size: str, typ: str, rows: list[str]) -> str:
     n = len(rows)
     return (f"VERSION 0.7\nFIELDS x y z {fields}\nSIZE 4 4 4 {size}\nTYPE F F F {typ}\n"

@@ -8,17 +8,19 @@ format itself is 1-based (OBJ).
 
 Per-vertex colours (``Shape.colors``, RGB in [0, 1]) are read from PLY (vertex ``red green blue``,
 also ``r g b`` or ``diffuse_*``, any numeric type: integer types are 8-bit except ``ushort``,
-16-bit; float types are in [0, 1]; alpha ignored), COFF/CNOFF (RGB or RGBA after the coordinates
-or normals), OBJ ``v x y z r g b`` and texture-mapped OBJ (``mtllib`` + ``usemtl`` + ``map_Kd``
-image + ``vt``: the image is sampled bilinearly, repeating, at every corner's UV with Pillow; a
-vertex with several UVs gets the mean), XYZ ``x y z r g b`` rows (six columns; ``x y z nx ny nz``
-unit normals are told apart and ignored) and PCD (PCL's packed ``rgb`` / ``rgba`` field, or separate
-``r g b`` fields typed as in PLY; LZF-compressed files through Open3D). In text formats, colours
-whose values are all integers with one above 1 are 8-bit (0..255), otherwise they are in [0, 1]. A missing or unreadable
-texture or material library is a :class:`ShapeFileError` naming that file (nothing is silently
-dropped; ``load_shape(..., colors=False)`` reads the geometry alone). Writers keep colours: PLY as
-``uchar`` (8-bit, what viewers read), OFF as COFF, OBJ as ``v x y z r g b`` and XYZ as
-``x y z r g b`` (all three exact floats), PCD as PCL's packed float ``rgb`` (8-bit).
+16-bit; float types are in [0, 1]; alpha ignored), COFF/CNOFF (RGB or RGBA after the coordinates or
+normals), OBJ ``v x y z r g b`` and texture-mapped OBJ (``mtllib`` + ``usemtl`` + ``map_Kd`` image +
+``vt``: the image is sampled bilinearly, repeating, at every corner's UV with Pillow; a vertex with
+several UVs gets the mean), XYZ ``x y z r g b`` rows (six columns; ``x y z nx ny nz`` unit normals
+are told apart and ignored) and ``x y z nx ny nz r g b`` rows (nine columns; also ``x y z r g b nx
+ny nz``: the unit normals are told apart and ignored) and PCD (PCL's packed ``rgb`` / ``rgba``
+field, or separate ``r g b`` fields typed as in PLY; LZF-compressed files through Open3D). In text
+formats, colours whose values are all integers with one above 1 are 8-bit (0..255), otherwise they
+are in [0, 1]. A missing or unreadable texture or material library is a :class:`ShapeFileError`
+naming that file (nothing is silently dropped; ``load_shape(..., colors=False)`` reads the geometry
+alone). Writers keep colours: PLY as ``uchar`` (8-bit, what viewers read), OFF as COFF, OBJ as ``v x
+y z r g b`` and XYZ as ``x y z r g b`` (all three exact floats), PCD as PCL's packed float ``rgb``
+(8-bit).
 """
 
 from __future__ import annotations
@@ -74,7 +76,9 @@ class DuplicateFacesWarning(UserWarning):
 
 
 class ColorWarning(UserWarning):
-    """Some vertices of a texture-mapped OBJ received no colour sample (they are given mid grey)."""
+    """Colours were read in part or not at all: some vertices of a texture-mapped OBJ received no
+    colour sample (they are given mid grey), or a nine-column XYZ file has no unit-normal columns
+    to tell its colour columns by."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -245,22 +249,28 @@ def _tokens(line: str) -> list[str]:
     return line.split("#", 1)[0].split()
 
 
-def _floats(rows: list[tuple[int, str]], cols: int | list[int], what: str) -> np.ndarray:
-    """Columns ``cols`` (or the first ``cols``) of text rows as float64 ``(len(rows), k)``.
+def _floats(rows: list[tuple[int, str]], cols: int | list[int], what: str, *, exact: bool = False) -> np.ndarray:
+    """Columns ``cols`` (or the first ``cols``) of text rows as float64 ``(len(rows), k)``;
+    ``exact``: every row has exactly the first ``cols`` columns (a row with more is an error too).
 
     Fast path: numpy's C parser; on any problem a slow pass names the offending line.
     """
     cols = list(range(cols)) if isinstance(cols, int) else list(cols)
     if not rows:
         return np.zeros((0, len(cols)))
+    need = max(cols) + 1
+    exact = exact and cols == list(range(need))
     try:
-        return np.loadtxt([r for _, r in rows], usecols=cols, ndmin=2, comments="#")
+        if not exact:
+            return np.loadtxt([r for _, r in rows], usecols=cols, ndmin=2, comments="#")
+        table = np.loadtxt([r for _, r in rows], ndmin=2, comments="#")  # refuses a changing column count
+        if table.shape[1] == need:
+            return table
     except ValueError:
         pass
-    need = max(cols) + 1
     for ln, line in rows:
         toks = _tokens(line)
-        if len(toks) < need:
+        if len(toks) < need or (exact and len(toks) != need):
             raise _Err(f"line {ln}: {what} needs {need} numbers, found {len(toks)}")
         for c in cols:
             try:
@@ -635,19 +645,37 @@ def _obj_texture_colors(p: Path, lines: Sequence[tuple[int, str]], n_vertices: i
 # XYZ
 # --------------------------------------------------------------------------------------------
 def _read_xyz(p: Path, want_colors: bool = True) -> _ParsedColors:
-    """``x y z`` rows (spaces or commas); rows of exactly six columns in the first line are
-    ``x y z r g b`` (8-bit or [0, 1], see :func:`_text_colors`), unless the last three columns are
-    unit vectors with a negative entry: ``x y z nx ny nz`` normals, which are ignored."""
+    """``x y z`` rows (spaces or commas). The first line's column count sets the layout of every row (a row
+    with another count is an error): six columns are ``x y z r g b`` (8-bit or [0, 1], see
+    :func:`_text_colors`), unless the last three columns are unit vectors with a negative entry: ``x
+    y z nx ny nz`` normals, which are ignored. Nine columns are ``x y z nx ny nz r g b``
+    (CloudCompare / Open3D exports) or ``x y z r g b nx ny nz``: the triple that is a unit vector on
+    every row is the normals (ignored; the first layout when both are), the other the colour; when
+    neither is, the points are read without colour and a :class:`ColorWarning` says so."""
     text = _read_text(p)
     rows = _content(text.replace(",", " ") if "," in text else text)
     _check_count(len(rows), "points")
-    if not (want_colors and rows and len(_tokens(rows[0][1])) == 6):
-        return _floats(rows, 3, "point"), None, None
-    table = _floats(rows, 6, "point with colour (x y z r g b)")
-    extra = table[:, 3:]
-    if (extra < 0).any() and np.allclose(np.linalg.norm(extra, axis=1), 1.0, atol=1e-3):
-        return table[:, :3], None, None  # normals
-    return table[:, :3], None, _text_colors(extra, "XYZ point")
+    ncols = len(_tokens(rows[0][1])) if want_colors and rows else 3
+    if ncols == 6:
+        table = _floats(rows, 6, "point with colour (x y z r g b)", exact=True)
+        extra = table[:, 3:]
+        if (extra < 0).any() and _unit_rows(extra):
+            return table[:, :3], None, None  # normals
+        return table[:, :3], None, _text_colors(extra, "XYZ point")
+    if ncols == 9:
+        table = _floats(rows, 9, "point with normal and colour (x y z nx ny nz r g b)", exact=True)
+        for normals, colors in ((table[:, 3:6], table[:, 6:]), (table[:, 6:], table[:, 3:6])):
+            if _unit_rows(normals):
+                return table[:, :3], None, _text_colors(colors, "XYZ point")
+        warnings.warn("nine columns, but neither columns 4-6 nor 7-9 are unit normals on every row, so "
+                      "the colour columns are unknown: points read without colour", ColorWarning, stacklevel=2)
+        return table[:, :3], None, None
+    return _floats(rows, 3, "point"), None, None
+
+
+def _unit_rows(a: np.ndarray) -> bool:
+    """Every row of ``a`` a unit vector, to the precision of a text file (1e-3)."""
+    return bool(len(a)) and bool(np.allclose(np.linalg.norm(a, axis=1), 1.0, atol=1e-3))
 
 
 # --------------------------------------------------------------------------------------------
