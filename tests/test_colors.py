@@ -129,6 +129,12 @@ def test_off_colour_variants(tmp_path, text, expected):
 
 
 XYZ3 = ["0 0 0", "1 0 0", "0 1 0"]
+NORMALS3 = ["0 0 -1", "0 1 0", "0.6 -0.8 0"]  # unit vectors
+NINE = [  # colours with NORMALS3; the third are unit vectors too: then the normals come first
+    (["255 0 0", "0 128 0", "0 0 51"], [[1, 0, 0], [0, 128 / 255, 0], [0, 0, .2]]),
+    (["1 0 0", "0 .5 0", "0 0 0.25"], [[1, 0, 0], [0, .5, 0], [0, 0, .25]]),
+    (["1 0 0", "0 1 0", "0 0 1"], np.eye(3)),
+]
 
 
 @pytest.mark.parametrize("rows,expected", [
@@ -137,6 +143,9 @@ XYZ3 = ["0 0 0", "1 0 0", "0 1 0"]
     (["1 0 0", "0 1 0", "0 0 1"], np.eye(3)),  # 0/1 only: floats
     (["255.0 0 0", "0 255 0", "0 0 255"], np.eye(3)),  # integral floats above 1: 8-bit
     (["0 0 -1", "0 1 0", "0.6 -0.8 0"], None),  # x y z nx ny nz: unit normals, not colours
+    # nine columns: x y z nx ny nz r g b, or x y z r g b nx ny nz (the unit-normal triple is ignored)
+    *[([f"{n} {c}" for n, c in zip(NORMALS3, rows)], expected) for rows, expected in NINE],
+    *[([f"{c} {n}" for n, c in zip(NORMALS3, rows)], expected) for rows, expected in NINE[:2]],
 ])
 def test_xyz_colour_columns(tmp_path, rows, expected):
     p = tmp_path / "a.xyz"
@@ -157,41 +166,7 @@ def test_xyz_colour_columns(tmp_path, rows, expected):
     (["1 0 0", "0 1.5 0", "0 0 1"], r"outside \[0, 1\]"),
     (["1 0 0", "0 -0.5 0", "0 0 1"], r"outside \[0, 1\]"),  # negative, but not unit normals
     (["1 0 0", "0 1", "0 0 1"], "needs 6 numbers"),
-])
-def test_xyz_bad_colours_are_file_errors(tmp_path, rows, problem):
-    p = tmp_path / "a.xyz"
-    p.write_text("".join(f"{x} {r}\n" for x, r in zip(XYZ3, rows)))
-    with pytest.raises(ShapeFileError, match=problem) as e:
-        load_shape(p)
-    assert "a.xyz" in str(e.value)
-
-
-NORMALS3 = ["0 0 -1", "0 1 0", "0.6 -0.8 0"]  # unit vectors
-
-
-@pytest.mark.parametrize("rows,expected", [
-    (["255 0 0", "0 128 0", "0 0 51"], [[1, 0, 0], [0, 128 / 255, 0], [0, 0, .2]]),  # 8-bit
-    (["1 0 0", "0 .5 0", "0 0 0.25"], [[1, 0, 0], [0, .5, 0], [0, 0, .25]]),  # [0, 1] floats
-    (["1 0 0", "0 1 0", "0 0 1"], np.eye(3)),  # unit vectors too: the first layout is taken
-])
-@pytest.mark.parametrize("normals_first", [True, False])
-def test_xyz_nine_columns_normals_and_colours(tmp_path, rows, expected, normals_first):
-    """x y z nx ny nz r g b (and x y z r g b nx ny nz): colours by the same rule as six columns,
-    the unit-normal columns told apart and ignored."""
-    if not normals_first and np.array_equal(expected, np.eye(3)):
-        pytest.skip("both triples are unit vectors: only the documented first layout is defined")
-    extra = [f"{n} {c}" if normals_first else f"{c} {n}" for n, c in zip(NORMALS3, rows)]
-    p = tmp_path / "a.xyz"
-    p.write_text("".join(f"{x} {e}\n" for x, e in zip(XYZ3, extra)))
-    s = load_shape(p)
-    np.testing.assert_array_equal(s.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
-    np.testing.assert_allclose(s.colors, expected, atol=1e-15)
-    assert load_shape(p, colors=False).colors is None
-    p.write_text("".join(f"{x},{e.replace(' ', ',')}\n" for x, e in zip(XYZ3, extra)))  # comma-separated
-    np.testing.assert_allclose(load_shape(p).colors, expected, atol=1e-15)
-
-
-@pytest.mark.parametrize("rows,problem", [
+    # nine columns: x y z nx ny nz r g b
     ([f"{n} {c}" for n, c in zip(NORMALS3, ["255 0 0", "0 300 0", "0 0 1"])], "outside the 8-bit range"),
     ([f"{n} {c}" for n, c in zip(NORMALS3, ["1 0 0", "0 1.5 0", "0 0 1"])], r"outside \[0, 1\]"),
     (["0 0 -1 255 0 0", "0 1 0 0 128", "0.6 -0.8 0 0 0 51"], "line 2: .*needs 9 numbers, found 8"),
@@ -199,7 +174,7 @@ def test_xyz_nine_columns_normals_and_colours(tmp_path, rows, expected, normals_
     (["0 0 -1", "0 1 0 0 128 0", "0.6 -0.8 0"], "line 2: .*needs 6 numbers, found 9"),  # 6, then 9
     (["0 0 -1 255 0 0", "0 1 0 0 128 x", "0.6 -0.8 0 0 0 51"], "line 2: non-numeric .* 'x'"),
 ])
-def test_xyz_nine_column_problems_are_file_errors(tmp_path, rows, problem):
+def test_xyz_bad_colours_are_file_errors(tmp_path, rows, problem):
     p = tmp_path / "a.xyz"
     p.write_text("".join(f"{x} {r}\n" for x, r in zip(XYZ3, rows)))
     with pytest.raises(ShapeFileError, match=problem) as e:
