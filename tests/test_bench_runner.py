@@ -236,3 +236,30 @@ def test_matching_and_keypoint_rows_with_report(tmp_path):
     assert res == 0
     figs = list((run / "report" / "figures").glob("*.png"))
     assert any("render" in f.name for f in figs) and any("geodesic_error_curve" in f.name for f in figs)
+
+
+def test_a_full_disk_while_cleaning_the_results_file_is_a_run_folder_error(config_path, tmp_path, monkeypatch):
+    """The rewrite of results.jsonl (a torn last line moved aside) goes through atomic_output; a
+    write failure there is the typed RunFolderError, and the file and folder are left as they were."""
+    import os
+
+    from shape_toolkit.bench.store import RunFolderError
+
+    run = tmp_path / "run"
+    run.mkdir()
+    row = {"key": "k", "status": "ok", "task_name": "t", "task_kind": "x", "item": "i",
+           "method_label": "m", "metrics": {}}
+    (run / "results.jsonl").write_text(json.dumps(row) + '\n{"key": "to')
+    before = (run / "results.jsonl").read_bytes()
+    real_replace = os.replace
+
+    def replace(src, dst):
+        if str(dst).endswith("results.jsonl"):
+            raise OSError(28, "No space left on device")
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.warns(BenchWarning), pytest.raises(RunFolderError, match="cannot write to run folder.*No space left"):
+        run_benchmark(load_config(config_path), run, progress=False)
+    assert (run / "results.jsonl").read_bytes() == before
+    assert not [p.name for p in run.iterdir() if ".tmp" in p.name]
