@@ -128,58 +128,33 @@ def test_directory(tmp_mesh_dir):
     _fails(d, "directory")
 
 
-def test_unknown_extension(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "m.abc", "OFF\n"), "unknown shape format '.abc'")
+_OFF3 = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n"  # an OFF header and three vertices, for one face
+_PCD = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\n"
+        "HEIGHT 1\nPOINTS 3\nDATA ascii\n")  # fmt: skip
 
 
-def test_empty_file(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "e.off", ""), "empty")
-
-
-def test_truncated_off(tmp_mesh_dir):
-    rows = "".join(f"{i} 0 0\n" for i in range(50))
-    _fails(_write(tmp_mesh_dir / "t.off", f"OFF\n100 0 0\n{rows}"), "declares 100 vertices")
-
-
-def test_truncated_off_faces(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "t.off", "OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"), "2 faces")
-
-
-def test_non_numeric_token(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "n.off", "OFF\n3 1 0\n0 0 0\n1 abc 0\n0 1 0\n3 0 1 2\n"),
-           "line 4: non-numeric vertex value 'abc'")  # fmt: skip
-
-
-def test_nan_coordinate(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "n.off", "OFF\n3 1 0\n0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n"), "NaN")
-
-
-def test_inf_coordinate_in_xyz(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "n.xyz", "0 0 0\n1 inf 0\n"), "infinite")
-
-
-def test_face_index_out_of_range(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "r.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 3\n"),
-           "face index 3 out of range")  # fmt: skip
-
-
-def test_obj_index_zero_and_out_of_range(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "z.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n"), "1-based")
-    _fails(_write(tmp_mesh_dir / "r.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"), "out of range")
-
-
-def test_two_vertex_face(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "f.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n"),
-           "face with 2 vertices")  # fmt: skip
-
-
-def test_face_count_mismatch(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "f.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n4 0 1 2\n"),
-           "declares 4 vertices but lists 3")  # fmt: skip
-
-
-def test_not_an_off_file(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "x.off", "PLY\n1 2 3\n"), "not an OFF file")
+@pytest.mark.parametrize("name,text,match", [
+    pytest.param("m.abc", "OFF\n", "unknown shape format '.abc'", id="unknown-extension"),
+    pytest.param("e.off", "", "empty", id="empty-file"),
+    pytest.param("t.off", "OFF\n100 0 0\n" + "".join(f"{i} 0 0\n" for i in range(50)), "declares 100 vertices",
+                 id="truncated-off"),
+    pytest.param("t.off", "OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "2 faces", id="truncated-off-faces"),
+    pytest.param("n.off", "OFF\n3 1 0\n0 0 0\n1 abc 0\n0 1 0\n3 0 1 2\n", "line 4: non-numeric vertex value 'abc'",
+                 id="non-numeric-token"),
+    pytest.param("n.off", "OFF\n3 1 0\n0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n", "NaN", id="nan-coordinate"),
+    pytest.param("n.xyz", "0 0 0\n1 inf 0\n", "infinite", id="inf-coordinate-in-xyz"),
+    pytest.param("r.off", _OFF3 + "3 0 1 3\n", "face index 3 out of range", id="face-index-out-of-range"),
+    pytest.param("z.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "1-based", id="obj-index-zero"),
+    pytest.param("r.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "out of range", id="obj-index-out-of-range"),
+    pytest.param("f.off", _OFF3 + "2 0 1\n", "face with 2 vertices", id="two-vertex-face"),
+    pytest.param("f.off", _OFF3 + "4 0 1 2\n", "declares 4 vertices but lists 3", id="face-count-mismatch"),
+    pytest.param("x.off", "PLY\n1 2 3\n", "not an OFF file", id="not-an-off-file"),
+    # Open3D returns uninitialised points for this file; our reader must refuse it
+    pytest.param("t.pcd", _PCD + "1 2 3\n4 5\n", "declares 3 points", id="truncated-ascii-pcd"),
+    pytest.param("c.xyz", "# only a comment\n", "no vertices", id="point-cloud-with-empty-content"),
+])  # fmt: skip
+def test_malformed_text_files(tmp_mesh_dir, name, text, match):
+    _fails(_write(tmp_mesh_dir / name, text), match)
 
 
 def test_truncated_binary_ply(sphere, tmp_mesh_dir):
@@ -195,17 +170,6 @@ def test_truncated_binary_stl(sphere, tmp_mesh_dir):
     save_shape(sphere, p, binary=True)
     p.write_bytes(p.read_bytes()[:-10])
     _fails(p, "truncated")
-
-
-def test_truncated_ascii_pcd(tmp_mesh_dir):
-    # Open3D returns uninitialised points for this file; our reader must refuse it
-    head = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\n"
-            "HEIGHT 1\nPOINTS 3\nDATA ascii\n")  # fmt: skip
-    _fails(_write(tmp_mesh_dir / "t.pcd", head + "1 2 3\n4 5\n"), "declares 3 points")
-
-
-def test_point_cloud_file_with_empty_content(tmp_mesh_dir):
-    _fails(_write(tmp_mesh_dir / "c.xyz", "# only a comment\n"), "no vertices")
 
 
 def test_size_and_count_limits(tmp_mesh_dir, monkeypatch):
