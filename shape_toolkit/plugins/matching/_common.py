@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import weakref
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -253,6 +255,30 @@ def association_graph(
     return AssociationGraph(nodes.astype(np.int64), W, unary)
 
 
+def farthest_point_sampling(points: np.ndarray, n: int, start: int = 0) -> np.ndarray:
+    """``n`` indices of ``points`` ``(N, d)`` chosen by Euclidean farthest point sampling."""
+    P = np.asarray(points, dtype=np.float64)
+    n = min(n, len(P))
+    idx = np.empty(n, dtype=np.int64)
+    if n == 0:
+        return idx
+    idx[0] = start
+    coords = [np.ascontiguousarray(P[:, c]) for c in range(P.shape[1])]
+    d = np.full(len(P), np.inf)
+    t, u = np.empty(len(P)), np.empty(len(P))
+    j = int(start)
+    for i in range(1, n):  # squared distance to the newest sample, in place (no temporaries)
+        t.fill(0.0)
+        for c, x in zip(coords, P[j]):
+            np.subtract(c, x, out=u)
+            np.multiply(u, u, out=u)
+            t += u
+        np.minimum(d, t, out=d)
+        j = int(d.argmax())
+        idx[i] = j
+    return idx
+
+
 def outward_vertex_normals(shape: Shape) -> np.ndarray:
     """Unit vertex normals ``(n, 3)`` (area-weighted face normals), oriented outwards: flipped
     when the signed volume of the mesh is negative."""
@@ -419,12 +445,91 @@ def symmetry_matcher():
     return side_matcher("reversing")
 
 
+class _IdentityCache:
+    """A small LRU of computed values keyed on the *identity* of objects (shapes, spectra) plus a
+    hashable ``extra``: entries hold weak references, and a key only hits while every object is
+    alive and is the very object it was computed for (an ``id`` reused by a new object misses).
+    Shapes and spectra are frozen, so identity stands for content."""
+
+    def __init__(self, size: int = 2):
+        self.size = size
+        self._d: OrderedDict = OrderedDict()
+
+    def get(self, objs: tuple, extra: Any, compute: Callable[[], Any]) -> Any:
+        key = (tuple(id(o) for o in objs), extra)
+        hit = self._d.get(key)
+        if hit is not None and all(r() is o for r, o in zip(hit[0], objs)):
+            self._d.move_to_end(key)
+            return hit[1]
+        value = compute()
+        self._d[key] = (tuple(weakref.ref(o) for o in objs), value)
+        while len(self._d) > self.size:
+            self._d.popitem(last=False)
+        return value
+
+    def clear(self) -> None:
+        self._d.clear()
+
+
+#: the symmetry maps and side references of the last shapes matched: a pipeline's sparse stage and
+#: EM ask for the same ones (keyed on the source/target Shape objects and the Spectrum objects used)
+_SYMMETRY_CACHE = _IdentityCache()
+_SIDE_CACHE = _IdentityCache()
+
+
+def clear_side_caches() -> None:
+    """Forget the cached symmetry maps and side references (:func:`symmetry_map`, :func:`side_reference`)."""
+    _SYMMETRY_CACHE.clear()
+    _SIDE_CACHE.clear()
+
+
 def symmetry_map(shape: Shape, spectrum: Spectrum | Sequence[Spectrum] | None = None) -> np.ndarray:
     """The intrinsic symmetry of ``shape`` as a vertex map ``(n,)``: its self-map by
     :func:`symmetry_matcher` (descriptor-preserving and orientation-reversing), computed on the
-    caller's spectra (``spectrum``: the list a pipeline hands the stages; None: the cache)."""
+    caller's spectra (``spectrum``: the list a pipeline hands the stages; None: the cache).
+
+    Cached on the identity of ``shape`` and of the spectrum used (the last two; read-only array),
+    so that a pipeline's sparse stage and EM compute it once."""
     given = _given(spectrum)
-    return symmetry_matcher().match(shape, shape, source_spectrum=given, target_spectrum=given).target_of
+    m = symmetry_matcher()
+    spec = m._spectrum(shape, given)
+
+    def compute() -> np.ndarray:
+        t = np.array(m.match(shape, shape, source_spectrum=[spec], target_spectrum=[spec]).target_of, dtype=np.int64)
+        t.setflags(write=False)
+        return t
+
+    return _SYMMETRY_CACHE.get((shape, spec), None, compute)
+
+
+def symmetry_validity(shape: Shape, sym: np.ndarray, basis: Basis, k_smooth: int = 20) -> np.ndarray:
+    """Where the self-map ``sym`` ``(n,)`` of ``shape`` behaves as a left-right symmetry: boolean ``(n,)``.
+
+    An intrinsic symmetry is an involution (``S(S(x)) = x``) that reverses orientation. Per vertex,
+    a vote without any scale constant: ``S(S(x))`` is nearer (Euclidean) to ``x`` than to ``S(x)``
+    (+1) or not (-1); low-pass filtered on the first ``k_smooth`` eigenfunctions of ``basis`` (a
+    part is judged as a whole), ``S`` is valid where it is positive (near the symmetry plane, where
+    ``S(x) ~ x``, the region's vote decides). Orientation is checked globally: when the local triple
+    products of the matches ``(x, S(x))`` (:func:`orientation_score` on 120 farthest-point samples)
+    do not say *reversing* on the whole, ``S`` is valid nowhere. (Per region the triple products
+    are too noisy on thin limbs to veto a part.)"""
+    V = np.asarray(shape.vertices, dtype=np.float64)
+    s = np.asarray(sym, dtype=np.int64)
+    ss = s[s]
+    to_x = np.linalg.norm(V[ss] - V, axis=1)
+    to_s = np.linalg.norm(V[ss] - V[s], axis=1)
+    inv = np.sign(to_s - to_x)
+    phi = basis.evecs[:, :k_smooth]
+
+    def smooth(v: np.ndarray) -> np.ndarray:
+        return phi @ (phi.T @ (basis.mass * v))
+
+    ok = smooth(inv) > 0
+    if shape.is_mesh and shape.n_vertices >= 4:
+        rows = farthest_point_sampling(V, min(120, shape.n_vertices))
+        if orientation_score(shape, shape, np.column_stack([rows, s[rows]])) >= 0:
+            ok[:] = False
+    return ok
 
 
 def _given(spectrum: Spectrum | Sequence[Spectrum] | None) -> list[Spectrum] | None:
@@ -444,6 +549,10 @@ class SideReference:
     target_points: np.ndarray
     basis: Basis
     k_smooth: int
+    #: the reference's own point map ``(n_s,)`` (target vertex of each source vertex)
+    target_of: np.ndarray | None = None
+    #: the target's basis (same size as ``basis``), for :meth:`overlaps`
+    target_basis: Basis | None = None
 
     def sq_distances(self, src: np.ndarray, tgt: np.ndarray) -> np.ndarray:
         """Squared spectral distances ``(q,)`` between source vertices ``src`` and the reference
@@ -471,6 +580,58 @@ class SideReference:
         smooth = phi @ (phi.T @ (self.basis.mass * vote))
         return ok & (smooth > 0)
 
+    def _smooth(self, v: np.ndarray) -> np.ndarray:
+        phi = self.basis.evecs[:, : self.k_smooth]
+        return phi @ (phi.T @ (self.basis.mass * v))
+
+    def disagrees(self, target_of: np.ndarray) -> np.ndarray:
+        """Boolean ``(n_s,)``: the regions where the dense map ``target_of`` is far from the reference
+        -- not a side question but a wrong part (two limbs sent onto one target limb): the excess
+        ``d(x, T(x)) - d(x, R(x))`` of squared spectral distances over the reference's own map ``R``
+        (``>= 0`` up to ZoomOut's last step), low-pass filtered like :meth:`prefer`, is a far-out
+        value of its own distribution over the source (Tukey's fence, ``Q3 + 3 IQR``, area-weighted
+        quartiles): scale-free, no fitted constant; assumes under a quarter of the area is wrong.
+        Unmatched entries (-1) count as disagreeing."""
+        t = np.asarray(target_of)
+        if self.target_of is None:
+            return np.zeros(len(t), dtype=bool)
+        ok = t >= 0
+        ids = np.flatnonzero(ok)
+        excess = np.zeros(len(t))
+        excess[ids] = self.sq_distances(ids, t[ids]) - self.sq_distances(ids, self.target_of[ids])
+        smooth = self._smooth(excess)
+        q1, q3 = _weighted_quantiles(smooth, self.basis.mass, (0.25, 0.75))
+        return ~ok | (smooth > q3 + 3.0 * (q3 - q1))
+
+
+    def overlaps(self, target_of: np.ndarray) -> np.ndarray:
+        """Boolean ``(n_s,)``: source vertices whose image lies where the dense map ``target_of``
+        piles up more than one layer of the source (two limbs sent onto one): the push-forward of the
+        source's (normalized) area onto the target, low-pass filtered on the target's first
+        ``k_smooth`` eigenfunctions, is a density relative to the target's (normalized) area, ~1 for
+        a bijection and ~2 over a doubly covered part; a vertex overlaps where it exceeds 1.5 (nearer
+        two layers than one)."""
+        t = np.asarray(target_of)
+        out = np.zeros(len(t), dtype=bool)
+        if self.target_basis is None:
+            return out
+        ok = np.flatnonzero(t >= 0)
+        bs, bt = self.basis, self.target_basis
+        push = np.bincount(t[ok], bs.mass[ok] / bs.mass.sum(), minlength=len(bt.mass))
+        phi = bt.evecs[:, : self.k_smooth]
+        # phi is M-orthonormal: the density of the measure ``push`` w.r.t. the area is phi phi^T push
+        density = (phi @ (phi.T @ push)) * bt.mass.sum()
+        out[ok] = density[t[ok]] > 1.5
+        return out
+
+
+def _weighted_quantiles(v: np.ndarray, w: np.ndarray, qs: Sequence[float]) -> list[float]:
+    """Quantiles ``qs`` of the values ``v`` ``(n,)`` under the weights ``w`` ``(n,)``."""
+    order = np.argsort(v, kind="stable")
+    c = np.cumsum(w[order])
+    c = c / max(c[-1], 1e-300)
+    return [float(v[order[min(int(np.searchsorted(c, q)), len(v) - 1)]]) for q in qs]
+
 
 def side_reference(
     source: Shape, target: Shape, source_spectrum: Spectrum | Sequence[Spectrum] | None = None,
@@ -483,13 +644,24 @@ def side_reference(
     map's orientation term (``sum_f ||C O_t(f) - O_s(f) C||^2``, outward normals) can, and being
     fitted globally at low frequency it also tells which of two mirror-image limbs is which --
     what local triple products of matched points (:func:`orientation_score`) cannot when a
-    tubular limb is mapped onto its mirror twin with a twist."""
+    tubular limb is mapped onto its mirror twin with a twist.
+
+    Cached on the identity of the two shapes and of the spectra used (the last two references), so
+    that a pipeline's sparse stage and EM compute it once."""
     m = side_matcher(orientation)
-    gs, gt = _given(source_spectrum), _given(target_spectrum)
-    C = np.asarray(m.match(source, target, source_spectrum=gs, target_spectrum=gt).info["C"])
-    k = C.shape[0]
-    bs, bt = basis_of(m._spectrum(source, gs), k), basis_of(m._spectrum(target, gt), k)
-    return SideReference(bs.evecs[:, :k], bt.evecs[:, : C.shape[1]] @ C.T, bs, int(min(m.k, k)))
+    ss, st = m._spectrum(source, _given(source_spectrum)), m._spectrum(target, _given(target_spectrum))
+
+    def compute() -> SideReference:
+        res = m.match(source, target, source_spectrum=[ss], target_spectrum=[st])
+        C = np.asarray(res.info["C"])
+        k = C.shape[0]
+        bs, bt = basis_of(ss, k), basis_of(st, k)
+        t = np.array(res.target_of, dtype=np.int64)
+        for a in (t, C):
+            a.setflags(write=False)
+        return SideReference(bs.evecs[:, :k], bt.evecs[:, : C.shape[1]] @ C.T, bs, int(min(m.k, k)), t, bt)
+
+    return _SIDE_CACHE.get((source, target, ss, st), orientation, compute)
 
 
 def orient_pairs(
@@ -498,14 +670,25 @@ def orient_pairs(
 ) -> np.ndarray:
     """Matches ``pairs`` ``(q, 2)`` with each one's side decided: ``(a, b)`` is replaced by its
     mirror image ``(S(a), b)`` (``S`` = :func:`symmetry_map` of the source) when that agrees better
-    with :func:`side_reference`; duplicate source vertices keep their first match. int64 ``(q', 2)``."""
+    with :func:`side_reference` -- only where ``S`` passes :func:`symmetry_validity`; a match that,
+    after this, still disagrees with the reference far more than the others (its excess
+    ``d(a, b) - d(a, R(a))`` over the reference's own map is beyond Tukey's fence ``Q3 + 3 IQR`` of
+    the matches' excesses) is dropped: neither it nor its mirror image is where the reference puts
+    it. Duplicate source vertices keep their first match. int64 ``(q', 2)``."""
     p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if len(p) == 0:
         return p
     ref = side_reference(source, target, source_spectrum, target_spectrum, orientation)
     sym = symmetry_map(source, source_spectrum)
+    valid = symmetry_validity(source, sym, ref.basis, ref.k_smooth)
     mirrored = sym[p[:, 0]]
-    swap = ref.sq_distances(mirrored, p[:, 1]) < ref.sq_distances(p[:, 0], p[:, 1])
+    d_keep = ref.sq_distances(p[:, 0], p[:, 1])
+    d_mirror = ref.sq_distances(mirrored, p[:, 1])
+    swap = valid[p[:, 0]] & (d_mirror < d_keep)
     out = np.column_stack([np.where(swap, mirrored, p[:, 0]), p[:, 1]])
+    if ref.target_of is not None and len(out) >= 4:
+        excess = ref.sq_distances(out[:, 0], out[:, 1]) - ref.sq_distances(out[:, 0], ref.target_of[out[:, 0]])
+        q1, q3 = np.quantile(excess, [0.25, 0.75])
+        out = out[excess <= q3 + 3.0 * (q3 - q1)]
     _, first = np.unique(out[:, 0], return_index=True)
     return out[np.sort(first)]

@@ -434,22 +434,30 @@ class EMRegistrationMatcher(DenseMatcher):
     def _orient(self, X, Y, first, source: Shape, target: Shape, info: dict, bases, source_spectrum,
                 target_spectrum=None):
         """Orientation check of the class docstring: the chosen :meth:`_solve` result."""
-        from shape_toolkit.plugins.matching._common import side_reference, symmetry_map
+        from shape_toolkit.plugins.matching._common import side_reference, symmetry_map, symmetry_validity
 
         K = X.shape[1]
-        info["orientation_score"] = self._orientation(source, target, first[3], bases, K)
         ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation)
         t = first[3]
         sym = symmetry_map(source, source_spectrum)
-        swap = ref.prefer(t, t[sym])
-        info["orientation_mirrored_area"] = float(ref.basis.mass[swap].sum() / ref.basis.mass.sum())
-        info["orientation_flipped"] = False
-        if not swap.any():
-            return first
-        # the parts the reference puts on the other side take their mirror image T(S(x)): that map
-        # (refined when k_final is set) and EM run again from it (EM smooths the seams, but may fall
-        # back to the first map) are candidates; the one that agrees best with the reference wins
+        valid = symmetry_validity(source, sym, ref.basis, ref.k_smooth)
+        area = ref.basis.mass.sum()
+        info["orientation_symmetry_valid_area"] = float(ref.basis.mass[valid].sum() / area)
+        swap = ref.prefer(t, np.where(valid, t[sym], -1))
+        info["orientation_mirrored_area"] = float(ref.basis.mass[swap].sum() / area)
         t_c = np.where(swap, t[sym], t)
+        # neither T nor T(S) where the reference is, and T piles two parts onto one: a wrong part
+        # (where T is one-to-one the reference may be the one that is wrong)
+        lost = ref.disagrees(t_c) & ref.overlaps(t_c)
+        info["orientation_replaced_area"] = float(ref.basis.mass[lost].sum() / area)
+        info["orientation_flipped"] = False
+        if not swap.any() and not lost.any():
+            return first
+        # the parts the reference puts on the other side take their mirror image T(S(x)), the parts
+        # neither agrees with take the reference's own map R(x): that map (refined when k_final is
+        # set) and EM run again from it (EM smooths the seams, but may fall back to the first map)
+        # are candidates; the one that agrees best with the reference wins
+        t_c = np.where(lost, ref.target_of, t_c)
         ok = t_c >= 0
         Qc = procrustes(Y[t_c[ok]].T @ X[ok])
         if self.k_final and bases is not None and self.k_final > K and ok.all():
@@ -461,7 +469,6 @@ class EMRegistrationMatcher(DenseMatcher):
         if best == 0:
             return first
         info["orientation_flipped"] = "all" if info["orientation_mirrored_area"] > 0.5 else "local"
-        info["orientation_score"] = self._orientation(source, target, cands[best][3], bases, K)
         return cands[best]
 
     def _finish(self, X, Y, Q0, target: Shape, info: dict, source: Shape | None = None,
@@ -470,6 +477,8 @@ class EMRegistrationMatcher(DenseMatcher):
         res = self._solve(X, Y, Q0, bases)
         if self.orientation != "none" and source is not None and source.is_mesh and target.is_mesh:
             res = self._orient(X, Y, res, source, target, info, bases, source_spectrum, target_spectrum)
+            # diagnostic only, once, on the map returned
+            info["orientation_score"] = self._orientation(source, target, res[3], bases, X.shape[1])
         Q, sigma, P, t, conf, n_confident = res
         if self.k_final and bases is not None and self.k_final > X.shape[1] and self.fill_unmatched:
             info["k_final"] = int(min(self.k_final, bases[0].k - 1, bases[1].k - 1))

@@ -33,12 +33,13 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.descriptors.wks import wave_kernel_signature as _wks
-from shape_toolkit.plugins.matching._common import (
+from shape_toolkit.plugins.matching._common import (  # noqa: F401  (farthest_point_sampling: re-exported)
     Basis,
     UsesDescriptor,
     basis_of,
     check_descriptors,
     check_seeds,
+    farthest_point_sampling,
     fmap_from_p2p,
     normalize_columns,
 )
@@ -231,30 +232,6 @@ def wave_kernel_signature(spectrum: Spectrum, n_energies: int = 100, variance: f
 
     vals, U = spectral_basis(spectrum)
     return _wks(vals, U, n_energies, variance)
-
-
-def farthest_point_sampling(points: np.ndarray, n: int, start: int = 0) -> np.ndarray:
-    """``n`` indices of ``points`` ``(N, d)`` chosen by Euclidean farthest point sampling."""
-    P = np.asarray(points, dtype=np.float64)
-    n = min(n, len(P))
-    idx = np.empty(n, dtype=np.int64)
-    if n == 0:
-        return idx
-    idx[0] = start
-    coords = [np.ascontiguousarray(P[:, c]) for c in range(P.shape[1])]
-    d = np.full(len(P), np.inf)
-    t, u = np.empty(len(P)), np.empty(len(P))
-    j = int(start)
-    for i in range(1, n):  # squared distance to the newest sample, in place (no temporaries)
-        t.fill(0.0)
-        for c, x in zip(coords, P[j]):
-            np.subtract(c, x, out=u)
-            np.multiply(u, u, out=u)
-            t += u
-        np.minimum(d, t, out=d)
-        j = int(d.argmax())
-        idx[i] = j
-    return idx
 
 
 class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
