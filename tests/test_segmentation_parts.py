@@ -297,3 +297,74 @@ def test_csc_graph_auto_is_dual_on_meshes_and_vertex_on_point_clouds(body):
     v = seg_c.segment(cloud, constraints=cons)
     assert v.shape == (cloud.n_vertices,) and not hasattr(seg_c, "face_labels_")
     assert rand_index_error(v, b.labels) < 0.25
+
+
+# -- csc: parts nobody clicked (fewer must-link groups than k) ------------------------------------
+def _clicks_on_strip_and_first_bump(shape: Shape) -> Constraints:
+    """One must-link on the strip (far from both bumps) and one on the first bump: two clicked parts;
+    the second bump is a part the user did not click."""
+    v = shape.vertices
+
+    def vid(x: float, y: float) -> int:
+        return int(np.argmin(((v[:, :2] - [x, y]) ** 2).sum(axis=1)))
+
+    return Constraints(np.array([[vid(0.3, 0.9), vid(6.0, 0.9)], [vid(1.1, 0.3), vid(1.3, 0.5)]]), None)
+
+
+def test_csc_makes_the_unclicked_parts_by_normalized_cuts():
+    """k = 3 with two clicked parts: the third segment is the unclicked bump behind its concave crease
+    (normalized cuts of the modified graph), not half of the large strip (k-means with a free centre:
+    the balance bias, as on PSB hand 187)."""
+    shape, vl = _slab_with_two_bumps()
+    truth = vertex_to_face_labels(shape.faces, vl)
+    cons = _clicks_on_strip_and_first_bump(shape)
+    assert sorted(vl[cons.must_link[:, 0]].tolist()) == [0, 1]  # the clicks name parts 0 and 1 only
+    seg = create_plugin("segmenters", "csc", n_segments=3)
+    seg.segment(shape, constraints=cons)
+    assert seg.extra_segments == "ncut" and seg.n_seed_groups_ == 2 and seg.n_cut_segments_ == 1
+    assert len(np.unique(seg.face_labels_)) == 3 and rand_index_error(seg.face_labels_, truth) < 0.06
+    for a, b in cons.must_link:  # every must-link satisfied (the clicked vertices' faces)
+        fa, fb = seg._face_of_vertex(shape)[[a, b]]
+        assert seg.face_labels_[fa] == seg.face_labels_[fb]
+    old = create_plugin("segmenters", "csc", n_segments=3, extra_segments="kmeans")
+    old.segment(shape, constraints=cons)
+    assert old.n_cut_segments_ == 0 and rand_index_error(old.face_labels_, truth) > 0.3
+    with pytest.raises(ParameterError, match="extra_segments"):
+        create_plugin("segmenters", "csc", n_segments=3, extra_segments="gmm").segment(shape, constraints=cons)
+
+
+def test_csc_unclicked_parts_are_vertex_order_independent():
+    shape, vl = _slab_with_two_bumps()
+    cons = _clicks_on_strip_and_first_bump(shape)
+    perm = np.random.default_rng(3).permutation(shape.n_vertices)
+    inv = np.argsort(perm)  # vertex i of shape is vertex inv[i] of the permuted one
+    permuted = Shape(shape.vertices[perm], inv[shape.faces])
+    seg, seg_p = (create_plugin("segmenters", "csc", n_segments=3) for _ in range(2))
+    seg.segment(shape, constraints=cons)
+    seg_p.segment(permuted, constraints=Constraints(inv[cons.must_link], None))
+    assert seg.n_cut_segments_ == seg_p.n_cut_segments_ == 1
+    assert rand_index_error(seg.face_labels_, seg_p.face_labels_) == 0.0  # faces keep their order
+
+
+def test_sweep_cut_never_separates_kept_together_nodes():
+    """A path 0-1-...-9 with one weak edge 4-5: the best cut is there, unless 4 and 5 must stay
+    together; then the next best one is taken, and with every node kept together there is none."""
+    from shape_toolkit.plugins.segmenters._common import split_by_normalized_cuts, sweep_cut
+    from shape_toolkit.plugins.segmenters.ncut import sweep_cut as ncut_sweep_cut
+
+    assert ncut_sweep_cut is sweep_cut  # one place, re-exported
+    pairs, _ = _strip([0] * 10)
+    w = np.ones(9)
+    w[4], w[1] = 1e-3, 1e-2
+    from shape_toolkit.features.smoothing import dual_adjacency
+
+    W = dual_adjacency(10, pairs, w)
+    vol = np.asarray(W.sum(axis=1)).ravel()
+    x = np.arange(10.0)[:, None]
+    value, mask = sweep_cut(W, x, vol, 0.0)
+    assert np.flatnonzero(mask).tolist() == [0, 1, 2, 3, 4]
+    value2, mask2 = sweep_cut(W, x, vol, 0.0, [np.array([5, 4])])
+    assert value2 > value and np.flatnonzero(mask2).tolist() == [0, 1]
+    assert sweep_cut(W, x, vol, 0.0, [np.arange(10)]) == (np.inf, None)
+    labels, values = split_by_normalized_cuts(W, np.zeros(10, dtype=np.int64), 3, n_vectors=1, min_fraction=0.0)
+    assert labels.tolist() == [0, 0, 1, 1, 1, 2, 2, 2, 2, 2] and len(values) == 2

@@ -36,7 +36,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
@@ -47,40 +46,11 @@ from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
     face_segments_to_vertices,
     merge_to_segments,
+    split_by_normalized_cuts,
+    sweep_cut,
 )
 
-
-def sweep_cut(
-    W: sp.csr_matrix, vectors: np.ndarray, volume: np.ndarray, min_volume: float
-) -> tuple[float, np.ndarray | None]:
-    """The best two-way normalized cut among the threshold cuts of the columns of ``vectors``
-    ``(n, q)`` of the graph ``W`` ``(n, n)``: ``(Ncut, mask of one side)``, or ``(inf, None)`` when
-    no threshold leaves ``min_volume`` of ``volume`` ``(n,)`` on both sides. O(q (e + n log n))."""
-    n = W.shape[0]
-    coo = sp.triu(W, k=1).tocoo()
-    r, c, x = coo.row, coo.col, coo.data
-    total = float(volume.sum())
-    best: tuple[float, np.ndarray | None] = (np.inf, None)
-    for q in range(vectors.shape[1]):
-        order = np.argsort(vectors[:, q], kind="stable")
-        rank = np.empty(n, dtype=np.int64)
-        rank[order] = np.arange(n)
-        lo, hi = np.minimum(rank[r], rank[c]), np.maximum(rank[r], rank[c])
-        # an edge is cut by every prefix {order[:t+1]} with lo <= t < hi
-        delta = np.bincount(lo, weights=x, minlength=n + 1) - np.bincount(hi, weights=x, minlength=n + 1)
-        cut = np.cumsum(delta)[: n - 1]
-        vol = np.cumsum(volume[order])[: n - 1]
-        ok = (vol >= min_volume) & (total - vol >= min_volume)
-        if not ok.any():
-            continue
-        with np.errstate(divide="ignore", invalid="ignore"):
-            score = np.where(ok, cut / vol + cut / (total - vol), np.inf)
-        t = int(np.argmin(score))
-        if score[t] < best[0]:
-            mask = np.zeros(n, dtype=bool)
-            mask[order[: t + 1]] = True
-            best = (float(score[t]), mask)
-    return best
+__all__ = ["NormalizedCutSegmenter", "sweep_cut"]
 
 
 class NormalizedCutSegmenter(Segmenter):
@@ -124,20 +94,6 @@ class NormalizedCutSegmenter(Segmenter):
             raise ParameterError(f"min_fraction must be in [0, 0.5), got {self.min_fraction!r}")
         return int(k), int(nv), mf
 
-    def _best_cut(self, W: sp.csr_matrix, idx: np.ndarray, volume: np.ndarray, nv: int, min_volume: float):
-        from shape_toolkit.core.eigen import smallest_eigenpairs
-
-        if len(idx) < 4:
-            return np.inf, None
-        Ws = W[idx][:, idx].tocsr()
-        d = np.asarray(Ws.sum(axis=1)).ravel()
-        if d.max() <= 0:
-            return np.inf, None
-        L = sp.csr_matrix(sp.diags(d) - Ws)
-        q = min(nv + 1, len(idx) - 1)
-        _, vecs = smallest_eigenpairs(L, q, np.maximum(d, 1e-12 * d.max()), tol=float(self.tol))
-        return sweep_cut(Ws, vecs[:, 1:], volume[idx], min_volume)
-
     def segment(self, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
         """int64 vertex labels ``(n,)``; face labels in ``face_labels_`` (constraints are ignored)."""
         from scipy.sparse.csgraph import connected_components
@@ -148,28 +104,9 @@ class NormalizedCutSegmenter(Segmenter):
         pairs, w = concavity_weights(shape, concavity_scale=self.concavity_scale,
                                      convex_factor=self.convex_factor, min_weight=self.min_weight)
         W = dual_adjacency(m, pairs, w)
-        volume = np.asarray(W.sum(axis=1)).ravel()
-        min_volume = mf * float(volume.sum())
-        n_comp, labels = connected_components(W, directed=False)
-        labels = labels.astype(np.int64)
-        members = {int(s): np.flatnonzero(labels == s) for s in range(n_comp)}
-        cache: dict[int, tuple[float, np.ndarray | None]] = {}
-        next_id = n_comp
-        self.ncut_values_ = []
-        while len(members) < k:
-            for s, idx in members.items():
-                if s not in cache:
-                    cache[s] = self._best_cut(W, idx, volume, nv, min_volume)
-            s = min(cache, key=lambda t: (cache[t][0], t))
-            value, mask = cache.pop(s)
-            if not np.isfinite(value) or mask is None:
-                break
-            idx = members.pop(s)
-            a, b = next_id, next_id + 1
-            next_id += 2
-            members[a], members[b] = idx[mask], idx[~mask]
-            labels[idx[mask]], labels[idx[~mask]] = a, b
-            self.ncut_values_.append(value)
+        _, labels = connected_components(W, directed=False)
+        labels, self.ncut_values_ = split_by_normalized_cuts(W, labels, k, n_vectors=nv, min_fraction=mf,
+                                                             tol=float(self.tol))
         self.cut_labels_ = labels
         fl = merge_to_segments(labels, pairs, np.asarray(shape.face_areas, dtype=np.float64), k)
         self.face_labels_ = fl
