@@ -321,16 +321,16 @@ def test_csc_makes_the_unclicked_parts_by_normalized_cuts():
     assert sorted(vl[cons.must_link[:, 0]].tolist()) == [0, 1]  # the clicks name parts 0 and 1 only
     seg = create_plugin("segmenters", "csc", n_segments=3)
     seg.segment(shape, constraints=cons)
-    assert seg.extra_segments == "ncut" and seg.n_seed_groups_ == 2 and seg.n_cut_segments_ == 1
+    assert seg.k_mismatch == "ncut" and seg.n_seed_groups_ == 2 and seg.n_cuts_ == 1
     assert len(np.unique(seg.face_labels_)) == 3 and rand_index_error(seg.face_labels_, truth) < 0.06
     for a, b in cons.must_link:  # every must-link satisfied (the clicked vertices' faces)
         fa, fb = seg._face_of_vertex(shape)[[a, b]]
         assert seg.face_labels_[fa] == seg.face_labels_[fb]
-    old = create_plugin("segmenters", "csc", n_segments=3, extra_segments="kmeans")
+    old = create_plugin("segmenters", "csc", n_segments=3, k_mismatch="kmeans")
     old.segment(shape, constraints=cons)
-    assert old.n_cut_segments_ == 0 and rand_index_error(old.face_labels_, truth) > 0.3
-    with pytest.raises(ParameterError, match="extra_segments"):
-        create_plugin("segmenters", "csc", n_segments=3, extra_segments="gmm").segment(shape, constraints=cons)
+    assert old.n_cuts_ == 0 and rand_index_error(old.face_labels_, truth) > 0.3
+    with pytest.raises(ParameterError, match="k_mismatch"):
+        create_plugin("segmenters", "csc", n_segments=3, k_mismatch="gmm").segment(shape, constraints=cons)
 
 
 def test_csc_unclicked_parts_are_vertex_order_independent():
@@ -342,7 +342,7 @@ def test_csc_unclicked_parts_are_vertex_order_independent():
     seg, seg_p = (create_plugin("segmenters", "csc", n_segments=3) for _ in range(2))
     seg.segment(shape, constraints=cons)
     seg_p.segment(permuted, constraints=Constraints(inv[cons.must_link], None))
-    assert seg.n_cut_segments_ == seg_p.n_cut_segments_ == 1
+    assert seg.n_cuts_ == seg_p.n_cuts_ == 1
     assert rand_index_error(seg.face_labels_, seg_p.face_labels_) == 0.0  # faces keep their order
 
 
@@ -364,7 +364,34 @@ def test_sweep_cut_never_separates_kept_together_nodes():
     value, mask = sweep_cut(W, x, vol, 0.0)
     assert np.flatnonzero(mask).tolist() == [0, 1, 2, 3, 4]
     value2, mask2 = sweep_cut(W, x, vol, 0.0, [np.array([5, 4])])
+    # separate: a whole group on each side ({0} and {2, 3}: the cut 1|2 qualifies, 4|5 does not)
+    value3, mask3 = sweep_cut(W, x, vol, 0.0, [np.array([0]), np.array([2, 3])], separate=True)
+    assert np.flatnonzero(mask3).tolist() == [0, 1] and value3 == value2
     assert value2 > value and np.flatnonzero(mask2).tolist() == [0, 1]
     assert sweep_cut(W, x, vol, 0.0, [np.arange(10)]) == (np.inf, None)
+    assert sweep_cut(W, x, vol, 0.0, [np.array([0]), np.array([1])], separate=True)[1].tolist() == [True] + [False] * 9
     labels, values = split_by_normalized_cuts(W, np.zeros(10, dtype=np.int64), 3, n_vectors=1, min_fraction=0.0)
     assert labels.tolist() == [0, 0, 1, 1, 1, 2, 2, 2, 2, 2] and len(values) == 2
+
+
+def test_csc_with_more_clicked_parts_than_k_keeps_the_weakly_separated_groups_together():
+    """Three clicked groups for k = 2: two at the ends of the strip (nothing between them but the
+    strip) and one on the first bump. The cuts separate groups across the bump's concave crease, so
+    the two strip groups stay together; farthest-first seeding (``k_mismatch="kmeans"``) starts
+    k-means from the two strip ends and cuts the strip in two."""
+    shape, vl = _slab_with_two_bumps()
+    v = shape.vertices
+
+    def vid(x: float, y: float) -> int:
+        return int(np.argmin(((v[:, :2] - [x, y]) ** 2).sum(axis=1)))
+
+    cons = Constraints(np.array([[vid(0.1, 0.2), vid(0.1, 0.8)], [vid(11.9, 0.2), vid(11.9, 0.8)],
+                                 [vid(1.1, 0.3), vid(1.3, 0.5)]]), None)
+    truth = vertex_to_face_labels(shape.faces, (vl == 1).astype(np.int64))  # bump 1 against the rest
+    seg = create_plugin("segmenters", "csc", n_segments=2)
+    seg.segment(shape, constraints=cons)
+    assert seg.n_seed_groups_ == 3 and seg.n_cuts_ == 1
+    assert rand_index_error(seg.face_labels_, truth) < 0.03
+    old = create_plugin("segmenters", "csc", n_segments=2, k_mismatch="kmeans")
+    old.segment(shape, constraints=cons)
+    assert old.n_cuts_ == 0 and rand_index_error(old.face_labels_, truth) > 0.3
