@@ -24,6 +24,7 @@ import os
 import platform
 import subprocess
 import sys
+import time
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,7 @@ else:  # pragma: no cover
 HERE = Path(__file__).resolve().parent
 CONFIG = HERE / "config.toml"
 REVISIONS = "revisions.jsonl"
+RUNLOG = "runlog.jsonl"
 #: the thesis's Table 7.2 (percent, r-smooth_theta, theta = 90 %): {method: {r: [6 visual-shape pairs]}}
 THESIS_72 = {
     "ovsjanikov2010": {0.1: [8.56, 24.63, 30.47, 0.0, 0.0, 7.65], 0.2: [14.09, 38.96, 48.09, 7.60, 7.05, 9.01],
@@ -97,8 +99,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     run = Path(args.output)
     rev = git_revision()
     before = {r["key"] for r in read_rows(run)} if (run / "results.jsonl").exists() else set()
+    started, load0 = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()), os.getloadavg()
     summary = run_benchmark(cfg, run, workers=1, limit=args.limit, progress=not args.quiet)
     new = [r for r in read_rows(run) if r["key"] not in before]
+    entry = {"methods": methods, "limit": args.limit, "started": started,
+             "ended": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()), "wall_seconds": summary.seconds,
+             "load_start": [round(x, 2) for x in load0], "load_end": [round(x, 2) for x in os.getloadavg()],
+             "new_rows": len(new), "cpus": os.cpu_count(), **rev}
+    with open(run / RUNLOG, "a", encoding="utf-8") as fh:
+        fh.write(json.dumps(entry) + "\n")
     with open(run / REVISIONS, "a", encoding="utf-8") as fh:
         for r in new:
             fh.write(json.dumps({"key": r["key"], **rev}) + "\n")
@@ -208,6 +217,11 @@ def _f(v: Any, fmt: str = "{:.1f}") -> str:
     return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v)
 
 
+def _ratio(a: Any, b: Any) -> str:
+    ok = all(isinstance(x, (int, float)) and math.isfinite(x) for x in (a, b)) and b > 0
+    return f"{a / b:.2f}x" if ok else "-"
+
+
 def _ordered(names) -> list[str]:
     return sorted(names, key=lambda n: (ORDER.index(n) if n in ORDER else len(ORDER), n))
 
@@ -293,20 +307,34 @@ def write_results(runs: list[Path], out: Path) -> dict[str, Any]:
         "## Table 7.3: segmentation transfer (mean recall and precision over 8 segments)",
         "",
         "| method | pairs | recall | precision | mean geodesic error | within 0.05 | flipped pairs | CPU s/pair | "
-        "wall s/pair | failed | commit |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "CPU vs pyFM | wall s/pair | failed | commit |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for n in names:
         s = summ[n]
         lines.append(
             f"| {n} | {s['pairs']} | {_f(s['label_recall'], '{:.4f}')} | {_f(s['label_precision'], '{:.4f}')} | "
             f"{_f(s['mean_geodesic_error'], '{:.4f}')} | {_f(100 * s['within_0.05'])} % | "
-            f"{_f(s['flipped'], '{}')} | {_f(s['cpu_s'])} | {_f(s['wall_s'])} | {s['failed']} | "
+            f"{_f(s['flipped'], '{}')} | {_f(s['cpu_s'])} | {_ratio(s['cpu_s'], summ.get('pyfm', {}).get('cpu_s'))} | "
+            f"{_f(s['wall_s'])} | {s['failed']} | "
             f"{', '.join(s['commits'])} |"
         )
     for key, label in (("proposed", "thesis: proposed method"), ("mateus2008", "thesis: [Mateus 2008]")):
         rec, prec = THESIS_73[key]
-        lines.append(f"| *{label}* | 5 visual | {np.mean(rec):.4f} | {np.mean(prec):.4f} | | | | | | | |")
+        lines.append(f"| *{label}* | 5 visual | {np.mean(rec):.4f} | {np.mean(prec):.4f} | | | | | | | | |")
+    lines += ["", "## Verdict (generated from the numbers above, all pairs)", ""] + verdict(summ)
+    lines += ["", "## Runs (one worker, one BLAS thread; the machine's 2 cores were shared with other sessions)", ""]
+    for run in runs:
+        log = run / RUNLOG
+        for line in (log.read_text().splitlines() if log.exists() else []):
+            if line.strip():
+                e = json.loads(line)
+                dirty = f" + uncommitted edits in {', '.join(e['dirty'])}" if e.get("dirty") else ""
+                lines.append(f"- `{run.name}`: {', '.join(e.get('methods') or ['all'])}: {e['new_rows']} rows, "
+                             f"{e['started']} to {e['ended']} ({_f(e.get('wall_seconds'), '{:.0f}')} s wall), "
+                             f"load average {(e.get('load_start') or ['?'])[0]} at the start, "
+                             f"{(e.get('load_end') or ['?'])[0]} at the end; "
+                             f"code {e['commit']}{dirty}. {e.get('note', '')}".rstrip())
     held = [r for r in rows if r["item"] not in DEV_PAIRS]
     hs = summarize_methods(held)
     lines += [
@@ -345,6 +373,52 @@ def write_results(runs: list[Path], out: Path) -> dict[str, Any]:
     doc = {"methods": summ, "without_dev_pairs": hs, "runs": [str(r) for r in runs]}
     (out / "results.json").write_text(json.dumps(doc, indent=1, default=str) + "\n", encoding="utf-8")
     return summ
+
+
+def verdict(summ: dict[str, dict[str, Any]]) -> list[str]:
+    """Markdown bullets: where each thesis preset beats or misses ``zoomout`` and ``pyfm`` on the
+    Table 7.2/7.3 columns, and whether the thesis's ordering (proposed > [Ovsjanikov 2010] >
+    [Mateus 2008] on Table 7.2's means, proposed > [Mateus 2008] on Table 7.3) is reproduced."""
+    cols = [f"r_smooth@{r:g}" for r in RS] + ["label_recall", "label_precision"]
+    peers = [p for p in ("zoomout", "pyfm") if p in summ]
+    out = []
+    for preset in ("topo-robust", "sharma2012"):
+        if preset not in summ:
+            out.append(f"- `{preset}`: no rows.")
+            continue
+        s = summ[preset]
+        wins = [c for c in cols if peers and all(s[c] > summ[p][c] for p in peers)]
+        losses = [c for c in cols if c not in wins]
+        out.append(f"- `{preset}` beats {' and '.join(f'`{p}`' for p in peers)} on {len(wins)} of {len(cols)} "
+                   f"columns ({', '.join(wins) or 'none'}); does not on {', '.join(losses) or 'none'}. "
+                   f"Mean geodesic error {_f(s['mean_geodesic_error'], '{:.4f}')} vs "
+                   + ", ".join(f"{p} {_f(summ[p]['mean_geodesic_error'], '{:.4f}')}" for p in peers)
+                   + f"; flipped pairs {_f(s['flipped'], '{}')}.")
+    trio = ("topo-robust", "ovsjanikov2010", "mateus2008")
+    if all(m in summ for m in trio):
+        same = []
+        for r in RS:
+            ours = sorted(trio, key=lambda m: -summ[m][f"r_smooth@{r:g}"])
+            thesis = sorted(("proposed", "ovsjanikov2010", "mateus2008"), key=lambda m: -_thesis_mean(m, r))
+            thesis = ["topo-robust" if m == "proposed" else m for m in thesis]
+            same.append((r, ours == thesis, " > ".join(ours)))
+        n_same = sum(x[1] for x in same)
+        out.append(f"- Table 7.2 ordering (thesis: proposed > [Ovsjanikov 2010] > [Mateus 2008] at every r, "
+                   f"means of its 6 pairs): reproduced at {n_same} of {len(RS)} r values; here "
+                   + "; ".join(f"r = {r:g}: {o}" for r, _, o in same) + ".")
+        ratio = [summ["topo-robust"][f"r_smooth@{r:g}"] / _thesis_mean("proposed", r) for r in RS]
+        out.append("- Table 7.2 numbers: topo-robust / thesis proposed = "
+                   + ", ".join(f"{x:.2f}" for x in ratio) + " at r = " + ", ".join(f"{r:g}" for r in RS) + ".")
+    if "topo-robust" in summ and "mateus2008" in summ:
+        t, m = summ["topo-robust"], summ["mateus2008"]
+        rec, prec = THESIS_73["proposed"]
+        ok = t["label_recall"] > m["label_recall"] and t["label_precision"] > m["label_precision"]
+        word = "reproduced" if ok else "NOT reproduced"
+        out.append(f"- Table 7.3 ordering (thesis: proposed > [Mateus 2008]): {word} "
+                   f"(recall {t['label_recall']:.3f} vs {m['label_recall']:.3f}, precision {t['label_precision']:.3f} "
+                   f"vs {m['label_precision']:.3f}; thesis {np.mean(rec):.3f}/{np.mean(prec):.3f} vs "
+                   f"{np.mean(THESIS_73['mateus2008'][0]):.3f}/{np.mean(THESIS_73['mateus2008'][1]):.3f}).")
+    return out
 
 
 def cmd_report(args: argparse.Namespace) -> int:
