@@ -203,14 +203,9 @@ def code_state() -> dict:
 def machine() -> dict:
     from threadpoolctl import threadpool_info
 
-    cpu = platform.processor() or "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    from shape_toolkit.bench.worker import cpu_model
+
+    cpu = cpu_model()
     blas = sorted({f"{i.get('internal_api')}:{i.get('num_threads')}" for i in threadpool_info()})
     return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "blas": blas}
 

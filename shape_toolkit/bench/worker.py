@@ -21,7 +21,7 @@ from typing import Any
 from shape_toolkit.bench.plan import Job, PrepareJob, create_detector, create_method
 from shape_toolkit.bench.store import Row, load_prepared, prepared_path, save_output, save_prepared
 
-__all__ = ["package_versions", "MemoryMonitor", "prepare_job", "execute_job", "lost_row"]
+__all__ = ["package_versions", "cpu_model", "MemoryMonitor", "prepare_job", "execute_job", "lost_row"]
 
 
 @lru_cache(maxsize=1)
@@ -36,6 +36,19 @@ def package_versions() -> dict[str, str]:
         except md.PackageNotFoundError:
             pass
     return out
+
+
+@lru_cache(maxsize=1)
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``; else what :mod:`platform` knows), for benchmark reports."""
+    model = platform.processor() or platform.machine() or "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return model
 
 
 def _rss_mb() -> float:
