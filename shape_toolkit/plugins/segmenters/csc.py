@@ -65,9 +65,9 @@ vertex stands for its incident face of smallest index; the labels are per face (
 :meth:`segment` returns per-vertex labels (largest incident area). The L-embedding of the dual graph is
 computed by the algorithm (no shared spectrum is declared unless ``graph="vertex"``). The dual graph is
 the default because it won on the tuning half of the PSB benchmark (25 meshes, 19 categories, one
-must-link per segment: Rand index error 0.079 against 0.156 on the vertex graph, both with the two
-changes above; ``benchmarks/results/psb_segmentation.md``), chosen there only; the held-out half is
-reported in that file.
+must-link per segment: Rand index error 0.079 against 0.156 on the vertex graph, both with the first two
+changes above, before ``k_mismatch``; ``benchmarks/results/psb_segmentation.md``), chosen there only;
+the held-out half is reported in that file.
 
 The hypersphere queries use a KD-tree on the rows of ``X``: memory stays linear in ``n``.
 """
