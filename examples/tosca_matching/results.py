@@ -256,8 +256,8 @@ def curves_png(rows: list[dict], path: Path) -> None:
     axes[1].set_title("Table 7.2: r-smoothness (eq. 7.4-7.5)")
     for ax in axes:
         ax.grid(alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=9)
+    if axes[0].get_legend_handles_labels()[0]:  # one legend: the colours are the same in both panels
+        axes[0].legend(fontsize=9, loc="lower right")
     n_items = len({r["item"] for r in rows})
     fig.suptitle(f"TOSCA tosca5k, {n_items} pairs: mean over the pairs each method matched", fontsize=12)
     fig.savefig(path, dpi=100)
