@@ -392,7 +392,8 @@ def verdict(summ: dict[str, dict[str, Any]]) -> list[str]:
         out.append(f"- `{preset}` beats {' and '.join(f'`{p}`' for p in peers)} on {len(wins)} of {len(cols)} "
                    f"columns ({', '.join(wins) or 'none'}); does not on {', '.join(losses) or 'none'}. "
                    f"Mean geodesic error {_f(s['mean_geodesic_error'], '{:.4f}')} vs "
-                   + ", ".join(f"{p} {_f(summ[p]['mean_geodesic_error'], '{:.4f}')}" for p in peers)
+                   + ", ".join(f"{p} {_f(summ[p]['mean_geodesic_error'], '{:.4f}')} "
+                               f"({_ratio(s['mean_geodesic_error'], summ[p]['mean_geodesic_error'])})" for p in peers)
                    + f"; flipped pairs {_f(s['flipped'], '{}')}.")
     trio = ("topo-robust", "ovsjanikov2010", "mateus2008")
     if all(m in summ for m in trio):
