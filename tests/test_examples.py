@@ -129,6 +129,7 @@ def test_tosca_results_combine_run_folders(tmp_path):
     md = (tmp_path / "out" / "results.md").read_text()
     assert md.index("| topo-robust |") < md.index("| zoomout |") < md.index("*thesis: proposed method*")
     assert (tmp_path / "out" / "results_curves.png").stat().st_size > 0
+    assert "`topo-robust` beats `zoomout` on 0 of 8 columns" in md  # 20 < 30 % smooth, recall 0.6 < 0.7
     # the thesis's own numbers: Table 7.2's proposed method at r = 0.8 averaged over its 6 pairs
     assert res._thesis_mean("proposed", 0.8) == pytest.approx((65.10 + 78.88 + 82.83 + 55.82 + 55.76 + 58.06) / 6)
 
