@@ -9,6 +9,12 @@ combines the folders (for a method and pair, the row of the folder named last wi
     python examples/tosca_matching/results.py run -o runs/tosca-thesis --methods topo-robust,sharma2012
     python examples/tosca_matching/results.py report runs/tosca-base runs/tosca-thesis
 
+To run exactly a commit while the working tree has other sessions' uncommitted edits, export it
+and run from outside the repository (the commit is then recorded, clean)::
+
+    git archive HEAD shape_toolkit | tar -x -C /tmp/code && git rev-parse --short=12 HEAD > /tmp/code/EXPORTED_COMMIT
+    cd /tmp && PYTHONPATH=/tmp/code python /path/to/examples/tosca_matching/results.py run -o /abs/run/folder ...
+
 ``run`` uses one worker, in process, with one BLAS thread (the runner's local executor), and the
 ``dense`` task of ``config.toml`` unchanged but for the method list; ``--limit N`` keeps the first
 N pairs. ``report`` writes ``results.md``, ``results.json`` and ``results_curves.png`` next to this
@@ -66,7 +72,16 @@ ORDER = ("topo-robust", "sharma2012", "mateus2008", "ovsjanikov2010", "zoomout",
 
 def git_revision(repo: Path = HERE) -> dict[str, Any]:
     """``{"commit": HEAD's short hash, "dirty": [tracked files under shape_toolkit/ that differ
-    from it]}``: the code a run used (other sessions may have uncommitted edits in the tree)."""
+    from it]}``: the code a run used (other sessions may have uncommitted edits in the tree).
+    When ``shape_toolkit`` is imported from an exported tree (``git archive COMMIT shape_toolkit``
+    with the commit in ``EXPORTED_COMMIT`` beside it, put first on ``PYTHONPATH``), that commit,
+    clean."""
+    import shape_toolkit
+
+    root = Path(shape_toolkit.__file__).resolve().parent.parent
+    if (root / "EXPORTED_COMMIT").exists():
+        return {"commit": (root / "EXPORTED_COMMIT").read_text().strip(), "dirty": [], "exported_to": str(root)}
+
     def git(*a: str) -> str:
         return subprocess.run(["git", *a], cwd=repo, capture_output=True, text=True, check=False).stdout.rstrip()
 
