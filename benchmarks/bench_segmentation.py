@@ -16,7 +16,9 @@ Each stage runs in a fresh subprocess (no spectrum cache shared between stages):
 - ``sdf``: shape diameter function (Open3D ray casting), GMM, graph cut, k = 6;
 - ``seeded-walk``: random walks from the same constraints' must-link groups.
 
-Reported: wall time, ratio to the spectrum stage, and peak resident memory added by the stage
+Reported: wall time and process CPU time (all threads of the child; with one BLAS thread the two agree
+unless the machine is busy), both per 10,000 faces, the wall-time ratio to the spectrum stage, and peak
+resident memory added by the stage
 (``ru_maxrss`` after minus before; imports and plugin loading happen before; native buffers of
 Open3D, PyMaxflow and SuperLU included), per 1,000 vertices and per 10,000 faces: a constant across
 sizes means memory linear in ``n`` (a dense ``n x n`` matrix would be 13 GB at 41k vertices).
@@ -27,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -59,7 +62,7 @@ import shape_toolkit.plugins.segmenters.sdf, shape_toolkit.plugins.segmenters.nc
 import shape_toolkit.plugins.segmenters.seeded_walk, open3d, maxflow  # noqa: E401
 import sklearn.cluster, sklearn.mixture  # noqa: E401
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-t = time.perf_counter()
+t, c = time.perf_counter(), time.process_time()
 with threadpool_limits({threads}):
     if {stage!r} == "spectrum-combinatorial":
         compute_spectrum(build_graph(shape, "gaussian"), 11, use_mass=False, cache=False)
@@ -75,9 +78,10 @@ with threadpool_limits({threads}):
         create_plugin("segmenters", "seeded-walk").segment(shape, constraints=cons)
     else:
         create_plugin("segmenters", {stage!r}, n_segments=6).segment(shape)
-dt = time.perf_counter() - t
+dt, cpu = time.perf_counter() - t, time.process_time() - c
 after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps({{"n": shape.n_vertices, "m": shape.n_faces, "seconds": dt, "peak_kb": after - before}}))
+print(json.dumps({{"n": shape.n_vertices, "m": shape.n_faces, "seconds": dt, "cpu_seconds": cpu,
+                  "peak_kb": after - before}}))
 """
 
 
@@ -86,7 +90,7 @@ STAGES = ("eigvec-gmm", "csc", "csc-vertex", "ncut", "sdf", "seeded-walk")
 
 
 def run_stage(sub: int, stage: str, threads: int) -> dict:
-    """Run one stage in a fresh interpreter; returns ``{"n", "seconds", "peak_kb"}``."""
+    """Run one stage in a fresh interpreter; returns ``{"n", "m", "seconds", "cpu_seconds", "peak_kb"}``."""
     code = CHILD.format(repo=str(REPO), sub=sub, stage=stage, threads=threads)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     if out.returncode != 0:
@@ -100,6 +104,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="BLAS/OpenMP threads (default 1)")
     ap.add_argument("--output", default=str(REPO / "benchmarks" / "results" / "bench_segmentation.md"))
     args = ap.parse_args(argv)
+    sys.path.insert(0, str(REPO))
+    from shape_toolkit.bench.worker import cpu_model
+
     rows = []
     for sub in args.subdivisions:
         spec = {}
@@ -110,7 +117,8 @@ def main(argv: list[str] | None = None) -> int:
                 spec[stage] = r["seconds"]
             r.update(stage=stage, subdivisions=sub, ratio=r["seconds"] / spec[ref or stage])
             rows.append(r)
-            print(f"  n={r['n']} {r['seconds']:.2f} s, x{r['ratio']:.2f} of the spectrum, "
+            print(f"  n={r['n']} {r['seconds']:.2f} s ({r['cpu_seconds']:.2f} s CPU), "
+                  f"x{r['ratio']:.2f} of the spectrum, "
                   f"+{r['peak_kb'] / 1024:.0f} MB peak", file=sys.stderr, flush=True)
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else ["?"]
     lines = [
@@ -120,16 +128,18 @@ def main(argv: list[str] | None = None) -> int:
         "Shapes: `articulated_shape(subdivisions=s)`;",
         f"k = 6; {args.threads} BLAS/OpenMP thread(s); load average at the end {' '.join(load)} "
         "(a shared machine: ratios are more meaningful than absolute times).",
+        f"Machine: {cpu_model()}, {os.cpu_count()} cores. CPU = process CPU time of the stage's child.",
         "",
-        "| vertices | faces | stage | seconds | seconds per 10k faces | x spectrum | peak MB added | "
-        "MB per 1k vertices | MB per 10k faces |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| vertices | faces | stage | seconds | seconds per 10k faces | CPU s | CPU s per 10k faces | x spectrum "
+        "| peak MB added | MB per 1k vertices | MB per 10k faces |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         mb = r["peak_kb"] / 1024
         m10 = r["m"] / 1e4
         lines.append(f"| {r['n']} | {r['m']} | {r['stage']} | {r['seconds']:.2f} | {r['seconds'] / m10:.2f} | "
-                     f"{r['ratio']:.2f} | {mb:.0f} | {mb / (r['n'] / 1000):.2f} | {mb / m10:.1f} |")
+                     f"{r['cpu_seconds']:.2f} | {r['cpu_seconds'] / m10:.2f} | {r['ratio']:.2f} | {mb:.0f} | "
+                     f"{mb / (r['n'] / 1000):.2f} | {mb / m10:.1f} |")
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(lines) + "\n")
