@@ -177,12 +177,12 @@ def truth_rows(runs: list[Path], rows: list[dict]) -> list[dict]:
         if r.get("status") != "ok" or r["item"] in seen:
             continue
         run = Path(r["run_folder"])
-        raw = json.loads((run / "config.json").read_text())
-        task = next(t for t in raw["tasks"] if t.get("name") == "dense")
-        opts = adapter.check_options(dict(task.get("options") or {}))
         try:
+            raw = json.loads((run / "config.json").read_text())
+            task = next(t for t in raw["tasks"] if t.get("name") == "dense")
+            opts = adapter.check_options(dict(task.get("options") or {}))
             prep = load_prepared(prepared_path(run, r["prepare_key"]))
-        except (OSError, ValueError):
+        except (OSError, ValueError, KeyError, StopIteration):  # no config or prepared item: no reference
             continue
         if prep.truth is None or not len(prep.truth):
             continue
