@@ -59,23 +59,25 @@ STAGES: dict[str, str] = {
 PRESETS: dict[str, dict[str, Any]] = {
     "sharma2012": {
         "description": "thesis ch. 7: ADF keypoints, replicator matching, heat-distance "
-        "descriptors, seed growing (Alg. 6), EM registration (Alg. 7)",
+        "descriptors, seed growing (Alg. 6), EM registration (Alg. 7), its map polished on 100 "
+        "Laplace-Beltrami eigenvectors (an extension)",
         "keypoints": {"plugin": "adf-maxima", "preset": "dense"},
         "sparse": {"plugin": "replicator"},
         "descriptors": {"plugin": "heat-distance"},
         "dense": {"plugin": "seed-growing"},
-        "refine": {"plugin": "em-registration"},
+        "refine": {"plugin": "em-registration", "params": {"polish_k": 100}},
     },
     "topo-robust": {
         "description": "thesis 7.4: ADF keypoints, replicator matching (orientation-checked), small-scale "
         "heat-diffusion descriptors (eq. 6.61-6.63), seed growing (Alg. 6), EM on the thesis's embedding "
-        "(graph Laplacian, commute-time scaling, scree dimension; Alg. 7), coarse-to-fine refinement",
+        "(graph Laplacian, commute-time scaling, scree dimension; Alg. 7), coarse-to-fine refinement (40 graph, "
+        "then 100 Laplace-Beltrami eigenvectors; an extension)",
         "keypoints": {"plugin": "adf-maxima", "preset": "dense"},
         "sparse": {"plugin": "replicator"},
         "descriptors": {"plugin": "heat-diffusion", "params": {"K": 50, "time_ratio": 1.5}},
         "dense": {"plugin": "seed-growing", "params": {
             "descriptor": "heat-diffusion", "descriptor_params": {"K": 50, "time_ratio": 1.5}}},
-        "refine": {"plugin": "em-registration", "preset": "thesis", "params": {"k_final": 40}},
+        "refine": {"plugin": "em-registration", "preset": "thesis", "params": {"k_final": 40, "polish_k": 100}},
     },
     "seed-growing": {
         "description": "ADF keypoints, replicator matching, heat-distance descriptors, seed growing",

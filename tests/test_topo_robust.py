@@ -19,12 +19,15 @@ from shape_toolkit.data.synthetic import articulated_shape, procedural_texture, 
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.pipeline import PRESETS, load_pipeline
 from shape_toolkit.plugins.matching._common import (
+    clear_side_caches,
     orient_pairs,
     orientation_score,
     outward_vertex_normals,
     side_reference,
     symmetry_map,
+    symmetry_validity,
 )
+from shape_toolkit.plugins.matching.dense.em_registration import procrustes
 from shape_toolkit.plugins.matching.dense.fmap_zoomout import farthest_point_sampling
 from shape_toolkit.plugins.matching.sparse.photometric import PhotometricMatcher
 
@@ -160,6 +163,99 @@ def test_sparse_and_em_stages_fix_swapped_legs(pair):
     # from the legs-swapped seeds: measured 0.0014 with the side decision, 0.022 without
     assert _mean_err(B, em.target_of) < 0.01 < 0.015 < _mean_err(B, naive.target_of)
     assert em.info["orientation_flipped"] == "local" and 0 < em.info["orientation_mirrored_area"] < 0.5
+
+
+def test_symmetry_validity_detects_a_wrong_symmetry(pair):
+    """S must be an orientation-reversing involution: the true mirror passes nearly everywhere; an
+    S scrambled on one leg (S(S(x)) no longer x there) fails on that leg only; the identity (an
+    involution that keeps orientation) fails everywhere."""
+    A, _, mirror = pair
+    basis = side_reference(A.shape, A.shape).basis
+    far = np.abs(np.asarray(A.shape.vertices)[:, 0]) > 0.3  # away from the symmetry plane
+    assert np.mean(symmetry_validity(A.shape, mirror, basis)[far]) > 0.95
+    legs = np.isin(A.labels, [3, 4])
+    pos = np.asarray(A.shape.vertices)
+    bad = mirror.copy()  # on the legs, a slide along each leg instead of the mirror: S(S(x)) = x + 2 d
+    for lab in (3, 4):
+        leg = A.labels == lab
+        along = pos[leg].mean(0) - pos.mean(0)
+        bad[leg] = cKDTree(pos).query(pos[leg] + 0.3 * along / np.linalg.norm(along))[1]
+    ok = symmetry_validity(A.shape, bad, basis)
+    assert np.mean(ok[legs & far]) < 0.2 and np.mean(ok[~legs & far]) > 0.9
+    assert not symmetry_validity(A.shape, np.arange(A.shape.n_vertices), basis).any()
+
+
+def _two_legs_on_one(A, mirror):
+    """The second FAUST failure mode: one leg sent onto the other leg (the identity elsewhere), so
+    that neither T(x) nor its mirror image T(S(x)) is right on that leg."""
+    leg = A.labels == 3
+    return np.where(leg, mirror, np.arange(A.shape.n_vertices)), leg
+
+
+def test_reference_flags_two_limbs_on_one_and_sparse_stage_drops_them(pair):
+    A, B, mirror = pair
+    T, leg = _two_legs_on_one(A, mirror)
+    ref = side_reference(A.shape, B.shape)
+    far = np.abs(np.asarray(A.shape.vertices)[:, 0]) > 0.3
+    ids = np.arange(A.shape.n_vertices)
+    assert not (ref.disagrees(ids) & ref.overlaps(ids)).any() and not ref.overlaps(ids).any()
+    # no side choice can help: on both legs T(S(x)) is T(x)
+    legs = np.isin(A.labels, [3, 4])
+    assert np.array_equal(T[mirror][legs], T[legs])
+    lost = ref.disagrees(T) & ref.overlaps(T)
+    assert np.mean(lost[leg & far]) > 0.8 and np.mean(lost[~leg & far]) < 0.05
+    assert np.mean(ref.overlaps(T)[(A.labels == 4) & far]) > 0.5  # the doubly covered target leg
+    s = farthest_point_sampling(np.asarray(A.shape.vertices), 60)
+    kept = orient_pairs(A.shape, B.shape, np.column_stack([s, T[s]]))
+    pos = np.asarray(B.shape.vertices)
+    right = np.linalg.norm(pos[kept[:, 1]] - pos[kept[:, 0]], axis=1) < 0.2
+    assert np.mean(right) > 0.95 and len(kept) >= 0.8 * np.sum(~leg[s])
+
+
+def test_em_repairs_a_map_with_two_legs_on_one(pair):
+    """EM's orientation step on the map with one leg on the other: the reference's own map replaces
+    the lost leg (``orientation_replaced_area`` > 0) and the returned map is right there."""
+    A, B, mirror = pair
+    T, leg = _two_legs_on_one(A, mirror)
+    em = create_plugin("dense_matchers", "em-registration", k=8, k_final=24)
+    X, Y, bs, bt = em._embeddings(A.shape, B.shape, None, None, with_bases=True)
+    Q = procrustes(Y[T].T @ X)
+    first = (Q, 1.0, None, T.copy(), np.zeros(len(T)), 0)
+    info: dict = {}
+    out = em._orient(X, Y, first, A.shape, B.shape, info, (bs, bt), None, None)
+    assert info["orientation_replaced_area"] > 0.5 * np.mean(leg)
+    pos = np.asarray(B.shape.vertices)
+
+    def leg_err(t):
+        return float(np.mean(np.linalg.norm(pos[t[leg]] - pos[leg], axis=1)))
+
+    assert leg_err(T) > 0.3 and leg_err(out[3]) < 0.2 * leg_err(T)
+
+
+def test_side_caches_share_and_key_on_identity(pair, monkeypatch):
+    """The sparse stage and EM share one symmetry map and one side reference per (shapes, spectra);
+    another Shape object (even with the same content) is computed anew."""
+    import shape_toolkit.plugins.matching._common as common
+
+    A, B, _ = pair
+    clear_side_caches()
+    calls = []
+    real = common.side_matcher
+
+    def counting(orientation="preserving"):
+        calls.append(orientation)
+        return real(orientation)
+
+    monkeypatch.setattr(common, "side_matcher", counting)
+    r1 = side_reference(A.shape, B.shape)
+    assert side_reference(A.shape, B.shape) is r1
+    s1 = symmetry_map(A.shape)
+    assert symmetry_map(A.shape) is s1 and not s1.flags.writeable
+    n = len(calls)
+    assert side_reference(A.shape, B.shape, orientation="reversing") is not r1  # another key
+    copy_a = type(A.shape)(**{f: getattr(A.shape, f) for f in A.shape.__dataclass_fields__})
+    assert side_reference(copy_a, B.shape) is not r1 and len(calls) > n
+    clear_side_caches()
 
 
 # -- EM: the thesis's embedding -------------------------------------------------------------------
