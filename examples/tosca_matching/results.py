@@ -387,7 +387,7 @@ def write_results(runs: list[Path], out: Path) -> dict[str, Any]:
     for key, label in (("proposed", "thesis: proposed method"), ("mateus2008", "thesis: [Mateus 2008]")):
         rec, prec = THESIS_73[key]
         lines.append(f"| *{label}* | 5 visual | {np.mean(rec):.4f} | {np.mean(prec):.4f} | | | | | | | | |")
-    lines += ["", "## Verdict (generated from the numbers above, all pairs)", ""] + verdict(summ)
+    lines += ["", "## Verdict (generated from the numbers above, all pairs)", ""] + verdict(summ, rows)
     lines += ["", "## Runs (one worker, one BLAS thread; the machine's 2 cores were shared with other sessions)", ""]
     for run in runs:
         log = run / RUNLOG
@@ -440,10 +440,26 @@ def write_results(runs: list[Path], out: Path) -> dict[str, Any]:
     return summ
 
 
-def verdict(summ: dict[str, dict[str, Any]]) -> list[str]:
+def paired(rows: list[dict], a: str, b: str, col: str) -> tuple[float, float, int]:
+    """Mean over the pairs both methods matched of ``a``'s minus ``b``'s ``col``, its standard error
+    (std of the per-pair differences / sqrt(pairs)) and the number of pairs."""
+    val: dict[tuple[str, str], float] = {}
+    for r in rows:
+        v = (r.get("metrics") or {}).get(col)
+        if r.get("status") == "ok" and isinstance(v, (int, float)) and math.isfinite(v):
+            val[(_short(r), r["item"])] = float(v)
+    d = np.array([val[(a, i)] - val[(b, i)] for (m, i) in val if m == a and (b, i) in val])
+    if d.size == 0:
+        return float("nan"), float("nan"), 0
+    se = float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else float("nan")
+    return float(d.mean()), se, int(d.size)
+
+
+def verdict(summ: dict[str, dict[str, Any]], rows: list[dict] | None = None) -> list[str]:
     """Markdown bullets: where each thesis preset beats or misses ``zoomout`` and ``pyfm`` on the
-    Table 7.2/7.3 columns, and whether the thesis's ordering (proposed > [Ovsjanikov 2010] >
-    [Mateus 2008] on Table 7.2's means, proposed > [Mateus 2008] on Table 7.3) is reproduced."""
+    Table 7.2/7.3 columns (with ``rows``: which of those differences exceed twice their paired
+    standard error over the pairs), and whether the thesis's ordering (proposed > [Ovsjanikov
+    2010] > [Mateus 2008] on Table 7.2's means, proposed > [Mateus 2008] on Table 7.3) is reproduced."""
     cols = [f"r_smooth@{r:g}" for r in RS] + ["label_recall", "label_precision"]
     peers = [p for p in ("zoomout", "pyfm") if p in summ]
     out = []
@@ -460,6 +476,19 @@ def verdict(summ: dict[str, dict[str, Any]]) -> list[str]:
                    + ", ".join(f"{p} {_f(summ[p]['mean_geodesic_error'], '{:.4f}')} "
                                f"({_ratio(s['mean_geodesic_error'], summ[p]['mean_geodesic_error'])})" for p in peers)
                    + f"; flipped pairs {_f(s['flipped'], '{}')}.")
+        if rows is not None and peers:
+            clear = []
+            for c in cols:
+                tests = [paired(rows, preset, p, c) for p in peers]
+                if all(n > 1 and abs(dm) > 2 * se for dm, se, n in tests):
+                    signs = {np.sign(dm) for dm, _, _ in tests}
+                    if len(signs) == 1:
+                        clear.append(f"{c} {'higher' if signs.pop() > 0 else 'LOWER'} "
+                                     f"({', '.join(f'{dm:+.3g} +- {se:.2g}' for dm, se, _ in tests)})")
+            out.append(f"  Differences beyond twice their paired standard error against both "
+                       f"(per-pair {preset} minus {' / '.join(peers)}): "
+                       + ("; ".join(clear) + "; every other column is a tie within that noise." if clear
+                          else "none: every column is a tie within that noise."))
     trio = ("topo-robust", "ovsjanikov2010", "mateus2008")
     if all(m in summ for m in trio):
         same = []
@@ -469,8 +498,10 @@ def verdict(summ: dict[str, dict[str, Any]]) -> list[str]:
             thesis = ["topo-robust" if m == "proposed" else m for m in thesis]
             same.append((r, ours == thesis, " > ".join(ours)))
         n_same = sum(x[1] for x in same)
+        n_first = sum(o.startswith("topo-robust") for _, _, o in same)
         out.append(f"- Table 7.2 ordering (thesis: proposed > [Ovsjanikov 2010] > [Mateus 2008] at every r, "
-                   f"means of its 6 pairs): reproduced at {n_same} of {len(RS)} r values; here "
+                   f"means of its 6 pairs): reproduced at {n_same} of {len(RS)} r values, topo-robust first of "
+                   f"the three at {n_first} of {len(RS)}; here "
                    + "; ".join(f"r = {r:g}: {o}" for r, _, o in same) + ".")
         ratio = [summ["topo-robust"][f"r_smooth@{r:g}"] / _thesis_mean("proposed", r) for r in RS]
         out.append("- Table 7.2 numbers: topo-robust / thesis proposed = "
