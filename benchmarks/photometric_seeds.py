@@ -45,6 +45,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
+import re  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -268,6 +269,9 @@ def report(rows: list[dict], args, wall: float) -> str:
         f"{c0 / max(n0, 1):.2f} at s={strengths[0]} here), so its numbers are lower than on bodies whose limbs differ.",
         f"- Few seeds per pair: the ADF `dense` keypoints number {min(kp)}-{max(kp)} on these shapes, and the "
         "photometric matcher keeps the mutual, ratio-tested ones (fewer under glue and noise).",
+        "- `mean CPU s` of a dense row includes the two shapes' spectra only when that method ran first on the "
+        "pair (the spectrum cache serves the later ones; `--add-dense` re-runs the given methods in its own "
+        "order), so compare CPU only between rows that ran in the same order.",
     ]
     lines += ["", "## Reading", ""]
     for s in strengths:
@@ -310,7 +314,8 @@ def main(argv: list[str] | None = None) -> int:
             t0 = time.perf_counter()
             add_dense(rows, args)
             wall += time.perf_counter() - t0
-            args.command += " --extra " + ",".join(sorted({m for r in rows for m in r["dense"]} - set(PIPELINES)))
+            extra = ",".join(sorted({m for r in rows for m in r["dense"]} - set(PIPELINES)))
+            args.command = re.sub(r" --extra \S+", "", args.command) + " --extra " + extra
             saved.update(rows=rows, wall=wall, command=args.command)
             out.with_suffix(".json").write_text(dumps_json(saved, indent=1))
     else:
