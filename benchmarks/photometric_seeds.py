@@ -44,7 +44,6 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import re  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -57,6 +56,7 @@ sys.path.insert(0, str(REPO))
 
 from shape_toolkit.api.registry import create_plugin  # noqa: E402
 from shape_toolkit.bench.peers import PEERS, create_peer  # noqa: E402
+from shape_toolkit.bench.worker import cpu_model  # noqa: E402
 from shape_toolkit.data.corruptions import apply_corruption  # noqa: E402
 from shape_toolkit.data.synthetic import synthetic_dataset  # noqa: E402
 from shape_toolkit.features.geodesics import geodesic_distances  # noqa: E402
@@ -73,16 +73,6 @@ MATCHERS = {
 }
 PIPELINES = ["topo-robust-photometric", "topo-robust"]
 NOISY = ", noisy colours"
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def pairs_of(seeds: list[int]):
@@ -187,7 +177,7 @@ def report(rows: list[dict], args, wall: float) -> str:
         f"{RADIUS} sqrt(area) (geodesic, clean target) of the truth. Same ADF keypoints for every matcher. "
         "**No real textured scans are shared with the toolkit: these are generated shapes only.**",
         "",
-        f"Machine: {cpu_name()}, {os.cpu_count()} cores shared with other jobs; BLAS threads: "
+        f"Machine: {cpu_model()}, {os.cpu_count()} cores shared with other jobs; BLAS threads: "
         f"{os.environ.get('OPENBLAS_NUM_THREADS')}; wall time {wall:.0f} s.",
         "",
         "## Seed precision (pooled correct / seeds; mean of per-pair precision in brackets)",
