@@ -603,7 +603,6 @@ class SideReference:
         q1, q3 = _weighted_quantiles(smooth, self.basis.mass, (0.25, 0.75))
         return ~ok | (smooth > q3 + 3.0 * (q3 - q1))
 
-
     def overlaps(self, target_of: np.ndarray) -> np.ndarray:
         """Boolean ``(n_s,)``: source vertices whose image lies where the dense map ``target_of``
         piles up more than one layer of the source (two limbs sent onto one): the push-forward of the

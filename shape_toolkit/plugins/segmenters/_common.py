@@ -260,6 +260,7 @@ def split_by_normalized_cuts(
         values.append(value)
     return relabel_consecutive(labels), values
 
+
 def single_thread() -> threadpool_limits:
     """Context limiting OpenMP/BLAS pools to one thread: k-means and GMM fits on a few thousand
     low-dimensional points are much faster without thread start-up and contention."""
