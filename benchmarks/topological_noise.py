@@ -51,7 +51,7 @@ from tosca_matching import run_pyfm  # noqa: E402  (one copy of pyFM's README pi
 from shape_toolkit.data.corruptions import glue  # noqa: E402
 from shape_toolkit.data.datasets import read_vts  # noqa: E402
 from shape_toolkit.io.mesh import load_shape  # noqa: E402
-from shape_toolkit.metrics.correspondence import DEFAULT_THRESHOLDS, error_curve  # noqa: E402
+from shape_toolkit.metrics.correspondence import DEFAULT_THRESHOLDS, error_curve, is_flipped  # noqa: E402
 
 METHODS = ["topo-robust", "sharma2012", "seed-growing", "ovsjanikov2010", "mateus2008", "zoomout", "pyfm"]
 TUNING = {
@@ -191,7 +191,7 @@ def report(args) -> None:
 
     def flips(ds_filter, s, m):
         return sum(
-            v[m]["mean"] > 2 * v[m]["mean_sym"] + 0.02
+            is_flipped(v[m]["mean"], v[m]["mean_sym"])
             for (ds, _, st), v in complete.items() if st == s and ds in ds_filter
         )
 

@@ -55,6 +55,7 @@ from shape_toolkit.io.mesh import load_shape  # noqa: E402
 from shape_toolkit.metrics.correspondence import (  # noqa: E402
     DEFAULT_THRESHOLDS,
     error_curve,
+    is_flipped,
     paired_geodesic_distances,
 )
 
@@ -217,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
             "cpu_seconds_mean": float(np.mean(cpus)),
             "peak_mb": float(info[m]["maxrss_mb"] - base),
             "flipped_pairs": int(sum(
-                np.mean(x[np.isfinite(x)]) > 2 * np.mean(y[np.isfinite(y)]) + 0.02
+                is_flipped(np.mean(x[np.isfinite(x)]), np.mean(y[np.isfinite(y)]))
                 for x, y in zip(per[m]["err"], per[m]["sym"])
             )),
             "curve": [[float(a), float(b)] for a, b in zip(th, frac)],

@@ -297,3 +297,11 @@ def test_map_label_scores_and_truth_segments(ico):
         map_label_scores(anti, ls[:-1], lt)
     with pytest.raises(ParameterError):
         truth_segments(ico, ico, ident, anti, n_segments=0)
+
+
+def test_is_flipped_rule():
+    """More than twice (+0.02) the symmetry-aware error: the matching benchmarks' flipped-pair rule."""
+    from shape_toolkit.metrics.correspondence import is_flipped
+
+    assert is_flipped(0.25, 0.05) and not is_flipped(0.12, 0.05)  # 0.12 = 2 x 0.05 + 0.02: not beyond
+    assert not is_flipped(0.03, 0.03) and is_flipped(0.021, 0.0)

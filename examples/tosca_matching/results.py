@@ -228,8 +228,10 @@ def _mean(xs: list[float]) -> float:
 def flipped(row: dict) -> bool:
     """A left-right swapped map: the error without the symmetric ground truth is more than twice
     (+0.02) the symmetry-aware one (the rule of benchmarks/results/tosca_matching.md)."""
+    from shape_toolkit.metrics.correspondence import is_flipped
+
     a, s = row.get("direct_error"), (row.get("metrics") or {}).get("mean_geodesic_error")
-    return isinstance(a, (int, float)) and isinstance(s, (int, float)) and a > 2 * s + 0.02
+    return isinstance(a, (int, float)) and isinstance(s, (int, float)) and is_flipped(a, s)
 
 
 def summarize_methods(rows: list[dict]) -> dict[str, dict[str, Any]]:

@@ -26,6 +26,7 @@ __all__ = [
     "paired_geodesic_distances",
     "geodesic_errors",
     "error_curve",
+    "is_flipped",
     "correspondence_report",
     "check_truth",
     "R_SMOOTH_RS",
@@ -115,6 +116,13 @@ def error_curve(
     s = np.sort(e)
     frac = np.searchsorted(s, th + 1e-12, side="right") / e.size
     return th, frac
+
+
+def is_flipped(mean_error: float, mean_error_symmetric: float) -> bool:
+    """A left-right swapped map: its mean error against the ground truth alone is more than twice
+    (+0.02) its error up to the dataset's symmetry (both in units of sqrt(area); the rule of the
+    matching benchmarks' ``flipped pairs``)."""
+    return bool(mean_error > 2.0 * mean_error_symmetric + 0.02)
 
 
 def correspondence_report(
