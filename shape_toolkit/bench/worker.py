@@ -11,9 +11,11 @@ from __future__ import annotations
 import os
 import platform
 import resource
+import subprocess
 import threading
 import time
 import traceback
+from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -21,7 +23,10 @@ from typing import Any
 from shape_toolkit.bench.plan import Job, PrepareJob, create_detector, create_method
 from shape_toolkit.bench.store import Row, load_prepared, prepared_path, save_output, save_prepared
 
-__all__ = ["package_versions", "cpu_model", "MemoryMonitor", "prepare_job", "execute_job", "lost_row"]
+__all__ = [
+    "package_versions", "cpu_model", "code_revision", "revision_label", "MemoryMonitor", "prepare_job", "execute_job",
+    "lost_row",
+]
 
 
 @lru_cache(maxsize=1)
@@ -49,6 +54,74 @@ def cpu_model() -> str:
     except OSError:
         pass
     return model
+
+
+#: the file an exported tree (``git archive COMMIT shape_toolkit``) carries beside ``shape_toolkit/``,
+#: holding the commit it was exported from
+EXPORTED_COMMIT = "EXPORTED_COMMIT"
+#: seconds any one git call may take before :func:`code_revision` gives up on it
+GIT_TIMEOUT = 20.0
+
+
+def _git(root: Path, *args: str) -> str | None:
+    """``git -C root ARGS``'s stdout, or None when git is missing, fails or times out. Optional
+    locks are off: reading the state must not hold ``index.lock`` while others commit."""
+    env = dict(os.environ, GIT_OPTIONAL_LOCKS="0", LC_ALL="C")
+    try:
+        res = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True,
+                             timeout=GIT_TIMEOUT, check=False, env=env, stdin=subprocess.DEVNULL)
+    except (OSError, subprocess.SubprocessError, ValueError):
+        return None
+    return res.stdout if res.returncode == 0 else None
+
+
+def code_revision(repo: Path | None = None, paths: Sequence[str] | None = None) -> dict[str, Any]:
+    """Which code produced a result, for benchmark reports; never raises.
+
+    ``repo``: a directory inside the git work tree (default: the tree this ``shape_toolkit`` is
+    imported from). Returns ``{"commit": HEAD's hash, 12 hex characters, "dirty": bool,
+    "dirty_files": [paths relative to the top level]}``; dirty means *tracked* files differ from HEAD
+    (staged or not; untracked files do not count), only under ``paths`` (relative to the top level,
+    e.g. ``["shape_toolkit"]``) when given. A tree exported with ``git archive`` and the commit written
+    to ``EXPORTED_COMMIT`` beside ``shape_toolkit/`` (put first on ``PYTHONPATH``) gives that commit,
+    clean, plus ``"exported_to"`` (also when ``repo`` holds that file). ``"commit": "unknown"`` (not
+    dirty) when git is missing, times out (:data:`GIT_TIMEOUT` per call) or the directory is not in a
+    repository; dirty with ``["(git status failed)"]`` when only the comparison with HEAD fails.
+    """
+    root = Path(repo) if repo is not None else Path(__file__).resolve().parents[2]
+    try:
+        exported = (root / EXPORTED_COMMIT).read_text(encoding="utf-8").split()
+    except (OSError, UnicodeDecodeError):
+        exported = []
+    if exported:
+        return {"commit": exported[0][:12], "dirty": False, "dirty_files": [], "exported_to": str(root)}
+    head = (_git(root, "rev-parse", "--verify", "HEAD") or "").strip()
+    if len(head) < 12 or any(c not in "0123456789abcdef" for c in head):
+        return {"commit": "unknown", "dirty": False, "dirty_files": []}
+    spec = [f":(top){p}" for p in paths] if paths else [":(top)"]
+    status = _git(root, "status", "--porcelain", "-z", "--untracked-files=no", "--", *spec)
+    if status is None:  # HEAD is known, its comparison with the tree is not: say so, do not claim clean
+        return {"commit": head[:12], "dirty": True, "dirty_files": ["(git status failed)"]}
+    files: set[str] = set()
+    entries = iter(status.split("\0"))
+    for entry in entries:  # "XY path"; a rename or copy is followed by its source path
+        if len(entry) > 3:
+            files.add(entry[3:])
+            if entry[0] in "RC":
+                next(entries, None)
+    return {"commit": head[:12], "dirty": bool(files), "dirty_files": sorted(files)}
+
+
+def revision_label(rev: dict[str, Any] | None) -> str:
+    """``"abc123def456"``, ``"... + uncommitted edits in a.py, b.py"``, or ``"not recorded"``, from a
+    :func:`code_revision` dict or an older record (``dirty`` as the list of files, no ``dirty_files``)."""
+    if not rev or not rev.get("commit"):
+        return "not recorded"
+    dirty = rev.get("dirty")
+    files = rev.get("dirty_files") or (dirty if isinstance(dirty, list) else [])
+    if files:
+        return f"{rev['commit']} + uncommitted edits in {', '.join(map(str, files))}"
+    return f"{rev['commit']} + uncommitted edits" if dirty else str(rev["commit"])
 
 
 def _rss_mb() -> float:
