@@ -28,7 +28,6 @@ import json
 import math
 import os
 import platform
-import subprocess
 import sys
 import time
 from collections import defaultdict
@@ -70,24 +69,15 @@ DEV_PAIRS = ("cat0-cat2", "cat0-cat3", "cat0-cat5")
 ORDER = ("topo-robust", "sharma2012", "mateus2008", "ovsjanikov2010", "zoomout", "pyfm")
 
 
-def git_revision(repo: Path = HERE) -> dict[str, Any]:
-    """``{"commit": HEAD's short hash, "dirty": [tracked files under shape_toolkit/ that differ
-    from it]}``: the code a run used (other sessions may have uncommitted edits in the tree).
-    When ``shape_toolkit`` is imported from an exported tree (``git archive COMMIT shape_toolkit``
-    with the commit in ``EXPORTED_COMMIT`` beside it, put first on ``PYTHONPATH``), that commit,
-    clean."""
-    import shape_toolkit
+def git_revision() -> dict[str, Any]:
+    """The code a run used (``bench.worker.code_revision`` of the imported ``shape_toolkit``): HEAD's
+    12-character hash, ``dirty`` when tracked files under ``shape_toolkit/`` differ from it (other
+    sessions may have uncommitted edits in the tree; ``dirty_files`` names them); from an exported
+    tree (``git archive COMMIT shape_toolkit`` with the commit in ``EXPORTED_COMMIT`` beside it, put
+    first on ``PYTHONPATH``), that commit, clean."""
+    from shape_toolkit.bench.worker import code_revision
 
-    root = Path(shape_toolkit.__file__).resolve().parent.parent
-    if (root / "EXPORTED_COMMIT").exists():
-        return {"commit": (root / "EXPORTED_COMMIT").read_text().strip(), "dirty": [], "exported_to": str(root)}
-
-    def git(*a: str) -> str:
-        return subprocess.run(["git", *a], cwd=repo, capture_output=True, text=True, check=False).stdout.rstrip()
-
-    head = git("rev-parse", "--short=12", "HEAD") or "unknown"
-    dirty = git("status", "--porcelain", "--untracked-files=no", "--", ":/shape_toolkit")
-    return {"commit": head, "dirty": sorted(line[3:] for line in dirty.splitlines() if line.strip())}
+    return code_revision(paths=["shape_toolkit"])
 
 
 def dense_config(methods: list[str] | None) -> dict[str, Any]:
@@ -108,6 +98,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from shape_toolkit.bench.config import parse_config
     from shape_toolkit.bench.executors import run_benchmark
     from shape_toolkit.bench.store import read_rows
+    from shape_toolkit.bench.worker import revision_label
 
     methods = [m.strip() for m in args.methods.split(",")] if args.methods else None
     cfg = parse_config(dense_config(methods), base=HERE, source=str(CONFIG))
@@ -126,8 +117,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     with open(run / REVISIONS, "a", encoding="utf-8") as fh:
         for r in new:
             fh.write(json.dumps({"key": r["key"], **rev}) + "\n")
-    dirty = f" + uncommitted edits in {', '.join(rev['dirty'])}" if rev["dirty"] else ""
-    print(f"{len(new)} new rows at {rev['commit']}{dirty} in {run} ({summary.failed} failed rows in the folder)")
+    print(f"{len(new)} new rows at {revision_label(rev)} in {run} ({summary.failed} failed rows in the folder)")
     return 0 if summary.failed == 0 else 1
 
 
@@ -325,6 +315,8 @@ def _thesis_mean(method: str, r: float) -> float:
 
 def write_results(runs: list[Path], out: Path) -> dict[str, Any]:
     """Write ``results.md``, ``results.json`` and ``results_curves.png`` into ``out``."""
+    from shape_toolkit.bench.worker import revision_label
+
     rows = combined_rows(runs)
     if not rows:
         raise SystemExit(f"error: no dense rows in {', '.join(map(str, runs))}")
@@ -396,12 +388,11 @@ def write_results(runs: list[Path], out: Path) -> dict[str, Any]:
         for line in (log.read_text().splitlines() if log.exists() else []):
             if line.strip():
                 e = json.loads(line)
-                dirty = f" + uncommitted edits in {', '.join(e['dirty'])}" if e.get("dirty") else ""
                 lines.append(f"- `{run.name}`: {', '.join(e.get('methods') or ['all'])}: {e['new_rows']} rows, "
                              f"{e['started']} to {e['ended']} ({_f(e.get('wall_seconds'), '{:.0f}')} s wall), "
                              f"load average {(e.get('load_start') or ['?'])[0]} at the start, "
                              f"{(e.get('load_end') or ['?'])[0]} at the end; "
-                             f"code {e['commit']}{dirty}. {e.get('note', '')}".rstrip())
+                             f"code {revision_label(e)}. {e.get('note', '')}".rstrip())
     held = [r for r in rows if r["item"] not in DEV_PAIRS]
     hs = summarize_methods(held)
     lines += [
