@@ -186,18 +186,11 @@ def _warm_up(method: str) -> None:
 
 
 def code_state() -> dict:
-    """The commit the toolkit was at and the package files with uncommitted edits (other work in
-    progress in a shared tree changes results)."""
-    import subprocess
+    """The commit the toolkit was at and whether tracked package files had uncommitted edits (other
+    work in progress in a shared tree changes results): ``bench.worker.code_revision``."""
+    from shape_toolkit.bench.worker import code_revision
 
-    def git(*a: str) -> str:
-        try:
-            return subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True, timeout=30).stdout
-        except (OSError, subprocess.SubprocessError):
-            return ""
-
-    dirty = [line[3:] for line in git("status", "--porcelain", "--", "shape_toolkit").splitlines()]
-    return {"commit": git("rev-parse", "--short", "HEAD").strip(), "dirty": dirty}
+    return code_revision(REPO, paths=["shape_toolkit"])
 
 
 def machine() -> dict:
@@ -215,6 +208,8 @@ def _f(x, nd: int = 4) -> str:
 
 
 def report(rows: list[dict], meta: dict) -> str:
+    from shape_toolkit.bench.worker import revision_label
+
     methods = list(dict.fromkeys(r["method"] for r in rows))
     kinds = [k for k in ("clean", "merged") if any(r["kind"] == k for r in rows)]
     seeds = sorted({r["seed"] for r in rows})
@@ -238,9 +233,7 @@ def report(rows: list[dict], meta: dict) -> str:
         f"(wall times inflated), BLAS threads {', '.join(meta['machine']['blas'])}, one pair at a time, "
         f"one BLAS thread per pair. Sum of the runs: {meta['seconds']:.0f} s wall.",
         "",
-        f"Code: commit {meta.get('code', {}).get('commit', '?')}"
-        + (f", with uncommitted edits (other work in progress) in {', '.join(meta['code']['dirty'])}"
-           if meta.get("code", {}).get("dirty") else "") + " (recorded after the last row).",
+        f"Code: commit {revision_label(meta.get('code'))} (recorded after the last row).",
         "",
         "## Summary (means over seeds; `last` = the last frame)",
         "",
