@@ -56,7 +56,7 @@ import argparse
 import hashlib
 import json
 import os
-import subprocess
+import re
 import sys
 import time
 import tracemalloc
@@ -138,20 +138,102 @@ def ensure_builtins() -> None:
             reg.register(importlib.import_module(module), name=f"builtin-{name}")
 
 
-def machine(cpu_seconds: float, load: float) -> str:
-    """CPU model, cores, BLAS threads, process CPU time and the load average at the start."""
+def machine() -> dict:
+    """``{"cpu": model, "cores": n, "blas": ["openblas 2 threads", ...]}``: the BLAS libraries of this
+    process, identical entries once (numpy and scipy may each bundle the same OpenBLAS)."""
     from shape_toolkit.bench.worker import cpu_model
 
-    model = cpu_model()
     try:
         from threadpoolctl import threadpool_info
 
-        blas = ", ".join(f"{i.get('internal_api')} {i.get('num_threads')} threads" for i in threadpool_info()
-                         if i.get("user_api") == "blas") or "unknown"
+        blas = list(dict.fromkeys(f"{i.get('internal_api')} {i.get('num_threads')} threads"
+                                  for i in threadpool_info() if i.get("user_api") == "blas"))
     except Exception:  # pragma: no cover - informational only
-        blas = "unknown"
-    return (f"{model}, {os.cpu_count()} cores (shared with other jobs; load average {load:.1f} at the start), "
-            f"BLAS: {blas}, process CPU time {cpu_seconds:.0f} s")
+        blas = []
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "blas": blas or ["unknown"]}
+
+
+def run_record(command: str, code: dict, cpu_seconds: float, wall_seconds: float, load: float,
+               machine_info: dict | None = None) -> dict:
+    """One run of this script as the report header lists it: the command, the code
+    (``bench.worker.code_revision`` at the start), the machine, process CPU and wall seconds, the
+    load average (1 min) at the start."""
+    return {"command": command, "code": code, "machine": machine_info if machine_info is not None else machine(),
+            "cpu_seconds": cpu_seconds, "wall_seconds": wall_seconds, "load": load}
+
+
+_LEGACY_MACHINE = re.compile(r"^(?P<cpu>.*), (?P<cores>\d+) cores \(shared with other jobs; load average "
+                             r"(?P<load>\S+) at the start\), BLAS: (?P<blas>.*), process CPU time "
+                             r"(?P<cpu_seconds>[\d.]+) s$")
+
+
+def legacy_runs(meta: dict, report: Path | None = None) -> list[dict]:
+    """The runs of a JSON written before ``meta["runs"]`` existed: ``command`` and ``machine`` were
+    strings joined with ``"; then "`` and ``"; the update: "``. Only the commit at the last report was
+    printed (``Commit X (plus the working tree)`` in ``report``, when given and present): it goes to
+    the last run; the others' commits were not recorded."""
+    commands = [c.strip() for c in str(meta.get("command") or "").split("; then ")]
+    machines = [m.strip() for m in str(meta.get("machine") or "").split("; the update: ")]
+    commit = None
+    try:
+        found = re.search(r"^Commit (\S+) \(plus the working tree\)", report.read_text(), re.M) if report else None
+        commit = found.group(1) if found else None
+    except (OSError, UnicodeDecodeError):
+        pass
+    runs = []
+    for i in range(max(len(commands), len(machines))):
+        text = machines[i] if i < len(machines) else ""
+        m = _LEGACY_MACHINE.match(text)
+        last = i == max(len(commands), len(machines)) - 1
+        run = {"command": commands[i] if i < len(commands) else "",
+               "code": {"commit": commit, "dirty": None} if last and commit else {},
+               "cpu_seconds": float(m["cpu_seconds"]) if m else None, "wall_seconds": None,
+               "load": float(m["load"]) if m and m["load"] != "nan" else None}
+        if m:
+            run["machine"] = {"cpu": m["cpu"], "cores": int(m["cores"]),
+                              "blas": list(dict.fromkeys(b.strip() for b in m["blas"].split(",")))}
+        else:
+            run["machine"] = {"text": text} if text else {}
+        runs.append(run)
+    return runs
+
+
+def _machine_text(mach: dict) -> str:
+    if not mach:
+        return "not recorded"
+    if "text" in mach:
+        return str(mach["text"])
+    return f"{mach.get('cpu', '?')}, {mach.get('cores', '?')} cores, BLAS: {', '.join(mach.get('blas') or ['unknown'])}"
+
+
+def header_lines(runs: list[dict]) -> list[str]:
+    """The report's run list: one bullet per run (command, code, CPU and wall time, load), the machine
+    once when every run had the same one, else in each bullet."""
+    from shape_toolkit.bench.worker import revision_label
+
+    machines = list(dict.fromkeys(_machine_text(r.get("machine") or {}) for r in runs))
+    one = len(machines) == 1
+    lines = ["Produced by these runs, in order (each `--update` replaces its methods' rows; data: `--data`, "
+             "`$TOOLKIT_DATA` or `../shared/data`):", ""]
+    for r in runs:
+        code = r.get("code") or {}
+        label = f"commit {revision_label(code)}" if code.get("commit") else "commit not recorded"
+        if code.get("commit") and code.get("dirty") is None:
+            label += " (plus the working tree, not recorded)"
+        parts = [label]
+        if r.get("cpu_seconds") is not None:
+            parts.append(f"process CPU time {r['cpu_seconds']:.0f} s")
+        if r.get("wall_seconds") is not None:
+            parts.append(f"wall {r['wall_seconds']:.0f} s")
+        if r.get("load") is not None:
+            parts.append(f"load average {r['load']:.1f} at the start")
+        where = "" if one else f"; machine: {_machine_text(r.get('machine') or {})}"
+        lines.append(f"- `{r.get('command') or 'python benchmarks/psb_segmentation.py'}`: " + ", ".join(parts)
+                     + where + ".")
+    lines.append("")
+    if one:
+        lines.append(f"Machine: {machines[0]}; the cores were shared with other jobs.")
+    return lines
 
 
 def data_dir(arg: str | None) -> Path:
@@ -456,30 +538,27 @@ def _summary_table(results: list[dict], names: list[str], cols: list[str]) -> li
 
 def write_report(results: list[dict], out: Path, seed: int, elapsed: float, tuned: dict | None = None,
                  names: list[str] | None = None, command: str = "", area_weighted: bool = False,
-                 machine: str = "") -> None:
-    """Markdown: tuning, summary per split, per category (Rand index error), time and memory, every mesh."""
+                 machine: str = "", runs: list[dict] | None = None) -> None:
+    """Markdown: tuning, summary per split, per category (Rand index error), time and memory, every mesh.
+    ``runs`` (:func:`run_record`) head the report; without them, the runs are read from the older
+    ``command`` / ``machine`` strings (:func:`legacy_runs`, commit from the report at ``out``)."""
+    if runs is None:
+        runs = legacy_runs({"command": command, "machine": machine}, out)
     names = ["human"] + (names or [m[0] for m in METHODS])
     present = {n for r in results for n in r["rows"]}
     loo = sorted((n for n in present if n.endswith("-loo")), key=lambda n: (n != "human-loo", n))
     names = names[:1] + (["human-0"] if "human-0" in present else []) + names[1:] + loo
     cols = list(SEGMENTATION_METRICS) + ["rand_index_error_area"]
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
-                                text=True, check=False).stdout.strip()
-    except OSError:
-        commit = "?"
     split = {r["mesh"]: r["split"] for r in results}
     tune_res = [r for r in results if split[r["mesh"]] == "tuning"]
     held = [r for r in results if split[r["mesh"]] == "held-out"]
     lines = [
         "# Princeton Segmentation Benchmark on the shared meshes",
         "",
-        f"Regenerate with `{command or 'python benchmarks/psb_segmentation.py'}` (data: `--data`, "
-        "`$TOOLKIT_DATA` or `../shared/data`).",
-        f"Commit {commit} (plus the working tree), random_state {seed}, {len(results)} meshes "
-        f"({len(tune_res)} tuning, {len(held)} held out), {elapsed:.0f} s wall time in total (tuning included).",
-        "",
-        f"Machine: {machine}." if machine else "",
+        *header_lines(runs),
+        f"random_state {seed}, {len(results)} meshes ({len(tune_res)} tuning, {len(held)} held out), "
+        f"{elapsed:.0f} s wall time in total (tuning included). `--report-only` rewrites this file from the "
+        "JSON next to it.",
         "",
         "Protocol (checked against Chen, Golovinskiy & Funkhouser 2009 and the PSB distribution): `k` per "
         "mesh = the most frequent number of segments among its human segmentations (ties: closest to the "
@@ -729,8 +808,8 @@ def write_report(results: list[dict], out: Path, seed: int, elapsed: float, tune
         lines.append("")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(lines))
-    meta = {"seed": seed, "elapsed": elapsed, "command": command, "area_weighted": area_weighted,
-            "machine": machine, "names": names[1:]}
+    meta = {"seed": seed, "elapsed": elapsed, "command": "; then ".join(r.get("command", "") for r in runs),
+            "area_weighted": area_weighted, "names": names[1:], "runs": runs}
     out.with_suffix(".json").write_text(json.dumps(jsonable({"meta": meta, "tuned": tuned, "results": results}),
                                                    indent=1))
 
@@ -760,7 +839,8 @@ def main(argv: list[str] | None = None) -> int:
             meta = data.get("meta", {})
             write_report(data["results"], Path(args.output), meta.get("seed", args.random_state),
                          meta.get("elapsed", float("nan")), data.get("tuned"), meta.get("names"),
-                         meta.get("command", ""), meta.get("area_weighted", False), meta.get("machine", ""))
+                         meta.get("command", ""), meta.get("area_weighted", False), meta.get("machine", ""),
+                         meta.get("runs"))
         except (OSError, ValueError, KeyError, TypeError) as exc:
             print(f"psb_segmentation: cannot rebuild the report from {src}: {exc}", file=sys.stderr)
             return 2
@@ -793,8 +873,11 @@ def main(argv: list[str] | None = None) -> int:
         print(s, file=sys.stderr, flush=True)
 
     ensure_builtins()
+    from shape_toolkit.bench.worker import code_revision
+
+    code = code_revision(REPO, paths=["shape_toolkit", "benchmarks/psb_segmentation.py"])  # at the start
     t0, c0 = time.perf_counter(), time.process_time()
-    load0 = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    load0 = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     tuned, previous = None, None
     if args.update:
         try:
@@ -819,7 +902,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python " + " ".join(["benchmarks/psb_segmentation.py"] + (argv if argv is not None else sys.argv[1:]))
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     names = [m[0] for m in methods]
-    mach = machine(cpu, load0)
+    runs = [run_record(command, code, cpu, wall, load0)]
     if previous is not None:
         meta = previous.get("meta", {})
         by_id = {r["mesh"]: r for r in results}
@@ -833,12 +916,11 @@ def main(argv: list[str] | None = None) -> int:
         merged = previous["results"] + list(by_id.values())
         old_names = meta.get("names") or [m[0] for m in METHODS]
         names = [m[0] for m in METHODS if m[0] in set(old_names) | set(names)]
-        command = f"{meta.get('command', '')}; then {command}"
+        runs = (meta.get("runs") or legacy_runs(meta, Path(args.output))) + runs
         wall += meta.get("elapsed", 0.0) or 0.0
-        mach = f"{meta.get('machine', '')}; the update: {mach}"
         results = merged
-    write_report(results, Path(args.output), args.random_state, wall, tuned, names, command,
-                 args.area_weighted, mach)
+    write_report(results, Path(args.output), args.random_state, wall, tuned, names,
+                 area_weighted=args.area_weighted, runs=runs)
     log(f"wrote {args.output}")
     return 0
 

@@ -138,3 +138,83 @@ def test_trajectory_drift_code_line_old_and_new_meta():
     assert ("Code: commit 0123456789ab + uncommitted edits in shape_toolkit/pipeline.py (recorded after the last row)."
             in td.report(saved["rows"], meta))
     assert isinstance(td.code_state()["dirty"], bool)
+
+
+@pytest.fixture(scope="module")
+def psb():
+    return _load_script("psb_segmentation_h", REPO / "benchmarks" / "psb_segmentation.py")
+
+
+def _psb_results() -> list[dict]:
+    def row(err: float) -> dict:
+        return {"rand_index_error": err, "rand_index_error_area": err, "cut_discrepancy": 0.3, "hamming": 0.2,
+                "hamming_rm": 0.2, "hamming_rf": 0.2, "gce": 0.1, "lce": 0.1, "recall": 0.6, "precision": 0.6,
+                "seconds": 0.5, "k": 4, "peak_mb": 1.0}
+
+    return [{"mesh": mesh, "category": "human", "split": split, "n_vertices": 100, "n_faces": 196, "k": 4,
+             "n_truths": 3, "n_must": 8, "n_cannot": 9, "n_must_1ml": 4, "spectrum_seconds": 0.1,
+             "rows": {"human": row(0.1), "csc-dual-1ml": row(err)}}
+            for mesh, split, err in (("1", "held-out", 0.12), ("2", "tuning", 0.08))]
+
+
+LEGACY_MACHINE = ("AMD EPYC, 2 cores (shared with other jobs; load average {load} at the start), BLAS: openblas 2 "
+                  "threads, openblas 2 threads, process CPU time {cpu} s")
+
+
+def test_psb_header_from_legacy_json_keeps_every_run_once(psb, tmp_path):
+    """A JSON written before the run list (``command`` joined with "; then ", ``machine`` with
+    "; the update: ", the commit only in the old report): ``--report-only`` lists each run once as
+    a bullet, the machine once with its BLAS libraries de-duplicated, keeps the old commit, and a
+    second regeneration is identical (the runs are now in the JSON)."""
+    out = tmp_path / "psb.md"
+    meta = {"seed": 0, "elapsed": 100.0, "names": ["csc-dual-1ml"], "area_weighted": False,
+            "command": "python benchmarks/psb_segmentation.py; then python benchmarks/psb_segmentation.py --update "
+                       "--methods csc-dual-1ml",
+            "machine": LEGACY_MACHINE.format(load=9.2, cpu=2637) + "; the update: "
+                       + LEGACY_MACHINE.format(load=2.0, cpu=706)}
+    out.with_suffix(".json").write_text(json.dumps({"meta": meta, "tuned": None, "results": _psb_results()}))
+    out.write_text("# old\n\nCommit 7853810 (plus the working tree), random_state 0, 2 meshes\n")
+    assert psb.main(["--report-only", "--output", str(out)]) == 0
+    md = out.read_text()
+    head = md[: md.index("Protocol")]
+    assert head.count("\n- `python benchmarks/psb_segmentation.py") == 2
+    assert ("- `python benchmarks/psb_segmentation.py`: commit not recorded, process CPU time 2637 s, load average "
+            "9.2 at the start." in head)
+    assert ("- `python benchmarks/psb_segmentation.py --update --methods csc-dual-1ml`: commit 7853810 (plus the "
+            "working tree, not recorded), process CPU time 706 s" in head)
+    assert head.count("Machine:") == 1 and head.count("openblas") == 1
+    assert "; then " not in head and "the update:" not in head
+    saved = json.loads(out.with_suffix(".json").read_text())
+    assert [r["command"] for r in saved["meta"]["runs"]] == meta["command"].split("; then ")
+    assert psb.main(["--report-only", "--output", str(out)]) == 0
+    assert out.read_text() == md  # the old report's commit is now in the JSON
+
+
+def test_psb_header_lists_new_runs(psb, tmp_path):
+    """Runs recorded by this version: one bullet each with its commit, CPU and wall time; the
+    machine once when it is the same, in each bullet when it differs; nothing grows in one line."""
+    mach = {"cpu": "AMD EPYC", "cores": 2, "blas": ["openblas 2 threads"]}
+    first = psb.run_record("python benchmarks/psb_segmentation.py", {"commit": "0123456789ab", "dirty": False,
+                           "dirty_files": []}, 2637.0, 4000.0, 9.2, mach)
+    runs = [first]
+    for i in range(3):  # three updates, each appended the way main() does
+        runs = runs + [psb.run_record(f"python benchmarks/psb_segmentation.py --update --methods m{i}",
+                                      {"commit": "abcdef012345", "dirty": True, "dirty_files": ["shape_toolkit/x.py"]},
+                                      500.0 + i, 900.0, 2.0, mach)]
+    lines = psb.header_lines(runs)
+    bullets = [line for line in lines if line.startswith("- ")]
+    assert len(bullets) == 4 and max(map(len, lines)) < 250
+    assert bullets[0] == ("- `python benchmarks/psb_segmentation.py`: commit 0123456789ab, process CPU time 2637 s, "
+                          "wall 4000 s, load average 9.2 at the start.")
+    assert "commit abcdef012345 + uncommitted edits in shape_toolkit/x.py, process CPU time 502 s" in bullets[3]
+    assert [line for line in lines if line.startswith("Machine:")] == [
+        "Machine: AMD EPYC, 2 cores, BLAS: openblas 2 threads; the cores were shared with other jobs."]
+    runs[-1] = dict(runs[-1], machine={"cpu": "Intel Xeon", "cores": 8, "blas": ["mkl 1 threads"]})
+    lines = psb.header_lines(runs)
+    assert not any(line.startswith("Machine:") for line in lines)
+    bullets = [line for line in lines if line.startswith("- ")]
+    assert bullets[-1].endswith("; machine: Intel Xeon, 8 cores, BLAS: mkl 1 threads.")
+    assert bullets[0].endswith("; machine: AMD EPYC, 2 cores, BLAS: openblas 2 threads.")
+    assert psb.machine()["blas"] == list(dict.fromkeys(psb.machine()["blas"]))  # this process: no repeats
+    psb.write_report(_psb_results(), tmp_path / "r.md", 0, 10.0, None, ["csc-dual-1ml"], runs=runs)
+    assert (tmp_path / "r.md").read_text().count("\n- `python benchmarks/psb_segmentation.py") == 4
