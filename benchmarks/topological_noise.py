@@ -8,6 +8,10 @@ between parts welded, as a visual hull fuses touching parts) at several strength
                                            [--replace]   # run --methods again, keep the others' rows
     python benchmarks/topological_noise.py --report-only   # the markdown from the saved rows
 
+The commands that produced the saved rows (and the code, ``bench.worker.code_revision``) are kept in
+``topological_noise.runs.json`` next to the rows (``--rows``), so ``--report-only`` writes them back
+into the header; rows saved before that file existed take them from the header of the existing report.
+
 Protocol:
 
 - Pairs (A, B) from ``tosca5k/pairs.txt`` and ``faust5k/pairs.txt``. Tuning split (the pairs the
@@ -35,6 +39,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import re  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
@@ -131,9 +136,83 @@ def evaluate(method: str, A, Bg, vmap, ta, rows, rows_sym, area) -> dict:
     }
 
 
+def runs_path(rows: Path) -> Path:
+    """The side file of the rows that keeps the commands that produced them."""
+    return Path(rows).with_name(Path(rows).stem + ".runs.json")
+
+
+def _methods_of(command: str) -> list[str]:
+    words = command.split()
+    return words[words.index("--methods") + 1].split(",") if "--methods" in words[:-1] else list(METHODS)
+
+
+def saved_commands(args) -> dict | None:
+    """``{"command": the full run, "code": ..., "reruns": [{"command", "methods", "code"}]}`` of the
+    saved rows: from :func:`runs_path`, else read back from the header of the report at
+    ``args.output`` (rows saved before the side file), else None."""
+    try:
+        return json.loads(runs_path(args.rows).read_text())
+    except (OSError, ValueError):
+        pass
+    try:
+        text = Path(args.output).read_text()
+    except (OSError, UnicodeDecodeError):
+        return None
+    full = re.search(r"^Regenerate: `([^`]+)`", text, re.M)
+    if not full:
+        return None
+    reruns = [{"command": c, "methods": _methods_of(c), "code": None}
+              for c in re.findall(r"^Last rerun \(`--replace`[^\n]*?: `([^`]+)`\.", text, re.M)]
+    return {"command": full.group(1), "code": None, "reruns": reruns}
+
+
+def record_commands(args) -> dict:
+    """Before a run: note its command (and the code it runs) in :func:`runs_path`. A full run
+    replaces the command (``--fresh`` also drops the reruns); ``--replace`` keeps the full command
+    and adds a rerun, dropping earlier reruns of no other methods."""
+    from shape_toolkit.bench.worker import code_revision
+
+    code = code_revision(REPO, paths=["shape_toolkit", "benchmarks/topological_noise.py",
+                                      "benchmarks/tosca_matching.py"])  # this script and its pyFM runner
+    prior = None if args.fresh else saved_commands(args)
+    if args.replace:
+        methods = args.methods.split(",")
+        kept = [r for r in (prior or {}).get("reruns", []) if not set(r.get("methods") or METHODS) <= set(methods)]
+        state = {"command": (prior or {}).get("command") or args.command, "code": (prior or {}).get("code"),
+                 "reruns": kept + [{"command": args.rerun, "methods": methods, "code": code}]}
+    else:
+        state = {"command": args.command, "code": code, "reruns": (prior or {}).get("reruns", [])}
+    path = runs_path(args.rows)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(state, indent=1) + "\n")
+    return state
+
+
+def header_lines(args) -> list[str]:
+    """The report's lines naming the commands (and code) that produced the rows."""
+    from shape_toolkit.bench.worker import revision_label
+
+    state = saved_commands(args)
+    if state is None:
+        return [f"Regenerate: not recorded (rows in `{args.rows}`).", ""]
+
+    def code(entry: dict) -> str:
+        return f" Code: {revision_label(entry['code'])}." if entry.get("code") else ""
+
+    lines = [f"Regenerate: `{state['command']}` (then `python benchmarks/topological_noise.py --report-only`)."
+             + code(state)]
+    reruns = state.get("reruns") or []
+    what = "(`--replace`: these methods' rows replaced, the other methods' rows kept)"
+    if len(reruns) == 1:
+        lines.append(f"Last rerun {what}: `{reruns[0]['command']}`.{code(reruns[0])}")
+    elif reruns:
+        lines.append(f"Reruns {what}, in order: " + "; ".join(f"`{r['command']}`{code(r)}" for r in reruns))
+    return lines + [""]
+
+
 def run(args) -> None:
     warnings.filterwarnings("ignore")
-    out = RESULTS / "topological_noise.jsonl"
+    out = Path(args.rows)
     done = set()
     methods = args.methods.split(",")
     if out.exists() and not args.fresh:
@@ -175,7 +254,7 @@ def run(args) -> None:
 
 
 def report(args) -> None:
-    rows = [json.loads(x) for x in (RESULTS / "topological_noise.jsonl").read_text().splitlines()]
+    rows = [json.loads(x) for x in Path(args.rows).read_text().splitlines()]
     rows = [r for r in rows if "mean" in r]
     methods = [m for m in METHODS if any(r["method"] == m for r in rows)]
     strengths = sorted({r["strength"] for r in rows})
@@ -198,9 +277,7 @@ def report(args) -> None:
     lines = [
         "# Topological noise: glued contacts on the target (tosca5k, faust5k)",
         "",
-        f"Regenerate: `{args.command}` (then `python benchmarks/topological_noise.py --report-only`).",
-        *([f"Last rerun (`--replace`: these methods' rows replaced, the other methods' rows kept): "
-           f"`{args.rerun}`.", ""] if args.rerun else [""]),
+        *header_lines(args),
         "Protocol: see the docstring of `benchmarks/topological_noise.py` (A -> glued B, scored on the clean B,",
         "200 ground-truth points per pair, error / sqrt(area), Dijkstra geodesics; `strength` = number of glued",
         "contacts; only held-out pairs, never those the presets were tuned on).",
@@ -289,7 +366,7 @@ def report(args) -> None:
             c = np.mean(curves, axis=0)
             lines.append(f"| {m} | " + " | ".join(f"{c[i]:.3f}" for i in show) + f" | {np.mean(cpu):.1f} |")
         lines.append("")
-    failed = [r for r in (json.loads(x) for x in (RESULTS / "topological_noise.jsonl").read_text().splitlines())
+    failed = [r for r in (json.loads(x) for x in Path(args.rows).read_text().splitlines())
               if "error" in r]
     if failed:
         lines += ["## Failures", ""] + [f"- {r['method']} on {r['pair']} s={r['strength']}: {r['error']}"
@@ -298,7 +375,9 @@ def report(args) -> None:
     print("\n".join(lines))
 
 
-def main() -> None:
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    """The options, plus ``command`` (the full run: ``--methods`` dropped for ``--replace``) and
+    ``rerun`` (the ``--replace`` command as given, else empty)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--strengths", default="0,3,6")
     ap.add_argument("--tosca", type=int, default=4)
@@ -309,16 +388,24 @@ def main() -> None:
     ap.add_argument("--fresh", action="store_true", help="discard saved rows")
     ap.add_argument("--replace", action="store_true",
                     help="discard the saved rows of --methods only and run them again (the others are kept)")
+    ap.add_argument("--rows", default=str(RESULTS / "topological_noise.jsonl"),
+                    help="the saved rows (JSON lines); the commands go to a .runs.json beside them")
     ap.add_argument("--report-only", action="store_true")
-    args = ap.parse_args()
-    argv = [a for a in sys.argv[1:] if a not in ("--report-only", "--fresh", "--replace")]
-    args.rerun = "python benchmarks/topological_noise.py " + " ".join(
-        a for a in sys.argv[1:] if a != "--report-only") if args.replace else ""
+    args = ap.parse_args(argv)
+    rerun_argv = [a for a in argv if a != "--report-only"]
+    argv = [a for a in argv if a not in ("--report-only", "--fresh", "--replace")]
+    args.rerun = "python benchmarks/topological_noise.py " + " ".join(rerun_argv) if args.replace else ""
     if args.replace and "--methods" in argv:  # the full command, every method
         i = argv.index("--methods")
         del argv[i : i + 2]
-    args.command = "python benchmarks/topological_noise.py " + " ".join(argv)
+    args.command = " ".join(["python benchmarks/topological_noise.py", *argv])
+    return args
+
+
+def main() -> None:
+    args = parse_args(sys.argv[1:])
     if not args.report_only:
+        record_commands(args)
         run(args)
     report(args)
 

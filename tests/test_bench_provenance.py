@@ -218,3 +218,49 @@ def test_psb_header_lists_new_runs(psb, tmp_path):
     assert psb.machine()["blas"] == list(dict.fromkeys(psb.machine()["blas"]))  # this process: no repeats
     psb.write_report(_psb_results(), tmp_path / "r.md", 0, 10.0, None, ["csc-dual-1ml"], runs=runs)
     assert (tmp_path / "r.md").read_text().count("\n- `python benchmarks/psb_segmentation.py") == 4
+
+
+def _noise_row(method: str, mean: float) -> dict:
+    return {"dataset": "tosca5k", "pair": "cat0-cat1", "strength": 0, "method": method, "n_removed": 0,
+            "split": "held-out", "mean": mean, "mean_sym": mean, "curve": [min(1.0, 0.04 * i) for i in range(26)],
+            "matched": 1.0, "seconds": 1.0, "cpu": 1.0}
+
+
+def test_topological_noise_report_only_keeps_the_commands(tmp_path, capsys):
+    """benchmarks/topological_noise.py: the commands that produced the saved rows (a full run, then a
+    ``--replace``) survive a ``--report-only`` regeneration, also for rows saved before the side file
+    (read back from the old report), and are not invented when nothing recorded them."""
+    tn = _load_script("topological_noise_h", REPO / "benchmarks" / "topological_noise.py")
+    rows, out = tmp_path / "rows.jsonl", tmp_path / "report.md"
+    rows.write_text(json.dumps(_noise_row("zoomout", 0.03)) + "\n" + json.dumps(_noise_row("pyfm", 0.05)) + "\n")
+    where = ["--rows", str(rows), "--output", str(out)]
+
+    def header(args) -> list[str]:
+        tn.report(args)
+        return out.read_text().split("\nProtocol:")[0].splitlines()
+
+    full = tn.parse_args(["--tosca", "5", "--faust", "5", *where])
+    assert full.command == f"python benchmarks/topological_noise.py --tosca 5 --faust 5 {' '.join(where)}"
+    tn.record_commands(full)  # what main() does before run()
+    first = header(full)
+    assert first[2].startswith(f"Regenerate: `{full.command}` (then `python benchmarks/topological_noise.py "
+                               "--report-only`). Code: ")
+    rerun = tn.parse_args(["--tosca", "5", "--faust", "5", *where, "--methods", "pyfm", "--replace"])
+    assert rerun.command == full.command and rerun.rerun.endswith("--methods pyfm --replace")
+    tn.record_commands(rerun)
+    after = header(rerun)
+    assert after[2] == first[2] and after[3].startswith(f"Last rerun (`--replace`: these methods' rows replaced, "
+                                                        f"the other methods' rows kept): `{rerun.rerun}`.")
+    only = tn.parse_args(["--report-only", *where])
+    assert header(only) == after  # the regeneration keeps both commands and their code
+    assert "| zoomout | 0.0300 (0.0300) / 0 |" in out.read_text()  # and the table is from the rows
+    tn.record_commands(rerun)  # the same rerun again replaces the earlier one instead of piling up
+    assert header(only) == after
+    tn.runs_path(rows).unlink()  # rows saved before the side file: the old header is read back
+    legacy = header(only)
+    assert legacy[2].split(" Code: ")[0] == after[2].split(" Code: ")[0]
+    assert legacy[3].split(" Code: ")[0] == after[3].split(" Code: ")[0]
+    assert header(only) == legacy
+    out.unlink()
+    assert header(only)[2] == f"Regenerate: not recorded (rows in `{rows}`)."
+    capsys.readouterr()
