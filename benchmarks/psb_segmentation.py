@@ -544,7 +544,9 @@ def write_report(results: list[dict], out: Path, seed: int, elapsed: float, tune
     ``command`` / ``machine`` strings (:func:`legacy_runs`, commit from the report at ``out``)."""
     if runs is None:
         runs = legacy_runs({"command": command, "machine": machine}, out)
-    names = ["human"] + (names or [m[0] for m in METHODS])
+    # the saved list already holds human-0 and the -loo rows (added below): keep each name once
+    names = ["human"] + [n for n in (names or [m[0] for m in METHODS])
+                         if n not in ("human", "human-0") and not n.endswith("-loo")]
     present = {n for r in results for n in r["rows"]}
     loo = sorted((n for n in present if n.endswith("-loo")), key=lambda n: (n != "human-loo", n))
     names = names[:1] + (["human-0"] if "human-0" in present else []) + names[1:] + loo

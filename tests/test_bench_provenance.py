@@ -153,7 +153,8 @@ def _psb_results() -> list[dict]:
 
     return [{"mesh": mesh, "category": "human", "split": split, "n_vertices": 100, "n_faces": 196, "k": 4,
              "n_truths": 3, "n_must": 8, "n_cannot": 9, "n_must_1ml": 4, "spectrum_seconds": 0.1,
-             "rows": {"human": row(0.1), "csc-dual-1ml": row(err)}}
+             "rows": {"human": row(0.1), "human-0": row(0.11), "csc-dual-1ml": row(err),
+                      "human-loo": row(0.1), "csc-dual-1ml-loo": row(err)}}
             for mesh, split, err in (("1", "held-out", 0.12), ("2", "tuning", 0.08))]
 
 
@@ -188,6 +189,10 @@ def test_psb_header_from_legacy_json_keeps_every_run_once(psb, tmp_path):
     assert [r["command"] for r in saved["meta"]["runs"]] == meta["command"].split("; then ")
     assert psb.main(["--report-only", "--output", str(out)]) == 0
     assert out.read_text() == md  # the old report's commit is now in the JSON
+    # human-0 and the -loo rows are saved in ``names``: a regeneration must not list them twice
+    assert md.count("\n| human-0 |") == md.count("\n| csc-dual-1ml |") > 0
+    assert md.count("\n| csc-dual-1ml-loo |") == md.count("\n| human-loo |") > 0
+    assert json.loads(out.with_suffix(".json").read_text())["meta"]["names"].count("human-0") == 1
 
 
 def test_psb_header_lists_new_runs(psb, tmp_path):
