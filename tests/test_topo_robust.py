@@ -298,6 +298,25 @@ def test_em_orientation_fixes_a_mirrored_start(pair):
     assert fixed.info["orientation_flipped"]
 
 
+def test_em_polish_says_what_the_posteriors_describe(pair):
+    """With ``polish_k`` the returned map is the polished one and at least as accurate here; Q, sigma and
+    P stay EM's (before polishing), and ``info`` says so; without it they describe ``target_of``."""
+    A, B, _ = pair
+    s = np.random.default_rng(1).choice(A.shape.n_vertices, 40, replace=False)
+    seeds = np.column_stack([s, s])
+    plain = create_plugin("dense_matchers", "em-registration", k=8).match(A.shape, B.shape, seeds=seeds)
+    polished = create_plugin("dense_matchers", "em-registration", k=8, polish_k=30).match(
+        A.shape, B.shape, seeds=seeds)
+    assert plain.info["posteriors_of"] == "target_of" and "polish_k" not in plain.info
+    assert polished.info["posteriors_of"] == "em-before-polish" and polished.info["polish_k"] == 30
+    pos = np.asarray(B.shape.vertices)
+    ids = np.arange(A.shape.n_vertices)
+    err = [np.mean(np.linalg.norm(pos[c.target_of] - pos[ids], axis=1)) for c in (plain, polished)]
+    assert err[1] <= err[0] + 1e-9
+    # the posteriors are the same EM fit in both (the polish only changes the hard map)
+    assert abs(plain.posteriors - polished.posteriors).max() < 1e-12
+
+
 # -- the topo-robust preset ------------------------------------------------------------------------
 def test_topo_robust_preset_under_glued_contacts(pair):
     A, B, _ = pair

@@ -210,7 +210,9 @@ class EMRegistrationMatcher(DenseMatcher):
       mesh's edge lengths more than the surface (FAUST development pairs, ``polish_k=100`` after
       ``k_final=40`` on the graph: 0.036 -> 0.018 on tr_reg_033-039, 0.027 -> 0.016 on 012-015).
       Refining the EM map on the Laplace-Beltrami basis *before* the orientation check instead
-      was tried and lost a local side repair (033-039: 0.091).
+      was tried and lost a local side repair (033-039: 0.091). The returned ``target_of`` is the
+      polished map; ``Q``, ``sigma`` and the posteriors describe EM's fit before polishing
+      (``info["posteriors_of"] = "em-before-polish"``; without polishing ``"target_of"``).
     - preset ``thesis``: ``spectrum="graph", scaling="commute-time", dimension="scree", k=10``.
 
     ``orientation`` (``"preserving"`` default, ``"reversing"``, ``"none"``): EM is intrinsic, so
@@ -519,8 +521,10 @@ class EMRegistrationMatcher(DenseMatcher):
         if self.polish_k and source is not None and self.fill_unmatched and np.all(t >= 0):
             t = self._polish(t, X.shape[1], source, target, source_spectrum, target_spectrum)
             info["polish_k"] = int(self.polish_k)
+            info["posteriors_of"] = "em-before-polish"  # Q, sigma and P are EM's, not the polished map's
         if self.k_final and bases is not None and self.k_final > X.shape[1] and self.fill_unmatched:
             info["k_final"] = int(min(self.k_final, bases[0].k - 1, bases[1].k - 1))
+        info.setdefault("posteriors_of", "target_of")
         info.update({"Q": Q, "sigma": sigma, "n_confident": n_confident, "embedding_dim": int(X.shape[1]),
                      "posteriors": "P(source i | target j), columns sum <= 1"})
         return Correspondence(t, target.n_vertices, conf, P, info)
