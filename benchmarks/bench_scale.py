@@ -36,6 +36,19 @@ resident set (``VmHWM``, native allocations included) over the stage, reset afte
 spectra (``/proc/self/clear_refs``), so ``peak MB`` is the highest resident size during the stage
 (meshes and spectra included), and ``over load`` the part above the resident size before it. BLAS: the
 thread count threadpoolctl reports in the child (the process default; the eigensolver caps itself to 1).
+
+**Whole pipelines** (issue 14): a stage ``preset:NAME`` runs ``load_pipeline(NAME).run(A, B)`` (no seeds
+given: the preset finds its own, e.g. keypoints and replicator matching) in a fresh child with no disk
+spectrum cache, so its time includes every spectrum it declares. Same columns and error as above, plus
+the pipeline's own stage timings (``info["timings"]``, wall) and, timed by wrapping
+``em_registration``'s functions in the child only (the package is not changed), the wall and CPU time
+of the polish (``_polish``, the ``polish_k`` refinement), of every coarse-to-fine refinement
+(``_refine``, the polish's included), of their nearest-neighbour searches (``_nearest``), of EM itself
+(``em_register``) and of the orientation check (``_orient``). Runs with preset stages write
+``benchmarks/results/scale_presets.md`` (+ ``.json``)::
+
+    python benchmarks/bench_scale.py --splits 1 2 3 --accuracy-pairs '' \\
+        --stages preset:zoomout,preset:sharma2012,preset:topo-robust
 """
 
 from __future__ import annotations
@@ -58,6 +71,9 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
 RESULTS = REPO / "benchmarks" / "results" / "scale.md"
+PRESET_RESULTS = REPO / "benchmarks" / "results" / "scale_presets.md"
+#: prefix of a whole-pipeline stage: ``preset:NAME`` runs the pipeline preset ``NAME``
+PRESET_PREFIX = "preset:"
 N_SEEDS = 30
 MEMORY_BUDGET_MB = 4096.0
 #: seconds after which a child is stopped
@@ -215,6 +231,85 @@ def _matcher(stage: str, baseline_dir: str | None):
     return matchers(baseline_dir)[which](**params)
 
 
+def preset_name(stage: str) -> str | None:
+    """The pipeline preset a ``preset:NAME`` stage runs, None for the other stages."""
+    return stage[len(PRESET_PREFIX):] if stage.startswith(PRESET_PREFIX) else None
+
+
+def parse_stages(text: str) -> list[str]:
+    """The comma-separated ``--stages`` list, checked: ``spectrum``, a :data:`MATCHERS` name or
+    ``preset:NAME`` with ``NAME`` a pipeline preset (``shape_toolkit.pipeline.PRESETS``). Raises
+    ``ParameterError`` naming the stage and what is known."""
+    from shape_toolkit.errors import ParameterError
+    from shape_toolkit.pipeline import PRESETS
+
+    stages = [t.strip() for t in str(text).split(",") if t.strip()]
+    if not stages:
+        raise ParameterError("--stages: no stage given")
+    for stage in stages:
+        name = preset_name(stage)
+        if name is not None:
+            if name not in PRESETS:
+                raise ParameterError(f"--stages: unknown pipeline preset {name!r} in {stage!r} "
+                                     f"(known: {', '.join(sorted(PRESETS))})")
+        elif stage != "spectrum" and stage not in MATCHERS:
+            raise ParameterError(f"--stages: unknown stage {stage!r} (known: spectrum, {', '.join(MATCHERS)}, "
+                                 f"{PRESET_PREFIX}NAME)")
+    if len(set(stages)) != len(stages):
+        raise ParameterError(f"--stages: a stage is repeated in {text!r}")
+    return stages
+
+
+#: ``em_registration`` functions timed inside a preset stage: report key -> (attribute owner, name)
+TIMED = {"polish": ("EMRegistrationMatcher", "_polish"), "refine_steps": ("EMRegistrationMatcher", "_refine"),
+         "nearest": (None, "_nearest"), "em_register": (None, "em_register"),
+         "orientation_check": ("EMRegistrationMatcher", "_orient")}
+
+
+def instrument_em(clock: dict) -> None:
+    """Wrap the :data:`TIMED` functions of ``em_registration`` in this process so that each call adds
+    its wall and CPU seconds and a count to ``clock[key] = {"wall", "cpu", "calls"}`` (inclusive:
+    the polish's refinement is also in ``refine_steps``; the package's files are not changed)."""
+    import functools
+
+    from shape_toolkit.plugins.matching.dense import em_registration as E
+
+    for key, (owner_name, attr) in TIMED.items():
+        owner = getattr(E, owner_name) if owner_name else E
+        fn = getattr(owner, attr)
+
+        def timed(*a, _fn=fn, _key=key, **kw):
+            t0, c0 = time.perf_counter(), time.process_time()
+            try:
+                return _fn(*a, **kw)
+            finally:
+                c = clock.setdefault(_key, {"wall": 0.0, "cpu": 0.0, "calls": 0})
+                c["wall"] += time.perf_counter() - t0
+                c["cpu"] += time.process_time() - c0
+                c["calls"] += 1
+
+        setattr(owner, attr, functools.wraps(fn)(timed))
+
+
+def run_preset(name: str, A, B) -> tuple[object, dict]:
+    """``load_pipeline(name).run(A, B)`` with :func:`instrument_em`: the map and
+    ``{"timings": the pipeline's stage wall times, "em": the wrapped functions' times, ...}``."""
+    from shape_toolkit.pipeline import load_pipeline
+
+    clock: dict = {}
+    instrument_em(clock)
+    corr = load_pipeline(name).run(A, B)
+    info = corr.info
+    extra = {"timings": {k: float(v) for k, v in info.get("timings", {}).items()}, "em": clock,
+             "n_seeds": info.get("n_seeds"), "seed_source": info.get("seed_source"),
+             "n_keypoints": info.get("n_keypoints"), "polish_k": info.get("polish_k"),
+             "k_final": info.get("k_final"), "embedding_dim": info.get("embedding_dim"),
+             "orientation": {k: v for k, v in info.items() if k.startswith("orientation")
+                             and isinstance(v, (bool, int, float, str))},
+             "spectra": info.get("spectra")}
+    return corr, extra
+
+
 def child(stages: list[str], data: Path, a: str, b: str, s: int, baseline_dir: str | None) -> list[dict]:
     """Run ``stages`` (``spectrum`` or a :data:`MATCHERS` name) in this process on the pair split
     ``s x s``; returns one row each: times, peak memory, and the map error for matchers."""
@@ -227,6 +322,24 @@ def child(stages: list[str], data: Path, a: str, b: str, s: int, baseline_dir: s
     seeds = seeds_of(np.asarray(A0.vertices), ta, tb)
     rows = []
     for stage in stages:
+        name = preset_name(stage)
+        if name is not None:  # the whole pipeline, its spectra included (no disk cache: run_child)
+            from shape_toolkit.bench.worker import code_revision
+
+            out = {"stage": stage, "pair": f"{a}-{b}", "n_source": A.n_vertices, "n_target": B.n_vertices,
+                   "split": s, "blas_threads": blas_threads(),
+                   "code": code_revision(REPO, paths=["shape_toolkit"])}
+            reset_peak()
+            before = rss_mb()
+            t0, c0 = time.perf_counter(), time.process_time()
+            corr, extra = run_preset(name, A, B)
+            out.update({"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
+                        "peak_mb": peak_rss_mb(), "before_mb": before, **extra})
+            out.update(map_error(B0, corr.target_of, np.asarray(B.vertices), ta, tb))
+            out["n_matched"] = int(corr.n_matched)
+            del corr
+            rows.append(out)
+            continue
         if stage == "spectrum":
             specs = SpectrumSpec.merge_all(
                 [sp for name in MATCHERS for sp in _matcher(name, None).spectrum_specs()])
@@ -264,14 +377,21 @@ def child(stages: list[str], data: Path, a: str, b: str, s: int, baseline_dir: s
 
 
 def run_child(stages: list[str], data: Path, a: str, b: str, s: int, cache: Path,
-              baseline_dir: str | None) -> list[dict]:
-    """``child`` in a fresh process with the spectrum cache in ``cache``."""
+              baseline_dir: str | None, timeout: float = CHILD_TIMEOUT) -> list[dict]:
+    """``child`` in a fresh process with the spectrum cache in ``cache`` (none for preset stages),
+    stopped after ``timeout`` seconds (its rows then carry the error)."""
     env = {**os.environ, "TOOLKIT_CACHE_DIR": str(cache)}
+    if any(preset_name(st) for st in stages):  # a preset computes (and is timed on) its own spectra
+        env.pop("TOOLKIT_CACHE_DIR")
     cmd = [sys.executable, __file__, "--child", ",".join(stages), "--pair", a, b, "--split", str(s),
            "--data", str(data)]
     if baseline_dir:
         cmd += ["--baseline-dir", baseline_dir]
-    r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=CHILD_TIMEOUT)
+    try:
+        r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return [{"stage": st, "pair": f"{a}-{b}", "split": s, "error": f"stopped after {timeout:.0f} s"}
+                for st in stages]
     if r.returncode != 0:
         err = (r.stderr.strip().splitlines() or ["?"])[-1]
         return [{"stage": st, "pair": f"{a}-{b}", "split": s, "error": err} for st in stages]
@@ -302,9 +422,13 @@ def _fmt(x, nd=1):
 
 
 def write_report(res: dict, out: Path) -> None:
-    """``scale.md`` (and ``scale.json`` next to it) from the rows of a run."""
+    """``scale.md`` (and ``scale.json`` next to it) from the rows of a run; the whole-pipeline
+    report (:func:`write_presets_report`) when the rows hold ``preset:NAME`` stages."""
     out.with_suffix(".json").write_text(json.dumps(res, indent=1))
     rows = res["rows"]
+    if any(preset_name(r["stage"]) for r in rows):
+        write_presets_report(res, out)
+        return
     order = {name: i for i, name in enumerate(["spectrum", *MATCHERS])}
     cur = sorted((r for r in rows if r.get("kind") == "scale" and r["impl"] == "current" and "error" not in r),
                  key=lambda r: (r["split"], order.get(r["stage"], 99)))
@@ -382,13 +506,122 @@ def write_report(res: dict, out: Path) -> None:
     out.write_text("\n".join(lines))
 
 
+#: the peer the thesis presets are compared with in the presets report
+PEER = "zoomout"
+
+
+def _exponent(a: float, b: float, na: int, nb: int) -> str:
+    return f"{np.log(b / a) / np.log(nb / na):.2f}" if a > 0 and b > 0 and nb != na else ""
+
+
+def write_presets_report(res: dict, out: Path) -> None:
+    """The whole-pipeline report (``scale_presets.md``) from the rows of runs with ``preset:NAME``
+    stages: times, memory and error per size and preset, where the time goes, the ratios to the
+    :data:`PEER` preset and the growth exponents (the ``.json`` is written by :func:`write_report`)."""
+    rows = [r for r in res["rows"] if r.get("kind", "scale") == "scale"]
+    ok = sorted((r for r in rows if "error" not in r), key=lambda r: (r["split"], r["stage"]))
+    presets = list(dict.fromkeys(preset_name(r["stage"]) or r["stage"] for r in ok))
+    cmds = res["command"].split("; ")
+    load = res.get("load", [float("nan")] * 2)
+    blas = sorted({r["blas_threads"] for r in ok if r.get("blas_threads") is not None})
+    from shape_toolkit.bench.worker import revision_label
+
+    codes = sorted({revision_label(r.get("code")) for r in ok})
+    lines = [
+        "# Scale: whole matching pipelines (thesis presets vs zoomout) on 5k-45k-vertex pairs",
+        "",
+        "Regenerate the tables from the saved rows: `python benchmarks/bench_scale.py --report-only "
+        f"--output benchmarks/results/{out.name}`. Rows produced by:",
+        "",
+        *[f"- `{c.replace(' (merged)', '')}`" for c in cmds],
+        "",
+        f"Date: {res['date']}. Machine: {res.get('cpu', 'CPU not recorded')}, {res['machine']}; 2 cores shared with "
+        "the lead's small runs, one benchmark process at a time; 1-min load "
+        f"{load[0]:.1f} at the start, {load[1]:.1f} at the end: wall times are inflated by the other jobs, "
+        f"CPU times are the better measure. BLAS threads in the children: {', '.join(map(str, blas)) or '?'} "
+        "(threadpoolctl; the eigensolver caps itself to 1). Package code (`shape_toolkit/`): "
+        f"{'; '.join(codes)}.",
+        "",
+        "Pair: TOSCA cat0 -> cat1 (`tosca5k`), every triangle split s x s (flat: same surface, original vertex "
+        "ids kept, so the ground truth holds on every size). Each cell is one fresh child process running "
+        "`load_pipeline(NAME).run(A, B)` with no seeds given (the preset finds its own) and no disk spectrum "
+        "cache, so the times include every spectrum the preset declares. `peak MB`: the child's peak resident "
+        "set during the run (meshes loaded before it included); `+MB` the part above the resident size at the "
+        "start. Error: mean geodesic error of the 5,000 ground-truth points, the predicted vertex snapped to "
+        "the nearest original vertex of B, Dijkstra on the original 5k mesh / sqrt(area) (the same ruler on "
+        "every size). One pair, one run per cell: no tuning was done here, nothing was chosen on these numbers.",
+        "",
+        "| s | vertices | preset | wall s | CPU s | peak MB | +MB | BLAS | error | seeds |",
+        "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in ok:
+        lines.append(f"| {r['split']} | {r['n_source']:,} | {preset_name(r['stage']) or r['stage']} | "
+                     f"{_fmt(r['seconds'])} | {_fmt(r['cpu_seconds'])} | {_fmt(r['peak_mb'], 0)} | "
+                     f"{_fmt(r['peak_mb'] - r['before_mb'], 0)} | {r.get('blas_threads')} | "
+                     f"{_fmt(r.get('mean_error'), 4)} | {r.get('n_seeds', '')} |")
+    failed = [r for r in rows if "error" in r]
+    if failed:
+        lines += ["", "Not measured / failed: " + "; ".join(
+            f"{r['stage']} s={r['split']}: {r['error']}" for r in failed)]
+    stage_keys = ["spectra", "keypoints", "sparse", "descriptors", "dense", "refine"]
+    lines += ["", "## Where the time goes", "",
+              "Wall seconds of the pipeline's stages (`info[\"timings\"]`), then wall / CPU seconds of "
+              "em-registration's parts inside `refine` (wrapped in the child; inclusive: `refine steps` counts "
+              "every coarse-to-fine refinement call, the polish's included, `NN` every nearest-neighbour search "
+              "in them; `orient` is the left/right check, EM-again and its side reference included).", "",
+              "| s | preset | " + " | ".join(stage_keys) + " | EM (em_register) | orient | polish | refine steps "
+              "| NN searches |", "|---:|---|" + "---:|" * (len(stage_keys) + 5)]
+    for r in ok:
+        t, em = r.get("timings", {}), r.get("em", {})
+
+        def part(key, em=em):
+            c = em.get(key)
+            return f"{c['wall']:.1f} / {c['cpu']:.1f} ({c['calls']})" if c else ""
+
+        lines.append(f"| {r['split']} | {preset_name(r['stage']) or r['stage']} | "
+                     + " | ".join(_fmt(t.get(k)) for k in stage_keys)
+                     + f" | {part('em_register')} | {part('orientation_check')} | {part('polish')} | "
+                     f"{part('refine_steps')} | {part('nearest')} |")
+    lines += ["", "(`wall / CPU (calls)`; an empty cell: the stage or part is not in that preset.)"]
+    by = {(r["split"], preset_name(r["stage"])): r for r in ok}
+    others = [p for p in presets if p != PEER]
+    if any((s_, PEER) in by for s_, _ in by):
+        lines += ["", f"## Ratios to {PEER} (same size; > 1: slower / more memory than {PEER})", "",
+                  "| s | vertices | preset | CPU ratio | wall ratio | peak MB ratio | error | " + PEER + " error |",
+                  "|---:|---:|---|---:|---:|---:|---:|---:|"]
+        for split in sorted({k[0] for k in by}):
+            z = by.get((split, PEER))
+            for name in others:
+                r = by.get((split, name))
+                if z is None or r is None:
+                    continue
+                lines.append(f"| {split} | {r['n_source']:,} | {name} | {r['cpu_seconds'] / z['cpu_seconds']:.2f}x | "
+                             f"{r['seconds'] / z['seconds']:.2f}x | {r['peak_mb'] / z['peak_mb']:.2f}x | "
+                             f"{_fmt(r.get('mean_error'), 4)} | {_fmt(z.get('mean_error'), 4)} |")
+    lines += ["", "## Growth (exponent e of `t ~ n^e` between successive sizes)", "",
+              "| preset | sizes | CPU | wall | polish CPU | spectra wall |", "|---|---|---:|---:|---:|---:|"]
+    for name in presets:
+        rs = sorted((r for r in ok if (preset_name(r["stage"]) or r["stage"]) == name), key=lambda r: r["n_source"])
+        for a, b in zip(rs, rs[1:]):
+            pa, pb = a.get("em", {}).get("polish"), b.get("em", {}).get("polish")
+            sa, sb = a.get("timings", {}).get("spectra"), b.get("timings", {}).get("spectra")
+            lines.append(f"| {name} | {a['n_source']:,} -> {b['n_source']:,} | "
+                         f"{_exponent(a['cpu_seconds'], b['cpu_seconds'], a['n_source'], b['n_source'])} | "
+                         f"{_exponent(a['seconds'], b['seconds'], a['n_source'], b['n_source'])} | "
+                         f"{_exponent(pa['cpu'], pb['cpu'], a['n_source'], b['n_source']) if pa and pb else ''} | "
+                         f"{_exponent(sa, sb, a['n_source'], b['n_source']) if sa and sb else ''} |")
+    lines += ["", res.get("notes", ""), ""]
+    out.write_text("\n".join(lines))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", help="shared data directory (default $TOOLKIT_DATA or ../shared/data)")
     ap.add_argument("--pair", nargs=2, default=["cat0", "cat1"])
     ap.add_argument("--splits", nargs="+", type=int, default=[2, 3, 5, 7])
     ap.add_argument("--stages", default="spectrum,seed,em-core,em",
-                    help="stages to run (also: em-thesis, whose final refinement is quadratic in time)")
+                    help="stages to run (also: em-thesis, whose final refinement is quadratic in time, and "
+                    "preset:NAME, the whole pipeline preset NAME, e.g. preset:topo-robust)")
     ap.add_argument("--baseline-commit", help="also run the matcher files of this commit (git show, read only)")
     ap.add_argument("--baseline-dir", help="... or those found in this directory")
     ap.add_argument("--baseline-max-split", type=int,
@@ -396,7 +629,10 @@ def main(argv: list[str] | None = None) -> int:
                     "the old EM was quadratic in time)")
     ap.add_argument("--accuracy-pairs", default=",".join(ACCURACY_PAIRS),
                     help="held-out tosca5k pairs for the before/after accuracy check ('' to skip)")
-    ap.add_argument("--output", type=Path, default=RESULTS)
+    ap.add_argument("--output", type=Path,
+                    help=f"report (default {RESULTS.name}; {PRESET_RESULTS.name} when --stages has preset:NAME)")
+    ap.add_argument("--child-timeout", type=float, default=CHILD_TIMEOUT,
+                    help="seconds after which a stage's child is stopped (its row records that)")
     ap.add_argument("--report-only", action="store_true", help="rewrite the .md from the .json")
     ap.add_argument("--merge", nargs="+", type=Path, metavar="JSON",
                     help="write the report of the rows of these earlier runs' .json files together "
@@ -405,6 +641,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--split", type=int, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    from shape_toolkit.errors import ParameterError
+
+    try:
+        stages = parse_stages(args.stages)
+    except ParameterError as exc:
+        print(f"bench_scale: {exc}", file=sys.stderr)
+        return 2
+    if args.output is None:
+        args.output = PRESET_RESULTS if any(preset_name(st) for st in stages) else RESULTS
     data = data_dir(args.data)
     if args.child:
         print(json.dumps(child(args.child.split(","), data, *args.pair, args.split, args.baseline_dir)))
@@ -426,10 +671,11 @@ def main(argv: list[str] | None = None) -> int:
     if not (data / "tosca5k" / f"{args.pair[0]}.off").exists():
         print(f"tosca5k not found under {data}: pass --data or set TOOLKIT_DATA", file=sys.stderr)
         return 2
-    stages = args.stages.split(",")
     rows: list[dict] = []
+    from shape_toolkit.bench.worker import cpu_model
+
     res = {"command": "python benchmarks/bench_scale.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-           "date": time.strftime("%Y-%m-%d %H:%M"), "machine": platform.platform(),
+           "date": time.strftime("%Y-%m-%d %H:%M"), "machine": platform.platform(), "cpu": cpu_model(),
            "load": [os.getloadavg()[0], 0.0], "rows": rows, "notes": args.notes}
     with tempfile.TemporaryDirectory() as tmp:
         base = args.baseline_dir
@@ -443,7 +689,7 @@ def main(argv: list[str] | None = None) -> int:
         cache = Path(tmp) / "cache"
 
         def run(kind, stages_, a, b, s, impl):
-            for r in run_child(stages_, data, a, b, s, cache, impl):
+            for r in run_child(stages_, data, a, b, s, cache, impl, args.child_timeout):
                 r.update(kind=kind, impl="baseline" if impl else "current")
                 rows.append(r)
                 print(json.dumps({k: v for k, v in r.items() if k != "specs"}), file=sys.stderr, flush=True)
@@ -452,7 +698,7 @@ def main(argv: list[str] | None = None) -> int:
             for stage in stages:
                 run("scale", [stage], *args.pair, s, None)
                 top = args.baseline_max_split or BASELINE_MAX_SPLIT.get(stage, 0)
-                if base and stage != "spectrum" and s <= top:
+                if base and stage != "spectrum" and not preset_name(stage) and s <= top:
                     run("scale", [stage], *args.pair, s, base)
         for pair in filter(None, args.accuracy_pairs.split(",")):
             a, b = pair.split("-")
