@@ -288,31 +288,31 @@ def nearest_neighbors(
     """Euclidean ``k`` nearest ``points`` ``(n, d)`` of each query ``(q, d)``: squared distances
     and indices ``(q, k)`` (``(q,)`` when k == 1). KD-tree in low dimension, chunked BLAS brute
     force in high dimension (memory ``chunk * n``, never ``q * n``; ``chunk`` None: at most 1024
-    queries and ``2**23`` distances per block, 64 MB in double precision whatever ``n``, so a
+    queries and ``2**22`` distances per block, 32 MB in double precision whatever ``n``, so a
     245k-vertex target does not take 2 GB of temporaries). ``dtype=np.float32`` runs the
     brute force in single precision (about 3x faster; near-ties within ~1e-6 relative may resolve
     differently)."""
-    X = np.ascontiguousarray(points, dtype=np.float64)
-    Q = np.ascontiguousarray(queries, dtype=np.float64)
+    X, Q = np.asarray(points), np.asarray(queries)
     if X.ndim != 2 or Q.ndim != 2 or X.shape[1] != Q.shape[1]:
         raise ParameterError(f"points {X.shape} and queries {Q.shape} must be (n, d) and (q, d)")
     k = int(min(k, len(X)))
     if X.shape[1] <= 12:
-        d, i = cKDTree(X).query(Q, k=k)
+        d, i = cKDTree(np.asarray(X, dtype=np.float64)).query(np.asarray(Q, dtype=np.float64), k=k)
         d = np.asarray(d) ** 2
         i = np.asarray(i, dtype=np.int64)
         return d, i
-    X, Q = X.astype(dtype, copy=False), Q.astype(dtype, copy=False)
+    # no float64 copies in the brute force: single precision stays single (memory ~ n d, not 2 n d)
+    X, Q = np.ascontiguousarray(X, dtype=dtype), np.ascontiguousarray(Q, dtype=dtype)
     if chunk is None:
-        chunk = int(np.clip(2**23 // max(1, len(X)), 16, 1024))
+        chunk = int(np.clip(2**22 // max(1, len(X)), 16, 1024))
     # ||q - x||^2 = ||q||^2 - 2 (q.x - ||x||^2 / 2): with the points augmented by a column -||x||^2 / 2
     # and the queries by a column of ones, one GEMM gives the score to maximise and nothing else is
     # computed per distance (1.7-2.1x faster than forming ||x||^2 - 2 q.x; benchmarks/results/scale_presets.md)
-    Xa = np.empty((len(X), X.shape[1] + 1), dtype=X.dtype)
-    Xa[:, :-1] = X
-    Xa[:, -1] = -0.5 * np.einsum("ij,ij->i", X, X)
-    XaT = np.ascontiguousarray(Xa.T)
-    Qa = np.ones((min(chunk, len(Q)), X.shape[1] + 1), dtype=X.dtype)
+    XaT = np.empty((X.shape[1] + 1, len(X)), dtype=dtype)
+    XaT[:-1] = X.T
+    XaT[-1] = -0.5 * np.einsum("ij,ij->i", X, X, dtype=np.float64)
+    del X
+    Qa = np.ones((min(chunk, len(Q)), Q.shape[1] + 1), dtype=dtype)
     D = np.empty((len(Q), k))
     I = np.empty((len(Q), k), dtype=np.int64)
     for s in range(0, len(Q), chunk):
@@ -327,7 +327,8 @@ def nearest_neighbors(
             o = (-np.take_along_axis(score, j, 1)).argsort(axis=1)
             j = np.take_along_axis(j, o, 1)
         I[s : s + chunk] = j
-        D[s : s + chunk] = np.einsum("ij,ij->i", q, q)[:, None] - 2.0 * np.take_along_axis(score, j, 1)
+        D[s : s + chunk] = (np.einsum("ij,ij->i", q, q, dtype=np.float64)[:, None]
+                            - 2.0 * np.take_along_axis(score, j, 1))
     D = np.maximum(D, 0.0)
     if k == 1:
         return D[:, 0], I[:, 0]

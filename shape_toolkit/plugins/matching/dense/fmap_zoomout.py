@@ -76,15 +76,16 @@ def orientation_operators(
     phi_face = (phi[F[:, 0]] + phi[F[:, 1]] + phi[F[:, 2]]) * (fa / (3.0 * total))[:, None]  # (m, k)
     gphi = (G @ phi).reshape(3, m, k)
     # <n x grad f, grad phi_j> = <grad f, grad phi_j x n>: rotate the k basis gradients once
-    Q = np.stack([
-        gphi[1] * N[:, 2, None] - gphi[2] * N[:, 1, None],
-        gphi[2] * N[:, 0, None] - gphi[0] * N[:, 2, None],
-        gphi[0] * N[:, 1, None] - gphi[1] * N[:, 0, None],
-    ])  # (3, m, k)
+    Q = np.empty((3, m, k))  # filled row by row: np.stack of three temporaries would double the peak
+    for a in range(3):
+        b, c = (a + 1) % 3, (a + 2) % 3
+        Q[a] = gphi[b] * N[:, c, None]
+        Q[a] -= gphi[c] * N[:, b, None]
+    del gphi
     gf = (G @ descriptors).reshape(3, m, -1)  # (3, m, d)
     d = gf.shape[2]
     ops = np.empty((d, k, k))
-    step = max(1, 4_000_000 // max(1, m * k))  # descriptors per block: memory ~ 32 MB
+    step = max(1, 1_000_000 // max(1, m * k))  # descriptors per block: memory ~ 8 MB (x 2 temporaries)
     for s in range(0, d, step):
         e = min(d, s + step)
         Z = gf[0][:, s:e, None] * Q[0][:, None, :]  # (m, e - s, k): sum_x grad_x f * Q_x
@@ -100,7 +101,14 @@ def multiplication_operators(basis: Basis, k: int, descriptors: np.ndarray) -> n
     column ``f`` ``(n,)`` of ``descriptors`` ``(n, d)``, as one BLAS product over the upper triangle."""
     phi = basis.evecs[:, :k]
     iu, ju = np.triu_indices(k)
-    vals = (phi[:, iu] * phi[:, ju]).T @ (basis.mass[:, None] * descriptors)  # (k(k+1)/2, d)
+    W = basis.mass[:, None] * descriptors
+    # the products phi_i phi_j are formed for a block of vertices at a time (<= 2**21 values, 16 MB):
+    # all at once they are n x k(k+1)/2, 86 MB for k = 30 at 23k vertices
+    step = max(1, 2**21 // len(iu))
+    vals = np.zeros((len(iu), descriptors.shape[1]))  # (k(k+1)/2, d)
+    for a in range(0, len(phi), step):
+        p = phi[a : a + step]
+        vals += (p[:, iu] * p[:, ju]).T @ W[a : a + step]
     ops = np.empty((descriptors.shape[1], k, k))
     ops[:, iu, ju] = vals.T
     ops[:, ju, iu] = vals.T
