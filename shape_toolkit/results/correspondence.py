@@ -307,7 +307,8 @@ def nearest_neighbors(
         chunk = int(np.clip(2**22 // max(1, len(X)), 16, 1024))
     # ||q - x||^2 = ||q||^2 - 2 (q.x - ||x||^2 / 2): with the points augmented by a column -||x||^2 / 2
     # and the queries by a column of ones, one GEMM gives the score to maximise and nothing else is
-    # computed per distance (1.7-2.1x faster than forming ||x||^2 - 2 q.x; benchmarks/results/scale_presets.md)
+    # computed per distance (than forming ||x||^2 - 2 q.x: 1.6x faster on 5000 x 20000 x 60 in single
+    # precision, 1.7-2.1x on the polish's searches at 45k vertices; measured 2026-12-02, same neighbours)
     XaT = np.empty((X.shape[1] + 1, len(X)), dtype=dtype)
     XaT[:-1] = X.T
     XaT[-1] = -0.5 * np.einsum("ij,ij->i", X, X, dtype=np.float64)

@@ -98,7 +98,7 @@ def orientation_operators(
 
 def multiplication_operators(basis: Basis, k: int, descriptors: np.ndarray) -> np.ndarray:
     """Multiplication operators ``(d, k, k)``: ``X(f)_ij = <phi_i, f phi_j>_M`` for each descriptor
-    column ``f`` ``(n,)`` of ``descriptors`` ``(n, d)``, as one BLAS product over the upper triangle."""
+    column ``f`` ``(n,)`` of ``descriptors`` ``(n, d)``: BLAS products over the upper triangle, in vertex blocks."""
     phi = basis.evecs[:, :k]
     iu, ju = np.triu_indices(k)
     W = basis.mass[:, None] * descriptors
