@@ -443,7 +443,9 @@ def side_matcher(orientation: str = "preserving"):
 def symmetry_matcher():
     """The functional map matcher with the orientation-*reversing* term: its self-map of a shape
     is the shape's intrinsic (left-right) symmetry (``fmap-zoomout``: WKS, k = 30, ZoomOut to 110 in
-    8 steps of 10 on every vertex, the ``fast`` schedule).
+    8 steps of 10, the ``fast`` schedule; every vertex queries, and the candidates of the inner steps are
+    all vertices up to 5000 -- every shape of the shared 5k sets -- and 5000 farthest-point samples
+    beyond, so that at 245k vertices each step is not an exact n x n search; the final map is).
 
     Finer than :func:`side_matcher`'s coarse map: S depends on the source shape alone (never on a
     corrupted target) and is used per region (:func:`symmetry_validity`). Chosen on development pairs
@@ -453,7 +455,7 @@ def symmetry_matcher():
     from shape_toolkit.api.registry import create_plugin
 
     return create_plugin("dense_matchers", "fmap-zoomout", k=30, orientation="reversing", zoomout_iters=8,
-                         zoomout_step=10)
+                         zoomout_step=10, zoomout_samples=5000)
 
 
 class _IdentityCache:
