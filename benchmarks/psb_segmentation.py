@@ -139,18 +139,11 @@ def ensure_builtins() -> None:
 
 
 def machine() -> dict:
-    """``{"cpu": model, "cores": n, "blas": ["openblas 2 threads", ...]}``: the BLAS libraries of this
-    process, identical entries once (numpy and scipy may each bundle the same OpenBLAS)."""
-    from shape_toolkit.bench.worker import cpu_model
+    """``{"cpu": model, "cores": n, "python": ..., "blas": ["openblas 2 threads", ...]}``:
+    ``bench.worker.machine_info`` (BLAS libraries listed once)."""
+    from shape_toolkit.bench.worker import machine_info
 
-    try:
-        from threadpoolctl import threadpool_info
-
-        blas = list(dict.fromkeys(f"{i.get('internal_api')} {i.get('num_threads')} threads"
-                                  for i in threadpool_info() if i.get("user_api") == "blas"))
-    except Exception:  # pragma: no cover - informational only
-        blas = []
-    return {"cpu": cpu_model(), "cores": os.cpu_count(), "blas": blas or ["unknown"]}
+    return machine_info()
 
 
 def run_record(command: str, code: dict, cpu_seconds: float, wall_seconds: float, load: float,

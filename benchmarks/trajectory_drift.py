@@ -48,7 +48,6 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -194,13 +193,10 @@ def code_state() -> dict:
 
 
 def machine() -> dict:
-    from threadpoolctl import threadpool_info
+    """CPU, cores, Python and BLAS libraries (``bench.worker.machine_info``)."""
+    from shape_toolkit.bench.worker import machine_info
 
-    from shape_toolkit.bench.worker import cpu_model
-
-    cpu = cpu_model()
-    blas = sorted({f"{i.get('internal_api')}:{i.get('num_threads')}" for i in threadpool_info()})
-    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "blas": blas}
+    return machine_info()
 
 
 def _f(x, nd: int = 4) -> str:

@@ -24,8 +24,8 @@ from shape_toolkit.bench.plan import Job, PrepareJob, create_detector, create_me
 from shape_toolkit.bench.store import Row, load_prepared, prepared_path, save_output, save_prepared
 
 __all__ = [
-    "package_versions", "cpu_model", "code_revision", "revision_label", "MemoryMonitor", "prepare_job", "execute_job",
-    "lost_row",
+    "package_versions", "cpu_model", "machine_info", "code_revision", "revision_label", "MemoryMonitor",
+    "prepare_job", "execute_job", "lost_row",
 ]
 
 
@@ -54,6 +54,21 @@ def cpu_model() -> str:
     except OSError:
         pass
     return model
+
+
+def machine_info() -> dict[str, Any]:
+    """This machine for benchmark reports: ``{"cpu": model, "cores": n, "python": version, "blas":
+    ["openblas 2 threads", ...]}`` (this process's BLAS libraries, identical entries once: numpy and
+    scipy may each bundle the same OpenBLAS; ``["unknown"]`` without threadpoolctl)."""
+    try:
+        from threadpoolctl import threadpool_info
+
+        blas = list(dict.fromkeys(f"{i.get('internal_api')} {i.get('num_threads')} threads"
+                                  for i in threadpool_info() if i.get("user_api") == "blas"))
+    except Exception:  # pragma: no cover - informational only
+        blas = []
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "python": platform.python_version(),
+            "blas": blas or ["unknown"]}
 
 
 #: the file an exported tree (``git archive COMMIT shape_toolkit``) carries beside ``shape_toolkit/``,
