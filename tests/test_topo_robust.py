@@ -298,6 +298,30 @@ def test_em_orientation_fixes_a_mirrored_start(pair):
     assert fixed.info["orientation_flipped"]
 
 
+def test_em_orientation_rescue_undoes_a_mirror_the_side_check_missed(pair, monkeypatch):
+    """When the side check cannot undo a mirror image (on FAUST: its coarse reference mirrored too;
+    simulated here by switching the check off), the map still reverses orientation on the whole: EM
+    restarts from the orientation-aware functional map and the result preserves orientation. A map
+    that preserves orientation is never touched."""
+    from shape_toolkit.plugins.matching.dense.em_registration import EMRegistrationMatcher
+
+    A, B, mirror = pair
+    monkeypatch.setattr(EMRegistrationMatcher, "_orient", lambda self, X, Y, first, *a, **k: first)
+    s = np.random.default_rng(0).choice(A.shape.n_vertices, 40, replace=False)
+    kw = dict(k=8, k_final=24)
+    rescued = create_plugin("dense_matchers", "em-registration", **kw).match(
+        A.shape, B.shape, seeds=np.column_stack([s, mirror[s]]))
+    naive = create_plugin("dense_matchers", "em-registration", orientation="none", **kw).match(
+        A.shape, B.shape, seeds=np.column_stack([s, mirror[s]]))
+    info = rescued.info["orientation_rescue"]
+    assert info["score_before"] < 0 < rescued.info["orientation_score"]
+    assert info["choice"] != "first"
+    assert _mean_err(B, rescued.target_of) < 0.5 * _mean_err(B, naive.target_of)
+    right = create_plugin("dense_matchers", "em-registration", **kw).match(
+        A.shape, B.shape, seeds=np.column_stack([s, s]))
+    assert right.info["orientation_score"] > 0 and "orientation_rescue" not in right.info
+
+
 def test_em_polish_says_what_the_posteriors_describe(pair):
     """With ``polish_k`` the returned map is the polished one and at least as accurate here; Q, sigma and
     P stay EM's (before polishing), and ``info`` says so; without it they describe ``target_of``."""

@@ -440,22 +440,30 @@ def side_matcher(orientation: str = "preserving"):
                          zoomout_step=5, zoomout_samples=1000)
 
 
+def fine_matcher(orientation: str = "preserving"):
+    """The finer functional map matcher of the thesis pipelines' orientation checks
+    (``fmap-zoomout``: WKS, k = 30, ZoomOut to 110 in 8 steps of 10, the ``fast`` schedule; every
+    vertex queries, and the candidates of the inner steps are all vertices up to 5000 -- every shape
+    of the shared 5k sets -- and 5000 farthest-point samples beyond, so that at 245k vertices each
+    step is not an exact n x n search; the final map is). ``orientation="reversing"`` is
+    :func:`symmetry_matcher`; ``"preserving"`` is the restart of EM's orientation rescue
+    (:class:`~shape_toolkit.plugins.matching.dense.em_registration.EMRegistrationMatcher`)."""
+    from shape_toolkit.api.registry import create_plugin
+
+    return create_plugin("dense_matchers", "fmap-zoomout", k=30, orientation=orientation, zoomout_iters=8,
+                         zoomout_step=10, zoomout_samples=5000)
+
+
 def symmetry_matcher():
     """The functional map matcher with the orientation-*reversing* term: its self-map of a shape
-    is the shape's intrinsic (left-right) symmetry (``fmap-zoomout``: WKS, k = 30, ZoomOut to 110 in
-    8 steps of 10, the ``fast`` schedule; every vertex queries, and the candidates of the inner steps are
-    all vertices up to 5000 -- every shape of the shared 5k sets -- and 5000 farthest-point samples
-    beyond, so that at 245k vertices each step is not an exact n x n search; the final map is).
+    is the shape's intrinsic (left-right) symmetry (:func:`fine_matcher` with ``"reversing"``).
 
     Finer than :func:`side_matcher`'s coarse map: S depends on the source shape alone (never on a
     corrupted target) and is used per region (:func:`symmetry_validity`). Chosen on development pairs
     only (benchmarks/topological_noise.py DEVELOPMENT; 2026-12-02): against the coarse map, clean FAUST
     0.069 -> 0.064 (14 pairs, none worse), clean TOSCA unchanged (8 pairs), FAUST at 6 glued contacts
     0.257 -> 0.232 (8 pairs; two much better, three worse); about 1 s more per shape."""
-    from shape_toolkit.api.registry import create_plugin
-
-    return create_plugin("dense_matchers", "fmap-zoomout", k=30, orientation="reversing", zoomout_iters=8,
-                         zoomout_step=10, zoomout_samples=5000)
+    return fine_matcher("reversing")
 
 
 class _IdentityCache:

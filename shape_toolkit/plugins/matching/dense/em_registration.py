@@ -229,11 +229,12 @@ class EMRegistrationMatcher(DenseMatcher):
     nearest the reference on average wins. ``info``: ``orientation_mirrored_area`` (share of the
     source's area that the reference puts on the other side), ``orientation_reference`` (mean
     squared distances of the candidates), ``orientation_flipped`` (False, ``"all"`` when more
-    than half the area swapped, ``"local"``) and, as a diagnostic only, ``orientation_score`` --
-    the local triple-product cue of
-    :func:`~shape_toolkit.plugins.matching._common.orientation_score` on 120 farthest-point
-    samples of the map refined to 30 dimensions; on FAUST it scores correct maps negative when
-    the EM map twists tubular limbs, which is why it no longer decides. The matchers' spectra are
+    than half the area swapped, ``"local"``) and ``orientation_score`` -- the local triple-product
+    cue of :func:`~shape_toolkit.plugins.matching._common.orientation_score` on 120 farthest-point
+    samples of the map refined to 30 dimensions. Per region it does not decide (on FAUST a limb
+    twisted on its axis scores against a map that is right on that limb), but on the whole it does:
+    a map whose score is still negative after the side check is a mirror image, and
+    :meth:`_rescue` replaces it (``info["orientation_rescue"]``). The matchers' spectra are
     declared through ``spectrum_specs()``.
     """
 
@@ -463,9 +464,11 @@ class EMRegistrationMatcher(DenseMatcher):
         return want * orientation_score(source, target, np.column_stack([rows, t[rows]]))
 
     def _nested_plugins(self) -> list:
-        from shape_toolkit.plugins.matching._common import side_matcher, symmetry_matcher
+        from shape_toolkit.plugins.matching._common import fine_matcher, side_matcher, symmetry_matcher
 
-        return [] if self.orientation == "none" else [symmetry_matcher(), side_matcher(self.orientation)]
+        if self.orientation == "none":
+            return []
+        return [symmetry_matcher(), side_matcher(self.orientation), fine_matcher(self.orientation)]
 
     def _orient(self, X, Y, first, source: Shape, target: Shape, info: dict, bases, source_spectrum,
                 target_spectrum=None):
@@ -509,14 +512,64 @@ class EMRegistrationMatcher(DenseMatcher):
         info["orientation_flipped"] = "all" if info["orientation_mirrored_area"] > 0.5 else "local"
         return cands[best]
 
+    def _rescue(self, X, Y, first, source: Shape, target: Shape, info: dict, bases, source_spectrum,
+                target_spectrum=None):
+        """The orientation rescue: the map after the side check still reverses orientation on the whole
+        (local triple products, :meth:`_orientation`, below zero; a correct map scores near +1): EM
+        settled on a mirror image the side check could not undo -- left and right (the side reference
+        itself mirrored) or front and back (a reflection no intrinsic symmetry map describes). The
+        candidates, in this order: EM run again from the side reference's map, EM run again from
+        :func:`~shape_toolkit.plugins.matching._common.fine_matcher`'s orientation-aware functional map,
+        then those two maps themselves; the first whose score is positive replaces the first map (none:
+        it stays). EM's results come first (the thesis's method; a functional map's own map is coarser),
+        the reference before the finer map (the map every side decision of the pipeline follows). A
+        positive score does not prove a map right (a left-right *and* front-back swap preserves
+        orientation), so the order matters. ``info["orientation_rescue"]``: the scores, the choice."""
+        from shape_toolkit.plugins.matching._common import _given, fine_matcher, side_reference
+
+        K = X.shape[1]
+        rescue = {"score_before": info["orientation_score"], "choice": "first"}
+        info["orientation_rescue"] = rescue
+        starts: dict[str, np.ndarray] = {}
+
+        def start(name: str) -> np.ndarray:
+            if name not in starts:
+                if name == "reference_map":
+                    ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation)
+                    starts[name] = np.asarray(ref.target_of)
+                else:
+                    m = fine_matcher(self.orientation)
+                    ss = m._spectrum(source, _given(source_spectrum))
+                    st = m._spectrum(target, _given(target_spectrum))
+                    res = m.match(source, target, source_spectrum=[ss], target_spectrum=[st])
+                    starts[name] = np.asarray(res.target_of)
+            return starts[name]
+
+        for name in ("em_from_reference_map", "em_from_fine_map", "reference_map", "fine_map"):
+            t = start(name.removeprefix("em_from_"))
+            Q = procrustes(Y[t].T @ X)
+            if name.startswith("em_from_"):
+                cand = self._solve(X, Y, Q, bases)
+                score = self._orientation(source, target, cand[3], bases, K)
+            else:  # a functional map's own map is already fine: scored as it is
+                cand = (Q, first[1], first[2], t, np.zeros(len(t)), 0)
+                score = self._orientation(source, target, t)
+            rescue[f"score_{name}"] = score
+            if score > 0:
+                rescue["choice"] = name
+                info["orientation_score"] = score
+                return cand
+        return first
+
     def _finish(self, X, Y, Q0, target: Shape, info: dict, source: Shape | None = None,
                 bases: tuple[Basis, Basis] | None = None, source_spectrum=None,
                 target_spectrum=None) -> Correspondence:
         res = self._solve(X, Y, Q0, bases)
         if self.orientation != "none" and source is not None and source.is_mesh and target.is_mesh:
             res = self._orient(X, Y, res, source, target, info, bases, source_spectrum, target_spectrum)
-            # diagnostic only, once, on the map returned
             info["orientation_score"] = self._orientation(source, target, res[3], bases, X.shape[1])
+            if info["orientation_score"] < 0:
+                res = self._rescue(X, Y, res, source, target, info, bases, source_spectrum, target_spectrum)
         Q, sigma, P, t, conf, n_confident = res
         if self.polish_k and source is not None and self.fill_unmatched and np.all(t >= 0):
             t = self._polish(t, X.shape[1], source, target, source_spectrum, target_spectrum)
