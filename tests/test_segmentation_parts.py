@@ -285,6 +285,21 @@ def test_seeded_kmeans_groups_and_order_independence():
         assert rand_index_error(lab_p[inv], lab) == 0.0
 
 
+def test_seeded_kmeans_never_separates_a_must_link_group():
+    """Two clicks on one large part stay in one segment even where splitting that part lowers the
+    k-means objective (seeds used only as the start let Lloyd's steps pull them apart)."""
+    from shape_toolkit.plugins.segmenters._common import seeded_kmeans_labels
+
+    rng = np.random.default_rng(0)
+    X = np.concatenate([rng.normal(0.0, 0.3, 50), rng.normal(10.0, 0.3, 50), rng.normal(11.0, 0.3, 5)])[:, None]
+    groups = [np.array([0, 50]), np.array([100])]  # one part clicked at both ends; a small part next to one end
+    lab = seeded_kmeans_labels(X, 2, groups, 0)
+    assert lab[0] == lab[50] != lab[100]
+    for k in (2, 3):  # as many clusters as groups, and a free cluster next to the clamped ones
+        lab = seeded_kmeans_labels(X, k, groups, 0)
+        assert lab[0] == lab[50] != lab[100] and len(np.unique(lab)) == k
+
+
 def test_csc_graph_auto_is_dual_on_meshes_and_vertex_on_point_clouds(body):
     b, _ = body
     cons = draw_constraints(b.labels, b.shape.edges, n_must_per_segment=1, n_cannot_per_boundary=1, random_state=0)

@@ -88,12 +88,15 @@ def must_link_groups(must_link: np.ndarray) -> list[np.ndarray]:
 def seeded_kmeans_labels(
     X: np.ndarray, k: int, groups: list[np.ndarray], random_state: Any, n_init: int = 10
 ) -> np.ndarray:
-    """K-means labels of the rows of ``X`` ``(n, d)`` started from the user's must-link ``groups`` (row
-    ids; seeded k-means, Basu, Banerjee & Mooney 2002): the initial centres are the groups' mean rows;
+    """K-means labels of the rows of ``X`` ``(n, d)`` from the user's must-link ``groups`` (row ids;
+    constrained k-means, Basu, Banerjee & Mooney 2002): the initial centres are the groups' mean rows;
     with more than ``k`` groups, ``k`` of them by farthest-first traversal (from the one farthest from
     their mean); with fewer, the missing centres are drawn by k-means++ given the seeded ones (best
-    inertia of ``n_init`` draws, ``random_state`` an int seed). The k-means objective is unchanged, only
-    its starting point comes from the clicks instead of random rows; independent of the row order
+    inertia of ``n_init`` draws, ``random_state`` an int seed). The rows of a seeding group stay in its
+    cluster at every Lloyd step (:func:`constrained_lloyd`), so two clicks of one must-link never end up
+    in two segments; with seeds used only as the start (their "seeded k-means"), the two clicks on a
+    large part could be pulled apart when splitting that part lowered the objective (PSB fish 227,
+    held-out split: the body's two clicks in two segments). Independent of the row order
     (:func:`canonical_order`). Renumbered by first appearance."""
     X = np.ascontiguousarray(X, dtype=np.float64)
     cents = np.array([X[np.asarray(g)].mean(axis=0) for g in groups]).reshape(-1, X.shape[1])
@@ -110,8 +113,9 @@ def seeded_kmeans_labels(
             sel.append(int(np.argmax(d)))
             d = np.minimum(d, sq(cents, cents[sel[-1]]))
         inits = [cents[sel]]
-        Xo = X
+        clamped = [groups[i] for i in sel]
     else:
+        clamped = list(groups)
         Xo = X[canonical_order(X)]
         rng = np.random.default_rng(random_state)
         d0 = np.min(np.stack([sq(Xo, c) for c in cents]), axis=0)
@@ -124,13 +128,45 @@ def seeded_kmeans_labels(
                 c.append(Xo[j])
                 d = np.minimum(d, sq(Xo, Xo[j]))
             inits.append(np.array(c))
+    rows = np.concatenate([np.asarray(g, dtype=np.int64) for g in clamped])
+    fixed = np.concatenate([np.full(len(g), i, dtype=np.int64) for i, g in enumerate(clamped)])
     best, best_inertia = None, np.inf
-    with single_thread():
-        for init in inits:
-            km = KMeans(n_clusters=k, init=init, n_init=1).fit(Xo)
-            if km.inertia_ < best_inertia:
-                best, best_inertia = km, km.inertia_
-    return relabel_consecutive(np.asarray(best.predict(X), dtype=np.int64))
+    for init in inits:
+        labels, inertia = constrained_lloyd(X, init, rows, fixed)
+        if inertia < best_inertia:
+            best, best_inertia = labels, inertia
+    return relabel_consecutive(best)
+
+
+def constrained_lloyd(
+    X: np.ndarray, centres: np.ndarray, rows: np.ndarray, fixed: np.ndarray, max_iter: int = 300,
+) -> tuple[np.ndarray, float]:
+    """Lloyd's k-means iterations on the rows of ``X`` ``(n, d)`` from ``centres`` ``(k, d)``, the rows
+    ``rows`` ``(m,)`` held in the clusters ``fixed`` ``(m,)`` (Basu et al.'s constrained k-means); until
+    no label changes or ``max_iter`` steps. A free cluster left empty restarts at the row farthest from
+    its centre. Returns int64 labels ``(n,)`` and the inertia (sum of squared distances to the centres)."""
+    C = np.array(centres, dtype=np.float64)
+    k = len(C)
+    x2 = (X**2).sum(axis=1)
+    labels = np.full(len(X), -1, dtype=np.int64)
+    d = np.zeros(len(X))
+    for _ in range(max_iter):
+        D = x2[:, None] - 2.0 * X @ C.T + (C**2).sum(axis=1)[None, :]
+        new = np.argmin(D, axis=1)
+        new[rows] = fixed
+        d = np.maximum(D[np.arange(len(X)), new], 0.0)
+        counts = np.bincount(new, minlength=k)
+        free = np.ones(len(X), dtype=bool)
+        free[rows] = False
+        for j in np.flatnonzero(counts == 0):  # only free clusters can empty
+            far = int(np.argmax(np.where(free, d, -1.0)))
+            new[far], d[far], free[far] = j, 0.0, False
+        if np.array_equal(new, labels):
+            break
+        labels = new
+        member = sp.csr_matrix((np.ones(len(X)), (labels, np.arange(len(X)))), shape=(k, len(X)))
+        C = np.asarray(member @ X) / np.maximum(np.bincount(labels, minlength=k), 1)[:, None]
+    return labels, float(d.sum())
 
 
 def sweep_cut(

@@ -33,9 +33,10 @@ Three departures from the literal text, all about *how* the constraints act, not
   concave crease weighs ``1e-3 < epsilon``: the literal rule made the crease between two cannot-linked
   parts ten times stronger, the opposite of the constraint.
 - ``kmeans_init`` (default ``"constraints"``): step 4's k-means starts from the centres of the
-  must-link groups (connected components of the must-link pairs) in ``X_hat``, seeded k-means
-  (Basu, Banerjee & Mooney 2002; farthest-first when there are more groups than ``k``, k-means++ for
-  the missing centres when fewer; but see ``k_mismatch``); the objective is unchanged. With random
+  must-link groups (connected components of the must-link pairs) in ``X_hat``, and each group's nodes
+  stay in its cluster at every step: constrained k-means (Basu, Banerjee & Mooney 2002; farthest-first
+  when there are more groups than ``k``, k-means++ for the missing centres when fewer; but see
+  ``k_mismatch``), so two clicks of one must-link never land in two segments. With random
   starts (``"k-means++"``, the previous behaviour) k-means preferred splitting a large elongated part
   in two over separating two small clicked parts (a lower objective: the unnormalized Laplacian's
   balance bias), e.g. the PSB mechanical part 328 at a Rand index error of 0.43 with the clicks of a
@@ -43,7 +44,7 @@ Three departures from the literal text, all about *how* the constraints act, not
 - ``k_mismatch`` (default ``"ncut"``): when the user clicked a number ``g >= 2`` of parts (must-link
   groups) other than ``k``, step 4 uses normalized cuts of ``W_hat`` (Shi and Malik's recursive
   two-way cuts, the splitting rule of the ``ncut`` segmenter; no cut separates a must-link group).
-  Fewer clicks (``g < k``): the ``g`` clicked segments come from seeded k-means with ``g`` centres in
+  Fewer clicks (``g < k``): the ``g`` clicked segments come from constrained k-means with ``g`` centres in
   the first ``g - 1`` columns of ``X_hat``, the ``k - g`` parts nobody clicked from the cuts; k-means
   with free centres (``"kmeans"``, the previous behaviour: k-means++ given the seeded centres) put
   them where its objective drops most, i.e. split a large part in two (PSB hand 187, tuning split:
