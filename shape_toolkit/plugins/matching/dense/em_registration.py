@@ -521,8 +521,8 @@ class EMRegistrationMatcher(DenseMatcher):
         candidates, in this order: EM run again from the side reference's map, EM run again from
         :func:`~shape_toolkit.plugins.matching._common.fine_matcher`'s orientation-aware functional map,
         then those two maps themselves; the first whose score is positive replaces the first map (none:
-        it stays). EM's results come first (the thesis's method; a functional map's own map is coarser),
-        the reference before the finer map (the map every side decision of the pipeline follows). A
+        it stays). EM's results come first (the thesis's method), the reference before the finer map (the
+        map every side decision of the pipeline follows; on a coarse synthetic pair the finer one is wrong). A
         positive score does not prove a map right (a left-right *and* front-back swap preserves
         orientation), so the order matters. ``info["orientation_rescue"]``: the scores, the choice."""
         from shape_toolkit.plugins.matching._common import _given, fine_matcher, side_reference
