@@ -298,6 +298,27 @@ def test_seeded_kmeans_never_separates_a_must_link_group():
     for k in (2, 3):  # as many clusters as groups, and a free cluster next to the clamped ones
         lab = seeded_kmeans_labels(X, k, groups, 0)
         assert lab[0] == lab[50] != lab[100] and len(np.unique(lab)) == k
+    # more groups than k: the groups that seed no cluster move as blocks, never split
+    many = [np.array([0, 50]), np.array([100]), np.array([1, 51]), np.array([2, 102])]
+    lab = seeded_kmeans_labels(X, 2, many, 0)
+    assert all(len(set(lab[g])) == 1 for g in many) and len(np.unique(lab)) == 2
+    # groups with the same mean row: each seeds its own cluster once (farthest-first never picks one twice)
+    same = np.zeros((6, 2))
+    same[3:] = 5.0
+    lab = seeded_kmeans_labels(same, 3, [np.array([0]), np.array([1]), np.array([2])], 0)
+    assert len(np.unique(lab)) == 3 and len(np.unique(lab[:3])) == 3
+    # every free row sits at its nearest final centre (a fixed point of the constrained steps)
+    lab = seeded_kmeans_labels(X, 3, groups, 0)
+    cents = np.array([X[lab == j].mean(axis=0) for j in range(3)])
+    nearest = np.argmin(((X[:, None, :] - cents[None]) ** 2).sum(axis=2), axis=1)
+    free = np.setdiff1d(np.arange(len(X)), np.concatenate(groups))
+    assert np.array_equal(nearest[free], lab[free])
+    with pytest.raises(ParameterError, match="in \\[0"):
+        seeded_kmeans_labels(X, 2, [np.array([0, len(X)])], 0)
+    with pytest.raises(ParameterError, match="share a row"):
+        seeded_kmeans_labels(X, 2, [np.array([0, 1]), np.array([1, 2])], 0)
+    with pytest.raises(ParameterError, match="cannot form"):
+        seeded_kmeans_labels(X[:3], 3, [np.array([0, 1]), np.array([2])], 0)
 
 
 def test_csc_graph_auto_is_dual_on_meshes_and_vertex_on_point_clouds(body):

@@ -317,6 +317,11 @@ def test_em_orientation_rescue_undoes_a_mirror_the_side_check_missed(pair, monke
     assert info["score_before"] < 0 < rescued.info["orientation_score"]
     assert info["choice"] != "first"
     assert _mean_err(B, rescued.target_of) < 0.5 * _mean_err(B, naive.target_of)
+    # polishing goes on from the rescued map's own resolution and keeps it
+    polished = create_plugin("dense_matchers", "em-registration", polish_k=40, **kw).match(
+        A.shape, B.shape, seeds=np.column_stack([s, mirror[s]]))
+    assert polished.info["orientation_rescue"]["choice"] == info["choice"]
+    assert _mean_err(B, polished.target_of) < 0.5 * _mean_err(B, naive.target_of)
     right = create_plugin("dense_matchers", "em-registration", **kw).match(
         A.shape, B.shape, seeds=np.column_stack([s, s]))
     assert right.info["orientation_score"] > 0 and "orientation_rescue" not in right.info

@@ -93,15 +93,30 @@ def seeded_kmeans_labels(
     with more than ``k`` groups, ``k`` of them by farthest-first traversal (from the one farthest from
     their mean); with fewer, the missing centres are drawn by k-means++ given the seeded ones (best
     inertia of ``n_init`` draws, ``random_state`` an int seed). The rows of a seeding group stay in its
-    cluster at every Lloyd step (:func:`constrained_lloyd`), so two clicks of one must-link never end up
-    in two segments; with seeds used only as the start (their "seeded k-means"), the two clicks on a
-    large part could be pulled apart when splitting that part lowered the objective (PSB fish 227,
-    held-out split: the body's two clicks in two segments). Independent of the row order
-    (:func:`canonical_order`). Renumbered by first appearance."""
+    cluster at every Lloyd step, and a group that seeds no cluster (more groups than ``k``) moves as one
+    block (:func:`constrained_lloyd`), so two clicks of one must-link never end up in two segments; with
+    seeds used only as the start (their "seeded k-means"), the two clicks on a large part could be pulled
+    apart when splitting that part lowered the objective (PSB fish 227, held-out split: the body's two
+    clicks in two segments). Independent of the row order (computed in :func:`canonical_order`).
+    Renumbered by first appearance. Raises :class:`ParameterError` for ids outside ``[0, n)``, groups
+    sharing a row, or fewer free rows than the clusters left to fill."""
     X = np.ascontiguousarray(X, dtype=np.float64)
-    cents = np.array([X[np.asarray(g)].mean(axis=0) for g in groups]).reshape(-1, X.shape[1])
-    if len(cents) == 0:
+    n = len(X)
+    groups = [np.asarray(g, dtype=np.int64).ravel() for g in groups]
+    groups = [g for g in groups if g.size]
+    if not groups:
         return kmeans_labels(X, k, random_state, n_init)
+    ids = np.concatenate(groups)
+    if ids.min() < 0 or ids.max() >= n:
+        raise ParameterError(f"must-link group ids must be in [0, {n - 1}]")
+    if np.unique(ids).size != ids.size:
+        raise ParameterError("must-link groups share a row (merge them into one group)")
+    order = canonical_order(X)  # ties (farthest-first, argmin, empty clusters) break the same in any row order
+    inv = np.empty(n, dtype=np.int64)
+    inv[order] = np.arange(n)
+    Xo = X[order]
+    go = [inv[g] for g in groups]
+    cents = np.array([Xo[g].mean(axis=0) for g in go]).reshape(-1, X.shape[1])
 
     def sq(A: np.ndarray, c: np.ndarray) -> np.ndarray:
         return ((A - c) ** 2).sum(axis=1)
@@ -110,13 +125,13 @@ def seeded_kmeans_labels(
         sel = [int(np.argmax(sq(cents, cents.mean(axis=0))))]
         d = sq(cents, cents[sel[0]])
         while len(sel) < k:
+            d[sel] = -np.inf  # a group is chosen once, even where several share a mean
             sel.append(int(np.argmax(d)))
             d = np.minimum(d, sq(cents, cents[sel[-1]]))
         inits = [cents[sel]]
-        clamped = [groups[i] for i in sel]
+        clamped, blocks = [go[i] for i in sel], [go[i] for i in range(len(go)) if i not in sel]
     else:
-        clamped = list(groups)
-        Xo = X[canonical_order(X)]
+        clamped, blocks = go, []
         rng = np.random.default_rng(random_state)
         d0 = np.min(np.stack([sq(Xo, c) for c in cents]), axis=0)
         inits = []
@@ -128,45 +143,73 @@ def seeded_kmeans_labels(
                 c.append(Xo[j])
                 d = np.minimum(d, sq(Xo, Xo[j]))
             inits.append(np.array(c))
-    rows = np.concatenate([np.asarray(g, dtype=np.int64) for g in clamped])
-    fixed = np.concatenate([np.full(len(g), i, dtype=np.int64) for i, g in enumerate(clamped)])
     best, best_inertia = None, np.inf
     for init in inits:
-        labels, inertia = constrained_lloyd(X, init, rows, fixed)
+        labels, inertia = constrained_lloyd(Xo, init, clamped, blocks)
         if inertia < best_inertia:
             best, best_inertia = labels, inertia
-    return relabel_consecutive(best)
+    return relabel_consecutive(best[inv])
 
 
 def constrained_lloyd(
-    X: np.ndarray, centres: np.ndarray, rows: np.ndarray, fixed: np.ndarray, max_iter: int = 300,
+    X: np.ndarray, centres: np.ndarray, clamped: list[np.ndarray], blocks: list[np.ndarray] | None = None,
+    max_iter: int = 300, tol: float = 1e-4,
 ) -> tuple[np.ndarray, float]:
-    """Lloyd's k-means iterations on the rows of ``X`` ``(n, d)`` from ``centres`` ``(k, d)``, the rows
-    ``rows`` ``(m,)`` held in the clusters ``fixed`` ``(m,)`` (Basu et al.'s constrained k-means); until
-    no label changes or ``max_iter`` steps. A free cluster left empty restarts at the row farthest from
-    its centre. Returns int64 labels ``(n,)`` and the inertia (sum of squared distances to the centres)."""
+    """Lloyd's k-means iterations on the rows of ``X`` ``(n, d)`` from ``centres`` ``(k, d)`` with the
+    must-links of Basu et al.'s constrained k-means: the rows of ``clamped[i]`` stay in cluster ``i``,
+    the rows of each of ``blocks`` go together to the cluster nearest them in sum. Stops when no label
+    changes, when the centres move less than ``tol`` times the data's mean variance (squared, in sum;
+    scikit-learn's rule), or after ``max_iter`` steps; the labels returned are the assignment to the
+    final centres. A free cluster left empty takes the free row farthest from its centre among the
+    clusters with more than one row. Returns int64 labels ``(n,)`` and the inertia (sum of squared
+    distances to the centres)."""
     C = np.array(centres, dtype=np.float64)
-    k = len(C)
+    k, n = len(C), len(X)
+    blocks = blocks or []
+    rows = np.concatenate([np.asarray(g, dtype=np.int64) for g in clamped]) if clamped else np.zeros(0, np.int64)
+    fixed = np.concatenate([np.full(len(g), i, dtype=np.int64) for i, g in enumerate(clamped)]) if clamped \
+        else np.zeros(0, np.int64)
+    free = np.ones(n, dtype=bool)
+    free[rows] = False
+    for b in blocks:
+        free[b] = False
+    if free.sum() < k - len(clamped):
+        raise ParameterError(f"cannot form {k} clusters: {int(free.sum())} rows are free of must-links")
     x2 = (X**2).sum(axis=1)
-    labels = np.full(len(X), -1, dtype=np.int64)
-    d = np.zeros(len(X))
-    for _ in range(max_iter):
-        D = x2[:, None] - 2.0 * X @ C.T + (C**2).sum(axis=1)[None, :]
-        new = np.argmin(D, axis=1)
-        new[rows] = fixed
-        d = np.maximum(D[np.arange(len(X)), new], 0.0)
-        counts = np.bincount(new, minlength=k)
-        free = np.ones(len(X), dtype=bool)
-        free[rows] = False
+    tol_abs = float(tol) * float(np.mean(np.var(X, axis=0)))
+
+    def assign(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        D = X @ (-2.0 * C).T  # squared distances less ||x||^2, which no argmin over clusters needs
+        D += (C**2).sum(axis=1)[None, :]
+        lab = np.argmin(D, axis=1)
+        lab[rows] = fixed
+        for b in blocks:
+            lab[b] = int(np.argmin(D[b].sum(axis=0)))
+        counts = np.bincount(lab, minlength=k)
         for j in np.flatnonzero(counts == 0):  # only free clusters can empty
-            far = int(np.argmax(np.where(free, d, -1.0)))
-            new[far], d[far], free[far] = j, 0.0, False
-        if np.array_equal(new, labels):
-            break
-        labels = new
-        member = sp.csr_matrix((np.ones(len(X)), (labels, np.arange(len(X)))), shape=(k, len(X)))
-        C = np.asarray(member @ X) / np.maximum(np.bincount(labels, minlength=k), 1)[:, None]
-    return labels, float(d.sum())
+            d = np.where(free & (counts[lab] > 1), D[np.arange(n), lab] + x2, -np.inf)
+            far = int(np.argmax(d))
+            counts[lab[far]] -= 1
+            lab[far], counts[j] = j, 1
+        return lab, counts
+
+    labels = None
+    with single_thread():
+        for _ in range(max_iter):
+            new, counts = assign(C)
+            if labels is not None and np.array_equal(new, labels):
+                break
+            labels = new
+            member = sp.csr_matrix((np.ones(n), (labels, np.arange(n))), shape=(k, n))
+            C_new = np.asarray(member @ X) / np.maximum(counts, 1)[:, None]
+            shift = float(((C_new - C) ** 2).sum())
+            C = C_new
+            if shift <= tol_abs:
+                labels, _ = assign(C)
+                break
+        else:  # max_iter steps: the labels of the last centres
+            labels, _ = assign(C)
+    return labels, float(((X - C[labels]) ** 2).sum())
 
 
 def sweep_cut(

@@ -232,9 +232,9 @@ class EMRegistrationMatcher(DenseMatcher):
     than half the area swapped, ``"local"``) and ``orientation_score`` -- the local triple-product
     cue of :func:`~shape_toolkit.plugins.matching._common.orientation_score` on 120 farthest-point
     samples of the map refined to 30 dimensions. Per region it does not decide (on FAUST a limb
-    twisted on its axis scores against a map that is right on that limb), but on the whole it does:
-    a map whose score is still negative after the side check is a mirror image, and
-    :meth:`_rescue` replaces it (``info["orientation_rescue"]``). The matchers' spectra are
+    twisted on its axis scores against a map that is right on that limb); on the whole, a map whose
+    score is still negative after the side check is usually a mirror image, and :meth:`_rescue`
+    replaces it by one that scores positive (``info["orientation_rescue"]``). The matchers' spectra are
     declared through ``spectrum_specs()``.
     """
 
@@ -322,7 +322,7 @@ class EMRegistrationMatcher(DenseMatcher):
 
     def spectrum_specs(self) -> list[SpectrumSpec]:
         """The embedding's spectrum, the polishing one (``polish_k``: ``polish_k + 1`` cotangent
-        Laplace-Beltrami eigenpairs) and the nested side and symmetry matchers', one per kind."""
+        Laplace-Beltrami eigenpairs) and the nested side, symmetry and fine matchers', one per kind."""
         specs = super().spectrum_specs()
         if self.polish_k:
             specs = type(specs[0]).merge_all([*specs, default_spec(int(self.polish_k) + 1)])
@@ -513,68 +513,82 @@ class EMRegistrationMatcher(DenseMatcher):
         return cands[best]
 
     def _rescue(self, X, Y, first, source: Shape, target: Shape, info: dict, bases, source_spectrum,
-                target_spectrum=None):
+                target_spectrum=None) -> tuple[tuple, int]:
         """The orientation rescue: the map after the side check still reverses orientation on the whole
-        (local triple products, :meth:`_orientation`, below zero; a correct map scores near +1): EM
+        (local triple products, :meth:`_orientation`, below zero; the true map scores near +1). Usually EM
         settled on a mirror image the side check could not undo -- left and right (the side reference
-        itself mirrored) or front and back (a reflection no intrinsic symmetry map describes). The
-        candidates, in this order: EM run again from the side reference's map, EM run again from
+        itself mirrored) or front and back (a reflection no intrinsic symmetry map describes) -- but an
+        imperfect map that is on the right side can score below zero too (twisted limbs), so this is a
+        replacement by a map that scores positive, not a proof. The candidates, in this order: EM run
+        again from the side reference's map, EM run again from
         :func:`~shape_toolkit.plugins.matching._common.fine_matcher`'s orientation-aware functional map,
         then those two maps themselves; the first whose score is positive replaces the first map (none:
         it stays). EM's results come first (the thesis's method), the reference before the finer map (the
-        map every side decision of the pipeline follows; on a coarse synthetic pair the finer one is wrong). A
-        positive score does not prove a map right (a left-right *and* front-back swap preserves
-        orientation), so the order matters. ``info["orientation_rescue"]``: the scores, the choice."""
+        map every side decision of the pipeline follows; on a coarse synthetic pair the finer one is wrong).
+        A positive score does not prove a map right (a left-right *and* front-back swap preserves
+        orientation), so the order matters.
+
+        Returns the chosen result and the embedding size it is already refined to (``polish_k`` goes on
+        from there: polishing a functional map's map again from EM's few dimensions would undo it). When a
+        functional map's own map is chosen, ``Q``, ``sigma`` and the posteriors stay those of EM's first
+        run (``info["posteriors_of"] = "em-before-rescue"``) and every vertex is matched (confidence 0).
+        ``info["orientation_rescue"]``: the scores, the choice."""
         from shape_toolkit.plugins.matching._common import _given, fine_matcher, side_reference
 
         K = X.shape[1]
         rescue = {"score_before": info["orientation_score"], "choice": "first"}
         info["orientation_rescue"] = rescue
-        starts: dict[str, np.ndarray] = {}
+        starts: dict[str, tuple[np.ndarray, int]] = {}
 
-        def start(name: str) -> np.ndarray:
+        def start(name: str) -> tuple[np.ndarray, int]:
             if name not in starts:
                 if name == "reference_map":
                     ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation)
-                    starts[name] = np.asarray(ref.target_of)
+                    starts[name] = (np.asarray(ref.target_of), int(ref.source_points.shape[1]))
                 else:
                     m = fine_matcher(self.orientation)
                     ss = m._spectrum(source, _given(source_spectrum))
                     st = m._spectrum(target, _given(target_spectrum))
                     res = m.match(source, target, source_spectrum=[ss], target_spectrum=[st])
-                    starts[name] = np.asarray(res.target_of)
+                    starts[name] = (np.asarray(res.target_of), int(res.info["k_final"]))
             return starts[name]
 
         for name in ("em_from_reference_map", "em_from_fine_map", "reference_map", "fine_map"):
-            t = start(name.removeprefix("em_from_"))
-            Q = procrustes(Y[t].T @ X)
+            t, k_map = start(name.removeprefix("em_from_"))
+            ok = t >= 0
+            Q = procrustes(Y[t[ok]].T @ X[ok])
             if name.startswith("em_from_"):
-                cand = self._solve(X, Y, Q, bases)
+                cand, k_done = self._solve(X, Y, Q, bases), K
                 score = self._orientation(source, target, cand[3], bases, K)
             else:  # a functional map's own map is already fine: scored as it is
-                cand = (Q, first[1], first[2], t, np.zeros(len(t)), 0)
+                cand, k_done = (Q, first[1], first[2], t, np.zeros(len(t)), 0), k_map
                 score = self._orientation(source, target, t)
             rescue[f"score_{name}"] = score
             if score > 0:
                 rescue["choice"] = name
                 info["orientation_score"] = score
-                return cand
-        return first
+                if not name.startswith("em_from_"):
+                    info["posteriors_of"] = "em-before-rescue"
+                return cand, k_done
+        return first, K
 
     def _finish(self, X, Y, Q0, target: Shape, info: dict, source: Shape | None = None,
                 bases: tuple[Basis, Basis] | None = None, source_spectrum=None,
                 target_spectrum=None) -> Correspondence:
         res = self._solve(X, Y, Q0, bases)
+        k_done = X.shape[1]  # the embedding size the returned map is refined to (polish_k goes on from it)
         if self.orientation != "none" and source is not None and source.is_mesh and target.is_mesh:
             res = self._orient(X, Y, res, source, target, info, bases, source_spectrum, target_spectrum)
             info["orientation_score"] = self._orientation(source, target, res[3], bases, X.shape[1])
             if info["orientation_score"] < 0:
-                res = self._rescue(X, Y, res, source, target, info, bases, source_spectrum, target_spectrum)
+                res, k_done = self._rescue(X, Y, res, source, target, info, bases, source_spectrum,
+                                           target_spectrum)
         Q, sigma, P, t, conf, n_confident = res
         if self.polish_k and source is not None and self.fill_unmatched and np.all(t >= 0):
-            t = self._polish(t, X.shape[1], source, target, source_spectrum, target_spectrum)
+            t = self._polish(t, k_done, source, target, source_spectrum, target_spectrum)
             info["polish_k"] = int(self.polish_k)
-            info["posteriors_of"] = "em-before-polish"  # Q, sigma and P are EM's, not the polished map's
+            # Q, sigma and P are EM's, not the polished map's
+            info.setdefault("posteriors_of", "em-before-polish")
         if self.k_final and bases is not None and self.k_final > X.shape[1] and self.fill_unmatched:
             info["k_final"] = int(min(self.k_final, bases[0].k - 1, bases[1].k - 1))
         info.setdefault("posteriors_of", "target_of")
