@@ -707,6 +707,14 @@ def write_report(results: list[dict], out: Path, seed: int, elapsed: float, tune
         "clicker names 5 fish parts for k = 6 (small fins of 250-600 faces behind weak creases), so k-means "
         "splits the body or tail to make the sixth segment; seeded starts help mech and cup but cost fish, "
         "bust and one airplane on the held-out split (per-category table).",
+        "- Constrained k-means (2026-12-02, every CSC row re-run): the must-link groups' nodes now stay in their "
+        "clusters at every Lloyd step (Basu et al.'s constrained k-means) instead of only starting them; found on "
+        "the held-out fish 227, where the body's two clicks ended in two segments (a must-link silently "
+        "violated). A correctness fix without a parameter, not a gain: `csc-dual-1ml` held-out 0.112 -> 0.112, "
+        "tuning 0.076 -> 0.077, `-loo` 0.114 -> 0.115, `csc-1ml` 0.159 -> 0.163; per mesh, fish 228 (tuning) "
+        "0.183 -> 0.214 and bearing 348 (`csc-1ml`) 0.413 -> 0.501, plier 208 (`csc`) 0.169 -> 0.090 and fourleg "
+        "388 (`csc-dual`) 0.138 -> 0.110; fish 227 stays at 0.433 with its must-links kept: the embedding's first "
+        "g - 1 coordinates do not separate its small fins from the body.",
         "- Clicked parts other than k (this update; options compared on the 25 tuning meshes only, held-out "
         "meshes not looked at): the clicks name fewer parts than k on 5 tuning meshes and more on 3. "
         "`k_mismatch='ncut'` (see the CSC row descriptions above) took the tuning split's mean of categories "
