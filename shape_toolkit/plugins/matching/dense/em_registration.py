@@ -584,7 +584,9 @@ class EMRegistrationMatcher(DenseMatcher):
                 res, k_done = self._rescue(X, Y, res, source, target, info, bases, source_spectrum,
                                            target_spectrum)
         Q, sigma, P, t, conf, n_confident = res
-        if self.polish_k and source is not None and self.fill_unmatched and np.all(t >= 0):
+        # (a functional map's map the rescue chose may already be finer than polish_k: nothing to polish)
+        if self.polish_k and k_done < self.polish_k and source is not None and self.fill_unmatched \
+                and np.all(t >= 0):
             t = self._polish(t, k_done, source, target, source_spectrum, target_spectrum)
             info["polish_k"] = int(self.polish_k)
             # Q, sigma and P are EM's, not the polished map's
