@@ -232,6 +232,31 @@ def test_em_repairs_a_map_with_two_legs_on_one(pair):
     assert leg_err(T) > 0.3 and leg_err(out[3]) < 0.2 * leg_err(T)
 
 
+def test_em_takes_the_reference_where_a_mirrored_part_has_no_valid_symmetry(pair, monkeypatch):
+    """Legs swapped where S is no symmetry (``symmetry_validity`` false on the legs, as on FAUST poses
+    whose S covers too little area): T(S(x)) cannot be trusted there, so the part the reference puts on
+    the other side takes the reference's own map, and the legs come out right."""
+    import shape_toolkit.plugins.matching._common as common
+
+    A, B, mirror = pair
+    T, legs = _legs_swapped(A, mirror)
+    real = common.symmetry_validity
+    monkeypatch.setattr(common, "symmetry_validity", lambda *a, **k: real(*a, **k) & ~legs)
+    em = create_plugin("dense_matchers", "em-registration", k=8, k_final=24)
+    X, Y, bs, bt = em._embeddings(A.shape, B.shape, None, None, with_bases=True)
+    first = (procrustes(Y[T].T @ X), 1.0, None, T.copy(), np.zeros(len(T)), 0)
+    info: dict = {}
+    out = em._orient(X, Y, first, A.shape, B.shape, info, (bs, bt), None, None)
+    assert info["orientation_mirrored_area"] < 0.1 * np.mean(legs)  # hardly any swap: S is invalid on the legs
+    assert info["orientation_replaced_area"] > 0.5 * np.mean(legs)
+    pos = np.asarray(B.shape.vertices)
+
+    def leg_err(t):
+        return float(np.mean(np.linalg.norm(pos[t[legs]] - pos[legs], axis=1)))
+
+    assert leg_err(T) > 0.3 and leg_err(out[3]) < 0.2 * leg_err(T)
+
+
 def test_side_caches_share_and_key_on_identity(pair, monkeypatch):
     """The sparse stage and EM share one symmetry map and one side reference per (shapes, spectra);
     another Shape object (even with the same content) is computed anew."""

@@ -224,7 +224,10 @@ class EMRegistrationMatcher(DenseMatcher):
     its mirror image ``T(S(x))`` (``S`` the source's intrinsic symmetry,
     :func:`~shape_toolkit.plugins.matching._common.symmetry_map`), the one nearer the reference,
     decided per region (the difference of squared spectral distances low-pass filtered on the
-    source's first 20 eigenfunctions). When any region swaps, that combined map (refined when
+    source's first 20 eigenfunctions). Where the reference prefers the mirror image but ``S`` fails
+    :func:`~shape_toolkit.plugins.matching._common.symmetry_validity` (a part ``S`` does not map onto its
+    twin), and where neither ``T`` nor ``T(S)`` is near the reference while ``T`` piles two parts onto
+    one, the reference's own map ``R(x)`` is taken instead. When any region changes, that combined map (refined when
     ``k_final`` is set) and EM run again from it are candidates next to the first map, and the one
     nearest the reference on average wins. ``info``: ``orientation_mirrored_area`` (share of the
     source's area that the reference puts on the other side), ``orientation_reference`` (mean
@@ -486,8 +489,9 @@ class EMRegistrationMatcher(DenseMatcher):
         info["orientation_mirrored_area"] = float(ref.basis.mass[swap].sum() / area)
         t_c = np.where(swap, t[sym], t)
         # neither T nor T(S) where the reference is, and T piles two parts onto one: a wrong part
-        # (where T is one-to-one the reference may be the one that is wrong)
-        lost = ref.disagrees(t_c) & ref.overlaps(t_c)
+        # (where T is one-to-one the reference may be the one that is wrong); and the parts the
+        # reference puts on the other side where S is no symmetry (its mirror image cannot be trusted)
+        lost = (ref.disagrees(t_c) & ref.overlaps(t_c)) | (ref.prefer(t, t[sym]) & ~valid)
         info["orientation_replaced_area"] = float(ref.basis.mass[lost].sum() / area)
         info["orientation_flipped"] = False
         if not swap.any() and not lost.any():
