@@ -46,6 +46,16 @@ def test_human_k_is_the_mode_as_in_psb(bench):
     assert bench.human_k(_segs([1, 1])) == 2  # at least 2
 
 
+def test_paired_gap_is_a_mean_over_categories_with_its_standard_error(bench):
+    def row(mesh, a, b):
+        return {"category": bench.category_of(mesh), "rows": {"csc": {"rand_index_error": a},
+                                                              "human": {"rand_index_error": b}}}
+    # human: two meshes, differences 0.0 and 0.2 (category mean 0.1); cup: one mesh, difference 0.3
+    res = [row("1", 0.1, 0.1), row("2", 0.4, 0.2), row("27", 0.5, 0.2), {"category": "cup", "rows": {}}]
+    assert bench._paired_gap(res, "csc", "human") == "+0.200 +- 0.100 (2 categories)"
+    assert bench._paired_gap(res[:2], "csc", "human") == "n/a"  # one category: no standard error
+
+
 def test_benchmark_constraints_one_click_pair_per_big_segment(bench):
     from shape_toolkit.data.synthetic import articulated_shape
     from shape_toolkit.results.labels import face_to_vertex_labels, segment_adjacency, vertex_to_face_labels
