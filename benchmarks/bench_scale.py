@@ -536,7 +536,7 @@ def write_presets_report(res: dict, out: Path) -> None:
         *[f"- `{c.replace(' (merged)', '')}`" for c in cmds],
         "",
         f"Date: {res['date']}. Machine: {res.get('cpu', 'CPU not recorded')}, {res['machine']}; 2 cores shared with "
-        "the lead's small runs, one benchmark process at a time; 1-min load "
+        "other jobs (what else ran: the notes below); 1-min load "
         f"{load[0]:.1f} at the start, {load[1]:.1f} at the end: wall times are inflated by the other jobs, "
         f"CPU times are the better measure. BLAS threads in the children: {', '.join(map(str, blas)) or '?'} "
         "(threadpoolctl; the eigensolver caps itself to 1). Package code (`shape_toolkit/`): "
