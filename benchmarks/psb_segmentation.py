@@ -31,9 +31,10 @@ Protocol (stated again in the results file):
   vertices, both well inside it) plus the same 3 cannot-links per neighbouring pair (2 clicks each,
   8 edges either side of the cut); ``seeded-walk`` / ``seeded-walk-1ml``: the ``seeded-walk`` plugin
   (random walks from the must-link groups on the concavity-weighted dual graph) with the same
-  constraints. The generator is :func:`shape_toolkit.results.labels.draw_constraints` with the
-  arguments in :func:`benchmark_constraints`. ``csc``/``csc-1ml`` run on the vertex graph (thesis 5.2),
-  ``csc-dual``/``csc-dual-1ml`` on the concavity-weighted dual graph (CSC's default on meshes);
+  constraints. The generator is :func:`shape_toolkit.results.labels.clicks_from_segmentation`
+  (its defaults are the ``-1ml`` clicks; ``shape-toolkit constraints`` on the command line).
+  ``csc``/``csc-1ml`` run on the vertex graph (thesis 5.2), ``csc-dual``/``csc-dual-1ml`` on the
+  concavity-weighted dual graph (CSC's default on meshes);
   ``csc-dual-1ml-km++`` starts k-means at random rows instead of the must-link groups (ablation);
   ``csc-dual-1ml-no-cuts`` keeps k-means when the number of clicked groups differs from ``k``
   (``k_mismatch="kmeans"``, the rule before the normalized cuts; ablation).
@@ -76,7 +77,7 @@ from shape_toolkit.metrics.segmentation import (  # noqa: E402
     rand_index_error,
     segmentation_scores,
 )
-from shape_toolkit.results.labels import draw_constraints, face_to_vertex_labels, vertex_to_face_labels  # noqa: E402
+from shape_toolkit.results.labels import clicks_from_segmentation, vertex_to_face_labels  # noqa: E402
 from shape_toolkit.validation import jsonable  # noqa: E402
 
 #: (row name, plugin name, extra params, constraints: None / "default" / "one-must-link")
@@ -269,10 +270,10 @@ def human_k(truths: list[np.ndarray]) -> int:
 
 
 def benchmark_constraints(shape, truth_faces: np.ndarray, n_must_per_segment: int, seed: int):
-    """The clicks a user would give, drawn from one human segmentation (per face): see the module doc."""
-    vt = face_to_vertex_labels(shape.faces, truth_faces, shape.n_vertices, shape.face_areas)
-    return draw_constraints(vt, shape.edges, n_must_per_segment=n_must_per_segment, n_cannot_per_boundary=3,
-                            cannot_offset=8, min_segment_size=max(2, shape.n_vertices // 100), random_state=seed)
+    """The clicks a user would give, drawn from one human segmentation (per face): see the module doc
+    (:func:`shape_toolkit.results.labels.clicks_from_segmentation`, whose defaults are this protocol's)."""
+    return clicks_from_segmentation(shape, truth_faces, n_must_per_segment=n_must_per_segment, faces=True,
+                                    random_state=seed)
 
 
 def _natural(p: Path) -> tuple:

@@ -358,3 +358,37 @@ def test_number_args_share_one_parser():
             parse(bad)
     closed = number_arg("in [0, 1]", 0, 1)
     assert closed("0") == 0.0 and closed("1") == 1.0
+
+
+def test_constraints_from_a_segmentation_feed_segment(pose, capsys, monkeypatch, tmp_path):
+    """``constraints`` draws the PSB protocol's clicks from face labels; ``segment --faces`` then writes
+    CSC's own face labels (dual graph) and every click pair ends where the truth puts it."""
+    from shape_toolkit.api.registry import create_plugin
+    from shape_toolkit.results.labels import clicks_from_segmentation, load_constraints
+
+    d, a, _ = pose
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _run(capsys, "constraints", d / "a.off", d / "a.seg", "--faces", "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["constraints_file"] == "a.constraints.json"
+    cons = load_constraints(tmp_path / "a.constraints.json", a.shape.n_vertices)
+    face_truth = np.loadtxt(d / "a.seg", dtype=np.int64)
+    api = clicks_from_segmentation(a.shape, face_truth, faces=True)
+    assert np.array_equal(cons.must_link, api.must_link) and np.array_equal(cons.cannot_link, api.cannot_link)
+    assert (res["must_link"], res["cannot_link"]) == (cons.n_must, cons.n_cannot) and cons.n_must == 6
+    code, out, err = _run(capsys, "segment", d / "a.off", "--method", "csc", "-k", "6", "--constraints",
+                          "a.constraints.json", "--faces", "-o", "a.csc.seg", "--json")
+    assert code == 0, err
+    written = np.loadtxt(tmp_path / "a.csc.seg", dtype=np.int64)
+    seg = create_plugin("segmenters", "csc", n_segments=6)
+    seg.segment(a.shape, constraints=cons)
+    assert np.array_equal(written, seg.face_labels_)  # not the vertex labels converted back
+    # errors: one line, exit 2, nothing written
+    for bad in (["constraints", d / "a.off", d / "a.seg"],  # per-face labels without --faces
+                ["constraints", d / "a.off", d / "a.seg", "--faces", "--min-segment-fraction", "1.5"],
+                ["constraints", d / "a.off", d / "a.seg", "--faces", "-o", "c.txt"],
+                ["constraints", d / "a.off", d / "a.seg", "--faces", "--cannot-offset", "-1"]):
+        code, out, err = _run(capsys, *bad)
+        assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "c.txt").exists()

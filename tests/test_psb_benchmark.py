@@ -70,6 +70,43 @@ def test_benchmark_constraints_one_click_pair_per_big_segment(bench):
     assert np.all(vt[one.cannot_link[:, 0]] != vt[one.cannot_link[:, 1]])
     n_pairs = len(segment_adjacency(vt, b.shape.edges))
     assert one.n_cannot == two.n_cannot == 3 * n_pairs  # 3 per pair of neighbouring parts
+    # the library's generator with its defaults is the protocol as first written in this script
+    from shape_toolkit.results.labels import draw_constraints
+
+    old = draw_constraints(vt, b.shape.edges, n_must_per_segment=1, n_cannot_per_boundary=3, cannot_offset=8,
+                           min_segment_size=max(2, b.shape.n_vertices // 100), random_state=0)
+    assert np.array_equal(one.must_link, old.must_link) and np.array_equal(one.cannot_link, old.cannot_link)
+
+
+def test_clicks_from_segmentation_inputs():
+    from shape_toolkit.core.shape import Shape
+    from shape_toolkit.data.synthetic import articulated_shape
+    from shape_toolkit.errors import ParameterError
+    from shape_toolkit.results.labels import clicks_from_segmentation, vertex_to_face_labels
+
+    b = articulated_shape(subdivisions=2, random_state=0)
+    per_vertex = clicks_from_segmentation(b.shape, b.labels, random_state=3)
+    assert np.all(b.labels[per_vertex.must_link[:, 0]] == b.labels[per_vertex.must_link[:, 1]])
+    again = clicks_from_segmentation(b.shape, b.labels, random_state=3)
+    assert np.array_equal(per_vertex.must_link, again.must_link)  # reproducible
+    # vertices on no face (three appended, far away) are never clicked, though they would form a segment
+    n = b.shape.n_vertices
+    extra = Shape(np.vstack([b.shape.vertices, 9.0 + np.eye(3)]), b.shape.faces)
+    fl = vertex_to_face_labels(b.shape.faces, b.labels)
+    c = clicks_from_segmentation(extra, fl, faces=True, min_segment_fraction=0.0)
+    assert c.n_must == 6 and c.must_link.max() < n and c.cannot_link.max() < n
+    tetra = Shape(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
+                  np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    with pytest.raises(ParameterError, match="both"):  # 4 faces and 4 vertices: which?
+        clicks_from_segmentation(tetra, np.array([0, 0, 1, 1]))
+    assert clicks_from_segmentation(tetra, np.array([0, 0, 1, 1]), faces=False, min_segment_fraction=0).n_must == 2
+    for kwargs, labels in (({}, b.labels[:-1]),  # fits neither count
+                           ({"faces": True}, b.labels),  # per-vertex labels said to be per face
+                           ({"min_segment_fraction": -0.1}, b.labels),
+                           ({}, b.labels.astype(float)),
+                           ({}, np.where(b.labels == 0, -1, b.labels))):
+        with pytest.raises(ParameterError):
+            clicks_from_segmentation(b.shape, labels, **kwargs)
 
 
 @pytest.mark.slow

@@ -30,6 +30,7 @@ __all__ = [
     "save_constraints",
     "coerce_constraints",
     "draw_constraints",
+    "clicks_from_segmentation",
     "vertex_to_face_labels",
     "face_to_vertex_labels",
     "relabel_consecutive",
@@ -422,3 +423,56 @@ def draw_constraints(
                 cannot.append([_walk_inside(A, labels, int(u), cannot_offset, rng),
                                _walk_inside(A, labels, int(v), cannot_offset, rng)])
     return Constraints(must, cannot).validate(n)
+
+
+def clicks_from_segmentation(
+    shape: Any,
+    labels: np.ndarray,
+    *,
+    n_must_per_segment: int = 1,
+    n_cannot_per_boundary: int = 3,
+    cannot_offset: int = 8,
+    min_segment_fraction: float = 0.01,
+    faces: bool | None = None,
+    random_state: int = 0,
+) -> Constraints:
+    """The clicks a person would give for a known segmentation, with the PSB benchmark's protocol
+    (``benchmarks/psb_segmentation.py``; its ``-1ml`` rows are the defaults here): ``labels`` has one
+    label per face ``(m,)`` (PSB ``.seg``; a vertex takes its largest incident area) or per vertex
+    ``(n,)`` of the mesh ``shape`` (``faces``: which; None: told by the count). Every segment with at
+    least ``min_segment_fraction`` of the vertices gets ``n_must_per_segment`` must-links chained
+    between ``n_must_per_segment + 1`` random vertices at least 3 rings inside it, and every pair of
+    neighbouring such segments ``n_cannot_per_boundary`` cannot-links whose ends lie ``cannot_offset``
+    edges either side of a random edge of their common boundary (:func:`draw_constraints`). Vertices on no face get no
+    click. Reproducible with ``random_state``; :class:`ParameterError` for a label count that does not
+    fit (or fits both when ``faces`` is None), negative vertex labels or a fraction outside ``[0, 1]``."""
+    tri = shape.require_faces("clicks from a segmentation")
+    n, m = shape.n_vertices, len(tri)
+    lab = np.asarray(labels).ravel()
+    if lab.size and not np.issubdtype(lab.dtype, np.integer):
+        raise ParameterError("segmentation labels must be integers")
+    frac = float(min_segment_fraction)
+    if not 0.0 <= frac <= 1.0:
+        raise ParameterError(f"min_segment_fraction must be in [0, 1], got {min_segment_fraction!r}")
+    if faces is None:
+        if m == n and len(lab) == n:
+            raise ParameterError(f"{n} labels fit both the faces and the vertices: say which (faces=)")
+        faces = len(lab) == m
+    if len(lab) != (m if faces else n):
+        raise ParameterError(f"{len(lab)} labels for a mesh of {m} faces and {n} vertices: "
+                             f"expected one per {'face' if faces else 'vertex'}")
+    if faces:
+        vt = face_to_vertex_labels(tri, lab, n, shape.face_areas)
+    else:
+        vt = lab.astype(np.int64)
+        if (vt < 0).any():
+            raise ParameterError("vertex labels must be >= 0")
+    cons = draw_constraints(vt, shape.edges, n_must_per_segment=n_must_per_segment,
+                            n_cannot_per_boundary=n_cannot_per_boundary, cannot_offset=cannot_offset,
+                            min_segment_size=max(2, int(n * frac + 1e-9)), random_state=random_state)
+    unlabelled = vt < 0  # vertices on no face (from face labels): never clicked
+
+    def keep(pairs: np.ndarray) -> np.ndarray:
+        return pairs[~unlabelled[pairs].any(axis=1)] if len(pairs) else pairs
+
+    return Constraints(keep(cons.must_link), keep(cons.cannot_link)).validate(n)

@@ -43,7 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", help="labels file (default: SHAPE_STEM.METHOD.labels.txt, "
                    "or .seg with --faces)")
     p.add_argument("--faces", action="store_true",
-                   help="write one label per face (majority of its vertices), PSB .seg format")
+                   help="write one label per face (the method's own face labels where it has them, "
+                   "else the majority of the face's vertices), PSB .seg format")
     add_ply(p, "the segments (one colour per label)")
     p.add_argument("--json", action="store_true", help="print JSON")
     add_quiet(p)
@@ -83,7 +84,10 @@ def run(args: argparse.Namespace) -> int:
         st.update(f"segment: {args.method}")
         labels = seg.segment(shape, spectrum=spectra, constraints=constraints)
     elapsed = time.perf_counter() - t0
-    written = vertex_to_face_labels(shape.faces, labels) if args.faces else labels
+    written = labels
+    if args.faces:  # a segmenter that works per face (dual graph) keeps its own face labels
+        own = getattr(seg, "face_labels_", None)
+        written = own if own is not None and len(own) == shape.n_faces else vertex_to_face_labels(shape.faces, labels)
     write_labels(out, written)
     from shape_toolkit.io.viz import label_colors
 
