@@ -83,15 +83,24 @@ def random_state_arg(text: str) -> int:
     return value
 
 
-def positive_int_arg(text: str) -> int:
-    """argparse ``type=`` for counts that must be >= 1."""
+def _int_at_least(text: str, lowest: int, what: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
+        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+    if value < lowest:
+        raise argparse.ArgumentTypeError(f"must be {what}, got {value}")
     return value
+
+
+def positive_int_arg(text: str) -> int:
+    """argparse ``type=`` for counts that must be >= 1."""
+    return _int_at_least(text, 1, "a positive integer")
+
+
+def count_arg(text: str) -> int:
+    """argparse ``type=`` for counts that may be 0."""
+    return _int_at_least(text, 0, "an integer >= 0")
 
 
 def number_arg(

@@ -13,6 +13,7 @@ import numpy as np
 from shape_toolkit.cli.commands._common import (
     check_distinct,
     check_output_path,
+    count_arg,
     default_output,
     positive_int_arg,
     print_json,
@@ -24,17 +25,6 @@ from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.results.labels import clicks_from_segmentation, save_constraints
 
 
-def _count(text: str) -> int:
-    """argparse ``type=`` for counts that may be 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
-    return value
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("constraints", help="draw must-link / cannot-link clicks from a known segmentation "
                                            "(the PSB benchmark's protocol)")
@@ -44,9 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", help="constraints JSON (default MESH_STEM.constraints.json)")
     p.add_argument("--must-per-segment", type=positive_int_arg, default=1,
                    help="must-links per segment, chained between random vertices inside it (default 1)")
-    p.add_argument("--cannot-per-boundary", type=_count, default=3,
+    p.add_argument("--cannot-per-boundary", type=count_arg, default=3,
                    help="cannot-links across each boundary between two segments (default 3; 0: none)")
-    p.add_argument("--cannot-offset", type=_count, default=8,
+    p.add_argument("--cannot-offset", type=count_arg, default=8,
                    help="edges each cannot-link end lies inside its segment (default 8)")
     p.add_argument("--min-segment-fraction", type=float, default=0.01,
                    help="segments with fewer vertices than this fraction get no click (default 0.01)")
