@@ -443,9 +443,11 @@ def clicks_from_segmentation(
     least ``min_segment_fraction`` of the vertices gets ``n_must_per_segment`` must-links chained
     between ``n_must_per_segment + 1`` random vertices at least 3 rings inside it, and every pair of
     neighbouring such segments ``n_cannot_per_boundary`` cannot-links whose ends lie ``cannot_offset``
-    edges either side of a random edge of their common boundary (:func:`draw_constraints`). Vertices on no face get no
-    click. Reproducible with ``random_state``; :class:`ParameterError` for a label count that does not
-    fit (or fits both when ``faces`` is None), negative vertex labels or a fraction outside ``[0, 1]``."""
+    edges either side of a random edge of their common boundary (:func:`draw_constraints`). A vertex
+    without a labelled face (on no face, or only on faces labelled < 0) gets no click. Reproducible
+    with ``random_state``; :class:`ParameterError` for a label count that does not fit (or fits both
+    when ``faces`` is None), non-integer labels, negative vertex labels, or a fraction outside
+    ``[0, 1]``."""
     tri = shape.require_faces("clicks from a segmentation")
     n, m = shape.n_vertices, len(tri)
     lab = np.asarray(labels).ravel()
@@ -470,7 +472,7 @@ def clicks_from_segmentation(
     cons = draw_constraints(vt, shape.edges, n_must_per_segment=n_must_per_segment,
                             n_cannot_per_boundary=n_cannot_per_boundary, cannot_offset=cannot_offset,
                             min_segment_size=max(2, int(n * frac + 1e-9)), random_state=random_state)
-    unlabelled = vt < 0  # vertices on no face (from face labels): never clicked
+    unlabelled = vt < 0  # no labelled face (face labels only): never clicked
 
     def keep(pairs: np.ndarray) -> np.ndarray:
         return pairs[~unlabelled[pairs].any(axis=1)] if len(pairs) else pairs
