@@ -163,7 +163,8 @@ def add_dense(rows: list[dict], args) -> None:
                 print(name, s, method, f"{v.get('mean_error', float('nan')):.3f}", flush=True)
 
 
-def report(rows: list[dict], args, wall: float) -> str:
+def report(rows: list[dict], args, wall: float, reruns: list[str] = ()) -> str:
+    """The markdown report of ``rows``; ``reruns``: what ``--add-dense`` re-ran since, and when."""
     strengths = sorted({r["strength"] for r in rows})
     pairs = sorted({r["pair"] for r in rows})
     lines = [
@@ -171,6 +172,7 @@ def report(rows: list[dict], args, wall: float) -> str:
         "",
         f"Regenerate: `{args.command}`",
         "",
+        *([f"Dense rows re-run since: {'; '.join(reruns)}.", ""] if reruns else []),
         "Protocol: see the docstring of `benchmarks/photometric_seeds.py`. Textured generated pairs "
         f"(split `{args.split}`, seeds {', '.join(map(str, args.seed_list))}; {len(pairs)} pairs, 2,562 vertices), "
         "target glued at `s` contacts; a seed is correct within "
@@ -296,6 +298,7 @@ def main(argv: list[str] | None = None) -> int:
     args.extra_list = [m for m in args.extra.split(",") if m]
     args.command = "python benchmarks/photometric_seeds.py " + " ".join(argv if argv is not None else sys.argv[1:])
     out = Path(args.output)
+    reruns: list[str] = []
     if args.report_only or args.add_dense:
         saved = json.loads(out.with_suffix(".json").read_text())
         rows, wall = saved["rows"], saved["wall"]
@@ -306,8 +309,15 @@ def main(argv: list[str] | None = None) -> int:
             wall += time.perf_counter() - t0
             extra = ",".join(sorted({m for r in rows for m in r["dense"]} - set(PIPELINES)))
             args.command = re.sub(r" --extra \S+", "", args.command) + " --extra " + extra
+            from shape_toolkit.bench.worker import code_revision, revision_label
+
+            code = revision_label(code_revision(Path(__file__).resolve().parents[1], paths=["shape_toolkit"]))
+            saved["reruns"] = saved.get("reruns", []) + [
+                f"{time.strftime('%Y-%m-%d')}: `--add-dense --extra {args.extra}` re-ran those rows with the "
+                f"code of {code}"]
             saved.update(rows=rows, wall=wall, command=args.command)
             out.with_suffix(".json").write_text(dumps_json(saved, indent=1))
+        reruns = saved.get("reruns", [])
     else:
         t0 = time.perf_counter()
         rows = run(args)
@@ -316,7 +326,7 @@ def main(argv: list[str] | None = None) -> int:
         out.with_suffix(".json").write_text(dumps_json({
             "command": args.command, "split": args.split, "seeds": args.seed_list, "wall": wall, "rows": rows,
         }, indent=1))
-    out.write_text(report(rows, args, wall))
+    out.write_text(report(rows, args, wall, reruns))
     print(f"wrote {out}")
     return 0
 
