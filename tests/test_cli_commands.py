@@ -392,3 +392,20 @@ def test_constraints_from_a_segmentation_feed_segment(pose, capsys, monkeypatch,
         code, out, err = _run(capsys, *bad)
         assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "c.txt").exists()
+
+
+def test_segment_a_mesh_of_two_components(pose, capsys, tmp_path):
+    """No spectrum of the whole is computed for a mesh of several components (it would mix them):
+    the spectral segmenters segment it component by component."""
+    from shape_toolkit.core.shape import Shape
+
+    _, a, _ = pose
+    n = a.shape.n_vertices
+    two = Shape(np.vstack([a.shape.vertices, a.shape.vertices + [5.0, 0, 0]]),
+                np.vstack([a.shape.faces, a.shape.faces + n]))
+    save_shape(two, tmp_path / "two.off")
+    code, out, err = _run(capsys, "segment", tmp_path / "two.off", "--method", "spectral-clustering", "-k", "12",
+                          "-o", tmp_path / "two.txt", "--json")
+    assert code == 0, err
+    labels = np.loadtxt(tmp_path / "two.txt", dtype=np.int64)
+    assert json.loads(out)["n_segments"] == 12 and not set(labels[:n]) & set(labels[n:])

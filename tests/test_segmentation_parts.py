@@ -431,3 +431,71 @@ def test_csc_with_more_clicked_parts_than_k_keeps_the_weakly_separated_groups_to
     old = create_plugin("segmenters", "csc", n_segments=2, k_mismatch="kmeans")
     old.segment(shape, constraints=cons)
     assert old.n_cuts_ == 0 and rand_index_error(old.face_labels_, truth) > 0.3
+
+
+def test_segments_per_component_by_area_clicks_and_ties():
+    from shape_toolkit.plugins.segmenters._common import segments_per_component
+
+    keys = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+    assert segments_per_component(12, np.array([4.0, 1.0]), np.array([0, 0]), keys).tolist() == [9, 3]
+    assert segments_per_component(12, np.array([4.0, 1.0]), np.array([6, 6]), keys).tolist() == [6, 6]
+    assert segments_per_component(12, np.array([4.0, 1.0]), np.array([2, 5]), keys).tolist() == [6, 6]
+    # 1 + 7.5 and 1 + 2.5: the tied remainder goes to the larger area
+    assert segments_per_component(12, np.array([3.0, 1.0]), np.array([0, 0]), keys).tolist() == [9, 3]
+    assert segments_per_component(1, np.array([4.0, 1.0]), np.array([0, 0]), keys).tolist() == [1, 1]
+    # a tie in area goes to the smaller key, whatever the order of the components
+    assert segments_per_component(3, np.array([1.0, 1.0]), np.array([0, 0]), keys).tolist() == [2, 1]
+    assert segments_per_component(3, np.array([1.0, 1.0]), np.array([0, 0]), keys[::-1]).tolist() == [1, 2]
+
+
+def _two_bodies():
+    a = articulated_shape(subdivisions=2, random_state=1)
+    b = articulated_shape(subdivisions=2, random_state=2)
+    shape = Shape(np.vstack([a.shape.vertices, b.shape.vertices + [5.0, 0, 0]]),
+                  np.vstack([a.shape.faces, b.shape.faces + a.shape.n_vertices]))
+    return a, b, shape, np.r_[a.labels, b.labels + 6]
+
+
+@pytest.mark.parametrize("name", ["csc", "spectral-clustering", "eigvec-gmm", "ccskl"])
+def test_a_mesh_of_two_components_is_segmented_component_by_component(name):
+    """Spectral segmenters refused a mesh of several components (a disconnected graph); each component
+    is now segmented on its own, with the segments shared by area (and clicks), as if it were alone."""
+    from shape_toolkit.results.labels import clicks_from_segmentation
+
+    a, b, shape, truth = _two_bodies()
+    na = a.shape.n_vertices
+    cons = clicks_from_segmentation(shape, truth, faces=False)
+    seg = create_plugin("segmenters", name, n_segments=12)
+    labels = seg.segment(shape, constraints=cons)
+    assert seg.segments_per_component_ == [6, 6] and seg.n_components_ == 2
+    assert not set(labels[:na]) & set(labels[na:]) and len(np.unique(labels)) == 12
+    assert len(seg.face_labels_) == shape.n_faces
+    alone = create_plugin("segmenters", name, n_segments=6)
+    sub_cons = Constraints(cons.must_link[cons.must_link.max(axis=1) < na],
+                           cons.cannot_link[cons.cannot_link.max(axis=1) < na])
+    assert rand_index_error(labels[:na], alone.segment(a.shape, constraints=sub_cons)) == 0.0
+    # vertex order: a permuted mesh gives the permuted segmentation
+    perm = np.random.default_rng(0).permutation(shape.n_vertices)
+    inv = np.argsort(perm)
+    moved = Shape(shape.vertices[perm], inv[shape.faces])
+    pcons = Constraints(inv[cons.must_link], inv[cons.cannot_link])
+    again = create_plugin("segmenters", name, n_segments=12).segment(moved, constraints=pcons)
+    assert rand_index_error(again[inv], labels) == 0.0
+
+
+def test_components_with_a_must_link_across_and_lone_vertices():
+    a, _, shape, truth = _two_bodies()
+    seg = create_plugin("segmenters", "csc", n_segments=12)
+    with pytest.raises(ConstraintError, match="separate mesh components"):
+        seg.segment(shape, constraints=Constraints([[0, a.shape.n_vertices]], []))
+    # two vertices on no face take their nearest vertex's segment; more components than segments: one each
+    lone = Shape(np.vstack([a.shape.vertices, a.shape.vertices[:2] + 1e-3]), a.shape.faces)
+    labels = create_plugin("segmenters", "spectral-clustering", n_segments=6).segment(lone)
+    assert labels[-2:].tolist() == labels[:2].tolist() and len(np.unique(labels)) == 6
+    with pytest.raises(ParameterError):  # n_segments = 1 is refused as before, not hidden by the split
+        create_plugin("segmenters", "spectral-clustering", n_segments=1).segment(shape)
+    three = Shape(np.vstack([shape.vertices, a.shape.vertices - [5.0, 0, 0]]),
+                  np.vstack([shape.faces, a.shape.faces + shape.n_vertices]))
+    seg = create_plugin("segmenters", "spectral-clustering", n_segments=2)
+    labels = seg.segment(three)  # more components than segments: one segment per component
+    assert seg.segments_per_component_ == [1, 1, 1] and len(np.unique(labels)) == 3

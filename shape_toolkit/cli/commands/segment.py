@@ -80,7 +80,12 @@ def run(args: argparse.Namespace) -> int:
         constraints = load_constraints(args.constraints, shape.n_vertices)
     t0 = time.perf_counter()
     with status(args, f"segment: {args.method} on {shape.n_vertices} vertices") as st:
-        spectra, used = declared_spectra(seg, shape)
+        from shape_toolkit.core.inspect import connected_components
+
+        # a mesh of several components: no spectrum of the whole (it would mix them); the segmenter
+        # either takes the mesh whole or segments it component by component with their own spectra
+        several = shape.is_mesh and connected_components(shape)[0] > 1
+        spectra, used = (None, []) if several else declared_spectra(seg, shape)
         st.update(f"segment: {args.method}")
         labels = seg.segment(shape, spectrum=spectra, constraints=constraints)
     elapsed = time.perf_counter() - t0

@@ -441,3 +441,105 @@ def merge_to_segments(
     rank = np.empty(len(uniq), dtype=np.int64)
     rank[np.lexsort((first, -tot))] = np.arange(len(uniq))
     return rank[comp]
+
+
+def segments_per_component(k: int, areas: np.ndarray, minimum: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """How many of ``k`` segments each mesh component gets, int64 ``(c,)``: at least ``minimum[i]``
+    (1, or its number of clicked parts), the rest shared in proportion to the components' ``areas``
+    by largest remainder (ties: larger area, then the smaller row of ``keys`` ``(c, d)``, e.g. each
+    component's lowest corner, so the share does not depend on the vertex order). When the minima
+    already exceed ``k`` the result is the minima (one segment per component at least)."""
+    base = np.maximum(np.asarray(minimum, dtype=np.int64), 1)
+    extra = int(k) - int(base.sum())
+    if extra <= 0:
+        return base
+    a = np.asarray(areas, dtype=np.float64)
+    quota = extra * a / a.sum() if a.sum() > 0 else np.full(len(a), extra / len(a))
+    out = base + np.floor(quota).astype(np.int64)
+    left = int(k - out.sum())
+    order = np.lexsort((*np.asarray(keys, dtype=np.float64).T[::-1], -a, -(quota - np.floor(quota))))
+    out[order[:left]] += 1
+    return out
+
+
+def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarray | None:
+    """Vertex labels ``(n,)`` of a mesh made of several connected components, each segmented on its own
+    by a copy of the segmenter ``seg`` (its parameters, ``n_segments`` set per component by
+    :func:`segments_per_component`: by area, and never fewer than the parts clicked on it), labels
+    numbered component after component; vertices on no face take their nearest vertex's label. None
+    for a connected mesh without such vertices, or a point cloud (segment as usual). A component given
+    one segment is not segmented. Constraints are split with the components: a cannot-link across two
+    is met by construction, a must-link across two raises
+    :class:`~shape_toolkit.results.labels.ConstraintError`. Sets ``face_labels_`` ``(m,)``,
+    ``n_segments_``, ``n_components_`` and ``segments_per_component_`` on ``seg``. With more components
+    than ``n_segments``, every component is one segment (more segments than asked)."""
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.core.inspect import connected_components
+    from shape_toolkit.results.labels import ConstraintError, coerce_constraints, vertex_to_face_labels
+
+    if not shape.is_mesh:
+        return None
+    n_all, comp = connected_components(shape)
+    if n_all < 2:
+        return None
+    cons = coerce_constraints(constraints, shape.n_vertices)
+    if cons is not None and len(cons.must_link):
+        across = np.flatnonzero(comp[cons.must_link[:, 0]] != comp[cons.must_link[:, 1]])
+        if len(across):
+            raise ConstraintError(f"must_link[{int(across[0])}] = {cons.must_link[across[0]].tolist()} joins two "
+                                  "separate mesh components, which are segmented one by one")
+    faced = np.unique(comp[shape.faces[:, 0]])  # components with faces, in order of their lowest vertex
+    n_comp = len(faced)
+    comp_of = np.full(n_all, -1, dtype=np.int64)
+    comp_of[faced] = np.arange(n_comp)
+    vcomp = comp_of[comp]  # -1: a vertex on no face
+    face_comp = vcomp[shape.faces[:, 0]]
+    areas = np.bincount(face_comp, weights=shape.face_areas, minlength=n_comp)
+    clicked = np.zeros(n_comp, dtype=np.int64)
+    if cons is not None:
+        for g in must_link_groups(cons.must_link):
+            if vcomp[g[0]] >= 0:
+                clicked[vcomp[g[0]]] += 1
+    corner = np.full((n_comp, 3), np.inf)
+    np.minimum.at(corner, vcomp[vcomp >= 0], shape.vertices[vcomp >= 0])
+    k = check_n_segments(getattr(seg, "n_segments", None), shape.n_vertices, allow_none=True)
+    share = (segments_per_component(k, areas, clicked, corner) if k is not None
+             else np.full(n_comp, -1, dtype=np.int64))  # -1: the segmenter chooses per component
+    labels = np.full(shape.n_vertices, -1, dtype=np.int64)
+    face_labels = np.zeros(shape.n_faces, dtype=np.int64)
+    offset = 0
+    for c in range(n_comp):
+        sub, keep = shape.submesh(np.flatnonzero(vcomp == c))
+        fmask = face_comp == c  # submesh keeps this component's faces in their original order
+        if share[c] == 1:
+            labels[keep], face_labels[fmask] = offset, offset
+            offset += 1
+            continue
+        sub_cons = None
+        if cons is not None:
+            new = np.full(shape.n_vertices, -1, dtype=np.int64)
+            new[keep] = np.arange(len(keep))
+            pairs = [p[(vcomp[p[:, 0]] == c) & (vcomp[p[:, 1]] == c)] for p in (cons.must_link, cons.cannot_link)]
+            sub_cons = type(cons)(new[pairs[0]], new[pairs[1]])
+        params = seg.get_params(deep=False)
+        if share[c] > 0:
+            params["n_segments"] = int(share[c])
+        part = type(seg)(**params)
+        vl = np.asarray(part.segment(sub, constraints=sub_cons), dtype=np.int64)
+        fl = getattr(part, "face_labels_", None)
+        fl = np.asarray(fl, dtype=np.int64) if fl is not None and len(fl) == sub.n_faces else \
+            vertex_to_face_labels(sub.faces, vl)
+        labels[keep], face_labels[fmask] = vl + offset, fl + offset
+        offset += int(max(vl.max(), fl.max()) + 1)
+    lone = labels < 0
+    if lone.any():
+        ok = np.flatnonzero(~lone)
+        labels[lone] = labels[ok[cKDTree(shape.vertices[ok]).query(shape.vertices[lone])[1]]]
+    ids = np.unique(np.r_[face_labels, labels])  # one consecutive numbering for faces and vertices
+    seg.face_labels_ = np.searchsorted(ids, face_labels).astype(np.int64)
+    seg.n_components_ = int(n_comp)
+    seg.segments_per_component_ = share.tolist()
+    out = np.searchsorted(ids, labels).astype(np.int64)
+    seg.n_segments_ = int(len(np.unique(out)))
+    return out

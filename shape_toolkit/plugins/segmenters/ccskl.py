@@ -30,6 +30,7 @@ from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
     kmeans_labels,
     row_normalize,
+    segment_per_component,
     segmenter_spec,
 )
 from shape_toolkit.results.labels import coerce_constraints
@@ -89,7 +90,10 @@ class CCSKL(Segmenter):
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1``; ``constraints``: Constraints, dict or JSON path."""
+        """int64 labels ``(n,)`` in ``0..k-1``; ``constraints``: Constraints, dict or JSON path. A mesh of
+        several components is segmented component by component (:func:`segment_per_component`)."""
+        if (split := segment_per_component(self, shape, constraints)) is not None:
+            return split
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=False)
         m = self.n_eigenvectors

@@ -95,6 +95,7 @@ from shape_toolkit.plugins.segmenters._common import (
     laplacian_embedding_of,
     must_link_groups,
     seeded_kmeans_labels,
+    segment_per_component,
     segmenter_spec,
     split_by_normalized_cuts,
 )
@@ -301,7 +302,10 @@ class ConstrainedSpectralClustering(Segmenter):
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
         """int64 labels ``(n,)`` in ``0..k-1``; ``constraints``: Constraints, dict or JSON path. With
-        ``graph="dual"`` the clustering is per face (``face_labels_``)."""
+        ``graph="dual"`` the clustering is per face (``face_labels_``). A mesh of several components is
+        segmented component by component (:func:`segment_per_component`)."""
+        if (split := segment_per_component(self, shape, constraints)) is not None:
+            return split
         dual = self._graph(shape) == "dual"
         n = shape.n_faces if dual else shape.n_vertices
         # per-vertex labels are returned: at most n_vertices segments on either graph

@@ -36,6 +36,7 @@ from shape_toolkit.plugins.segmenters._common import (
     canonical_order,
     check_n_segments,
     fit_predict_invariant,
+    segment_per_component,
     segmenter_spec,
     single_thread,
 )
@@ -169,7 +170,10 @@ class EigvecGMMSegmenter(Segmenter):
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised method)."""
+        """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised method). A mesh of
+        several components is segmented component by component (:func:`segment_per_component`)."""
+        if (split := segment_per_component(self, shape, None)) is not None:
+            return split
         with single_thread(), warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)
             return self._segment(shape, spectrum)

@@ -30,6 +30,7 @@ from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
     kmeans_labels,
     row_normalize,
+    segment_per_component,
     segmenter_spec,
 )
 from shape_toolkit.validation import seed_of
@@ -87,7 +88,10 @@ class SpectralClustering(Segmenter):
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised baseline)."""
+        """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised baseline). A mesh
+        of several components is segmented component by component (:func:`segment_per_component`)."""
+        if (split := segment_per_component(self, shape, None)) is not None:
+            return split
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=True)
         kmax = self._kmax(n)
