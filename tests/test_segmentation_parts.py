@@ -442,7 +442,11 @@ def test_segments_per_component_by_area_clicks_and_ties():
     assert segments_per_component(12, np.array([4.0, 1.0]), np.array([2, 5]), keys).tolist() == [6, 6]
     # 1 + 7.5 and 1 + 2.5: the tied remainder goes to the larger area
     assert segments_per_component(12, np.array([3.0, 1.0]), np.array([0, 0]), keys).tolist() == [9, 3]
-    assert segments_per_component(1, np.array([4.0, 1.0]), np.array([0, 0]), keys).tolist() == [1, 1]
+    # more components than segments: by area from zero, a small one joins a neighbour (debris)
+    assert segments_per_component(2, np.array([8.0, 1.0, 1.0]), np.array([0, 0, 0]), np.zeros((3, 3))).tolist() \
+        == [2, 0, 0]
+    assert segments_per_component(2, np.array([8.0, 1.0, 1.0]), np.array([0, 0, 3]), np.zeros((3, 3))).tolist() \
+        == [0, 0, 3]  # clicks are kept even beyond k
     # a tie in area goes to the smaller key, whatever the order of the components
     assert segments_per_component(3, np.array([1.0, 1.0]), np.array([0, 0]), keys).tolist() == [2, 1]
     assert segments_per_component(3, np.array([1.0, 1.0]), np.array([0, 0]), keys[::-1]).tolist() == [1, 2]
@@ -494,8 +498,19 @@ def test_components_with_a_must_link_across_and_lone_vertices():
     assert labels[-2:].tolist() == labels[:2].tolist() and len(np.unique(labels)) == 6
     with pytest.raises(ParameterError):  # n_segments = 1 is refused as before, not hidden by the split
         create_plugin("segmenters", "spectral-clustering", n_segments=1).segment(shape)
-    three = Shape(np.vstack([shape.vertices, a.shape.vertices - [5.0, 0, 0]]),
-                  np.vstack([shape.faces, a.shape.faces + shape.n_vertices]))
+    n = a.shape.n_vertices
+    three = Shape(np.vstack([a.shape.vertices + [x, 0, 0] for x in (0.0, 5.0, -5.0)]),
+                  np.vstack([a.shape.faces + i * n for i in range(3)]))
     seg = create_plugin("segmenters", "spectral-clustering", n_segments=2)
-    labels = seg.segment(three)  # more components than segments: one segment per component
-    assert seg.segments_per_component_ == [1, 1, 1] and len(np.unique(labels)) == 3
+    labels = seg.segment(three)  # three equal components for two segments: a tie, broken by position
+    assert seg.segments_per_component_ == [1, 0, 1] and len(np.unique(labels)) == 2
+    assert set(labels[n:2 * n]) == set(labels[:n]) != set(labels[2 * n:])  # x = 5 joins its nearest, x = 0
+    # a body and 300 tiny separate pieces: the body gets the segments, the pieces join it
+    tet = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]) * 0.01
+    pieces = Shape(np.vstack([a.shape.vertices] + [tet + [3 + 0.02 * i, 0, 0] for i in range(300)]),
+                   np.vstack([a.shape.faces] + [np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]) + n + 4 * i
+                                                 for i in range(300)]))
+    seg = create_plugin("segmenters", "spectral-clustering", n_segments=6)
+    labels = seg.segment(pieces)
+    assert seg.segments_per_component_[0] == 6 and len(np.unique(labels)) == 6 and len(seg.face_labels_) == \
+        pieces.n_faces

@@ -444,12 +444,15 @@ def merge_to_segments(
 
 
 def segments_per_component(k: int, areas: np.ndarray, minimum: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """How many of ``k`` segments each mesh component gets, int64 ``(c,)``: at least ``minimum[i]``
-    (1, or its number of clicked parts), the rest shared in proportion to the components' ``areas``
-    by largest remainder (ties: larger area, then the smaller row of ``keys`` ``(c, d)``, e.g. each
-    component's lowest corner, so the share does not depend on the vertex order). When the minima
-    already exceed ``k`` the result is the minima (one segment per component at least)."""
-    base = np.maximum(np.asarray(minimum, dtype=np.int64), 1)
+    """How many of ``k`` segments each mesh component gets, int64 ``(c,)``: at least ``minimum[i]`` (its
+    clicked parts), and at least one while there are no more components than ``k``; the rest shared in
+    proportion to the components' ``areas`` by largest remainder (ties: larger area, then the smaller row
+    of ``keys`` ``(c, d)``, e.g. each component's lowest corner, so the share does not depend on the vertex
+    order). With more components than ``k`` a small one may get 0 (it joins a neighbour: debris); when
+    the clicked parts alone exceed ``k`` the result is the minima."""
+    base = np.maximum(np.asarray(minimum, dtype=np.int64), 0)
+    if len(base) <= k:
+        base = np.maximum(base, 1)
     extra = int(k) - int(base.sum())
     if extra <= 0:
         return base
@@ -466,13 +469,13 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarra
     """Vertex labels ``(n,)`` of a mesh made of several connected components, each segmented on its own
     by a copy of the segmenter ``seg`` (its parameters, ``n_segments`` set per component by
     :func:`segments_per_component`: by area, and never fewer than the parts clicked on it), labels
-    numbered component after component; vertices on no face take their nearest vertex's label. None
-    for a connected mesh without such vertices, or a point cloud (segment as usual). A component given
-    one segment is not segmented. Constraints are split with the components: a cannot-link across two
+    numbered component after component; vertices on no face, and components given no segment (more
+    components than ``n_segments``: debris), take their nearest segmented vertex's label. None for a
+    connected mesh without such vertices, or a point cloud (segment as usual). A component given one
+    segment is not segmented. Constraints are split with the components: a cannot-link across two
     is met by construction, a must-link across two raises
     :class:`~shape_toolkit.results.labels.ConstraintError`. Sets ``face_labels_`` ``(m,)``,
-    ``n_segments_``, ``n_components_`` and ``segments_per_component_`` on ``seg``. With more components
-    than ``n_segments``, every component is one segment (more segments than asked)."""
+    ``n_segments_``, ``n_components_`` and ``segments_per_component_`` on ``seg``."""
     from scipy.spatial import cKDTree
 
     from shape_toolkit.core.inspect import connected_components
@@ -505,17 +508,18 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarra
     np.minimum.at(corner, vcomp[vcomp >= 0], shape.vertices[vcomp >= 0])
     k = check_n_segments(getattr(seg, "n_segments", None), shape.n_vertices, allow_none=True)
     share = (segments_per_component(k, areas, clicked, corner) if k is not None
-             else np.full(n_comp, -1, dtype=np.int64))  # -1: the segmenter chooses per component
+             else np.full(n_comp, 2, dtype=np.int64))  # n_segments None: each component is segmented
+    # a component of one segment is that segment (numbered after the others; vectorised, as a mesh may
+    # hold thousands of such pieces)
+    rank = np.full(n_comp + 1, -1, dtype=np.int64)  # index n_comp: vertices on no face (vcomp = -1)
+    single = np.flatnonzero(share == 1)
+    rank[single] = np.arange(len(single))
     labels = np.full(shape.n_vertices, -1, dtype=np.int64)
     face_labels = np.zeros(shape.n_faces, dtype=np.int64)
     offset = 0
-    for c in range(n_comp):
+    for c in np.flatnonzero(share > 1):
         sub, keep = shape.submesh(np.flatnonzero(vcomp == c))
         fmask = face_comp == c  # submesh keeps this component's faces in their original order
-        if share[c] == 1:
-            labels[keep], face_labels[fmask] = offset, offset
-            offset += 1
-            continue
         sub_cons = None
         if cons is not None:
             new = np.full(shape.n_vertices, -1, dtype=np.int64)
@@ -523,7 +527,7 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarra
             pairs = [p[(vcomp[p[:, 0]] == c) & (vcomp[p[:, 1]] == c)] for p in (cons.must_link, cons.cannot_link)]
             sub_cons = type(cons)(new[pairs[0]], new[pairs[1]])
         params = seg.get_params(deep=False)
-        if share[c] > 0:
+        if k is not None:
             params["n_segments"] = int(share[c])
         part = type(seg)(**params)
         vl = np.asarray(part.segment(sub, constraints=sub_cons), dtype=np.int64)
@@ -532,14 +536,20 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarra
             vertex_to_face_labels(sub.faces, vl)
         labels[keep], face_labels[fmask] = vl + offset, fl + offset
         offset += int(max(vl.max(), fl.max()) + 1)
+    in_single = rank[vcomp] >= 0
+    labels[in_single] = offset + rank[vcomp[in_single]]
+    f_single = rank[face_comp] >= 0
+    face_labels[f_single] = offset + rank[face_comp[f_single]]
     lone = labels < 0
     if lone.any():
         ok = np.flatnonzero(~lone)
         labels[lone] = labels[ok[cKDTree(shape.vertices[ok]).query(shape.vertices[lone])[1]]]
+        joined = share[face_comp] == 0
+        face_labels[joined] = labels[shape.faces[joined, 0]]
     ids = np.unique(np.r_[face_labels, labels])  # one consecutive numbering for faces and vertices
     seg.face_labels_ = np.searchsorted(ids, face_labels).astype(np.int64)
     seg.n_components_ = int(n_comp)
-    seg.segments_per_component_ = share.tolist()
+    seg.segments_per_component_ = share.tolist() if k is not None else None
     out = np.searchsorted(ids, labels).astype(np.int64)
     seg.n_segments_ = int(len(np.unique(out)))
     return out
