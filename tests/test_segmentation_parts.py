@@ -446,7 +446,7 @@ def test_segments_per_component_by_area_clicks_and_ties():
     assert segments_per_component(2, np.array([8.0, 1.0, 1.0]), np.array([0, 0, 0]), np.zeros((3, 3))).tolist() \
         == [2, 0, 0]
     assert segments_per_component(2, np.array([8.0, 1.0, 1.0]), np.array([0, 0, 3]), np.zeros((3, 3))).tolist() \
-        == [0, 0, 3]  # clicks are kept even beyond k
+        == [0, 0, 2]  # clicks beyond k: shared in proportion (the segmenter merges clicked parts)
     # a tie in area goes to the smaller key, whatever the order of the components
     assert segments_per_component(3, np.array([1.0, 1.0]), np.array([0, 0]), keys).tolist() == [2, 1]
     assert segments_per_component(3, np.array([1.0, 1.0]), np.array([0, 0]), keys[::-1]).tolist() == [1, 2]
@@ -514,3 +514,62 @@ def test_components_with_a_must_link_across_and_lone_vertices():
     labels = seg.segment(pieces)
     assert seg.segments_per_component_[0] == 6 and len(np.unique(labels)) == 6 and len(seg.face_labels_) == \
         pieces.n_faces
+
+
+def _with_pieces(base: Shape, pieces: list[tuple[np.ndarray, np.ndarray]]) -> Shape:
+    V, F, n = [base.vertices], [base.faces], base.n_vertices
+    for v, f in pieces:
+        V.append(v)
+        F.append(f + n)
+        n += len(v)
+    return Shape(np.vstack(V), np.vstack(F))
+
+
+_TET = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
+        np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+
+
+def test_components_clicks_cannot_links_debris_and_small_pieces():
+    """The review's cases: more clicked parts than segments keep n_segments; a cannot-link is never
+    broken by the split; a piece too small to split is one segment; debris joins a neighbour whole."""
+    from shape_toolkit.results.labels import clicks_from_segmentation
+
+    a, _, shape, truth = _two_bodies()
+    n = a.shape.n_vertices
+    cons = clicks_from_segmentation(shape, truth, faces=False)  # 6 clicked parts on each body
+    seg = create_plugin("segmenters", "csc", n_segments=4)
+    labels = seg.segment(shape, constraints=cons)
+    assert seg.segments_per_component_ == [2, 2] and len(np.unique(labels)) == 4
+    # a large triangle of 3 vertices beside the body: one segment, no error about its size
+    tri = (np.array([[5.0, 0, 0], [9.0, 0, 0], [5.0, 4.0, 0]]), np.array([[0, 1, 2]]))
+    seg = create_plugin("segmenters", "spectral-clustering", n_segments=6)
+    labels = seg.segment(_with_pieces(a.shape, [tri]))
+    assert seg.segments_per_component_ == [5, 1] and len(np.unique(labels)) == 6
+    # three equal bodies, two segments: a cannot-link between the 1st and 2nd keeps both segmented
+    three = _with_pieces(a.shape, [(a.shape.vertices + [5.0, 0, 0], a.shape.faces),
+                                   (a.shape.vertices - [5.0, 0, 0], a.shape.faces)])
+    seg = create_plugin("segmenters", "csc", n_segments=2)
+    labels = seg.segment(three, constraints=Constraints([], [[0, n]]))
+    assert seg.segments_per_component_ == [1, 1, 0] and labels[0] != labels[n]
+    # ... and a cannot-link inside the first, with three segments, gives it two (CSC's cannot-links are
+    # soft within a component, so only the share is checked)
+    seg = create_plugin("segmenters", "csc", n_segments=3)
+    tip = int(np.flatnonzero(a.labels == 1)[0])
+    seg.segment(three, constraints=Constraints([], [[0, tip]]))
+    assert seg.segments_per_component_[0] == 2
+    # debris: two thin strips far from each other join, each whole, the segment nearest to them
+    strips = [(np.array([[x, 0, 0], [x + 0.01, 0, 0], [x, 0.01, 0], [x + 0.01, 0.01, 0]]),
+               np.array([[0, 1, 2], [1, 3, 2]])) for x in (3.0, -3.0)]
+    seg = create_plugin("segmenters", "spectral-clustering", n_segments=2)
+    labels = seg.segment(_with_pieces(a.shape, strips))
+    assert seg.segments_per_component_ == [2, 0, 0]
+    assert len(set(labels[n:n + 4])) == 1 and len(set(labels[n + 4:])) == 1
+    assert len(set(seg.face_labels_[a.shape.n_faces:a.shape.n_faces + 2])) == 1
+    # n_segments chosen by the method: small pieces are not split
+    tets = [(_TET[0] * 0.01 + [3 + 0.1 * i, 0, 0], _TET[1]) for i in range(5)]
+    seg = create_plugin("segmenters", "spectral-clustering")
+    labels = seg.segment(_with_pieces(a.shape, tets))
+    assert all(len(set(labels[n + 4 * i:n + 4 * i + 4])) == 1 for i in range(5))
+    # nothing of the split is left on the instance when it then segments a connected mesh
+    seg.segment(a.shape)
+    assert not hasattr(seg, "face_labels_") and not hasattr(seg, "segments_per_component_")

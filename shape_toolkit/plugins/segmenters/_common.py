@@ -443,49 +443,92 @@ def merge_to_segments(
     return rank[comp]
 
 
-def segments_per_component(k: int, areas: np.ndarray, minimum: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """How many of ``k`` segments each mesh component gets, int64 ``(c,)``: at least ``minimum[i]`` (its
-    clicked parts), and at least one while there are no more components than ``k``; the rest shared in
-    proportion to the components' ``areas`` by largest remainder (ties: larger area, then the smaller row
-    of ``keys`` ``(c, d)``, e.g. each component's lowest corner, so the share does not depend on the vertex
-    order). With more components than ``k`` a small one may get 0 (it joins a neighbour: debris); when
-    the clicked parts alone exceed ``k`` the result is the minima."""
-    base = np.maximum(np.asarray(minimum, dtype=np.int64), 0)
-    if len(base) <= k:
-        base = np.maximum(base, 1)
-    extra = int(k) - int(base.sum())
-    if extra <= 0:
-        return base
+#: a mesh component with fewer vertices or faces than this is never split (one segment at most)
+MIN_SPLIT_SIZE = 20
+
+
+def segments_per_component(
+    k: int,
+    areas: np.ndarray,
+    minimum: np.ndarray,
+    keys: np.ndarray,
+    capacity: np.ndarray | None = None,
+    required: np.ndarray | None = None,
+) -> np.ndarray:
+    """How many of ``k`` segments each mesh component gets, int64 ``(c,)``. ``required[i]`` is a hard
+    floor (what the constraints need: one for a component holding a constraint end, two for one holding
+    a cannot-link); ``minimum[i]`` (its clicked parts) and one per component while there are no more
+    components than ``k`` are wished for, and granted in proportion when they do not all fit; the rest
+    is shared in proportion to the components' ``areas`` by largest remainder. Never above ``capacity``
+    (what is left over goes to the others). Ties: larger area, then the smaller row of ``keys``
+    ``(c, d)``, e.g. each component's lowest corner, so the share does not depend on the vertex order.
+    With more components than ``k`` a small one may get 0 (it joins a neighbour: debris). Raises
+    :class:`ParameterError` when the hard floors exceed ``k``."""
     a = np.asarray(areas, dtype=np.float64)
-    quota = extra * a / a.sum() if a.sum() > 0 else np.full(len(a), extra / len(a))
-    out = base + np.floor(quota).astype(np.int64)
-    left = int(k - out.sum())
-    order = np.lexsort((*np.asarray(keys, dtype=np.float64).T[::-1], -a, -(quota - np.floor(quota))))
-    out[order[:left]] += 1
-    return out
+    c = len(a)
+    cap = np.full(c, int(k), dtype=np.int64) if capacity is None else np.minimum(np.asarray(capacity), int(k))
+    cap = np.maximum(cap, 1)
+    hard = np.zeros(c, dtype=np.int64) if required is None else np.minimum(np.asarray(required, dtype=np.int64), cap)
+    if hard.sum() > k:
+        raise ParameterError(f"the constraints need {int(hard.sum())} segments on separate mesh components, "
+                             f"more than n_segments = {k}")
+    wish = np.minimum(np.maximum(np.asarray(minimum, dtype=np.int64), hard), cap)
+    if c <= k:
+        wish = np.maximum(wish, 1)
+    keys = np.asarray(keys, dtype=np.float64)
+
+    def share(total: int, weight: np.ndarray, start: np.ndarray, limit: np.ndarray) -> np.ndarray:
+        """Largest remainder of ``total - start.sum()`` by ``weight``; a component whose quota would pass
+        its ``limit`` is held there and the quotas of the others computed again."""
+        out, active = start.copy(), start < limit
+        while True:
+            extra = int(total - out.sum())
+            if extra <= 0 or not active.any():
+                return out
+            w = np.where(active, weight, 0.0)
+            quota = extra * w / w.sum() if w.sum() > 0 else extra * active / active.sum()
+            over = active & (out + quota >= limit)
+            if over.any():
+                out[over], active = limit[over], active & ~over
+                continue
+            add = np.floor(quota).astype(np.int64)
+            frac = np.where(active, quota - add, -1.0)
+            order = np.lexsort((*keys.T[::-1], -w, -frac))
+            add[order[: extra - int(add.sum())]] += 1
+            return out + add
+
+    if wish.sum() > k:  # the wishes do not fit: the hard floors, then the rest in proportion to the wishes
+        return share(k, wish.astype(np.float64), hard, wish)
+    return share(k, a, wish, cap)
 
 
 def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarray | None:
-    """Vertex labels ``(n,)`` of a mesh made of several connected components, each segmented on its own
-    by a copy of the segmenter ``seg`` (its parameters, ``n_segments`` set per component by
-    :func:`segments_per_component`: by area, and never fewer than the parts clicked on it), labels
-    numbered component after component; vertices on no face, and components given no segment (more
-    components than ``n_segments``: debris), take their nearest segmented vertex's label. None for a
-    connected mesh without such vertices, or a point cloud (segment as usual). A component given one
-    segment is not segmented. Constraints are split with the components: a cannot-link across two
-    is met by construction, a must-link across two raises
-    :class:`~shape_toolkit.results.labels.ConstraintError`. Sets ``face_labels_`` ``(m,)``,
-    ``n_segments_``, ``n_components_`` and ``segments_per_component_`` on ``seg``."""
+    """Vertex labels ``(n,)`` of a mesh made of several connected components (or with vertices on no
+    face), each component segmented on its own by a copy of the segmenter ``seg`` with its share of
+    ``n_segments`` (:func:`segments_per_component`: by area; at least one for a component holding a
+    constraint end, two for one holding a cannot-link, and its clicked parts; a component of fewer than
+    ``MIN_SPLIT_SIZE`` vertices or faces is never split, larger ones at most one segment per
+    ``MIN_SPLIT_SIZE // 2``), labels numbered component after component. A component given no segment
+    (more components than ``n_segments``: debris) joins, whole, the segment of the segmented vertex
+    nearest to it; vertices on no face take their nearest vertex's. With ``n_segments`` None every
+    component that may be split is segmented by the segmenter's own choice. A must-link across two
+    components raises :class:`~shape_toolkit.results.labels.ConstraintError`. Returns None for a
+    connected mesh whose every vertex is on a face, or a point cloud (segment as usual). Sets
+    ``face_labels_`` ``(m,)``, ``n_segments_``, ``n_components_`` and ``segments_per_component_`` on
+    ``seg`` (and removes those left by a previous call when it returns None)."""
     from scipy.spatial import cKDTree
 
     from shape_toolkit.core.inspect import connected_components
     from shape_toolkit.results.labels import ConstraintError, coerce_constraints, vertex_to_face_labels
 
+    for name in ("face_labels_", "n_components_", "segments_per_component_"):  # none left from a previous call
+        vars(seg).pop(name, None)
     if not shape.is_mesh:
         return None
     n_all, comp = connected_components(shape)
     if n_all < 2:
         return None
+    k = check_n_segments(getattr(seg, "n_segments", None), shape.n_vertices, allow_none=True)
     cons = coerce_constraints(constraints, shape.n_vertices)
     if cons is not None and len(cons.must_link):
         across = np.flatnonzero(comp[cons.must_link[:, 0]] != comp[cons.must_link[:, 1]])
@@ -499,23 +542,34 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarra
     vcomp = comp_of[comp]  # -1: a vertex on no face
     face_comp = vcomp[shape.faces[:, 0]]
     areas = np.bincount(face_comp, weights=shape.face_areas, minlength=n_comp)
-    clicked = np.zeros(n_comp, dtype=np.int64)
+    size = np.minimum(np.bincount(vcomp[vcomp >= 0], minlength=n_comp), np.bincount(face_comp, minlength=n_comp))
+    capacity = np.where(size < MIN_SPLIT_SIZE, 1, size // (MIN_SPLIT_SIZE // 2))
+    clicked = np.zeros(n_comp, dtype=np.int64)  # must-link groups per component (wished for)
+    required = np.zeros(n_comp, dtype=np.int64)  # what the constraints need (hard)
     if cons is not None:
         for g in must_link_groups(cons.must_link):
             if vcomp[g[0]] >= 0:
                 clicked[vcomp[g[0]]] += 1
+        touched = vcomp[np.concatenate([cons.must_link.ravel(), cons.cannot_link.ravel()])]
+        required[touched[touched >= 0]] = 1
+        cl = cons.cannot_link
+        inside = vcomp[cl[:, 0]][(vcomp[cl[:, 0]] == vcomp[cl[:, 1]]) & (vcomp[cl[:, 0]] >= 0)]
+        required[inside] = 2
+        if (required > capacity).any():
+            c = int(np.flatnonzero(required > capacity)[0])
+            raise ConstraintError(f"a cannot-link inside a mesh component of {int(size[c])} vertices or faces, "
+                                  f"which is never split (fewer than {MIN_SPLIT_SIZE})")
     corner = np.full((n_comp, 3), np.inf)
     np.minimum.at(corner, vcomp[vcomp >= 0], shape.vertices[vcomp >= 0])
-    k = check_n_segments(getattr(seg, "n_segments", None), shape.n_vertices, allow_none=True)
-    share = (segments_per_component(k, areas, clicked, corner) if k is not None
-             else np.full(n_comp, 2, dtype=np.int64))  # n_segments None: each component is segmented
-    # a component of one segment is that segment (numbered after the others; vectorised, as a mesh may
-    # hold thousands of such pieces)
+    if k is not None:
+        share = segments_per_component(k, areas, clicked, corner, capacity, required)
+    else:  # the segmenter chooses, on every component that may be split
+        share = np.where(capacity > 1, 2, 1)
     rank = np.full(n_comp + 1, -1, dtype=np.int64)  # index n_comp: vertices on no face (vcomp = -1)
     single = np.flatnonzero(share == 1)
     rank[single] = np.arange(len(single))
     labels = np.full(shape.n_vertices, -1, dtype=np.int64)
-    face_labels = np.zeros(shape.n_faces, dtype=np.int64)
+    face_labels = np.full(shape.n_faces, -1, dtype=np.int64)
     offset = 0
     for c in np.flatnonzero(share > 1):
         sub, keep = shape.submesh(np.flatnonzero(vcomp == c))
@@ -536,20 +590,28 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarra
             vertex_to_face_labels(sub.faces, vl)
         labels[keep], face_labels[fmask] = vl + offset, fl + offset
         offset += int(max(vl.max(), fl.max()) + 1)
+    # a component of one segment is that segment (vectorised, as a mesh may hold thousands of pieces)
     in_single = rank[vcomp] >= 0
     labels[in_single] = offset + rank[vcomp[in_single]]
     f_single = rank[face_comp] >= 0
     face_labels[f_single] = offset + rank[face_comp[f_single]]
-    lone = labels < 0
+    lone = labels < 0  # debris (components given no segment) and vertices on no face
     if lone.any():
         ok = np.flatnonzero(~lone)
-        labels[lone] = labels[ok[cKDTree(shape.vertices[ok]).query(shape.vertices[lone])[1]]]
-        joined = share[face_comp] == 0
-        face_labels[joined] = labels[shape.faces[joined, 0]]
+        dist, j = cKDTree(shape.vertices[ok]).query(shape.vertices[lone])
+        got = labels[ok[j]]
+        lone_ids = np.flatnonzero(lone)
+        piece = np.where(vcomp[lone_ids] >= 0, vcomp[lone_ids], n_comp + np.arange(len(lone_ids)))
+        order = np.lexsort((dist, piece))  # per piece, its vertex nearest to a segmented one first
+        first = np.r_[True, piece[order][1:] != piece[order][:-1]]
+        best = dict(zip(piece[order][first].tolist(), got[order][first].tolist()))
+        labels[lone_ids] = [best[p] for p in piece.tolist()]
+        debris = face_labels < 0
+        face_labels[debris] = [best[p] for p in face_comp[debris].tolist()]
     ids = np.unique(np.r_[face_labels, labels])  # one consecutive numbering for faces and vertices
     seg.face_labels_ = np.searchsorted(ids, face_labels).astype(np.int64)
     seg.n_components_ = int(n_comp)
     seg.segments_per_component_ = share.tolist() if k is not None else None
     out = np.searchsorted(ids, labels).astype(np.int64)
-    seg.n_segments_ = int(len(np.unique(out)))
+    seg.n_segments_ = int(len(ids))
     return out
