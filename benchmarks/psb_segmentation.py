@@ -77,6 +77,7 @@ from shape_toolkit.metrics.segmentation import (  # noqa: E402
     rand_index_error,
     segmentation_scores,
 )
+from shape_toolkit.plugins.segmenters._common import face_labels_of  # noqa: E402
 from shape_toolkit.results.labels import clicks_from_segmentation, vertex_to_face_labels  # noqa: E402
 from shape_toolkit.validation import jsonable  # noqa: E402
 
@@ -312,13 +313,6 @@ def _make(plugin: str, params: dict, k: int, seed: int, tuned: dict):
     return create_plugin("segmenters", plugin, **{p: v for p, v in full.items() if p in ok or p in params})
 
 
-def _face_prediction(seg, shape, labels) -> np.ndarray:
-    fl = getattr(seg, "face_labels_", None)
-    if fl is not None and len(fl) == shape.n_faces:
-        return np.asarray(fl)
-    return vertex_to_face_labels(shape.faces, labels)
-
-
 def _cat_mean(errs: dict[str, float]) -> float:
     """Mean over categories of the per-category mean of ``{mesh id: error}``."""
     cats: dict[str, list[float]] = {}
@@ -412,7 +406,7 @@ def _loo_rows(rows, shape, truths, methods, plugins, spectra, k, seed, tuned, we
             except Exception as exc:  # recorded as a failure of the loo row
                 rows[f"{name}-loo"] = {"error": f"{type(exc).__name__}: {exc}", "seconds": 0.0}
                 continue
-            per_name.setdefault(f"{name}-loo", []).append(ri(_face_prediction(seg, shape, labels)))
+            per_name.setdefault(f"{name}-loo", []).append(ri(face_labels_of(seg, shape.faces, labels)))
     for name, vals in per_name.items():
         if name in rows:
             continue
@@ -478,7 +472,7 @@ def run_mesh(psb: Path, mesh_id: str, seed: int, log, methods=None, tuned: dict 
             rows[name] = {"error": error, "seconds": dt}
             log(f"  {mesh_id:>4s} {name:26s} FAILED: {error}")
             continue
-        pred = _face_prediction(seg, shape, labels)
+        pred = face_labels_of(seg, shape.faces, labels)
         ref = truths[1:] if cmode and len(truths) > 1 else truths
         sc = _scores(pred, ref, shape, weights)
         rows[name] = dict(sc)

@@ -27,7 +27,8 @@ from shape_toolkit.cli.commands._common import (
 )
 from shape_toolkit.data.datasets import write_labels
 from shape_toolkit.io.mesh import load_shape
-from shape_toolkit.results.labels import load_constraints, vertex_to_face_labels
+from shape_toolkit.plugins.segmenters._common import face_labels_of
+from shape_toolkit.results.labels import load_constraints
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -89,10 +90,8 @@ def run(args: argparse.Namespace) -> int:
         st.update(f"segment: {args.method}")
         labels = seg.segment(shape, spectrum=spectra, constraints=constraints)
     elapsed = time.perf_counter() - t0
-    written = labels
-    if args.faces:  # a segmenter that works per face (dual graph) keeps its own face labels
-        own = getattr(seg, "face_labels_", None)
-        written = own if own is not None and len(own) == shape.n_faces else vertex_to_face_labels(shape.faces, labels)
+    # a segmenter that works per face (dual graph) keeps its own face labels
+    written = face_labels_of(seg, shape.faces, labels) if args.faces else labels
     write_labels(out, written)
     from shape_toolkit.io.viz import label_colors
 

@@ -17,7 +17,7 @@ from threadpoolctl import threadpool_limits
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import SpectrumSpec, default_spec, fix_signs
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.results.labels import face_to_vertex_labels, relabel_consecutive
+from shape_toolkit.results.labels import face_to_vertex_labels, relabel_consecutive, vertex_to_face_labels
 
 
 def check_n_segments(k: Any, n: int, *, allow_none: bool) -> int | None:
@@ -363,6 +363,16 @@ def laplacian_embedding_of(W: sp.csr_matrix, k: int) -> tuple[np.ndarray, np.nda
     return vals[1:], vecs[:, 1:]
 
 
+def face_labels_of(seg: Any, faces: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Per-face labels int64 ``(m,)`` of the segmentation ``seg`` just made of a mesh with ``(m, 3)``
+    ``faces``: its own ``face_labels_`` when it segments faces (dual graph, graph cut), else the
+    majority of each face's vertex ``labels`` ``(n,)``."""
+    own = getattr(seg, "face_labels_", None)
+    if own is not None and len(own) == len(faces):
+        return np.asarray(own, dtype=np.int64)
+    return vertex_to_face_labels(faces, labels)
+
+
 def face_segments_to_vertices(shape: Shape, face_labels: np.ndarray) -> np.ndarray:
     """Per-vertex labels ``(n,)`` from face labels ``(m,)``: the label of the largest incident area;
     vertices in no face take their nearest vertex's (what :meth:`Segmenter.segment` returns for a
@@ -519,7 +529,7 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarra
     from scipy.spatial import cKDTree
 
     from shape_toolkit.core.inspect import connected_components
-    from shape_toolkit.results.labels import ConstraintError, coerce_constraints, vertex_to_face_labels
+    from shape_toolkit.results.labels import ConstraintError, coerce_constraints
 
     for name in ("face_labels_", "n_components_", "segments_per_component_"):  # none left from a previous call
         vars(seg).pop(name, None)
@@ -585,9 +595,7 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarra
             params["n_segments"] = int(share[c])
         part = type(seg)(**params)
         vl = np.asarray(part.segment(sub, constraints=sub_cons), dtype=np.int64)
-        fl = getattr(part, "face_labels_", None)
-        fl = np.asarray(fl, dtype=np.int64) if fl is not None and len(fl) == sub.n_faces else \
-            vertex_to_face_labels(sub.faces, vl)
+        fl = face_labels_of(part, sub.faces, vl)
         labels[keep], face_labels[fmask] = vl + offset, fl + offset
         offset += int(max(vl.max(), fl.max()) + 1)
     # a component of one segment is that segment (vectorised, as a mesh may hold thousands of pieces)

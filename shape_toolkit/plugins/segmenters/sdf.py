@@ -39,9 +39,8 @@ from shape_toolkit.api.interfaces import BasePlugin, Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, dual_adjacency, dual_graph, smooth_labels
+from shape_toolkit.plugins.segmenters._common import face_labels_of, merge_to_segments
 from shape_toolkit.plugins.segmenters._common import face_segments_to_vertices as _vertex_labels
-from shape_toolkit.plugins.segmenters._common import merge_to_segments
-from shape_toolkit.results.labels import vertex_to_face_labels
 from shape_toolkit.validation import seed_of
 
 _GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
@@ -311,9 +310,7 @@ class SmoothedSegmenter(Segmenter):
         faces = shape.require_faces("label smoothing")
         b = self._make_base()
         vl = b.segment(shape, spectrum=spectrum, constraints=constraints)
-        fl0 = getattr(b, "face_labels_", None)
-        if fl0 is None or len(fl0) != len(faces):
-            fl0 = vertex_to_face_labels(faces, vl)
+        fl0 = face_labels_of(b, faces, vl)
         fl = smooth_labels(shape, fl0, None, float(self.smoothing_lambda), on="faces", spread=int(self.spread),
                            convex_factor=float(self.convex_factor), geometric=bool(self.geometric))
         self.base_ = b
