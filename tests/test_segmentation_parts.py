@@ -487,6 +487,44 @@ def test_a_mesh_of_two_components_is_segmented_component_by_component(name):
     assert rand_index_error(again[inv], labels) == 0.0
 
 
+def test_csc_on_the_dual_graph_segments_two_bodies_meeting_at_one_vertex():
+    """A "bowtie": two bodies sharing one vertex are one vertex component but two pieces of the dual graph
+    (no shared edge), and CSC on the dual graph (its default) raised DisconnectedGraphError. Each piece
+    is now segmented as if it were alone."""
+    from shape_toolkit.results.labels import clicks_from_segmentation
+
+    a, b, _, _ = _two_bodies()
+    na, fa = a.shape.n_vertices, a.shape.n_faces
+    ia, ib = int(np.argmax(a.shape.vertices[:, 0])), int(np.argmin(b.shape.vertices[:, 0]))
+    vb = b.shape.vertices + (a.shape.vertices[ia] - b.shape.vertices[ib])
+    idx = np.r_[np.arange(ib), -1, np.arange(ib, b.shape.n_vertices - 1)] + na  # b's vertices after a's
+    idx[ib] = ia  # the joint: b's vertex ib is a's vertex ia
+    shape = Shape(np.vstack([a.shape.vertices, np.delete(vb, ib, axis=0)]),
+                  np.vstack([a.shape.faces, idx[b.shape.faces]]))
+    from shape_toolkit.core.inspect import connected_components
+
+    assert connected_components(shape)[0] == 1
+    truth = np.r_[a.labels, np.delete(b.labels, ib) + 6]
+    cons = clicks_from_segmentation(shape, truth, faces=False)
+    seg = create_plugin("segmenters", "csc", n_segments=12)
+    labels = seg.segment(shape, constraints=cons)
+    assert seg.n_components_ == 2 and seg.segments_per_component_ == [6, 6] and len(np.unique(seg.face_labels_)) == 12
+    assert labels.max() < 12 and (labels >= 0).all()
+    assert not set(seg.face_labels_[:fa]) & set(seg.face_labels_[fa:])
+    alone = create_plugin("segmenters", "csc", n_segments=6)
+    inside = (cons.must_link < na).all(axis=1) & (cons.must_link != ia).all(axis=1)
+    sub_cons = Constraints(cons.must_link[inside], cons.cannot_link[(cons.cannot_link < na).all(axis=1)])
+    alone.segment(a.shape, constraints=sub_cons)
+    assert rand_index_error(seg.face_labels_[:fa], alone.face_labels_) == 0.0
+    # vertex order: a permuted mesh gives the permuted segmentation
+    perm = np.random.default_rng(0).permutation(shape.n_vertices)
+    inv = np.argsort(perm)
+    again = create_plugin("segmenters", "csc", n_segments=12)
+    again.segment(Shape(shape.vertices[perm], inv[shape.faces]),
+                  constraints=Constraints(inv[cons.must_link], inv[cons.cannot_link]))
+    assert rand_index_error(again.face_labels_, seg.face_labels_) == 0.0
+
+
 def test_components_with_a_must_link_across_and_lone_vertices():
     a, _, shape, truth = _two_bodies()
     seg = create_plugin("segmenters", "csc", n_segments=12)

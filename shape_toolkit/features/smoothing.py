@@ -58,8 +58,8 @@ EPS = 5e-6
 def dual_graph(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The mesh's dual graph.
 
-    Returns ``pairs`` int64 ``(p, 2)`` (face ids ``f < g`` sharing an edge; around a non-manifold edge
-    every pair of its faces), ``edges`` int64 ``(p, 2)`` (the shared mesh edge, vertex ids ``i < j``)
+    Returns ``pairs`` int64 ``(p, 2)`` (face ids ``f < g`` sharing an edge, sorted; around a non-manifold
+    edge every pair of its faces), ``edges`` int64 ``(p, 2)`` (the shared mesh edge, vertex ids ``i < j``)
     and ``consistent`` bool ``(p,)`` (the two faces run through the shared edge in opposite directions,
     i.e. they are consistently oriented). Edges of degenerate faces with a repeated vertex are skipped.
     """
@@ -98,7 +98,9 @@ def dual_graph(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     pairs, edges, cons = pairs[keep], edges[keep], cons[keep]
     swap = pairs[:, 0] > pairs[:, 1]
     pairs[swap] = pairs[swap][:, ::-1]
-    return pairs, edges, cons
+    # in face order, so that the output (and every sum over it) is the same whatever the vertex numbering
+    order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+    return pairs[order], edges[order], cons[order]
 
 
 def _opposite(faces: np.ndarray, fids: np.ndarray, edges: np.ndarray) -> np.ndarray:

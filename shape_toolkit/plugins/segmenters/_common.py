@@ -512,47 +512,84 @@ def segments_per_component(
     return share(k, a, wish, cap)
 
 
-def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarray | None:
+def first_face_of_vertex(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """The incident face of smallest index of every vertex, int64 ``(n,)`` (-1 for a vertex in no face):
+    the face standing for a clicked vertex on the dual graph."""
+    big = np.iinfo(np.int64).max
+    out = np.full(n_vertices, big, dtype=np.int64)
+    ids = np.arange(len(faces), dtype=np.int64)
+    for j in range(3):
+        np.minimum.at(out, np.asarray(faces)[:, j], ids)
+    out[out == big] = -1
+    return out
+
+
+def _mesh_pieces(shape: Shape, by_faces: bool) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(face_piece (m,), vertex_piece (n,), count)``: the connected pieces a segmenter sees, numbered in
+    order of their lowest vertex (vertex graph) or lowest face (``by_faces``: the dual graph, where faces
+    meeting only at a vertex are apart; a vertex belongs to the piece of :func:`first_face_of_vertex`).
+    A vertex in no face is in piece -1."""
+    if by_faces:
+        from scipy.sparse.csgraph import connected_components as graph_components
+
+        from shape_toolkit.features.smoothing import dual_graph
+
+        m = shape.n_faces
+        pairs = dual_graph(shape.faces)[0]
+        adj = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
+        count, face_piece = graph_components(adj, directed=False)
+        first = first_face_of_vertex(shape.faces, shape.n_vertices)
+        vertex_piece = np.where(first >= 0, face_piece[np.maximum(first, 0)], -1)
+        return face_piece.astype(np.int64), vertex_piece.astype(np.int64), int(count)
+    from shape_toolkit.core.inspect import connected_components
+
+    n_all, comp = connected_components(shape)
+    faced = np.unique(comp[shape.faces[:, 0]])  # components with faces, in order of their lowest vertex
+    comp_of = np.full(n_all, -1, dtype=np.int64)
+    comp_of[faced] = np.arange(len(faced))
+    vertex_piece = comp_of[comp]
+    return vertex_piece[shape.faces[:, 0]], vertex_piece, len(faced)
+
+
+def segment_per_component(seg: Any, shape: Shape, constraints: Any, *, by_faces: bool = False) -> np.ndarray | None:
     """Vertex labels ``(n,)`` of a mesh made of several connected components (or with vertices on no
     face), each component segmented on its own by a copy of the segmenter ``seg`` with its share of
     ``n_segments`` (:func:`segments_per_component`: by area; at least one for a component holding a
     constraint end, two for one holding a cannot-link, and its clicked parts; a component of fewer than
     ``MIN_SPLIT_SIZE`` vertices or faces is never split, larger ones at most one segment per
     ``MIN_SPLIT_SIZE // 2``), labels numbered component after component. A component given no segment
-    (more components than ``n_segments``: debris) joins, whole, the segment of the segmented vertex
-    nearest to it; vertices on no face take their nearest vertex's. With ``n_segments`` None every
-    component that may be split is segmented by the segmenter's own choice. A must-link across two
-    components raises :class:`~shape_toolkit.results.labels.ConstraintError`. Returns None for a
-    connected mesh whose every vertex is on a face, or a point cloud (segment as usual). Sets
-    ``face_labels_`` ``(m,)``, ``n_segments_``, ``n_components_`` and ``segments_per_component_`` on
-    ``seg`` (and removes those left by a previous call when it returns None)."""
+    (more components than ``n_segments``: debris) joins, whole, the segment nearest to it; vertices on no
+    face take their nearest vertex's. ``by_faces``: for a segmenter of the dual graph, components are
+    those of the dual graph (faces meeting only at a vertex, a "bowtie", are apart; a vertex goes with its
+    :func:`first_face_of_vertex`) and vertex labels come from the face labels
+    (:func:`face_segments_to_vertices`). With ``n_segments`` None every component that may be split is
+    segmented by the segmenter's own choice. A must-link across two components raises
+    :class:`~shape_toolkit.results.labels.ConstraintError`. Returns None for a connected mesh whose every
+    vertex is on a face, or a point cloud (segment as usual). Sets ``face_labels_`` ``(m,)``,
+    ``n_segments_``, ``n_components_`` and ``segments_per_component_`` on ``seg`` (and removes those left
+    by a previous call when it returns None)."""
     from scipy.spatial import cKDTree
 
-    from shape_toolkit.core.inspect import connected_components
     from shape_toolkit.results.labels import ConstraintError, coerce_constraints
 
     for name in ("face_labels_", "n_components_", "segments_per_component_"):  # none left from a previous call
         vars(seg).pop(name, None)
     if not shape.is_mesh:
         return None
-    n_all, comp = connected_components(shape)
-    if n_all < 2:
+    face_comp, vcomp, n_comp = _mesh_pieces(shape, by_faces)
+    if n_comp < 2 and (vcomp >= 0).all():
         return None
     k = check_n_segments(getattr(seg, "n_segments", None), shape.n_vertices, allow_none=True)
     cons = coerce_constraints(constraints, shape.n_vertices)
     if cons is not None and len(cons.must_link):
-        across = np.flatnonzero(comp[cons.must_link[:, 0]] != comp[cons.must_link[:, 1]])
+        across = np.flatnonzero(vcomp[cons.must_link[:, 0]] != vcomp[cons.must_link[:, 1]])
         if len(across):
             raise ConstraintError(f"must_link[{int(across[0])}] = {cons.must_link[across[0]].tolist()} joins two "
                                   "separate mesh components, which are segmented one by one")
-    faced = np.unique(comp[shape.faces[:, 0]])  # components with faces, in order of their lowest vertex
-    n_comp = len(faced)
-    comp_of = np.full(n_all, -1, dtype=np.int64)
-    comp_of[faced] = np.arange(n_comp)
-    vcomp = comp_of[comp]  # -1: a vertex on no face
-    face_comp = vcomp[shape.faces[:, 0]]
     areas = np.bincount(face_comp, weights=shape.face_areas, minlength=n_comp)
-    size = np.minimum(np.bincount(vcomp[vcomp >= 0], minlength=n_comp), np.bincount(face_comp, minlength=n_comp))
+    corner_comp = np.repeat(face_comp, 3)  # each component's vertices: those of its faces
+    used = np.unique(corner_comp * shape.n_vertices + shape.faces.ravel()) // shape.n_vertices
+    size = np.minimum(np.bincount(used, minlength=n_comp), np.bincount(face_comp, minlength=n_comp))
     capacity = np.where(size < MIN_SPLIT_SIZE, 1, size // (MIN_SPLIT_SIZE // 2))
     clicked = np.zeros(n_comp, dtype=np.int64)  # must-link groups per component (wished for)
     required = np.zeros(n_comp, dtype=np.int64)  # what the constraints need (hard)
@@ -570,7 +607,7 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarra
             raise ConstraintError(f"a cannot-link inside a mesh component of {int(size[c])} vertices or faces, "
                                   f"which is never split (fewer than {MIN_SPLIT_SIZE})")
     corner = np.full((n_comp, 3), np.inf)
-    np.minimum.at(corner, vcomp[vcomp >= 0], shape.vertices[vcomp >= 0])
+    np.minimum.at(corner, corner_comp, shape.vertices[shape.faces.ravel()])
     if k is not None:
         share = segments_per_component(k, areas, clicked, corner, capacity, required)
     else:  # the segmenter chooses, on every component that may be split
@@ -582,12 +619,14 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarra
     face_labels = np.full(shape.n_faces, -1, dtype=np.int64)
     offset = 0
     for c in np.flatnonzero(share > 1):
-        sub, keep = shape.submesh(np.flatnonzero(vcomp == c))
-        fmask = face_comp == c  # submesh keeps this component's faces in their original order
+        fmask = face_comp == c  # the component's faces, kept in their original order
+        keep = np.unique(shape.faces[fmask])
+        new = np.full(shape.n_vertices, -1, dtype=np.int64)
+        new[keep] = np.arange(len(keep))
+        colors = None if shape.colors is None else shape.colors[keep]
+        sub = Shape(shape.vertices[keep], new[shape.faces[fmask]], shape.name, colors)
         sub_cons = None
         if cons is not None:
-            new = np.full(shape.n_vertices, -1, dtype=np.int64)
-            new[keep] = np.arange(len(keep))
             pairs = [p[(vcomp[p[:, 0]] == c) & (vcomp[p[:, 1]] == c)] for p in (cons.must_link, cons.cannot_link)]
             sub_cons = type(cons)(new[pairs[0]], new[pairs[1]])
         params = seg.get_params(deep=False)
@@ -596,13 +635,26 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any) -> np.ndarra
         part = type(seg)(**params)
         vl = np.asarray(part.segment(sub, constraints=sub_cons), dtype=np.int64)
         fl = face_labels_of(part, sub.faces, vl)
-        labels[keep], face_labels[fmask] = vl + offset, fl + offset
+        owned = vcomp[keep] == c  # every vertex of the component on the vertex graph
+        labels[keep[owned]], face_labels[fmask] = vl[owned] + offset, fl + offset
         offset += int(max(vl.max(), fl.max()) + 1)
     # a component of one segment is that segment (vectorised, as a mesh may hold thousands of pieces)
     in_single = rank[vcomp] >= 0
     labels[in_single] = offset + rank[vcomp[in_single]]
     f_single = rank[face_comp] >= 0
     face_labels[f_single] = offset + rank[face_comp[f_single]]
+    if by_faces:
+        debris = np.flatnonzero(face_labels < 0)  # faces of components given no segment
+        if len(debris):
+            ok = np.flatnonzero(face_labels >= 0)
+            centre = shape.vertices[shape.faces].mean(axis=1)
+            dist, j = cKDTree(centre[ok]).query(centre[debris])
+            piece, got = face_comp[debris], face_labels[ok[j]]
+            order = np.lexsort((dist, piece))  # per piece, its face nearest to a segmented one first
+            first = np.r_[True, piece[order][1:] != piece[order][:-1]]
+            best = dict(zip(piece[order][first].tolist(), got[order][first].tolist()))
+            face_labels[debris] = [best[p] for p in piece.tolist()]
+        labels = face_segments_to_vertices(shape, face_labels)
     lone = labels < 0  # debris (components given no segment) and vertices on no face
     if lone.any():
         ok = np.flatnonzero(~lone)

@@ -91,6 +91,7 @@ from shape_toolkit.features.embedding import commute_time_embedding
 from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
     face_segments_to_vertices,
+    first_face_of_vertex,
     kmeans_labels,
     laplacian_embedding_of,
     must_link_groups,
@@ -211,14 +212,7 @@ class ConstrainedSpectralClustering(Segmenter):
     @staticmethod
     def _face_of_vertex(shape: Shape) -> np.ndarray:
         """The incident face of smallest index of every vertex (-1 for a vertex in no face)."""
-        f = shape.faces
-        big = np.iinfo(np.int64).max
-        out = np.full(shape.n_vertices, big, dtype=np.int64)
-        ids = np.arange(len(f), dtype=np.int64)
-        for j in range(3):
-            np.minimum.at(out, f[:, j], ids)
-        out[out == big] = -1
-        return out
+        return first_face_of_vertex(shape.faces, shape.n_vertices)
 
     def _dual_graph(self, shape: Shape) -> tuple[sp.csr_matrix, Any]:
         """The dual graph's ``W`` (m, m) with concavity affinities in (0, 1], and the face standing for
@@ -304,9 +298,9 @@ class ConstrainedSpectralClustering(Segmenter):
         """int64 labels ``(n,)`` in ``0..k-1``; ``constraints``: Constraints, dict or JSON path. With
         ``graph="dual"`` the clustering is per face (``face_labels_``). A mesh of several components is
         segmented component by component (:func:`segment_per_component`)."""
-        if (split := segment_per_component(self, shape, constraints)) is not None:
-            return split
         dual = self._graph(shape) == "dual"
+        if (split := segment_per_component(self, shape, constraints, by_faces=dual)) is not None:
+            return split
         n = shape.n_faces if dual else shape.n_vertices
         # per-vertex labels are returned: at most n_vertices segments on either graph
         k = check_n_segments(self.n_segments, min(n, shape.n_vertices), allow_none=False)
