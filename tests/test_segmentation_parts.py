@@ -525,6 +525,32 @@ def test_csc_on_the_dual_graph_segments_two_bodies_meeting_at_one_vertex():
     assert rand_index_error(again.face_labels_, seg.face_labels_) == 0.0
 
 
+@pytest.mark.parametrize("name", ["ncut", "sdf", "csc"])
+def test_dual_graph_segmenters_keep_n_segments_whatever_the_pieces(name):
+    """ncut and sdf made every separate piece a segment of its own: a body with 300 loose specks gave 301
+    segments for n_segments = 6, three bodies 3 for 2. They now share n_segments between the pieces of
+    the dual graph like the other segmenters; a face of no area (a repeated vertex) gets no segment."""
+    a, _, _, _ = _two_bodies()
+    n = a.shape.n_vertices
+    specks = _with_pieces(a.shape, [(_TET[0] * 0.01 + [3 + 0.02 * i, 0, 0], _TET[1]) for i in range(300)])
+    seg = create_plugin("segmenters", name, n_segments=6)
+    seg.segment(specks)
+    assert len(np.unique(seg.face_labels_)) == 6 and seg.segments_per_component_[0] == 6
+    three = Shape(np.vstack([a.shape.vertices + [x, 0, 0] for x in (0.0, 5.0, -5.0)]),
+                  np.vstack([a.shape.faces + i * n for i in range(3)]))
+    labels = create_plugin("segmenters", name, n_segments=2).segment(three)
+    assert len(np.unique(labels)) == 2
+    # a point face [v, v, v] is a piece of the dual graph of its own, of no area: the body keeps its segments
+    point = Shape(a.shape.vertices, np.vstack([a.shape.faces, [[0, 0, 0]]]))
+    whole = create_plugin("segmenters", name, n_segments=6)
+    whole.segment(a.shape)
+    seg = create_plugin("segmenters", name, n_segments=6)
+    seg.segment(point)
+    assert seg.segments_per_component_ == [6, 0]
+    assert np.array_equal(seg.face_labels_[:-1], whole.face_labels_) or \
+        rand_index_error(seg.face_labels_[:-1], whole.face_labels_) == 0.0
+
+
 def test_components_with_a_must_link_across_and_lone_vertices():
     a, _, shape, truth = _two_bodies()
     seg = create_plugin("segmenters", "csc", n_segments=12)

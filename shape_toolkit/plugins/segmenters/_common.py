@@ -467,9 +467,9 @@ def segments_per_component(
 ) -> np.ndarray:
     """How many of ``k`` segments each mesh component gets, int64 ``(c,)``. ``required[i]`` is a hard
     floor (what the constraints need: one for a component holding a constraint end, two for one holding
-    a cannot-link); ``minimum[i]`` (its clicked parts) and one per component while there are no more
-    components than ``k`` are wished for, and granted in proportion when they do not all fit; the rest
-    is shared in proportion to the components' ``areas`` by largest remainder. Never above ``capacity``
+    a cannot-link); ``minimum[i]`` (its clicked parts) and one per component of non-zero area while there
+    are no more components than ``k`` are wished for, and granted in proportion when they do not all fit;
+    the rest is shared in proportion to the components' ``areas`` by largest remainder. Never above ``capacity``
     (what is left over goes to the others). Ties: larger area, then the smaller row of ``keys``
     ``(c, d)``, e.g. each component's lowest corner, so the share does not depend on the vertex order.
     With more components than ``k`` a small one may get 0 (it joins a neighbour: debris). Raises
@@ -483,8 +483,8 @@ def segments_per_component(
         raise ParameterError(f"the constraints need {int(hard.sum())} segments on separate mesh components, "
                              f"more than n_segments = {k}")
     wish = np.minimum(np.maximum(np.asarray(minimum, dtype=np.int64), hard), cap)
-    if c <= k:
-        wish = np.maximum(wish, 1)
+    if c <= k:  # one each, except for pieces of no area (e.g. a face with a repeated vertex alone)
+        wish = np.maximum(wish, (a > 1e-12 * a.sum()).astype(np.int64))
     keys = np.asarray(keys, dtype=np.float64)
 
     def share(total: int, weight: np.ndarray, start: np.ndarray, limit: np.ndarray) -> np.ndarray:
@@ -566,14 +566,14 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any, *, by_faces:
     segmented by the segmenter's own choice. A must-link across two components raises
     :class:`~shape_toolkit.results.labels.ConstraintError`. Returns None for a connected mesh whose every
     vertex is on a face, or a point cloud (segment as usual). Sets ``face_labels_`` ``(m,)``,
-    ``n_segments_``, ``n_components_`` and ``segments_per_component_`` on ``seg`` (and removes those left
-    by a previous call when it returns None)."""
+    ``n_segments_``, ``n_components_`` and ``segments_per_component_`` on ``seg``, after removing every
+    fitted attribute (``name_``) left by a previous call, whatever it returns."""
     from scipy.spatial import cKDTree
 
     from shape_toolkit.results.labels import ConstraintError, coerce_constraints
 
-    for name in ("face_labels_", "n_components_", "segments_per_component_"):  # none left from a previous call
-        vars(seg).pop(name, None)
+    for name in [a for a in vars(seg) if a.endswith("_") and not a.startswith("_")]:  # fitted by a previous call
+        del vars(seg)[name]
     if not shape.is_mesh:
         return None
     face_comp, vcomp, n_comp = _mesh_pieces(shape, by_faces)

@@ -17,7 +17,9 @@ graph's affinities drop across them.
    whose best cut has the smallest Ncut is split, until ``n_segments`` segments exist.
 3. Segments = connected parts of equal labels (as PSB counts them); parts beyond ``n_segments`` are
    merged into their neighbours, smallest first (:func:`~shape_toolkit.plugins.segmenters._common.merge_to_segments`).
-   Separate mesh components are separate segments from the start (never merged).
+   A mesh of several pieces of the dual graph (separate components, or parts meeting only at a vertex)
+   is segmented piece by piece, ``n_segments`` shared by area and pieces beyond it joining their nearest
+   segment (:func:`~shape_toolkit.plugins.segmenters._common.segment_per_component`).
 
 The eigenproblems are the algorithm's own (like CSC's modified Laplacian): no shared spectrum is
 declared (``spectrum_spec()`` is None). The solver is deterministic, so the method takes no
@@ -46,6 +48,7 @@ from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
     face_segments_to_vertices,
     merge_to_segments,
+    segment_per_component,
     split_by_normalized_cuts,
     sweep_cut,
 )
@@ -95,18 +98,19 @@ class NormalizedCutSegmenter(Segmenter):
         return int(k), int(nv), mf
 
     def segment(self, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
-        """int64 vertex labels ``(n,)``; face labels in ``face_labels_`` (constraints are ignored)."""
-        from scipy.sparse.csgraph import connected_components
-
+        """int64 vertex labels ``(n,)``; face labels in ``face_labels_`` (constraints are ignored). A mesh
+        of several pieces (of the dual graph) is segmented piece by piece (:func:`segment_per_component`),
+        so that ``n_segments`` holds however many pieces there are."""
         faces = shape.require_faces("normalized-cut segmentation")
         m = len(faces)
         k, nv, mf = self._check(m)
+        if (split := segment_per_component(self, shape, None, by_faces=True)) is not None:
+            return split
         pairs, w = concavity_weights(shape, concavity_scale=self.concavity_scale,
                                      convex_factor=self.convex_factor, min_weight=self.min_weight)
         W = dual_adjacency(m, pairs, w)
-        _, labels = connected_components(W, directed=False)
-        labels, self.ncut_values_ = split_by_normalized_cuts(W, labels, k, n_vectors=nv, min_fraction=mf,
-                                                             tol=float(self.tol))
+        labels, self.ncut_values_ = split_by_normalized_cuts(W, np.zeros(m, dtype=np.int64), k, n_vectors=nv,
+                                                             min_fraction=mf, tol=float(self.tol))
         self.cut_labels_ = labels
         fl = merge_to_segments(labels, pairs, np.asarray(shape.face_areas, dtype=np.float64), k)
         self.face_labels_ = fl

@@ -19,7 +19,10 @@ segmenter.
 
 Labels are per face (``face_labels_``, what PSB scores); :meth:`segment` returns per-vertex labels (the
 label of the largest incident area), as the :class:`~shape_toolkit.api.interfaces.Segmenter` interface
-asks. Clusters are numbered by increasing SDF. It needs no spectrum (``spectrum_spec()`` is None).
+asks. Clusters are numbered by increasing SDF. It needs no spectrum (``spectrum_spec()`` is None). A mesh
+of several pieces of the dual graph is segmented piece by piece (the SDF of each piece on its own),
+``n_segments`` shared by area
+(:func:`~shape_toolkit.plugins.segmenters._common.segment_per_component`).
 
 ``smoothed``: ``base`` (a registry name or a segmenter instance, sklearn-style nested plugin) segments,
 its labels become face labels (its ``face_labels_`` if it has some, else the vertex majority) and are
@@ -39,7 +42,7 @@ from shape_toolkit.api.interfaces import BasePlugin, Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, dual_adjacency, dual_graph, smooth_labels
-from shape_toolkit.plugins.segmenters._common import face_labels_of, merge_to_segments
+from shape_toolkit.plugins.segmenters._common import face_labels_of, merge_to_segments, segment_per_component
 from shape_toolkit.plugins.segmenters._common import face_segments_to_vertices as _vertex_labels
 from shape_toolkit.validation import seed_of
 
@@ -230,6 +233,8 @@ class SDFSegmenter(Segmenter):
             nc = min(nc, k)
         if int(self.n_rays) < 1:
             raise ParameterError(f"n_rays must be >= 1, got {self.n_rays!r}")
+        if (split := segment_per_component(self, shape, None, by_faces=True)) is not None:
+            return split
         seed = seed_of(self.random_state)
         x = normalized_sdf(shape, int(self.n_rays), float(self.cone_angle), int(self.filter_iterations),
                            float(self.log_alpha))
