@@ -741,6 +741,17 @@ def write_report(results: list[dict], out: Path, seed: int, elapsed: float, tune
         "(armadillo 288 0.080 -> 0.075, the other four such meshes within 0.002). That last variant was suggested "
         "by the held-out fish 227 diagnosis above, so a held-out number for it would not be honest; it was not run "
         "there.",
+        "- Also tried and rejected later (tuning split only, same baseline 0.0774): `csc-dual-1ml` followed by the "
+        "`smoothed` graph cut, smoothing_lambda 0.25 / 1 / 4 / 16: 0.0773 / 0.0771 / 0.0755 / 0.0752, i.e. "
+        "-0.002 +- 0.002 per category at 16, within one paired standard error and carried by one mesh (bearing "
+        "347 0.104 -> 0.067); with fewer clicked parts than k, keeping only the g clicked segments instead of "
+        "cutting k - g more: hand 187 0.168 -> 0.162, fish 228 0.214 -> 0.210, armadillo 288 0.080 -> 0.084, "
+        "fourleg 381 0.252 -> 0.284, fourleg 388 unchanged.",
+        "- Since the last run, `dual_graph` lists its face pairs in face order (so that sums over them do not "
+        "depend on the vertex numbering) and `ncut` / `sdf` segment a mesh of several pieces piece by piece. "
+        "Every shared PSB mesh is one piece, and a spot check (meshes 2, 27, 68, 228, 347; `ncut`, `sdf`, "
+        "`seeded-walk-1ml`, `csc-dual`, `csc-dual-1ml`, `eigvec-gmm+smooth`) gave every Rand index error "
+        "identical to the last digit, so the rows were not re-run.",
         "- Clicked parts other than k (this update; options compared on the 25 tuning meshes only, held-out "
         "meshes not looked at): the clicks name fewer parts than k on 5 tuning meshes and more on 3. "
         "`k_mismatch='ncut'` (see the CSC row descriptions above) took the tuning split's mean of categories "
