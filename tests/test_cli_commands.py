@@ -409,3 +409,10 @@ def test_segment_a_mesh_of_two_components(pose, capsys, tmp_path):
     assert code == 0, err
     labels = np.loadtxt(tmp_path / "two.txt", dtype=np.int64)
     assert json.loads(out)["n_segments"] == 12 and not set(labels[:n]) & set(labels[n:])
+    # the same as a point cloud: its kNN graph has two components (the command said DisconnectedGraphError)
+    save_shape(Shape(two.vertices, None), tmp_path / "two.xyz")
+    code, out, err = _run(capsys, "segment", tmp_path / "two.xyz", "--method", "eigvec-gmm", "-k", "4",
+                          "-o", tmp_path / "cloud.txt", "--json")
+    assert code == 0, err
+    labels = np.loadtxt(tmp_path / "cloud.txt", dtype=np.int64)
+    assert json.loads(out)["n_segments"] == 4 and not set(labels[:n]) & set(labels[n:])

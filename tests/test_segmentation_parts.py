@@ -551,6 +551,28 @@ def test_dual_graph_segmenters_keep_n_segments_whatever_the_pieces(name):
         rand_index_error(seg.face_labels_[:-1], whole.face_labels_) == 0.0
 
 
+@pytest.mark.parametrize("name", ["csc", "spectral-clustering", "eigvec-gmm", "ccskl"])
+def test_a_point_cloud_whose_graph_falls_apart_is_segmented_piece_by_piece(name):
+    """Two separate bodies as one point cloud: their kNN graph has two components, and the spectral
+    segmenters raised DisconnectedGraphError. Each piece is now segmented as if it were alone."""
+    a, _, _, _ = _two_bodies()
+    n = a.shape.n_vertices
+    cloud = Shape(np.vstack([a.shape.vertices, a.shape.vertices + [10.0, 0, 0]]), None)
+    groups = [np.flatnonzero(a.labels == s)[:2] for s in range(6)]
+    ml = np.array([g for g in groups] + [g + n for g in groups])
+    cons = Constraints(ml, np.zeros((0, 2), dtype=np.int64))
+    seg = create_plugin("segmenters", name, n_segments=12)
+    labels = seg.segment(cloud, constraints=cons)
+    assert seg.n_components_ == 2 and seg.segments_per_component_ == [6, 6] and len(np.unique(labels)) == 12
+    assert not set(labels[:n]) & set(labels[n:]) and not hasattr(seg, "face_labels_")
+    alone = create_plugin("segmenters", name, n_segments=6)
+    ref = alone.segment(Shape(a.shape.vertices, None), constraints=Constraints(ml[:6], cons.cannot_link))
+    assert rand_index_error(labels[:n], ref) == 0.0
+    moved = create_plugin("segmenters", name, n_segments=6).segment(
+        Shape(cloud.vertices[n:], None), constraints=Constraints(ml[6:] - n, cons.cannot_link))
+    assert rand_index_error(labels[n:], moved) == 0.0
+
+
 def test_components_with_a_must_link_across_and_lone_vertices():
     a, _, shape, truth = _two_bodies()
     seg = create_plugin("segmenters", "csc", n_segments=12)

@@ -26,6 +26,7 @@ from shape_toolkit.cli.commands._common import (
     write_ply,
 )
 from shape_toolkit.data.datasets import write_labels
+from shape_toolkit.errors import DisconnectedGraphError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.plugins.segmenters._common import face_labels_of
 from shape_toolkit.results.labels import load_constraints
@@ -81,12 +82,12 @@ def run(args: argparse.Namespace) -> int:
         constraints = load_constraints(args.constraints, shape.n_vertices)
     t0 = time.perf_counter()
     with status(args, f"segment: {args.method} on {shape.n_vertices} vertices") as st:
-        from shape_toolkit.core.inspect import connected_components
-
-        # a mesh of several components: no spectrum of the whole (it would mix them); the segmenter
-        # either takes the mesh whole or segments it component by component with their own spectra
-        several = shape.is_mesh and connected_components(shape)[0] > 1
-        spectra, used = (None, []) if several else declared_spectra(seg, shape)
+        try:
+            spectra, used = declared_spectra(seg, shape)
+        except DisconnectedGraphError:
+            # a shape in several pieces: no spectrum of the whole (it would mix them); the segmenter either
+            # segments it piece by piece with their own spectra, or raises this error itself
+            spectra, used = None, []
         st.update(f"segment: {args.method}")
         labels = seg.segment(shape, spectrum=spectra, constraints=constraints)
     elapsed = time.perf_counter() - t0

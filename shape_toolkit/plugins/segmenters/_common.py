@@ -551,32 +551,44 @@ def _mesh_pieces(shape: Shape, by_faces: bool) -> tuple[np.ndarray, np.ndarray, 
     return vertex_piece[shape.faces[:, 0]], vertex_piece, len(faced)
 
 
-def segment_per_component(seg: Any, shape: Shape, constraints: Any, *, by_faces: bool = False) -> np.ndarray | None:
+def segment_per_component(
+    seg: Any, shape: Shape, constraints: Any, *, by_faces: bool = False, spectrum: Any = None
+) -> np.ndarray | None:
     """Vertex labels ``(n,)`` of a mesh made of several connected components (or with vertices on no
-    face), each component segmented on its own by a copy of the segmenter ``seg`` with its share of
-    ``n_segments`` (:func:`segments_per_component`: by area; at least one for a component holding a
-    constraint end, two for one holding a cannot-link, and its clicked parts; a component of fewer than
-    ``MIN_SPLIT_SIZE`` vertices or faces is never split, larger ones at most one segment per
-    ``MIN_SPLIT_SIZE // 2``), labels numbered component after component. A component given no segment
-    (more components than ``n_segments``: debris) joins, whole, the segment nearest to it; vertices on no
-    face take their nearest vertex's. ``by_faces``: for a segmenter of the dual graph, components are
-    those of the dual graph (faces meeting only at a vertex, a "bowtie", are apart; a vertex goes with its
-    :func:`first_face_of_vertex`) and vertex labels come from the face labels
+    face), or of a point cloud whose graph falls apart, each component segmented on its own by a copy of
+    the segmenter ``seg`` with its share of ``n_segments`` (:func:`segments_per_component`: by area; at
+    least one for a component holding a constraint end, two for one holding a cannot-link, and its
+    clicked parts; a component of fewer than ``MIN_SPLIT_SIZE`` vertices or faces is never split, larger
+    ones at most one segment per ``MIN_SPLIT_SIZE // 2``), labels numbered component after component. A
+    component given no segment (more components than ``n_segments``: debris) joins, whole, the segment
+    nearest to it; vertices on no face take their nearest vertex's. ``by_faces``: for a segmenter of the
+    dual graph, components are those of the dual graph (faces meeting only at a vertex, a "bowtie", are
+    apart; a vertex goes with its :func:`first_face_of_vertex`) and vertex labels come from the face labels
     (:func:`face_segments_to_vertices`). With ``n_segments`` None every component that may be split is
     segmented by the segmenter's own choice. A must-link across two components raises
-    :class:`~shape_toolkit.results.labels.ConstraintError`. Returns None for a connected mesh whose every
-    vertex is on a face, or a point cloud (segment as usual). Sets ``face_labels_`` ``(m,)``,
-    ``n_segments_``, ``n_components_`` and ``segments_per_component_`` on ``seg``, after removing every
-    fitted attribute (``name_``) left by a previous call, whatever it returns."""
+    :class:`~shape_toolkit.results.labels.ConstraintError`. A point cloud is split into the components of
+    the segmenter's own graph (``build_graph(shape, seg.weighting)``, kNN), each point counting as a unit
+    of area; not when a ``spectrum`` of the whole cloud is given (its graph was connected). Returns None
+    for a connected mesh whose every vertex is on a face, or a connected point cloud (segment as usual).
+    Sets ``face_labels_`` ``(m,)`` (meshes), ``n_segments_``, ``n_components_`` and
+    ``segments_per_component_`` on ``seg``, after removing every fitted attribute (``name_``) left by a
+    previous call, whatever it returns."""
     from scipy.spatial import cKDTree
 
     from shape_toolkit.results.labels import ConstraintError, coerce_constraints
 
     for name in [a for a in vars(seg) if a.endswith("_") and not a.startswith("_")]:  # fitted by a previous call
         del vars(seg)[name]
-    if not shape.is_mesh:
+    mesh = shape.is_mesh
+    if mesh:
+        face_comp, vcomp, n_comp = _mesh_pieces(shape, by_faces)
+    elif spectrum is not None:  # a spectrum of the whole point cloud: its graph is connected
         return None
-    face_comp, vcomp, n_comp = _mesh_pieces(shape, by_faces)
+    else:  # a point cloud: the components of the segmenter's own (kNN) graph
+        from shape_toolkit.core.graph import build_graph
+
+        n_comp, vcomp = build_graph(shape, getattr(seg, "weighting", "gaussian")).components
+        face_comp, vcomp = np.zeros(0, dtype=np.int64), np.asarray(vcomp, dtype=np.int64)
     if n_comp < 2 and (vcomp >= 0).all():
         return None
     k = check_n_segments(getattr(seg, "n_segments", None), shape.n_vertices, allow_none=True)
@@ -586,10 +598,16 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any, *, by_faces:
         if len(across):
             raise ConstraintError(f"must_link[{int(across[0])}] = {cons.must_link[across[0]].tolist()} joins two "
                                   "separate mesh components, which are segmented one by one")
-    areas = np.bincount(face_comp, weights=shape.face_areas, minlength=n_comp)
-    corner_comp = np.repeat(face_comp, 3)  # each component's vertices: those of its faces
-    used = np.unique(corner_comp * shape.n_vertices + shape.faces.ravel()) // shape.n_vertices
-    size = np.minimum(np.bincount(used, minlength=n_comp), np.bincount(face_comp, minlength=n_comp))
+    if mesh:
+        areas = np.bincount(face_comp, weights=shape.face_areas, minlength=n_comp)
+        corner_comp = np.repeat(face_comp, 3)  # each component's vertices: those of its faces
+        corner_ids = shape.faces.ravel()
+        used = np.unique(corner_comp * shape.n_vertices + corner_ids) // shape.n_vertices
+        size = np.minimum(np.bincount(used, minlength=n_comp), np.bincount(face_comp, minlength=n_comp))
+    else:  # points count as area
+        corner_comp, corner_ids = vcomp, np.arange(shape.n_vertices)
+        size = np.bincount(vcomp, minlength=n_comp)
+        areas = size.astype(np.float64)
     capacity = np.where(size < MIN_SPLIT_SIZE, 1, size // (MIN_SPLIT_SIZE // 2))
     clicked = np.zeros(n_comp, dtype=np.int64)  # must-link groups per component (wished for)
     required = np.zeros(n_comp, dtype=np.int64)  # what the constraints need (hard)
@@ -607,7 +625,7 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any, *, by_faces:
             raise ConstraintError(f"a cannot-link inside a mesh component of {int(size[c])} vertices or faces, "
                                   f"which is never split (fewer than {MIN_SPLIT_SIZE})")
     corner = np.full((n_comp, 3), np.inf)
-    np.minimum.at(corner, corner_comp, shape.vertices[shape.faces.ravel()])
+    np.minimum.at(corner, corner_comp, shape.vertices[corner_ids])
     if k is not None:
         share = segments_per_component(k, areas, clicked, corner, capacity, required)
     else:  # the segmenter chooses, on every component that may be split
@@ -616,15 +634,15 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any, *, by_faces:
     single = np.flatnonzero(share == 1)
     rank[single] = np.arange(len(single))
     labels = np.full(shape.n_vertices, -1, dtype=np.int64)
-    face_labels = np.full(shape.n_faces, -1, dtype=np.int64)
+    face_labels = np.full(shape.n_faces if mesh else 0, -1, dtype=np.int64)
     offset = 0
     for c in np.flatnonzero(share > 1):
         fmask = face_comp == c  # the component's faces, kept in their original order
-        keep = np.unique(shape.faces[fmask])
+        keep = np.unique(shape.faces[fmask]) if mesh else np.flatnonzero(vcomp == c)
         new = np.full(shape.n_vertices, -1, dtype=np.int64)
         new[keep] = np.arange(len(keep))
         colors = None if shape.colors is None else shape.colors[keep]
-        sub = Shape(shape.vertices[keep], new[shape.faces[fmask]], shape.name, colors)
+        sub = Shape(shape.vertices[keep], new[shape.faces[fmask]] if mesh else None, shape.name, colors)
         sub_cons = None
         if cons is not None:
             pairs = [p[(vcomp[p[:, 0]] == c) & (vcomp[p[:, 1]] == c)] for p in (cons.must_link, cons.cannot_link)]
@@ -634,10 +652,10 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any, *, by_faces:
             params["n_segments"] = int(share[c])
         part = type(seg)(**params)
         vl = np.asarray(part.segment(sub, constraints=sub_cons), dtype=np.int64)
-        fl = face_labels_of(part, sub.faces, vl)
+        fl = face_labels_of(part, sub.faces, vl) if mesh else vl[:0]
         owned = vcomp[keep] == c  # every vertex of the component on the vertex graph
         labels[keep[owned]], face_labels[fmask] = vl[owned] + offset, fl + offset
-        offset += int(max(vl.max(), fl.max()) + 1)
+        offset += int(max(vl.max(), fl.max(initial=0)) + 1)
     # a component of one segment is that segment (vectorised, as a mesh may hold thousands of pieces)
     in_single = rank[vcomp] >= 0
     labels[in_single] = offset + rank[vcomp[in_single]]
@@ -669,7 +687,8 @@ def segment_per_component(seg: Any, shape: Shape, constraints: Any, *, by_faces:
         debris = face_labels < 0
         face_labels[debris] = [best[p] for p in face_comp[debris].tolist()]
     ids = np.unique(np.r_[face_labels, labels])  # one consecutive numbering for faces and vertices
-    seg.face_labels_ = np.searchsorted(ids, face_labels).astype(np.int64)
+    if mesh:
+        seg.face_labels_ = np.searchsorted(ids, face_labels).astype(np.int64)
     seg.n_components_ = int(n_comp)
     seg.segments_per_component_ = share.tolist() if k is not None else None
     out = np.searchsorted(ids, labels).astype(np.int64)

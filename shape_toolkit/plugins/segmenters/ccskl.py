@@ -92,7 +92,7 @@ class CCSKL(Segmenter):
     ) -> np.ndarray:
         """int64 labels ``(n,)`` in ``0..k-1``; ``constraints``: Constraints, dict or JSON path. A mesh of
         several components is segmented component by component (:func:`segment_per_component`)."""
-        if (split := segment_per_component(self, shape, constraints)) is not None:
+        if (split := segment_per_component(self, shape, constraints, spectrum=spectrum)) is not None:
             return split
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=False)

@@ -299,7 +299,7 @@ class ConstrainedSpectralClustering(Segmenter):
         ``graph="dual"`` the clustering is per face (``face_labels_``). A mesh of several components is
         segmented component by component (:func:`segment_per_component`)."""
         dual = self._graph(shape) == "dual"
-        if (split := segment_per_component(self, shape, constraints, by_faces=dual)) is not None:
+        if (split := segment_per_component(self, shape, constraints, by_faces=dual, spectrum=spectrum)) is not None:
             return split
         n = shape.n_faces if dual else shape.n_vertices
         # per-vertex labels are returned: at most n_vertices segments on either graph

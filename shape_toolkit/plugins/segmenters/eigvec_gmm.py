@@ -172,7 +172,7 @@ class EigvecGMMSegmenter(Segmenter):
     ) -> np.ndarray:
         """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised method). A mesh of
         several components is segmented component by component (:func:`segment_per_component`)."""
-        if (split := segment_per_component(self, shape, None)) is not None:
+        if (split := segment_per_component(self, shape, None, spectrum=spectrum)) is not None:
             return split
         with single_thread(), warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)

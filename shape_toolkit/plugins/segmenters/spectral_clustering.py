@@ -90,7 +90,7 @@ class SpectralClustering(Segmenter):
     ) -> np.ndarray:
         """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised baseline). A mesh
         of several components is segmented component by component (:func:`segment_per_component`)."""
-        if (split := segment_per_component(self, shape, None)) is not None:
+        if (split := segment_per_component(self, shape, None, spectrum=spectrum)) is not None:
             return split
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=True)
