@@ -573,10 +573,67 @@ def test_a_point_cloud_whose_graph_falls_apart_is_segmented_piece_by_piece(name)
     assert rand_index_error(labels[n:], moved) == 0.0
 
 
+def test_a_vertex_shared_by_pieces_goes_with_the_piece_that_labels_it():
+    """On the dual graph a vertex may touch several pieces. It used to go with the piece of its first
+    face: a small fin listed first made a valid must-link on the body an error, a point face listed first
+    took a segment and dropped a cannot-link, and at a bowtie joint the constraints were enforced in one
+    piece while the label came from the other. It now goes with the piece of largest incident area."""
+    a, b, _, _ = _two_bodies()
+    V, F, n = a.shape.vertices, a.shape.faces, a.shape.n_vertices
+    none = np.zeros((0, 2), dtype=np.int64)
+    alone = create_plugin("segmenters", "csc", n_segments=6)
+    ref = alone.segment(a.shape, constraints=Constraints([[0, 5]], [[0, 107]]))
+    fin = Shape(np.vstack([V, V[0] + [[0.01, 0, 0], [0, 0.01, 0]]]), np.vstack([[[0, n, n + 1]], F]))
+    point = Shape(V, np.vstack([[[0, 0, 0]], F]))
+    for shape in (fin, point):  # the small piece (a speck, or no area) is wished no segment of its own
+        seg = create_plugin("segmenters", "csc", n_segments=6)
+        labels = seg.segment(shape, constraints=Constraints([[0, 5]], [[0, 107]]))
+        assert seg.segments_per_component_ == [0, 6]  # the must-link is kept, the cannot-link too
+        assert rand_index_error(seg.face_labels_[1:], alone.face_labels_) == 0.0
+        assert rand_index_error(labels[:n], ref) == 0.0
+    # a bowtie whose second body is three times larger: the joint belongs to it
+    ia, ib = int(np.argmax(V[:, 0])), int(np.argmin(b.shape.vertices[:, 0]))
+    vb = (b.shape.vertices - b.shape.vertices[ib]) * 3.0 + V[ia]
+    idx = np.r_[np.arange(ib), -1, np.arange(ib, b.shape.n_vertices - 1)] + n
+    idx[ib] = ia
+    bow = Shape(np.vstack([V, np.delete(vb, ib, axis=0)]), np.vstack([F, idx[b.shape.faces]]))
+    in_a = int(F[np.any(F == ia, axis=1)][0][F[np.any(F == ia, axis=1)][0] != ia][0])
+    with pytest.raises(ConstraintError, match="separate pieces"):  # the joint is in b, its neighbour in a
+        create_plugin("segmenters", "csc", n_segments=8).segment(bow, constraints=Constraints([[ia, in_a]], none))
+    # a cannot-link from the joint reaches b's piece: b's labels are those of b alone with it
+    b_alone = Shape(vb, b.shape.faces)
+    free = create_plugin("segmenters", "csc", n_segments=5)
+    free.segment(b_alone)
+    same = np.flatnonzero(free.face_labels_ == free.face_labels_[np.flatnonzero(np.any(b.shape.faces == ib, 1))[0]])
+    far = int(b.shape.faces[same[-1], 0])  # a vertex of the joint's segment, on its last face
+    cut = create_plugin("segmenters", "csc", n_segments=5)
+    cut.segment(b_alone, constraints=Constraints(none, [[ib, far]]))
+    assert rand_index_error(cut.face_labels_, free.face_labels_) > 0  # the cannot-link matters
+    seg = create_plugin("segmenters", "csc", n_segments=6)
+    seg.segment(bow, constraints=Constraints(none, [[ia, int(idx[far])]]))
+    fa = a.shape.n_faces
+    assert seg.segments_per_component_ == [1, 5]
+    assert rand_index_error(seg.face_labels_[fa:], cut.face_labels_) == 0.0
+
+
+@pytest.mark.parametrize("name", ["csc", "ncut", "sdf", "spectral-clustering"])
+def test_a_speck_beside_a_body_gets_no_segment_of_its_own(name):
+    """A separate triangle (a speck, too small to split) took one of the segments while there were no
+    more pieces than segments, leaving the body k - 1; it now gets one only by its share of the area."""
+    a, _, _, _ = _two_bodies()
+    V, F, n = a.shape.vertices, a.shape.faces, a.shape.n_vertices
+    speck = Shape(np.vstack([V, V[0] + [[1.0, 0, 0], [1.01, 0, 0], [1.0, 0.01, 0]]]),
+                  np.vstack([F, [[n, n + 1, n + 2]]]))
+    seg = create_plugin("segmenters", name, n_segments=6)
+    labels = seg.segment(speck)
+    assert seg.segments_per_component_ == [6, 0] and len(np.unique(labels)) == 6
+    assert len(np.unique(seg.face_labels_)) == 6 and len(seg.face_labels_) == speck.n_faces
+
+
 def test_components_with_a_must_link_across_and_lone_vertices():
     a, _, shape, truth = _two_bodies()
     seg = create_plugin("segmenters", "csc", n_segments=12)
-    with pytest.raises(ConstraintError, match="separate mesh components"):
+    with pytest.raises(ConstraintError, match="separate pieces"):
         seg.segment(shape, constraints=Constraints([[0, a.shape.n_vertices]], []))
     # two vertices on no face take their nearest vertex's segment; more components than segments: one each
     lone = Shape(np.vstack([a.shape.vertices, a.shape.vertices[:2] + 1e-3]), a.shape.faces)

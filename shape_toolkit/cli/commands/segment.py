@@ -26,7 +26,7 @@ from shape_toolkit.cli.commands._common import (
     write_ply,
 )
 from shape_toolkit.data.datasets import write_labels
-from shape_toolkit.errors import DisconnectedGraphError
+from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.plugins.segmenters._common import face_labels_of
 from shape_toolkit.results.labels import load_constraints
@@ -84,7 +84,9 @@ def run(args: argparse.Namespace) -> int:
     with status(args, f"segment: {args.method} on {shape.n_vertices} vertices") as st:
         try:
             spectra, used = declared_spectra(seg, shape)
-        except DisconnectedGraphError:
+        except DisconnectedGraphError as exc:
+            if isinstance(exc, NumericallyDisconnectedGraphError):  # one piece: splitting would not help
+                raise
             # a shape in several pieces: no spectrum of the whole (it would mix them); the segmenter either
             # segments it piece by piece with their own spectra, or raises this error itself
             spectra, used = None, []

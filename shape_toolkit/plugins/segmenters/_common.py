@@ -7,6 +7,7 @@ clouds) with Gaussian weights ``exp(-d^2 / 2 sigma^2)``, sigma = mean edge lengt
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -467,24 +468,25 @@ def segments_per_component(
 ) -> np.ndarray:
     """How many of ``k`` segments each mesh component gets, int64 ``(c,)``. ``required[i]`` is a hard
     floor (what the constraints need: one for a component holding a constraint end, two for one holding
-    a cannot-link); ``minimum[i]`` (its clicked parts) and one per component of non-zero area while there
-    are no more components than ``k`` are wished for, and granted in proportion when they do not all fit;
-    the rest is shared in proportion to the components' ``areas`` by largest remainder. Never above ``capacity``
-    (what is left over goes to the others). Ties: larger area, then the smaller row of ``keys``
-    ``(c, d)``, e.g. each component's lowest corner, so the share does not depend on the vertex order.
-    With more components than ``k`` a small one may get 0 (it joins a neighbour: debris). Raises
-    :class:`ParameterError` when the hard floors exceed ``k``."""
+    a cannot-link); ``minimum[i]`` (its clicked parts) and one per component of non-zero area that may be
+    split (``capacity > 1``) while there are no more components than ``k`` are wished for, and granted in
+    proportion when they do not all fit; the rest is shared in proportion to the components' ``areas`` by
+    largest remainder. Never above ``capacity`` (what is left over goes to the others). Ties: larger
+    area, then the smaller row of ``keys`` ``(c, d)``, e.g. each component's lowest corner, so the share
+    does not depend on the vertex order. With more components than ``k`` a small one may get 0 (it joins
+    a neighbour: debris). Raises :class:`ParameterError` when the hard floors exceed ``k``."""
     a = np.asarray(areas, dtype=np.float64)
     c = len(a)
     cap = np.full(c, int(k), dtype=np.int64) if capacity is None else np.minimum(np.asarray(capacity), int(k))
+    splittable = np.ones(c, dtype=bool) if capacity is None else np.asarray(capacity) > 1
     cap = np.maximum(cap, 1)
     hard = np.zeros(c, dtype=np.int64) if required is None else np.minimum(np.asarray(required, dtype=np.int64), cap)
     if hard.sum() > k:
-        raise ParameterError(f"the constraints need {int(hard.sum())} segments on separate mesh components, "
+        raise ParameterError(f"the constraints need {int(hard.sum())} segments on separate pieces, "
                              f"more than n_segments = {k}")
     wish = np.minimum(np.maximum(np.asarray(minimum, dtype=np.int64), hard), cap)
-    if c <= k:  # one each, except for pieces of no area (e.g. a face with a repeated vertex alone)
-        wish = np.maximum(wish, (a > 1e-12 * a.sum()).astype(np.int64))
+    if c <= k:  # one each, except for specks (too small to split) and pieces of no area
+        wish = np.maximum(wish, (splittable & (a > 1e-12 * a.sum())).astype(np.int64))
     keys = np.asarray(keys, dtype=np.float64)
 
     def share(total: int, weight: np.ndarray, start: np.ndarray, limit: np.ndarray) -> np.ndarray:
@@ -512,23 +514,11 @@ def segments_per_component(
     return share(k, a, wish, cap)
 
 
-def first_face_of_vertex(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    """The incident face of smallest index of every vertex, int64 ``(n,)`` (-1 for a vertex in no face):
-    the face standing for a clicked vertex on the dual graph."""
-    big = np.iinfo(np.int64).max
-    out = np.full(n_vertices, big, dtype=np.int64)
-    ids = np.arange(len(faces), dtype=np.int64)
-    for j in range(3):
-        np.minimum.at(out, np.asarray(faces)[:, j], ids)
-    out[out == big] = -1
-    return out
-
-
 def _mesh_pieces(shape: Shape, by_faces: bool) -> tuple[np.ndarray, np.ndarray, int]:
     """``(face_piece (m,), vertex_piece (n,), count)``: the connected pieces a segmenter sees, numbered in
     order of their lowest vertex (vertex graph) or lowest face (``by_faces``: the dual graph, where faces
-    meeting only at a vertex are apart; a vertex belongs to the piece of :func:`first_face_of_vertex`).
-    A vertex in no face is in piece -1."""
+    meeting only at a vertex are apart; a vertex belongs to the piece of largest incident area, the piece
+    whose faces give it its label, ties to the lower piece). A vertex in no face is in piece -1."""
     if by_faces:
         from scipy.sparse.csgraph import connected_components as graph_components
 
@@ -538,8 +528,7 @@ def _mesh_pieces(shape: Shape, by_faces: bool) -> tuple[np.ndarray, np.ndarray, 
         pairs = dual_graph(shape.faces)[0]
         adj = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
         count, face_piece = graph_components(adj, directed=False)
-        first = first_face_of_vertex(shape.faces, shape.n_vertices)
-        vertex_piece = np.where(first >= 0, face_piece[np.maximum(first, 0)], -1)
+        vertex_piece = face_to_vertex_labels(shape.faces, face_piece, shape.n_vertices, shape.face_areas)
         return face_piece.astype(np.int64), vertex_piece.astype(np.int64), int(count)
     from shape_toolkit.core.inspect import connected_components
 
@@ -551,8 +540,37 @@ def _mesh_pieces(shape: Shape, by_faces: bool) -> tuple[np.ndarray, np.ndarray, 
     return vertex_piece[shape.faces[:, 0]], vertex_piece, len(faced)
 
 
+def split_disconnected_clouds(constrained: bool) -> Callable:
+    """Decorator of a spectral segmenter's ``segment(shape, *, spectrum, constraints)``: when it raises
+    :class:`~shape_toolkit.errors.DisconnectedGraphError` on a point cloud given no spectrum (a kNN graph
+    in several pieces: two objects in one scan), the cloud is segmented piece by piece instead
+    (:func:`segment_per_component` with ``points``; ``constrained``: the constraints are split between the
+    pieces, else ignored). Connected clouds pay nothing; a graph that is connected but numerically
+    disconnected still raises."""
+    import functools
+
+    from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError
+
+    def wrap(segment: Callable) -> Callable:
+        @functools.wraps(segment)
+        def run(self: Any, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
+            try:
+                return segment(self, shape, spectrum=spectrum, constraints=constraints)
+            except DisconnectedGraphError as exc:
+                if shape.is_mesh or spectrum is not None or isinstance(exc, NumericallyDisconnectedGraphError):
+                    raise
+                split = segment_per_component(self, shape, constraints if constrained else None, points=True)
+                if split is None:
+                    raise
+                return split
+
+        return run
+
+    return wrap
+
+
 def segment_per_component(
-    seg: Any, shape: Shape, constraints: Any, *, by_faces: bool = False, spectrum: Any = None
+    seg: Any, shape: Shape, constraints: Any, *, by_faces: bool = False, points: bool = False
 ) -> np.ndarray | None:
     """Vertex labels ``(n,)`` of a mesh made of several connected components (or with vertices on no
     face), or of a point cloud whose graph falls apart, each component segmented on its own by a copy of
@@ -563,13 +581,13 @@ def segment_per_component(
     component given no segment (more components than ``n_segments``: debris) joins, whole, the segment
     nearest to it; vertices on no face take their nearest vertex's. ``by_faces``: for a segmenter of the
     dual graph, components are those of the dual graph (faces meeting only at a vertex, a "bowtie", are
-    apart; a vertex goes with its :func:`first_face_of_vertex`) and vertex labels come from the face labels
-    (:func:`face_segments_to_vertices`). With ``n_segments`` None every component that may be split is
+    apart; a vertex shared by several goes with the one of largest incident area, which labels it and
+    holds its constraints). With ``n_segments`` None every component that may be split is
     segmented by the segmenter's own choice. A must-link across two components raises
-    :class:`~shape_toolkit.results.labels.ConstraintError`. A point cloud is split into the components of
-    the segmenter's own graph (``build_graph(shape, seg.weighting)``, kNN), each point counting as a unit
-    of area; not when a ``spectrum`` of the whole cloud is given (its graph was connected). Returns None
-    for a connected mesh whose every vertex is on a face, or a connected point cloud (segment as usual).
+    :class:`~shape_toolkit.results.labels.ConstraintError`. ``points``: a point cloud is split into the
+    components of the segmenter's own graph (``build_graph(shape, seg.weighting)``, kNN), each point
+    counting as a unit of area (see :func:`split_disconnected_clouds`). Returns None for a connected mesh
+    whose every vertex is on a face, or a point cloud without ``points`` or connected (segment as usual).
     Sets ``face_labels_`` ``(m,)`` (meshes), ``n_segments_``, ``n_components_`` and
     ``segments_per_component_`` on ``seg``, after removing every fitted attribute (``name_``) left by a
     previous call, whatever it returns."""
@@ -582,7 +600,7 @@ def segment_per_component(
     mesh = shape.is_mesh
     if mesh:
         face_comp, vcomp, n_comp = _mesh_pieces(shape, by_faces)
-    elif spectrum is not None:  # a spectrum of the whole point cloud: its graph is connected
+    elif not points:
         return None
     else:  # a point cloud: the components of the segmenter's own (kNN) graph
         from shape_toolkit.core.graph import build_graph
@@ -597,7 +615,7 @@ def segment_per_component(
         across = np.flatnonzero(vcomp[cons.must_link[:, 0]] != vcomp[cons.must_link[:, 1]])
         if len(across):
             raise ConstraintError(f"must_link[{int(across[0])}] = {cons.must_link[across[0]].tolist()} joins two "
-                                  "separate mesh components, which are segmented one by one")
+                                  "separate pieces of the shape, which are segmented one by one")
     if mesh:
         areas = np.bincount(face_comp, weights=shape.face_areas, minlength=n_comp)
         corner_comp = np.repeat(face_comp, 3)  # each component's vertices: those of its faces
@@ -622,7 +640,7 @@ def segment_per_component(
         required[inside] = 2
         if (required > capacity).any():
             c = int(np.flatnonzero(required > capacity)[0])
-            raise ConstraintError(f"a cannot-link inside a mesh component of {int(size[c])} vertices or faces, "
+            raise ConstraintError(f"a cannot-link inside a piece of {int(size[c])} vertices or faces, "
                                   f"which is never split (fewer than {MIN_SPLIT_SIZE})")
     corner = np.full((n_comp, 3), np.inf)
     np.minimum.at(corner, corner_comp, shape.vertices[corner_ids])
@@ -672,7 +690,8 @@ def segment_per_component(
             first = np.r_[True, piece[order][1:] != piece[order][:-1]]
             best = dict(zip(piece[order][first].tolist(), got[order][first].tolist()))
             face_labels[debris] = [best[p] for p in piece.tolist()]
-        labels = face_segments_to_vertices(shape, face_labels)
+            orphan = np.flatnonzero((labels < 0) & np.isin(vcomp, piece))  # vertices of those pieces
+            labels[orphan] = [best[p] for p in vcomp[orphan].tolist()]
     lone = labels < 0  # debris (components given no segment) and vertices on no face
     if lone.any():
         ok = np.flatnonzero(~lone)

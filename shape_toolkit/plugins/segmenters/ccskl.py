@@ -32,6 +32,7 @@ from shape_toolkit.plugins.segmenters._common import (
     row_normalize,
     segment_per_component,
     segmenter_spec,
+    split_disconnected_clouds,
 )
 from shape_toolkit.results.labels import coerce_constraints
 from shape_toolkit.validation import seed_of
@@ -87,12 +88,13 @@ class CCSKL(Segmenter):
         """``n_eigenvectors`` eigenpairs of the normalized Laplacian of the ``weighting`` graph."""
         return segmenter_spec(self._check_m(), self.weighting, "normalized")
 
+    @split_disconnected_clouds(constrained=True)
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
         """int64 labels ``(n,)`` in ``0..k-1``; ``constraints``: Constraints, dict or JSON path. A mesh of
         several components is segmented component by component (:func:`segment_per_component`)."""
-        if (split := segment_per_component(self, shape, constraints, spectrum=spectrum)) is not None:
+        if (split := segment_per_component(self, shape, constraints)) is not None:
             return split
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=False)

@@ -91,7 +91,6 @@ from shape_toolkit.features.embedding import commute_time_embedding
 from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
     face_segments_to_vertices,
-    first_face_of_vertex,
     kmeans_labels,
     laplacian_embedding_of,
     must_link_groups,
@@ -99,6 +98,7 @@ from shape_toolkit.plugins.segmenters._common import (
     segment_per_component,
     segmenter_spec,
     split_by_normalized_cuts,
+    split_disconnected_clouds,
 )
 from shape_toolkit.results.labels import coerce_constraints
 from shape_toolkit.validation import seed_of
@@ -212,7 +212,14 @@ class ConstrainedSpectralClustering(Segmenter):
     @staticmethod
     def _face_of_vertex(shape: Shape) -> np.ndarray:
         """The incident face of smallest index of every vertex (-1 for a vertex in no face)."""
-        return first_face_of_vertex(shape.faces, shape.n_vertices)
+        f = shape.faces
+        big = np.iinfo(np.int64).max
+        out = np.full(shape.n_vertices, big, dtype=np.int64)
+        ids = np.arange(len(f), dtype=np.int64)
+        for j in range(3):
+            np.minimum.at(out, f[:, j], ids)
+        out[out == big] = -1
+        return out
 
     def _dual_graph(self, shape: Shape) -> tuple[sp.csr_matrix, Any]:
         """The dual graph's ``W`` (m, m) with concavity affinities in (0, 1], and the face standing for
@@ -292,6 +299,7 @@ class ConstrainedSpectralClustering(Segmenter):
             setattr(self, attr, int(touched.sum()))
         return weights_from_edges(n, np.stack([ei, ej], axis=1), w)
 
+    @split_disconnected_clouds(constrained=True)
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
@@ -299,7 +307,7 @@ class ConstrainedSpectralClustering(Segmenter):
         ``graph="dual"`` the clustering is per face (``face_labels_``). A mesh of several components is
         segmented component by component (:func:`segment_per_component`)."""
         dual = self._graph(shape) == "dual"
-        if (split := segment_per_component(self, shape, constraints, by_faces=dual, spectrum=spectrum)) is not None:
+        if (split := segment_per_component(self, shape, constraints, by_faces=dual)) is not None:
             return split
         n = shape.n_faces if dual else shape.n_vertices
         # per-vertex labels are returned: at most n_vertices segments on either graph

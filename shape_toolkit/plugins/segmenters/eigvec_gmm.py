@@ -39,6 +39,7 @@ from shape_toolkit.plugins.segmenters._common import (
     segment_per_component,
     segmenter_spec,
     single_thread,
+    split_disconnected_clouds,
 )
 from shape_toolkit.results.labels import relabel_consecutive
 from shape_toolkit.validation import seed_of
@@ -167,12 +168,13 @@ class EigvecGMMSegmenter(Segmenter):
         ncomp, lab = connected_components(A[ids][:, ids], directed=False)
         return int(ncomp), float(np.bincount(lab).max() / len(ids))
 
+    @split_disconnected_clouds(constrained=False)
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
         """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised method). A mesh of
         several components is segmented component by component (:func:`segment_per_component`)."""
-        if (split := segment_per_component(self, shape, None, spectrum=spectrum)) is not None:
+        if (split := segment_per_component(self, shape, None)) is not None:
             return split
         with single_thread(), warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)

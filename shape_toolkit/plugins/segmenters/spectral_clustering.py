@@ -32,6 +32,7 @@ from shape_toolkit.plugins.segmenters._common import (
     row_normalize,
     segment_per_component,
     segmenter_spec,
+    split_disconnected_clouds,
 )
 from shape_toolkit.validation import seed_of
 
@@ -85,12 +86,13 @@ class SpectralClustering(Segmenter):
             raise ParameterError(f"unknown variant {self.variant!r}; choose one of {', '.join(_LAPLACIAN)}")
         return segmenter_spec(self._kmax() + 1, self.weighting, _LAPLACIAN[self.variant])
 
+    @split_disconnected_clouds(constrained=False)
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
         """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised baseline). A mesh
         of several components is segmented component by component (:func:`segment_per_component`)."""
-        if (split := segment_per_component(self, shape, None, spectrum=spectrum)) is not None:
+        if (split := segment_per_component(self, shape, None)) is not None:
             return split
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=True)
