@@ -179,6 +179,12 @@ def test_seeded_walk_errors_and_unseeded_components(sphere):
     lab = seg.segment(two, constraints=Constraints([[0, 1]], []))
     assert seg.n_segments_ == 2 and lab[0] != lab[-1]
     assert len(np.unique(lab[: sphere.n_vertices])) == 1
+    # ... but a speck (a separate piece too small to split) joins the segment nearest to it, whole
+    n = two.n_vertices
+    specks = _with_pieces(two, [(_TET[0] * 0.01 + [1.2 + 0.02 * i, 0, 0], _TET[1]) for i in range(30)])
+    lab = seg.segment(specks, constraints=Constraints([[0, 1]], []))
+    assert seg.n_segments_ == 2 and len(np.unique(lab)) == 2 and set(lab[n:]) == {lab[0]}
+    assert np.array_equal(lab[:n], seg.segment(two, constraints=Constraints([[0, 1]], [])))
 
 
 def test_seeded_walk_smoothing_option(body):

@@ -540,6 +540,22 @@ def _mesh_pieces(shape: Shape, by_faces: bool) -> tuple[np.ndarray, np.ndarray, 
     return vertex_piece[shape.faces[:, 0]], vertex_piece, len(faced)
 
 
+def nearest_label_per_piece(
+    points: np.ndarray, piece: np.ndarray, ref_points: np.ndarray, ref_labels: np.ndarray
+) -> dict[int, int]:
+    """``{piece id: label}``: for every piece (``points`` ``(p, 3)`` with their ``piece`` ids ``(p,)``), the
+    label of the labelled reference point (``ref_labels >= 0``; ``ref_points`` ``(r, 3)``) nearest to any
+    of its points, so that a piece joins one segment whole (ties: the first point of the piece)."""
+    from scipy.spatial import cKDTree
+
+    ok = np.flatnonzero(np.asarray(ref_labels) >= 0)
+    dist, j = cKDTree(ref_points[ok]).query(points)
+    got = np.asarray(ref_labels)[ok[j]]
+    order = np.lexsort((dist, piece))  # per piece, its point nearest to a labelled one first
+    first = np.r_[True, piece[order][1:] != piece[order][:-1]]
+    return dict(zip(piece[order][first].tolist(), got[order][first].tolist()))
+
+
 def split_disconnected_clouds(constrained: bool) -> Callable:
     """Decorator of a spectral segmenter's ``segment(shape, *, spectrum, constraints)``: when it raises
     :class:`~shape_toolkit.errors.DisconnectedGraphError` on a point cloud given no spectrum (a kNN graph
@@ -591,7 +607,6 @@ def segment_per_component(
     Sets ``face_labels_`` ``(m,)`` (meshes), ``n_segments_``, ``n_components_`` and
     ``segments_per_component_`` on ``seg``, after removing every fitted attribute (``name_``) left by a
     previous call, whatever it returns."""
-    from scipy.spatial import cKDTree
 
     from shape_toolkit.results.labels import ConstraintError, coerce_constraints
 
@@ -682,26 +697,17 @@ def segment_per_component(
     if by_faces:
         debris = np.flatnonzero(face_labels < 0)  # faces of components given no segment
         if len(debris):
-            ok = np.flatnonzero(face_labels >= 0)
             centre = shape.vertices[shape.faces].mean(axis=1)
-            dist, j = cKDTree(centre[ok]).query(centre[debris])
-            piece, got = face_comp[debris], face_labels[ok[j]]
-            order = np.lexsort((dist, piece))  # per piece, its face nearest to a segmented one first
-            first = np.r_[True, piece[order][1:] != piece[order][:-1]]
-            best = dict(zip(piece[order][first].tolist(), got[order][first].tolist()))
+            piece = face_comp[debris]
+            best = nearest_label_per_piece(centre[debris], piece, centre, face_labels)
             face_labels[debris] = [best[p] for p in piece.tolist()]
             orphan = np.flatnonzero((labels < 0) & np.isin(vcomp, piece))  # vertices of those pieces
             labels[orphan] = [best[p] for p in vcomp[orphan].tolist()]
     lone = labels < 0  # debris (components given no segment) and vertices on no face
     if lone.any():
-        ok = np.flatnonzero(~lone)
-        dist, j = cKDTree(shape.vertices[ok]).query(shape.vertices[lone])
-        got = labels[ok[j]]
         lone_ids = np.flatnonzero(lone)
         piece = np.where(vcomp[lone_ids] >= 0, vcomp[lone_ids], n_comp + np.arange(len(lone_ids)))
-        order = np.lexsort((dist, piece))  # per piece, its vertex nearest to a segmented one first
-        first = np.r_[True, piece[order][1:] != piece[order][:-1]]
-        best = dict(zip(piece[order][first].tolist(), got[order][first].tolist()))
+        best = nearest_label_per_piece(shape.vertices[lone_ids], piece, shape.vertices, labels)
         labels[lone_ids] = [best[p] for p in piece.tolist()]
         debris = face_labels < 0
         face_labels[debris] = [best[p] for p in face_comp[debris].tolist()]

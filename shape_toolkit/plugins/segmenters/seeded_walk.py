@@ -20,7 +20,8 @@ plugin ``csc``), which propagates the same constraints through the commute-time 
 5. Optional: ``smoothing_lambda > 0`` runs the alpha-expansion graph cut of
    :func:`~shape_toolkit.features.smoothing.smooth_labels` on ``-log`` of the probabilities.
 
-Mesh components that hold no seed become segments of their own. The number of segments is the number
+Mesh components that hold no seed become segments of their own, except specks (fewer than
+``MIN_SPLIT_SIZE`` = 20 faces), which join the segment nearest to them. The number of segments is the number
 of must-link groups (plus such components), so the method takes no ``n_segments``; it has no
 randomness and declares no spectrum. Labels are per face (``face_labels_``); :meth:`segment` returns
 per-vertex labels (largest incident area).
@@ -38,7 +39,12 @@ from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, concavity_weights, dual_adjacency, smooth_labels
-from shape_toolkit.plugins.segmenters._common import face_segments_to_vertices, must_link_groups
+from shape_toolkit.plugins.segmenters._common import (
+    MIN_SPLIT_SIZE,
+    face_segments_to_vertices,
+    must_link_groups,
+    nearest_label_per_piece,
+)
 from shape_toolkit.results.labels import ConstraintError, coerce_constraints
 
 
@@ -111,7 +117,10 @@ class SeededWalkSegmenter(Segmenter):
         n_comp, comp = connected_components(W, directed=False)
         seeded = np.zeros(n_comp, dtype=bool)
         seeded[comp[pinned >= 0]] = True
-        free_comp = np.flatnonzero(~seeded)
+        # an unseeded piece is a segment of its own, unless it is a speck (too small to split): that joins
+        # the segment nearest to it
+        speck = ~seeded & (np.bincount(comp, minlength=n_comp) < MIN_SPLIT_SIZE)
+        free_comp = np.flatnonzero(~seeded & ~speck)
         extra = np.full(n_comp, -1, dtype=np.int64)
         extra[free_comp] = k + np.arange(len(free_comp))
         live = seeded[comp]  # faces in a component with a seed
@@ -159,6 +168,11 @@ class SeededWalkSegmenter(Segmenter):
         else:
             fl = np.argmax(X, axis=1).astype(np.int64)
         fl = np.where(live, fl, extra[comp])
+        if speck.any():
+            centre = shape.vertices[faces].mean(axis=1)
+            sf = np.flatnonzero(speck[comp])
+            best = nearest_label_per_piece(centre[sf], comp[sf], centre, np.where(speck[comp], -1, fl))
+            fl[sf] = [best[p] for p in comp[sf].tolist()]
         self.probabilities_ = X.astype(np.float32)
         self.face_labels_ = fl
         self.n_segments_ = int(len(np.unique(fl)))
