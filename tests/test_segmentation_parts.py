@@ -212,6 +212,26 @@ def test_csc_on_the_dual_graph(body):
         create_plugin("segmenters", "csc", n_segments=6, graph="faces").segment(b.shape, constraints=cons)
 
 
+def test_csc_dual_graph_follows_the_minima_rule(sphere):
+    """CSC's dual graph weakens affinities across concave creases only (``convex_factor`` 0, Hoffman and
+    Richards' minima rule): on a convex shape every affinity is 1, whatever its creases; with Lai et
+    al.'s 0.2 convex creases cost too. A concave crease still costs."""
+    from shape_toolkit.data.synthetic import icosphere
+
+    ico = icosphere(0)  # 20 faces, sharp convex creases (dihedral angle 138 degrees)
+    seg = create_plugin("segmenters", "csc", n_segments=2)
+    assert seg.convex_factor == 0.0
+    W = seg.modified_weights(ico, None)
+    assert W.nnz == 60 and np.allclose(W.data, 1.0)
+    lai = create_plugin("segmenters", "csc", n_segments=2, convex_factor=0.2).modified_weights(ico, None)
+    assert lai.data.min() < 1.0 and np.allclose(lai.data, lai.data[0])
+    slab, _ = _slab_with_two_bumps()  # bumps: convex rims and concave feet
+    W = seg.modified_weights(slab, None)
+    assert W.data.min() < 0.01 and np.mean(W.data == 1.0) > 0.9
+    with pytest.raises(ParameterError, match="convex_factor"):
+        create_plugin("segmenters", "csc", n_segments=2, convex_factor=-1.0).modified_weights(ico, None)
+
+
 def _slab_with_two_bumps(nx: int = 120, ny: int = 10, size: int = 4, height: float = 0.3) -> tuple[Shape, np.ndarray]:
     """An open flat strip ``nx`` x ``ny`` grid cells (0.1 apart) with a square bump of ``size`` cells
     near each end: one large elongated part and two small ones behind concave creases (the shape of
