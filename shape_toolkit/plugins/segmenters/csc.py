@@ -53,7 +53,8 @@ Three departures from the literal text, all about *how* the constraints act, not
   groups, until ``k`` segments, so the groups behind the weakest boundaries stay together;
   ``"kmeans"`` seeds k-means with ``k`` of the groups chosen farthest-first and ignores the others
   (PSB human 7, tuning split, 15 clicked parts for k = 6: 0.180 against 0.136 with the cuts). Chosen
-  on the tuning half of the PSB meshes (``benchmarks/psb_segmentation.py``).
+  on the tuning half of the PSB meshes (``benchmarks/psb_segmentation.py``), with ``convex_factor`` 0.2
+  at the time.
 
 The shape graph (``graph``, default ``"auto"``: ``"dual"`` on a mesh, ``"vertex"`` on a point cloud):
 ``"vertex"`` (thesis 5.2, the literal Algorithm 4) is the vertex graph with the ``weighting``
