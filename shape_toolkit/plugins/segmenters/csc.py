@@ -45,7 +45,10 @@ Three departures from the literal text, all about *how* the constraints act, not
   groups) other than ``k``, step 4 uses normalized cuts of ``W_hat`` (Shi and Malik's recursive
   two-way cuts, the splitting rule of the ``ncut`` segmenter; no cut separates a must-link group).
   Fewer clicks (``g < k``): the ``g`` clicked segments come from constrained k-means with ``g`` centres in
-  the first ``g - 1`` columns of ``X_hat``, the ``k - g`` parts nobody clicked from the cuts; k-means
+  all the ``k - 1`` columns of ``X_hat`` (the first ``g - 1`` columns alone, the earlier rule, can hold
+  only the modes of one large part: on a strip with two bumps behind concave creases and clicks on the
+  strip and one bump, they split the strip in two and gave the clicked bump half of it), the ``k - g``
+  parts nobody clicked from the cuts; k-means
   with free centres (``"kmeans"``, the previous behaviour: k-means++ given the seeded centres) put
   them where its objective drops most, i.e. split a large part in two (PSB hand 187, tuning split:
   0.238 against 0.168 with the cuts, which follow concave creases). More clicks (``g > k``, the user
@@ -336,7 +339,7 @@ class ConstrainedSpectralClustering(Segmenter):
         self.n_cuts_ = 0
         if self.kmeans_init == "constraints" and self.k_mismatch == "ncut" and 2 <= g != k:
             # fewer clicked parts than k: the g clicked segments, then cuts; more: cuts between groups
-            start = (seeded_kmeans_labels(X_hat[:, : g - 1], g, groups, seed, self.n_init) if g < k
+            start = (seeded_kmeans_labels(X_hat, g, groups, seed, self.n_init) if g < k
                      else np.zeros(n, dtype=np.int64))
             cut, values = split_by_normalized_cuts(W_hat, start, k, groups=groups)
             if cut.max() + 1 == k:
