@@ -185,6 +185,12 @@ def test_seeded_walk_errors_and_unseeded_components(sphere):
     lab = seg.segment(specks, constraints=Constraints([[0, 1]], []))
     assert seg.n_segments_ == 2 and len(np.unique(lab)) == 2 and set(lab[n:]) == {lab[0]}
     assert np.array_equal(lab[:n], seg.segment(two, constraints=Constraints([[0, 1]], [])))
+    # a speck holding a cannot-link end is not joined to the segment it is cannot-linked to
+    lab = seg.segment(specks, constraints=Constraints([[0, 1]], [[n, 0]]))
+    assert lab[n] != lab[0] and seg.n_cannot_violated_ == 0
+    # no seeded piece (the clicks on vertices of no face): specks stay segments of their own
+    tet = Shape(np.vstack([_TET[0], [[5.0, 5, 5], [6.0, 6, 6]]]), _TET[1])
+    assert len(seg.segment(tet, constraints=Constraints([[4, 5]], []))) == 6
 
 
 def test_seeded_walk_smoothing_option(body):

@@ -45,10 +45,10 @@ Three departures from the literal text, all about *how* the constraints act, not
   groups) other than ``k``, step 4 uses normalized cuts of ``W_hat`` (Shi and Malik's recursive
   two-way cuts, the splitting rule of the ``ncut`` segmenter; no cut separates a must-link group).
   Fewer clicks (``g < k``): the ``g`` clicked segments come from constrained k-means with ``g`` centres in
-  all the ``k - 1`` columns of ``X_hat`` (the first ``g - 1`` columns alone, the earlier rule, can hold
-  only the modes of one large part: on a strip with two bumps behind concave creases and clicks on the
-  strip and one bump, they split the strip in two and gave the clicked bump half of it), the ``k - g``
-  parts nobody clicked from the cuts; k-means
+  all the columns of ``X_hat`` (``output_dim``, ``k - 1`` by default; the first ``g - 1`` columns alone,
+  the earlier rule, can hold only the modes of one large part: on a strip with two bumps behind concave
+  creases and clicks on the strip and one bump, they split the strip in two and gave the clicked bump
+  half of it), the ``k - g`` parts nobody clicked from the cuts; k-means
   with free centres (``"kmeans"``, the previous behaviour: k-means++ given the seeded centres) put
   them where its objective drops most, i.e. split a large part in two (PSB hand 187, tuning split:
   0.238 against 0.168 with the cuts, which follow concave creases). More clicks (``g > k``, the user
@@ -203,6 +203,9 @@ class ConstrainedSpectralClustering(Segmenter):
             raise ParameterError(f"kmeans_init must be 'constraints' or 'k-means++', got {self.kmeans_init!r}")
         if self.k_mismatch not in ("ncut", "kmeans"):
             raise ParameterError(f"k_mismatch must be 'ncut' or 'kmeans', got {self.k_mismatch!r}")
+        cf = self.convex_factor
+        if isinstance(cf, bool) or not isinstance(cf, (int, float, np.number)) or not (np.isfinite(cf) and cf >= 0):
+            raise ParameterError(f"convex_factor must be finite and >= 0, got {cf!r}")
         if self.graph == "auto" and shape is not None:
             return "dual" if shape.is_mesh else "vertex"
         return self.graph

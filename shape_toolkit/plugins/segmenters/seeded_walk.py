@@ -21,10 +21,10 @@ plugin ``csc``), which propagates the same constraints through the commute-time 
    :func:`~shape_toolkit.features.smoothing.smooth_labels` on ``-log`` of the probabilities.
 
 Mesh components that hold no seed become segments of their own, except specks (fewer than
-``MIN_SPLIT_SIZE`` = 20 faces), which join the segment nearest to them. The number of segments is the number
-of must-link groups (plus such components), so the method takes no ``n_segments``; it has no
-randomness and declares no spectrum. Labels are per face (``face_labels_``); :meth:`segment` returns
-per-vertex labels (largest incident area).
+``MIN_SPLIT_SIZE`` = 20 faces and no constrained vertex), which join the segment nearest to them. The
+number of segments is the number of must-link groups (plus such components), so the method takes no
+``n_segments``; it has no randomness and declares no spectrum. Labels are per face (``face_labels_``);
+:meth:`segment` returns per-vertex labels (largest incident area).
 """
 
 from __future__ import annotations
@@ -117,9 +117,12 @@ class SeededWalkSegmenter(Segmenter):
         n_comp, comp = connected_components(W, directed=False)
         seeded = np.zeros(n_comp, dtype=bool)
         seeded[comp[pinned >= 0]] = True
-        # an unseeded piece is a segment of its own, unless it is a speck (too small to split): that joins
-        # the segment nearest to it
-        speck = ~seeded & (np.bincount(comp, minlength=n_comp) < MIN_SPLIT_SIZE)
+        # an unseeded piece is a segment of its own, unless it is a speck (too small to split, holding no
+        # constrained vertex, beside a seeded piece): that joins the segment nearest to it
+        clicked = np.zeros(n_comp, dtype=bool)
+        ends = np.unique(np.concatenate([cons.must_link.ravel(), cl.ravel()]))
+        clicked[comp[vf[ends].indices]] = True  # pieces of the faces around every constrained vertex
+        speck = ~seeded & ~clicked & (np.bincount(comp, minlength=n_comp) < MIN_SPLIT_SIZE) & seeded.any()
         free_comp = np.flatnonzero(~seeded & ~speck)
         extra = np.full(n_comp, -1, dtype=np.int64)
         extra[free_comp] = k + np.arange(len(free_comp))
