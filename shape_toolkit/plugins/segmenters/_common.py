@@ -607,7 +607,6 @@ def segment_per_component(
     Sets ``face_labels_`` ``(m,)`` (meshes), ``n_segments_``, ``n_components_`` and
     ``segments_per_component_`` on ``seg``, after removing every fitted attribute (``name_``) left by a
     previous call, whatever it returns."""
-
     from shape_toolkit.results.labels import ConstraintError, coerce_constraints
 
     for name in [a for a in vars(seg) if a.endswith("_") and not a.startswith("_")]:  # fitted by a previous call
