@@ -37,7 +37,7 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, merge_specs
 from shape_toolkit.errors import ParameterError, ShapeFileError
-from shape_toolkit.plugins.matching._common import paired_descriptors
+from shape_toolkit.plugins.matching._common import orientation_verdict, paired_descriptors
 from shape_toolkit.results.correspondence import Correspondence, read_seeds
 from shape_toolkit.validation import check_seeds
 
@@ -201,7 +201,9 @@ class Pipeline:
         sparse stages. ``spectra`` ``{"source": [...], "target": [...]}`` holds the spectra of
         :meth:`spectrum_specs` (computed here through the content cache when None); every stage
         receives them and picks the one it declares. ``info['spectra']`` records, per stage, the
-        spectra each stage declared and received. ``progress(message)`` hears each stage, and the
+        spectra each stage declared and received; ``info['orientation']`` whether the final map keeps
+        orientation (:func:`~shape_toolkit.plugins.matching._common.orientation_verdict`: ``preserving``,
+        ``reversing`` for a mirror image, or ``undecided``). ``progress(message)`` hears each stage, and the
         iterations of a stage plugin whose ``match`` takes ``progress=(done, total)``."""
         say = progress or (lambda _msg: None)
         timings: dict[str, float] = {}
@@ -283,6 +285,11 @@ class Pipeline:
                 raise ParameterError(f"pipeline {self.name!r}: the dense stage matched no vertex")
             ref = plugins["refine"]
             corr = timed("refine", lambda: ref.match(source, target, seeds=pairs, **sides, **counts("refine", ref)))
+        # every pipeline says whether its map keeps orientation: a mirror image is never returned silently
+        info["orientation"] = orientation_verdict(source, target, corr.target_of)
+        if info["orientation"]["verdict"] != "preserving":
+            say(f"{self.name}: orientation {info['orientation']['verdict']} "
+                f"(score {info['orientation']['score']:+.2f}, z {info['orientation']['z']:+.1f})")
         info["timings"] = timings
         info["seconds"] = float(sum(timings.values()))
         merged = dict(corr.info)

@@ -80,11 +80,16 @@ def run(args: argparse.Namespace) -> int:
         "seconds": round(seconds, 3),
         "stages": {k: round(v, 3) for k, v in corr.info.get("timings", {}).items()},
         "n_seeds": corr.info.get("n_seeds", 0),
+        "orientation": corr.info.get("orientation"),
     }
     if args.json:
         print_json(result)
     else:
         print(f"{pipe.name}: matched {corr.n_matched}/{corr.n_source} vertices in {seconds:.2f} s -> {out}")
+        o = corr.info.get("orientation")
+        if o and o["verdict"] != "preserving":
+            print(f"warning: the map's orientation is {o['verdict']} (score {o['score']:+.2f}, z {o['z']:+.1f}): "
+                  "left and right may be swapped; pass seeds (--seeds) to fix it")
         if plys:
             print(f"coloured meshes: {plys[0]} (pull-back), {plys[1]}")
     return 0

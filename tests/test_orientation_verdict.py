@@ -1,0 +1,122 @@
+"""Every pipeline says whether its map keeps orientation (issue 25): a mirror image is reported as
+``reversing``, never returned silently; the split rule of the field benchmark is by subject and animal."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shape_toolkit.cli import main
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.io.mesh import save_shape
+from shape_toolkit.pipeline import run_pipeline
+from shape_toolkit.plugins.matching._common import orientation_verdict
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def poses():
+    return tuple(articulated_shape(subdivisions=2, random_state=r).shape for r in (1, 2))
+
+
+def _mirror(shape: Shape) -> Shape:
+    """The reflection x -> -x, faces reversed so that normals stay outward: the identity map onto it is
+    an isometry that reverses orientation."""
+    return Shape(np.asarray(shape.vertices) * [-1.0, 1.0, 1.0], np.asarray(shape.faces)[:, ::-1].copy())
+
+
+def _rotated(shape: Shape, seed: int) -> Shape:
+    q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    q *= np.sign(np.linalg.det(q))  # a proper rotation
+    return Shape(np.asarray(shape.vertices) @ q.T + [3.0, -1.0, 2.0], shape.faces)
+
+
+def test_identity_preserves_and_mirror_reverses(poses):
+    a, _ = poses
+    ident = np.arange(a.n_vertices)
+    keep = orientation_verdict(a, _rotated(a, 0), ident)
+    flip = orientation_verdict(a, _mirror(a), ident)
+    assert keep["verdict"] == "preserving" and keep["score"] > 0.99
+    assert flip["verdict"] == "reversing" and flip["score"] < -0.99
+    # the verdict does not depend on the source's vertex order
+    perm = np.random.default_rng(1).permutation(a.n_vertices)
+    pa = Shape(np.asarray(a.vertices)[perm], np.argsort(perm)[np.asarray(a.faces)])
+    assert orientation_verdict(pa, _mirror(a), perm)["verdict"] == "reversing"
+
+
+def test_a_random_map_is_undecided_and_clouds_are_not_judged(poses):
+    a, b = poses
+    rnd = np.random.default_rng(0).permutation(b.n_vertices)[: a.n_vertices]
+    out = orientation_verdict(a, b, rnd)
+    assert out["verdict"] == "undecided" and abs(out["z"]) < 3
+    cloud = Shape(np.asarray(b.vertices))
+    assert orientation_verdict(a, cloud, np.arange(a.n_vertices))["verdict"] == "undecided"
+    assert orientation_verdict(a, b, np.full(a.n_vertices, -1))["samples"] == 0
+
+
+def test_pipeline_reports_orientation_and_flags_a_mirror(poses):
+    a, b = poses
+    corr = run_pipeline("zoomout-fast", a, b)
+    assert corr.info["orientation"]["verdict"] == "preserving"
+    # asked for an orientation-reversing map, the same matcher's result is reported as a mirror
+    spec = {"dense": {"plugin": "fmap-zoomout", "preset": "fast", "params": {"orientation": "reversing"}}}
+    heard: list[str] = []
+    corr = run_pipeline(spec, a, b, progress=heard.append)
+    assert corr.info["orientation"]["verdict"] == "reversing"
+    assert any("orientation reversing" in h for h in heard)
+
+
+def test_cli_match_json_and_warning(poses, capsys, tmp_path):
+    a, b = poses
+    save_shape(a, tmp_path / "a.off")
+    save_shape(_mirror(b), tmp_path / "m.off")
+    code = main(["match", str(tmp_path / "a.off"), str(tmp_path / "m.off"), "--pipeline", "zoomout-fast",
+                 "-o", str(tmp_path / "map.txt"), "--json", "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 0
+    res = json.loads(out)
+    assert set(res["orientation"]) == {"verdict", "score", "z", "samples"}
+    spec = tmp_path / "rev.toml"
+    spec.write_text('[dense]\nplugin = "fmap-zoomout"\npreset = "fast"\nparams = { orientation = "reversing" }\n')
+    code = main(["match", str(tmp_path / "a.off"), str(tmp_path / "a.off"), "--pipeline", str(spec),
+                 "-o", str(tmp_path / "map2.txt"), "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 0 and "warning: the map's orientation is reversing" in out
+
+
+def _field():
+    spec = importlib.util.spec_from_file_location("matching_field", REPO / "benchmarks" / "matching_field.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_field_benchmark_splits_by_subject_and_animal(shared_data):
+    field = _field()
+    for ds in ("tosca5k", "faust5k", "tosca_noniso"):
+        pairs = field.read_pairs(shared_data, ds)
+        halves = {"tune": set(), "report": set()}
+        for a, b in pairs:
+            s = field.split_of(ds, a, b)
+            if s is not None:  # noniso: both halves share the only two gorillas, the people differ
+                halves[s] |= {b} if ds == "tosca_noniso" else {a, b}
+        # no shape, and so no subject or animal, is in both halves
+        assert halves["tune"] and halves["report"] and not halves["tune"] & halves["report"], ds
+        if ds == "faust5k":
+            people = [{int(n[-3:]) // 10 for n in halves[h]} for h in ("tune", "report")]
+            assert not people[0] & people[1]
+    # the published peer maps are 1-based, one target vertex per source vertex
+    from shape_toolkit.io.mesh import load_shape
+
+    root = shared_data / "tosca_noniso"
+    a, b = field.read_pairs(shared_data, "tosca_noniso")[0]
+    A, B = load_shape(root / f"{a}.off"), load_shape(root / f"{b}.off")
+    for peer in field.PUBLISHED:
+        m = np.loadtxt(root / "maps" / peer / f"{a}_{b}.map", dtype=np.int64)
+        assert len(m) == A.n_vertices and 1 <= m.min() and m.max() <= B.n_vertices
