@@ -174,10 +174,17 @@ def test_farthest_point_sampling_matches_the_definition():
 def test_fmap_zoomout_progress_messages(small_pair):
     A, B, _ = small_pair
     msgs: list[str] = []
-    c = create_plugin("dense_matchers", "fmap-zoomout", k=10, zoomout_iters=3, zoomout_step=4).match(
-        A, B, progress=msgs.append)
+    c = create_plugin("dense_matchers", "fmap-zoomout", k=10, zoomout_iters=3, zoomout_step=4,
+                      hypotheses=[{}]).match(A, B, progress=msgs.append)
     assert c.n_matched == A.n_vertices
     assert sum("zoomout: iteration" in m for m in msgs) == 3 and msgs[-1].endswith("(k = 22)")
+    # several hypotheses: one message for the choice, then the full refinement from half way (k = 16 -> 22)
+    msgs.clear()
+    c = create_plugin("dense_matchers", "fmap-zoomout", k=10, zoomout_iters=3, zoomout_step=4).match(
+        A, B, progress=msgs.append)
+    assert sum("chosen (residuals" in m for m in msgs) == 1
+    assert [m for m in msgs if "zoomout: iteration" in m][-1].endswith("(k = 22)")
+    assert c.info["hypotheses"]["chosen"] in range(4) and len(c.info["hypotheses"]["residuals"]) == 4
 
 
 def test_em_registration_from_seeds(pair, seeds):

@@ -202,14 +202,15 @@ def _point_map(C: np.ndarray, emb_s: np.ndarray, emb_t: np.ndarray) -> np.ndarra
 def zoomout(
     C: np.ndarray, src: Basis, tgt: Basis, k_final: int, step: int = 1,
     rows: np.ndarray | None = None, cols: np.ndarray | None = None,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[str], None] | None = None, final: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """ZoomOut (Melzi et al. 2019): alternate point map and functional map while the basis grows
     from ``C.shape`` to ``k_final`` by ``step``; returns the final ``C_ts`` and the point map of
     every source vertex. ``rows``/``cols`` (source/target vertex samples) speed up the inner
     iterations (the final point map always covers every source vertex). Point maps are nearest
     neighbours in single precision (:func:`~shape_toolkit.results.correspondence.nearest_neighbors`);
-    ``progress`` receives one message per iteration."""
+    ``progress`` receives one message per iteration. ``final=False`` skips the point map of every
+    source vertex: the returned map then covers ``rows`` only (``-1`` elsewhere)."""
     k = C.shape[0]
     e_s = np.asarray(src.evecs[:, :k_final], dtype=np.float32)
     e_t = np.asarray(tgt.evecs[:, :k_final], dtype=np.float32)
@@ -226,11 +227,33 @@ def zoomout(
         it += 1
         if progress is not None:
             progress(f"zoomout: iteration {it}/{n_iter} (k = {k})")
+    if not final and rows is not None:
+        T = np.full(e_s.shape[0], -1, dtype=np.int64)
+        T[rows] = _point_map(C, q_s, e_t)
+        return C, T
     return C, _point_map(C, e_s, e_t)
 
 
-def wave_kernel_signature(spectrum: Spectrum, n_energies: int = 100, variance: float = 7.0) -> np.ndarray:
-    """WKS (Aubry et al. 2011) ``(n, n_energies)`` on every non-null eigenpair of ``spectrum``
+def zoomout_residual(C: np.ndarray, src: Basis, tgt: Basis, target_of: np.ndarray,
+                     rows: np.ndarray | None = None) -> float:
+    """ZoomOut's own energy at a fixed point: the mass-weighted mean over the source vertices ``rows``
+    (default all) of ``||Phi_s(x) C - Phi_t(T(x))||^2`` for the functional map ``C`` ``(k, k)`` and the
+    point map ``target_of`` ``(n_s,)``, in the area-normalized bases (unitless). A map that is the
+    point-map of a smooth, near-isometric functional map has a small residual; a flipped or swapped
+    part leaves high-frequency disagreement, so between two refined hypotheses of one pair the
+    smaller residual is the more plausible map."""
+    ks, kt = C.shape
+    ids = np.arange(src.evecs.shape[0]) if rows is None else np.asarray(rows)
+    diff = src.evecs[ids, :ks] @ C - tgt.evecs[np.asarray(target_of)[ids], :kt]
+    w = src.mass[ids]
+    return float((w * (diff**2).sum(axis=1)).sum() / max(float(w.sum()), 1e-300))
+
+
+def wave_kernel_signature(
+    spectrum: Spectrum, n_energies: int = 100, variance: float = 7.0, band: float = 1.0,
+) -> np.ndarray:
+    """WKS (Aubry et al. 2011) ``(n, n_energies)`` on the first ``round(band * K)`` (at least 2) of the
+    ``K`` non-null eigenpairs of ``spectrum`` (``band`` 1: every one)
     (:func:`shape_toolkit.plugins.descriptors.wks.wave_kernel_signature`): what ``fmap-zoomout``
     uses by default, on its own Laplace-Beltrami spectrum (cotangent weights *with* the mass
     matrix). The ``wks`` descriptor plugin declares a graph spectrum without the mass matrix, which
@@ -239,7 +262,22 @@ def wave_kernel_signature(spectrum: Spectrum, n_energies: int = 100, variance: f
     from shape_toolkit.features.basis import spectral_basis
 
     vals, U = spectral_basis(spectrum)
+    if band < 1.0:
+        K = max(2, int(round(band * vals.size)))
+        vals, U = vals[:K], U[:, :K]
     return _wks(vals, U, n_energies, variance)
+
+
+#: the keys a hypothesis of :class:`FmapZoomOutMatcher` may override
+HYPOTHESIS_KEYS = frozenset({"k", "band", "w_descr", "w_lap", "w_dcomm", "w_orient"})
+
+#: the default hypotheses: the fit of pyFM's README (k = 30, the relative weights 1 / 0.1 / 1 / 1, the
+#: WKS on every eigenpair), the same on the coarser half of the eigenpairs, and a coarser fit (two thirds
+#: of the matcher's ``k``: 20 for 30) whose orientation term outweighs the rest (10), on both bands. Chosen on the tuning half of the
+#: field benchmark only (FAUST people 0-1, TOSCA dogs; ``benchmarks/matching_field.py``)
+DEFAULT_HYPOTHESES: tuple[dict, ...] = (
+    {}, {"band": 0.5}, {"k": 20, "w_orient": 10.0}, {"k": 20, "w_orient": 10.0, "band": 0.5},
+)
 
 
 class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
@@ -256,6 +294,19 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     ``zoomout_samples``: target vertices (farthest point sampling) the source vertices are matched
     to inside ZoomOut iterations
     (None: all). Seeds, when given, add one heat-kernel descriptor per seed pair.
+
+    ``hypotheses``: several fits of the functional map, each a mapping that overrides some of ``k``,
+    ``w_descr``, ``w_lap``, ``w_dcomm``, ``w_orient`` and ``band`` (the default WKS on the first
+    ``round(band * K)`` of the ``K`` non-null eigenpairs; 1: all, 0.5: the coarser half). Each is
+    refined by ZoomOut on ``selection_samples`` farthest-point source vertices and the one with the
+    smallest ZoomOut residual (:func:`zoomout_residual`, ZoomOut's own energy at ``k_final``) is then
+    refined on every vertex from half way (the leading block of its sampled map);
+    ``info["hypotheses"]`` records every residual and the choice. None:
+    :data:`DEFAULT_HYPOTHESES`; ``[{}]``: the single fit of earlier versions. Why: the fit is
+    fragile -- which pairs come out with a part swapped (the legs of two people, say) depends on its
+    basis size, orientation weight and descriptor band -- while the refined map's residual tells a
+    swapped map from a sound one (the swap leaves high-frequency disagreement). ``band`` applies to
+    the default WKS only; with given descriptors or a descriptor plugin every hypothesis uses them.
     """
 
     presets = {
@@ -281,6 +332,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         zoomout_step: int = 5,
         zoomout_samples: int | None = None,
         seed_time: float = 0.01,
+        hypotheses: tuple[dict, ...] | list[dict] | None = None,
+        selection_samples: int = 500,
     ):
         self.k = k
         self.descriptor = descriptor
@@ -295,6 +348,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         self.zoomout_step = zoomout_step
         self.zoomout_samples = zoomout_samples
         self.seed_time = seed_time
+        self.hypotheses = hypotheses
+        self.selection_samples = selection_samples
 
     def _check(self) -> None:
         if not isinstance(self.k, (int, np.integer)) or self.k < 2:
@@ -308,6 +363,29 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         for name in ("w_descr", "w_lap", "w_dcomm", "w_orient"):
             if getattr(self, name) < 0:
                 raise ParameterError(f"{name} must be >= 0")
+        for h in self._hypotheses():
+            if not isinstance(h, dict) or set(h) - HYPOTHESIS_KEYS:
+                raise ParameterError(
+                    f"each hypothesis is a mapping with keys among {sorted(HYPOTHESIS_KEYS)}, got {h!r}")
+            band, k = h.get("band", 1.0), h.get("k", self.k)
+            if isinstance(band, bool) or not isinstance(band, (int, float)) or not 0 < band <= 1:
+                raise ParameterError(f"a hypothesis band must be a fraction in (0, 1], got {band!r}")
+            if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 2:
+                raise ParameterError(f"a hypothesis k must be an integer >= 2, got {k!r}")
+            for name in ("w_descr", "w_lap", "w_dcomm", "w_orient"):
+                w = h.get(name, 0.0)
+                if isinstance(w, bool) or not isinstance(w, (int, float)) or not w >= 0:
+                    raise ParameterError(f"a hypothesis {name} must be a number >= 0, got {w!r}")
+        if not isinstance(self.selection_samples, (int, np.integer)) or self.selection_samples < 10:
+            raise ParameterError(f"selection_samples must be an integer >= 10, got {self.selection_samples!r}")
+
+    def _hypotheses(self) -> list[dict]:
+        if self.hypotheses is None:  # the coarser fits at two thirds of this matcher's k (20 for 30)
+            coarse = max(2, int(round(2 * self.k / 3))) if isinstance(self.k, (int, np.integer)) else self.k
+            return [{**h, "k": coarse} if "k" in h else dict(h) for h in DEFAULT_HYPOTHESES]
+        if not isinstance(self.hypotheses, (tuple, list)) or not self.hypotheses:
+            raise ParameterError(f"hypotheses must be a non-empty list of mappings, got {self.hypotheses!r}")
+        return list(self.hypotheses)
 
     def _k_final(self) -> int:
         return int(self.k + self.zoomout_iters * self.zoomout_step)
@@ -350,25 +428,26 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         target.require_faces("fmap-zoomout")
         seeds = check_seeds(seeds, source.n_vertices, target.n_vertices)
         k_final = int(min(self._k_final(), source.n_vertices - 1, target.n_vertices - 1))
-        k0 = min(self.k, k_final)
         spec_s = self._spectrum(source, source_spectrum)
         spec_t = self._spectrum(target, target_spectrum)
         bs, bt = basis_of(spec_s, k_final), basis_of(spec_t, k_final)
+        hyps = self._hypotheses()
+        descs: dict[float | None, tuple[np.ndarray, np.ndarray]] = {}  # band -> descriptors of both shapes
         if (source_descriptors is None or target_descriptors is None) and self.descriptor is None:
             params = {"n_energies": 100, "variance": 7.0, **(self.descriptor_params or {})}
-            source_descriptors = wave_kernel_signature(spec_s, **params)
-            target_descriptors = wave_kernel_signature(spec_t, **params)
+            for h in hyps:
+                band = float(h.get("band", 1.0))
+                if band not in descs:
+                    descs[band] = (wave_kernel_signature(spec_s, **params, band=band),
+                                   wave_kernel_signature(spec_t, **params, band=band))
         elif source_descriptors is None or target_descriptors is None:
             desc = self._descriptor_plugin()
             # the descriptor picks its own declared spectrum among what the caller gave
-            source_descriptors = desc.compute(source, spectrum=_share(source_spectrum))
-            target_descriptors = desc.compute(target, spectrum=_share(target_spectrum))
-        ds, dt = source_descriptors, target_descriptors
-        ds = check_descriptors(ds, source.n_vertices, "source")
-        dt = check_descriptors(dt, target.n_vertices, "target")
-        if ds.shape[1] != dt.shape[1]:
-            raise ParameterError(f"descriptor widths differ: {ds.shape[1]} and {dt.shape[1]}")
-        ds, dt = self._select(ds), self._select(dt)
+            descs[None] = (desc.compute(source, spectrum=_share(source_spectrum)),
+                           desc.compute(target, spectrum=_share(target_spectrum)))
+        else:
+            descs[None] = (source_descriptors, target_descriptors)
+        seed_cols = None
         if seeds is not None and len(seeds):
             # one heat-kernel map per seed (Ovsjanikov et al. 2010) at a time in unit-area units
             from shape_toolkit.features.heat import heat_kernel
@@ -377,23 +456,42 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 area = float(np.sum(spec.mass)) if spec.mass is not None else 1.0
                 return np.asarray(heat_kernel(spec, self.seed_time * area, ids))[0].T  # (n, q)
 
-            ds = np.hstack([ds, seed_maps(spec_s, seeds[:, 0])])
-            dt = np.hstack([dt, seed_maps(spec_t, seeds[:, 1])])
-        ds, dt = normalize_columns(ds, bs.mass), normalize_columns(dt, bt.mass)
-        ds, dt = compress_descriptors(ds, dt, bs.mass, bt.mass)
-        if progress is not None:
-            progress(f"fmap-zoomout: functional map fit (k = {k0}, {ds.shape[1]} descriptor directions)")
-        w_orient = 0.0 if self.orientation == "none" else self.w_orient
-        Os = Ot = None
-        if w_orient > 0:
-            Os = orientation_operators(source, bs, k0, ds)
-            Ot = orientation_operators(target, bt, k0, dt)
-            if self.orientation == "reversing":
-                Ot = -Ot
-        C = fit_functional_map(
-            bs, bt, ds, dt, k0, w_descr=self.w_descr, w_lap=self.w_lap, w_dcomm=self.w_dcomm,
-            w_orient=w_orient, orient_src=Os, orient_tgt=Ot,
-        )
+            seed_cols = (seed_maps(spec_s, seeds[:, 0]), seed_maps(spec_t, seeds[:, 1]))
+
+        prepared: dict = {}  # band -> compressed descriptors and orientation operators, shared by its fits
+
+        def prepare(band: float | None) -> tuple:
+            if band not in prepared:
+                ds = check_descriptors(descs[band][0], source.n_vertices, "source")
+                dt = check_descriptors(descs[band][1], target.n_vertices, "target")
+                if ds.shape[1] != dt.shape[1]:
+                    raise ParameterError(f"descriptor widths differ: {ds.shape[1]} and {dt.shape[1]}")
+                ds, dt = self._select(ds), self._select(dt)
+                if seed_cols is not None:
+                    ds, dt = np.hstack([ds, seed_cols[0]]), np.hstack([dt, seed_cols[1]])
+                ds, dt = normalize_columns(ds, bs.mass), normalize_columns(dt, bt.mass)
+                ds, dt = compress_descriptors(ds, dt, bs.mass, bt.mass)
+                Os = Ot = None
+                if self.orientation != "none" and any(float(h.get("w_orient", self.w_orient)) > 0 for h in hyps):
+                    # the operators of the largest k of the band: fit_functional_map uses their leading blocks
+                    k_max = max(int(min(h.get("k", self.k), k_final)) for h in hyps)
+                    Os = orientation_operators(source, bs, k_max, ds)
+                    Ot = orientation_operators(target, bt, k_max, dt)
+                    if self.orientation == "reversing":
+                        Ot = -Ot
+                prepared[band] = (ds, dt, Os, Ot)
+            return prepared[band]
+
+        def fit(h: dict) -> np.ndarray:
+            ds, dt, Os, Ot = prepare(None if None in descs else float(h.get("band", 1.0)))
+            k0 = int(min(h.get("k", self.k), k_final))
+            w = {name: float(h.get(name, getattr(self, name))) for name in ("w_descr", "w_lap", "w_dcomm", "w_orient")}
+            if self.orientation == "none":
+                w["w_orient"] = 0.0
+            if progress is not None:
+                progress(f"fmap-zoomout: functional map fit (k = {k0}, {ds.shape[1]} descriptor directions)")
+            return fit_functional_map(bs, bt, ds, dt, k0, **w, orient_src=Os, orient_tgt=Ot)
+
         # every source vertex queries (the functional map of each iteration is then the exact
         # projection of the point map): sampling the queries fits C on a sample and cost FAUST tuning
         # pairs 5-15 %; sampling the candidate targets (zoomout_samples) cost FAUST held-out pairs 28 %
@@ -401,8 +499,31 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         cols = None
         if self.zoomout_samples and self.zoomout_samples < target.n_vertices:
             cols = farthest_point_sampling(np.asarray(target.vertices), int(self.zoomout_samples))
-        C, T = zoomout(C, bs, bt, k_final, self.zoomout_step, None, cols, progress=progress)
-        return Correspondence(T, target.n_vertices, info={"C": C, "k_final": k_final})
+        fits = [fit(h) for h in hyps]
+        info: dict = {"k_final": k_final}
+        chosen = 0
+        if len(fits) > 1:
+            # each hypothesis refined on farthest-point samples of the source, in steps twice as large
+            # (half the iterations); the map of smallest ZoomOut residual is refined in full below
+            rows = farthest_point_sampling(np.asarray(source.vertices), min(int(self.selection_samples),
+                                                                            source.n_vertices))
+            residuals, refined = [], []
+            for C0 in fits:
+                Cz, Tz = zoomout(C0, bs, bt, k_final, 2 * self.zoomout_step, rows, cols, final=False)
+                residuals.append(zoomout_residual(Cz, bs, bt, Tz, rows))
+                refined.append(Cz)
+            chosen = int(np.argmin(residuals))
+            # the full refinement starts half way, from the leading block of the chosen sampled map:
+            # the small-k steps are done, and the costly large-k ones see every vertex
+            k_mid = (fits[chosen].shape[0] + k_final) // 2
+            fits[chosen] = refined[chosen][:k_mid, :k_mid]
+            info["hypotheses"] = {"tried": [dict(h) for h in hyps], "residuals": residuals, "chosen": chosen}
+            if progress is not None:
+                progress(f"fmap-zoomout: hypothesis {chosen} {hyps[chosen]} chosen (residuals "
+                         + ", ".join(f"{r:.3g}" for r in residuals) + ")")
+        C, T = zoomout(fits[chosen], bs, bt, k_final, self.zoomout_step, None, cols, progress=progress)
+        info["C"] = C
+        return Correspondence(T, target.n_vertices, info=info)
 
 
 def _share(given):
