@@ -90,6 +90,12 @@ PRESETS: dict[str, dict[str, Any]] = {
         "description": "WKS functional map with orientation-preserving term, refined by ZoomOut",
         "dense": {"plugin": "fmap-zoomout"},
     },
+    "shells": {
+        "description": "non-isometric pairs (a gorilla and a person): coarse-to-fine alignment of smooth shells "
+        "(after Smooth Shells, Eisenberger et al. 2020), bijective point maps in the product of positions and "
+        "spectral coordinates; the shapes must share a frame (upright the same way)",
+        "dense": {"plugin": "shell-alignment"},
+    },
     "zoomout-fast": {
         "description": "zoomout with 8 ZoomOut steps of 10 instead of 16 of 5 (same final basis)",
         "dense": {"plugin": "fmap-zoomout", "preset": "fast"},
