@@ -90,6 +90,11 @@ PRESETS: dict[str, dict[str, Any]] = {
         "description": "WKS functional map with orientation-preserving term, refined by ZoomOut",
         "dense": {"plugin": "fmap-zoomout"},
     },
+    "auto": {
+        "description": "zoomout and shells on the same pair, the map of least ZoomOut residual kept (best-of): "
+        "isometric pairs across poses go to the functional maps, non-isometric and merged pairs to the shells",
+        "dense": {"plugin": "best-of"},
+    },
     "shells": {
         "description": "non-isometric pairs (a gorilla and a person): coarse-to-fine alignment of smooth shells "
         "(after Smooth Shells, Eisenberger et al. 2020), bijective point maps in the product of positions and "
