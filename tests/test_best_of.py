@@ -52,3 +52,19 @@ def test_bad_matchers_are_refused(poses, bad):
     a, b = poses
     with pytest.raises((ParameterError, PluginError)):
         create_plugin("dense_matchers", "best-of", matchers=bad).match(a, b)
+
+
+def test_match_uses_auto_by_default(poses, capsys, tmp_path):
+    import json
+
+    from shape_toolkit.cli import main
+    from shape_toolkit.io.mesh import save_shape
+
+    a, b = poses
+    save_shape(a, tmp_path / "a.off")
+    save_shape(b, tmp_path / "b.off")
+    code = main(["match", str(tmp_path / "a.off"), str(tmp_path / "b.off"), "-o", str(tmp_path / "m.txt"),
+                 "--json", "--quiet"])
+    res = json.loads(capsys.readouterr().out)
+    assert code == 0 and res["pipeline"] == "auto" and res["orientation"]["verdict"] == "preserving"
+    assert _error(b, np.loadtxt(tmp_path / "m.txt", dtype=int)) < 0.03

@@ -28,8 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("match", help="dense correspondence between two shapes")
     p.add_argument("source", help="source shape")
     p.add_argument("target", help="target shape")
-    p.add_argument("--pipeline", default="zoomout",
-                   help=f"preset ({', '.join(sorted(PRESETS))}) or a .toml spec (default zoomout)")
+    p.add_argument("--pipeline", default="auto",
+                   help=f"preset ({', '.join(sorted(PRESETS))}) or a .toml spec (default auto: zoomout and "
+                        "shells, the map of least ZoomOut residual; zoomout alone is 2.5x faster on isometric pairs)")
     p.add_argument("--seeds", help="seed matches: 'source target' 0-based ids per line")
     p.add_argument("-o", "--output", help="map file to write (default SRC_STEM.to-DST_STEM.map.txt)")
     p.add_argument("--ply", metavar="OUT.ply", default=None,

@@ -273,8 +273,9 @@ HYPOTHESIS_KEYS = frozenset({"k", "band", "w_descr", "w_lap", "w_dcomm", "w_orie
 
 #: the default hypotheses: the fit of pyFM's README (k = 30, the relative weights 1 / 0.1 / 1 / 1, the
 #: WKS on every eigenpair), the same on the coarser half of the eigenpairs, and a coarser fit (two thirds
-#: of the matcher's ``k``: 20 for 30) whose orientation term outweighs the rest (10), on both bands. Chosen on the tuning half of the
-#: field benchmark only (FAUST people 0-1, TOSCA dogs; ``benchmarks/matching_field.py``)
+#: of the matcher's ``k``: 20 for 30) whose orientation term outweighs the rest (10), on both bands.
+#: Chosen on the tuning half of the field benchmark only (FAUST people 0-1, TOSCA dogs;
+#: ``benchmarks/matching_field.py``)
 DEFAULT_HYPOTHESES: tuple[dict, ...] = (
     {}, {"band": 0.5}, {"k": 20, "w_orient": 10.0}, {"k": 20, "w_orient": 10.0, "band": 0.5},
 )
