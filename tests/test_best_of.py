@@ -68,3 +68,16 @@ def test_match_uses_auto_by_default(poses, capsys, tmp_path):
     res = json.loads(capsys.readouterr().out)
     assert code == 0 and res["pipeline"] == "auto" and res["orientation"]["verdict"] == "preserving"
     assert _error(b, np.loadtxt(tmp_path / "m.txt", dtype=int)) < 0.03
+
+
+def test_a_cloud_is_left_to_the_matchers_that_take_it(poses):
+    from shape_toolkit.core.shape import Shape
+    from shape_toolkit.errors import InvalidShapeError
+
+    a, b = poses
+    cloud = Shape(np.asarray(b.vertices))
+    corr = run_pipeline("auto", a, cloud)
+    assert corr.info["chosen"] == "shell-alignment" and corr.info["skipped"][0]["matcher"] == "fmap-zoomout"
+    assert _error(b, corr.target_of) < 0.1
+    with pytest.raises(InvalidShapeError, match="needs a triangle mesh"):
+        create_plugin("dense_matchers", "best-of", matchers=["fmap-zoomout"]).match(a, cloud)

@@ -23,7 +23,7 @@ from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
-from shape_toolkit.errors import ParameterError
+from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.matching._common import basis_of, check_seeds, fmap_from_p2p
 from shape_toolkit.plugins.matching.dense.fmap_zoomout import zoomout_residual
 from shape_toolkit.results.correspondence import Correspondence
@@ -53,7 +53,9 @@ class BestOfMatcher(DenseMatcher):
     """Runs every matcher of ``matchers`` (names, ``{plugin, preset, params}`` tables or instances) and keeps
     the map of least ZoomOut residual in the first ``k`` Laplace-Beltrami eigenfunctions of both shapes.
     ``info["candidates"]`` lists each matcher's residual, ``info["chosen"]`` the one kept; the rest of
-    ``info`` is the chosen matcher's. Seeds go to every matcher."""
+    ``info`` is the chosen matcher's. Seeds go to every matcher. A matcher that cannot take the pair (a point
+    cloud for a matcher that needs faces: :class:`~shape_toolkit.errors.InvalidShapeError`) is left out and
+    named in ``info["skipped"]``; when none can, the first one's error is raised."""
 
     presets: dict = {}
 
@@ -97,9 +99,14 @@ class BestOfMatcher(DenseMatcher):
         bs, bt = basis_of(spec_s, k), basis_of(spec_t, k)
         share_s = None if source_spectrum is None else _as_list(source_spectrum)
         share_t = None if target_spectrum is None else _as_list(target_spectrum)
-        best, candidates = None, []
+        best, candidates, skipped, first_error = None, [], [], None
         for name, m in zip(self._names(), matchers):
-            corr = m.match(source, target, seeds=seeds, source_spectrum=share_s, target_spectrum=share_t)
+            try:
+                corr = m.match(source, target, seeds=seeds, source_spectrum=share_s, target_spectrum=share_t)
+            except InvalidShapeError as exc:  # e.g. a cloud for a matcher that needs a mesh
+                skipped.append({"matcher": name, "reason": str(exc)})
+                first_error = first_error or exc
+                continue
             t = np.asarray(corr.target_of)
             if np.all(t >= 0):
                 residual = zoomout_residual(fmap_from_p2p(bs, bt, t, k, k), bs, bt, t)
@@ -112,8 +119,10 @@ class BestOfMatcher(DenseMatcher):
                 progress(f"best-of: {name} residual {residual:.4g}")
             if best is None or residual < best[0]:
                 best = (residual, name, corr)
+        if best is None:
+            raise first_error
         info = dict(best[2].info)
-        info.update({"candidates": candidates, "chosen": best[1]})
+        info.update({"candidates": candidates, "chosen": best[1], "skipped": skipped})
         return Correspondence(best[2].target_of, target.n_vertices, best[2].confidence, best[2].posteriors, info)
 
 
