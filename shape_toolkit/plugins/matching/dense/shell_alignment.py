@@ -163,6 +163,7 @@ class ShellAlignmentMatcher(DenseMatcher):
                     a, b = seeds[:, 0], seeds[:, 1]
                     H += ws * Ps[a].T @ Ps[a]
                     g += ws * Ps[a].T @ (Xt[b] - Xs[a])
+                H[np.diag_indices(K)] += 1e-12 * np.trace(H) / K  # mu = 0 with too few distinct matches
                 tau = np.linalg.solve(H, g)
                 if seeds is not None:
                     T[seeds[:, 0]] = seeds[:, 1]
