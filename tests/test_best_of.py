@@ -81,3 +81,21 @@ def test_a_cloud_is_left_to_the_matchers_that_take_it(poses):
     assert _error(b, corr.target_of) < 0.1
     with pytest.raises(InvalidShapeError, match="needs a triangle mesh"):
         create_plugin("dense_matchers", "best-of", matchers=["fmap-zoomout"]).match(a, cloud)
+
+
+def test_bad_pairs_exit_2_with_one_line(poses, capsys, tmp_path):
+    from shape_toolkit.cli import main
+    from shape_toolkit.core.shape import Shape
+    from shape_toolkit.io.mesh import save_shape
+
+    a, b = poses
+    two = Shape(np.vstack([np.asarray(b.vertices), np.asarray(b.vertices) + [5.0, 0.0, 0.0]]),
+                np.vstack([np.asarray(b.faces), np.asarray(b.faces) + b.n_vertices]))
+    save_shape(a, tmp_path / "a.off")
+    save_shape(two, tmp_path / "two.off")
+    (tmp_path / "seeds.txt").write_text("0 99999\n")
+    for extra, words in (([str(tmp_path / "two.off")], "connected components"),
+                         ([str(tmp_path / "a.off"), "--seeds", str(tmp_path / "seeds.txt")], "must lie in")):
+        code = main(["match", str(tmp_path / "a.off"), *extra, "-o", str(tmp_path / "m.txt"), "--quiet"])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1 and words in err, err
