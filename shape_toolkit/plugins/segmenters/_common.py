@@ -505,7 +505,10 @@ def segments_per_component(
                 continue
             add = np.floor(quota).astype(np.int64)
             frac = np.where(active, quota - add, -1.0)
-            order = np.lexsort((*keys.T[::-1], -w, -frac))
+            # equal areas computed in floating point differ in their last bits (a translated copy, another
+            # CPU's rounding): remainders and weights equal to 9 digits are ties, decided by the keys
+            wr = np.round(w / max(float(w.max()), 1e-300), 9)
+            order = np.lexsort((*keys.T[::-1], -wr, -np.round(frac, 9)))
             add[order[: extra - int(add.sum())]] += 1
             return out + add
 
