@@ -118,8 +118,10 @@ def _done() -> set[tuple[str, str, str]]:
     return {(r["set"], r["pair"], r["method"]) for r in map(json.loads, RAW.read_text().splitlines())}
 
 
-def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], truth_step: int) -> None:
-    """Run ``methods`` on ``jobs`` and append one row per (pair, method) to :data:`RAW`."""
+def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], truth_step: int,
+        command: str = "") -> None:
+    """Run ``methods`` on ``jobs`` and append one row per (pair, method) to :data:`RAW` (each row keeps the
+    ``command`` that made it)."""
     warnings.filterwarnings("ignore")
     from shape_toolkit.bench.peers import pyfm_map
     from shape_toolkit.bench.worker import code_revision
@@ -187,7 +189,7 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
                        "mean": mean, "mean_sym": sym_mean, "unmatched": int((~ok).sum()),
                        "flipped": None if sym_mean is None else is_flipped(mean, sym_mean),
                        "cpu_s": times[m][0], "wall_s": times[m][1], "info": infos.get(m, {}),
-                       "blas": blas, "code": rev, "date": time.strftime("%Y-%m-%d")}
+                       "blas": blas, "code": rev, "date": time.strftime("%Y-%m-%d"), "command": command}
                 fh.write(json.dumps(row) + "\n")
                 print(f"{s} {a}-{b} {m}: {mean:.4f}" + ("" if sym_mean is None else f" (sym {sym_mean:.4f})")
                       + ("" if times[m][0] is None else f" CPU {times[m][0]:.1f} s"), flush=True)
@@ -197,15 +199,13 @@ def _fmt(x: float | None, spec: str = ".4f") -> str:
     return "n/a" if x is None else format(x, spec)
 
 
-def write_report(command: str | None = None) -> str:
-    """The markdown of :data:`RAW`: per set and split, means over the pairs every method ran on, ratios to
-    pyFM, flips, CPU per pair; then every pair's row."""
+def write_report() -> str:
+    """The markdown of :data:`RAW`: the commands that made its rows, then per set and split the means over
+    the pairs every method ran on, ratios to pyFM, flips, CPU per pair; then every pair's row."""
     rows = [json.loads(x) for x in RAW.read_text().splitlines()] if RAW.exists() else []
-    old = REPORT.read_text().splitlines() if REPORT.exists() else []
-    if command is None:  # keep the command line of the run that wrote the rows
-        command = next((line[len("Command: `"):-1] for line in old if line.startswith("Command: `")), "")
+    commands = list(dict.fromkeys(r.get("command", "") for r in rows if r.get("command")))
     out = ["# Matching against the field: isometric, across people, non-isometric, glued contacts", "",
-           f"Command: `{command}`", "",
+           "Commands (each row keeps its own):", "", *[f"    {c}" for c in commands], "",
            "Protocol: `benchmarks/matching_field.py` (its docstring): splits **by subject and animal**, never by pair "
            "(tosca: dogs tune, cats and wolves report; faust: people 0-1 tune, 2-4 report; noniso: men tune, "
            "women report; glued: 6 contacts welded on the target, same splits). Mean geodesic error / sqrt(area); "
@@ -295,8 +295,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.fresh and RAW.exists():
         RAW.unlink()
-    run(data, jobs_of(data, sets, args.split, _every(args.every)), methods, args.truth_step)
-    write_report("python benchmarks/matching_field.py " + " ".join(argv if argv is not None else sys.argv[1:]))
+    command = "python benchmarks/matching_field.py " + " ".join(a for a in (argv if argv is not None else sys.argv[1:])
+                                                                if a != "--fresh")
+    run(data, jobs_of(data, sets, args.split, _every(args.every)), methods, args.truth_step, command)
+    write_report()
     return 0
 
 
