@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"{pipe.name}: matched {corr.n_matched}/{corr.n_source} vertices in {seconds:.2f} s -> {out}")
         o = corr.info.get("orientation")
-        if o and o["verdict"] != "preserving":
+        if o and o["verdict"] != "preserving" and o["samples"] > 0:  # clouds have no outward normals to judge
             print(f"warning: the map's orientation is {o['verdict']} (score {o['score']:+.2f}, z {o['z']:+.1f}): "
                   "left and right may be swapped; pass seeds (--seeds) to fix it")
         if plys:
