@@ -24,7 +24,7 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.plugins.matching._common import basis_of, check_seeds, fmap_from_p2p
+from shape_toolkit.plugins.matching._common import _given, basis_of, check_seeds, fmap_from_p2p
 from shape_toolkit.plugins.matching.dense.fmap_zoomout import zoomout_residual
 from shape_toolkit.results.correspondence import Correspondence
 
@@ -97,8 +97,7 @@ class BestOfMatcher(DenseMatcher):
         spec_s, spec_t = self._spectrum(source, source_spectrum), self._spectrum(target, target_spectrum)
         k = int(min(self.k, spec_s.k, spec_t.k))
         bs, bt = basis_of(spec_s, k), basis_of(spec_t, k)
-        share_s = None if source_spectrum is None else _as_list(source_spectrum)
-        share_t = None if target_spectrum is None else _as_list(target_spectrum)
+        share_s, share_t = _given(source_spectrum), _given(target_spectrum)  # each matcher picks its own
         best, candidates, skipped, first_error = None, [], [], None
         for name, m in zip(self._names(), matchers):
             try:
@@ -124,10 +123,6 @@ class BestOfMatcher(DenseMatcher):
         info = dict(best[2].info)
         info.update({"candidates": candidates, "chosen": best[1], "skipped": skipped})
         return Correspondence(best[2].target_of, target.n_vertices, best[2].confidence, best[2].posteriors, info)
-
-
-def _as_list(spectrum: Spectrum | list | tuple) -> list:
-    return list(spectrum) if isinstance(spectrum, (list, tuple)) else [spectrum]
 
 
 @hookimpl
