@@ -416,3 +416,24 @@ def test_segment_a_mesh_of_two_components(pose, capsys, tmp_path):
     assert code == 0, err
     labels = np.loadtxt(tmp_path / "cloud.txt", dtype=np.int64)
     assert json.loads(out)["n_segments"] == 4 and not set(labels[:n]) & set(labels[n:])
+
+
+def test_outputs_never_replace_an_input(pose, capsys, tmp_path):
+    """keypoints -o onto its mesh, match --ply whose derived files are the inputs (issue 27): refused, inputs kept."""
+    import shutil
+
+    d, _, _ = pose
+    a = tmp_path / "a.off"
+    shutil.copy(d / "a.off", a)
+    before = a.read_bytes()
+    code, _, err = _run(capsys, "keypoints", a, "--detector", "adf-maxima", "-o", a, "--quiet")
+    assert code == 2 and "must differ from the input" in err and a.read_bytes() == before
+    src, tgt = tmp_path / "m.source.ply", tmp_path / "m.target.ply"
+    for name, p in (("a.off", src), ("b.off", tgt)):
+        from shape_toolkit.io.mesh import load_shape, save_shape
+
+        save_shape(load_shape(d / name), p)
+    kept = src.read_bytes(), tgt.read_bytes()
+    code, _, err = _run(capsys, "match", src, tgt, "--pipeline", "zoomout-fast", "-o", tmp_path / "m.txt",
+                        "--ply", tmp_path / "m.ply", "--quiet")
+    assert code == 2 and "must differ from the input" in err and (src.read_bytes(), tgt.read_bytes()) == kept

@@ -11,6 +11,7 @@ from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.cli.commands._common import (
     add_ply,
     add_quiet,
+    check_distinct,
     check_output_path,
     check_ply,
     declared_spectra,
@@ -53,6 +54,8 @@ def keypoint_colors(shape, ids: np.ndarray, radius: float = 0.015) -> np.ndarray
 
 def run(args: argparse.Namespace) -> int:
     check_output_path(args.output)
+    if args.output:
+        check_distinct(args.output, args.shape)
     check_ply(args.ply, args.shape, args.output)
     params = parse_params(args.param, plugin_class("keypoints", args.detector))
     detector = create_plugin("keypoints", args.detector, preset=args.preset, **params)

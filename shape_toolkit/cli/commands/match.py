@@ -53,6 +53,9 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(out)
     check_distinct(out, args.source, args.target, args.seeds)
     check_ply(args.ply, args.source, args.target, args.seeds, str(out))
+    if args.ply:  # the two files --ply writes must not be an input either
+        for written in ply_pair(args.ply):
+            check_distinct(written, args.source, args.target, args.seeds, str(out))
     pipe = load_pipeline(args.pipeline)
     source = load_shape(args.source)
     target = load_shape(args.target)
