@@ -279,3 +279,15 @@ def test_track_on_dask_gives_the_sequential_trajectories(seq, seq_files, tmp_pat
                         "--dask", "local", "--workers", "2")
     assert code == 0, err
     np.testing.assert_array_equal(Trajectories.load(a).ids, Trajectories.load(b).ids)
+
+
+def test_ply_dir_never_overwrites_the_frames(seq_files, tmp_path, capsys):
+    """``--ply-dir`` writes frame_000.ply, ...: frames of those names in that folder are refused, kept (issue 27)."""
+    import shutil
+
+    frames = [tmp_path / f"frame_{t:03d}.ply" for t in range(2)]
+    for src, dst in zip(seq_files, frames):
+        shutil.copy(src, dst)
+    before = [f.read_bytes() for f in frames]
+    code, _, err = _run(capsys, "track", *frames, "--ply-dir", tmp_path, "-o", tmp_path / "t.npz", "--quiet")
+    assert code == 2 and "must differ from the input" in err and [f.read_bytes() for f in frames] == before

@@ -190,6 +190,8 @@ def _check_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | N
             raise ParameterError(f"--ply-dir {args.ply_dir!r} exists and is not a folder")
         if not ply_dir.exists() and not (ply_dir.parent if str(ply_dir.parent) else Path(".")).is_dir():
             raise ParameterError(f"--ply-dir: the parent folder of {args.ply_dir!r} does not exist")
+        for t in range(len(args.frames)):  # the files it will write (frame_000.ply, ...) must not be inputs
+            check_distinct(ply_dir / f"frame_{t:03d}.ply", *args.frames, out, *(args.seeds or []))
     if args.seeds is not None and len(args.seeds) != len(args.frames) - 1:
         raise ParameterError(f"--seeds needs one file per frame pair ({len(args.frames) - 1}), got {len(args.seeds)}")
     if args.dask is not None and args.dask != "local" and "://" not in args.dask:
