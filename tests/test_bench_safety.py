@@ -175,6 +175,20 @@ def test_task_name_with_slash_does_not_break_the_report(tmp_path):
     assert "../seg/a b" in res["html"].read_text()
 
 
+def test_text_read_from_the_rows_is_escaped_in_the_report(tmp_path):
+    """A task kind read back from results.jsonl is data, never markup (issue 27: stored HTML injection)."""
+    config = _write(tmp_path, CONFIG)
+    run = tmp_path / "run"
+    assert _run(config, run) == 0
+    rows_file = next(run.glob("results*.jsonl"))
+    rows = [json.loads(x) for x in rows_file.read_text().splitlines() if x.strip()]
+    for r in rows:
+        r["task_kind"] = "<script>alert(1)</script>"
+    rows_file.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    text = write_report(run, renders=0)["html"].read_text()
+    assert "<script>alert(1)" not in text and "&lt;script&gt;alert(1)" in text
+
+
 # -- rows record the spectra methods received -------------------------------------------------
 RECEIVED: list[tuple[str, Spectrum | None]] = []
 

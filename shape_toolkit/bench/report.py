@@ -579,7 +579,7 @@ def write_report(
     for i, task in enumerate(tasks, 1):
         trows = [r for r in rows if r["task_name"] == task]
         say(f"task {i}/{len(tasks)}: {task} ({len(trows)} rows)")
-        parts.append(f"<h2>Task {html.escape(task)} ({trows[0].get('task_kind', '')})</h2>")
+        parts.append(f"<h2>Task {html.escape(task)} ({html.escape(str(trows[0].get('task_kind', '')))})</h2>")
         cells = summ.get(task, {})
         cols = sorted({c for v in cells.values() for c in v} - {"seconds", "peak_memory_mb"})
         if cells:
