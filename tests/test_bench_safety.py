@@ -291,3 +291,25 @@ def test_a_method_declaring_two_kinds_receives_both(tmp_path):
         assert sorted(r["weighting"] for r in rows[0]["spectra"]) == ["binary", "gaussian"]
     finally:
         reg.unregister("two-kinds-test")
+
+
+@pytest.mark.parametrize("address", ["notaurl", "tcp://127.0.0.1:abc", "tcp://127.0.0.1:99999", "http://x:1",
+                                     "tcp://:8786"])
+def test_a_bad_scheduler_address_is_one_line_and_exit_2(tmp_path, capsys, address):
+    """Issue 27: these reached distributed's parser and came out as internal errors (exit 1)."""
+    config = _write(tmp_path, CONFIG)
+    code = main(["bench", "run", str(config), "-o", str(tmp_path / "run"), "--scheduler", address])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "scheduler address" in err, err
+    assert not (tmp_path / "run").exists()  # nothing was run or written
+    code = main(["track", str(config), str(config), "--dask", address])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "scheduler address" in err, err
+
+
+def test_good_scheduler_addresses_pass_the_check():
+    from shape_toolkit.cli.commands._common import dask_target, scheduler_address
+
+    for a in ("tcp://127.0.0.1:8786", "tls://scheduler.example:8786", "ws://h:1"):
+        assert scheduler_address(a) == a
+    assert dask_target("local") == "local"

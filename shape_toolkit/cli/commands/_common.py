@@ -83,6 +83,30 @@ def random_state_arg(text: str) -> int:
     return value
 
 
+def scheduler_address(text: str) -> str:
+    """argparse ``type=`` for a Dask scheduler address: ``SCHEME://HOST:PORT`` (tcp, tls, ws, wss), the port an
+    integer in 1-65535, checked before any work (distributed's own parser raised internal errors)."""
+    from urllib.parse import urlsplit
+
+    problem = None
+    try:
+        u = urlsplit(text)
+        port = u.port
+    except ValueError as exc:
+        u, port, problem = None, None, str(exc)
+    if problem is None and (u.scheme not in ("tcp", "tls", "ws", "wss") or not u.hostname or port is None
+                            or not 1 <= port <= 65535 or u.path not in ("", "/")):
+        problem = "expected SCHEME://HOST:PORT with a scheme of tcp, tls, ws or wss"
+    if problem:
+        raise argparse.ArgumentTypeError(f"not a scheduler address like tcp://host:8786: {text!r} ({problem})")
+    return text
+
+
+def dask_target(text: str) -> str:
+    """argparse ``type=`` for ``--dask``: ``local`` or a scheduler address (:func:`scheduler_address`)."""
+    return text if text == "local" else scheduler_address(text)
+
+
 def _int_at_least(text: str, lowest: int, what: str) -> int:
     try:
         value = int(text)

@@ -8,7 +8,7 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from shape_toolkit.cli.commands._common import add_quiet, default_output, print_json
+from shape_toolkit.cli.commands._common import add_quiet, default_output, print_json, scheduler_address
 
 RUN_EPILOG = """exit status:
   0  every row of the run folder succeeded
@@ -51,7 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--workers", type=int, default=1, help="local parallel workers (Dask LocalCluster when > 1)"
     )
     r.add_argument(
-        "--scheduler", metavar="ADDRESS", help="address of an existing Dask scheduler (tcp://host:port)"
+        "--scheduler", metavar="ADDRESS", type=scheduler_address,
+        help="address of an existing Dask scheduler (tcp://host:port)"
     )
     r.add_argument("--limit", type=int, metavar="N", help="keep the first N items of each dataset")
     r.add_argument("--retry-failed", action="store_true", help="run failed rows again")

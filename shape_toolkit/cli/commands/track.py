@@ -24,6 +24,7 @@ from shape_toolkit.cli.commands._common import (
     add_quiet,
     check_distinct,
     check_output_path,
+    dask_target,
     default_output,
     positive_int_arg,
     print_json,
@@ -164,7 +165,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="write DIR/frame_NNN.ply, each frame with pull-back colours of the last frame")
     p.add_argument("--tracks", type=positive_int_arg, default=150, help="trajectories drawn (default 150)")
     p.add_argument("--tail", type=positive_int_arg, default=5, help="frames of trajectory drawn (default 5)")
-    p.add_argument("--dask", metavar="SCHEDULER",
+    p.add_argument("--dask", metavar="SCHEDULER", type=dask_target,
                    help="match frame pairs in parallel on Dask: 'local' (a local cluster) or tcp://host:port")
     p.add_argument("--workers", type=positive_int_arg, default=2, help="local Dask workers (default 2)")
     p.add_argument("--json", action="store_true", help="print JSON")
@@ -194,8 +195,6 @@ def _check_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | N
             check_distinct(ply_dir / f"frame_{t:03d}.ply", *args.frames, out, *(args.seeds or []))
     if args.seeds is not None and len(args.seeds) != len(args.frames) - 1:
         raise ParameterError(f"--seeds needs one file per frame pair ({len(args.frames) - 1}), got {len(args.seeds)}")
-    if args.dask is not None and args.dask != "local" and "://" not in args.dask:
-        raise ParameterError(f"--dask must be 'local' or a scheduler address like tcp://host:8786, got {args.dask!r}")
     return out, png, gif, ply_dir
 
 
