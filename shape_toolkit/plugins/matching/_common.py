@@ -94,26 +94,33 @@ def check_seeds(seeds: np.ndarray | None, n_src: int, n_tgt: int) -> np.ndarray 
     return None if seeds is None else _check_seeds(seeds, n_src, n_tgt)
 
 
-def descriptor_plugin(descriptor: Any, params: dict | None = None) -> Any:
-    """The descriptor plugin a matcher names: an instance (used as is), a registry name with
-    ``params``, or a table ``{plugin, preset, params}`` (as written in TOML configs)."""
+def resolve_plugin(family: str, spec: Any, params: dict | None, *, method: str, what: str, kind: str) -> Any:
+    """The plugin of ``family`` a parameter names: an instance (anything with ``method``, used as is), a
+    registry name with ``params``, or a table ``{plugin, preset, params}`` (as written in TOML configs).
+    ``what`` names the parameter and ``kind`` the instance type in the errors."""
     from shape_toolkit.api.registry import create_plugin
 
-    if hasattr(descriptor, "compute") and not isinstance(descriptor, (str, dict, type)):
+    if hasattr(spec, method) and not isinstance(spec, (str, dict, type)):
         if params:
-            raise ParameterError("descriptor_params apply to a descriptor given by name, not to an instance")
-        return descriptor
-    if isinstance(descriptor, dict):
-        bad = sorted(set(descriptor) - {"plugin", "preset", "params"})
-        if bad or "plugin" not in descriptor:
+            raise ParameterError(f"{what}_params apply to a {what} given by name, not to an instance")
+        return spec
+    if isinstance(spec, dict):
+        bad = sorted(set(spec) - {"plugin", "preset", "params"})
+        if bad or "plugin" not in spec:
             raise ParameterError(
-                f"a descriptor table needs 'plugin' (and optional preset, params); got {sorted(descriptor)}"
+                f"a {what} table needs 'plugin' (and optional preset, params); got {sorted(spec)}"
             )
-        return create_plugin("descriptors", str(descriptor["plugin"]), descriptor.get("preset"),
-                             **{**(descriptor.get("params") or {}), **(params or {})})
-    if isinstance(descriptor, str):
-        return create_plugin("descriptors", descriptor, **(params or {}))
-    raise ParameterError(f"descriptor must be a plugin name, a table or a Descriptor, got {descriptor!r}")
+        return create_plugin(family, str(spec["plugin"]), spec.get("preset"),
+                             **{**(spec.get("params") or {}), **(params or {})})
+    if isinstance(spec, str):
+        return create_plugin(family, spec, **(params or {}))
+    raise ParameterError(f"{what} must be a plugin name, a table or a {kind}, got {spec!r}")
+
+
+def descriptor_plugin(descriptor: Any, params: dict | None = None) -> Any:
+    """The descriptor plugin a matcher names (:func:`resolve_plugin`: an instance, a registry name with
+    ``params``, or a table ``{plugin, preset, params}``)."""
+    return resolve_plugin("descriptors", descriptor, params, method="compute", what="descriptor", kind="Descriptor")
 
 
 class UsesDescriptor:
@@ -279,19 +286,25 @@ def farthest_point_sampling(points: np.ndarray, n: int, start: int = 0) -> np.nd
     return idx
 
 
-def outward_vertex_normals(shape: Shape) -> np.ndarray:
-    """Unit vertex normals ``(n, 3)`` (area-weighted face normals), oriented outwards: flipped
-    when the signed volume of the mesh is negative."""
-    V = np.asarray(shape.vertices, dtype=np.float64)
-    F = np.asarray(shape.require_faces("outward normals"))
-    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # length = 2 * area
-    vol = np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum()
-    if vol < 0:
-        fn = -fn
-    N = np.zeros_like(V)
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit vertex normals ``(n, 3)`` of ``vertices`` ``(n, 3)`` (any positions on the mesh's ``faces``, e.g.
+    a deformed copy): area-weighted face normals, in the faces' winding."""
+    X, F = np.asarray(vertices, dtype=np.float64), np.asarray(faces)
+    fn = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])  # length = 2 * area
+    N = np.zeros_like(X)
     for c in range(3):
         np.add.at(N, F[:, c], fn)
     return N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+
+
+def outward_vertex_normals(shape: Shape) -> np.ndarray:
+    """Unit vertex normals ``(n, 3)`` (:func:`vertex_normals`), oriented outwards: flipped when the signed
+    volume of the mesh is negative."""
+    V = np.asarray(shape.vertices, dtype=np.float64)
+    F = np.asarray(shape.require_faces("outward normals"))
+    vol = np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum()
+    N = vertex_normals(V, F)
+    return -N if vol < 0 else N
 
 
 def orientation_votes(

@@ -24,7 +24,7 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.plugins.matching._common import _given, basis_of, check_seeds, fmap_from_p2p
+from shape_toolkit.plugins.matching._common import _given, basis_of, check_seeds, fmap_from_p2p, resolve_plugin
 from shape_toolkit.plugins.matching.dense.fmap_zoomout import zoomout_residual
 from shape_toolkit.results.correspondence import Correspondence
 
@@ -33,20 +33,9 @@ __all__ = ["BestOfMatcher"]
 
 def _matcher(spec: Any) -> Any:
     """A dense matcher from an instance, a registry name or a table ``{plugin, preset, params}``."""
-    from shape_toolkit.api.registry import create_plugin
-
-    if hasattr(spec, "match") and not isinstance(spec, (str, dict, type)):
-        return spec
-    if isinstance(spec, dict):
-        bad = sorted(set(spec) - {"plugin", "preset", "params"})
-        if bad or "plugin" not in spec:
-            raise ParameterError(f"a matcher table needs 'plugin' (and optional preset, params); got {sorted(spec)}")
-        return create_plugin("dense_matchers", str(spec["plugin"]), spec.get("preset"), **(spec.get("params") or {}))
-    if isinstance(spec, str):
-        if spec == "best-of":
-            raise ParameterError("best-of cannot nest itself")
-        return create_plugin("dense_matchers", spec)
-    raise ParameterError(f"each matcher must be a plugin name, a table or a dense matcher, got {spec!r}")
+    if isinstance(spec, str) and spec == "best-of":
+        raise ParameterError("best-of cannot nest itself")
+    return resolve_plugin("dense_matchers", spec, None, method="match", what="matcher", kind="dense matcher")
 
 
 class BestOfMatcher(DenseMatcher):

@@ -35,7 +35,7 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.matching._common import Basis, basis_of, check_seeds
+from shape_toolkit.plugins.matching._common import Basis, basis_of, check_seeds, vertex_normals
 from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
 
 __all__ = ["ShellAlignmentMatcher", "shell_coordinates"]
@@ -51,15 +51,6 @@ def shell_coordinates(shape: Shape, basis: Basis, k: int, area: float) -> np.nda
     by ``sqrt(area)``, low-pass filtered on the first ``k`` functions of ``basis``."""
     phi = basis.evecs[:, :k]
     return phi @ (phi.T @ (basis.mass[:, None] * _centred(shape, basis, area)))
-
-
-def _normals(X: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    F = np.asarray(faces)
-    fn = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
-    N = np.zeros_like(X)
-    for c in range(3):
-        np.add.at(N, F[:, c], fn)
-    return N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
 
 
 class ShellAlignmentMatcher(DenseMatcher):
@@ -144,6 +135,8 @@ class ShellAlignmentMatcher(DenseMatcher):
             grown[: len(tau)] = tau[:K]
             tau = grown
             damp = self.mu * np.diag(bs.evals[:K] ** 2)
+            use_normals = self.beta > 0 and source.is_mesh and target.is_mesh  # the shells' normals (front, back)
+            Nt = self.beta * vertex_normals(Xt, target.faces) if use_normals else None  # fixed at this K
             for _ in range(int(self.iters)):
                 P = Xs + Ps @ tau
                 if self.alpha > 0 and C is not None:
@@ -152,9 +145,9 @@ class ShellAlignmentMatcher(DenseMatcher):
                     qt = np.hstack([Xt, self.alpha * Pt[:, :kc] @ C[:kc, :kc].T])
                 else:
                     qs, qt = P, Xt
-                if self.beta > 0 and source.is_mesh and target.is_mesh:  # the shells' normals (front and back)
-                    qs = np.hstack([qs, self.beta * _normals(P, source.faces)])
-                    qt = np.hstack([qt, self.beta * _normals(Xt, target.faces)])
+                if use_normals:
+                    qs = np.hstack([qs, self.beta * vertex_normals(P, source.faces)])
+                    qt = np.hstack([qt, Nt])
                 T, Tr = nn(qt, qs), nn(qs, qt)
                 # least squares on both maps: source x -> T(x), and T'(y) -> target y
                 H = Ps.T @ (ms[:, None] * Ps) + Ps[Tr].T @ (mt[:, None] * Ps[Tr]) + damp
