@@ -441,8 +441,8 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
         if not ppath.exists():
             continue
         try:
-            prep = load_prepared(ppath)  # npz, validated; never pickle
-            out = load_output(run, r["output"])
+            prep = load_prepared(ppath, key=r["prepare_key"])  # npz, validated; never pickle
+            out = load_output(run, r["output"], key=r.get("key"))
             title = f"{r['task_name']}: {method_id(r)} on {r['item']} ({r.get('corruption', 'none')})"
             kind = r.get("task_kind")
             if kind == "segmentation" and "labels" in out:

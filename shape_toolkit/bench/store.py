@@ -272,7 +272,7 @@ def run_lock(run: Path) -> Iterator[None]:
 # --------------------------------------------------------------------------------------------
 # prepared items (npz, no pickle)
 # --------------------------------------------------------------------------------------------
-_PREP_VERSION = 2  # 2: shapes keep their colours
+_PREP_VERSION = 3  # 2: shapes keep their colours; 3: the header holds the item's key and input digest
 _OPTIONAL = ("truth", "truth_sym", "truth_eval", "truth_eval_sym", "geodesic_rows", "geodesic_rows_sym")
 _LISTS = ("source_labels", "target_labels", "target_face_labels")
 
@@ -282,11 +282,15 @@ def prepared_path(run_dir: str | os.PathLike, key: str) -> Path:
     return Path(run_dir) / "cache" / "prepared" / f"{safe_name(key)}.npz"
 
 
-def save_prepared(path: Path, prep: Any) -> None:
-    """Write a :class:`~shape_toolkit.bench.tasks.Prepared` as plain arrays plus a JSON header."""
+def save_prepared(path: Path, prep: Any, *, key: str = "", inputs: str = "") -> None:
+    """Write a :class:`~shape_toolkit.bench.tasks.Prepared` as plain arrays plus a JSON header
+    holding ``key`` (the prepare job's key) and ``inputs`` (the digest of the files it was made
+    from), which :func:`load_prepared` verifies."""
     arrays: dict[str, np.ndarray] = {}
     header: dict[str, Any] = {
         "version": _PREP_VERSION,
+        "key": key,
+        "inputs": inputs,
         "name": prep.name,
         "corruption_seconds": float(prep.corruption_seconds),
         "geodesic_seconds": float(prep.geodesic_seconds),
@@ -325,22 +329,26 @@ def _int_array(a: np.ndarray, what: str, shape_ok) -> np.ndarray:
     return a.astype(np.int64)
 
 
-def load_prepared(path: Path):
-    """Read and validate a prepared item written by :func:`save_prepared` (``allow_pickle=False``);
-    ``ValueError`` when anything is off (the caller prepares the item again)."""
+def load_prepared(path: Path, *, key: str | None = None, inputs: str | None = None):
+    """Read and validate a prepared item written by :func:`save_prepared` (``allow_pickle=False``):
+    it must hold ``key`` and ``inputs`` when they are given; ``ValueError`` when anything is off
+    (the caller prepares the item again)."""
     from shape_toolkit.bench.tasks import Prepared
     from shape_toolkit.core.shape import Shape
-    from shape_toolkit.errors import ToolkitError
 
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # fh: closed on a bad zip too
             arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError) as exc:  # not an npz (a pickle is refused here)
-        raise ValueError(f"not a prepared-item archive: {exc}") from None
+    except Exception as exc:  # truncated, empty, not an npz (a pickle is refused here)
+        raise ValueError(f"not a prepared-item archive: {type(exc).__name__}: {exc}") from None
     try:
         header = json.loads(str(arrays.pop("header")))
         if not isinstance(header, dict) or header.get("version") != _PREP_VERSION:
             raise ValueError("unknown header version")
+        if key is not None and header.get("key") != key:
+            raise ValueError("it was prepared for another item or corruption")
+        if inputs is not None and header.get("inputs") != inputs:
+            raise ValueError("its input files changed since it was prepared")
         shapes = {}
         for side in ("source", "target"):
             info = header["shapes"][side]
@@ -400,7 +408,7 @@ def load_prepared(path: Path):
             meta=meta,
             target_face_labels=lists["target_face_labels"],
         )
-    except (KeyError, TypeError, ValueError, ToolkitError) as exc:
+    except Exception as exc:  # anything off in a planted or damaged file: not this item
         raise ValueError(f"invalid prepared item {path.name}: {exc}") from None
 
 
@@ -408,7 +416,8 @@ def load_prepared(path: Path):
 # method outputs
 # --------------------------------------------------------------------------------------------
 def save_output(run_dir: str | os.PathLike, key: str, output: dict) -> str | None:
-    """Save the array outputs of a row to ``RUN_DIR/outputs/KEY.npz``; returns the relative path."""
+    """Save the array outputs of a row to ``RUN_DIR/outputs/KEY.npz``, with the row key (verified
+    by :func:`load_output`); returns the relative path."""
     arrays = {}
     for k, v in output.items():
         if isinstance(v, (np.ndarray, list)):
@@ -420,13 +429,17 @@ def save_output(run_dir: str | os.PathLike, key: str, output: dict) -> str | Non
     name = safe_name(key)
     with atomic_output(Path(run_dir) / "outputs" / f"{name}.npz", "output file", suffix=".npz",
                        make_parents=True) as tmp:
-        np.savez_compressed(tmp, **arrays)
+        np.savez_compressed(tmp, **arrays, **{_OUTPUT_KEY: np.array(key)})
     return f"outputs/{name}.npz"
 
 
-def load_output(run_dir: str | os.PathLike, rel: Any) -> dict[str, np.ndarray]:
+_OUTPUT_KEY = "__row_key__"
+
+
+def load_output(run_dir: str | os.PathLike, rel: Any, key: str | None = None) -> dict[str, np.ndarray]:
     """The arrays of a row's output file (``allow_pickle=False``); ``ValueError`` when the path
-    leaves the run folder or the file is not a plain npz archive."""
+    leaves the run folder, the file is not a plain npz archive, or (``key`` given) it was written
+    for another row."""
     run = Path(run_dir).resolve()
     if not isinstance(rel, str):
         raise ValueError("output path is not a string")
@@ -434,7 +447,11 @@ def load_output(run_dir: str | os.PathLike, rel: Any) -> dict[str, np.ndarray]:
     if run not in path.parents:
         raise ValueError(f"output path {rel!r} leaves the run folder")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise ValueError(f"unreadable output {rel}: {exc}") from None
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # fh: closed on a bad zip too
+            arrays = {k: z[k] for k in z.files}
+    except Exception as exc:  # truncated, empty, not an npz (a pickle is refused here)
+        raise ValueError(f"unreadable output {rel}: {type(exc).__name__}: {exc}") from None
+    stored = arrays.pop(_OUTPUT_KEY, None)
+    if key is not None and (stored is None or str(stored) != key):
+        raise ValueError(f"output {rel} was written for another row")
+    return arrays

@@ -8,6 +8,7 @@ larger spectrum of the same kind, truncated to exactly what was declared), times
 
 from __future__ import annotations
 
+import hashlib
 import os
 import platform
 import resource
@@ -15,17 +16,18 @@ import subprocess
 import threading
 import time
 import traceback
+import warnings
 from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 from shape_toolkit.bench.plan import Job, PrepareJob, create_detector, create_method
-from shape_toolkit.bench.store import Row, load_prepared, prepared_path, save_output, save_prepared
+from shape_toolkit.bench.store import BenchWarning, Row, load_prepared, prepared_path, save_output, save_prepared
 
 __all__ = [
     "package_versions", "cpu_model", "machine_info", "code_revision", "revision_label", "MemoryMonitor",
-    "prepare_job", "execute_job", "lost_row",
+    "prepare_job", "execute_job", "lost_row", "input_digest",
 ]
 
 
@@ -185,20 +187,47 @@ def _error(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
+def input_digest(ref: dict[str, Any]) -> str:
+    """SHA-1 over the contents of every file an item reference names (``ref['paths']``, nested
+    lists and tables included), in a fixed order: a prepared item is valid for these bytes only."""
+    h = hashlib.sha1()
+
+    def walk(v: Any) -> None:
+        if isinstance(v, dict):
+            for k in sorted(v):
+                h.update(str(k).encode())
+                walk(v[k])
+        elif isinstance(v, (list, tuple)):
+            for x in v:
+                walk(x)
+        elif isinstance(v, (str, os.PathLike)) and os.path.isfile(v):
+            with open(v, "rb") as f:
+                for block in iter(lambda: f.read(1 << 20), b""):
+                    h.update(block)
+        else:
+            h.update(repr(v).encode())
+
+    walk(ref.get("paths") or {})
+    return h.hexdigest()
+
+
 def _prepare_item(pjob: PrepareJob, info: dict[str, Any]):
-    """The prepared item from the cache when it is there and valid, else prepared and cached."""
+    """The prepared item from the cache when it is there and holds this job's key and inputs,
+    else prepared and cached (a damaged or foreign file is reported once on stderr)."""
     from shape_toolkit.bench.tasks import prepare
     from shape_toolkit.data.datasets import ItemRef, load_item
 
     path = prepared_path(pjob.run_dir, pjob.key)
     info["path"] = str(path)
+    inputs = input_digest(pjob.ref)
     if path.exists():
         try:
-            prep = load_prepared(path)
+            prep = load_prepared(path, key=pjob.key, inputs=inputs)
             info["reused"] = True
             return prep
         except ValueError as exc:  # unreadable or tampered with: prepare it again
             info["cache_problem"] = str(exc)
+            warnings.warn(f"prepared item {path} ignored ({exc}); preparing it again", BenchWarning, stacklevel=2)
     t1 = time.perf_counter()
     item = load_item(ItemRef(**pjob.ref))
     info["load_seconds"] = time.perf_counter() - t1
@@ -211,7 +240,7 @@ def _prepare_item(pjob: PrepareJob, info: dict[str, Any]):
         truth_sample=pjob.truth_sample,
         geodesic_method=pjob.geodesic_method,
     )
-    save_prepared(path, prep)
+    save_prepared(path, prep, key=pjob.key, inputs=inputs)
     info["reused"] = False
     return prep
 
@@ -264,7 +293,7 @@ def _load_prepared(job: Job, pinfo: dict | None):
     if not path.exists():
         raise RuntimeError(f"prepared item missing: {path}")
     try:
-        return load_prepared(path)
+        return load_prepared(path, key=job.prepare_key)
     except ValueError as exc:
         raise RuntimeError(str(exc)) from None
 

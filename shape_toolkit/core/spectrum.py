@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import warnings
 from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -38,7 +39,7 @@ __all__ = [
 ]
 
 LAPLACIANS = ("combinatorial", "normalized", "random-walk")
-_CACHE_VERSION = "2"
+_CACHE_VERSION = "3"  # 3: each cache file carries its key, verified on read
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -100,8 +101,10 @@ class Spectrum:
         """Number of (numerically) zero eigenvalues, see :func:`null_count`."""
         return null_count(self.eigenvalues)
 
-    def save(self, path: str | os.PathLike) -> None:
-        """Write the spectrum to an ``.npz`` file (plain arrays and JSON text, no pickle)."""
+    def save(self, path: str | os.PathLike, *, cache_key: str = "") -> None:
+        """Write the spectrum to an ``.npz`` file (plain arrays and JSON text, no pickle);
+        ``cache_key``: the content cache's key text, which the cache verifies when it reads the
+        file back."""
         meta = {k: v for k, v in self.meta.items() if k != "vertices"}
         vertices = self.meta.get("vertices")
         np.savez(
@@ -116,6 +119,7 @@ class Spectrum:
             meta=json.dumps(meta, default=_json_default),
             vertices=np.asarray(vertices, dtype=np.int64) if vertices is not None else np.zeros(0, np.int64),
             has_vertices=vertices is not None,
+            cache_key=np.array(cache_key),
         )
 
     @classmethod
@@ -202,9 +206,41 @@ def clear_cache() -> None:
 
 
 def _cache_key(graph: ShapeGraph, *parts: object) -> str:
-    h = hashlib.sha1(graph.content_hash.encode())
-    h.update(repr((_CACHE_VERSION, graph.weighting) + parts).encode())
-    return h.hexdigest()
+    """The cache key text: the graph's content hash (weights and mass), its weighting, the request
+    and the format version. Its SHA-1 names the file; the file holds the text itself."""
+    return json.dumps([_CACHE_VERSION, graph.content_hash, graph.weighting, *map(repr, parts)])
+
+
+def _cache_file(d: Path, key: str) -> Path:
+    return d / f"{hashlib.sha1(key.encode()).hexdigest()}.npz"
+
+
+class CacheWarning(UserWarning):
+    """A disk cache file was corrupt or belonged to another key: it was ignored and recomputed."""
+
+
+_REPORTED: set[str] = set()
+
+
+def _report_bad_cache(path: Path, problem: str) -> None:
+    if str(path) not in _REPORTED:  # once per file and process
+        _REPORTED.add(str(path))
+        warnings.warn(f"spectrum cache file {path} ignored ({problem}); recomputing it", CacheWarning, stacklevel=3)
+
+
+def _read_cache_file(path: Path, key: str) -> Spectrum | None:
+    """The spectrum cached in ``path`` when the file is readable and holds ``key``; else None (a
+    miss, reported once)."""
+    try:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # fh: closed on a bad zip too
+            stored = str(z["cache_key"]) if "cache_key" in z.files else ""
+        if stored != key:
+            _report_bad_cache(path, "written for another key" if stored else "no key: an older format")
+            return None
+        return Spectrum.load(path)
+    except Exception as exc:  # truncated, empty, not an npz, inconsistent: all a miss
+        _report_bad_cache(path, f"unreadable: {type(exc).__name__}")
+        return None
 
 
 def _cache_get(key: str) -> Spectrum | None:
@@ -212,12 +248,10 @@ def _cache_get(key: str) -> Spectrum | None:
         _MEMORY.move_to_end(key)
         return _MEMORY[key]
     d = _cache_dir()
-    if d is not None and (d / f"{key}.npz").exists():
-        try:
-            spec = Spectrum.load(d / f"{key}.npz")
-        except (OSError, ValueError, KeyError):
-            return None
-        _cache_put(key, spec, disk=False)
+    if d is not None and (path := _cache_file(d, key)).exists():
+        spec = _read_cache_file(path, key)
+        if spec is not None:
+            _cache_put(key, spec, disk=False)
         return spec
     return None
 
@@ -229,8 +263,8 @@ def _cache_put(key: str, spec: Spectrum, disk: bool = True) -> None:
         _MEMORY.popitem(last=False)
     d = _cache_dir()
     if disk and d is not None:
-        with atomic_output(d / f"{key}.npz", "spectrum cache file", suffix=".npz", make_parents=True) as tmp:
-            spec.save(tmp)
+        with atomic_output(_cache_file(d, key), "spectrum cache file", suffix=".npz", make_parents=True) as tmp:
+            spec.save(tmp, cache_key=key)
 
 
 # -- solving ----------------------------------------------------------------------------------
