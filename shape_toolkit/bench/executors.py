@@ -28,6 +28,7 @@ from shape_toolkit.bench.store import (
     RESULTS,
     Appender,
     RunFolderError,
+    claim_run_folder,
     clean_results,
     read_rows,
     run_lock,
@@ -99,9 +100,11 @@ def run_benchmark(
 
 
 def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed) -> RunSummary:
-    (run / "config.json").write_text(dumps_json(config.raw, indent=2))
+    claim_run_folder(run)
     results = run / RESULTS
     try:
+        with atomic_output(run / "config.json", "run config") as tmp:
+            tmp.write_text(dumps_json(config.raw, indent=2))
         clean_results(results, keep_failed=not retry_failed)
         clean_results_log(run / PREPARED)
     except ShapeFileError as exc:  # atomic_output's typed write failure, as the OSError below

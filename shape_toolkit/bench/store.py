@@ -38,6 +38,7 @@ __all__ = [
     "clean_results",
     "Appender",
     "run_lock",
+    "claim_run_folder",
     "save_prepared",
     "load_prepared",
     "prepared_path",
@@ -49,6 +50,7 @@ __all__ = [
 RESULTS = "results.jsonl"
 PREPARED = "prepare.jsonl"
 LOCK = ".lock"
+MARK = ".shape-toolkit-run"  # written in every run folder: 'bench run' writes only in folders it made
 INVALID_SUFFIX = ".invalid"
 _STATUSES = ("ok", "failed")
 
@@ -235,7 +237,9 @@ class Appender:
 
     def __init__(self, path: Path):
         self.path = path
-        self.fh = open(path, "a", encoding="utf-8")
+        # O_NOFOLLOW: a link planted in place of the log is refused, never appended through
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        self.fh = os.fdopen(fd, "a", encoding="utf-8")
 
     def write(self, obj: Any) -> None:
         """Append ``obj`` (NaN and infinities become null)."""
@@ -250,23 +254,60 @@ class Appender:
 
 @contextmanager
 def run_lock(run: Path) -> Iterator[None]:
-    """Hold the run folder's OS-level lock (``RUN_DIR/.lock``) for the duration: a second writer
-    gets :class:`RunFolderError` at once instead of duplicating rows."""
+    """Hold the run folder's OS-level locks for the duration: ``RUN_DIR/.lock`` (filelock) and,
+    where the OS has ``flock``, a lock on the folder itself, which deleting ``.lock`` cannot
+    release. A second writer gets :class:`RunFolderError` at once instead of duplicating rows."""
     from filelock import FileLock, Timeout
 
+    busy = f"run folder {run} is in use by another 'bench run' (lock {run / LOCK}); wait for it to finish"
     lock = FileLock(str(run / LOCK), timeout=0)
     try:
         lock.acquire(timeout=0)
     except Timeout:
-        raise RunFolderError(
-            f"run folder {run} is in use by another 'bench run' (lock {run / LOCK}); wait for it to finish"
-        ) from None
+        raise RunFolderError(busy) from None
     except OSError as exc:
         raise RunFolderError(f"cannot lock run folder {run}: {exc.strerror or exc}") from None
+    fd = None
     try:
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - Windows: the file lock only
+            fcntl = None
+        if fcntl is not None:
+            fd = os.open(run, os.O_RDONLY)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise RunFolderError(busy) from None
         yield
     finally:
+        if fd is not None:
+            os.close(fd)
         lock.release()
+
+
+def claim_run_folder(run: Path) -> None:
+    """Check, under the lock, that ``run`` is a folder 'bench run' may write in, and mark it: empty
+    (a new run), or already a run folder (its mark or its results); and that nothing inside it is
+    a symbolic link, which could make the run write or read outside it. Else
+    :class:`RunFolderError`, before anything is written."""
+    entries = {p.name for p in run.iterdir()} - {LOCK}
+    if entries and not entries & {MARK, RESULTS, PREPARED}:
+        shown = ", ".join(sorted(entries)[:3]) + (", ..." if len(entries) > 3 else "")
+        raise RunFolderError(
+            f"{run} is not empty and is not a run folder (it holds {shown}); give 'bench run -o' a new or empty "
+            "folder, so that no file of yours is overwritten"
+        )
+    for root, dirs, files in os.walk(run, followlinks=False):
+        for name in dirs + files:
+            p = Path(root) / name
+            if p.is_symlink():
+                raise RunFolderError(
+                    f"{p} is a symbolic link: a run folder holds no links (the run could write outside it); "
+                    "remove it or start a new run folder"
+                )
+    if MARK not in entries:
+        (run / MARK).write_text("a shape-toolkit 'bench run' folder\n")
 
 
 # --------------------------------------------------------------------------------------------

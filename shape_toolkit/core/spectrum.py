@@ -244,10 +244,12 @@ def _read_cache_file(path: Path, key: str) -> Spectrum | None:
 
 
 def _cache_get(key: str) -> Spectrum | None:
+    d = _cache_dir()
     if key in _MEMORY:
         _MEMORY.move_to_end(key)
+        if d is not None and not _cache_file(d, key).exists():  # a new cache folder gets it too
+            _cache_put(key, _MEMORY[key])
         return _MEMORY[key]
-    d = _cache_dir()
     if d is not None and (path := _cache_file(d, key)).exists():
         spec = _read_cache_file(path, key)
         if spec is not None:
