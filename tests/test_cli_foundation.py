@@ -183,15 +183,32 @@ def test_parameters_are_typed(sphere_file, tmp_path, capsys):
 def test_info_json_is_valid_for_huge_coordinates(tmp_path, capsys):
     s = icosphere(2)
     p = tmp_path / "huge.off"
-    save_shape(Shape(s.vertices * 1e300, s.faces), p)
+    save_shape(Shape(s.vertices * 1e150, s.faces), p)
     code, out, _ = _inprocess(capsys, "info", str(p), "--json")
     assert code == 0
     info = json.loads(out, parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
-    assert info["degenerate_faces"] == 0 and info["total_area"] is None
-    assert info["mean_edge_length"] == pytest.approx(1e300 * s.mean_edge_length)
+    assert info["degenerate_faces"] == 0 and info["total_area"] == pytest.approx(1e300 * s.area)
+    assert info["mean_edge_length"] == pytest.approx(1e150 * s.mean_edge_length)
 
 
-@pytest.mark.parametrize("scale", [1e-300, 1e300])
+@pytest.mark.parametrize("command", ["info", "clean", "keypoints", "segment", "spectrum"])
+@pytest.mark.parametrize("scale", [1e200, 1e300, 1e-300])
+def test_coordinates_beyond_float64_squares_are_one_line_rejections(tmp_path, capsys, command, scale):
+    """Issue 27: info and clean exited 0 with infinite lengths and areas, keypoints and segment printed an
+    overflow warning before their error. Now every command refuses with one line naming the fix."""
+    s = icosphere(2)
+    p = tmp_path / "far.off"
+    p.write_text(f"OFF\n{s.n_vertices} {s.n_faces} 0\n"
+                 + "".join(f"{x * scale!r} {y * scale!r} {z * scale!r}\n" for x, y, z in s.vertices.tolist())
+                 + "".join(f"3 {a} {b} {c}\n" for a, b, c in s.faces))
+    extra = {"clean": ["-o", str(tmp_path / "c.off")], "segment": ["--method", "eigvec-gmm", "-o",
+                                                                      str(tmp_path / "s.txt")]}.get(command, [])
+    code, out, err = _inprocess(capsys, command, str(p), *extra, "--json")
+    assert code == 2 and out == "", out
+    assert len(err.strip().splitlines()) == 1 and "rescale the shape" in err, err
+
+
+@pytest.mark.parametrize("scale", [1e-150, 1e150])
 def test_evaluate_map_identity_at_any_scale(tmp_path, capsys, scale):
     s = icosphere(2)
     p = tmp_path / "s.off"

@@ -300,7 +300,7 @@ def test_repeated_index_face_is_degenerate_not_non_manifold(sphere):
 # ------------------------------------------------------------------------------------------------
 # scale: tolerances relative to the shape, no overflow / underflow (issue 11)
 # ------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("scale", [1e300, 1e-300, 1e-320, 1e150])
+@pytest.mark.parametrize("scale", [1e150, 1e-150, 2.0**-500, 1e100])
 def test_info_and_clean_do_not_depend_on_units(scale):
     from shape_toolkit.validation import dumps_json
 
@@ -318,14 +318,48 @@ def test_info_and_clean_do_not_depend_on_units(scale):
 
 def test_shape_geometry_is_overflow_free():
     s = icosphere(2)
-    big = Shape(s.vertices * 1e200, s.faces)
-    np.testing.assert_allclose(big.edge_lengths / 1e200, s.edge_lengths, rtol=1e-12)
-    np.testing.assert_allclose(big.diagonal / 1e200, s.diagonal, rtol=1e-12)
-    tiny = Shape(s.vertices * 1e-200, s.faces)
+    big = Shape(s.vertices * 1e150, s.faces)
+    np.testing.assert_allclose(big.edge_lengths / 1e150, s.edge_lengths, rtol=1e-12)
+    np.testing.assert_allclose(big.diagonal / 1e150, s.diagonal, rtol=1e-12)
+    assert np.isfinite(big.area) and big.area == pytest.approx(s.area * 1e300)
+    tiny = Shape(s.vertices * 1e-150, s.faces)
     np.testing.assert_allclose(tiny.face_normals, s.face_normals, atol=1e-12)
     np.testing.assert_array_equal(Shape(s.vertices * 4.0, s.faces).face_areas, s.face_areas * 16.0)  # exact
     n, centre, diag = big.normalized()
     assert n.diagonal == pytest.approx(1.0) and np.isfinite(centre).all() and diag == pytest.approx(big.diagonal)
+
+
+@pytest.mark.parametrize("scale", [1e153, 1e200, 1e250, 1e300, 1.7e308, 1e-155, 1e-300, 1e-320])
+def test_shapes_whose_squared_lengths_leave_float64_are_refused(scale):
+    """Issue 27: 1e200-1e300 coordinates gave infinite areas (info and clean exited 0 with them, spectra
+    warned of overflow); 1e-300 ones gave areas of zero. One rule where shapes are built: squared lengths
+    and areas must be normal float64 numbers, or the shape is refused with the advice to rescale."""
+    s = icosphere(2)
+    word = "large" if scale > 1 else "small"
+    with pytest.raises(InvalidShapeError, match=f"too {word} for float64.*rescale"):
+        Shape(s.vertices * scale, s.faces)
+    with pytest.raises(InvalidShapeError, match=f"too {word}"):
+        Shape(s.vertices * scale)  # a point cloud too
+    mixed = s.vertices.copy()
+    mixed[0] = scale
+    if scale > 1:  # one far vertex among normal ones
+        with pytest.raises(InvalidShapeError, match="too large"):
+            Shape(mixed, s.faces)
+
+
+def test_extent_rule_bounds():
+    from shape_toolkit.core.shape import check_extent
+
+    s = icosphere(2)
+    assert check_extent(s.vertices) == pytest.approx(s.diagonal)
+    assert check_extent(np.ones((4, 3))) == 0.0  # coincident vertices pass: degeneracy is judged elsewhere
+    Shape(np.ones((4, 3)))
+    Shape(s.vertices * 1e152, s.faces)  # just inside: 320 faces of squared diagonal ~1e305
+    assert np.isfinite(Shape(s.vertices * 1e152, s.faces).area)
+    with pytest.raises(InvalidShapeError, match="for 320 vertices or faces"):
+        Shape(s.vertices * 4e152, s.faces)
+    with pytest.raises(InvalidShapeError, match="for 10000 vertices"):
+        check_extent(s.vertices * 1e152, 10000)
 
 
 def test_remesh_refuses_targets_beyond_the_vertex_budget():
@@ -335,9 +369,9 @@ def test_remesh_refuses_targets_beyond_the_vertex_budget():
     assert estimate_remesh_vertices(s, s.mean_edge_length) == pytest.approx(s.n_vertices, rel=0.3)
     with pytest.raises(ParameterError, match=f"{MAX_REMESH_VERTICES:,}"):
         clean_shape(s, remesh_target_edge=1e-6)
-    big = Shape(s.vertices * 1e300, s.faces)
+    big = Shape(s.vertices * 1e150, s.faces)
     with pytest.raises(ParameterError, match="budget"):
-        clean_shape(big, remesh_target_edge=1e290)
+        clean_shape(big, remesh_target_edge=1e140)
 
 
 def test_cleanup_keeps_colours(sphere):

@@ -11,7 +11,14 @@ import numpy as np
 
 from shape_toolkit.errors import InvalidShapeError
 
-__all__ = ["Shape", "check_colors", "coordinate_scale", "duplicate_face_pairs", "check_no_duplicate_faces"]
+__all__ = [
+    "Shape",
+    "check_colors",
+    "check_extent",
+    "coordinate_scale",
+    "duplicate_face_pairs",
+    "check_no_duplicate_faces",
+]
 
 #: Float colours may exceed [0, 1] by this much (rounding of computed colours) and are clipped;
 #: anything further out is refused.
@@ -31,6 +38,55 @@ def coordinate_scale(vertices: np.ndarray) -> float:
     if not np.isfinite(m) or m == 0.0:
         return 1.0
     return float(np.ldexp(1.0, int(np.frexp(m)[1])))
+
+
+#: the largest finite float64
+_FLOAT_MAX = float(np.finfo(np.float64).max)
+#: the smallest positive normal float64: squared lengths below it lose their precision (subnormal) or vanish
+_FLOAT_TINY = float(np.finfo(np.float64).tiny)
+
+
+def check_extent(vertices: np.ndarray, n_items: int | None = None, where: str = "") -> float:
+    """The bounding-box diagonal of finite ``vertices`` ``(n, 3)``, or :class:`InvalidShapeError` when the
+    shape's squared lengths do not fit float64.
+
+    The rule: every area and squared length the toolkit computes (face and vertex areas, Laplacian
+    weights and mass matrices, sums of squared distances over all vertices or faces) must be a
+    normal float64 number. So, with ``d`` the bounding-box diagonal and ``n_items`` the number of
+    vertices or faces, whichever is larger (default: the number of vertices), ``n_items * d**2`` must
+    not overflow (coordinates near 1e154 and beyond: infinite areas) and a non-zero ``d**2`` must not
+    underflow below the smallest normal number (coordinates near 1e-154 and below: areas of zero).
+    A shape whose vertices all coincide (``d == 0``) passes; its degeneracy is judged where it
+    matters. The message names the diagonal, the limit and the fix (rescale the coordinates).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    if v.size == 0:
+        return 0.0
+    m = float(np.abs(v).max())
+    if m == 0.0:
+        return 0.0
+    e = int(np.frexp(m)[1])
+    w = np.ldexp(v, -e)  # exact rescaling into (-1, 1): no overflow for any finite coordinates
+    d_scaled = float(np.linalg.norm(w.max(axis=0) - w.min(axis=0)))
+    count = max(int(v.shape[0] if n_items is None else n_items), 1)
+    p10 = int(np.floor(np.log10(m)))  # the decimal exponent of the coordinates, for the advice
+    with np.errstate(over="ignore", under="ignore"):
+        d = float(np.ldexp(d_scaled, e))
+        limit = float(np.sqrt(_FLOAT_MAX / count))
+        if not np.isfinite(d) or d > limit:
+            shown = f"{d:.3g}" if np.isfinite(d) else f"beyond float64 ({_FLOAT_MAX:.3g})"
+            raise InvalidShapeError(
+                f"coordinates too large for float64{where}: the bounding-box diagonal is {shown}, so squared "
+                f"lengths and areas overflow (for {count} vertices or faces the diagonal must stay below "
+                f"{limit:.3g}); rescale the shape, e.g. divide its coordinates by 1e{p10}"
+            )
+        if d > 0 and d * d < _FLOAT_TINY:
+            raise InvalidShapeError(
+                f"coordinates too small for float64{where}: the bounding-box diagonal is {d:.3g}, so squared "
+                f"lengths and areas underflow to zero (the diagonal must be at least {np.sqrt(_FLOAT_TINY):.3g}); "
+                f"rescale the shape, e.g. multiply its coordinates by 1e{-p10}"
+            )
+    return d
 
 
 def duplicate_face_pairs(faces: np.ndarray) -> np.ndarray:
@@ -119,7 +175,9 @@ class Shape:
 
     ``vertices`` is a float64 ``(n, 3)`` array, ``faces`` an int64 ``(m, 3)`` array of 0-based
     vertex indices. Both are validated and made read-only on construction: a Shape never holds
-    NaN/inf coordinates or out-of-range face indices, so native code (libigl) is safe to call.
+    NaN/inf coordinates or out-of-range face indices, so native code (libigl) is safe to call, nor
+    coordinates whose squared lengths and areas overflow or underflow float64 (:func:`check_extent`:
+    1e200 or 1e-300 coordinates are refused with the advice to rescale).
     ``colors`` (optional) are per-vertex RGB, stored as a read-only float64 ``(n, 3)`` array in
     [0, 1] (see :func:`check_colors`: uint8 input is divided by 255, out-of-range values refused).
     Colours are appearance, not geometry: :attr:`content_hash` ignores them, so spectra and other
@@ -144,6 +202,8 @@ class Shape:
         if not np.isfinite(v).all():
             bad = int((~np.isfinite(v)).any(axis=1).sum())
             raise InvalidShapeError(f"{bad} vertices have NaN or infinite coordinates{where}")
+        n_faces = 0 if self.faces is None else int(np.shape(self.faces)[0]) if np.ndim(self.faces) else 0
+        check_extent(v, max(v.shape[0], n_faces), where)
         object.__setattr__(self, "vertices", _readonly(v))
         if self.faces is not None:
             f = np.asarray(self.faces)

@@ -152,8 +152,8 @@ def run(args: argparse.Namespace) -> int:
     target = load_shape(args.target)
     # Every score is scale-free (errors in units of sqrt(area), neighbourhoods by vertex counts).
     # Evaluate on coordinates divided by a power of two near their magnitude (an exact rescaling),
-    # so 1e-300 or 1e300 coordinates neither underflow nor overflow in the geodesic solvers (they
-    # did: NaN heat-method matrices).
+    # so coordinates near the extremes a Shape takes (1e-150, 1e150) neither underflow nor overflow in
+    # the geodesic solvers (1e300 ones did: NaN heat-method matrices; such shapes are now refused on load).
     target = target.with_vertices(target.vertices / target.scale)
     source = source.with_vertices(source.vertices / source.scale)
     corr = load_map(args.map, source.n_vertices, target.n_vertices)
