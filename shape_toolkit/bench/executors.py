@@ -10,11 +10,12 @@ even across workers. Only the runner process writes the files.
 
 from __future__ import annotations
 
-import errno
+import contextlib
 import os
 import sys
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import CancelledError
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -26,8 +27,10 @@ from shape_toolkit.bench.progress import Progress
 from shape_toolkit.bench.store import (
     PREPARED,
     RESULTS,
+    WRITE_ERRNOS,
     Appender,
     RunFolderError,
+    RunStoppedError,
     claim_run_folder,
     clean_results,
     read_rows,
@@ -57,7 +60,12 @@ class RunSummary:
         return asdict(self)
 
 
-_WRITE_ERRORS = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT}
+_WRITE_ERRORS = WRITE_ERRNOS
+#: what losing the scheduler raises (CommClosedError is an OSError; futures cancelled on a lost
+#: connection raise CancelledError)
+_LOST = (OSError, TimeoutError, CancelledError)
+#: seconds a Dask run waits with no worker before it stops (``bench run --worker-timeout``)
+WORKER_TIMEOUT = 60.0
 
 
 def _open_run_dir(run_dir: str | os.PathLike) -> Path:
@@ -80,26 +88,31 @@ def run_benchmark(
     limit: int | None = None,
     progress: bool = True,
     retry_failed: bool = False,
+    worker_timeout: float = WORKER_TIMEOUT,
 ) -> RunSummary:
     """Run every planned row not already in ``RUN_DIR/results.jsonl``; see the module docstring.
     :class:`~shape_toolkit.bench.store.RunFolderError` when the folder is locked by another run
-    or not writable."""
+    or not writable; :class:`~shape_toolkit.bench.store.RunStoppedError` when a transient fault
+    (an unwritable folder, a lost worker or scheduler, ``worker_timeout`` seconds without a Dask
+    worker) stopped it: the rows it did not finish are not recorded."""
     if workers < 1:
         raise ParameterError(f"workers must be >= 1, got {workers}")
     if limit is not None and limit < 1:
         raise ParameterError(f"limit must be >= 1, got {limit}")
+    if not worker_timeout > 0:
+        raise ParameterError(f"worker_timeout must be > 0 seconds, got {worker_timeout}")
     t0 = time.perf_counter()
     run = _open_run_dir(run_dir)
     with run_lock(run):
         try:
-            return _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed)
+            return _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed, worker_timeout)
         except OSError as exc:
             if exc.errno not in _WRITE_ERRORS:
                 raise
             raise RunFolderError(f"cannot write to run folder {run}: {exc.strerror or exc}") from None
 
 
-def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed) -> RunSummary:
+def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed, worker_timeout) -> RunSummary:
     claim_run_folder(run)
     results = run / RESULTS
     try:
@@ -120,17 +133,29 @@ def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_fail
     plog = Appender(run / PREPARED)
     n_rows = 0
 
+    def stop(why: str) -> None:
+        raise RunStoppedError(
+            f"run stopped, {why}; {n_rows} rows written this time are kept, run the same command again to resume"
+        )
+
     def finish(row: dict) -> None:
         nonlocal n_rows
+        if row.get("transient"):  # the environment failed, not the method: never a result
+            stop(row["transient"])
         out.write(row)
         n_rows += 1
         bar.update(failed=row["status"] != "ok")
 
+    def log(info: dict) -> None:
+        if info.get("transient"):
+            stop(info["transient"])
+        plog.write(info)
+
     try:
         if scheduler is None and workers == 1:
-            run_local(todo, preps, finish, plog.write)
+            run_local(todo, preps, finish, log)
         else:
-            run_dask(todo, preps, workers, scheduler, finish, plog.write)
+            run_dask(todo, preps, workers, scheduler, finish, log, worker_timeout)
     finally:
         bar.close()
         out.close()
@@ -177,36 +202,63 @@ def run_dask(
     scheduler: str | None,
     finish: Callable[[dict], None],
     log: Callable[[dict], None],
+    worker_timeout: float = WORKER_TIMEOUT,
 ) -> None:
-    """On a local Dask cluster of ``workers`` processes, or on the scheduler at ``scheduler``."""
-    from distributed import as_completed
+    """On a local Dask cluster of ``workers`` processes, or on the scheduler at ``scheduler``.
+    :class:`RunStoppedError` when the scheduler has had no worker for ``worker_timeout`` seconds
+    or is lost; a row whose worker died is not recorded (``finish`` stops the run on it)."""
+    from distributed import wait
 
-    with dask_client(workers, scheduler) as client:
-        pfuts = {k: client.submit(prepare_job, p, key=f"prepare-{k}", pure=False) for k, p in preps.items()}
-        by_key = {f"row-{j.key}": j for j in todo}
-        rfuts = [
-            client.submit(execute_job, j, pfuts[j.prepare_key], key=f"row-{j.key}", pure=False) for j in todo
-        ]
-        logged: set[str] = set()
-        for fut in as_completed(rfuts):
-            try:
-                row = fut.result()
-            except Exception as exc:  # a worker died: record the row as failed, go on
-                row = lost_row(by_key[fut.key], exc)
-            finish(row)
-            for k, pf in pfuts.items():
-                if k not in logged and pf.done():
-                    logged.add(k)
+    where = f"the Dask scheduler at {scheduler}" if scheduler else "the local Dask cluster"
+    with dask_client(workers, scheduler, worker_timeout) as client:
+        try:
+            pfuts = {k: client.submit(prepare_job, p, key=f"prepare-{k}", pure=False) for k, p in preps.items()}
+            by_key = {f"row-{j.key}": j for j in todo}
+            pending = {
+                client.submit(execute_job, j, pfuts[j.prepare_key], key=f"row-{j.key}", pure=False) for j in todo
+            }
+            logged: set[str] = set()
+            while pending:
+                try:
+                    done, pending = wait(pending, timeout=worker_timeout, return_when="FIRST_COMPLETED")
+                except TimeoutError:  # nothing finished for a while: fine, unless no worker is left
+                    if not client.scheduler_info().get("workers"):
+                        raise RunStoppedError(
+                            f"{where} has had no worker for {worker_timeout:g} s; the rows finished so far are "
+                            "kept: start workers and run the same command again"
+                        ) from None
+                    continue
+                for fut in done:
                     try:
-                        log(pf.result())
-                    except Exception as exc:  # pragma: no cover - the worker died while preparing
-                        log({"key": k, "error": f"worker lost: {type(exc).__name__}: {exc}", "spectra": []})
+                        row = fut.result()
+                    except _LOST:
+                        raise
+                    except Exception as exc:  # the worker died (KilledWorker): transient, not a result
+                        row = lost_row(by_key[fut.key], exc)
+                    finish(row)
+                for k, pf in pfuts.items():
+                    if k not in logged and pf.done():
+                        logged.add(k)
+                        try:
+                            log(pf.result())
+                        except RunStoppedError:
+                            raise
+                        except Exception as exc:  # the worker died while preparing: its rows say so
+                            log({"key": k, "error": f"worker lost: {type(exc).__name__}: {exc}", "spectra": []})
+        except _LOST as exc:
+            raise RunStoppedError(
+                f"lost {where} ({type(exc).__name__}); the rows finished so far are kept: run the same command "
+                "again to resume"
+            ) from None
 
 
 @contextmanager
-def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[Any]:
+def dask_client(
+    workers: int = 2, scheduler: str | None = None, worker_timeout: float = WORKER_TIMEOUT
+) -> Iterator[Any]:
     """A ``distributed.Client``: on a local cluster of ``workers`` processes (one thread each,
-    loopback, no dashboard) or on the scheduler at ``scheduler`` (``tcp://host:port``); workers get
+    loopback, no dashboard) or on the scheduler at ``scheduler`` (``tcp://host:port``), which must
+    have a worker within ``worker_timeout`` seconds (else :class:`RunStoppedError`); workers get
     this process's ``sys.path`` so they import the same toolkit. Closed (and the local cluster
     shut down) on exit."""
     import logging
@@ -214,8 +266,9 @@ def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[Any]
     from distributed import Client, LocalCluster
 
     cluster = None
-    for name in ("distributed", "distributed.worker", "distributed.scheduler", "distributed.nanny"):
-        logging.getLogger(name).setLevel(logging.ERROR)
+    for name in ("distributed", "distributed.worker", "distributed.scheduler", "distributed.nanny",
+                 "distributed.client", "distributed.core", "distributed.comm"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
     if scheduler is None:
         cluster = LocalCluster(
             n_workers=workers,
@@ -227,14 +280,27 @@ def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[Any]
         )
         client = Client(cluster)
     else:
-        client = Client(scheduler, timeout="30s")
+        try:
+            client = Client(scheduler, timeout="30s")
+        except (OSError, TimeoutError) as exc:
+            raise RunStoppedError(f"cannot reach the Dask scheduler at {scheduler}: {type(exc).__name__}") from None
     try:
+        if scheduler is not None:
+            try:
+                client.wait_for_workers(1, timeout=worker_timeout)
+            except TimeoutError:
+                raise RunStoppedError(
+                    f"the Dask scheduler at {scheduler} has no worker after {worker_timeout:g} s; start workers "
+                    "(dask worker ADDRESS) or raise --worker-timeout"
+                ) from None
         client.run(_extend_path, [p for p in sys.path if p])
         yield client
     finally:
-        client.close()
+        with contextlib.suppress(Exception):  # a lost scheduler: closing must not mask the reason
+            client.close(timeout=5)
         if cluster is not None:
-            cluster.close()
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=10)
 
 
 def _extend_path(paths: list[str]) -> None:

@@ -12,6 +12,7 @@ torn last line, which the next run moves aside with any other invalid line.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import warnings
@@ -23,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from shape_toolkit.errors import ParameterError
+from shape_toolkit.errors import ParameterError, ToolkitError
 from shape_toolkit.validation import atomic_output, dumps_json, jsonable
 
 __all__ = [
@@ -38,6 +39,8 @@ __all__ = [
     "clean_results",
     "Appender",
     "run_lock",
+    "RunStoppedError",
+    "transient_problem",
     "claim_run_folder",
     "save_prepared",
     "load_prepared",
@@ -61,6 +64,33 @@ class BenchWarning(UserWarning):
 
 class RunFolderError(ParameterError):
     """The run folder cannot be used: locked by another run, not writable, not a run folder."""
+
+
+class RunStoppedError(ToolkitError):
+    """The run stopped for a transient cause (the folder became unwritable, workers or the
+    scheduler were lost): nothing was recorded for the rows it did not finish, and running the
+    same command again resumes it. Exit code 3."""
+
+    exit_code = 3
+
+
+WRITE_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT})
+
+
+def transient_problem(exc: BaseException, run_dir: str | os.PathLike) -> str | None:
+    """What makes ``exc`` a fault of the environment rather than a result of the row (a write
+    in the run folder refused: permissions, read-only, disk full), or None."""
+    from shape_toolkit.errors import ShapeFileError
+
+    if isinstance(exc, OSError) and exc.errno in WRITE_ERRNOS:
+        where = f" ({exc.filename})" if exc.filename else ""
+        return f"the system refused a write: {exc.strerror or exc}{where}"
+    if isinstance(exc, ShapeFileError) and exc.problem.startswith("cannot "):
+        run = Path(run_dir).resolve()
+        path = Path(exc.path).resolve()
+        if path == run or run in path.parents:
+            return f"cannot write to the run folder: {exc}"
+    return None
 
 
 def safe_name(name: str, limit: int = 80) -> str:

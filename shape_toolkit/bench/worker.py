@@ -23,7 +23,15 @@ from pathlib import Path
 from typing import Any
 
 from shape_toolkit.bench.plan import Job, PrepareJob, create_detector, create_method
-from shape_toolkit.bench.store import BenchWarning, Row, load_prepared, prepared_path, save_output, save_prepared
+from shape_toolkit.bench.store import (
+    BenchWarning,
+    Row,
+    load_prepared,
+    prepared_path,
+    save_output,
+    save_prepared,
+    transient_problem,
+)
 
 __all__ = [
     "package_versions", "cpu_model", "machine_info", "code_revision", "revision_label", "MemoryMonitor",
@@ -282,6 +290,8 @@ def prepare_job(pjob: PrepareJob) -> dict[str, Any]:
         info["spectra"] = spectra
     except Exception as exc:
         info["error"] = _error(exc)
+        if (why := transient_problem(exc, pjob.run_dir)) is not None:
+            info["transient"] = why
     info["seconds"] = time.perf_counter() - t0
     return info
 
@@ -323,11 +333,10 @@ def _new_row(job: Job) -> Row:
 
 
 def lost_row(job: Job, exc: BaseException) -> dict[str, Any]:
-    """The failed row of a job whose worker died."""
-    row = _new_row(job)
-    row.status = "failed"
-    row.error = f"worker lost: {_error(exc)}"
-    return row.to_dict()
+    """The row of a job whose worker died: transient, never recorded (the run stops, and
+    running it again retries the row)."""
+    return {"key": job.key, "transient": f"a worker running {job.item} ({job.method_label or job.plugin}) "
+            f"was lost ({type(exc).__name__}), e.g. killed for memory; try fewer --workers"}
 
 
 class _Received:
@@ -366,6 +375,8 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
     a failure becomes ``status='failed'`` with the error message)."""
     from shape_toolkit.bench.tasks import TASKS, compute_spectrum_cached, method_specs, received_spec
 
+    if pinfo is not None and pinfo.get("transient"):
+        return {"key": job.key, "transient": pinfo["transient"]}
     row = _new_row(job)
     row.versions = package_versions()
     row.worker = f"{platform.node()}:{os.getpid()}"
@@ -412,6 +423,8 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
         row.metric_seconds = time.perf_counter() - t0
         row.output = save_output(job.run_dir, job.key, output)
     except Exception as exc:
+        if (why := transient_problem(exc, job.run_dir)) is not None:
+            return {"key": job.key, "transient": why}
         if row.seconds is None:
             row.seconds = time.perf_counter() - t_start
         row.status = "failed"

@@ -8,7 +8,13 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from shape_toolkit.cli.commands._common import add_quiet, default_output, print_json, scheduler_address
+from shape_toolkit.cli.commands._common import (
+    add_quiet,
+    default_output,
+    number_arg,
+    print_json,
+    scheduler_address,
+)
 
 RUN_EPILOG = """exit status:
   0  every row of the run folder succeeded
@@ -54,6 +60,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--scheduler", metavar="ADDRESS", type=scheduler_address,
         help="address of an existing Dask scheduler (tcp://host:port)"
     )
+    r.add_argument(
+        "--worker-timeout", metavar="SECONDS", type=number_arg("a number of seconds > 0", 0, open_low=True),
+        default=60.0, help="stop (resumable, exit 3) when Dask has had no worker this long (default 60)",
+    )
     r.add_argument("--limit", type=int, metavar="N", help="keep the first N items of each dataset")
     r.add_argument("--retry-failed", action="store_true", help="run failed rows again")
     add_quiet(r)
@@ -93,6 +103,7 @@ def run_cmd(args: argparse.Namespace) -> int:
             limit=args.limit,
             progress=not (args.quiet or args.json),
             retry_failed=args.retry_failed,
+            worker_timeout=args.worker_timeout,
         )
         report = None
         if args.report:
