@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.errors import ParameterError
+from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.features.geodesics import paired_geodesic_distances  # re-exported: its old home
 from shape_toolkit.results.correspondence import Correspondence
 
@@ -25,6 +25,7 @@ __all__ = [
     "DEFAULT_THRESHOLDS",
     "paired_geodesic_distances",
     "geodesic_errors",
+    "error_normalization",
     "error_curve",
     "is_flipped",
     "correspondence_report",
@@ -63,6 +64,23 @@ def check_truth(
             )
 
 
+def error_normalization(target: Shape) -> float:
+    """``sqrt(target.area)``, the unit of the normalized geodesic error, or :class:`InvalidShapeError`
+    when it is not a positive number: a point cloud (no area), or a mesh whose every face is degenerate
+    (zero area to rounding: collinear or coincident vertices, repeated indices), where the error
+    would be a division by zero (NaN or infinite errors, reported as null)."""
+    from shape_toolkit.core.inspect import degenerate_face_mask
+
+    faces = target.require_faces("the normalized geodesic error (errors in units of sqrt(area))")
+    area = float(target.area)
+    if not area > 0 or not np.isfinite(area) or degenerate_face_mask(target.vertices, faces).all():
+        raise InvalidShapeError(
+            f"the target {target!r} has zero surface area (every face is degenerate: collinear or coincident "
+            "vertices), so the geodesic error normalized by sqrt(area) is undefined"
+        )
+    return float(np.sqrt(area))
+
+
 def geodesic_errors(
     target: Shape,
     target_of: np.ndarray | Correspondence,
@@ -79,7 +97,8 @@ def geodesic_errors(
     image of ``truth_src[i]`` and ``truth_dst[i]`` (divided by ``sqrt(target.area)`` when
     ``normalize``); with ``truth_dst_sym`` the smaller of the errors to the true and symmetric
     vertex; ``inf`` when the source vertex is unmatched. ``time_limit`` and ``progress`` as in
-    :func:`paired_geodesic_distances`."""
+    :func:`paired_geodesic_distances`. A target of zero area cannot normalize:
+    :class:`InvalidShapeError` (:func:`error_normalization`), before any geodesic is computed."""
     t = target_of.target_of if isinstance(target_of, Correspondence) else np.asarray(target_of)
     t = np.asarray(t, dtype=np.int64)
     ts = np.asarray(truth_src, dtype=np.int64)
@@ -87,6 +106,7 @@ def geodesic_errors(
     check_truth(ts, td, t.size, target.n_vertices, truth_dst_sym)
     if t.size and t.max() >= target.n_vertices:
         raise ParameterError(f"the map points past the target's {target.n_vertices} vertices")
+    unit = error_normalization(target) if normalize else 1.0
     pred = t[ts]
     ok = pred >= 0
     err = np.full(ts.size, np.inf)
@@ -99,9 +119,7 @@ def geodesic_errors(
             target, pred[ok], partners, method=method, time_limit=time_limit, progress=progress
         )
         err[ok] = d if d.ndim == 1 else d.min(axis=1)
-    if normalize:
-        err = err / np.sqrt(target.area)
-    return err
+    return err / unit
 
 
 def error_curve(

@@ -34,6 +34,7 @@ from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.metrics.correspondence import (
     R_SMOOTH_RS,
     correspondence_report,
+    error_normalization,
     geodesic_errors,
     map_label_scores,
     paired_geodesic_distances,
@@ -133,15 +134,22 @@ def _geodesic_error(args, source, target, corr, st) -> dict:
             pred = corr.target_of[ts]
             ok = pred >= 0
             both = np.full((ts.size, 2), np.inf)
+            unit = error_normalization(target)
             both[ok] = paired_geodesic_distances(
                 target, pred[ok], np.column_stack([td[ok], sym[ok]]), method=args.geodesics,
                 time_limit=args.time_limit, progress=st.count,
-            ) / np.sqrt(target.area)
+            ) / unit
             result = correspondence_report(both[:, 0])
             rs = correspondence_report(both.min(axis=1))
             result["symmetric"] = {"mean_geodesic_error": rs["mean_geodesic_error"], "curve": rs["curve"]}
     except TimeLimitError as exc:
         raise time_limit_hint(exc, args) from None
+    if result["matched_fraction"] == 0:  # the library's NaN mean (a benchmark row's "no value"): refuse
+        raise ParameterError(
+            f"no ground-truth pair has an error: the map leaves all {ts.size} truth source vertices unmatched "
+            "(-1) or sends them where the true target vertex cannot be reached (another connected component), "
+            "so the mean geodesic error is undefined"
+        )
     result["geodesics"] = args.geodesics
     return result
 
