@@ -12,7 +12,7 @@ import pytest
 from shape_toolkit.cli import main
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.generate import icosphere
-from shape_toolkit.errors import InvalidShapeError
+from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.io.mesh import save_shape
 
 
@@ -96,3 +96,72 @@ def test_evaluate_map_on_a_mesh_with_repeated_vertices_gives_numbers(tmp_path, c
     assert code == 0, err
     res = json.loads(out)
     assert res["mean_geodesic_error"] == 0.0 and res["matched_fraction"] == 1.0
+
+
+# ------------------------------------------------------------------------------------------------
+# transfer-labels / eigenvector matchers on tiny or odd meshes: one embedding size for both shapes
+# ------------------------------------------------------------------------------------------------
+def _fan(n: int = 6) -> Shape:
+    t = 2 * np.pi * np.arange(n) / n
+    v = np.r_[[[0.0, 0.0, 0.0]], np.c_[np.cos(t), np.sin(t), np.zeros(n)]]
+    return Shape(v, np.array([[0, 1 + i, 1 + (i + 1) % n] for i in range(n)]))
+
+
+TINY = {
+    "triangle": Shape(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]), np.array([[0, 1, 2]])),
+    "quad": Shape(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]]), np.array([[0, 1, 2], [1, 3, 2]])),
+    "fan": _fan(),
+    "non_manifold_fan": Shape(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1.0]]),
+                              np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4]])),
+}
+PAIRS = [(a, b) for a in TINY for b in TINY if a != b] + [("sphere", "triangle"), ("triangle", "sphere")]
+
+
+def _tiny(name: str) -> Shape:
+    return icosphere(1) if name == "sphere" else TINY[name]
+
+
+@pytest.mark.parametrize(("a", "b"), PAIRS)
+def test_eigvec_alignment_between_meshes_of_different_tiny_sizes(a, b):
+    """Issue 27: a 3-vertex mesh has 2 non-constant eigenvectors, a 5-vertex one 4: the histogram
+    alignment built a (2, 2) matrix and indexed it with the target's 4 (IndexError), or EM refused
+    'X, Y and Q0 must share the embedding dimension'. Both shapes now embed in the size they share."""
+    from shape_toolkit.api.registry import create_plugin
+    from shape_toolkit.results.label_transfer import probabilistic_label_transfer
+
+    src, dst = _tiny(a), _tiny(b)
+    corr = create_plugin("dense_matchers", "eigvec-alignment").match(src, dst)
+    assert corr.target_of.shape == (src.n_vertices,) and (corr.target_of >= 0).all()
+    assert corr.info["embedding_dim"] == min(8, src.n_vertices - 1, dst.n_vertices - 1)
+    labels, _ = probabilistic_label_transfer(src, np.arange(src.n_vertices) % 2, dst)
+    assert labels.shape == (dst.n_vertices,) and set(labels.tolist()) <= {0, 1}
+
+
+def test_histogram_alignment_refuses_embeddings_of_different_sizes():
+    from shape_toolkit.plugins.matching.dense.eigvec_alignment import histogram_alignment
+
+    with pytest.raises(ParameterError, match="one k"):
+        histogram_alignment(np.ones((3, 2)), np.ones((5, 4)), np.ones(3), np.ones(5))
+
+
+def test_shared_dimension_needs_a_non_constant_eigenvector():
+    from shape_toolkit.plugins.matching._common import Basis
+    from shape_toolkit.plugins.matching.dense.em_registration import EMRegistrationMatcher
+
+    one = Basis(np.zeros(1), np.ones((1, 1)), np.ones(1))
+    three = Basis(np.zeros(3), np.ones((3, 3)), np.ones(3) / 3)
+    assert EMRegistrationMatcher._shared_dimension(8, three, three) == 2
+    with pytest.raises(InvalidShapeError, match="only the constant one"):
+        EMRegistrationMatcher._shared_dimension(8, one, three)
+
+
+@pytest.mark.parametrize(("a", "b"), PAIRS)
+def test_transfer_labels_cli_on_tiny_meshes(tmp_path, capsys, a, b):
+    src, dst = _tiny(a), _tiny(b)
+    save_shape(src, tmp_path / "a.off")
+    save_shape(dst, tmp_path / "b.off")
+    lab = _ints(tmp_path / "a.labels", np.arange(src.n_vertices) % 2)
+    code, out, err = _cli(capsys, "transfer-labels", tmp_path / "a.off", lab, tmp_path / "b.off",
+                          "-o", tmp_path / "out.txt", "--json")
+    assert code == 0, err
+    assert json.loads(out)["n_vertices"] == dst.n_vertices

@@ -15,6 +15,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.matching.dense.em_registration import EMRegistrationMatcher
 
 __all__ = ["EigvecAlignmentMatcher", "histogram_alignment"]
@@ -33,6 +34,8 @@ def histogram_alignment(
     """Signed permutation ``Q`` ``(k, k)`` (``Y ~ X Q^T``) matching source eigenvectors ``X``
     ``(n, k)`` to target eigenvectors ``Y`` ``(n', k)`` by L1 distance between their
     ``wx``/``wy``-weighted histograms; also returns the ``(k, k)`` cost matrix."""
+    if X.ndim != 2 or Y.ndim != 2 or X.shape[1] != Y.shape[1]:
+        raise ParameterError(f"X and Y must be (n, k) and (n', k) with one k, got {X.shape} and {Y.shape}")
     r = float(max(np.abs(X).max(), np.abs(Y).max()))
     edges = np.linspace(-r, r, bins + 1)
     hx = _histograms(X, wx, edges)
@@ -79,7 +82,8 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         """Dense map source -> target with sparse posteriors (no seeds needed)."""
         self._check()
         bs, bt = self._bases(source, target, source_spectrum, target_spectrum)
-        X, Y = bs.evecs[:, 1 : self.k + 1], bt.evecs[:, 1 : self.k + 1]
+        K = self._shared_dimension(int(self.k), bs, bt)  # one size on both shapes, however small
+        X, Y = bs.evecs[:, 1 : K + 1], bt.evecs[:, 1 : K + 1]
         Q0, _ = histogram_alignment(X, Y, bs.mass, bt.mass, int(self.bins))
         return self._finish(X, Y, Q0, target, {"Q0": Q0})
 

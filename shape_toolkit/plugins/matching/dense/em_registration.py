@@ -24,7 +24,7 @@ from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
-from shape_toolkit.errors import ParameterError
+from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.matching._common import Basis, basis_of, check_seeds
 from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
 from shape_toolkit.validation import check_random_state
@@ -359,6 +359,21 @@ class EMRegistrationMatcher(DenseMatcher):
         k = self._k_needed() + 1
         return basis_of(spec_s, k), basis_of(spec_t, k)
 
+    @staticmethod
+    def _shared_dimension(K: int, bs: Basis, bt: Basis) -> int:
+        """``K`` capped to the non-constant eigenvectors both bases have: one embedding size for both
+        shapes (a mesh of ``n`` vertices has at most ``n - 1`` of them, so a 3-vertex mesh against a
+        4-vertex one embeds in 2 dimensions; unequal sizes made the histogram alignment index past
+        its ``(k, k)`` matrix, an IndexError). :class:`InvalidShapeError` when a shape has none."""
+        k = int(min(K, bs.k - 1, bt.k - 1))
+        if k < 1:
+            which = "source" if bs.k <= bt.k else "target"
+            raise InvalidShapeError(
+                f"the {which} shape has {min(bs.k, bt.k)} Laplacian eigenvector(s), only the constant one: "
+                "a spectral embedding needs at least 2 vertices joined by an edge"
+            )
+        return k
+
     def _dimension(self, bs: Basis, bt: Basis, n_s: int, n_t: int) -> int:
         if self.dimension == "fixed":
             return int(self.k)
@@ -378,7 +393,7 @@ class EMRegistrationMatcher(DenseMatcher):
 
     def _embeddings(self, source, target, source_spectrum, target_spectrum, with_bases: bool = False):
         bs, bt = self._bases(source, target, source_spectrum, target_spectrum)
-        K = self._dimension(bs, bt, source.n_vertices, target.n_vertices)
+        K = self._shared_dimension(self._dimension(bs, bt, source.n_vertices, target.n_vertices), bs, bt)
         if with_bases:
             return self._embed(bs, K), self._embed(bt, K), bs, bt
         return self._embed(bs, K), self._embed(bt, K)
