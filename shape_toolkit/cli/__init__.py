@@ -11,6 +11,7 @@ import argparse
 import importlib
 import pkgutil
 import sys
+import time
 import warnings
 
 from shape_toolkit.cli import commands
@@ -22,8 +23,29 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
+#: commands that run in a supervised child process (:mod:`shape_toolkit.cli.supervise`), each
+#: with a hard ``--time-limit``; the others (listings, the viewer) run in process
+SUPERVISED = (
+    "clean", "constraints", "demo", "describe", "evaluate-map", "evaluate-segmentation", "geodesics", "info",
+    "keypoints", "match", "segment", "spectrum", "track", "transfer-labels", "bench run", "bench report",
+)
+
+
+def _subparser(parser: argparse.ArgumentParser, path: str) -> argparse.ArgumentParser | None:
+    for name in path.split():
+        actions = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if not actions or name not in actions[0].choices:
+            return None
+        parser = actions[0].choices[name]
+    return parser
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every discovered subcommand."""
+    """The argument parser with every discovered subcommand; each supervised command gets
+    ``--time-limit`` unless it declares its own (geodesics, evaluate-map: a cooperative limit with
+    a default, which the hard one backs up)."""
+    from shape_toolkit.cli.commands._common import time_limit_arg
+
     parser = _Parser(prog="shape-toolkit", description="Spectral shape analysis toolkit")
     parser.add_argument("--version", action="store_true", help="print the version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
@@ -31,6 +53,14 @@ def build_parser() -> argparse.ArgumentParser:
         module = importlib.import_module(f"{commands.__name__}.{info.name}")
         if hasattr(module, "register"):
             module.register(sub)
+    for path in SUPERVISED:
+        p = _subparser(parser, path)
+        if p is not None:
+            p.set_defaults(supervised=path)
+            if not any("--time-limit" in a.option_strings for a in p._actions):
+                p.add_argument("--time-limit", type=time_limit_arg, default=None, metavar="SECONDS",
+                               help="stop (one line, exit 2) past this many seconds, even inside one long "
+                               "native call (default: no limit)")
     return parser
 
 
@@ -46,6 +76,7 @@ def _one_line_warnings(command: str):
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``shape-toolkit`` console script; returns the exit code."""
+    started = time.monotonic()
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -54,10 +85,10 @@ def main(argv: list[str] | None = None) -> int:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", category=DeprecationWarning)
         warnings.showwarning = _one_line_warnings(getattr(args, "command", None) or "")
-        return _run(parser, args)
+        return _run(parser, args, started)
 
 
-def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+def _run(parser: argparse.ArgumentParser, args: argparse.Namespace, started: float) -> int:
     if args.version:
         from shape_toolkit import __version__
 
@@ -66,6 +97,17 @@ def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    path = getattr(args, "supervised", None)
+    if path is not None:
+        from shape_toolkit.cli import supervise
+
+        if supervise.can_supervise():
+            return supervise.run_supervised(path, lambda: _call(args), getattr(args, "time_limit", None), started)
+    return _call(args)
+
+
+def _call(args: argparse.Namespace) -> int:
+    """Run the command in this process: every error one line, with its exit code."""
     try:
         return int(args.func(args) or 0)
     except ToolkitError as exc:
@@ -75,7 +117,11 @@ def _run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         print(f"shape-toolkit {args.command}: interrupted", file=sys.stderr)
         return 130
     except MemoryError:
-        print(f"shape-toolkit {args.command}: error: out of memory", file=sys.stderr)
+        from shape_toolkit.cli.supervise import memory_hint
+
+        where = getattr(args, "supervised", None) or args.command
+        print(f"shape-toolkit {args.command}: error: out of memory; reduce the memory needed: {memory_hint(where)}",
+              file=sys.stderr)
         return 3
     except BrokenPipeError:
         return 0

@@ -1,0 +1,158 @@
+"""Run a command in a supervised child process: a hard ``--time-limit``, and one line for what
+Python cannot catch.
+
+A cooperative limit (checked between geodesic sources, say) cannot stop one long native call,
+and a process killed for memory or crashed in native code leaves no message. So the commands
+that compute run in a forked child, in its own process group (with its Dask workers, if any),
+while the parent waits: past the limit (plus :data:`GRACE` seconds, so that a cooperative limit
+fires first and says how far it got) the parent kills the group and prints one line, exit 2; a
+child killed by the system (SIGKILL: the out-of-memory killer) or crashed (SIGSEGV, SIGABRT,
+SIGBUS) becomes one line too. Ctrl-C reaches the child as SIGINT.
+
+The child is used only where it can be: POSIX ``fork``, and stdout/stderr that are real file
+descriptors (not a test's in-memory capture); ``SHAPE_TOOLKIT_IN_PROCESS=1`` turns it off.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import time
+from collections.abc import Callable
+
+__all__ = ["GRACE", "can_supervise", "run_supervised", "MEMORY_HINTS"]
+
+#: seconds past ``--time-limit`` (counted from the command's start) before the child is killed
+GRACE = 2.0
+#: per command, what reduces its memory (named in the out-of-memory line)
+MEMORY_HINTS = {
+    "bench run": "fewer --workers, or a smaller dataset --limit",
+    "match": "decimate or remesh the shapes first (shape-toolkit clean --remesh)",
+    "track": "fewer --workers, or remeshed frames (shape-toolkit clean --remesh)",
+    "spectrum": "a smaller -k, or a remeshed shape (shape-toolkit clean --remesh)",
+    "demo": "--no-bench, or a smaller -k",
+}
+_DEFAULT_HINT = "a remeshed, smaller shape (shape-toolkit clean --remesh)"
+_CRASH = {signal.SIGSEGV: "SIGSEGV", signal.SIGABRT: "SIGABRT", signal.SIGBUS: "SIGBUS", signal.SIGILL: "SIGILL"}
+
+
+def can_supervise() -> bool:
+    """True when commands can run in a supervised child here (see the module docstring)."""
+    if not hasattr(os, "fork") or os.environ.get("SHAPE_TOOLKIT_IN_PROCESS", "").strip() == "1":
+        return False
+    try:
+        sys.stdout.fileno()
+        sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is an OSError
+        return False
+    return True
+
+
+def memory_hint(command: str) -> str:
+    """The option that reduces the memory ``command`` needs."""
+    return MEMORY_HINTS.get(command, _DEFAULT_HINT)
+
+
+def run_supervised(
+    command: str, work: Callable[[], int], time_limit: float | None, started: float | None = None
+) -> int:
+    """Run ``work()`` (returning an exit code) in a forked child; returns its exit code, or 2 past
+    ``time_limit`` seconds (+ :data:`GRACE`) from ``started`` (a ``time.monotonic()`` value;
+    default now), 3 when the system killed it, 1 when it crashed, 130 on Ctrl-C. Each of those
+    prints one line on stderr."""
+    started = time.monotonic() if started is None else started
+    sys.stdout.flush()
+    sys.stderr.flush()
+    pid = os.fork()
+    if pid == 0:  # the child: its own group, so that the parent can stop it with its workers
+        code = 1
+        try:
+            os.setpgid(0, 0)
+            if not os.environ.get("TOOLKIT_DEBUG"):  # a crash is the parent's one line, not a dump
+                import faulthandler
+
+                faulthandler.disable()
+            code = int(work())
+        except BaseException:  # work() reports its own errors; this is a last resort
+            if os.environ.get("TOOLKIT_DEBUG"):
+                import traceback
+
+                traceback.print_exc()
+        finally:
+            try:
+                sys.stdout.flush()
+                sys.stderr.flush()
+            finally:
+                os._exit(code)
+    try:
+        os.setpgid(pid, pid)  # also here: whichever runs first, the group exists before a kill
+    except OSError:
+        pass
+    deadline = None if not time_limit else started + time_limit + GRACE
+    try:
+        status = _wait(pid, deadline)
+    except KeyboardInterrupt:
+        _signal_group(pid, signal.SIGINT)  # the child prints its own 'interrupted'
+        status = _wait(pid, time.monotonic() + 10.0)
+        if status is None:
+            _stop(pid)
+        return 130
+    if status is None:
+        _stop(pid)
+        print(
+            f"shape-toolkit {command}: error: stopped at the time limit of {time_limit:g} s (--time-limit): "
+            "raise the limit, or reduce the work",
+            file=sys.stderr,
+        )
+        return 2
+    code = os.waitstatus_to_exitcode(status)
+    if code >= 0:
+        return code
+    sig = -code
+    if sig == signal.SIGKILL:
+        print(
+            f"shape-toolkit {command}: error: killed by the system (SIGKILL), most likely out of memory; "
+            f"reduce the memory needed: {memory_hint(command)}",
+            file=sys.stderr,
+        )
+        return 3
+    if sig == signal.SIGINT:
+        return 130
+    name = _CRASH.get(sig, f"signal {sig}")
+    print(
+        f"shape-toolkit {command}: internal error: the computation crashed in native code ({name}) "
+        "(please report it, with the input)",
+        file=sys.stderr,
+    )
+    return 1
+
+
+def _wait(pid: int, deadline: float | None) -> int | None:
+    """The child's wait status, or None when ``deadline`` passes first."""
+    while True:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            return status
+        if deadline is not None and time.monotonic() >= deadline:
+            return None
+        time.sleep(0.02)
+
+
+def _signal_group(pid: int, sig: int) -> None:
+    try:
+        os.killpg(pid, sig)
+    except OSError:  # already gone, or not yet a group: the child itself
+        try:
+            os.kill(pid, sig)
+        except OSError:
+            pass
+
+
+def _stop(pid: int) -> None:
+    """Kill the child's process group (the child and its workers) and reap the child."""
+    _signal_group(pid, signal.SIGKILL)
+    try:
+        os.waitpid(pid, 0)
+    except ChildProcessError:
+        pass

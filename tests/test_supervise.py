@@ -1,0 +1,102 @@
+"""Supervised commands (issue 27, 29): a hard --time-limit that stops even one long native call,
+with the command's workers; a child killed for memory or crashed becomes one line."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from shape_toolkit.cli import build_parser, supervise
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="supervision needs POSIX fork")
+
+
+def test_a_time_limit_stops_one_blocking_call_and_its_workers(tmp_path, capsys):
+    pidfile = tmp_path / "grandchild"
+
+    def work() -> int:
+        p = subprocess.Popen(["sleep", "300"])  # a worker of the command (Dask's are processes too)
+        pidfile.write_text(str(p.pid))
+        time.sleep(300)  # one call that never returns on its own
+        return 0
+
+    code = supervise.run_supervised("match", work, time_limit=0.5)
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "time limit of 0.5 s" in err and "--time-limit" in err
+    grandchild = int(pidfile.read_text())
+    for _ in range(100):  # killed with the group (reaped by init: poll until it is gone)
+        try:
+            os.kill(grandchild, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        pytest.fail("the command's worker survived the time limit")
+
+
+@pytest.mark.parametrize(
+    "sig, code, words",
+    [(signal.SIGKILL, 3, "out of memory"), (signal.SIGSEGV, 1, "crashed in native code (SIGSEGV)")],
+)
+def test_a_killed_or_crashed_child_is_one_line(capsys, sig, code, words):
+    def work() -> int:
+        os.kill(os.getpid(), sig)
+        time.sleep(10)
+        return 0
+
+    assert supervise.run_supervised("spectrum", work, time_limit=None) == code
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and words in err
+    if sig == signal.SIGKILL:
+        assert "-k" in err  # names the option that reduces memory
+
+
+def test_the_child_exit_code_and_output_pass_through(capfd):
+    def work() -> int:
+        print("hello from the child")
+        return 7
+
+    assert supervise.run_supervised("info", work, time_limit=5) == 7
+    assert capfd.readouterr().out == "hello from the child\n"
+
+
+def test_every_computing_command_has_a_time_limit():
+    parser = build_parser()
+    for path in ("match", "segment", "spectrum", "keypoints", "transfer-labels", "track", "describe", "clean",
+                 "geodesics", "evaluate-map", "demo", "bench run"):
+        args = parser.parse_args([*path.split(), *_required(path), "--time-limit", "7"])
+        assert args.time_limit == 7 and args.supervised == path, path
+
+
+def _required(path: str) -> list[str]:
+    return {
+        "match": ["a", "b"], "transfer-labels": ["a", "l", "b"], "track": ["a", "b"],
+        "geodesics": ["a", "--sources", "0"], "evaluate-map": ["a", "b", "m"], "bench run": ["c.toml"],
+        "demo": [], "segment": ["a", "--method", "ncut"], "describe": ["a", "--descriptor", "hks"],
+    }.get(path, ["a"])
+
+
+def test_geodesics_exact_stops_at_its_time_limit(tmp_path):
+    """The auditor's case: one libigl call for exact geodesics on a large mesh ran for minutes."""
+    from shape_toolkit.data.generate import icosphere
+    from shape_toolkit.io.mesh import save_shape
+
+    mesh = tmp_path / "big.ply"
+    save_shape(icosphere(6), mesh)  # 40,962 vertices: exact geodesics take far longer than 1 s
+    proc = subprocess.run(
+        [sys.executable, "-m", "shape_toolkit", "geodesics", str(mesh), "--sources", "0", "--method", "exact",
+         "--time-limit", "1", "-o", str(tmp_path / "g.npz")],
+        capture_output=True, text=True, timeout=120, cwd=tmp_path,
+        env={**os.environ, "SHAPE_TOOLKIT_IN_PROCESS": "0"},
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and "time limit of 1 s" in proc.stderr
+    assert not (tmp_path / "g.npz").exists()
+    assert not [p for p in Path(tmp_path).iterdir() if p.name.startswith(".g.npz")]
