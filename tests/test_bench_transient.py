@@ -88,7 +88,8 @@ def test_a_refused_write_stops_the_run_and_records_nothing(tmp_path, capsys, fla
 def test_a_scheduler_without_workers_times_out_with_one_line(tmp_path, capsys):
     from distributed import LocalCluster
 
-    with LocalCluster(n_workers=0, processes=False, protocol="tcp", host="127.0.0.1", dashboard_address=None) as cluster:
+    no_workers = {"n_workers": 0, "processes": False, "protocol": "tcp", "host": "127.0.0.1"}
+    with LocalCluster(**no_workers, dashboard_address=None) as cluster:
         t0 = time.monotonic()
         code = _run(tmp_path, tmp_path / "run", "spectral-clustering", "--scheduler", cluster.scheduler_address,
                     "--worker-timeout", "2")
