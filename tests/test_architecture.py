@@ -210,13 +210,14 @@ def _run(family, plugin, a, b):
         return plugin.detect(a)
     if family == "descriptors":
         return plugin.compute(a, keypoints=np.arange(0, a.n_vertices, max(1, a.n_vertices // 8)))
-    if family == "segmenters":  # every segmenter gets the clicks a person would give (seeded-walk needs them)
+    if family == "segmenters":  # the clicks a person would give, to those that take them (seeded-walk needs them)
         from shape_toolkit.data.synthetic import articulated_shape
         from shape_toolkit.results.labels import Constraints
 
         parts = articulated_shape(subdivisions=2).labels
         must = np.array([np.flatnonzero(parts == p)[[0, -1]] for p in np.unique(parts)])
-        return plugin.segment(a, constraints=Constraints(must, must[:2, 0][None]))
+        cons = Constraints(must, must[:2, 0][None]) if plugin.accepts_constraints() else None
+        return plugin.segment(a, constraints=cons)
     seeds = np.column_stack([np.arange(0, a.n_vertices, max(1, a.n_vertices // 12))] * 2)
     if family == "sparse_matchers":
         return plugin.match(a, a, seeds[:, 0], seeds[:, 1])

@@ -165,3 +165,57 @@ def test_transfer_labels_cli_on_tiny_meshes(tmp_path, capsys, a, b):
                           "-o", tmp_path / "out.txt", "--json")
     assert code == 0, err
     assert json.loads(out)["n_vertices"] == dst.n_vertices
+
+
+# ------------------------------------------------------------------------------------------------
+# constraints given to a segmenter that takes none: refused, never ignored
+# ------------------------------------------------------------------------------------------------
+TAKES_CONSTRAINTS = {"ccskl", "csc", "seeded-walk", "spectral-learning"}
+
+
+def test_every_segmenter_says_whether_it_takes_constraints():
+    from shape_toolkit.api.registry import available_plugins, create_plugin, plugins_taking_constraints
+
+    assert set(plugins_taking_constraints()) == TAKES_CONSTRAINTS
+    for name in available_plugins()["segmenters"]:
+        seg = create_plugin("segmenters", name)
+        assert seg.accepts_constraints() == (name in TAKES_CONSTRAINTS), name
+    assert create_plugin("segmenters", "smoothed", base="csc").accepts_constraints()
+    assert not create_plugin("segmenters", "smoothed", base="eigvec-gmm").accepts_constraints()
+
+
+@pytest.mark.parametrize("name", ["eigvec-gmm", "spectral-clustering", "ncut", "sdf", "smoothed"])
+def test_unsupervised_segmenters_refuse_constraints(name):
+    """Issue 27: eigvec-gmm silently ignored --constraints (so did every unsupervised segmenter)."""
+    from shape_toolkit.api.registry import create_plugin
+    from shape_toolkit.results.labels import Constraints
+
+    s = icosphere(2)
+    seg = create_plugin("segmenters", name)
+    with pytest.raises(ParameterError, match="takes no constraints.*csc"):
+        seg.segment(s, constraints=Constraints([[0, 1]], []))
+    with pytest.raises(ParameterError, match="takes no constraints"):
+        seg.segment(s, constraints={"must_link": [[0, 1]]})
+
+
+@pytest.mark.parametrize("name", ["eigvec-gmm", "spectral-clustering", "ncut", "sdf", "smoothed"])
+def test_segment_cli_refuses_constraints_for_unsupervised_methods(tmp_path, capsys, name):
+    s = icosphere(2)
+    save_shape(s, tmp_path / "s.off")
+    cons = tmp_path / "c.json"
+    cons.write_text(json.dumps({"must_link": [[0, 1]], "cannot_link": [[0, 100]]}))
+    code, out, err = _cli(capsys, "segment", tmp_path / "s.off", "--method", name, "-k", "3", "--constraints", cons,
+                          "-o", tmp_path / "s.txt", "--json")
+    _one_line_rejection(code, out, err, "takes no constraints")
+    assert not (tmp_path / "s.txt").exists()
+
+
+def test_segment_cli_still_passes_constraints_to_csc(tmp_path, capsys):
+    s = icosphere(2)
+    save_shape(s, tmp_path / "s.off")
+    cons = tmp_path / "c.json"
+    cons.write_text(json.dumps({"must_link": [[0, 1]], "cannot_link": [[0, 100]]}))
+    code, out, err = _cli(capsys, "segment", tmp_path / "s.off", "--method", "csc", "-k", "3", "--constraints", cons,
+                          "-o", tmp_path / "s.txt", "--json")
+    assert code == 0, err
+    assert json.loads(out)["n_constraints"] == {"must_link": 1, "cannot_link": 1}

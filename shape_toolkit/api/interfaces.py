@@ -195,9 +195,33 @@ class DenseMatcher(BasePlugin, ABC):
 
 
 class Segmenter(BasePlugin, ABC):
-    """Assigns one label per vertex."""
+    """Assigns one label per vertex.
+
+    ``takes_constraints``: whether :meth:`segment` uses must-link / cannot-link ``constraints``
+    (semi-supervised methods set it True). One that does not refuses them with
+    :class:`ParameterError` (:meth:`check_constraints`) instead of ignoring them silently."""
 
     family = "segmenters"
+    #: whether :meth:`segment` uses its ``constraints``; False: they are refused
+    takes_constraints: ClassVar[bool] = False
+
+    def accepts_constraints(self) -> bool:
+        """Whether this segmenter uses ``constraints`` (default: the class's ``takes_constraints``;
+        a wrapper answers for the segmenter it wraps)."""
+        return bool(self.takes_constraints)
+
+    def check_constraints(self, constraints: Any | None) -> None:
+        """Raise :class:`ParameterError` when ``constraints`` are given (not None) to a segmenter that
+        does not use them; the message names the segmenters that do."""
+        if constraints is None or self.accepts_constraints():
+            return
+        from shape_toolkit.api.registry import plugins_taking_constraints
+
+        users = ", ".join(plugins_taking_constraints()) or "none installed"
+        raise ParameterError(
+            f"{type(self).__name__} takes no constraints (it is unsupervised) and would ignore them; "
+            f"drop the constraints or use a segmenter that uses them: {users}"
+        )
 
     @abstractmethod
     def segment(

@@ -33,7 +33,9 @@ from shape_toolkit.api.hookspecs import (
 from shape_toolkit.api.interfaces import FAMILY_INTERFACES, BasePlugin
 from shape_toolkit.errors import ParameterError, PluginError
 
-__all__ = ["Registry", "get_registry", "get_plugin", "create_plugin", "available_plugins"]
+__all__ = [
+    "Registry", "get_registry", "get_plugin", "create_plugin", "available_plugins", "plugins_taking_constraints",
+]
 
 
 class Registry:
@@ -169,6 +171,9 @@ class Registry:
     def get(self, family: str, name: str) -> type:
         """The class registered as ``name`` in ``family``; only its own module is imported."""
         self._check_family(family)
+        if not isinstance(name, str):  # a dict or list from a JSON parameter: unhashable, not a name
+            shown = repr(name) if len(repr(name)) <= 60 else repr(name)[:57] + "..."
+            raise PluginError(f"a {family} plugin is named by a string, got {type(name).__name__} {shown}")
         if name not in self._classes[family] and name in self._entry_points[family]:
             self._load_entry_point(family, name)
         if name not in self._classes[family]:
@@ -225,6 +230,20 @@ def get_plugin(family: str, name: str) -> type:
 def create_plugin(family: str, name: str, preset: str | None = None, **params: Any) -> Any:
     """Shortcut for ``get_registry().create(family, name, preset, **params)``."""
     return get_registry().create(family, name, preset, **params)
+
+
+def plugins_taking_constraints() -> list[str]:
+    """Names of the registered segmenters whose ``takes_constraints`` is True (semi-supervised ones)."""
+    reg = get_registry()
+    names = []
+    for name in reg.names("segmenters"):
+        try:
+            cls = reg.get("segmenters", name)
+        except Exception:  # noqa: BLE001 - a broken plugin is reported where it is used, not here
+            continue
+        if getattr(cls, "takes_constraints", False) is True:
+            names.append(name)
+    return names
 
 
 def available_plugins() -> dict[str, list[str]]:

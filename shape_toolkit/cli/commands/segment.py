@@ -75,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
     if args.random_state is not None:
         params["random_state"] = args.random_state
     seg = create_plugin("segmenters", args.method, preset=args.preset, **params)
+    if args.constraints is not None and hasattr(seg, "check_constraints"):
+        seg.check_constraints(args.constraints)  # an unsupervised method refuses them, before any work
     if args.faces:
         shape.require_faces("--faces")
     constraints = None

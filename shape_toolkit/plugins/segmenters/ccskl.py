@@ -63,6 +63,8 @@ class CCSKL(Segmenter):
     Diagnostics: ``beta_`` (learnt spectral weights), ``n_segments_``.
     """
 
+    takes_constraints = True
+
     def __init__(
         self,
         n_segments: int | None = None,

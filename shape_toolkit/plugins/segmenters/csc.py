@@ -146,6 +146,8 @@ class ConstrainedSpectralClustering(Segmenter):
     (normalized cuts made by the ``k_mismatch="ncut"`` rule; 0 when it did not apply).
     """
 
+    takes_constraints = True
+
     def __init__(
         self,
         n_segments: int | None = None,

@@ -172,8 +172,10 @@ class EigvecGMMSegmenter(Segmenter):
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised method). A mesh of
-        several components is segmented component by component (:func:`segment_per_component`)."""
+        """int64 labels ``(n,)`` in ``0..k-1``. An unsupervised method: ``constraints`` are refused
+        (:class:`ParameterError`), not ignored. A mesh of several components is segmented component by
+        component (:func:`segment_per_component`)."""
+        self.check_constraints(constraints)
         if (split := segment_per_component(self, shape, None)) is not None:
             return split
         with single_thread(), warnings.catch_warnings():

@@ -98,9 +98,11 @@ class NormalizedCutSegmenter(Segmenter):
         return int(k), int(nv), mf
 
     def segment(self, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
-        """int64 vertex labels ``(n,)``; face labels in ``face_labels_`` (constraints are ignored). A mesh
+        """int64 vertex labels ``(n,)``; face labels in ``face_labels_`` (``constraints`` are refused:
+        :class:`ParameterError`, an unsupervised method). A mesh
         of several pieces (of the dual graph) is segmented piece by piece (:func:`segment_per_component`),
         so that ``n_segments`` holds however many pieces there are."""
+        self.check_constraints(constraints)
         faces = shape.require_faces("normalized-cut segmentation")
         m = len(faces)
         k, nv, mf = self._check(m)

@@ -219,7 +219,11 @@ class SDFSegmenter(Segmenter):
         self.random_state = random_state
 
     def segment(self, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
+        """int64 vertex labels ``(n,)``; face labels in ``face_labels_``. ``constraints`` are refused
+        (:class:`ParameterError`): an unsupervised method."""
         from sklearn.mixture import GaussianMixture
+
+        self.check_constraints(constraints)
 
         from shape_toolkit.plugins.segmenters._common import single_thread
 
@@ -305,6 +309,10 @@ class SmoothedSegmenter(Segmenter):
             b.set_params(n_segments=self.n_segments)
         return b
 
+    def accepts_constraints(self) -> bool:
+        """Whether the base segmenter uses constraints (they are passed on to it)."""
+        return self._make_base().accepts_constraints()
+
     def spectrum_spec(self):
         return self._make_base().spectrum_spec()
 
@@ -314,6 +322,7 @@ class SmoothedSegmenter(Segmenter):
     def segment(self, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
         faces = shape.require_faces("label smoothing")
         b = self._make_base()
+        self.check_constraints(constraints)  # the base's answer, before any work
         vl = b.segment(shape, spectrum=spectrum, constraints=constraints)
         fl0 = face_labels_of(b, faces, vl)
         fl = smooth_labels(shape, fl0, None, float(self.smoothing_lambda), on="faces", spread=int(self.spread),

@@ -59,6 +59,8 @@ class SeededWalkSegmenter(Segmenter):
     ``n_segments_``, ``n_cannot_violated_`` (cannot-links whose ends share a segment at the end).
     """
 
+    takes_constraints = True
+
     def __init__(
         self,
         *,

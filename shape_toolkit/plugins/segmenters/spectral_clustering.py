@@ -90,8 +90,10 @@ class SpectralClustering(Segmenter):
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1`` (constraints are ignored: an unsupervised baseline). A mesh
-        of several components is segmented component by component (:func:`segment_per_component`)."""
+        """int64 labels ``(n,)`` in ``0..k-1``. An unsupervised baseline: ``constraints`` are refused
+        (:class:`ParameterError`), not ignored. A mesh of several components is segmented component by
+        component (:func:`segment_per_component`)."""
+        self.check_constraints(constraints)
         if (split := segment_per_component(self, shape, None)) is not None:
             return split
         n = shape.n_vertices

@@ -39,6 +39,8 @@ class SpectralLearning(Segmenter):
     Diagnostics: ``n_added_edges_``, ``n_removed_edges_``, ``n_segments_``.
     """
 
+    takes_constraints = True
+
     def __init__(
         self,
         n_segments: int | None = None,
