@@ -219,3 +219,79 @@ def test_segment_cli_still_passes_constraints_to_csc(tmp_path, capsys):
                           "-o", tmp_path / "s.txt", "--json")
     assert code == 0, err
     assert json.loads(out)["n_constraints"] == {"must_link": 1, "cannot_link": 1}
+
+
+# ------------------------------------------------------------------------------------------------
+# view without a display: one line, exit 2, naming --png
+# ------------------------------------------------------------------------------------------------
+def test_display_problem_rule():
+    from shape_toolkit.cli.commands.view import display_problem
+
+    assert "DISPLAY" in display_problem({}, "linux")
+    assert display_problem({"DISPLAY": " "}, "linux") is not None
+    assert display_problem({"DISPLAY": ":0"}, "linux") is None
+    assert display_problem({"WAYLAND_DISPLAY": "wayland-0"}, "linux") is None
+    assert display_problem({}, "darwin") is None and display_problem({}, "win32") is None
+
+
+class _FakePolyscope:
+    def __init__(self, fail: bool):
+        self.fail, self.inits = fail, 0
+
+    def init(self):
+        self.inits += 1
+        if self.fail:
+            raise RuntimeError("[polyscope]  [EXCEPTION] Automatic initialization: no Polyscope backends could be "
+                               "initialized successfully.Polyscope was compiled with support for EGL")
+
+
+@pytest.fixture
+def mesh_file(tmp_path):
+    p = tmp_path / "s.off"
+    save_shape(icosphere(1), p)
+    return p
+
+
+def test_view_without_display_is_one_line(monkeypatch, capsys, mesh_file):
+    """Issue 27: without a display (viz extra installed) view printed polyscope's lines and a multi-line
+    internal error, exit 1."""
+    from shape_toolkit.cli.commands import view
+
+    fake = _FakePolyscope(fail=True)
+    monkeypatch.setattr(view, "_polyscope", lambda: fake)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(view.sys, "platform", "linux")
+    code, out, err = _cli(capsys, "view", mesh_file)
+    _one_line_rejection(code, out, err, "no display")
+    assert "--png" in err and fake.inits == 0 and out == ""
+
+
+def test_view_with_a_display_that_cannot_open_is_one_line(monkeypatch, capsys, mesh_file):
+    from shape_toolkit.cli.commands import view
+
+    registered = []
+    monkeypatch.setattr(view.atexit, "register", registered.append)
+    monkeypatch.setattr(view, "_polyscope", lambda: _FakePolyscope(fail=True))
+    monkeypatch.setenv("DISPLAY", ":99")
+    code, out, err = _cli(capsys, "view", mesh_file)
+    _one_line_rejection(code, out, err, "cannot open the viewer window (Automatic initialization")
+    assert "--png" in err and registered == [view._quiet_exit]
+
+
+def test_view_png_needs_no_display(monkeypatch, capsys, tmp_path, mesh_file):
+    from shape_toolkit.cli.commands import view
+
+    monkeypatch.setattr(view, "_polyscope", lambda: pytest.fail("--png must not start polyscope"))
+    monkeypatch.delenv("DISPLAY", raising=False)
+    odd = tmp_path / "$\\frac{a}{b}$ <script>.off"  # a name matplotlib must not parse as a formula
+    odd.write_bytes(mesh_file.read_bytes())
+    labels = _ints(tmp_path / "l.txt", np.arange(icosphere(1).n_vertices) % 3)
+    code, out, err = _cli(capsys, "view", odd, "--labels", labels, "--png", tmp_path / "v.png", "--json")
+    assert code == 0, err
+    assert json.loads(out)["panels"] == [odd.stem]
+    assert (tmp_path / "v.png").read_bytes()[:4] == b"\x89PNG"
+    code, out, err = _cli(capsys, "view", mesh_file, "--png", mesh_file)
+    _one_line_rejection(code, out, err, "--png must end with .png")
+    code, out, err = _cli(capsys, "view", mesh_file, "--json")
+    _one_line_rejection(code, out, err, "--json applies to --png")

@@ -1,19 +1,36 @@
-"""``shape-toolkit view MESH [--labels F [--faces] | --map SRC MAP | --scalar F]``: an interactive 3D
-viewer (polyscope, optional ``viz`` extra). ``--map SRC MAP`` shows SRC coloured by the pull-back
-of MESH's colours through MAP (one 0-based MESH vertex per SRC vertex, as ``match`` writes)."""
+"""``shape-toolkit view MESH [--labels F [--faces] | --map SRC MAP | --scalar F] [--png OUT.png]``: an
+interactive 3D viewer (polyscope, optional ``viz`` extra), or with ``--png`` the same view drawn into
+a PNG (matplotlib, no display needed). ``--map SRC MAP`` shows SRC coloured by the pull-back of
+MESH's colours through MAP (one 0-based MESH vertex per SRC vertex, as ``match`` writes).
+
+The window needs a display: without one (no ``DISPLAY`` or ``WAYLAND_DISPLAY`` on Linux, or a
+display polyscope cannot open) the command says so in one line, exit 2, naming ``--png``."""
 
 from __future__ import annotations
 
 import argparse
+import atexit
 import importlib
+import os
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from shape_toolkit.cli.commands._common import missing_extra, read_labels_arg
-from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.cli.commands._common import (
+    check_distinct,
+    check_output_path,
+    missing_extra,
+    print_json,
+    read_labels_arg,
+)
+from shape_toolkit.errors import ParameterError, ShapeFileError, ToolkitError
 from shape_toolkit.io.mesh import load_shape
+
+
+class NoDisplayError(ToolkitError):
+    """The interactive viewer cannot open a window: no display, or one that cannot be opened."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,6 +45,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--faces", action="store_true", help="--labels holds one label per face (PSB .seg)")
     p.add_argument("--column", type=int, default=0, help="column of a 2D --scalar array (default 0)")
     p.add_argument("--points", metavar="FILE", help="vertex ids (0-based, one per line) to mark, e.g. keypoints")
+    p.add_argument("--png", metavar="OUT.png", default=None,
+                   help="draw the view into this PNG instead of opening a window (matplotlib; no display "
+                   "or polyscope needed)")
+    p.add_argument("--json", action="store_true", help="with --png: print what was written as JSON")
     p.set_defaults(func=run)
 
 
@@ -98,10 +119,88 @@ def _polyscope() -> Any:
         raise missing_extra("view", "polyscope") from None
 
 
-def run(args: argparse.Namespace) -> int:
-    ps = _polyscope()  # before any work: a missing extra is the first thing said
+#: the one-line advice of every display problem
+NO_DISPLAY_HINT = "draw the view into a file instead with --png OUT.png (no display needed), or run under xvfb-run"
+
+
+def display_problem(environ: dict[str, str] | None = None, platform: str | None = None) -> str | None:
+    """Why no window can be opened, or None when a display may be there: on Linux and the BSDs (X11 or
+    Wayland), neither ``DISPLAY`` nor ``WAYLAND_DISPLAY`` is set. macOS and Windows always have one."""
+    env = os.environ if environ is None else environ
+    plat = sys.platform if platform is None else platform
+    if plat.startswith(("darwin", "win32", "cygwin")):
+        return None
+    if env.get("DISPLAY", "").strip() or env.get("WAYLAND_DISPLAY", "").strip():
+        return None
+    return "no display to open the viewer window in (neither DISPLAY nor WAYLAND_DISPLAY is set)"
+
+
+def _quiet_exit() -> None:
+    """At exit, after a failed polyscope start: silence polyscope's own shutdown callback, which
+    complains on stdout and as an ignored exception that it was never initialized."""
+    sys.unraisablehook = lambda _: None
+    try:
+        sys.stdout.flush()
+        os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
+    except OSError:  # pragma: no cover - no stdout to silence
+        pass
+
+
+def _init(ps: Any) -> None:
+    """``ps.init()`` with polyscope's own console lines silenced; a failure is one line (NoDisplayError)."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError):  # no real stdout (a test's capture): nothing to silence
+        saved = None
+    try:
+        if saved is not None:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
+        ps.init()
+    except RuntimeError as exc:
+        atexit.register(_quiet_exit)
+        text = " ".join(str(exc).replace("[polyscope]", "").replace("[EXCEPTION]", "").split())
+        raise NoDisplayError(f"cannot open the viewer window ({text.split('.')[0][:160]}); {NO_DISPLAY_HINT}") from None
+    finally:
+        if saved is not None:
+            sys.stdout.flush()
+            os.dup2(saved, 1)
+            os.close(saved)
+
+
+def _literal(text: str) -> str:
+    """``text`` shown literally by matplotlib (``$`` escaped: a file named ``$\\frac{a}{b}$`` is no formula)."""
+    return str(text).replace("$", r"\$")
+
+
+def _png(args: argparse.Namespace) -> int:
+    inputs = [args.shape, args.labels, args.scalar, args.points, *(args.map or [])]
+    out = check_output_path(args.png, "--png", suffixes=(".png",))
+    check_distinct(out, *inputs)
     items = view_items(args)
-    ps.init()
+    from shape_toolkit.io.viz import render_shapes
+
+    panels = [{"shape": it["shape"], "colors": it["colors"], "points": it["points"], "title": _literal(it["name"])}
+              for it in items]
+    render_shapes(panels, out)
+    if args.json:
+        print_json({"png": str(out), "panels": [it["name"] for it in items]})
+    else:
+        print(f"wrote {out}")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.png:
+        return _png(args)
+    if args.json:
+        raise ParameterError("--json applies to --png (the window prints nothing)")
+    ps = _polyscope()  # before any work: a missing extra is the first thing said
+    problem = display_problem()
+    if problem:
+        raise NoDisplayError(f"{problem}; {NO_DISPLAY_HINT}")
+    items = view_items(args)
+    _init(ps)
     offset = 0.0
     for it in items:
         s = it["shape"]
