@@ -1,0 +1,48 @@
+"""A subset of the run-folder fault corpus (benchmarks/run_folder_corpus.py): one file of each
+kind of a finished run, each fault; 0 mishandled (issue 27: 0 wrong rows after any swap,
+truncation or planting of files in a run folder; 0 files written outside it)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _corpus():
+    spec = importlib.util.spec_from_file_location("run_folder_corpus", ROOT / "benchmarks" / "run_folder_corpus.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["run_folder_corpus"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+corpus = _corpus()
+#: one file of each kind: the logs, the config, a prepared item, a spectrum, an output
+KINDS = ("results.jsonl", "prepare.jsonl", "config.json", "cache/prepared", "cache/spectra", "outputs")
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    work = tmp_path_factory.mktemp("rfc")
+    cfg, ref = corpus.reference(work)
+    return work, cfg, ref, corpus._rows(ref)
+
+
+def _pick(ref: Path, kind: str) -> str:
+    p = ref / kind
+    return kind if p.is_file() else str(sorted(p.glob("*.npz"))[0].relative_to(ref))
+
+
+@pytest.mark.parametrize("fault", corpus.FAULTS)
+@pytest.mark.parametrize("kind", KINDS)
+def test_no_fault_is_mishandled(reference, kind, fault):
+    work, cfg, ref, rows = reference
+    case = corpus.run_case(corpus.Case(fault, _pick(ref, kind)), cfg, ref, rows, work)
+    assert case.outcome in ("ok", "refused"), case.detail
+    if fault in ("swap", "truncate", "empty", "garbage", "pickle", "delete", "plant"):
+        assert case.outcome == "ok", case  # a damaged cache is a miss: recomputed, same rows
