@@ -13,12 +13,16 @@ for a full-width page (about 1200 px), with labelled axes and units.
 from __future__ import annotations
 
 import base64
+import hashlib
 import html
 import json
 import math
 import os
+import re
+import warnings
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +39,7 @@ from shape_toolkit.bench.store import (
 )
 from shape_toolkit.errors import ParameterError
 
-__all__ = ["write_report", "summarize", "method_id", "metric_direction"]
+__all__ = ["write_report", "summarize", "method_id", "metric_direction", "MANIFEST"]
 
 #: metrics where a larger value is better (everything else with a direction: lower is better)
 _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
@@ -87,7 +91,10 @@ def _is_num(v: Any) -> bool:
 
 
 def _is_curve(v: Any) -> bool:
-    return isinstance(v, list) and len(v) > 0 and all(isinstance(x, list) and len(x) == 2 for x in v)
+    """A curve metric: a non-empty list of ``[x, y]`` pairs of finite numbers."""
+    return isinstance(v, list) and len(v) > 0 and all(
+        isinstance(x, list) and len(x) == 2 and _is_num(x[0]) and _is_num(x[1]) for x in v
+    )
 
 
 def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str, tuple[float, float, int]]]]:
@@ -114,18 +121,36 @@ def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str
 
 
 class _Figs:
+    """The figures of one report: saved under fresh names in ``folder`` (a name held by a file the
+    report did not write is never reused), each recorded in ``files``."""
+
     def __init__(self, folder: Path, say: Callable[[str], None] | None = None):
         self.folder = folder
         self.files: list[Path] = []
         self.say = say or (lambda _msg: None)
 
+    def fresh(self, name: str) -> Path:
+        """A path ``NN-NAME.png`` in the folder that no file (or link) occupies."""
+        stem = f"{len(self.files):02d}-{safe_name(name)}"
+        p = self.folder / f"{stem}.png"
+        n = 2
+        while os.path.lexists(p):  # someone else's file: leave it, take another name
+            p = self.folder / f"{stem}-{n}.png"
+            n += 1
+        return p
+
     def save(self, fig, name: str) -> Path:
         import matplotlib.pyplot as plt
 
         self.say(f"figure {len(self.files) + 1}: {name}")  # the layout and PNG encoding take the time
-        p = self.folder / f"{len(self.files):02d}-{safe_name(name)}.png"
-        fig.savefig(p, dpi=100, bbox_inches="tight", pad_inches=0.15)
-        plt.close(fig)
+        p = self.fresh(name)
+        try:
+            fig.savefig(p, dpi=100, bbox_inches="tight", pad_inches=0.15)
+        except BaseException:
+            p.unlink(missing_ok=True)  # our own half-written file (the name was free)
+            raise
+        finally:
+            plt.close(fig)
         self.files.append(p)
         return p
 
@@ -257,6 +282,60 @@ def _summary_section(summ: dict, tasks: list[str], rows: list[dict]) -> str:
             "best values are <span class='best'>highlighted</span> in every table).</p>" + "".join(out))
 
 
+#: row fields the report shows as text (the reader accepts a string, or null where noted in the store)
+_TEXT_FIELDS = {"run_name": None, "task_name": "", "task_kind": "", "dataset": "-", "item": "", "plugin": "",
+                "family": "", "method_label": "", "corruption": "none", "corruption_kind": "none",
+                "corruption_group": "none", "error": "", "key": ""}
+
+
+def _normalized(row: dict) -> dict:
+    """``row`` with every text field the report shows as a string (a missing or null field as its
+    default), so no figure or table meets a number, a list or null where it expects text."""
+    r = dict(row)
+    for k, default in _TEXT_FIELDS.items():
+        v = r.get(k)
+        if v is None:
+            if default is None:
+                r.pop(k, None)
+            else:
+                r[k] = default
+        elif not isinstance(v, str):
+            r[k] = json.dumps(v, sort_keys=True, default=str)
+    if not isinstance(r.get("metrics"), dict):
+        r["metrics"] = {}
+    return r
+
+
+def _printable(text: Any, keep: str = "") -> str:
+    """``text`` with unencodable characters (lone surrogates) and control characters (but those in
+    ``keep``) replaced by ``?``: safe for a terminal, a font and UTF-8."""
+    s = str(text).encode("utf-8", "replace").decode("utf-8")
+    return "".join(c if c.isprintable() or c in keep else "?" for c in s)
+
+
+def _t(text: Any) -> str:
+    """``text`` for a figure, shown literally: ``$`` escaped (no mathtext, so a label like
+    ``$\\frac{a$`` cannot break the layout), see also :func:`_printable` (newlines kept)."""
+    return _printable(text, "\n").replace("$", r"\$")
+
+
+def _legend(text: Any) -> str:
+    """:func:`_t` for a legend entry (matplotlib hides labels that start with ``_``)."""
+    s = _t(text)
+    return " " + s if s.startswith("_") else s
+
+
+@contextmanager
+def _literal_figure_text() -> Iterator[None]:
+    """Figure text is plain text: no LaTeX (whatever the user's matplotlibrc says) and no warnings
+    about glyphs the font lacks (a user's label may hold any character)."""
+    import matplotlib
+
+    with matplotlib.rc_context({"text.usetex": False}), warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"Glyph .* missing from", category=UserWarning)
+        yield
+
+
 def _plt():
     import matplotlib
 
@@ -347,18 +426,19 @@ def _curve_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = 
                 x, y = arr[0, :, 0], arr[:, :, 1].mean(axis=0)
                 ys.extend(arr[:, :, 1].ravel())
                 label = mid if corr == "none" else f"{mid} {corr[len(g):]}".strip()
-                ax.plot(x, y, "-o" if len(x) <= 12 else "-", ms=4, lw=1.8, label=label[:48])  # few points: marked
+                marker = "-o" if len(x) <= 12 else "-"  # few points: marked
+                ax.plot(x, y, marker, ms=4, lw=1.8, label=_legend(label[:48]))
                 if len(cs) > 1:
                     ax.fill_between(x, arr[:, :, 1].min(axis=0), arr[:, :, 1].max(axis=0), alpha=0.12)
-            ax.set_title("uncorrupted" if g == "none" else f"corruption: {g}", fontsize=11)
+            ax.set_title("uncorrupted" if g == "none" else _t(f"corruption: {g}"), fontsize=11)
             if logx:
                 ax.set_xscale("log")
-            ax.set_xlabel(xl, fontsize=10)
-            ax.set_ylabel(yl, fontsize=10)
+            ax.set_xlabel(_t(xl), fontsize=10)
+            ax.set_ylabel(_t(yl), fontsize=10)
             _style(ax, ys)
             ax.legend(fontsize=9, loc="best")
         where = f" on {dataset}" if dataset else ""
-        fig.suptitle(_title(f"{task}{where}: {metric} (mean over items; band = min..max)"), fontsize=12)
+        fig.suptitle(_t(_title(f"{task}{where}: {metric} (mean over items; band = min..max)")), fontsize=12)
         name = f"{task}-{dataset}-{metric}" if dataset else f"{task}-{metric}"
         parts.append(_img(figs.save(fig, name), f"{task}{where}: {metric}"))
     return parts
@@ -388,15 +468,15 @@ def _strength_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None
                 xs = sorted(pts)
                 ys.extend(v for x in xs for v in pts[x])
                 ax.errorbar(xs, [np.mean(pts[x]) for x in xs], yerr=[np.std(pts[x]) for x in xs],
-                            marker="o", ms=4, capsize=3, label=mid)
+                            marker="o", ms=4, capsize=3, label=_legend(mid))
             d = metric_direction(metric)
-            ax.set_title(f"{metric}" + (f" ({d} is better)" if d else ""), fontsize=10)
-            ax.set_xlabel(f"{g} strength (0 = uncorrupted)", fontsize=9)
+            ax.set_title(_t(f"{metric}" + (f" ({d} is better)" if d else "")), fontsize=10)
+            ax.set_xlabel(_t(f"{g} strength (0 = uncorrupted)"), fontsize=9)
             _style(ax, ys)
         handles, labels = axes.ravel()[0].get_legend_handles_labels()
         fig.legend(handles, labels, loc="outside lower center", ncol=min(4, max(1, len(labels))), fontsize=10)
         where = f" on {dataset}" if dataset else ""
-        fig.suptitle(_title(f"{task}{where}: metrics versus {g} strength (mean and std over items)"), fontsize=12)
+        fig.suptitle(_t(_title(f"{task}{where}: metrics versus {g} strength (mean and std over items)")), fontsize=12)
         fname = f"{task}-{dataset}-vs-{g}" if dataset else f"{task}-vs-{g}"
         parts.append(_img(figs.save(fig, fname), f"{task}{where}: metrics versus {g} strength"))
     return parts
@@ -416,12 +496,12 @@ def _cost_fig(task: str, cells: dict, figs: _Figs) -> list[str]:
     for ax, c, unit in zip(axes, ("seconds", "peak_memory_mb"), ("s", "MB")):
         vals = [float(np.mean(by[n][c])) if by[n][c] else 0.0 for n in names]
         ax.barh(range(len(names)), vals, color="tab:blue" if c == "seconds" else "tab:orange")
-        ax.set_yticks(range(len(names)), [n[:40] for n in names], fontsize=10)
+        ax.set_yticks(range(len(names)), [_t(n[:40]) for n in names], fontsize=10)
         what = "run time" if c == "seconds" else "peak memory growth"
         ax.set_xlabel(f"mean {what} per row ({unit}), lower is better", fontsize=10)
         ax.tick_params(labelsize=10)
         ax.grid(alpha=0.3, axis="x")
-    fig.suptitle(f"{task}: runtime and peak memory per method", fontsize=12)
+    fig.suptitle(_t(f"{task}: runtime and peak memory per method"), fontsize=12)
     return [_img(figs.save(fig, f"{task}-cost"), f"{task}: runtime and memory per method")]
 
 
@@ -471,10 +551,10 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
             figs.say(f"figure {len(figs.files) + 1}: render of {method_id(r)} on {r['item']}")
             p = render_shapes(
                 panels,
-                figs.folder / f"{len(figs.files):02d}-render-{safe_name(r['key'])}.png",
+                figs.fresh(f"render-{r['key']}"),
                 panel_size=min(4.5, 12.0 / len(panels)),
                 dpi=100,
-                title=title,
+                title=_t(title),
             )
             figs.files.append(p)
             parts.append(_img(p, title))
@@ -540,6 +620,95 @@ _CSS = (
 )
 
 
+#: the report folder's record of the files ``write_report`` wrote there (the only files it ever
+#: replaces or deletes), with their SHA-256: ``{"generator": ..., "files": {relative path: digest}}``
+MANIFEST = ".bench-report.json"
+_GENERATOR = "shape-toolkit bench report"
+_OWNABLE = re.compile(r"index\.html|figures/[A-Za-z0-9._-]+\.png")
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _regular(path: Path) -> bool:
+    return path.is_file() and not path.is_symlink()
+
+
+def _legacy_page(path: Path) -> bool:
+    """An ``index.html`` written by a report of before the manifest (recognised by its first bytes)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return False
+    return head.startswith(b"<!DOCTYPE html><html><head><meta charset='utf-8'><title>") and (
+        b"<h1>Benchmark report: " in head
+    )
+
+
+def _owned_files(out: Path) -> dict[str, str]:
+    """The files of ``out`` a previous report wrote and nobody changed since: ``{relative path:
+    digest}`` from the manifest, each still a regular file with its recorded digest.
+    :class:`ParameterError` when a manifest is there but is not one."""
+    path = out / MANIFEST
+    if not os.path.lexists(path):
+        return {}
+    try:
+        if not _regular(path):
+            raise ValueError("not a regular file")
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(data, dict) or data.get("generator") != _GENERATOR or not isinstance(data.get("files"), dict):
+            raise ValueError("not a report manifest")
+    except (OSError, ValueError) as exc:
+        raise ParameterError(
+            f"{path} exists and was not written by bench report ({exc}); choose another report folder"
+        ) from None
+    owned = {}
+    for rel, digest in data["files"].items():
+        if not (isinstance(rel, str) and isinstance(digest, str) and _OWNABLE.fullmatch(rel)):
+            continue
+        f = out / rel
+        try:
+            if _regular(f) and _digest(f) == digest:
+                owned[rel] = digest
+        except OSError:
+            continue
+    return owned
+
+
+def _claim_output(out: Path) -> dict[str, str]:
+    """Check, before any work, that the report may write into ``out``: a folder (created), whose
+    ``index.html`` and manifest, when present, were written by a report; returns the files it owns
+    there (:func:`_owned_files`). Nothing else in ``out`` is ever replaced or deleted."""
+    if os.path.lexists(out) and not out.is_dir():
+        raise ParameterError(f"report folder {out} exists and is not a folder; choose another -o")
+    page = out / "index.html"
+    owned = _owned_files(out)
+    if os.path.lexists(page) and "index.html" not in owned and not (_regular(page) and _legacy_page(page)):
+        raise ParameterError(
+            f"{page} exists and was not written by bench report; choose another report folder "
+            "(the report never replaces a file it did not write)"
+        )
+    figures = out / "figures"
+    if os.path.lexists(figures) and not figures.is_dir():
+        raise ParameterError(f"{figures} exists and is not a folder; choose another report folder")
+    figures.mkdir(parents=True, exist_ok=True)
+    return owned
+
+
+def _write_manifest(out: Path, files: list[Path]) -> None:
+    """Record ``files`` (inside ``out``) as the report's own, atomically."""
+    rec = {}
+    for f in files:
+        if _regular(f):
+            rec[f.relative_to(out).as_posix()] = _digest(f)
+    tmp = out / f".{MANIFEST}.tmp"
+    tmp.write_text(json.dumps({"generator": _GENERATOR, "files": rec}, indent=1), encoding="utf-8")
+    os.replace(tmp, out / MANIFEST)
+
+
+
 def write_report(
     run_dir: str | os.PathLike,
     *,
@@ -548,18 +717,43 @@ def write_report(
     progress: Callable[[str], None] | None = None,
 ) -> dict:
     """Write ``index.html`` (self-contained) and PNG figures for a run folder; ``progress`` receives
-    one line per step (task, figure group). Returns ``{"html": path, "figures": [paths]}``."""
-    say = progress or (lambda _msg: None)
+    one line per step (task, figure group). Returns ``{"html": path, "figures": [paths]}``.
+
+    The report replaces or deletes only files it wrote itself (listed with their digests in
+    ``OUTPUT/.bench-report.json``); a file it did not write is never touched: an ``index.html`` of
+    someone else is a :class:`ParameterError` before any work, other names are avoided."""
+    def say(msg: str) -> None:  # names from the rows: no control characters on a terminal
+        if progress is not None:
+            progress(_printable(msg))
+
     run = Path(run_dir)
     if not (run / RESULTS).exists():
         raise ParameterError(f"{run} is not a run folder: {RESULTS} not found (run 'bench run' first)")
-    say(f"reading {run / RESULTS}")
-    rows = read_rows(run)
     out = Path(output) if output else run / "report"
-    (out / "figures").mkdir(parents=True, exist_ok=True)
-    for old in (out / "figures").glob("*.png"):
-        old.unlink()
+    owned = _claim_output(out)  # before any work
+    say(f"reading {run / RESULTS}")
+    rows = [_normalized(r) for r in read_rows(run)]
+    for rel in owned:  # the previous report's figures (still as it wrote them)
+        if rel.startswith("figures/"):
+            (out / rel).unlink(missing_ok=True)
     figs = _Figs(out / "figures", say)
+    path = out / "index.html"
+    written: list[Path] = [path] if "index.html" in owned else []
+    try:
+        with _literal_figure_text():
+            page = _page(run, out, rows, figs, renders, say)
+        tmp = out / ".index.html.tmp"
+        tmp.write_text(page, encoding="utf-8", errors="replace")
+        os.replace(tmp, path)
+        written = [path]
+    finally:
+        _write_manifest(out, written + figs.files)
+    say(f"wrote {path} ({len(figs.files)} figures)")
+    return {"html": path, "figures": list(figs.files)}
+
+
+def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, renders: int, say: Callable[[str], None]) -> str:
+    """The HTML page of the report (its figures saved through ``figs``)."""
     summ = summarize(rows)
     n_ok = sum(r.get("status") == "ok" for r in rows)
     failed = [r for r in rows if r.get("status") != "ok"]
@@ -612,9 +806,4 @@ def write_report(
         f"<meta name='viewport' content='width=device-width, initial-scale=1'>"
         f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>"
     )
-    path = out / "index.html"
-    tmp = out / ".index.html.tmp"
-    tmp.write_text(page, encoding="utf-8")
-    os.replace(tmp, path)
-    say(f"wrote {path} ({len(figs.files)} figures)")
-    return {"html": path, "figures": list(figs.files)}
+    return page

@@ -168,7 +168,27 @@ _ROW_TYPES: dict[str, type | tuple[type, ...]] = {
 }
 
 
+#: optional keys of a stored row, with the types the report can show: absent, or of this type
+#: (``None`` in the tuple: null allowed); a row with another type is set aside like a torn line
+_TEXT = (str,)
+_NUMBER = (int, float, type(None))
+_ROW_OPTIONAL: dict[str, tuple[type, ...]] = {
+    **dict.fromkeys(("run_name", "dataset", "plugin", "family", "corruption", "corruption_kind",
+                     "corruption_group", "prepare_key", "worker"), _TEXT),
+    **dict.fromkeys(("preset", "error", "output", "traceback"), (str, type(None))),
+    **dict.fromkeys(("params", "corruption_params", "versions"), (dict,)),
+    **dict.fromkeys(("strength", "seconds", "cpu_seconds", "peak_memory_mb", "spectrum_seconds",
+                     "metric_seconds", "total_seconds"), _NUMBER),
+    **dict.fromkeys(("random_state", "corruption_seed", "n_vertices"), (int, type(None))),
+    "spectrum_cache_hit": (bool, type(None)),
+    "spectra": (list,),
+}
+
+
 def _row_problem(obj: Any) -> str | None:
+    """Why ``obj`` is not a row the report can show (None when it is): the required keys with
+    their types, the optional keys of :data:`_ROW_OPTIONAL` of their types when present, numbers
+    that are not booleans, and spectra that are tables."""
     if not isinstance(obj, dict):
         return f"a JSON {type(obj).__name__}, not an object"
     for k, t in _ROW_TYPES.items():
@@ -176,7 +196,21 @@ def _row_problem(obj: Any) -> str | None:
             return f"no valid {k!r}"
     if obj["status"] not in _STATUSES:
         return f"status {obj['status']!r}"
+    for k, types in _ROW_OPTIONAL.items():
+        if k not in obj:
+            continue
+        v = obj[k]
+        if not isinstance(v, types) or (isinstance(v, bool) and bool not in types):
+            return f"{k!r} is a JSON {_json_type(v)}"
+    if any(not isinstance(s, dict) for s in obj.get("spectra", [])):
+        return "'spectra' holds a non-table"
     return None
+
+
+def _json_type(v: Any) -> str:
+    return {dict: "object", list: "array", str: "string", bool: "boolean", type(None): "null"}.get(
+        type(v), "number"
+    )
 
 
 def _prep_problem(obj: Any) -> str | None:

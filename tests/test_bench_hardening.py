@@ -1,0 +1,339 @@
+"""Issue 27, the report and config parts: the report writes only the files it owns, shows every
+user string literally (escaped in HTML, no mathtext in figures), survives every row the reader
+accepts while the reader accepts only what it can show; configs refuse bad strings, bad nested
+parameters and grids above the row cap before any work."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import textwrap
+from html.parser import HTMLParser
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from shape_toolkit.bench import read_rows, write_report
+from shape_toolkit.bench.store import BenchWarning, _row_problem
+from shape_toolkit.cli import main
+from shape_toolkit.errors import ParameterError
+
+CONFIG = """
+[run]
+name = "hardening"
+[[datasets]]
+name = "synth"
+kind = "synthetic"
+limit = 1
+params = { n_poses = 2, subdivisions = 2 }
+[[corruptions]]
+name = "noise"
+kind = "gaussian-noise"
+params = { strength = [0.01, 0.02] }
+[[tasks]]
+task = "spectrum"
+spectrum = { k = 6 }
+metrics = ["eigenvalues", "lambda2"]
+[[tasks.methods]]
+plugin = "gaussian"
+[[tasks]]
+task = "segmentation"
+name = "seg"
+corruptions = ["none", "noise"]
+metrics = ["n_segments", "segmentation"]
+[[tasks.methods]]
+plugin = "spectral-clustering"
+preset = "luxburg-unnormalized"
+params = { n_segments = 3 }
+"""
+
+
+MANIFEST = ".bench-report.json"  # shape_toolkit.bench.report.MANIFEST
+
+
+def _write(folder: Path, text: str = CONFIG, name: str = "bench.toml") -> Path:
+    p = folder / name
+    p.write_text(textwrap.dedent(text))
+    return p
+
+
+@pytest.fixture(scope="module")
+def made_run(tmp_path_factory) -> Path:
+    """One small run (a spectrum task with curves, a segmentation task under two corruption
+    strengths), made once; tests copy it."""
+    folder = tmp_path_factory.mktemp("made")
+    run = folder / "run"
+    assert main(["bench", "run", str(_write(folder)), "-o", str(run), "--no-progress"]) == 0
+    return run
+
+
+@pytest.fixture
+def run(made_run, tmp_path) -> Path:
+    dst = tmp_path / "run"
+    shutil.copytree(made_run, dst)
+    return dst
+
+
+def _rows(run: Path) -> list[dict]:
+    return [json.loads(x) for x in (run / "results.jsonl").read_text().splitlines() if x.strip()]
+
+
+def _put_rows(run: Path, rows: list[dict]) -> None:
+    (run / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+# -- 1. the report writes only the files it owns ---------------------------------------------
+def test_report_never_deletes_or_replaces_a_users_files(run, tmp_path, capsys):
+    out = tmp_path / "out"
+    first = write_report(run, output=out, renders=0)
+    ours = [Path(f).name for f in first["figures"]]
+    assert ours
+    shutil.rmtree(out)
+    (out / "figures").mkdir(parents=True)
+    mine = {"holiday.png": b"my holiday", ours[0]: b"my figure with the report's name", "notes.txt": b"notes"}
+    for name, data in mine.items():
+        (out / "figures" / name).write_bytes(data)
+    inputs = _snapshot(run)
+    for _ in range(2):  # the second report replaces the first one's figures, and only those
+        res = write_report(run, output=out, renders=0)
+        for name, data in mine.items():
+            assert (out / "figures" / name).read_bytes() == data
+        assert all(Path(f).name not in mine for f in res["figures"])
+        assert len(res["figures"]) == len(ours)
+    on_disk = {p.name for p in (out / "figures").iterdir()}
+    assert on_disk == set(mine) | {Path(f).name for f in res["figures"]}  # the first report's are gone
+    assert _snapshot(run) == inputs  # the run's own files are untouched
+    # a figure the user changed after the report is no longer the report's: it stays
+    changed = Path(res["figures"][-1])
+    changed.write_bytes(b"edited by hand")
+    write_report(run, output=out, renders=0)
+    assert changed.read_bytes() == b"edited by hand"
+    # the CLI the same
+    assert main(["bench", "report", str(run), "-o", str(out), "--renders", "0", "-q"]) == 0
+    assert (out / "figures" / "holiday.png").read_bytes() == b"my holiday"
+    capsys.readouterr()
+
+
+def test_report_refuses_an_index_html_it_did_not_write(run, tmp_path, capsys):
+    out = tmp_path / "site"
+    out.mkdir()
+    (out / "index.html").write_text("<p>my home page</p>")
+    with pytest.raises(ParameterError, match="not written by bench report"):
+        write_report(run, output=out, renders=0)
+    assert main(["bench", "report", str(run), "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "index.html" in err
+    assert (out / "index.html").read_text() == "<p>my home page</p>"
+    assert not (out / "figures").exists()  # refused before any work
+    # a report folder that is a file
+    with pytest.raises(ParameterError, match="not a folder"):
+        write_report(run, output=out / "index.html", renders=0)
+
+
+def test_planted_manifest_and_links_cannot_make_the_report_touch_other_files(run, tmp_path):
+    out = tmp_path / "out"
+    res = write_report(run, output=out, renders=0)
+    inputs = _snapshot(run)
+    # a manifest claiming the run's results and a user's file, with their true digests
+    import hashlib
+
+    victim = out / "figures" / "victim.png"
+    victim.write_bytes(b"user data")
+    files = {"../run/results.jsonl": hashlib.sha256((run / "results.jsonl").read_bytes()).hexdigest(),
+             "figures/../../run/config.json": "0" * 64,
+             "figures/victim.png": "0" * 64}
+    (out / MANIFEST).write_text(json.dumps({"generator": "shape-toolkit bench report", "files": files}))
+    # a link where the report's next figure would go, pointing at the run's results
+    for f in res["figures"]:
+        Path(f).unlink()
+        Path(f).symlink_to(run / "results.jsonl")
+    write_report(run, output=out, renders=0)
+    assert _snapshot(run) == inputs
+    assert victim.read_bytes() == b"user data"
+    assert all(Path(f).is_symlink() for f in res["figures"])
+    # a manifest that is not one is refused, not overwritten
+    (out / MANIFEST).write_text("my own notes")
+    with pytest.raises(ParameterError, match="not written by bench report"):
+        write_report(run, output=out, renders=0)
+    assert (out / MANIFEST).read_text() == "my own notes"
+
+
+def test_a_report_into_the_run_folder_leaves_its_inputs_alone(run):
+    inputs = _snapshot(run)
+    write_report(run, output=run, renders=1)
+    write_report(run, output=run, renders=1)
+    after = _snapshot(run)
+    assert {k: v for k, v in after.items() if k in inputs} == inputs
+
+
+# -- 2. user strings escaped in every report field -------------------------------------------
+PAYLOADS = ("<script>alert(1)</script>", '"><img src=x onerror=alert(1)>', "'><svg onload=alert(1)>")
+_TAGS = {"html", "head", "meta", "title", "style", "body", "h1", "h2", "h3", "p", "code", "ul", "li", "b",
+         "span", "table", "tr", "th", "td", "small", "details", "summary", "figure", "img", "figcaption"}
+
+
+class _Tags(HTMLParser):
+    def __init__(self):
+        super().__init__(convert_charrefs=True)
+        self.tags: list[tuple[str, list]] = []
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append((tag, attrs))
+
+
+def _assert_no_markup_from_data(text: str) -> None:
+    parser = _Tags()
+    parser.feed(text)
+    for tag, attrs in parser.tags:
+        assert tag in _TAGS, f"unexpected tag <{tag}>"
+        for name, value in attrs:
+            assert name in ("charset", "name", "content", "title", "class", "style", "alt", "src"), (tag, name)
+            if tag == "img" and name == "src":
+                assert value.startswith("data:image/png;base64,")
+    for p in PAYLOADS:
+        assert p not in text
+
+
+def _plant(rows: list[dict], payload: str) -> list[dict]:
+    """``payload`` in every string field of every row, in the keys and values of its tables
+    (parameters, corruption parameters, spectra, versions) and in its metric names; one row failed
+    with the payload as its error."""
+    out = []
+    for i, r in enumerate(rows):
+        r = dict(r)
+        for k in ("run_name", "task_name", "task_kind", "dataset", "item", "plugin", "family", "method_label",
+                  "preset", "corruption", "corruption_kind", "corruption_group", "worker"):
+            r[k] = f"{k}{payload}"
+        r["key"] = f"{r['key']}{payload}"
+        r["params"] = {f"p{payload}": payload, "n": 3}
+        r["corruption_params"] = {f"c{payload}": payload}
+        r["spectra"] = [{f"s{payload}": payload, "k": 6}]
+        r["versions"] = {f"v{payload}": payload}
+        r["metrics"] = {f"{k}{payload}": v for k, v in r["metrics"].items()}
+        if i == 0:
+            r.update(status="failed", error=f"error {payload}", metrics={})
+        out.append(r)
+    return out
+
+
+@pytest.mark.parametrize("payload", PAYLOADS)
+def test_strings_from_the_rows_are_escaped_in_every_report_field(run, payload):
+    rows = _rows(run)
+    _put_rows(run, _plant(rows, payload) + [dict(r, key=r["key"] + "x") for r in rows])  # planted and clean rows
+    res = write_report(run, renders=1)
+    text = res["html"].read_text()
+    _assert_no_markup_from_data(text)
+    assert "&lt;" in text and len(res["figures"]) >= 3
+
+
+# -- 3. labels that look like LaTeX are shown literally --------------------------------------
+LATEX = (r"$\frac{a$", r"\begin{x}", "$x^2$ and $", r"$\undefinedmacro$", "$$", "_hidden", "a\x00b\x07", "\ud800",
+         "emoji \U0001f600")
+
+
+def test_latex_like_labels_and_names_are_shown_literally(run, capsys):
+    rows = _rows(run)
+    every = " ".join(LATEX)
+    planted = []
+    for i, label in enumerate(LATEX):  # each label in the legends, the cost figure and the tables
+        planted += [dict(r, key=f"{r['key']}-{i}", method_label=label) for r in rows]
+    for r in planted[: len(rows)]:  # and all of them in every other text of one copy
+        r.update(task_name=every, dataset=every, corruption=every + r["corruption"],
+                 corruption_group=every + r["corruption_group"],
+                 metrics={every + k: v for k, v in r["metrics"].items()})
+    _put_rows(run, planted)
+    assert main(["bench", "report", str(run), "--renders", "1"]) == 0
+    cap = capsys.readouterr()
+    assert "error" not in cap.err and "warning" not in cap.err
+    assert all(line.isprintable() for line in cap.err.splitlines())  # no control characters on the terminal
+    text = (run / "report" / "index.html").read_text()
+    assert r"$\frac{a$" in text and r"\begin{x}" in text
+
+
+# -- 4. the reader accepts only what the report can show -------------------------------------
+@pytest.mark.parametrize(
+    "field,value",
+    [("corruption", ["noise", "0.1"]), ("corruption_group", ["noise"]), ("corruption", {"a": 1}),
+     ("dataset", [1]), ("strength", [0.1]), ("strength", "0.1"), ("strength", True), ("params", ["n", 3]),
+     ("corruption_params", [1]), ("seconds", "fast"), ("spectra", [1]), ("spectra", {"k": 1}), ("error", 5),
+     ("output", 3), ("preset", ["a"]), ("run_name", 7), ("versions", []), ("random_state", 1.5),
+     ("spectrum_cache_hit", "yes")],
+)
+def test_rows_the_report_cannot_show_are_set_aside(run, field, value):
+    rows = _rows(run)
+    bad = dict(rows[-1], **{field: value})
+    _put_rows(run, rows[:-1] + [bad])
+    with pytest.warns(BenchWarning, match=rf"'{field}' is a JSON|'spectra' holds"):
+        kept = read_rows(run)
+    assert [r["key"] for r in kept] == [r["key"] for r in rows[:-1]]
+
+
+def test_a_list_valued_corruption_is_one_warning_not_a_crash(run, capsys):
+    rows = _rows(run)
+    _put_rows(run, [dict(r, corruption=["noise", 1], corruption_group=["noise"]) for r in rows[:2]] + rows[2:])
+    assert main(["bench", "report", str(run), "--renders", "0", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "warning" in err and "skipped 2 invalid line(s)" in err
+
+
+def test_rows_written_by_the_runner_are_accepted(run):
+    rows = _rows(run)
+    assert rows and all(_row_problem(r) is None for r in rows)
+
+
+_TEXTS = st.one_of(st.sampled_from(LATEX + PAYLOADS + ("", "none", "-", "a/b", "..")), st.text(max_size=10))
+_NUMS = st.one_of(st.none(), st.integers(-10**6, 10**6), st.floats(allow_nan=True, allow_infinity=True))
+_JSON = st.recursive(
+    st.one_of(st.none(), st.booleans(), _NUMS, _TEXTS),
+    lambda inner: st.one_of(st.lists(inner, max_size=4), st.dictionaries(_TEXTS, inner, max_size=3)),
+    max_leaves=8,
+)
+_CURVES = st.lists(st.lists(st.one_of(_NUMS, _TEXTS), min_size=2, max_size=2), min_size=1, max_size=5)
+
+
+@st.composite
+def _accepted_rows(draw):
+    rows = []
+    for i in range(draw(st.integers(1, 5))):
+        row = {
+            "key": f"k{i}",
+            "status": draw(st.sampled_from(["ok", "failed"])),
+            "task_name": draw(st.sampled_from(["t", "$t$", "<b>"])),
+            "task_kind": draw(_TEXTS),
+            "item": draw(_TEXTS),
+            "method_label": draw(_TEXTS),
+            "metrics": draw(st.dictionaries(_TEXTS, st.one_of(_JSON, _CURVES), max_size=4)),
+        }
+        optional = {
+            "dataset": _TEXTS, "corruption": _TEXTS, "corruption_group": st.sampled_from(["none", "g", "$g"]),
+            "family": st.sampled_from(["pipelines", "segmenters"]), "run_name": _TEXTS,
+            "strength": _NUMS, "seconds": _NUMS, "peak_memory_mb": _NUMS, "spectrum_seconds": _NUMS,
+            "spectrum_cache_hit": st.one_of(st.none(), st.booleans()),
+            "params": st.dictionaries(_TEXTS, _JSON, max_size=3),
+            "versions": st.dictionaries(_TEXTS, _JSON, max_size=2),
+            "spectra": st.lists(st.dictionaries(_TEXTS, _JSON, max_size=2), max_size=2),
+            "error": st.one_of(st.none(), _TEXTS), "output": st.one_of(st.none(), _TEXTS),
+            "prepare_key": _TEXTS,
+        }
+        for k, strategy in optional.items():
+            if draw(st.booleans()):
+                row[k] = draw(strategy)
+        rows.append(row)
+    return rows
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
+                                                                  HealthCheck.function_scoped_fixture])
+@given(rows=_accepted_rows())
+def test_the_report_survives_every_row_the_reader_accepts(rows, tmp_path_factory):
+    run = tmp_path_factory.mktemp("prop")
+    _put_rows(run, rows)
+    assert len(read_rows(run)) == len(rows)  # the reader accepts them all
+    res = write_report(run, renders=1)
+    _assert_no_markup_from_data(res["html"].read_text())
