@@ -295,3 +295,59 @@ def test_view_png_needs_no_display(monkeypatch, capsys, tmp_path, mesh_file):
     _one_line_rejection(code, out, err, "--png must end with .png")
     code, out, err = _cli(capsys, "view", mesh_file, "--json")
     _one_line_rejection(code, out, err, "--json applies to --png")
+
+
+# ------------------------------------------------------------------------------------------------
+# --param with a JSON table or list where a name is expected: one line naming the parameter
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("value", ['{"a":1}', "[1,2]"])
+@pytest.mark.parametrize("command", ["spectrum", "keypoints", "segment", "describe"])
+def test_param_table_is_a_one_line_rejection_naming_the_parameter(tmp_path, capsys, mesh_file, command, value):
+    """Issue 27: --param 'weighting={"a":1}' gave internal errors (build_graph got the keyword twice on
+    spectrum; an unhashable dict reached the registry on keypoints and segment)."""
+    extra = {"segment": ["--method", "eigvec-gmm", "-o", tmp_path / "s.txt"],
+             "describe": ["-o", tmp_path / "d.npz"]}.get(command, [])
+    code, out, err = _cli(capsys, command, mesh_file, *extra, "--param", f"weighting={value}", "--json")
+    _one_line_rejection(code, out, err, "weighting")
+    assert "internal error" not in err
+
+
+def test_build_graph_and_registry_refuse_names_that_are_not_strings():
+    from shape_toolkit.api.registry import get_plugin
+    from shape_toolkit.core.graph import build_graph
+    from shape_toolkit.errors import PluginError
+
+    with pytest.raises(ParameterError, match="weighting must be the name of a weighting plugin, got dict"):
+        build_graph(icosphere(1), {"a": 1})
+    with pytest.raises(PluginError, match="named by a string, got list"):
+        get_plugin("weightings", [1, 2])
+
+
+def test_spectral_clustering_variant_table_is_a_typed_error():
+    from shape_toolkit.api.registry import create_plugin
+
+    with pytest.raises(ParameterError, match="unknown variant"):
+        create_plugin("segmenters", "spectral-clustering", n_segments=3, variant={"a": 1}).segment(icosphere(1))
+
+
+def test_param_names_are_checked_before_any_work(capsys, mesh_file):
+    code, out, err = _cli(capsys, "spectrum", mesh_file, "--param", "connectivity=knn", "--json")
+    _one_line_rejection(code, out, err, "CotangentWeighting has no parameter 'connectivity'")
+
+
+@pytest.mark.parametrize(("family", "name", "params", "needle"), [
+    ("dense_matchers", "fmap-zoomout", {"descriptor_params": [1, 2]}, "descriptor_params must be a table"),
+    ("dense_matchers", "fmap-zoomout", {"descriptor_params": {"a": 1}}, "take n_energies and variance"),
+    ("dense_matchers", "fmap-zoomout", {"zoomout_samples": {"a": 1}}, "zoomout_samples must be None or a positive"),
+    ("dense_matchers", "greedy-descriptor", {"descriptor_params": "zzz"}, "descriptor_params must be a table"),
+    ("descriptors", "hks", {"times": {"a": 1}}, "diffusion times must be a number"),
+    ("descriptors", "hks", {"times": "zzz"}, "diffusion times must be a number"),
+])
+def test_plugin_parameters_of_the_wrong_kind_are_typed_errors(family, name, params, needle):
+    """The same kind of --param value on transfer-labels (matchers) and describe: internal errors before."""
+    from shape_toolkit.api.registry import create_plugin
+
+    s = icosphere(1)
+    p = create_plugin(family, name, **params)
+    with pytest.raises(ParameterError, match=needle):
+        p.compute(s) if family == "descriptors" else p.match(s, s)

@@ -139,7 +139,12 @@ def build_graph(
     """
     from shape_toolkit.api.registry import create_plugin
 
-    if connectivity not in ("auto", "mesh", "knn", "epsilon"):
+    if not isinstance(weighting, str):  # a dict or list from a JSON parameter (--param weighting={...})
+        shown = repr(weighting) if len(repr(weighting)) <= 60 else repr(weighting)[:57] + "..."
+        raise ParameterError(
+            f"weighting must be the name of a weighting plugin, got {type(weighting).__name__} {shown}"
+        )
+    if not isinstance(connectivity, str) or connectivity not in ("auto", "mesh", "knn", "epsilon"):
         raise ParameterError(
             f"unknown connectivity {connectivity!r}; choose auto, mesh, knn or epsilon"
         )

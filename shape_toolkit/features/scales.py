@@ -31,7 +31,12 @@ __all__ = [
 
 def check_times(times: float | Sequence[float] | np.ndarray) -> np.ndarray:
     """Validate diffusion times: a float64 ``(T,)`` array of positive finite values."""
-    t = np.atleast_1d(np.asarray(times, dtype=np.float64)).ravel()
+    if isinstance(times, (str, bytes, dict)):
+        raise ParameterError(f"diffusion times must be a number or a list of numbers, got {times!r}")
+    try:
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64)).ravel()
+    except (TypeError, ValueError):
+        raise ParameterError(f"diffusion times must be a number or a list of numbers, got {times!r}") from None
     if t.size == 0:
         raise ParameterError("at least one diffusion time is needed")
     if not np.all(np.isfinite(t)) or np.any(t <= 0):

@@ -185,6 +185,15 @@ def _check_param_kinds(params: dict[str, Any], plugin: type, what: str) -> None:
         sig = inspect.signature(plugin.__init__)
     except (TypeError, ValueError):  # pragma: no cover - builtins
         return
+    names = getattr(plugin, "_param_names", None)
+    valid = set(names()) if callable(names) else None
+    for key in params:
+        # a name the plugin does not take, refused here (the registry would too) so that it cannot reach
+        # a caller's own keywords: 'spectrum --param weighting=...' collided with build_graph's weighting
+        if valid is not None and key not in valid:
+            raise ParameterError(
+                f"{what} {key}: {plugin.__name__} has no parameter {key!r}; valid: {', '.join(sorted(valid)) or 'none'}"
+            )
     for key, value in params.items():
         par = sig.parameters.get(key)
         if par is None or par.default is inspect.Parameter.empty or par.default is None:

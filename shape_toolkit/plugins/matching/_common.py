@@ -100,6 +100,8 @@ def resolve_plugin(family: str, spec: Any, params: dict | None, *, method: str, 
     ``what`` names the parameter and ``kind`` the instance type in the errors."""
     from shape_toolkit.api.registry import create_plugin
 
+    if params is not None and not isinstance(params, dict):
+        raise ParameterError(f"{what}_params must be a table of {what} parameters, got {params!r}")
     if hasattr(spec, method) and not isinstance(spec, (str, dict, type)):
         if params:
             raise ParameterError(f"{what}_params apply to a {what} given by name, not to an instance")

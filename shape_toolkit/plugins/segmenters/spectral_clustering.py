@@ -82,7 +82,7 @@ class SpectralClustering(Segmenter):
     def spectrum_spec(self) -> SpectrumSpec:
         """``kmax + 1`` eigenpairs (``kmax``: ``n_segments`` or ``max_segments``) of the variant's
         Laplacian of the ``weighting`` graph, no mass matrix."""
-        if self.variant not in _LAPLACIAN:
+        if not isinstance(self.variant, str) or self.variant not in _LAPLACIAN:
             raise ParameterError(f"unknown variant {self.variant!r}; choose one of {', '.join(_LAPLACIAN)}")
         return segmenter_spec(self._kmax() + 1, self.weighting, _LAPLACIAN[self.variant])
 

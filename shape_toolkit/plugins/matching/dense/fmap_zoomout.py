@@ -379,6 +379,16 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                     raise ParameterError(f"a hypothesis {name} must be a number >= 0, got {w!r}")
         if not isinstance(self.selection_samples, (int, np.integer)) or self.selection_samples < 10:
             raise ParameterError(f"selection_samples must be an integer >= 10, got {self.selection_samples!r}")
+        zs = self.zoomout_samples
+        if zs is not None and (isinstance(zs, bool) or not isinstance(zs, (int, np.integer)) or zs < 1):
+            raise ParameterError(f"zoomout_samples must be None or a positive integer, got {zs!r}")
+        dp = self.descriptor_params
+        if dp is not None and not isinstance(dp, dict):
+            raise ParameterError(f"descriptor_params must be a table of descriptor parameters, got {dp!r}")
+        if self.descriptor is None and dp and set(dp) - {"n_energies", "variance"}:
+            raise ParameterError(
+                f"descriptor_params of the built-in WKS take n_energies and variance, got {sorted(dp)}"
+            )
 
     def _hypotheses(self) -> list[dict]:
         if self.hypotheses is None:  # the coarser fits at two thirds of this matcher's k (20 for 30)
