@@ -61,7 +61,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "description": "thesis ch. 7: ADF keypoints, replicator matching, heat-distance "
         "descriptors, seed growing (Alg. 6), EM registration (Alg. 7), its map polished on 100 "
         "Laplace-Beltrami eigenvectors (an extension)",
-        "keypoints": {"plugin": "adf-maxima", "preset": "dense"},
+        "keypoints": {"plugin": "adf-maxima", "preset": "thesis-dense"},
         "sparse": {"plugin": "replicator"},
         "descriptors": {"plugin": "heat-distance"},
         "dense": {"plugin": "seed-growing"},
@@ -72,7 +72,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "heat-diffusion descriptors (eq. 6.61-6.63), seed growing (Alg. 6), EM on the thesis's embedding "
         "(graph Laplacian, commute-time scaling, scree dimension; Alg. 7), coarse-to-fine refinement (40 graph, "
         "then 100 Laplace-Beltrami eigenvectors; an extension)",
-        "keypoints": {"plugin": "adf-maxima", "preset": "dense"},
+        "keypoints": {"plugin": "adf-maxima", "preset": "thesis-dense"},
         "sparse": {"plugin": "replicator"},
         "descriptors": {"plugin": "heat-diffusion", "params": {"K": 50, "time_ratio": 1.5}},
         "dense": {"plugin": "seed-growing", "params": {
@@ -81,7 +81,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
     "seed-growing": {
         "description": "ADF keypoints, replicator matching, heat-distance descriptors, seed growing",
-        "keypoints": {"plugin": "adf-maxima", "preset": "dense"},
+        "keypoints": {"plugin": "adf-maxima", "preset": "thesis-dense"},
         "sparse": {"plugin": "replicator"},
         "descriptors": {"plugin": "heat-distance"},
         "dense": {"plugin": "seed-growing"},
@@ -111,7 +111,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
     "ovsjanikov2010": {
         "description": "ADF keypoints, replicator matching, greedy heat-kernel-map matching",
-        "keypoints": {"plugin": "adf-maxima", "preset": "dense"},
+        "keypoints": {"plugin": "adf-maxima", "preset": "thesis-dense"},
         "sparse": {"plugin": "replicator"},
         "dense": {"plugin": "greedy-descriptor"},
     },

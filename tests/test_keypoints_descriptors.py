@@ -76,8 +76,12 @@ def test_plugins_registered_with_table_6_1_presets():
     assert {"adf-maxima", "harris3d"} <= set(fams["keypoints"])
     assert {"hks", "wks", "heat-diffusion", "heat-distance"} <= set(fams["descriptors"])
     adf = get_plugin("keypoints", "adf-maxima")
-    assert adf.presets["sparse"] == {"t": 500.0, "K": 10, "ring": 2}
-    assert adf.presets["dense"] == {"t": 50.0, "K": 50, "ring": 2}
+    # the thesis's Table 6.1, literally (absolute times), beside the scale-free defaults
+    assert adf.presets["thesis-sparse"] == {"t": 500.0, "K": 10, "ring": 2, "time_scale": "absolute"}
+    assert adf.presets["thesis-dense"] == {"t": 50.0, "K": 50, "ring": 2, "time_scale": "absolute"}
+    assert adf.presets["sparse"]["time_scale"] == "first" and adf.presets["dense"]["time_scale"] == "last"
+    assert create_plugin("keypoints", "adf-maxima").get_params() == create_plugin(
+        "keypoints", "adf-maxima", preset="sparse").get_params()
     h = create_plugin("keypoints", "harris3d", preset="dense")
     assert (h.neighbourhood, h.neighbourhood_param, h.k, h.ring) == ("adaptive", 0.01, 0.04, 2)
     assert (h.selection, h.selection_param) == ("clustering", 0.001)
@@ -89,8 +93,10 @@ def test_plugins_registered_with_table_6_1_presets():
 # -- adf-maxima -------------------------------------------------------------------------------
 def test_adf_maxima_find_the_protrusions(bump):
     shape, tips, spec = bump
-    t = 0.5 / spec.eigenvalues[1]
+    t = 0.5  # in units of 1 / lambda_1 (the default time_scale)
     kp = create_plugin("keypoints", "adf-maxima", t=t, K=10).detect(shape, spectrum=spec)
+    absolute = create_plugin("keypoints", "adf-maxima", t=t / spec.eigenvalues[1], K=10, time_scale="absolute")
+    np.testing.assert_array_equal(absolute.detect(shape, spectrum=spec), kp)
     assert kp.dtype == np.int64
     assert set(kp[:3].tolist()) == set(tips[:3])  # the three largest protrusions, strongest first
     adf = create_plugin("keypoints", "adf-maxima", t=t, K=10).adf(shape, spectrum=spec)
@@ -106,7 +112,7 @@ def test_adf_maxima_find_the_protrusions(bump):
 
 def test_adf_maxima_deterministic_and_invariant(bump):
     shape, _, spec = bump
-    det = create_plugin("keypoints", "adf-maxima", t=0.5 / spec.eigenvalues[1], K=10)
+    det = create_plugin("keypoints", "adf-maxima", t=0.5, K=10)
     kp = det.detect(shape, spectrum=spec)
     np.testing.assert_array_equal(det.detect(shape, spectrum=spec), kp)
     moved = rigid(shape)
@@ -120,7 +126,7 @@ def test_adf_maxima_deterministic_and_invariant(bump):
 
 def test_adf_maxima_default_spectrum_small_shape():
     shape, tips = bumpy(2)
-    kp = create_plugin("keypoints", "adf-maxima", t=10.0, K=10).detect(shape)
+    kp = create_plugin("keypoints", "adf-maxima", t=10.0, K=10, time_scale="absolute").detect(shape)
     assert len(kp) >= 1 and kp.min() >= 0 and kp.max() < shape.n_vertices
     assert kp[0] == tips[0]
 
@@ -134,6 +140,8 @@ def test_adf_maxima_errors(bump):
             create_plugin("keypoints", "adf-maxima", t=bad).detect(shape, spectrum=spec)
     with pytest.raises(ParameterError):
         create_plugin("keypoints", "adf-maxima", ring=0).detect(shape, spectrum=spec)
+    with pytest.raises(ParameterError, match="time_scale"):
+        create_plugin("keypoints", "adf-maxima", time_scale="seconds").detect(shape, spectrum=spec)
     with pytest.raises(ParameterError):
         create_plugin("keypoints", "adf-maxima", K=10).detect(bumpy(2)[0], spectrum=spec)  # wrong n
 
@@ -284,7 +292,7 @@ def test_cli_keypoints_json(tmp_path, capsys):
     path = tmp_path / "bumpy.off"
     save_shape(shape, path)
     rc = cli_main(["keypoints", str(path), "--detector", "adf-maxima", "--param", "t=10",
-                   "--param", "K=10", "--json"])
+                   "--param", "K=10", "--param", "time_scale=absolute", "--json"])
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["detector"] == "adf-maxima" and out["params"]["t"] == 10 and out["params"]["K"] == 10
@@ -417,3 +425,38 @@ def test_descriptor_times_are_the_times_compute_uses(name):
     times = plug.descriptor_times(shape)
     fixed = create_plugin("descriptors", name, K=8, times=times.tolist())
     np.testing.assert_allclose(fixed.compute(shape, keypoints=tips), plug.compute(shape, keypoints=tips))
+
+
+# -- scale-free defaults (issue 30) ------------------------------------------------------------
+@pytest.mark.parametrize("subdivisions", [3, 4])
+def test_default_keypoints_survive_a_4x_refinement(subdivisions):
+    """The same keypoints, within tolerance, on a mesh and on its 4x refinement (midpoint
+    subdivision: the same surface, 4x the faces, eigenvalues 4x smaller)."""
+    import igl
+
+    from shape_toolkit.data.synthetic import articulated_shape
+
+    gen = articulated_shape(subdivisions=subdivisions, random_state=0)
+    coarse = gen.shape
+    V, F = igl.upsample(coarse.vertices, coarse.faces)
+    fine = Shape(V, F, "refined")  # the first n vertices are the coarse ones
+    a = create_plugin("keypoints", "adf-maxima").detect(coarse)
+    b = create_plugin("keypoints", "adf-maxima").detect(fine)
+    assert abs(len(a) - len(b)) <= 0.2 * max(len(a), len(b))
+    # each coarse keypoint has a fine one nearby (within 3 coarse edge lengths)
+    edge = np.linalg.norm(coarse.vertices[coarse.faces[:, 0]] - coarse.vertices[coarse.faces[:, 1]], axis=1).mean()
+    d = np.linalg.norm(coarse.vertices[a][:, None] - fine.vertices[b][None], axis=2).min(axis=1)
+    assert (d <= 3 * edge).mean() >= 0.8
+    # the literal thesis time is not scale-free: on the five-limbed shape the counts differ
+    lit = [len(create_plugin("keypoints", "adf-maxima", preset="thesis-sparse").detect(s)) for s in (coarse, fine)]
+    assert lit[0] != lit[1]
+
+
+def test_default_keypoints_are_the_limb_tips_of_the_demo_shape():
+    """The demo's five-limbed shape: the five strongest default keypoints lie one on each limb
+    (the thesis's absolute t = 500 gave 2 keypoints, at the body's poles)."""
+    from shape_toolkit.data.synthetic import articulated_shape
+
+    gen = articulated_shape(random_state=0)
+    kp = create_plugin("keypoints", "adf-maxima").detect(gen.shape)
+    assert sorted(gen.labels[kp[:5]].tolist()) == [1, 2, 3, 4, 5]

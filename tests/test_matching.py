@@ -227,7 +227,7 @@ def test_greedy_and_eigvec_alignment_run(pair, seeds):
 @pytest.mark.parametrize("name", ["replicator", "spectral", "rrwm"])
 def test_sparse_matchers_correct_up_to_symmetry(pair, name):
     A, B, mirror = pair
-    det = create_plugin("keypoints", "adf-maxima", preset="dense")
+    det = create_plugin("keypoints", "adf-maxima", preset="thesis-dense")
     ka, kb = det.detect(A), det.detect(B)
     pairs = create_plugin("sparse_matchers", name).match(A, B, ka, kb)
     assert len(pairs) >= 5
@@ -241,7 +241,7 @@ def test_sparse_matchers_correct_up_to_symmetry(pair, name):
 
 def test_umeyama_and_keypoint_errors(pair):
     A, B, _ = pair
-    det = create_plugin("keypoints", "adf-maxima", preset="dense")
+    det = create_plugin("keypoints", "adf-maxima", preset="thesis-dense")
     ka, kb = det.detect(A), det.detect(B)
     pairs = create_plugin("sparse_matchers", "umeyama").match(A, B, ka, kb)
     assert pairs.shape[1] == 2 and len(pairs) == min(len(ka), len(kb))

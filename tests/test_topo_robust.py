@@ -98,7 +98,7 @@ def test_orientation_score_tells_a_map_from_its_mirror_image(pair):
 
 def test_replicator_orientation_parameter(pair):
     A, B, mirror = pair
-    det = create_plugin("keypoints", "adf-maxima", "dense")
+    det = create_plugin("keypoints", "adf-maxima", "thesis-dense")
     ka, kb = det.detect(A.shape), det.detect(B.shape)
     for name in ("replicator", "rrwm", "spectral"):
         m = create_plugin("sparse_matchers", name)

@@ -189,7 +189,9 @@ def match_colors(source: Shape, target: Shape, target_of: np.ndarray) -> tuple[n
 
 def _frame(v: np.ndarray) -> np.ndarray:
     c = v - v.mean(axis=0)
-    _, _, vt = np.linalg.svd(c[:: max(1, len(c) // 5000)], full_matrices=False)
+    rows = c[:: max(1, len(c) // 5000)]
+    # full_matrices for fewer than 3 points: three axes all the same (a reduced SVD has one per point)
+    _, _, vt = np.linalg.svd(rows, full_matrices=len(rows) < 3)
     # keep each principal axis pointing like the input axis it is closest to (keeps "up" up)
     for j in range(3):
         i = int(np.argmax(np.abs(vt[j])))
@@ -230,6 +232,9 @@ def _draw(
     else:
         ax.scatter(v[:, 0], v[:, 1], v[:, 2], c=colors, s=2, depthshade=False)
     if points is not None and len(points):
+        # drawn after the surface, whatever the depth sort says: a keypoint on the far side or in a
+        # fold is still shown (the depth sort hid most of them behind the mesh)
+        ax.computed_zorder = False
         p = v[np.asarray(points, dtype=np.int64)]
         ax.scatter(
             p[:, 0],
