@@ -34,6 +34,7 @@ RADII = (0.025, 0.05, 0.1)
 SETUPS = [
     ("adf-maxima", "sparse"), ("harris3d", "sparse"), ("harris3d", "sparse-count"),
     ("adf-maxima", "dense"), ("harris3d", "dense"),
+    ("adf-maxima", "thesis-sparse"), ("adf-maxima", "thesis-dense"),
 ]
 # "sparse-count": Harris3D's strongest ring maxima, as many as sparse ADF found on that shape
 # (removes the keypoint-count difference between the two sparse setups)
@@ -122,8 +123,11 @@ def render(rows: dict, pairs: list, names: list, timing: dict, elapsed: float, a
         f"Pairs: {len(pairs)} ({len(names)} shapes, about 5,000 vertices each, independently remeshed). "
         f"Geodesics: `{args.method}`. Spectrum for ADF: 51 eigenpairs of the combinatorial Laplacian of "
         "the Gaussian-weighted mesh graph (bandwidth = mean edge length), as in the thesis.",
-        "Presets are thesis Table 6.1: ADF sparse `t=500, K=10, ring=2`, dense `t=50, K=50, ring=2`; "
-        "Harris3D adaptive neighbourhood 0.01 x diagonal, k=0.04, ring=2, sparse = fraction 0.001 of "
+        "ADF presets: the scale-free defaults, sparse `t = 1 / lambda_1, K=10, ring=2` and dense "
+        "`t = 4 ln 10 / lambda_K, K=50, ring=2` (times in units of the shape's own spectrum), and the thesis's "
+        "Table 6.1 literally, `thesis-sparse` `t=500, K=10, ring=2` and `thesis-dense` `t=50, K=50, ring=2` "
+        "(absolute times). Harris3D (Table 6.1): adaptive neighbourhood 0.01 x diagonal, k=0.04, ring=2, "
+        "sparse = fraction 0.001 of "
         "the vertices, dense = clustering with spacing 0.001 x diagonal; `sparse-count` is Harris3D "
         "keeping as many of its strongest ring maxima as sparse ADF found on the same shape.",
         "",
