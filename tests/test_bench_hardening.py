@@ -337,3 +337,150 @@ def test_the_report_survives_every_row_the_reader_accepts(rows, tmp_path_factory
     assert len(read_rows(run)) == len(rows)  # the reader accepts them all
     res = write_report(run, renders=1)
     _assert_no_markup_from_data(res["html"].read_text())
+
+
+# -- 5. config strings and options -----------------------------------------------------------
+@pytest.mark.parametrize(
+    "old,new,key",
+    [
+        ('params = { n_segments = 3 }', 'label = 5\nparams = { n_segments = 3 }', "tasks[1].methods[0].label"),
+        ('params = { n_segments = 3 }', 'label = ""\nparams = { n_segments = 3 }', "tasks[1].methods[0].label"),
+        ('plugin = "spectral-clustering"', "plugin = 5", "tasks[1].methods[0].plugin"),
+        ('preset = "luxburg-unnormalized"', 'preset = ["luxburg-unnormalized"]', "tasks[1].methods[0].preset"),
+        ('name = "hardening"', "name = 5", "run.name"),
+        ('name = "hardening"', 'name = "h"\ndescription = [1]', "run.description"),
+        ('kind = "synthetic"', 'kind = ["synthetic"]', "datasets[0].kind"),
+        ('name = "synth"', 'name = { a = 1 }', "datasets[0].name"),
+        ('kind = "gaussian-noise"', 'kind = ["gaussian-noise"]', "corruptions[0].kind"),
+        ('name = "noise"', "name = 1.5", "corruptions[0].name"),
+        ('task = "spectrum"', 'task = ["spectrum"]', "tasks[0].task"),
+        ('name = "seg"', 'name = ["seg"]', "tasks[1].name"),
+        ('corruptions = ["none", "noise"]', 'corruptions = ["none", ["noise"]]', "tasks[1].corruptions[1]"),
+        ('corruptions = ["none", "noise"]', "corruptions = []", "tasks[1].corruptions"),
+        ('metrics = ["n_segments", "segmentation"]', 'metrics = [["n_segments"]]', "tasks[1].metrics[0]"),
+        ('task = "spectrum"', 'task = "spectrum"\ndatasets = [7]', "tasks[0].datasets[0]"),
+        ('task = "spectrum"', 'task = "spectrum"\ndatasets = []', "tasks[0].datasets"),
+        ('metrics = ["n_segments", "segmentation"]', 'metrics = ["n_segments"]\noptions = { nope = 1 }',
+         "tasks[1].options.nope"),
+    ],
+)
+def test_config_strings_and_options_are_checked_naming_the_key(tmp_path, capsys, old, new, key):
+    from shape_toolkit.bench.config import ConfigError, load_config
+
+    assert old in CONFIG
+    config = _write(tmp_path, CONFIG.replace(old, new, 1))
+    with pytest.raises(ConfigError) as ei:
+        load_config(config)
+    assert ei.value.key == key, str(ei.value)
+    run = tmp_path / "run"
+    assert main(["bench", "run", str(config), "-o", str(run), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and key in err and "internal error" not in err
+    assert not run.exists()  # refused before any work
+
+
+# -- 7. bad nested parameters: one line naming the key, before any work ----------------------
+@pytest.mark.parametrize(
+    "old,new,key",
+    [
+        ("params = { n_segments = 3 }", "params = { n_segments = 3, weighting = { a = 1 } }",
+         "tasks[1].methods[0].params.weighting"),
+        ("params = { n_segments = 3 }", 'params = { n_segments = 3, weighting = "nope" }',
+         "tasks[1].methods[0].params.weighting"),
+        ("params = { n_segments = 3 }", 'params = { n_segments = [3, "x"] }', "tasks[1].methods[0].params.n_segments"),
+        ("params = { n_segments = 3 }", "params = { n_segments = { a = 1 } }",
+         "tasks[1].methods[0].params.n_segments"),
+        ("params = { n_segments = 3 }", "params = { n_segments = 3, n_init = { a = 1 } }",
+         "tasks[1].methods[0].params.n_init"),
+        ("params = { strength = [0.01, 0.02] }", "params = { strength = { a = 1 } }", "corruptions[0].params.strength"),
+        ("params = { strength = [0.01, 0.02] }", 'params = { strength = [0.01, "x"] }',
+         "corruptions[0].params.strength"),
+        ('plugin = "gaussian"', 'plugin = "gaussian"\nparams = { bandwidth_scale = "wide" }',
+         "tasks[0].methods[0].params.bandwidth_scale"),
+    ],
+)
+def test_bad_nested_parameters_are_one_line_naming_the_key(tmp_path, capsys, old, new, key):
+    from shape_toolkit.bench.config import ConfigError, load_config
+
+    assert old in CONFIG
+    config = _write(tmp_path, CONFIG.replace(old, new, 1))
+    with pytest.raises(ConfigError) as ei:
+        load_config(config)
+    assert ei.value.key == key, str(ei.value)
+    run = tmp_path / "run"
+    assert main(["bench", "run", str(config), "-o", str(run), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and key in err
+    assert not run.exists()
+
+
+# -- 6. grids are counted, and refused above the cap, before anything is expanded ------------
+SEVEN = ", ".join(f"{k} = [{', '.join(str(v) for v in range(2, 12))}]" for k in
+                  ("n_segments", "n_clusters", "n_rays", "cone_angle", "filter_iterations", "log_alpha", "n_init"))
+BOMB = f"""
+[[datasets]]
+name = "s"
+kind = "synthetic"
+params = {{ n_poses = 2, subdivisions = 1 }}
+[[tasks]]
+task = "segmentation"
+[[tasks.methods]]
+plugin = "sdf"
+params = {{ {SEVEN} }}
+"""
+
+
+def test_a_grid_bomb_is_refused_before_anything_is_expanded(tmp_path, capsys, monkeypatch):
+    import time
+
+    import shape_toolkit.bench.config as config_module
+
+    config = _write(tmp_path, BOMB)
+    assert config.stat().st_size < 600  # the issue's 450-byte config with seven 10-value lists
+    expanded = []
+    real = config_module.expand_grid
+    monkeypatch.setattr(config_module, "expand_grid", lambda p: expanded.append(p) or real(p))
+    t0 = time.perf_counter()
+    with pytest.raises(config_module.ConfigError, match=r"20,000,000 rows .*--max-rows N"):
+        config_module.load_config(config, max_rows=config_module.MAX_ROWS)
+    assert not expanded and time.perf_counter() - t0 < 10
+    run = tmp_path / "run"
+    assert main(["bench", "run", str(config), "-o", str(run)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "20,000,000" in err and "cap of 1,000" in err and "--max-rows" in err
+    assert not run.exists()
+    # a synthetic dataset of a billion poses is not listed either
+    huge = _write(tmp_path, CONFIG.replace("n_poses = 2", "n_poses = 1000000000"), "huge.toml")
+    with pytest.raises(config_module.ConfigError) as ei:
+        config_module.load_config(huge, max_rows=1000)
+    assert ei.value.key == "datasets[0].params.n_poses"
+
+
+def test_the_row_count_is_the_plan_and_max_rows_moves_the_cap(tmp_path, capsys):
+    from shape_toolkit.bench.config import MAX_ROWS, ConfigError, load_config
+    from shape_toolkit.bench.plan import plan
+
+    assert MAX_ROWS == 1000
+    config = _write(tmp_path, CONFIG)
+    for limit in (None, 1):
+        cfg = load_config(config, limit=limit)
+        assert cfg.planned_rows == len(plan(cfg, tmp_path / "r", limit=limit)[0]) == 4
+    wide = _write(tmp_path, CONFIG.replace("limit = 1", "limit = 2").replace("n_segments = 3", "n_segments = [3, 4]"),
+                  "wide.toml")
+    cfg = load_config(wide)
+    assert cfg.planned_rows == len(plan(cfg, tmp_path / "r")[0]) == 2 * (1 + 3 * 2)
+    with pytest.raises(ConfigError, match="plans 14 rows"):
+        load_config(wide, max_rows=13)
+    run = tmp_path / "run"
+    assert main(["bench", "run", str(wide), "-o", str(run), "--max-rows", "13", "--no-progress"]) == 2
+    assert "--max-rows" in capsys.readouterr().err and not run.exists()
+    # --limit counts: one item per dataset fits under the cap
+    assert main(["bench", "run", str(wide), "-o", str(run), "--max-rows", "7", "--limit", "1", "--no-progress"]) == 0
+    assert len(read_rows(run)) == 7
+    for bad in ("0", "-1", "many"):
+        assert main(["bench", "run", str(wide), "-o", str(tmp_path / "r2"), "--max-rows", bad]) == 2
+    capsys.readouterr()
+    # default cap: 1,001 rows are refused
+    many = _write(tmp_path, CONFIG.replace("limit = 1", "").replace("n_poses = 2", "n_poses = 1001"), "many.toml")
+    assert main(["bench", "run", str(many), "-o", str(tmp_path / "r3")]) == 2
+    assert "1,001" in capsys.readouterr().err

@@ -31,6 +31,10 @@ Layout (every key is checked; an error names the key, e.g. ``tasks[0].methods[1]
     label = "..."              # optional display name
     params = { n_segments = [4, 6] }
 
+Size: the rows a config plans (items x corruption settings x method settings, per task) are
+counted from the grid sizes before anything is expanded; with ``max_rows`` (the CLI's
+``--max-rows``, default :data:`MAX_ROWS`) a config planning more is refused naming the count.
+
 A matching method may instead be ``pipeline = "zoomout"`` (a preset, TOML file or inline table of
 :mod:`shape_toolkit.pipeline`) or ``peer = "pyfm"`` (a peer's published pipeline,
 :mod:`shape_toolkit.bench.peers`), each with an optional ``label``.
@@ -45,7 +49,9 @@ In Python, :class:`TaskSpec` has ``task_kind`` (the ``task`` key) and ``task_nam
 
 from __future__ import annotations
 
+import inspect
 import itertools
+import math
 import os
 import sys
 from dataclasses import dataclass, field
@@ -70,7 +76,12 @@ __all__ = [
     "parse_config",
     "expand_grid",
     "resolve_data_path",
+    "grid_size",
+    "MAX_ROWS",
 ]
+
+#: the rows ``bench run`` plans at most unless ``--max-rows`` raises it
+MAX_ROWS = 1000
 
 
 class ConfigError(ParameterError):
@@ -147,7 +158,8 @@ class TaskSpec:
 
 @dataclass(frozen=True)
 class BenchConfig:
-    """A validated benchmark configuration."""
+    """A validated benchmark configuration; ``planned_rows`` is the number of rows it plans (with
+    the ``limit`` given to :func:`parse_config`), counted before expanding anything."""
 
     name: str
     random_state: int
@@ -155,6 +167,7 @@ class BenchConfig:
     tasks: tuple[TaskSpec, ...]
     source: str = ""
     raw: dict[str, Any] = field(default_factory=dict)
+    planned_rows: int = 0
 
 
 _NOT_A_SUBJECT = (
@@ -192,6 +205,54 @@ def expand_grid(params: dict[str, Any]) -> list[dict[str, Any]]:
         else:
             axes.append([v])
     return [dict(zip(keys, combo)) for combo in itertools.product(*axes)]
+
+
+def grid_size(params: dict[str, Any]) -> int:
+    """The number of combinations :func:`expand_grid` would make, without making them."""
+    return math.prod(len(v) if isinstance(v, list) and v else 1 for v in params.values())
+
+
+def _axis(v: Any) -> list[Any]:
+    """The values a grid parameter takes (``[[a, b]]`` is the one value ``[a, b]``)."""
+    return v if isinstance(v, list) and v else [v]
+
+
+def _str(v: Any, where: str) -> str:
+    """``v`` when it is a non-empty string, else a :class:`ConfigError` naming ``where``."""
+    if not isinstance(v, str) or not v:
+        raise ConfigError(where, f"must be a non-empty string, got {v!r}")
+    return v
+
+
+def _names(v: Any, where: str, what: str) -> list[str]:
+    """A non-empty list of strings (dataset, corruption or metric names)."""
+    if not isinstance(v, list) or not v:
+        raise ConfigError(where, f"must be a non-empty list of {what}")
+    return [_str(x, f"{where}[{j}]") for j, x in enumerate(v)]
+
+
+def _check_kinds(params: dict[str, Any], func: Any, where: str) -> None:
+    """Each value (each grid value of a list) of a parameter whose default is a number must be a
+    number, of one whose default is a boolean a boolean: ``n_segments = "x"`` is refused here,
+    naming the key, instead of failing every row at run time."""
+    try:
+        sig = inspect.signature(func)
+    except (TypeError, ValueError):  # pragma: no cover - builtins
+        return
+    for k, v in params.items():
+        par = sig.parameters.get(k)
+        if par is None:
+            continue
+        d, ann = par.default, str(par.annotation)
+        if any(w in ann for w in ("str", "Any", "dict", "list", "Sequence", "tuple")):
+            continue  # the parameter takes other kinds too
+        for x in _axis(v):
+            if isinstance(d, bool) and not isinstance(x, bool):
+                raise ConfigError(f"{where}.{k}", f"expects true or false, got {x!r}")
+            if isinstance(d, (int, float)) and not isinstance(d, bool) and (
+                isinstance(x, bool) or not isinstance(x, (int, float))
+            ):
+                raise ConfigError(f"{where}.{k}", f"expects a number (default {d!r}), got {x!r}")
 
 
 def resolve_data_path(path: str, base: Path | None = None) -> Path:
@@ -251,12 +312,14 @@ def _family_for(task: str, plugin: str, where: str) -> str:
     )
 
 
-def _validate_plugin_params(family: str, plugin: str, preset: str | None, params: dict, where: str) -> None:
+def _check_plugin_names(family: str, plugin: str, preset: Any, params: dict, where: str) -> type:
+    """The plugin class, its preset and parameter names checked, and each parameter value's kind
+    (:func:`_check_kinds`, every grid value): cheap checks made before any grid is expanded."""
     from shape_toolkit.api.registry import get_registry
 
     reg = get_registry()
     cls = reg.get(family, plugin)
-    if preset is not None and preset not in (getattr(cls, "presets", {}) or {}):
+    if preset is not None and (not isinstance(preset, str) or preset not in (getattr(cls, "presets", {}) or {})):
         raise ConfigError(
             f"{where}.preset",
             f"{family} plugin {plugin!r} has no preset {preset!r}; presets: "
@@ -270,18 +333,91 @@ def _validate_plugin_params(family: str, plugin: str, preset: str | None, params
                     f"{where}.params.{k}",
                     f"{family} plugin {plugin!r} has no parameter {k!r}; valid: {', '.join(sorted(valid))}",
                 )
+    _check_kinds(params, cls.__init__, f"{where}.params")
+    return cls
+
+
+def _param_key(params: dict, value: Any, message: str, where: str) -> str:
+    """The key of ``params`` a problem is about: the one holding ``value``, or named first in
+    ``message``; else the table."""
+    for k, v in params.items():
+        if value is not None and v is value:
+            return f"{where}.params.{k}"
+    for k in sorted(params, key=len, reverse=True):
+        if message.startswith(k) or f" {k} " in f" {message} " or f"{k!r}" in message:
+            return f"{where}.params.{k}"
+    return f"{where}.params"
+
+
+def _check_declared(obj: Any, params: dict, where: str) -> None:
+    """The spectra a created plugin declares are computable: ``spectrum_specs()`` runs (it reads
+    the parameters) and names a registered weighting with known parameters and a known Laplacian.
+    A bad nested value (``weighting = { a = 1 }``) is refused here, naming the key, instead of
+    failing every row at run time."""
+    from shape_toolkit.api.registry import get_registry
+    from shape_toolkit.core.spectrum import LAPLACIANS
+
+    if not hasattr(obj, "spectrum_specs"):
+        return
+    try:
+        specs = list(obj.spectrum_specs())
+    except Exception as exc:  # noqa: BLE001 - a plugin reading a bad parameter: any error
+        msg = str(exc) or type(exc).__name__
+        raise ConfigError(_param_key(params, None, msg, where), msg) from None
+    reg = get_registry()
+    for spec in specs:
+        weighting = getattr(spec, "weighting", None)
+        if not isinstance(weighting, str) or not reg.has("weightings", weighting):
+            raise ConfigError(
+                _param_key(params, weighting, "", where),
+                f"declares a spectrum of weighting {weighting!r}, which is not a weighting plugin; "
+                f"available: {', '.join(reg.names('weightings'))}",
+            )
+        if getattr(spec, "laplacian", None) not in LAPLACIANS:
+            raise ConfigError(_param_key(params, spec.laplacian, "", where),
+                              f"unknown Laplacian {spec.laplacian!r}; choose one of {', '.join(LAPLACIANS)}")
+        cls = reg.get("weightings", weighting)
+        names = set(cls._param_names()) if hasattr(cls, "_param_names") else None
+        for k, _v in getattr(spec, "weighting_params", ()) or ():
+            if names is not None and k not in names:
+                raise ConfigError(_param_key(params, None, repr(k), where),
+                                  f"weighting {weighting!r} has no parameter {k!r}; valid: {', '.join(sorted(names))}")
+
+
+def _validate_plugin_params(family: str, plugin: str, preset: str | None, params: dict, where: str) -> None:
+    from shape_toolkit.api.registry import get_registry
+
+    _check_plugin_names(family, plugin, preset, params, where)
     try:  # constructing checks types where plugins validate in __init__ (cheap by contract)
-        reg.create(family, plugin, preset, **params)
+        obj = get_registry().create(family, plugin, preset, **params)
     except ToolkitError as exc:
-        raise ConfigError(f"{where}.params", str(exc)) from None
+        raise ConfigError(_param_key(params, None, str(exc), where), str(exc)) from None
+    _check_declared(obj, params, where)
 
 
-def _validate_corruptions(raw: Any) -> dict[str, list[CorruptionSpec]]:
-    import inspect
+@dataclass(frozen=True)
+class _Corruption:
+    """A validated, not yet expanded ``[[corruptions]]`` entry (``size`` grid points)."""
 
+    name: str
+    kind: str
+    params: dict[str, Any]
+    size: int
+
+    def expand(self) -> list[CorruptionSpec]:
+        """Its grid points, named ``NAME[key=value,...]`` by the parameters that vary."""
+        insts = []
+        for g in expand_grid(self.params):
+            suffix = ",".join(f"{k}={g[k]}" for k in sorted(g) if isinstance(self.params[k], list))
+            insts.append(CorruptionSpec(f"{self.name}[{suffix}]" if suffix else self.name, self.kind, g, self.name))
+        return insts
+
+
+def _validate_corruptions(raw: Any) -> dict[str, _Corruption]:
+    """Every corruption checked (kind, parameter names, the kind of each value), none expanded."""
     from shape_toolkit.data.corruptions import CORRUPTIONS
 
-    out: dict[str, list[CorruptionSpec]] = {"none": [NO_CORRUPTION]}
+    out: dict[str, _Corruption] = {"none": _Corruption("none", "none", {}, 1)}
     if raw is None:
         return out
     if not isinstance(raw, list):
@@ -289,10 +425,10 @@ def _validate_corruptions(raw: Any) -> dict[str, list[CorruptionSpec]]:
     for i, c in enumerate(raw):
         w = f"corruptions[{i}]"
         _check_keys(c, {"name", "kind", "params"}, w, ("kind",))
-        kind = c["kind"]
+        kind = _str(c["kind"], f"{w}.kind")
         if kind not in CORRUPTIONS:
             raise ConfigError(f"{w}.kind", f"unknown corruption {kind!r}; known: {', '.join(CORRUPTIONS)}")
-        name = c.get("name", kind)
+        name = _str(c.get("name", kind), f"{w}.name")
         if name in out:
             raise ConfigError(f"{w}.name", f"duplicate corruption name {name!r}")
         prm = c.get("params", {}) or {}
@@ -306,12 +442,8 @@ def _validate_corruptions(raw: Any) -> dict[str, list[CorruptionSpec]]:
                 raise ConfigError(
                     f"{w}.params.{k}", f"corruption {kind!r} has no such parameter; valid: {', '.join(valid)}"
                 )
-        grid = expand_grid(prm)
-        insts = []
-        for g in grid:
-            suffix = ",".join(f"{k}={g[k]}" for k in sorted(g) if isinstance(prm[k], list))
-            insts.append(CorruptionSpec(f"{name}[{suffix}]" if suffix else name, kind, g, name))
-        out[name] = insts
+        _check_kinds(prm, CORRUPTIONS[kind], f"{w}.params")
+        out[name] = _Corruption(name, kind, dict(prm), grid_size(prm))
     return out
 
 
@@ -330,9 +462,8 @@ def _pipeline_method(task: str, m: dict, where: str) -> MethodSpec:
     except ToolkitError as exc:
         raise ConfigError(f"{where}.pipeline", str(exc)) from None
     spec = {"name": pipe.name, **pipe.stages}
-    return MethodSpec(
-        pipe.name, "pipelines", None, {"pipeline": spec}, m.get("label", f"pipeline:{pipe.name}")
-    )
+    label = _str(m["label"], f"{where}.label") if "label" in m else f"pipeline:{pipe.name}"
+    return MethodSpec(pipe.name, "pipelines", None, {"pipeline": spec}, label)
 
 
 def _peer_method(task: str, m: dict, where: str) -> MethodSpec:
@@ -352,41 +483,150 @@ def _peer_method(task: str, m: dict, where: str) -> MethodSpec:
         create_peer(name)
     except ToolkitError as exc:
         raise ConfigError(f"{where}.peer", str(exc)) from None
-    return MethodSpec(name, "peers", None, {}, m.get("label", f"peer:{name}"))
+    label = _str(m["label"], f"{where}.label") if "label" in m else f"peer:{name}"
+    return MethodSpec(name, "peers", None, {}, label)
 
 
-def parse_config(raw: dict[str, Any], *, base: Path | None = None, source: str = "") -> BenchConfig:
+def _dataset_size(spec: DatasetSpec, limit: int | None) -> int:
+    return min(x for x in (spec.limit, limit, len(spec.refs)) if x is not None)
+
+
+def parse_config(
+    raw: dict[str, Any],
+    *,
+    base: Path | None = None,
+    source: str = "",
+    max_rows: int | None = None,
+    limit: int | None = None,
+) -> BenchConfig:
     """Validate a config dict (as read from TOML) and list the dataset items; raises
-    :class:`ConfigError` naming the first bad key."""
+    :class:`ConfigError` naming the first bad key. With ``max_rows``, a config planning more rows
+    (with ``limit`` items per dataset at most, as ``run_benchmark(limit=...)``) is refused before
+    any grid is expanded."""
     from shape_toolkit.bench.tasks import TASKS
-    from shape_toolkit.data.datasets import DATASET_KINDS, open_dataset
 
+    if max_rows is not None and (isinstance(max_rows, bool) or not isinstance(max_rows, int) or max_rows < 1):
+        raise ParameterError(f"max_rows must be a positive integer, got {max_rows!r}")
     _check_keys(raw, {"run", "datasets", "corruptions", "tasks"}, "", ("datasets", "tasks"))
     run = _check_keys(raw.get("run", {}), {"name", "random_state", "description"}, "run")
     random_state = _int(run.get("random_state", 0), "run.random_state")
-    name = str(run.get("name", Path(source).stem if source else "run"))
+    name = _str(run["name"], "run.name") if "name" in run else (Path(source).stem if source else "run")
+    if "description" in run and not isinstance(run["description"], str):
+        raise ConfigError("run.description", f"must be a string, got {run['description']!r}")
 
-    if not isinstance(raw["datasets"], list) or not raw["datasets"]:
+    datasets = _validate_datasets(raw["datasets"], base, max_rows)
+    corruptions = _validate_corruptions(raw.get("corruptions"))
+
+    if not isinstance(raw["tasks"], list) or not raw["tasks"]:
+        raise ConfigError("tasks", "must be a non-empty array of tables ([[tasks]])")
+    pending = []  # (task fields, methods to expand) of each task, checked but not expanded
+    names: set[str] = set()
+    sizes: list[tuple[int, str, str]] = []  # (rows, key, how) per task
+    for i, t in enumerate(raw["tasks"]):
+        w = f"tasks[{i}]"
+        _check_keys(
+            t,
+            {"task", "name", "datasets", "corruptions", "spectrum", "metrics", "methods", "options"},
+            w,
+            ("task", "methods"),
+        )
+        kind = _str(t["task"], f"{w}.task")
+        if kind not in TASKS:
+            raise ConfigError(f"{w}.task", f"unknown task {kind!r}; known: {', '.join(TASKS)}")
+        adapter = TASKS[kind]
+        tname = _str(t.get("name", kind), f"{w}.name")
+        if tname in names:
+            raise ConfigError(f"{w}.name", f"duplicate task name {tname!r}")
+        names.add(tname)
+        dsel = _names(t.get("datasets", list(datasets)), f"{w}.datasets", "dataset names")
+        for j, dn in enumerate(dsel):
+            if dn not in datasets:
+                raise ConfigError(
+                    f"{w}.datasets[{j}]", f"unknown dataset {dn!r}; defined: {', '.join(datasets)}"
+                )
+        csel = _names(t.get("corruptions", ["none"]), f"{w}.corruptions", "corruption names")
+        for j, cn in enumerate(csel):
+            if cn not in corruptions:
+                raise ConfigError(
+                    f"{w}.corruptions[{j}]", f"unknown corruption {cn!r}; defined: {', '.join(corruptions)}"
+                )
+        if kind == "spectrum":
+            if isinstance(t.get("spectrum"), dict) and "weighting" in t["spectrum"]:
+                raise ConfigError(
+                    f"{w}.spectrum.weighting", "the weightings of a spectrum task are its methods' plugins"
+                )
+            spectrum = _validate_spectrum(t.get("spectrum"), f"{w}.spectrum")
+        elif "spectrum" in t:
+            raise ConfigError(f"{w}.spectrum", _NOT_A_SUBJECT.format(kind=kind))
+        else:
+            spectrum = None
+        options = _validate_options(adapter, t.get("options", {}) or {}, f"{w}.options")
+        metrics = _names(t.get("metrics", list(adapter.default_metrics)), f"{w}.metrics", "metric names")
+        for j, m in enumerate(metrics):
+            problem = adapter.check_metric(m)
+            if problem:
+                raise ConfigError(f"{w}.metrics[{j}]", problem)
+        if not isinstance(t["methods"], list) or not t["methods"]:
+            raise ConfigError(f"{w}.methods", "must be a non-empty array of tables ([[tasks.methods]])")
+        methods = [_check_method(kind, adapter, spectrum, m, f"{w}.methods[{j}]") for j, m in enumerate(t["methods"])]
+        n_items = sum(_dataset_size(datasets[dn], limit) for dn in dict.fromkeys(dsel))
+        n_corr = sum(corruptions[cn].size for cn in dict.fromkeys(csel))
+        n_meth = sum(size for _, size in methods)
+        sizes.append((n_items * n_corr * n_meth, w,
+                      f"task {tname!r}: {n_items} items x {n_corr} corruption settings x {n_meth} method settings"))
+        pending.append((tname, kind, dsel, csel, spectrum, metrics, options, methods))
+
+    total = sum(n for n, _, _ in sizes)
+    if max_rows is not None and total > max_rows:
+        n, key, how = max(sizes)
+        raise ConfigError(
+            key,
+            f"the config plans {total:,} rows ({how}), more than the cap of {max_rows:,}; use smaller grids "
+            "or dataset limits, or raise the cap with --max-rows N",
+        )
+
+    tasks = []  # now the grids are known to be small enough: expand and check each point
+    expanded = {name: c.expand() for name, c in corruptions.items() if any(name in p[3] for p in pending)}
+    for tname, kind, dsel, csel, spectrum, metrics, options, methods in pending:
+        cinst = [inst for cn in csel for inst in expanded[cn]]
+        mspecs = [ms for make, _ in methods for ms in make()]
+        tasks.append(
+            TaskSpec(tname, kind, tuple(dsel), tuple(cinst), tuple(mspecs), spectrum, tuple(metrics), options)
+        )
+    return BenchConfig(name, random_state, datasets, tuple(tasks), source, raw, total)
+
+
+def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dict[str, DatasetSpec]:
+    """Every ``[[datasets]]`` entry checked and its items listed."""
+    from shape_toolkit.data.datasets import DATASET_KINDS, open_dataset
+
+    if not isinstance(raw, list) or not raw:
         raise ConfigError("datasets", "must be a non-empty array of tables ([[datasets]])")
     datasets: dict[str, DatasetSpec] = {}
-    for i, d in enumerate(raw["datasets"]):
+    for i, d in enumerate(raw):
         w = f"datasets[{i}]"
         _check_keys(d, {"name", "kind", "path", "limit", "params"}, w, ("kind",))
-        kind = d["kind"]
+        kind = _str(d["kind"], f"{w}.kind")
         if kind not in DATASET_KINDS:
             raise ConfigError(
                 f"{w}.kind", f"unknown dataset kind {kind!r}; known: {', '.join(DATASET_KINDS)}"
             )
-        dname = d.get("name", kind)
+        dname = _str(d.get("name", kind), f"{w}.name")
         if dname in datasets:
             raise ConfigError(f"{w}.name", f"duplicate dataset name {dname!r}")
         limit = _int(d["limit"], f"{w}.limit", 1) if "limit" in d else None
         params = d.get("params", {}) or {}
+        if not isinstance(params, dict):
+            raise ConfigError(f"{w}.params", "must be a table")
+        n_poses = params.get("n_poses")
+        if kind == "synthetic" and max_rows is not None and isinstance(n_poses, int) and n_poses > max_rows:
+            raise ConfigError(f"{w}.params.n_poses", f"{n_poses:,} items are more than the cap of {max_rows:,} "
+                              "rows; use fewer, or raise the cap with --max-rows N")
         path = None
         if kind != "synthetic":
             if "path" not in d:
                 raise ConfigError(f"{w}.path", f"a {kind} dataset needs a path")
-            p = resolve_data_path(str(d["path"]), base)
+            p = resolve_data_path(_str(d["path"], f"{w}.path"), base)
             if not p.is_dir():
                 env = os.environ.get("TOOLKIT_DATA")
                 how = (
@@ -404,120 +644,82 @@ def parse_config(raw: dict[str, Any], *, base: Path | None = None, source: str =
         if not refs:
             raise ConfigError(f"{w}.path", f"no items found in {path}")
         datasets[dname] = DatasetSpec(dname, kind, path, limit, dict(params), tuple(refs))
+    return datasets
 
-    corruptions = _validate_corruptions(raw.get("corruptions"))
 
-    if not isinstance(raw["tasks"], list) or not raw["tasks"]:
-        raise ConfigError("tasks", "must be a non-empty array of tables ([[tasks]])")
-    tasks = []
-    names = set()
-    for i, t in enumerate(raw["tasks"]):
-        w = f"tasks[{i}]"
-        _check_keys(
-            t,
-            {"task", "name", "datasets", "corruptions", "spectrum", "metrics", "methods", "options"},
-            w,
-            ("task", "methods"),
-        )
-        kind = t["task"]
-        if kind not in TASKS:
-            raise ConfigError(f"{w}.task", f"unknown task {kind!r}; known: {', '.join(TASKS)}")
-        adapter = TASKS[kind]
-        tname = t.get("name", kind)
-        if tname in names:
-            raise ConfigError(f"{w}.name", f"duplicate task name {tname!r}")
-        names.add(tname)
-        dsel = t.get("datasets", list(datasets))
-        if not isinstance(dsel, list):
-            raise ConfigError(f"{w}.datasets", "must be a list of dataset names")
-        for j, dn in enumerate(dsel):
-            if dn not in datasets:
-                raise ConfigError(
-                    f"{w}.datasets[{j}]", f"unknown dataset {dn!r}; defined: {', '.join(datasets)}"
-                )
-        csel = t.get("corruptions", ["none"])
-        if not isinstance(csel, list):
-            raise ConfigError(f"{w}.corruptions", "must be a list of corruption names")
-        cinst: list[CorruptionSpec] = []
-        for j, cn in enumerate(csel):
-            if cn not in corruptions:
-                raise ConfigError(
-                    f"{w}.corruptions[{j}]", f"unknown corruption {cn!r}; defined: {', '.join(corruptions)}"
-                )
-            cinst += corruptions[cn]
-        if kind == "spectrum":
-            if isinstance(t.get("spectrum"), dict) and "weighting" in t["spectrum"]:
-                raise ConfigError(
-                    f"{w}.spectrum.weighting", "the weightings of a spectrum task are its methods' plugins"
-                )
-            spectrum = _validate_spectrum(t.get("spectrum"), f"{w}.spectrum")
-        elif "spectrum" in t:
-            raise ConfigError(f"{w}.spectrum", _NOT_A_SUBJECT.format(kind=kind))
-        else:
-            spectrum = None
-        options = t.get("options", {}) or {}
-        try:
-            options = adapter.check_options(options)
-        except ToolkitError as exc:
-            raise ConfigError(f"{w}.options", str(exc)) from None
-        metrics = t.get("metrics", list(adapter.default_metrics))
-        if not isinstance(metrics, list) or not metrics:
-            raise ConfigError(f"{w}.metrics", "must be a non-empty list of metric names")
-        for j, m in enumerate(metrics):
-            problem = adapter.check_metric(m)
-            if problem:
-                raise ConfigError(f"{w}.metrics[{j}]", problem)
-        if not isinstance(t["methods"], list) or not t["methods"]:
-            raise ConfigError(f"{w}.methods", "must be a non-empty array of tables ([[tasks.methods]])")
-        methods = []
-        for j, m in enumerate(t["methods"]):
-            mw = f"{w}.methods[{j}]"
-            _check_keys(m, {"plugin", "pipeline", "peer", "preset", "label", "params", "spectrum", "keypoints"}, mw)
-            if "pipeline" in m:
-                methods.append(_pipeline_method(kind, m, mw))
-                continue
-            if "peer" in m:
-                methods.append(_peer_method(kind, m, mw))
-                continue
-            if "plugin" not in m:
-                raise ConfigError(
-                    f"{mw}.plugin", "is required (or pipeline = ... / peer = ... for a matching method)"
-                )
-            fam = _family_for(kind, m["plugin"], mw)
-            prm = m.get("params", {}) or {}
-            if not isinstance(prm, dict):
-                raise ConfigError(f"{mw}.params", "must be a table")
-            if "spectrum" in m and spectrum is None:
-                raise ConfigError(f"{mw}.spectrum", _NOT_A_SUBJECT.format(kind=kind))
-            if isinstance(m.get("spectrum"), dict) and "weighting" in m["spectrum"]:
-                raise ConfigError(f"{mw}.spectrum.weighting", "the weighting of a spectrum task's method is its plugin")
-            mspec = (
-                _validate_spectrum({**spectrum, **m["spectrum"]}, f"{mw}.spectrum")
-                if "spectrum" in m
-                else None
+def _validate_options(adapter: Any, options: Any, where: str) -> dict[str, Any]:
+    """A task's options merged over its defaults; an unknown or bad option names its key."""
+    if not isinstance(options, dict):
+        raise ConfigError(where, "must be a table")
+    for k in options:
+        if k not in adapter.option_defaults:
+            raise ConfigError(
+                f"{where}.{k}",
+                f"unknown {adapter.name} option {k!r}; known: {', '.join(sorted(adapter.option_defaults)) or 'none'}",
             )
-            kp = m.get("keypoints")
-            if kp is not None:
-                _check_keys(kp, {"plugin", "preset", "params"}, f"{mw}.keypoints", ("plugin",))
-                _validate_plugin_params(
-                    "keypoints", kp["plugin"], kp.get("preset"), kp.get("params", {}) or {}, f"{mw}.keypoints"
-                )
-            elif fam in adapter.needs_keypoints:
-                raise ConfigError(f"{mw}.keypoints", f"a {fam} method needs keypoints = {{ plugin = ... }}")
-            for g in expand_grid(prm):
-                _validate_plugin_params(fam, m["plugin"], m.get("preset"), g, mw)
-                label = m.get("label", m["plugin"] + (f":{m['preset']}" if m.get("preset") else ""))
-                methods.append(MethodSpec(m["plugin"], fam, m.get("preset"), g, label, mspec, kp))
-        tasks.append(
-            TaskSpec(
-                tname, kind, tuple(dsel), tuple(cinst), tuple(methods), spectrum, tuple(metrics), options
-            )
+    try:
+        return adapter.check_options(options)
+    except ToolkitError as exc:
+        msg = str(exc)
+        key = next((k for k in sorted(options, key=len, reverse=True) if msg.startswith(k)), None)
+        raise ConfigError(f"{where}.{key}" if key else where, msg) from None
+
+
+def _check_method(kind: str, adapter: Any, spectrum: dict | None, m: Any, mw: str) -> tuple[Any, int]:
+    """One ``[[tasks.methods]]`` entry checked without expanding its grid: ``(make, size)``, where
+    ``make()`` expands and checks each grid point into :class:`MethodSpec` instances."""
+    _check_keys(m, {"plugin", "pipeline", "peer", "preset", "label", "params", "spectrum", "keypoints"}, mw)
+    if "pipeline" in m:
+        spec = _pipeline_method(kind, m, mw)
+        return (lambda: [spec]), 1
+    if "peer" in m:
+        spec = _peer_method(kind, m, mw)
+        return (lambda: [spec]), 1
+    if "plugin" not in m:
+        raise ConfigError(f"{mw}.plugin", "is required (or pipeline = ... / peer = ... for a matching method)")
+    plugin = _str(m["plugin"], f"{mw}.plugin")
+    fam = _family_for(kind, plugin, mw)
+    preset = _str(m["preset"], f"{mw}.preset") if "preset" in m else None
+    label = _str(m["label"], f"{mw}.label") if "label" in m else plugin + (f":{preset}" if preset else "")
+    prm = m.get("params", {}) or {}
+    if not isinstance(prm, dict):
+        raise ConfigError(f"{mw}.params", "must be a table")
+    if "spectrum" in m and spectrum is None:
+        raise ConfigError(f"{mw}.spectrum", _NOT_A_SUBJECT.format(kind=kind))
+    if isinstance(m.get("spectrum"), dict) and "weighting" in m["spectrum"]:
+        raise ConfigError(f"{mw}.spectrum.weighting", "the weighting of a spectrum task's method is its plugin")
+    if "spectrum" in m and not isinstance(m["spectrum"], dict):
+        raise ConfigError(f"{mw}.spectrum", "must be a table")
+    mspec = _validate_spectrum({**spectrum, **m["spectrum"]}, f"{mw}.spectrum") if "spectrum" in m else None
+    kp = m.get("keypoints")
+    if kp is not None:
+        _check_keys(kp, {"plugin", "preset", "params"}, f"{mw}.keypoints", ("plugin",))
+        kp_params = kp.get("params", {}) or {}
+        if not isinstance(kp_params, dict):
+            raise ConfigError(f"{mw}.keypoints.params", "must be a table")
+        kp_preset = _str(kp["preset"], f"{mw}.keypoints.preset") if "preset" in kp else None
+        _validate_plugin_params(
+            "keypoints", _str(kp["plugin"], f"{mw}.keypoints.plugin"), kp_preset, kp_params, f"{mw}.keypoints"
         )
-    return BenchConfig(name, random_state, datasets, tuple(tasks), source, raw)
+    elif fam in adapter.needs_keypoints:
+        raise ConfigError(f"{mw}.keypoints", f"a {fam} method needs keypoints = {{ plugin = ... }}")
+    _check_plugin_names(fam, plugin, preset, prm, mw)
+
+    def make() -> list[MethodSpec]:
+        out = []
+        for g in expand_grid(prm):
+            _validate_plugin_params(fam, plugin, preset, g, mw)
+            out.append(MethodSpec(plugin, fam, preset, g, label, mspec, kp))
+        return out
+
+    return make, grid_size(prm)
 
 
-def load_config(path: str | os.PathLike) -> BenchConfig:
-    """Read and validate a TOML benchmark config (see the module docstring for the layout)."""
+def load_config(
+    path: str | os.PathLike, *, max_rows: int | None = None, limit: int | None = None
+) -> BenchConfig:
+    """Read and validate a TOML benchmark config (see the module docstring for the layout;
+    ``max_rows`` and ``limit`` as in :func:`parse_config`)."""
     p = Path(path)
     if not p.is_file():
         raise ConfigError("(file)", f"config file not found: {p}")
@@ -525,4 +727,4 @@ def load_config(path: str | os.PathLike) -> BenchConfig:
         raw = tomllib.loads(p.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError("(file)", f"{p}: invalid TOML: {exc}") from None
-    return parse_config(raw, base=p.resolve().parent, source=str(p))
+    return parse_config(raw, base=p.resolve().parent, source=str(p), max_rows=max_rows, limit=limit)

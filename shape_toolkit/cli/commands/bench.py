@@ -12,6 +12,7 @@ from shape_toolkit.cli.commands._common import (
     add_quiet,
     default_output,
     number_arg,
+    positive_int_arg,
     print_json,
     scheduler_address,
 )
@@ -19,8 +20,9 @@ from shape_toolkit.cli.commands._common import (
 RUN_EPILOG = """exit status:
   0  every row of the run folder succeeded
   1  the run finished but some rows failed (see results.jsonl or the report)
-  2  usage error: invalid config, bad option, or a run folder that is locked by another
-     'bench run' or not writable (one line on stderr, nothing run)"""
+  2  usage error: invalid config (or one planning more rows than --max-rows), bad option, or a
+     run folder that is locked by another 'bench run' or not writable (one line on stderr,
+     nothing run)"""
 
 
 @contextmanager
@@ -64,7 +66,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--worker-timeout", metavar="SECONDS", type=number_arg("a number of seconds > 0", 0, open_low=True),
         default=60.0, help="stop (resumable, exit 3) when Dask has had no worker this long (default 60)",
     )
-    r.add_argument("--limit", type=int, metavar="N", help="keep the first N items of each dataset")
+    r.add_argument("--limit", type=positive_int_arg, metavar="N", help="keep the first N items of each dataset")
+    r.add_argument(
+        "--max-rows", type=positive_int_arg, metavar="N", default=None,
+        help="refuse a config planning more than N rows, counted before anything is expanded "
+        "(default 1000, bench.config.MAX_ROWS)",
+    )
     r.add_argument("--retry-failed", action="store_true", help="run failed rows again")
     add_quiet(r)
     r.add_argument("--report", action="store_true", help="write the report when the run ends")
@@ -89,12 +96,13 @@ def _say(args: argparse.Namespace):
 
 def run_cmd(args: argparse.Namespace) -> int:
     """Exit 0 when every row succeeded, 1 when some failed; usage errors raise (exit 2)."""
-    from shape_toolkit.bench.config import load_config
+    from shape_toolkit.bench.config import MAX_ROWS, load_config
     from shape_toolkit.bench.executors import run_benchmark
 
     args.output = str(default_output(args.output, args.config, "run"))
     with _one_line_warnings():
-        cfg = load_config(args.config)  # every check happens before any work
+        # every check happens before any work, the row count before any grid is expanded
+        cfg = load_config(args.config, max_rows=args.max_rows or MAX_ROWS, limit=args.limit)
         summary = run_benchmark(
             cfg,
             args.output,
