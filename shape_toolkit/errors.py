@@ -13,13 +13,25 @@ class ToolkitError(Exception):
     exit_code = 2
 
 
+def printable(text: object) -> str:
+    """``text`` for a one-line message: as is when printable, else with its control characters (a
+    newline in a file name, say) escaped, so an error stays one line."""
+    t = str(text)
+    if t.isprintable():
+        return t
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in t)
+
+
 class ShapeFileError(ToolkitError):
     """A shape file is missing, unreadable, of unknown format, or malformed."""
 
     def __init__(self, path: object, problem: str):
         self.path = str(path)
         self.problem = problem
-        super().__init__(f"{self.path}: {problem}")
+        super().__init__(f"{printable(self.path)}: {problem}")
+
+    def __reduce__(self):  # picklable with its two arguments
+        return (type(self), (self.path, self.problem))
 
 
 class InvalidShapeError(ToolkitError):

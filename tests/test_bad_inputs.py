@@ -351,3 +351,59 @@ def test_plugin_parameters_of_the_wrong_kind_are_typed_errors(family, name, para
     p = create_plugin(family, name, **params)
     with pytest.raises(ParameterError, match=needle):
         p.compute(s) if family == "descriptors" else p.match(s, s)
+
+
+# ------------------------------------------------------------------------------------------------
+# what the wider corpus found: explained nulls, tiny point clouds drawn, control characters kept on one line
+# ------------------------------------------------------------------------------------------------
+def test_info_explains_every_null(tmp_path, capsys):
+    bowtie = tmp_path / "bowtie.off"
+    save_shape(Shape(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [-1, 0, 0], [-1, -1, 0.0]]),
+                     np.array([[0, 1, 2], [0, 3, 4]])), bowtie)
+    code, out, err = _cli(capsys, "info", bowtie, "--json")
+    info = json.loads(out)
+    assert code == 0 and info["genus"] is None and "closed, connected, manifold" in info["undefined"]["genus"]
+    cloud = tmp_path / "c.xyz"
+    cloud.write_text("0 0 0\n1 0 0\n0 1 0\n")
+    info = json.loads(_cli(capsys, "info", cloud, "--json")[1])
+    assert all(info["undefined"][k] == "a point cloud has no faces" for k, v in info.items() if v is None)
+    sphere = tmp_path / "s.off"
+    save_shape(icosphere(1), sphere)
+    assert "undefined" not in json.loads(_cli(capsys, "info", sphere, "--json")[1])
+
+
+def test_evaluate_segmentation_explains_an_undefined_cut_discrepancy(tmp_path, capsys):
+    s = icosphere(1)
+    save_shape(s, tmp_path / "s.off")
+    one = _ints(tmp_path / "one.txt", np.zeros(s.n_vertices))  # one segment: no cut
+    two = _ints(tmp_path / "two.seg", np.arange(s.n_faces) % 2)
+    code, out, err = _cli(capsys, "evaluate-segmentation", tmp_path / "s.off", one, "--truth", two, "--json")
+    res = json.loads(out)
+    assert code == 0 and res["cut_discrepancy"] is None and "needs both" in res["undefined"]["cut_discrepancy"]
+    code, out, err = _cli(capsys, "evaluate-segmentation", tmp_path / "s.off", one, "--truth", one, "--json")
+    assert json.loads(out)["cut_discrepancy"] == 0.0 and "undefined" not in json.loads(out)
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_render_draws_clouds_of_one_or_two_points(tmp_path, n):
+    """view --png on a 1- or 2-point cloud: the view frame's SVD had fewer axes than 3 (IndexError)."""
+    from shape_toolkit.io.viz import render_shapes
+
+    out = render_shapes([{"shape": Shape(np.arange(3 * n, dtype=float).reshape(n, 3))}], tmp_path / "c.png")
+    assert out.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_control_characters_in_names_keep_errors_on_one_line(tmp_path, capsys, mesh_file):
+    from shape_toolkit.errors import ShapeFileError, printable
+
+    assert printable("a\nb\tc") == "a\\nb\\tc" and printable("café <b>") == "café <b>"
+    assert "\n" not in str(ShapeFileError("x\ny.off", "no such file"))
+    cases = [
+        (["info", tmp_path / "a\nb.off"], "a\\nb.off: no such file"),
+        (["keypoints", mesh_file, "--param", "a\nb=1"], "a parameter name as KEY"),
+        (["keypoints", mesh_file, "--param", "t=a\nb"], 't="a\\nb": t expects a number'),
+        (["keypoints", mesh_file, "--param", "<script>=1"], "a parameter name as KEY"),
+    ]
+    for args, needle in cases:
+        code, out, err = _cli(capsys, *args, "--json")
+        _one_line_rejection(code, out, err, needle)

@@ -163,8 +163,8 @@ def parse_params(items: list[str] | None, plugin: type | None = None, what: str 
             raise ParameterError(f"{what} expects KEY=VALUE, got {item!r}")
         key, value = item.split("=", 1)
         key = key.strip().replace("-", "_")
-        if not key:
-            raise ParameterError(f"{what} expects KEY=VALUE, got {item!r}")
+        if not key.isidentifier():  # empty, or no parameter name at all (spaces, markup, control characters)
+            raise ParameterError(f"{what} expects KEY=VALUE with a parameter name as KEY, got {item!r}")
         try:
             out[key] = json.loads(value, parse_constant=_no_constant)
         except (json.JSONDecodeError, RecursionError):
@@ -210,7 +210,7 @@ def _check_param_kinds(params: dict[str, Any], plugin: type, what: str) -> None:
 
 
 def _show(value: Any) -> str:
-    text = value if isinstance(value, str) else json.dumps(value)
+    text = value if isinstance(value, str) and value.isprintable() else json.dumps(value)
     return text if len(text) <= 40 else text[:37] + "..."
 
 

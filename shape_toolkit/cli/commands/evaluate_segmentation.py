@@ -79,6 +79,9 @@ def run(args: argparse.Namespace) -> int:
     truths = [_face_labels(f, shape, "ground truth") for f in files]
     scores = segmentation_scores(pred_faces, truths, mesh=shape)
     result = {name: (None if math.isnan(scores[name]) else scores[name]) for name in SEGMENTATION_METRICS}
+    if result.get("cut_discrepancy", 0.0) is None:  # the one metric that can be undefined: say why
+        result["undefined"] = {"cut_discrepancy": "only one of the prediction and the ground truth has a cut "
+                               "(a boundary between segments), and the distance between cuts needs both"}
     result["n_truths"] = len(truths)
     result["truth_files"] = [str(f) for f in files]
     result["n_segments_pred"] = int(len(np.unique(pred)))

@@ -20,6 +20,8 @@ def format_info(info: dict) -> str:
     """The :func:`mesh_info` dict as an aligned two-column text table."""
     rows = []
     for key, value in info.items():
+        if key == "undefined":
+            continue  # the '-' of each null says it
         if key == "bounding_box":
             lo = ", ".join(f"{x:.6g}" for x in value["min"])
             hi = ", ".join(f"{x:.6g}" for x in value["max"])
@@ -35,9 +37,26 @@ def format_info(info: dict) -> str:
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 
 
+def undefined_reasons(info: dict) -> dict[str, str]:
+    """Why each null of a :func:`mesh_info` dict is null: a property a point cloud does not have, or a
+    genus that only a closed, connected, manifold mesh has. Every null of the JSON output is named here."""
+    out = {}
+    for key, value in info.items():
+        if value is None:
+            if not info.get("is_mesh", True):
+                out[key] = "a point cloud has no faces"
+            elif key == "genus":
+                out[key] = "defined for a closed, connected, manifold mesh only"
+            else:
+                out[key] = "not defined for this shape"
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     info = mesh_info(load_shape(args.shape, duplicate_faces="keep"))  # info reports them
     info["path"] = str(args.shape)
+    if undefined := undefined_reasons(info):
+        info["undefined"] = undefined
     if args.json:
         print_json(info)
     else:
