@@ -35,6 +35,7 @@ __all__ = [
     "face_to_vertex_labels",
     "relabel_consecutive",
     "segment_adjacency",
+    "constraint_report",
 ]
 
 
@@ -244,6 +245,37 @@ def coerce_constraints(value: Any, n_vertices: int) -> Constraints | None:
             f"constraints must be a Constraints, a dict or a path, got {type(value).__name__}"
         )
     return c.validate(n_vertices)
+
+
+def constraint_report(labels: np.ndarray, constraints: Constraints) -> dict[str, Any]:
+    """How many of ``constraints`` the vertex ``labels`` ``(n,)`` keep: counts of must-links (same
+    segment) and cannot-links (different segments), the number of clicked parts (groups of vertices
+    joined by must-links; cannot-link ends on their own are not parts) and of segments, and ``reason`` (None when every constraint is kept): why
+    some could not be, when the labels show it (fewer segments than clicked parts that must be
+    apart), else that the method does not enforce them."""
+    labels = np.asarray(labels)
+    ml, cl = constraints.must_link, constraints.cannot_link
+    must_broken = int(np.sum(labels[ml[:, 0]] != labels[ml[:, 1]])) if len(ml) else 0
+    cannot_broken = int(np.sum(labels[cl[:, 0]] == labels[cl[:, 1]])) if len(cl) else 0
+    parts = 0  # clicked parts: the groups of vertices must-links join
+    if len(ml):
+        ids = np.unique(ml)
+        pos = np.searchsorted(ids, ml)
+        g = sp.coo_matrix((np.ones(len(pos)), (pos[:, 0], pos[:, 1])), shape=(ids.size, ids.size))
+        parts = int(sp.csgraph.connected_components(g, directed=False)[0])
+    n_segments = int(np.unique(labels).size)
+    reason = None
+    if must_broken or cannot_broken:
+        if cannot_broken and n_segments < parts:
+            reason = (f"{n_segments} segments for {parts} clicked parts: parts that must be apart share a "
+                      f"segment; ask for {parts} segments")
+        else:
+            reason = "the method uses the constraints to shape its clustering but does not enforce them"
+    return {
+        "must_link": int(len(ml)), "must_link_broken": must_broken,
+        "cannot_link": int(len(cl)), "cannot_link_broken": cannot_broken,
+        "clicked_parts": parts, "n_segments": n_segments, "reason": reason,
+    }
 
 
 def relabel_consecutive(labels: np.ndarray) -> np.ndarray:

@@ -559,6 +559,46 @@ def nearest_label_per_piece(
     return dict(zip(piece[order][first].tolist(), got[order][first].tolist()))
 
 
+class ConstraintWarning(UserWarning):
+    """A constrained segmenter returned labels that break some of its must-links or cannot-links."""
+
+
+_REPORT_DEPTH = [0]  # nesting of reported segment calls: per-component copies report through the outer one
+
+
+def reports_constraints(segment: Callable) -> Callable:
+    """Decorator of a constrained segmenter's ``segment(shape, *, spectrum, constraints)``: with
+    constraints, sets ``constraints_kept_`` (:func:`~shape_toolkit.results.labels.constraint_report`
+    of the returned vertex labels) and warns (:class:`ConstraintWarning`, one line: how many it
+    could not keep and why) when some are broken; so a segmenter keeps every click or says so."""
+    import functools
+    import warnings
+
+    from shape_toolkit.results.labels import coerce_constraints, constraint_report
+
+    @functools.wraps(segment)
+    def run(self: Any, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
+        _REPORT_DEPTH[0] += 1
+        try:
+            labels = segment(self, shape, spectrum=spectrum, constraints=constraints)
+        finally:
+            _REPORT_DEPTH[0] -= 1
+        cons = coerce_constraints(constraints, shape.n_vertices) if constraints is not None else None
+        if cons is None or len(cons) == 0 or _REPORT_DEPTH[0] > 0:
+            return labels
+        rep = constraint_report(labels, cons)
+        self.constraints_kept_ = rep
+        if rep["reason"] is not None:
+            warnings.warn(
+                f"{type(self).__name__} broke {rep['must_link_broken']} of {rep['must_link']} must-links and "
+                f"{rep['cannot_link_broken']} of {rep['cannot_link']} cannot-links: {rep['reason']}",
+                ConstraintWarning, stacklevel=2,
+            )
+        return labels
+
+    return run
+
+
 def split_disconnected_clouds(constrained: bool) -> Callable:
     """Decorator of a spectral segmenter's ``segment(shape, *, spectrum, constraints)``: when it raises
     :class:`~shape_toolkit.errors.DisconnectedGraphError` on a point cloud given no spectrum (a kNN graph

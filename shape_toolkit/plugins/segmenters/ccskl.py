@@ -29,6 +29,7 @@ from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
     kmeans_labels,
+    reports_constraints,
     row_normalize,
     segment_per_component,
     segmenter_spec,
@@ -90,6 +91,7 @@ class CCSKL(Segmenter):
         """``n_eigenvectors`` eigenpairs of the normalized Laplacian of the ``weighting`` graph."""
         return segmenter_spec(self._check_m(), self.weighting, "normalized")
 
+    @reports_constraints
     @split_disconnected_clouds(constrained=True)
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None

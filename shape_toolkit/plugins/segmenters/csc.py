@@ -103,6 +103,7 @@ from shape_toolkit.plugins.segmenters._common import (
     kmeans_labels,
     laplacian_embedding_of,
     must_link_groups,
+    reports_constraints,
     seeded_kmeans_labels,
     segment_per_component,
     segmenter_spec,
@@ -317,6 +318,7 @@ class ConstrainedSpectralClustering(Segmenter):
             setattr(self, attr, int(touched.sum()))
         return weights_from_edges(n, np.stack([ei, ej], axis=1), w)
 
+    @reports_constraints
     @split_disconnected_clouds(constrained=True)
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None

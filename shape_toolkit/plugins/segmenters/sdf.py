@@ -42,7 +42,12 @@ from shape_toolkit.api.interfaces import BasePlugin, Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, dual_adjacency, dual_graph, smooth_labels
-from shape_toolkit.plugins.segmenters._common import face_labels_of, merge_to_segments, segment_per_component
+from shape_toolkit.plugins.segmenters._common import (
+    face_labels_of,
+    merge_to_segments,
+    reports_constraints,
+    segment_per_component,
+)
 from shape_toolkit.plugins.segmenters._common import face_segments_to_vertices as _vertex_labels
 from shape_toolkit.validation import seed_of
 
@@ -319,6 +324,7 @@ class SmoothedSegmenter(Segmenter):
     def spectrum_specs(self):
         return self._make_base().spectrum_specs()
 
+    @reports_constraints
     def segment(self, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
         faces = shape.require_faces("label smoothing")
         b = self._make_base()

@@ -44,6 +44,7 @@ from shape_toolkit.plugins.segmenters._common import (
     face_segments_to_vertices,
     must_link_groups,
     nearest_label_per_piece,
+    reports_constraints,
 )
 from shape_toolkit.results.labels import ConstraintError, coerce_constraints
 
@@ -76,6 +77,7 @@ class SeededWalkSegmenter(Segmenter):
         self.cannot_rounds = cannot_rounds
         self.smoothing_lambda = smoothing_lambda
 
+    @reports_constraints
     def segment(self, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
         """int64 vertex labels ``(n,)``; ``constraints`` (Constraints, dict or JSON path) are required."""
         from scipy.sparse.csgraph import connected_components

@@ -20,11 +20,7 @@ from shape_toolkit.core.eigen import smallest_eigenpairs
 from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.plugins.segmenters._common import (
-    check_n_segments,
-    kmeans_labels,
-    row_normalize,
-)
+from shape_toolkit.plugins.segmenters._common import check_n_segments, kmeans_labels, reports_constraints, row_normalize
 from shape_toolkit.results.labels import coerce_constraints
 from shape_toolkit.validation import seed_of
 
@@ -54,6 +50,7 @@ class SpectralLearning(Segmenter):
         self.n_init = n_init
         self.random_state = random_state
 
+    @reports_constraints
     def segment(
         self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
     ) -> np.ndarray:
