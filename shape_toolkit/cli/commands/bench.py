@@ -84,6 +84,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     rep.add_argument("--json", action="store_true", help="print the written files as JSON")
     add_quiet(rep)
     rep.set_defaults(func=report_cmd)
+    cmp_ = bsub.add_parser(
+        "compare", help="what changed between two runs: paired differences per method and metric",
+        description="Pair the rows of RUN_A and RUN_B by task, dataset, item, corruption and method label; "
+        "for each method and metric print the mean paired difference B - A, its standard error and a verdict "
+        "(better / worse beyond 2 SE in the metric's better direction), the items that moved most, and rows "
+        "that failed in one run only.",
+    )
+    cmp_.add_argument("run_a", help="the run before (a run folder)")
+    cmp_.add_argument("run_b", help="the run after")
+    cmp_.add_argument("-o", "--output", metavar="DIR", help="also write DIR/compare.html and DIR/compare.csv")
+    cmp_.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    cmp_.set_defaults(func=compare_cmd)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
@@ -149,4 +161,20 @@ def report_cmd(args: argparse.Namespace) -> int:
         print_json({k: str(v) if not isinstance(v, list) else [str(x) for x in v] for k, v in res.items()})
     else:
         print(f"report: {res['html']} ({len(res['figures'])} figures)", file=sys.stdout)
+    return 0
+
+
+def compare_cmd(args: argparse.Namespace) -> int:
+    """Exit 0 with the comparison; a folder that is not a run folder is one line, exit 2."""
+    from shape_toolkit.bench.compare import compare_runs, format_text, write_comparison
+
+    with _one_line_warnings():
+        comp = compare_runs(args.run_a, args.run_b)
+    written = write_comparison(comp, args.output) if args.output else []
+    if args.json:
+        print_json({**comp.to_dict(), "written": written})
+    else:
+        sys.stdout.write(format_text(comp))
+        for w in written:
+            print(f"wrote {w}")
     return 0

@@ -1,0 +1,93 @@
+"""bench compare: what changed between two runs, paired by item and method label (issue 28)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from shape_toolkit.bench.compare import compare_runs, format_text, write_comparison
+from shape_toolkit.cli import main
+from shape_toolkit.errors import ParameterError
+
+CONFIG = """
+[run]
+name = "{name}"
+[[datasets]]
+name = "synth"
+kind = "synthetic"
+limit = 3
+params = {{ n_poses = 3, subdivisions = 2 }}
+[[tasks]]
+task = "segmentation"
+name = "seg"
+metrics = ["n_segments", "segmentation"]
+[[tasks.methods]]
+plugin = "spectral-clustering"
+label = "<b>sc</b>"
+params = {{ n_segments = {k} }}
+[[tasks.methods]]
+plugin = "ncut"
+label = "ncut"
+params = {{ n_segments = 4 }}
+"""
+
+
+def _run(tmp_path: Path, name: str, k: int) -> Path:
+    cfg = tmp_path / f"{name}.toml"
+    cfg.write_text(textwrap.dedent(CONFIG.format(name=name, k=k)))
+    run = tmp_path / name
+    assert main(["bench", "run", str(cfg), "-o", str(run), "--no-progress", "--quiet"]) == 0
+    return run
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("compare")
+    return _run(tmp, "a", 3), _run(tmp, "b", 6)
+
+
+def test_pairs_rows_by_item_and_label_and_tells_what_changed(runs):
+    a, b = runs
+    comp = compare_runs(a, b)
+    by = {(c.method, c.metric): c for c in comp.changes}
+    n = by[("<b>sc</b>", "n_segments")]
+    assert n.n_pairs == 3 and n.mean_a == 3 and n.mean_b == 6 and n.mean_diff == 3
+    assert n.se_diff == 0 and n.verdict == "changed" and n.direction is None
+    same = by[("ncut", "n_segments")]
+    assert same.mean_diff == 0 and same.verdict == "same" and same.moved == []
+    assert not comp.only_a and not comp.only_b and not comp.newly_failed
+    itself = compare_runs(a, a)  # a run against itself: nothing moved
+    assert all(c.mean_diff == 0 and c.verdict == "same" for c in itself.changes)
+    assert "n_segments" in format_text(comp)
+
+
+def test_outputs_are_escaped_and_exported(runs, tmp_path):
+    a, b = runs
+    written = write_comparison(compare_runs(a, b), tmp_path / "cmp")
+    assert sorted(Path(p).name for p in written) == ["compare.csv", "compare.html"]
+    page = (tmp_path / "cmp" / "compare.html").read_text()
+    assert "<b>sc</b>" not in page and "&lt;b&gt;sc&lt;/b&gt;" in page
+    rows = list(csv.DictReader((tmp_path / "cmp" / "compare.csv").open()))
+    assert {r["method"] for r in rows} == {"<b>sc</b>", "ncut"}
+
+
+def test_cli_compare(runs, tmp_path, capsys):
+    a, b = runs
+    capsys.readouterr()
+    assert main(["bench", "compare", str(a), str(b), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["run_a"] == str(a) and any(c["verdict"] == "changed" for c in out["changes"])
+    assert main(["bench", "compare", str(a), str(b), "-o", str(tmp_path / "o")]) == 0
+    assert (tmp_path / "o" / "compare.html").exists()
+
+
+def test_a_folder_that_is_not_a_run_is_refused(runs, tmp_path, capsys):
+    with pytest.raises(ParameterError, match="not a run folder"):
+        compare_runs(runs[0], tmp_path)
+    capsys.readouterr()
+    assert main(["bench", "compare", str(runs[0]), str(tmp_path)]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
