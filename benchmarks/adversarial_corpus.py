@@ -6,9 +6,20 @@ degenerate, duplicate faces, binary junk, wrong encodings, directories instead o
 adversarial side files (labels, maps, seeds, ``.vts``, constraints) and command-line arguments;
 runs ``shape-toolkit`` on each with a timeout and classifies every run:
 
-- ``rejected``: exit code 2, exactly one error line on stderr, no traceback (a clean refusal);
-- ``success``: exit code 0 and valid JSON on stdout (no NaN / Infinity);
-- ``failure``: anything else (traceback, internal error exit 1, other exit code, hang, bad JSON).
+- ``rejected``: exit code 2, exactly one line on stderr (a warning line counts too), no traceback,
+  nothing on stdout (a clean refusal);
+- ``success``: exit code 0, valid JSON on stdout without NaN / Infinity and without ``null`` where a
+  number is expected (every key but the optional ones of :data:`NULLABLE`), at most one stderr line;
+- ``failure``: anything else (traceback, internal error exit 1, other exit code, hang, bad JSON, a
+  null metric, a second warning line, a multi-line rejection).
+
+Issue 27 widened it: coordinates at 1e200 / 1e250 / 1e300 (alone and mixed with normal ones),
+degenerate meshes (zero area, identical or repeated vertices, 1e-300 scale) evaluated with maps and
+labels of their own size, tiny and odd meshes (one triangle, two, a polygon fan, a non-manifold fan,
+a tetrahedron) as either side of ``transfer-labels``, constraints given to segmenters that take none,
+HTML (``<script>``) and LaTeX (``$\frac{a}{b}$``, ``\begin{x}``) and control characters in file
+names, plugin names, presets and parameters, ``--param`` tables; and the commands ``geodesics``,
+``describe``, ``constraints``, ``track`` and ``view --png``.
 
 Writes ``benchmarks/results/adversarial.md`` (corpus size, counts, every failure).
 
@@ -36,6 +47,20 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "adversarial.md"
+
+#: strings that end up in outputs (shape names, labels, plugin names): HTML, LaTeX, control characters
+NASTY_STRINGS = ("<script>alert(1)</script>", "$\\frac{a}{b}$", "\\begin{x}", "$\\frac{a$", "a\nb", "tab\there")
+#: the same as file names ('/' cannot be in one)
+NASTY_NAMES = ("<script>alert(1)<script>", "$\\frac{a}{b}$", "\\begin{x}", "$\\frac{a$", "new\nline")
+
+#: JSON keys whose value may be null in a success (optional outputs, inputs not given); a null under
+#: any other key is a metric or count that could not be computed: a failure
+NULLABLE = frozenset({
+    "ply", "output", "png", "gif", "ply_dir", "eigenvector", "dask", "seeds", "truth",  # outputs/inputs not asked for
+    "n_constraints",  # segment without --constraints
+    "preset", "K", "times", "max_keypoints",  # parameters whose default is None, echoed as given
+    "bic_curve_", "bic_monotone_",  # eigvec-gmm's BIC scan: None when k is given (no scan)
+})
 
 # ------------------------------------------------------------------------------------------------
 # corpus
@@ -172,6 +197,40 @@ def mesh_corpus(folder: Path) -> dict[str, Path]:
     files["polygons.obj"] = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nf 1 2 3 4\nf 1 2 5\n"
     files["face_two_vertices.obj"] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n"
     files["point_cloud.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in v.tolist())
+    # -- issue 27: extreme coordinates, alone and mixed with normal ones
+    for e in (200, 250):
+        files[f"coords_1e{e}.off"] = _off(v * 10.0**e, f)
+    one_far = v.copy()
+    one_far[0] = [1e300, 0.0, 0.0]
+    files["coords_mixed_1e300.off"] = _off(one_far, f)
+    few_far = v.copy()
+    few_far[:5] *= 1e200
+    files["coords_mixed_1e200.off"] = _off(few_far, f)
+    files["coords_mixed_1e250.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in np.r_[v, [[1e250, 0, 0]]].tolist())
+    half_tiny = v.copy()
+    half_tiny[: len(v) // 2] *= 1e-300
+    files["coords_mixed_1e-300.off"] = _off(half_tiny, f)
+    # -- degenerate meshes (zero area; identical, repeated or 1e-300 vertices)
+    files["all_identical.off"] = "OFF\n4 2 0\n" + "1 1 1\n" * 4 + "3 0 1 2\n3 0 2 3\n"
+    files["repeated_vertices.off"] = _off([[0, 0, 0], [1, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 3], [1, 2, 3]])
+    files["collinear_fan.off"] = _off([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], [[0, 1, 2], [0, 2, 3]])
+    files["zero_area_1e-300.off"] = "OFF\n3 1 0\n0 0 0\n1e-300 0 0\n2e-300 0 0\n3 0 1 2\n"
+    files["triangle_1e-300.off"] = "OFF\n3 1 0\n0 0 0\n1e-300 0 0\n0 1e-300 0\n3 0 1 2\n"
+    files["repeated_index_faces.off"] = _off([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 1, 2]])
+    # -- tiny and odd meshes
+    files["two_triangles.off"] = _off([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]])
+    ang = 2 * np.pi * np.arange(6) / 6
+    fan_v = np.r_[[[0.0, 0.0, 0.0]], np.c_[np.cos(ang), np.sin(ang), np.zeros(6)]]
+    files["polygon_fan.off"] = _off(fan_v, [[0, 1 + i, 1 + (i + 1) % 6] for i in range(6)])
+    files["polygon_hexagon.obj"] = "".join(f"v {a!r} {b!r} {c!r}\n" for a, b, c in fan_v[1:].tolist()) \
+        + "f 1 2 3 4 5 6\n"
+    files["non_manifold_fan.off"] = _off([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1]],
+                                         [[0, 1, 2], [0, 1, 3], [0, 1, 4]])
+    files["tetrahedron.off"] = _off([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]],
+                                    [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    # -- names that end up in outputs: HTML, LaTeX, control characters
+    for name in NASTY_NAMES:
+        files[f"{name}.off"] = good_off
     for name, content in files.items():
         p = folder / name
         p.write_bytes(content.encode() if isinstance(content, str) else content)
@@ -299,12 +358,36 @@ class Run:
     why: str = ""
 
 
-def mesh_runs(mesh: Path, name: str, side: dict, out: Path, *, commands: tuple[str, ...] | None = None) -> list[Run]:
-    """Every mesh-reading subcommand with ``mesh`` in the position of the shape under test."""
+def own_side_files(mesh: Path, folder: Path) -> dict[str, Path] | None:
+    """Side files sized to ``mesh`` (labels per vertex and per face, the identity map, ``.vts`` truth, a
+    labels file of the vertex ids), so that its runs reach the computation instead of stopping at a
+    length mismatch; None when the mesh does not load (its runs are refused on load anyway)."""
+    from shape_toolkit.io.mesh import load_shape
+
+    try:
+        s = load_shape(mesh)
+    except Exception:  # noqa: BLE001 - a refused file: the good side files serve
+        return None
+    n, m = s.n_vertices, s.n_faces
+    stem = folder / f"{len(list(folder.iterdir())):04d}"
+    out = {"labels": Path(f"{stem}.labels"), "seg": Path(f"{stem}.seg"), "map": Path(f"{stem}.map"),
+           "vts": Path(f"{stem}.vts")}
+    out["labels"].write_text("".join(f"{i % 3}\n" for i in range(n)))
+    out["seg"].write_text("".join(f"{i % 2}\n" for i in range(max(m, 1))) if m else "0\n")
+    out["map"].write_text("".join(f"{i}\n" for i in range(n)))
+    out["vts"].write_text("".join(f"{i}\n" for i in range(1, n + 1, max(1, n // 30))))
+    return out
+
+
+def mesh_runs(mesh: Path, name: str, side: dict, out: Path, *, commands: tuple[str, ...] | None = None,
+              own: dict[str, Path] | None = None) -> list[Run]:
+    """Every mesh-reading subcommand with ``mesh`` in the position of the shape under test; ``own``: side
+    files sized to the mesh (:func:`own_side_files`), else the good mesh's."""
     g = side["good"]
     good = side["good_mesh"]
-    o = out / name.replace("/", "_")
+    o = out / f"{abs(hash(name)) % 10**8:08d}"  # output names free of the mesh's odd characters
     m = str(mesh)
+    mine = own or {"labels": g["labels"], "seg": g["seg"], "map": g["map"], "vts": g["vts"]}
     runs = {
         "info": ["info", m, "--json"],
         "clean": ["clean", m, "-o", f"{o}.clean.off", "--json"],
@@ -312,12 +395,21 @@ def mesh_runs(mesh: Path, name: str, side: dict, out: Path, *, commands: tuple[s
         "keypoints": ["keypoints", m, "--json"],
         "segment": ["segment", m, "--method", "eigvec-gmm", "-k", "3", "-o", f"{o}.seg.txt", "--json"],
         "match": ["match", m, str(good), "--pipeline", "seed-growing", "-o", f"{o}.map", "--json", "--quiet"],
-        "evaluate-map": ["evaluate-map", m, m, str(g["map"]), "--truth-src", str(g["vts"]),
-                         "--truth-dst", str(g["vts"]), "--geodesics", "dijkstra", "--json"],
-        "evaluate-segmentation": ["evaluate-segmentation", m, str(g["labels"]), "--truth", str(g["seg"]), "--json"],
+        "evaluate-map": ["evaluate-map", m, m, str(mine["map"]), "--truth-src", str(mine["vts"]),
+                         "--truth-dst", str(mine["vts"]), "--geodesics", "dijkstra", "--json"],
+        "evaluate-segmentation": ["evaluate-segmentation", m, str(mine["labels"]), "--truth", str(mine["seg"]),
+                                  "--json"],
         "transfer-labels": ["transfer-labels", str(good), str(g["labels"]), m, "-o", f"{o}.transfer.txt", "--json"],
+        "transfer-labels from": ["transfer-labels", m, str(mine["labels"]), str(good), "-o", f"{o}.from.txt",
+                                 "--json"],
+        "geodesics": ["geodesics", m, "--sources", "0", "--method", "dijkstra", "-o", f"{o}.geo.npz", "--json"],
+        "describe": ["describe", m, "-o", f"{o}.hks.npz", "--json"],
+        "constraints": ["constraints", m, str(mine["labels"]), "-o", f"{o}.constraints.json", "--json"],
+        "track": ["track", m, str(good), "--pipeline", "seed-growing", "-o", f"{o}.traj.npz", "--json", "--quiet"],
+        "view": ["view", m, "--png", f"{o}.view.png", "--json"],
     }
-    return [Run(f"{name} | {cmd}", argv) for cmd, argv in runs.items() if commands is None or cmd in commands]
+    return [Run(f"{name} | {cmd}", argv) for cmd, argv in runs.items()
+            if commands is None or cmd.split()[0] in commands]
 
 
 def side_runs(side: dict, out: Path) -> list[Run]:
@@ -376,31 +468,98 @@ def side_runs(side: dict, out: Path) -> list[Run]:
         "map for the wrong shape": ["evaluate-map", good, str(side["other_mesh"]), str(g["map"]), "--truth-src",
                                     str(g["vts"]), "--truth-dst", str(g["vts"]), "--json"],
     }
+    # issue 27: constraints given to segmenters that take none
+    for method in ("eigvec-gmm", "spectral-clustering", "ncut", "sdf", "smoothed"):
+        args[f"constraints to {method}"] = ["segment", good, "--method", method, "-k", "3", "--constraints",
+                                            str(g["constraints"]), "-o", str(out / "u.txt"), "--json"]
+    args["constraints to smoothed csc"] = ["segment", good, "--method", "smoothed", "--param", "base=csc", "-k", "3",
+                                           "--constraints", str(g["constraints"]), "-o", str(out / "u.txt"), "--json"]
+    # --param tables and lists where a name or number is expected
+    for value in ('{"a":1}', "[1,2]"):
+        args[f"param weighting={value} (spectrum)"] = ["spectrum", good, "--param", f"weighting={value}", "--json"]
+        args[f"param weighting={value} (keypoints)"] = ["keypoints", good, "--param", f"weighting={value}", "--json"]
+        args[f"param weighting={value} (segment)"] = ["segment", good, "--method", "eigvec-gmm", "--param",
+                                                      f"weighting={value}", "-o", str(out / "s.txt"), "--json"]
+        args[f"param variant={value} (segment)"] = ["segment", good, "--method", "spectral-clustering", "-k", "3",
+                                                    "--param", f"variant={value}", "-o", str(out / "s.txt"), "--json"]
+        args[f"param times={value} (describe)"] = ["describe", good, "--param", f"times={value}",
+                                                   "-o", str(out / "d.npz"), "--json"]
+        args[f"param t={value} (keypoints)"] = ["keypoints", good, "--param", f"t={value}", "--json"]
+        args[f"param descriptor_params={value} (transfer-labels)"] = [
+            "transfer-labels", good, str(g["labels"]), good, "--matcher", "fmap-zoomout", "--param",
+            f"descriptor_params={value}", "-o", str(out / "t.txt"), "--json"]
+    # HTML, LaTeX and control characters in every string argument that ends up in an output
+    for i, text in enumerate(NASTY_STRINGS):
+        args[f"nasty {i} segment --method"] = ["segment", good, "--method", text, "-o", str(out / "s.txt"), "--json"]
+        args[f"nasty {i} keypoints --detector"] = ["keypoints", good, "--detector", text, "--json"]
+        args[f"nasty {i} keypoints --preset"] = ["keypoints", good, "--preset", text, "--json"]
+        args[f"nasty {i} spectrum --weighting"] = ["spectrum", good, "--weighting", text, "-k", "4", "--json"]
+        args[f"nasty {i} describe --descriptor"] = ["describe", good, "--descriptor", text, "-o", str(out / "d.npz")]
+        args[f"nasty {i} match --pipeline"] = ["match", good, good, "--pipeline", text, "-o", str(out / "m.map")]
+        args[f"nasty {i} transfer-labels --matcher"] = ["transfer-labels", good, str(g["labels"]), good, "--matcher",
+                                                        text, "-o", str(out / "t.txt")]
+        args[f"nasty {i} --param key"] = ["keypoints", good, "--param", f"{text}=1", "--json"]
+        args[f"nasty {i} --param value"] = ["keypoints", good, "--param", f"t={text}", "--json"]
+        args[f"nasty {i} --param laplacian"] = ["keypoints", good, "--param", f"laplacian={text}", "--json"]
+        args[f"nasty {i} missing file"] = ["info", str(out / f"{text}.off"), "--json"]
+        args[f"nasty {i} output name"] = ["segment", good, "--method", "eigvec-gmm", "-k", "3", "-o",
+                                          str(out / f"{text}.txt"), "--json"]
+        args[f"nasty {i} track frames --png"] = ["track", str(side["nasty_meshes"][i % len(side["nasty_meshes"])]),
+                                                 good, "--pipeline", "seed-growing", "-o", str(out / "tr.npz"),
+                                                 "--png", str(out / "tr.png"), "--json", "--quiet"]
     runs.extend(Run(f"args:{name}", argv) for name, argv in args.items())
     return runs
+
+
+def null_metrics(obj: object, path: str = "") -> list[str]:
+    """JSON paths of the nulls in ``obj`` outside the optional keys of :data:`NULLABLE` and those its
+    object explains in an ``undefined`` mapping (``{"genus": "defined for a closed ... mesh only"}``)."""
+    out: list[str] = []
+    if isinstance(obj, dict):
+        explained = obj.get("undefined") if isinstance(obj.get("undefined"), dict) else {}
+        for k, v in obj.items():
+            if v is None:
+                if k not in NULLABLE and not explained.get(k):
+                    out.append(f"{path}.{k}")
+            else:
+                out.extend(null_metrics(v, f"{path}.{k}"))
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            out.extend([f"{path}[{i}]"] if v is None else null_metrics(v, f"{path}[{i}]"))
+    return out
 
 
 def classify(run: Run) -> Run:
     """Set ``run.verdict`` to rejected / success / failure (see the module doc)."""
     err_lines = [ln for ln in run.stderr.splitlines() if ln.strip()]
-    problems = [ln for ln in err_lines if ": warning: " not in ln]
     if run.code is None:
         run.verdict, run.why = "failure", "timeout"
     elif "Traceback" in run.stderr or "Traceback" in run.stdout:
         run.verdict, run.why = "failure", "traceback"
     elif run.code == 2:
-        if len(problems) == 1:
-            run.verdict = "rejected"
+        if len(err_lines) != 1:
+            run.verdict, run.why = "failure", f"exit 2 with {len(err_lines)} stderr lines"
+        elif "internal error" in err_lines[0]:
+            run.verdict, run.why = "failure", f"exit 2 with an internal error: {err_lines[0][:200]}"
+        elif run.stdout.strip():
+            run.verdict, run.why = "failure", "exit 2 with output on stdout"
         else:
-            run.verdict, run.why = "failure", f"exit 2 with {len(problems)} stderr lines"
+            run.verdict = "rejected"
     elif run.code == 0:
         try:
-            json.loads(run.stdout, parse_constant=_refuse_constant)
-            run.verdict = "success"
+            data = json.loads(run.stdout, parse_constant=_refuse_constant)
         except ValueError as exc:
             run.verdict, run.why = "failure", f"invalid JSON ({exc})"
+            return run
+        nulls = null_metrics(data)
+        if nulls:
+            run.verdict, run.why = "failure", f"null where a number is expected: {', '.join(nulls[:5])}"
+        elif len(err_lines) > 1:
+            run.verdict, run.why = "failure", f"success with {len(err_lines)} stderr lines: {err_lines[0][:150]}"
+        else:
+            run.verdict = "success"
     else:
-        run.verdict, run.why = "failure", f"exit {run.code}: {(problems or [''])[-1][:200]}"
+        run.verdict, run.why = "failure", f"exit {run.code}: {(err_lines or [''])[-1][:200]}"
     return run
 
 
@@ -438,11 +597,20 @@ def build(folder: Path, *, commands: tuple[str, ...] | None = None) -> list[Run]
     side["empty_dir"].mkdir(exist_ok=True)
     out = folder / "out"
     out.mkdir(exist_ok=True)
+    side["nasty_meshes"] = [meshes[f"{n}.off"] for n in NASTY_NAMES]
+    own_dir = folder / "own"
+    own_dir.mkdir(exist_ok=True)
     runs: list[Run] = []
     for name, path in meshes.items():
-        runs.extend(mesh_runs(path, name, side, out, commands=commands))
+        own = own_side_files(path, own_dir) if path.is_file() else None
+        runs.extend(mesh_runs(path, name, side, out, commands=commands, own=own))
     runs.extend(side_runs(side, out))
     return runs
+
+
+def _md(text: str) -> str:
+    """``text`` on one markdown line: control characters and backticks escaped."""
+    return text.encode("unicode_escape").decode("ascii").replace("`", "'")
 
 
 def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS) -> str:
@@ -458,9 +626,12 @@ def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS) 
         "arguments on a good mesh; subprocess per run, with a timeout).",
         "",
         f"- corpus: {n_files} files and folders; {len(runs)} runs; wall time {seconds:.0f} s",
-        f"- **rejected** cleanly (exit 2, one line, no traceback): {counts['rejected']}",
-        f"- **success** (exit 0, valid JSON without NaN/Infinity): {counts['success']}",
-        f"- **failure** (traceback, internal error, other exit code, hang, invalid JSON): {counts['failure']}",
+        f"- **rejected** cleanly (exit 2, exactly one stderr line, no traceback, nothing on stdout): "
+        f"{counts['rejected']}",
+        f"- **success** (exit 0, valid JSON without NaN/Infinity or a null metric, at most one stderr line): "
+        f"{counts['success']}",
+        f"- **failure** (traceback, internal error, other exit code, hang, invalid JSON, null metric, a second "
+        f"stderr line): {counts['failure']}",
         "",
         "| command | rejected | success | failure |",
         "|---|---|---|---|",
@@ -470,9 +641,9 @@ def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS) 
         lines.append(f"| {cmd} | {c['rejected']} | {c['success']} | {c['failure']} |")
     fails = [r for r in runs if r.verdict == "failure"]
     lines += ["", "## Failures", ""]
-    lines += [f"- `{r.case}`: {r.why}" for r in fails] or ["none"]
+    lines += [f"- `{_md(r.case)}`: {_md(r.why)}" for r in fails] or ["none"]
     lines += ["", "## Successes (accepted inputs)", ""]
-    lines += [f"- `{r.case}`" for r in runs if r.verdict == "success"]
+    lines += [f"- `{_md(r.case)}`" for r in runs if r.verdict == "success"]
     text = "\n".join(lines) + "\n"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text)
@@ -490,7 +661,8 @@ def main(argv: list[str] | None = None) -> int:
     folder = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="adversarial-"))
     commands = tuple(args.commands.split(",")) if args.commands else None
     runs = build(folder, commands=commands)
-    n_files = sum(1 for _ in (folder / "meshes").iterdir()) + 1 + sum(1 for _ in (folder / "side").iterdir())
+    n_files = sum(1 for _ in (folder / "meshes").iterdir()) + 1 + sum(1 for _ in (folder / "side").iterdir()) \
+        + sum(1 for _ in (folder / "own").iterdir())
     print(f"{len(runs)} runs on a corpus of {n_files} files in {folder}", flush=True)
     t0 = time.perf_counter()
     done = 0

@@ -1,5 +1,7 @@
 """A fast subset of the adversarial corpus (benchmarks/adversarial_corpus.py) through the CLI,
-in-process: every run is a clean one-line rejection (exit 2) or a success with valid JSON."""
+in-process: every run is a clean one-line rejection (exit 2) or a success with valid JSON and no
+unexplained null. The cheap commands run on every file; every command runs on the issue-27 cases
+(extreme and degenerate coordinates, tiny meshes, markup in names, constraints and --param tables)."""
 
 from __future__ import annotations
 
@@ -27,18 +29,27 @@ def _corpus_module():
 corpus = _corpus_module()
 
 #: cheap subcommands only: the loaders and validation are shared by all of them
-FAST = ("info", "clean", "evaluate-segmentation")
+FAST = ("info", "clean", "evaluate-segmentation", "geodesics", "constraints")
+
+#: the meshes of issue 27 (extreme and degenerate coordinates, tiny and odd meshes, names with markup):
+#: every command runs on them
+ISSUE_27 = ("coords_1e200", "coords_1e250", "coords_1e300", "coords_mixed", "coords_1e-300", "all_identical",
+            "repeated_vertices", "collinear_fan", "zero_area", "triangle_1e-300", "repeated_index_faces",
+            "two_triangles", "polygon_fan", "polygon_hexagon", "non_manifold_fan", "tetrahedron", "single_triangle",
+            "polygons.obj", "bowtie", "<script>", "$\\frac", "\\begin", "new\nline")
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     folder = tmp_path_factory.mktemp("adversarial")
-    out = corpus.build(folder, commands=FAST)
+    out = corpus.build(folder)
+    mesh_runs = [r for r in out if " | " in r.case and not r.case.startswith(("labels:", "map:", "vts:", "seeds:",
+                                                                              "constraints:"))]
+    keep = [r for r in mesh_runs if r.argv[0] in FAST or r.case.split(" | ")[0].startswith(ISSUE_27)]
     # side files: everything except the runs that compute a match or a segmentation
-    keep = [r for r in out if r.argv[0] in FAST or r.argv[0] == "evaluate-map" and "dijkstra" in r.argv
-            and "coords" not in r.case]
-    keep += [r for r in out if r.case.startswith("args:") and r.argv[0] in ("spectrum", "keypoints", "segment")
-             and any(w in r.case for w in ("output", "param", "random state", "k zero", "n segments", "unknown"))]
+    keep += [r for r in out if r.case.startswith(("labels:", "map:", "vts:"))]
+    keep += [r for r in out if r.case.startswith("args:") and r.argv[0] not in ("match", "track")
+             or r.case.startswith("args:nasty") and "--pipeline" in r.case]
     return folder, keep
 
 
@@ -56,15 +67,36 @@ def _run_inprocess(run, cwd: Path):
 def test_fast_adversarial_subset_has_no_failure(runs, monkeypatch):
     folder, selected = runs
     monkeypatch.chdir(folder / "out")
-    assert len(selected) > 150
+    assert len(selected) > 700
     done = [_run_inprocess(r, folder / "out") for r in selected]
     failures = [f"{r.case}: {r.why} | {r.stderr.strip()[-300:]}" for r in done if r.verdict == "failure"]
     assert not failures, "\n".join(failures)
     verdicts = {r.case: r.verdict for r in done}
     # controls succeed, the issue-11 cases are refused or handled
     assert verdicts["good.off | info"] == "success"
-    assert verdicts["coords_1e300.off | info"] == "rejected"  # squared lengths overflow: refused (issue 27)
-    assert verdicts["coords_1e300.off | clean"] == "rejected"
+    # issue 27: squared lengths that overflow or underflow float64 are refused by every command
+    for name in ("coords_1e200.off", "coords_1e250.off", "coords_1e300.off", "coords_mixed_1e300.off",
+                 "coords_mixed_1e200.off", "coords_mixed_1e250.xyz", "coords_1e-300.off", "triangle_1e-300.off"):
+        for cmd in ("info", "clean", "spectrum", "keypoints", "segment", "evaluate-map", "geodesics", "describe",
+                    "view"):
+            assert verdicts[f"{name} | {cmd}"] == "rejected", (name, cmd)
+    # degenerate meshes: evaluate-map refuses (no null error); tiny meshes transfer labels both ways
+    for name in ("zero_area.off", "all_identical.off", "collinear_fan.off", "repeated_index_faces.off"):
+        assert verdicts[f"{name} | evaluate-map"] == "rejected", name
+    assert verdicts["repeated_vertices.off | evaluate-map"] == "success"
+    for name in ("single_triangle.off", "two_triangles.off", "polygon_fan.off", "non_manifold_fan.off",
+                 "tetrahedron.off", "polygons.obj"):
+        assert verdicts[f"{name} | transfer-labels"] == "success", name
+        assert verdicts[f"{name} | transfer-labels from"] == "success", name
+    for method in ("eigvec-gmm", "spectral-clustering", "ncut", "sdf", "smoothed"):
+        assert verdicts[f"args:constraints to {method}"] == "rejected", method
+    assert verdicts["args:constraints to smoothed csc"] == "success"
+    for case, verdict in verdicts.items():
+        if '={"a":1}' in case or "param weighting=" in case or "param variant=" in case:
+            assert verdict == "rejected", case
+    assert verdicts["args:param times=[1,2] (describe)"] == "success"  # a list of diffusion times is one
+    for name in corpus.NASTY_NAMES:  # markup in a file name is just a name
+        assert verdicts[f"{name}.off | info"] == "success" and verdicts[f"{name}.off | view"] == "success", name
     for case in ("duplicate_faces.off | evaluate-segmentation", "index_float_binary.ply | info",
                  "pcd_count0.pcd | info", "index_huge.off | info", "list_count_negative.ply | info",
                  "huge_count_binary.ply | info", "empty_faces_binary.ply | info",
@@ -79,6 +111,19 @@ def test_classify():
     assert corpus.classify(R("a", [], code=2, stderr="x: error: bad\n")).verdict == "rejected"
     assert corpus.classify(R("a", [], code=2, stderr="Traceback\nboom\n")).verdict == "failure"
     assert corpus.classify(R("a", [], code=0, stdout='{"a": NaN}')).verdict == "failure"
-    assert corpus.classify(R("a", [], code=0, stdout='{"a": null}')).verdict == "success"
+    assert corpus.classify(R("a", [], code=0, stdout='{"a": Infinity}')).verdict == "failure"
+    # issue 27: the auditor's cases are failures
+    assert corpus.classify(R("a", [], code=0, stdout='{"mean_geodesic_error": null}')).verdict == "failure"
+    assert corpus.classify(R("a", [], code=0, stdout='{"x": {"curve": [[0.0, null]]}}')).verdict == "failure"
+    assert corpus.classify(R("a", [], code=0, stdout='{"ply": null, "output": null}')).verdict == "success"
+    assert corpus.classify(R("a", [], code=0, stdout='{"genus": null, "undefined": {"genus": "why"}}')).verdict \
+        == "success"
+    assert corpus.classify(R("a", [], code=0, stdout='{"genus": null, "undefined": {}}')).verdict == "failure"
+    two_warnings = "x: warning: overflow encountered in multiply\nx: warning: again\n"
+    assert corpus.classify(R("a", [], code=0, stdout="{}", stderr=two_warnings)).verdict == "failure"
+    assert corpus.classify(R("a", [], code=0, stdout="{}", stderr="x: warning: once\n")).verdict == "success"
+    assert corpus.classify(R("a", [], code=2, stderr="x: warning: overflow\nx: error: bad\n")).verdict == "failure"
+    assert corpus.classify(R("a", [], code=2, stderr="x: error: bad\n", stdout="{}")).verdict == "failure"
+    assert corpus.classify(R("a", [], code=2, stderr="x: internal error: boom\n")).verdict == "failure"
     assert corpus.classify(R("a", [], code=1, stderr="internal error")).verdict == "failure"
     assert corpus.classify(R("a", [], code=None)).verdict == "failure"
