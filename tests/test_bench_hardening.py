@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import shutil
 import textwrap
+import warnings
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -134,6 +135,18 @@ def test_report_refuses_an_index_html_it_did_not_write(run, tmp_path, capsys):
     # a report folder that is a file
     with pytest.raises(ParameterError, match="not a folder"):
         write_report(run, output=out / "index.html", renders=0)
+
+
+def test_bench_run_report_checks_the_report_folder_before_the_run(tmp_path, capsys):
+    run = tmp_path / "run"
+    (run / "report").mkdir(parents=True)
+    (run / "report" / "index.html").write_text("mine")
+    config = _write(tmp_path)
+    assert main(["bench", "run", str(config), "-o", str(run), "--report", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not written by bench report" in err
+    assert not (run / "results.jsonl").exists()  # nothing run
+    assert (run / "report" / "index.html").read_text() == "mine"
 
 
 def test_planted_manifest_and_links_cannot_make_the_report_touch_other_files(run, tmp_path):
@@ -334,8 +347,11 @@ def _accepted_rows(draw):
 def test_the_report_survives_every_row_the_reader_accepts(rows, tmp_path_factory):
     run = tmp_path_factory.mktemp("prop")
     _put_rows(run, rows)
-    assert len(read_rows(run)) == len(rows)  # the reader accepts them all
-    res = write_report(run, renders=1)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        assert len(read_rows(run)) == len(rows)  # the reader accepts them all
+        res = write_report(run, renders=1)
+    assert not [str(w.message) for w in seen]  # no warning line either (glyphs, overflow, legends)
     _assert_no_markup_from_data(res["html"].read_text())
 
 

@@ -39,7 +39,7 @@ from shape_toolkit.bench.store import (
 )
 from shape_toolkit.errors import ParameterError
 
-__all__ = ["write_report", "summarize", "method_id", "metric_direction", "MANIFEST"]
+__all__ = ["write_report", "check_report_output", "summarize", "method_id", "metric_direction", "MANIFEST"]
 
 #: metrics where a larger value is better (everything else with a direction: lower is better)
 _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
@@ -320,18 +320,21 @@ def _t(text: Any) -> str:
 
 
 def _legend(text: Any) -> str:
-    """:func:`_t` for a legend entry (matplotlib hides labels that start with ``_``)."""
+    """:func:`_t` for a legend entry (matplotlib hides empty labels and those that start with ``_``)."""
     s = _t(text)
+    if not s.strip():
+        return "(empty)"
     return " " + s if s.startswith("_") else s
 
 
 @contextmanager
 def _literal_figure_text() -> Iterator[None]:
     """Figure text is plain text: no LaTeX (whatever the user's matplotlibrc says) and no warnings
-    about glyphs the font lacks (a user's label may hold any character)."""
+    about glyphs the font lacks (a user's label may hold any character) or about overflow (a row
+    may hold any finite number; such values show as infinite or off the axes)."""
     import matplotlib
 
-    with matplotlib.rc_context({"text.usetex": False}), warnings.catch_warnings():
+    with matplotlib.rc_context({"text.usetex": False}), warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.filterwarnings("ignore", message=r"Glyph .* missing from", category=UserWarning)
         yield
 
@@ -677,10 +680,12 @@ def _owned_files(out: Path) -> dict[str, str]:
     return owned
 
 
-def _claim_output(out: Path) -> dict[str, str]:
-    """Check, before any work, that the report may write into ``out``: a folder (created), whose
-    ``index.html`` and manifest, when present, were written by a report; returns the files it owns
-    there (:func:`_owned_files`). Nothing else in ``out`` is ever replaced or deleted."""
+def check_report_output(out: str | os.PathLike) -> dict[str, str]:
+    """Check, before any work and without writing, that a report may be written into the folder
+    ``out``: absent or a folder whose ``index.html`` and manifest, when present, were written by a
+    report (:class:`ParameterError` otherwise). Returns the files it owns there (relative path ->
+    digest); nothing else in ``out`` is ever replaced or deleted."""
+    out = Path(out)
     if os.path.lexists(out) and not out.is_dir():
         raise ParameterError(f"report folder {out} exists and is not a folder; choose another -o")
     page = out / "index.html"
@@ -693,7 +698,6 @@ def _claim_output(out: Path) -> dict[str, str]:
     figures = out / "figures"
     if os.path.lexists(figures) and not figures.is_dir():
         raise ParameterError(f"{figures} exists and is not a folder; choose another report folder")
-    figures.mkdir(parents=True, exist_ok=True)
     return owned
 
 
@@ -730,7 +734,8 @@ def write_report(
     if not (run / RESULTS).exists():
         raise ParameterError(f"{run} is not a run folder: {RESULTS} not found (run 'bench run' first)")
     out = Path(output) if output else run / "report"
-    owned = _claim_output(out)  # before any work
+    owned = check_report_output(out)  # before any work
+    (out / "figures").mkdir(parents=True, exist_ok=True)
     say(f"reading {run / RESULTS}")
     rows = [_normalized(r) for r in read_rows(run)]
     for rel in owned:  # the previous report's figures (still as it wrote them)

@@ -7,6 +7,7 @@ import sys
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 from shape_toolkit.cli.commands._common import (
     add_quiet,
@@ -115,6 +116,10 @@ def run_cmd(args: argparse.Namespace) -> int:
     with _one_line_warnings():
         # every check happens before any work, the row count before any grid is expanded
         cfg = load_config(args.config, max_rows=args.max_rows or MAX_ROWS, limit=args.limit)
+        if args.report:  # a report folder holding someone else's index.html: refused now, not after the run
+            from shape_toolkit.bench.report import check_report_output
+
+            check_report_output(Path(args.output) / "report")
         summary = run_benchmark(
             cfg,
             args.output,
