@@ -192,7 +192,7 @@ def test_unsupervised_segmenters_refuse_constraints(name):
 
     s = icosphere(2)
     seg = create_plugin("segmenters", name)
-    with pytest.raises(ParameterError, match="takes no constraints.*csc"):
+    with pytest.raises(ParameterError, match="takes no constraints.*semi-supervised"):
         seg.segment(s, constraints=Constraints([[0, 1]], []))
     with pytest.raises(ParameterError, match="takes no constraints"):
         seg.segment(s, constraints={"must_link": [[0, 1]]})
@@ -207,6 +207,7 @@ def test_segment_cli_refuses_constraints_for_unsupervised_methods(tmp_path, caps
     code, out, err = _cli(capsys, "segment", tmp_path / "s.off", "--method", name, "-k", "3", "--constraints", cons,
                           "-o", tmp_path / "s.txt", "--json")
     _one_line_rejection(code, out, err, "takes no constraints")
+    assert "ccskl, csc, seeded-walk, spectral-learning" in err
     assert not (tmp_path / "s.txt").exists()
 
 

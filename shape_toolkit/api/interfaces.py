@@ -212,15 +212,12 @@ class Segmenter(BasePlugin, ABC):
 
     def check_constraints(self, constraints: Any | None) -> None:
         """Raise :class:`ParameterError` when ``constraints`` are given (not None) to a segmenter that
-        does not use them; the message names the segmenters that do."""
+        does not use them (:func:`shape_toolkit.api.registry.plugins_taking_constraints` lists those that do)."""
         if constraints is None or self.accepts_constraints():
             return
-        from shape_toolkit.api.registry import plugins_taking_constraints
-
-        users = ", ".join(plugins_taking_constraints()) or "none installed"
         raise ParameterError(
-            f"{type(self).__name__} takes no constraints (it is unsupervised) and would ignore them; "
-            f"drop the constraints or use a segmenter that uses them: {users}"
+            f"{type(self).__name__} takes no constraints (it is unsupervised) and would ignore them; drop them "
+            "or use a semi-supervised segmenter (takes_constraints = True, e.g. csc)"
         )
 
     @abstractmethod

@@ -26,7 +26,7 @@ from shape_toolkit.cli.commands._common import (
     write_ply,
 )
 from shape_toolkit.data.datasets import write_labels
-from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError
+from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError, ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.plugins.segmenters._common import face_labels_of
 from shape_toolkit.results.labels import load_constraints
@@ -75,8 +75,13 @@ def run(args: argparse.Namespace) -> int:
     if args.random_state is not None:
         params["random_state"] = args.random_state
     seg = create_plugin("segmenters", args.method, preset=args.preset, **params)
-    if args.constraints is not None and hasattr(seg, "check_constraints"):
-        seg.check_constraints(args.constraints)  # an unsupervised method refuses them, before any work
+    if args.constraints is not None and hasattr(seg, "accepts_constraints") and not seg.accepts_constraints():
+        from shape_toolkit.api.registry import plugins_taking_constraints
+
+        raise ParameterError(  # before any work; Segmenter.check_constraints says the same from Python
+            f"--constraints: {args.method!r} takes no constraints (it is unsupervised) and would ignore them; "
+            f"drop them or use a segmenter that uses them: {', '.join(plugins_taking_constraints())}"
+        )
     if args.faces:
         shape.require_faces("--faces")
     constraints = None
