@@ -413,6 +413,11 @@ def test_config_strings_and_options_are_checked_naming_the_key(tmp_path, capsys,
          "corruptions[0].params.strength"),
         ('plugin = "gaussian"', 'plugin = "gaussian"\nparams = { bandwidth_scale = "wide" }',
          "tasks[0].methods[0].params.bandwidth_scale"),
+        ("params = { strength = [0.01, 0.02] }", "params = { strength = [0.01, nan] }",
+         "corruptions[0].params.strength"),
+        ("params = { strength = [0.01, 0.02] }", "params = { strength = inf }", "corruptions[0].params.strength"),
+        ("subdivisions = 2 }", 'subdivisions = "" }', "datasets[0].params.subdivisions"),
+        ('name = "hardening"', 'name = "h"\nrandom_state = 4294967296', "run.random_state"),
     ],
 )
 def test_bad_nested_parameters_are_one_line_naming_the_key(tmp_path, capsys, old, new, key):
@@ -500,3 +505,61 @@ def test_the_row_count_is_the_plan_and_max_rows_moves_the_cap(tmp_path, capsys):
     many = _write(tmp_path, CONFIG.replace("limit = 1", "").replace("n_poses = 2", "n_poses = 1001"), "many.toml")
     assert main(["bench", "run", str(many), "-o", str(tmp_path / "r3")]) == 2
     assert "1,001" in capsys.readouterr().err
+
+
+def _paths(d, pre=()):
+    if isinstance(d, dict):
+        items = d.items()
+    elif isinstance(d, list):
+        items = enumerate(d)
+    else:
+        return
+    for k, v in items:
+        yield pre + (k,)
+        yield from _paths(v, pre + (k,))
+
+
+def _fuzz_base() -> dict:
+    from shape_toolkit.bench.config import tomllib
+
+    raw = tomllib.loads(textwrap.dedent(CONFIG))
+    methods = [{"plugin": "spectral", "keypoints": {"plugin": "adf-maxima", "preset": "sparse"}},
+               {"pipeline": "zoomout", "label": "z"}, {"plugin": "eigvec-alignment"}]
+    raw["tasks"].append({"task": "matching", "name": "m", "metrics": ["geodesic_error"],
+                         "options": {"truth_sample": 50}, "methods": methods})
+    return raw
+
+
+_FUZZ_BASE = _fuzz_base()
+_KEYS = st.sampled_from(["a", "k", "plugin", "params", "weighting", "n_segments", "strength", "preset", "label"])
+_VALUES = st.recursive(
+    st.one_of(st.none(), st.booleans(), st.integers(-3, 10**12), st.floats(), st.text(max_size=5),
+              st.sampled_from(["cotangent", "gaussian", "none", "noise", "synth", "spectrum", "sparse", "zoomout"])),
+    lambda inner: st.one_of(st.lists(inner, max_size=3), st.dictionaries(_KEYS, inner, max_size=3)),
+    max_leaves=6,
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(changes=st.lists(st.tuples(st.sampled_from(list(_paths(_FUZZ_BASE))), _VALUES), min_size=1, max_size=4))
+def test_any_value_anywhere_in_a_config_is_valid_or_one_config_error(changes):
+    """Every key of a config (a segmentation, spectrum and matching task) set to values of any
+    TOML type: validation passes or raises a ToolkitError, never anything else."""
+    import copy
+
+    from shape_toolkit.bench.config import parse_config
+    from shape_toolkit.errors import ToolkitError
+
+    raw = copy.deepcopy(_FUZZ_BASE)
+    for path, value in changes:
+        d = raw
+        try:
+            for k in path[:-1]:
+                d = d[k]
+            d[path[-1]] = value
+        except (KeyError, IndexError, TypeError):
+            continue
+    try:
+        parse_config(raw, max_rows=1000)
+    except ToolkitError:
+        pass

@@ -231,10 +231,10 @@ def _names(v: Any, where: str, what: str) -> list[str]:
     return [_str(x, f"{where}[{j}]") for j, x in enumerate(v)]
 
 
-def _check_kinds(params: dict[str, Any], func: Any, where: str) -> None:
-    """Each value (each grid value of a list) of a parameter whose default is a number must be a
-    number, of one whose default is a boolean a boolean: ``n_segments = "x"`` is refused here,
-    naming the key, instead of failing every row at run time."""
+def _check_kinds(params: dict[str, Any], func: Any, where: str, grid: bool = True) -> None:
+    """Each value (with ``grid``, each grid value of a list) of a parameter whose default is a
+    number must be a number, of one whose default is a boolean a boolean: ``n_segments = "x"`` is
+    refused here, naming the key, instead of failing every row at run time."""
     try:
         sig = inspect.signature(func)
     except (TypeError, ValueError):  # pragma: no cover - builtins
@@ -246,13 +246,13 @@ def _check_kinds(params: dict[str, Any], func: Any, where: str) -> None:
         d, ann = par.default, str(par.annotation)
         if any(w in ann for w in ("str", "Any", "dict", "list", "Sequence", "tuple")):
             continue  # the parameter takes other kinds too
-        for x in _axis(v):
+        for x in _axis(v) if grid else [v]:
             if isinstance(d, bool) and not isinstance(x, bool):
                 raise ConfigError(f"{where}.{k}", f"expects true or false, got {x!r}")
             if isinstance(d, (int, float)) and not isinstance(d, bool) and (
-                isinstance(x, bool) or not isinstance(x, (int, float))
+                isinstance(x, bool) or not isinstance(x, (int, float)) or (math.isfinite(d) and not math.isfinite(x))
             ):
-                raise ConfigError(f"{where}.{k}", f"expects a number (default {d!r}), got {x!r}")
+                raise ConfigError(f"{where}.{k}", f"expects a finite number (default {d!r}), got {x!r}")
 
 
 def resolve_data_path(path: str, base: Path | None = None) -> Path:
@@ -510,6 +510,8 @@ def parse_config(
     _check_keys(raw, {"run", "datasets", "corruptions", "tasks"}, "", ("datasets", "tasks"))
     run = _check_keys(raw.get("run", {}), {"name", "random_state", "description"}, "run")
     random_state = _int(run.get("random_state", 0), "run.random_state")
+    if random_state > 2**32 - 1:  # every plugin's seed
+        raise ConfigError("run.random_state", f"must be at most 2**32 - 1, got {random_state}")
     name = _str(run["name"], "run.name") if "name" in run else (Path(source).stem if source else "run")
     if "description" in run and not isinstance(run["description"], str):
         raise ConfigError("run.description", f"must be a string, got {run['description']!r}")
@@ -637,9 +639,10 @@ def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dic
                 )
                 raise ConfigError(f"{w}.path", f"dataset folder not found: {p} ({how})")
             path = str(p)
+        _check_kinds(params, DATASET_KINDS[kind], f"{w}.params", grid=False)
         try:
             refs = open_dataset(kind, path, **params)
-        except ToolkitError as exc:
+        except (ToolkitError, ValueError, TypeError) as exc:
             raise ConfigError(f"{w}.params" if params else f"{w}.path", str(exc)) from None
         if not refs:
             raise ConfigError(f"{w}.path", f"no items found in {path}")
