@@ -137,6 +137,19 @@ def test_report_refuses_an_index_html_it_did_not_write(run, tmp_path, capsys):
         write_report(run, output=out / "index.html", renders=0)
 
 
+def test_a_report_of_before_the_manifest_is_replaced_and_its_figures_kept(run):
+    """A report folder written by an older version (no manifest): its page is recognised and
+    replaced; its figures cannot be told from a user's, so they stay."""
+    old = run / "report"
+    (old / "figures").mkdir(parents=True)
+    (old / "index.html").write_text("<!DOCTYPE html><html><head><meta charset='utf-8'><title>x</title>"
+                                    "<style></style></head><body><h1>Benchmark report: x</h1></body></html>")
+    (old / "figures" / "00-seg-cost.png").write_bytes(b"old figure")
+    res = write_report(run, renders=0)
+    assert "Benchmark report: hardening" in res["html"].read_text()
+    assert (old / "figures" / "00-seg-cost.png").read_bytes() == b"old figure"
+
+
 def test_bench_run_report_checks_the_report_folder_before_the_run(tmp_path, capsys):
     run = tmp_path / "run"
     (run / "report").mkdir(parents=True)
