@@ -250,9 +250,10 @@ def coerce_constraints(value: Any, n_vertices: int) -> Constraints | None:
 def constraint_report(labels: np.ndarray, constraints: Constraints) -> dict[str, Any]:
     """How many of ``constraints`` the vertex ``labels`` ``(n,)`` keep: counts of must-links (same
     segment) and cannot-links (different segments), the number of clicked parts (groups of vertices
-    joined by must-links; cannot-link ends on their own are not parts) and of segments, and ``reason`` (None when every constraint is kept): why
-    some could not be, when the labels show it (fewer segments than clicked parts that must be
-    apart), else that the method does not enforce them."""
+    joined by must-links; cannot-link ends on their own are not parts) and of segments, and
+    ``reason`` (None when every constraint is kept): why some could not be, when the labels show it
+    (fewer segments than clicked parts that must be apart), else that the method does not enforce
+    them."""
     labels = np.asarray(labels)
     ml, cl = constraints.must_link, constraints.cannot_link
     must_broken = int(np.sum(labels[ml[:, 0]] != labels[ml[:, 1]])) if len(ml) else 0
