@@ -37,6 +37,10 @@ Protocol:
 - ``glued``: the target B is ``data.corruptions.glue(B, strength=6, random_state=h)`` with ``h`` a fixed
   hash of the pair's name; the map to the glued mesh is composed with the corruption's vertex map and
   scored on the clean B.
+- ``cloud`` / ``cloud-noisy``: both shapes as point clouds of their vertices (no faces), with Gaussian
+  noise of 0 / 0.5 % of the bounding-box diagonal (seeded by the pair's name); the vertex map is scored on
+  the clean mesh B as above. pyFM's pipeline needs meshes: no peer row; the mesh rows of the same pairs
+  (sets ``tosca`` and ``faust``) are the reference ("x mesh" in the report).
 - Time: from two loaded meshes to the vertex map, spectra included (the toolkit's spectrum and side
   caches are cleared before every call; pyFM computes its own). CPU (``time.process_time``) and wall
   time per pair, one BLAS thread (read back with threadpoolctl and written in the report). The
@@ -66,7 +70,11 @@ sys.path.insert(0, str(REPO))
 RESULTS = REPO / "benchmarks" / "results"
 RAW = RESULTS / "matching_field.jsonl"
 REPORT = RESULTS / "matching_field.md"
-SETS = {"tosca": "tosca5k", "faust": "faust5k", "noniso": "tosca_noniso", "glued": "tosca5k+faust5k"}
+SETS = {"tosca": "tosca5k", "faust": "faust5k", "noniso": "tosca_noniso", "glued": "tosca5k+faust5k",
+        "cloud": "tosca5k+faust5k", "cloud-noisy": "tosca5k+faust5k"}
+#: point-cloud sets: both shapes as clouds of their vertices (no faces), with Gaussian noise of this
+#: fraction of the bounding-box diagonal; scored on the meshes they came from
+CLOUD_NOISE = {"cloud": 0.0, "cloud-noisy": 0.005}
 PUBLISHED = ("BIM", "BCICP")
 METHODS = ["zoomout", "shells", "auto", "topo-robust", "pyfm", *PUBLISHED]
 GLUE_CONTACTS = 6
@@ -140,6 +148,8 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
         todo = [m for m in methods if (s, f"{a}-{b}", m) not in done]
         if s != "noniso":
             todo = [m for m in todo if m not in PUBLISHED]
+        if s in CLOUD_NOISE:  # pyFM's pipeline needs meshes
+            todo = [m for m in todo if m != "pyfm"]
         if not todo:
             continue
         root = data / ds
@@ -149,6 +159,23 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
             h = int(hashlib.sha256(f"{a}-{b}".encode()).hexdigest(), 16) % 2**31
             Bm, vmap = glue(B, strength=GLUE_CONTACTS, random_state=h)
             vmap = np.asarray(vmap)
+        Ain = A
+        if s in CLOUD_NOISE:
+            from shape_toolkit.core.shape import Shape
+
+            rng = np.random.default_rng(int(hashlib.sha256(f"{a}-{b}".encode()).hexdigest(), 16) % 2**31)
+            # coincident vertices (a few FAUST meshes have some) are one point of the cloud: a cloud
+            # Laplacian refuses duplicates; the map is expanded back to every vertex
+            _, first_a, inv_a = np.unique(A.vertices, axis=0, return_index=True, return_inverse=True)
+            first_b = np.unique(B.vertices, axis=0, return_index=True)[1]
+            order_a, order_b = np.sort(first_a), np.sort(first_b)  # cloud point j is vertex order[j]
+            Ain, Bm = (Shape(S.vertices[o] + CLOUD_NOISE[s] * float(np.linalg.norm(np.ptp(S.vertices, axis=0)))
+                             * rng.standard_normal((len(o), 3)), None, name=f"{S.name}-cloud")
+                       for S, o in ((A, order_a), (B, order_b)))
+            pos_a = np.empty(len(first_a), np.int64)  # unique row -> its cloud point
+            pos_a[np.argsort(first_a)] = np.arange(len(first_a))
+            src_of_vertex = pos_a[inv_a.ravel()]  # mesh vertex of A -> its cloud point
+            vmap = order_b  # a target cloud point -> its mesh vertex
         maps, times, infos = {}, {}, {}
         for m in todo:
             if m in PUBLISHED:
@@ -162,8 +189,10 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
             if m == "pyfm":
                 t = pyfm_map(A, Bm)
             else:
-                corr = pipes[m].run(A, Bm)
+                corr = pipes[m].run(Ain, Bm)
                 t = corr.target_of
+                if s in CLOUD_NOISE:  # every mesh vertex: the image of its cloud point
+                    t = np.asarray(t)[src_of_vertex]
                 infos[m] = {k: corr.info[k] for k in ("orientation",) if k in corr.info}
             times[m] = (time.process_time() - c0, time.perf_counter() - w0)
             maps[m] = vmap[np.asarray(t, dtype=np.int64)]
@@ -246,6 +275,23 @@ def write_report() -> str:
                     f"{sum(flips) if flips else 'n/a'} | {worst['pair']} {worst['mean']:.3f} | "
                     f"{_fmt(float(np.mean(cpu)) if cpu else None, '.1f')} | "
                     f"{_fmt(float(np.mean(wall)) if wall else None, '.1f')} |")
+        out.append("")
+    clouds = [r for r in rows if r["set"] in CLOUD_NOISE and r["split"] == "report"]
+    if clouds:
+        mesh = {(r["pair"], r["method"]): r["mean"] for r in rows if r["set"] in ("tosca", "faust")}
+        out += ["## Point clouds against the meshes of the same pairs (report half)", "",
+                "Same pairs and method on meshes (sets tosca and faust) as the reference; target: <= 1.3x.", "",
+                "| set | method | pairs | mean error (cloud) | mean error (mesh) | x mesh | worst pair |",
+                "|---|---|---|---|---|---|---|"]
+        for s in CLOUD_NOISE:
+            for m in dict.fromkeys(r["method"] for r in clouds if r["set"] == s):
+                rs = [r for r in clouds if r["set"] == s and r["method"] == m and (r["pair"], m) in mesh]
+                if not rs:
+                    continue
+                c, ms = float(np.mean([r["mean"] for r in rs])), float(np.mean([mesh[(r["pair"], m)] for r in rs]))
+                worst = max(rs, key=lambda r: r["mean"])
+                out.append(f"| {s} | {m} | {len(rs)} | {c:.4f} | {ms:.4f} | {c / ms:.2f} | "
+                           f"{worst['pair']} {worst['mean']:.3f} |")
         out.append("")
     out += ["## Every pair", "", "| set | split | pair | method | error | sym-aware | flipped | CPU s | wall s |",
             "|---|---|---|---|---|---|---|---|---|"]

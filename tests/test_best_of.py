@@ -76,11 +76,15 @@ def test_a_cloud_is_left_to_the_matchers_that_take_it(poses):
 
     a, b = poses
     cloud = Shape(np.asarray(b.vertices))
-    corr = run_pipeline("auto", a, cloud)
-    assert corr.info["chosen"] == "shell-alignment" and corr.info["skipped"][0]["matcher"] == "fmap-zoomout"
+    corr = run_pipeline("auto", a, cloud)  # both take clouds (zoomout on the cloud's local surface)
+    assert not corr.info.get("skipped")
     assert _error(b, corr.target_of) < 0.1
+    seeds = np.array([[i, i] for i in (0, 40, 80, 120)])  # the poses share their vertex order
+    both = create_plugin("dense_matchers", "best-of", matchers=["seed-growing", "fmap-zoomout"]).match(
+        a, cloud, seeds=seeds)
+    assert both.info["chosen"] == "fmap-zoomout" and both.info["skipped"][0]["matcher"] == "seed-growing"
     with pytest.raises(InvalidShapeError, match="needs a triangle mesh"):
-        create_plugin("dense_matchers", "best-of", matchers=["fmap-zoomout"]).match(a, cloud)
+        create_plugin("dense_matchers", "best-of", matchers=["seed-growing"]).match(a, cloud, seeds=seeds)
 
 
 def test_bad_pairs_exit_2_with_one_line(poses, capsys, tmp_path):

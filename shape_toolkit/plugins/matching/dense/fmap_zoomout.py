@@ -31,6 +31,7 @@ from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
+from shape_toolkit.core.surface import cloud_surface
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.descriptors.wks import wave_kernel_signature as _wks
 from shape_toolkit.plugins.matching._common import (  # noqa: F401  (farthest_point_sampling: re-exported)
@@ -435,8 +436,9 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         final functional map ``(k, k)`` pulling target functions back to the source.
         ``progress`` (optional) receives one message per stage and per ZoomOut iteration."""
         self._check()
-        source.require_faces("fmap-zoomout")
-        target.require_faces("fmap-zoomout")
+        # point clouds: the spectrum is the point-cloud Laplacian (SpectrumSpec.for_shape), and the
+        # orientation term is formed on the cloud's local surface (core.surface.cloud_surface)
+        meshes = source.is_mesh and target.is_mesh
         seeds = check_seeds(seeds, source.n_vertices, target.n_vertices)
         k_final = int(min(self._k_final(), source.n_vertices - 1, target.n_vertices - 1))
         spec_s = self._spectrum(source, source_spectrum)
@@ -486,8 +488,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 if self.orientation != "none" and any(float(h.get("w_orient", self.w_orient)) > 0 for h in hyps):
                     # the operators of the largest k of the band: fit_functional_map uses their leading blocks
                     k_max = max(int(min(h.get("k", self.k), k_final)) for h in hyps)
-                    Os = orientation_operators(source, bs, k_max, ds)
-                    Ot = orientation_operators(target, bt, k_max, dt)
+                    Os = orientation_operators(cloud_surface(source), bs, k_max, ds)
+                    Ot = orientation_operators(cloud_surface(target), bt, k_max, dt)
                     if self.orientation == "reversing":
                         Ot = -Ot
                 prepared[band] = (ds, dt, Os, Ot)
@@ -512,6 +514,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
             cols = farthest_point_sampling(np.asarray(target.vertices), int(self.zoomout_samples))
         fits = [fit(h) for h in hyps]
         info: dict = {"k_final": k_final}
+        if not meshes:
+            info["orientation_term"] = "on the local surface of the point cloud(s) (core.surface.cloud_surface)"
         chosen = 0
         if len(fits) > 1:
             # each hypothesis refined on farthest-point samples of the source, in steps twice as large
