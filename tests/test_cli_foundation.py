@@ -84,30 +84,52 @@ def _bad_files(d: Path) -> dict[str, tuple[Path, str]]:
     return files
 
 
-def test_every_bad_input_is_one_line_and_nonzero(tmp_path):
-    for case, (path, needle) in _bad_files(tmp_path).items():
-        r = run_cli("spectrum", str(path), "-k", "3")
-        assert r.returncode == 2, (case, r.stdout, r.stderr)
-        lines = r.stderr.strip().splitlines()
-        assert len(lines) == 1 and "Traceback" not in r.stderr, (case, r.stderr)
-        assert str(path.name) in lines[0], (case, lines[0])
-        assert needle.lower() in lines[0].lower(), (case, lines[0])
+def _slow_but(fast: tuple[str, ...], cases: tuple[str, ...]) -> list:
+    """The cases as parameters, all but ``fast`` marked slow: each is a Python process of its own (a second
+    or two), and tests/test_adversarial.py makes the same rejections in process."""
+    return [c if c in fast else pytest.param(c, marks=pytest.mark.slow) for c in cases]
 
 
-def test_parameter_and_plugin_errors_are_one_line(sphere_file, tmp_path):
-    cases = [
-        (["spectrum", str(sphere_file), "-k", "0"], "k must be"),
-        (["spectrum", str(sphere_file), "--weighting", "nope"], "available: binary"),
-        (["spectrum", str(sphere_file), "--param", "sigma=1", "--weighting", "gaussian"], "no parameter"),
-        (["spectrum", str(sphere_file), "--param", "oops"], "KEY=VALUE"),
-        (["spectrum", str(sphere_file), "-o", str(tmp_path / "x.txt")], ".npz"),
-        (["spectrum", str(sphere_file), "--laplacian", "bogus"], "invalid choice"),
-        (["nonexistent-command"], "invalid choice"),
-    ]
-    for args, needle in cases:
-        r = run_cli(*args)
-        assert r.returncode == 2, (args, r.stderr)
-        assert len(r.stderr.strip().splitlines()) == 1 and needle in r.stderr, (args, r.stderr)
+BAD_FILES = ("missing", "directory", "unknown format", "truncated", "malformed", "empty", "nan",
+             "index out of range", "not a triangle")
+
+
+@pytest.mark.parametrize("case", _slow_but(("malformed",), BAD_FILES))
+def test_every_bad_input_is_one_line_and_nonzero(tmp_path, case):
+    files = _bad_files(tmp_path)
+    assert set(files) == set(BAD_FILES)
+    path, needle = files[case]
+    r = run_cli("spectrum", str(path), "-k", "3")
+    assert r.returncode == 2, (case, r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.stderr, (case, r.stderr)
+    assert str(path.name) in lines[0], (case, lines[0])
+    assert needle.lower() in lines[0].lower(), (case, lines[0])
+
+
+def _parameter_errors(sphere_file: Path, tmp_path: Path) -> dict[str, tuple[list[str], str]]:
+    return {
+        "k": (["spectrum", str(sphere_file), "-k", "0"], "k must be"),
+        "plugin": (["spectrum", str(sphere_file), "--weighting", "nope"], "available: binary"),
+        "parameter": (["spectrum", str(sphere_file), "--param", "sigma=1", "--weighting", "gaussian"], "no parameter"),
+        "key=value": (["spectrum", str(sphere_file), "--param", "oops"], "KEY=VALUE"),
+        "suffix": (["spectrum", str(sphere_file), "-o", str(tmp_path / "x.txt")], ".npz"),
+        "choice": (["spectrum", str(sphere_file), "--laplacian", "bogus"], "invalid choice"),
+        "command": (["nonexistent-command"], "invalid choice"),
+    }
+
+
+PARAMETER_ERRORS = ("k", "plugin", "parameter", "key=value", "suffix", "choice", "command")
+
+
+@pytest.mark.parametrize("case", _slow_but(("k", "plugin"), PARAMETER_ERRORS))
+def test_parameter_and_plugin_errors_are_one_line(sphere_file, tmp_path, case):
+    cases = _parameter_errors(sphere_file, tmp_path)
+    assert set(cases) == set(PARAMETER_ERRORS)
+    args, needle = cases[case]
+    r = run_cli(*args)
+    assert r.returncode == 2, (args, r.stderr)
+    assert len(r.stderr.strip().splitlines()) == 1 and needle in r.stderr, (args, r.stderr)
 
 
 def test_disconnected_mesh_is_refused_then_analysed(tmp_path):

@@ -396,6 +396,7 @@ def test_photometric_seed_precision_on_a_textured_pair(textured_pair):
         PhotometricMatcher(refine_rings=-1).match(A, G, kpa, kpg)
 
 
+@pytest.mark.slow  # the whole topo-robust-photometric chain; the photometric matcher has fast tests above
 def test_pipeline_with_photometric_seeds(textured_pair):
     """The preset runs with colour seeds taken from the shapes. One contact: with three, the dense
     chain after the seeds (seed growing, EM) fails on this planar toy even from exact seeds."""

@@ -483,7 +483,7 @@ def test_largest_cluster_counts_equal_neighbours():
     assert _largest_cluster(np.array([3.0]), 1e-8, 0.0) == 1
 
 
-@pytest.mark.parametrize("k", [9, 25])
+@pytest.mark.parametrize("k", [9, pytest.param(25, marks=pytest.mark.slow)])
 def test_default_block_escalates_until_every_copy_of_a_round_sphere_cluster_is_found(sphere, k):
     """k = 9 / 25 end on the l = 2 / l = 4 cluster (5 / 9 copies; on the icosphere the icosahedral symmetry
     keeps l = 2 exactly 5-fold and splits l = 4 into exact 4 + 5): a cluster as large as the default block

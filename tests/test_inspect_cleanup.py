@@ -259,6 +259,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
     )  # fmt: skip
 
 
+@pytest.mark.slow  # six Python processes; info and clean run in process in tests/test_adversarial.py
 def test_cli_info_and_clean(sphere, tmp_mesh_dir):
     dirty, want = _dirty(sphere)
     src = tmp_mesh_dir / "dirty.off"

@@ -39,6 +39,7 @@ def test_transfer_through_identity_keeps_labels(shapes):
     assert s["recall"] == 1.0 and s["precision"] == 1.0
 
 
+@pytest.mark.slow  # EM registration on 2.5k vertices; the unsupervised route stays in the fast run
 def test_label_transfer_with_seeds_is_exact(shapes):
     a, b = shapes
     s = np.random.default_rng(0).choice(a.shape.n_vertices, 30, replace=False)
@@ -65,6 +66,7 @@ def test_label_transfer_errors(shapes):
         probabilistic_label_transfer(a.shape, -np.ones(a.shape.n_vertices, int), b.shape)
 
 
+@pytest.mark.slow  # two Python processes; transfer-labels runs in process in tests/test_cli_commands.py
 def test_cli_transfer_labels(shapes, tmp_path):
     a, b = shapes
     save_shape(a.shape, tmp_path / "a.off")

@@ -311,6 +311,7 @@ def _cli(*args, cwd=None):
                           text=True, cwd=cwd or REPO)
 
 
+@pytest.mark.slow  # five Python processes; match and evaluate-map run in process in tests/test_cli_commands.py
 def test_cli_match_and_evaluate(small_pair, tmp_path):
     A, B, d = small_pair
     for name in ("a.off", "b.off"):

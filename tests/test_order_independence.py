@@ -64,7 +64,9 @@ def _sparse_names():
     return st.available_plugins()["sparse_matchers"]
 
 
-@pytest.mark.parametrize("name", _dense_names())
+# best-of runs every other dense matcher, each checked on its own: slow
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "best-of" else n
+                                  for n in _dense_names()])
 def test_dense_matchers_are_vertex_order_independent(pair, name):
     a, b, pa, pb, perm_a, inv_a, perm_b, inv_b, seeds = pair
     plugin = st.create_plugin("dense_matchers", name)

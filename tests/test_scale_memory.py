@@ -103,6 +103,9 @@ def em_child() -> dict:
     return _run_child("em")
 
 
+# the 23k-vertex pair and the memory-growth runs take a minute or more: slow; the sampled and chunked paths
+# keep fast tests below
+@pytest.mark.slow
 def test_em_registration_memory_is_linear_on_a_23k_pair(em_child):
     r = em_child
     assert r["n"] == r["m"] == 23042
@@ -114,6 +117,7 @@ def test_em_registration_memory_is_linear_on_a_23k_pair(em_child):
     assert r["orientation"] > 0.5  # the refined map scored for orientation: not mirrored
 
 
+@pytest.mark.slow
 def test_em_registration_work_is_linear_on_a_23k_pair(em_child):
     """The nearest-neighbour work (queries x points) in high dimension, where a KD-tree degrades to
     a brute force (the orientation refinement to 30 dimensions), stays linear: at most
@@ -131,6 +135,7 @@ def test_em_registration_work_is_linear_on_a_23k_pair(em_child):
     assert work < n * m  # fails on the old code (6 n m)
 
 
+@pytest.mark.slow
 def test_seed_growing_memory_is_linear_on_a_23k_pair():
     r = _run_child("seed")
     # measured ~60 MB (the keypoint descriptors, n x M x tau, and the 2-rings)
@@ -196,6 +201,7 @@ def test_em_register_sampled_path(pair):
     np.testing.assert_array_equal(again[0], Q3)  # deterministic given random_state
 
 
+@pytest.mark.slow
 def test_em_matcher_sampled_equals_plain_on_a_small_pair(pair):
     A, B, seeds = pair
     plain = create_plugin("dense_matchers", "em-registration", max_samples=None, refine_samples=None)
@@ -275,6 +281,7 @@ def _traced_peak_mb(which: str, s: int) -> tuple[int, float]:
     return A.n_vertices, peak / 2**20
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["seed-growing", "em-registration"])
 def test_matcher_memory_grows_linearly(which):
     """Peak traced memory of a whole ``match`` at 2,562 and 10,242 vertices (4x): linear growth gives

@@ -19,6 +19,8 @@ import pytest
 
 _SWEEP = Path(__file__).resolve().parent.parent / "benchmarks" / "sweep.py"
 SHAPES = ("tosca5k/dog0", "faust5k/tr_reg_000", "psb/188")
+#: a minute of real data in a subprocess; the weightings, keypoints and descriptors have fast tests of their own
+pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")

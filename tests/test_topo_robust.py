@@ -417,6 +417,7 @@ def test_photometric_matcher(pair):
 
 
 # -- one real pair (skips without the shared data) -------------------------------------------------------
+@pytest.mark.slow
 def test_tosca_pair_sharma2012_not_flipped(shared_data):
     from shape_toolkit.data.datasets import read_vts
     from shape_toolkit.io.mesh import load_shape
