@@ -429,3 +429,22 @@ def test_a_planted_cache_file_is_validated_not_trusted(tmp_path, sphere):
     finally:
         spm.set_cache_dir(None)
         spm.clear_cache()
+
+
+def test_a_flat_triangle_is_left_out_of_the_cotangent_weights():
+    """A zero-area face (one vertex on the opposite edge, as a remesher left on a 100k scan) has no
+    defined cotangent stiffness: with it in, weights reached 5e8 and the eigensolver crawled for
+    minutes. It is left out, and the spectrum stays that of the surface."""
+    from shape_toolkit.data.generate import icosphere
+
+    sphere = icosphere(3)
+    v, f = np.array(sphere.vertices), np.array(sphere.faces)
+    a, b, c = f[0]
+    v[c] = (v[a] + v[b]) / 2  # face 0 is now a segment
+    flat = Shape(v, f, "flat")
+    g = build_graph(flat, "cotangent")
+    assert g.info["degenerate_faces_skipped"] == 1
+    assert np.abs(g.W.data).max() < 1e3
+    vals = compute_spectrum(g, 10).eigenvalues
+    ref = compute_spectrum(build_graph(sphere, "cotangent"), 10).eigenvalues
+    np.testing.assert_allclose(vals[1:4], ref[1:4], rtol=0.05)  # l(l+1) = 2 on the unit sphere, nearly

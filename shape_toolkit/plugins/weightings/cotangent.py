@@ -17,7 +17,14 @@ class CotangentWeighting(Weighting):
     The factor 1/2 is libigl's convention; with it ``L u = lambda M u`` approximates the
     Laplace-Beltrami eigenvalues (``l(l+1)`` on the unit sphere). Obtuse triangles give negative
     weights: they are counted in ``info['negative_weights']`` and set to zero when ``clamp_negative``.
+    A numerically flat triangle (area below ``DEGENERATE`` times its longest edge squared: its
+    cotangents exceed about 10^8) has no defined stiffness, and one made the eigensolver crawl for
+    minutes on a remeshed scan: such faces are left out of the weights and the mass
+    (``info['degenerate_faces_skipped']``).
     """
+
+    #: a face whose area is below this times its longest edge squared is numerically a segment
+    DEGENERATE = 1e-8
 
     needs_faces = True
     #: builds its edges from the triangles: the graph's connectivity must be the mesh's
@@ -29,6 +36,10 @@ class CotangentWeighting(Weighting):
     def weigh(self, shape: Shape, edges: np.ndarray) -> Weights:
         """Cotangent weights and Voronoi vertex areas of a triangle mesh (``edges`` unused)."""
         v, f = shape.vertices, shape.require_faces("cotangent weights")
+        e2 = np.stack([((v[f[:, a]] - v[f[:, b]]) ** 2).sum(axis=1) for a, b in ((0, 1), (1, 2), (2, 0))], axis=1)
+        flat = np.asarray(shape.face_areas) < self.DEGENERATE * e2.max(axis=1)
+        if flat.any():
+            f = f[~flat]
         C = sp.csr_matrix(igl.cotmatrix(v, f))
         W = C - sp.diags(C.diagonal())
         W.eliminate_zeros()
@@ -38,7 +49,8 @@ class CotangentWeighting(Weighting):
             W.data[W.data < 0] = 0.0
             W.eliminate_zeros()
         mass = sp.csr_matrix(igl.massmatrix(v, f, igl.MASSMATRIX_TYPE_VORONOI)).diagonal()
-        info = {"negative_weights": negative, "clamped": bool(self.clamp_negative and negative)}
+        info = {"negative_weights": negative, "clamped": bool(self.clamp_negative and negative),
+                "degenerate_faces_skipped": int(flat.sum())}
         return Weights(W, np.asarray(mass, dtype=np.float64), info)
 
 
