@@ -38,6 +38,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, merge_specs
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.plugins.matching._common import orientation_verdict, paired_descriptors
+from shape_toolkit.plugins.matching.multires import PROXY_VERTICES
 from shape_toolkit.results.correspondence import Correspondence, read_seeds
 from shape_toolkit.validation import check_seeds
 
@@ -207,6 +208,7 @@ class Pipeline:
         *,
         spectra: dict[str, Sequence[Spectrum]] | None = None,
         progress: Callable[[str], None] | None = None,
+        proxy: int | None = PROXY_VERTICES,
     ) -> Correspondence:
         """Run the stages on ``source`` -> ``target``; ``seeds`` ``(q, 2)`` replace the keypoint and
         sparse stages. ``spectra`` ``{"source": [...], "target": [...]}`` holds the spectra of
@@ -215,8 +217,13 @@ class Pipeline:
         spectra each stage declared and received; ``info['orientation']`` whether the final map keeps
         orientation (:func:`~shape_toolkit.plugins.matching._common.orientation_verdict`: ``preserving``,
         ``reversing`` for a mirror image, or ``undecided``). ``progress(message)`` hears each stage, and the
-        iterations of a stage plugin whose ``match`` takes ``progress=(done, total)``."""
+        iterations of a stage plugin whose ``match`` takes ``progress=(done, total)``. Shapes of more
+        than 1.5 ``proxy`` vertices (None or 0: never) are matched through proxies of ``proxy`` vertices
+        and the map lifted to full resolution (:mod:`~shape_toolkit.plugins.matching.multires`;
+        ``info['proxy']``), unless ``spectra`` are given."""
         say = progress or (lambda _msg: None)
+        if proxy and spectra is None and max(source.n_vertices, target.n_vertices) > 1.5 * proxy:
+            return self._run_through_proxies(source, target, seeds, int(proxy), say)
         timings: dict[str, float] = {}
         info: dict[str, Any] = {"pipeline": self.name}
         plugins = self.plugins()
@@ -306,6 +313,40 @@ class Pipeline:
         merged = dict(corr.info)
         merged.update(info)
         return Correspondence(corr.target_of, corr.n_target, corr.confidence, corr.posteriors, merged)
+
+
+    def _run_through_proxies(self, source: Shape, target: Shape, seeds: np.ndarray | None, proxy: int,
+                             say: Callable[[str], None]) -> Correspondence:
+        """:meth:`run` on proxies of ``proxy`` vertices, the map lifted to the full shapes."""
+        from scipy.spatial import cKDTree
+
+        from shape_toolkit.plugins.matching.multires import lift_map, make_proxy
+
+        t0 = time.perf_counter()
+        say(f"{self.name}: proxies of {proxy} vertices")
+        ps, ids_s = make_proxy(source, proxy) if source.n_vertices > 1.5 * proxy else (source, None)
+        pt, ids_t = make_proxy(target, proxy) if target.n_vertices > 1.5 * proxy else (target, None)
+        ids_s = np.arange(source.n_vertices) if ids_s is None else ids_s
+        ids_t = np.arange(target.n_vertices) if ids_t is None else ids_t
+        t_proxy = time.perf_counter() - t0
+        pseeds = None
+        if seeds is not None:  # each seed end moves to its nearest proxy vertex
+            seeds = check_seeds(seeds, source.n_vertices, target.n_vertices, allow_empty=False)
+            ns = cKDTree(np.asarray(source.vertices)[ids_s]).query(np.asarray(source.vertices)[seeds[:, 0]])[1]
+            nt = cKDTree(np.asarray(target.vertices)[ids_t]).query(np.asarray(target.vertices)[seeds[:, 1]])[1]
+            pseeds = np.column_stack([ns, nt]).astype(np.int64)
+        inner = self.run(ps, pt, pseeds, progress=say, proxy=None)
+        say(f"{self.name}: lifting the proxy map to {source.n_vertices} and {target.n_vertices} vertices")
+        t1 = time.perf_counter()
+        full, lift = lift_map(source, target, ids_s, ids_t, inner.target_of)
+        t_lift = time.perf_counter() - t1
+        info = {k: v for k, v in inner.info.items() if k not in ("orientation", "timings", "seconds")}
+        info["proxy"] = {**lift, "proxy_orientation": inner.info.get("orientation")}
+        info["orientation"] = orientation_verdict(source, target, full)
+        timings = {"proxies": t_proxy, **{f"proxy {k}": v for k, v in inner.info.get("timings", {}).items()},
+                   "lift": t_lift}
+        info["timings"], info["seconds"] = timings, float(sum(timings.values()))
+        return Correspondence(full, target.n_vertices, info=info)
 
 
 def _declared(plugins: dict[str, Any]) -> dict[str, list[SpectrumSpec]]:
