@@ -608,12 +608,32 @@ def build(folder: Path, *, commands: tuple[str, ...] | None = None) -> list[Run]
     return runs
 
 
+def is_transient(run: Run) -> bool:
+    """A run the machine stopped, not the input: exit 3, the CLI's code for a process killed or out of
+    memory (on a shared machine another process's memory use can push any run over)."""
+    return run.verdict == "failure" and run.code == 3 and "out of memory" in run.stderr
+
+
+def retry_transient(runs: list[Run], timeout: float, cwd: Path) -> list[tuple[str, str]]:
+    """Run each transient failure (:func:`is_transient`) once more, alone; its second verdict stands.
+    Returns ``[(case, first why)]`` for the report, which lists them."""
+    retried = []
+    for r in runs:
+        if is_transient(r):
+            first = r.why
+            execute(r, timeout, cwd)
+            print(f"retried {r.case}: {r.verdict} {r.why}", flush=True)
+            retried.append((r.case, first))
+    return retried
+
+
 def _md(text: str) -> str:
     """``text`` on one markdown line: control characters and backticks escaped."""
     return text.encode("unicode_escape").decode("ascii").replace("`", "'")
 
 
-def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS) -> str:
+def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS,
+           retried: list[tuple[str, str]] = ()) -> str:
     counts = Counter(r.verdict for r in runs)
     by_cmd: dict[str, Counter] = {}
     for r in runs:
@@ -632,6 +652,8 @@ def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS) 
         f"{counts['success']}",
         f"- **failure** (traceback, internal error, other exit code, hang, invalid JSON, null metric, a second "
         f"stderr line): {counts['failure']}",
+        f"- retried once after the machine stopped them (exit 3, out of memory while other processes ran; the "
+        f"second verdict counts, see below): {len(retried)}",
         "",
         "| command | rejected | success | failure |",
         "|---|---|---|---|",
@@ -640,8 +662,12 @@ def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS) 
         c = by_cmd[cmd]
         lines.append(f"| {cmd} | {c['rejected']} | {c['success']} | {c['failure']} |")
     fails = [r for r in runs if r.verdict == "failure"]
+    verdict = {r.case: r.verdict for r in runs}
     lines += ["", "## Failures", ""]
     lines += [f"- `{_md(r.case)}`: {_md(r.why)}" for r in fails] or ["none"]
+    if retried:
+        lines += ["", "## Retried (stopped by the machine on the first pass: exit 3, out of memory)", ""]
+        lines += [f"- `{_md(case)}` (first pass: {_md(why)}): now {verdict[case]}" for case, why in retried]
     lines += ["", "## Successes (accepted inputs)", ""]
     lines += [f"- `{_md(r.case)}`" for r in runs if r.verdict == "success"]
     text = "\n".join(lines) + "\n"
@@ -677,7 +703,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"[{done}/{len(runs)}] FAILURE {r.case}: {r.why}", flush=True)
             elif done % 50 == 0:
                 print(f"[{done}/{len(runs)}] ...", flush=True)
-    text = report(runs, n_files, time.perf_counter() - t0, Path(args.report))
+    retried = retry_transient(runs, args.timeout, folder / "out")
+    text = report(runs, n_files, time.perf_counter() - t0, Path(args.report), retried=retried)
     print(text.split("## Failures")[0])
     return 1 if any(r.verdict == "failure" for r in runs) else 0
 

@@ -127,3 +127,7 @@ def test_classify():
     assert corpus.classify(R("a", [], code=2, stderr="x: internal error: boom\n")).verdict == "failure"
     assert corpus.classify(R("a", [], code=1, stderr="internal error")).verdict == "failure"
     assert corpus.classify(R("a", [], code=None)).verdict == "failure"
+    # exit 3 out of memory is the machine's doing (another process's memory): retried once, not a verdict on the input
+    oom = corpus.classify(R("a", [], code=3, stderr="x: error: out of memory; reduce the memory needed\n"))
+    assert oom.verdict == "failure" and corpus.is_transient(oom)
+    assert not corpus.is_transient(corpus.classify(R("a", [], code=1, stderr="x: internal error: boom\n")))
