@@ -408,3 +408,35 @@ def test_control_characters_in_names_keep_errors_on_one_line(tmp_path, capsys, m
     for args, needle in cases:
         code, out, err = _cli(capsys, *args, "--json")
         _one_line_rejection(code, out, err, needle)
+
+
+def test_cotangent_weights_of_a_mesh_with_only_flat_faces_are_refused_within_bounded_memory():
+    """Every face flat (collinear vertices, repeated indices): the weighting left them all out and handed
+    libigl no face, whose mass matrix asked for gigabytes (11 GB peak; std::bad_alloc, or the OOM killer).
+    Run in a child limited to 2 GB of address space, so a regression cannot take the machine down."""
+    import resource
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np\n"
+        "from shape_toolkit.core.shape import Shape\n"
+        "from shape_toolkit.core.graph import build_graph\n"
+        "from shape_toolkit.errors import InvalidShapeError\n"
+        "for v, f in (([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]]),\n"
+        "             ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 1, 2]])):\n"
+        "    try:\n"
+        "        build_graph(Shape(np.array(v, float), np.array(f)), 'cotangent')\n"
+        "    except InvalidShapeError as e:\n"
+        "        assert 'numerically flat' in str(e), e\n"
+        "    else:\n"
+        "        raise SystemExit('accepted')\n"
+        "print('ok')\n"
+    )
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (2 * 1024**3, 2 * 1024**3))
+
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, preexec_fn=limit,
+                       env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"})
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-500:]

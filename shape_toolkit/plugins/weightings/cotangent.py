@@ -9,6 +9,7 @@ import scipy.sparse as sp
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Weighting, Weights
 from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import InvalidShapeError
 
 
 class CotangentWeighting(Weighting):
@@ -40,6 +41,12 @@ class CotangentWeighting(Weighting):
         flat = np.asarray(shape.face_areas) < self.DEGENERATE * e2.max(axis=1)
         if flat.any():
             f = f[~flat]
+        if len(f) == 0:  # libigl's mass matrix of no face asks for gigabytes (std::bad_alloc, or the OOM killer)
+            raise InvalidShapeError(
+                f"every face of {shape!r} is numerically flat (zero area: collinear or coincident vertices), so "
+                "cotangent weights are undefined; clean the shape (shape-toolkit clean) or use a weighting on its "
+                "edges (binary, gaussian)"
+            )
         C = sp.csr_matrix(igl.cotmatrix(v, f))
         W = C - sp.diags(C.diagonal())
         W.eliminate_zeros()
