@@ -58,6 +58,7 @@ NASTY_NAMES = ("<script>alert(1)<script>", "$\\frac{a}{b}$", "\\begin{x}", "$\\f
 NULLABLE = frozenset({
     "ply", "output", "png", "gif", "ply_dir", "eigenvector", "dask", "seeds", "truth",  # outputs/inputs not asked for
     "n_constraints",  # segment without --constraints
+    "proxy",  # match: None when the shapes were matched at full resolution (no proxy, issue 29)
     "preset", "K", "times", "max_keypoints",  # parameters whose default is None, echoed as given
     "bic_curve_", "bic_monotone_",  # eigvec-gmm's BIC scan: None when k is given (no scan)
 })
@@ -633,7 +634,7 @@ def _md(text: str) -> str:
 
 
 def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS,
-           retried: list[tuple[str, str]] = ()) -> str:
+           retried: list[tuple[str, str]] = (), note: str = "") -> str:
     counts = Counter(r.verdict for r in runs)
     by_cmd: dict[str, Counter] = {}
     for r in runs:
@@ -652,8 +653,7 @@ def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS,
         f"{counts['success']}",
         f"- **failure** (traceback, internal error, other exit code, hang, invalid JSON, null metric, a second "
         f"stderr line): {counts['failure']}",
-        f"- retried once after the machine stopped them (exit 3, out of memory while other processes ran; the "
-        f"second verdict counts, see below): {len(retried)}",
+        f"- run a second time (each listed below with its first verdict; the second counts): {len(retried)}",
         "",
         "| command | rejected | success | failure |",
         "|---|---|---|---|",
@@ -666,7 +666,7 @@ def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS,
     lines += ["", "## Failures", ""]
     lines += [f"- `{_md(r.case)}`: {_md(r.why)}" for r in fails] or ["none"]
     if retried:
-        lines += ["", "## Retried (stopped by the machine on the first pass: exit 3, out of memory)", ""]
+        lines += ["", "## Run a second time", ""] + ([note, ""] if note else [])
         lines += [f"- `{_md(case)}` (first pass: {_md(why)}): now {verdict[case]}" for case, why in retried]
     lines += ["", "## Successes (accepted inputs)", ""]
     lines += [f"- `{_md(r.case)}`" for r in runs if r.verdict == "success"]
