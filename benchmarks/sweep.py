@@ -144,7 +144,8 @@ def worker_shape(name: str, timeout: float, out) -> None:
                 r = obj.detect(shape)
                 return f"{len(r)} keypoints"
             if family == "descriptors":
-                kp = create_plugin("keypoints", "adf-maxima").detect(shape) if p in KEYPOINT_DESCRIPTORS else None
+                kp = (create_plugin("keypoints", "adf-maxima", "thesis-sparse").detect(shape)  # as in its results
+                      if p in KEYPOINT_DESCRIPTORS else None)
                 r = obj.compute(shape, keypoints=kp)
                 if not np.isfinite(r).all():
                     raise ValueError("non-finite descriptor values")

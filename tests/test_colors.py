@@ -379,7 +379,7 @@ def test_photometric_seed_precision_on_a_textured_pair(textured_pair):
     """ADF keypoints matched by colour: far above what random matching reaches (a geodesic disc of
     radius 0.05 sqrt(area) covers under 1% of the surface)."""
     A, B = textured_pair
-    det = ADFMaxima(t=50.0, K=50)
+    det = ADFMaxima(t=50.0, K=50, time_scale="absolute")  # the thesis's dense setting (Table 6.1)
     kpa, kpb = det.detect(A), det.detect(B)
     P = PhotometricMatcher().match(A, B, kpa, kpb)
     assert len(P) >= 5 and len(np.unique(P[:, 1])) == len(P)  # one-to-one
