@@ -100,3 +100,25 @@ def test_geodesics_exact_stops_at_its_time_limit(tmp_path):
     assert len(proc.stderr.strip().splitlines()) == 1 and "time limit of 1 s" in proc.stderr
     assert not (tmp_path / "g.npz").exists()
     assert not [p for p in Path(tmp_path).iterdir() if p.name.startswith(".g.npz")]
+
+
+def test_an_error_message_with_newlines_is_one_line(capsys, monkeypatch):
+    """Whatever a message holds (a library's multi-line text, a name with a newline), the CLI prints
+    one line."""
+    from shape_toolkit.cli import main
+    from shape_toolkit.cli.commands import info
+    from shape_toolkit.errors import ParameterError
+
+    def boom(args):
+        raise ParameterError("first line\nsecond line\n\tthird")
+
+    monkeypatch.setenv("SHAPE_TOOLKIT_IN_PROCESS", "1")
+    monkeypatch.setattr(info, "run", boom)
+    import shape_toolkit.cli as cli
+
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    parser._subparsers._group_actions[0].choices["info"].set_defaults(func=boom)
+    assert main(["info", "x.off"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "first line second line third" in err

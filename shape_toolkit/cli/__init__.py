@@ -106,12 +106,18 @@ def _run(parser: argparse.ArgumentParser, args: argparse.Namespace, started: flo
     return _call(args)
 
 
+def _one_line(text: object) -> str:
+    """``text`` on one line: a newline in a message (from a file name, a parameter, a library) would
+    make a second line."""
+    return " ".join(str(text).split())
+
+
 def _call(args: argparse.Namespace) -> int:
     """Run the command in this process: every error one line, with its exit code."""
     try:
         return int(args.func(args) or 0)
     except ToolkitError as exc:
-        print(f"shape-toolkit {args.command}: error: {exc}", file=sys.stderr)
+        print(f"shape-toolkit {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print(f"shape-toolkit {args.command}: interrupted", file=sys.stderr)
@@ -127,11 +133,11 @@ def _call(args: argparse.Namespace) -> int:
         return 0
     except OSError as exc:  # the environment (disk full, permissions), not a bug: one line
         where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
-        print(f"shape-toolkit {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
+        print(f"shape-toolkit {args.command}: error: {_one_line(f'{exc.strerror or exc}{where}')}", file=sys.stderr)
         return 2
     except Exception as exc:  # a bug of ours: still one line, with a pointer for reporting
         print(
-            f"shape-toolkit {args.command}: internal error: {type(exc).__name__}: {exc} "
+            f"shape-toolkit {args.command}: internal error: {type(exc).__name__}: {_one_line(exc)} "
             "(please report it; set TOOLKIT_DEBUG=1 for the traceback)",
             file=sys.stderr,
         )
