@@ -41,6 +41,10 @@ Protocol:
   noise of 0 / 0.5 % of the bounding-box diagonal (seeded by the pair's name); the vertex map is scored on
   the clean mesh B as above. pyFM's pipeline needs meshes: no peer row; the mesh rows of the same pairs
   (sets ``tosca`` and ``faust``) are the reference ("x mesh" in the report).
+- ``large``: both shapes remeshed independently to about 100,000 vertices (pymeshlab isotropic remeshing,
+  cached in ``$TOOLKIT_LARGE_CACHE``); ground-truth points move to their nearest remeshed vertex. The
+  reference is the same pipeline on the 5k pair ("x 5k" in the report; target <= 1.1x + 0.005).
+  ``peak_mb``: resident memory above the start of the call (sampled).
 - Time: from two loaded meshes to the vertex map, spectra included (the toolkit's spectrum and side
   caches are cleared before every call; pyFM computes its own). CPU (``time.process_time``) and wall
   time per pair, one BLAS thread (read back with threadpoolctl and written in the report). The
@@ -71,7 +75,10 @@ RESULTS = REPO / "benchmarks" / "results"
 RAW = RESULTS / "matching_field.jsonl"
 REPORT = RESULTS / "matching_field.md"
 SETS = {"tosca": "tosca5k", "faust": "faust5k", "noniso": "tosca_noniso", "glued": "tosca5k+faust5k",
-        "cloud": "tosca5k+faust5k", "cloud-noisy": "tosca5k+faust5k"}
+        "cloud": "tosca5k+faust5k", "cloud-noisy": "tosca5k+faust5k", "large": "tosca5k+faust5k"}
+#: vertices of each shape of the ``large`` set (independent isotropic remeshing of the 5k shapes)
+LARGE_VERTICES = 100_000
+LARGE_CACHE = Path(os.environ.get("TOOLKIT_LARGE_CACHE", "/tmp/shape-toolkit-large"))
 #: point-cloud sets: both shapes as clouds of their vertices (no faces), with Gaussian noise of this
 #: fraction of the bounding-box diagonal; scored on the meshes they came from
 CLOUD_NOISE = {"cloud": 0.0, "cloud-noisy": 0.005}
@@ -114,6 +121,22 @@ def jobs_of(data: Path, sets: list[str], split: str, every: dict[str, int]) -> l
     return out
 
 
+def _large(shape, dataset: str):
+    """``shape`` remeshed to about :data:`LARGE_VERTICES` vertices (pymeshlab isotropic remeshing, the
+    toolkit's ``clean --remesh``), cached in :data:`LARGE_CACHE`."""
+    from shape_toolkit.core.cleanup import clean_shape
+    from shape_toolkit.io.mesh import load_shape, save_shape
+
+    path = LARGE_CACHE / f"{dataset}_{LARGE_VERTICES}" / f"{shape.name}.ply"
+    if path.exists():
+        return load_shape(path)
+    edge = float(np.sqrt(2 * shape.area / (np.sqrt(3) * LARGE_VERTICES)))
+    big, _ = clean_shape(shape, remesh_target_edge=edge, remesh_iterations=3)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_shape(big, path)
+    return load_shape(path)
+
+
 def _blas() -> list[dict]:
     from threadpoolctl import threadpool_info
 
@@ -132,7 +155,7 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
     ``command`` that made it)."""
     warnings.filterwarnings("ignore")
     from shape_toolkit.bench.peers import pyfm_map
-    from shape_toolkit.bench.worker import code_revision
+    from shape_toolkit.bench.worker import MemoryMonitor, code_revision
     from shape_toolkit.core.spectrum import clear_cache
     from shape_toolkit.data.corruptions import glue
     from shape_toolkit.data.datasets import read_vts
@@ -154,6 +177,9 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
             continue
         root = data / ds
         A, B = load_shape(root / f"{a}.off"), load_shape(root / f"{b}.off")
+        A5, B5 = A, B  # the shapes the ground truth is given on
+        if s == "large":
+            A, B = _large(A, ds), _large(B, ds)
         Bm, vmap = B, np.arange(B.n_vertices)
         if s == "glued":
             h = int(hashlib.sha256(f"{a}-{b}".encode()).hexdigest(), 16) % 2**31
@@ -176,7 +202,7 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
             pos_a[np.argsort(first_a)] = np.arange(len(first_a))
             src_of_vertex = pos_a[inv_a.ravel()]  # mesh vertex of A -> its cloud point
             vmap = order_b  # a target cloud point -> its mesh vertex
-        maps, times, infos = {}, {}, {}
+        maps, times, infos, peaks = {}, {}, {}, {}
         for m in todo:
             if m in PUBLISHED:
                 path = root / "maps" / m / f"{a}_{b}.map"
@@ -186,6 +212,7 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
             clear_cache()
             clear_side_caches()
             c0, w0 = time.process_time(), time.perf_counter()
+            mon = MemoryMonitor().__enter__()
             if m == "pyfm":
                 t = pyfm_map(A, Bm)
             else:
@@ -195,12 +222,19 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
                     t = np.asarray(t)[src_of_vertex]
                 infos[m] = {k: corr.info[k] for k in ("orientation",) if k in corr.info}
             times[m] = (time.process_time() - c0, time.perf_counter() - w0)
+            mon.__exit__(None, None, None)
+            peaks[m] = round(mon.peak_mb, 1)
             maps[m] = vmap[np.asarray(t, dtype=np.int64)]
         step = 1 if ds == "tosca_noniso" else max(1, truth_step)
-        ta = read_vts(root / "corres" / f"{a}.vts", A.n_vertices)[::step]
-        tb = read_vts(root / "corres" / f"{b}.vts", B.n_vertices)[::step]
+        ta = read_vts(root / "corres" / f"{a}.vts", A5.n_vertices)[::step]
+        tb = read_vts(root / "corres" / f"{b}.vts", B5.n_vertices)[::step]
         sym = root / "corres" / f"{b}.sym.vts"
-        tbs = read_vts(sym, B.n_vertices)[::step] if sym.exists() else None
+        tbs = read_vts(sym, B5.n_vertices)[::step] if sym.exists() else None
+        if s == "large":  # ground-truth points: the nearest vertex of the remeshed shape
+            from scipy.spatial import cKDTree
+
+            ta = cKDTree(A.vertices).query(A5.vertices[ta])[1]
+            tb, tbs = (None if t is None else cKDTree(B.vertices).query(B5.vertices[t])[1] for t in (tb, tbs))
         preds = np.column_stack([maps[m][ta] for m in todo])
         unmatched = preds < 0  # a published map's 0 (1-based: no match) on a few vertices
         preds = np.where(unmatched, tb[:, None], preds)
@@ -217,7 +251,8 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
                 row = {"set": s, "dataset": ds, "pair": f"{a}-{b}", "split": split_of(ds, a, b), "method": m,
                        "mean": mean, "mean_sym": sym_mean, "unmatched": int((~ok).sum()),
                        "flipped": None if sym_mean is None else is_flipped(mean, sym_mean),
-                       "cpu_s": times[m][0], "wall_s": times[m][1], "info": infos.get(m, {}),
+                       "cpu_s": times[m][0], "wall_s": times[m][1], "peak_mb": peaks.get(m), "info": infos.get(m, {}),
+                       "n_vertices": [A.n_vertices, B.n_vertices],
                        "blas": blas, "code": rev, "date": time.strftime("%Y-%m-%d"), "command": command}
                 fh.write(json.dumps(row) + "\n")
                 print(f"{s} {a}-{b} {m}: {mean:.4f}" + ("" if sym_mean is None else f" (sym {sym_mean:.4f})")
@@ -275,6 +310,22 @@ def write_report() -> str:
                     f"{sum(flips) if flips else 'n/a'} | {worst['pair']} {worst['mean']:.3f} | "
                     f"{_fmt(float(np.mean(cpu)) if cpu else None, '.1f')} | "
                     f"{_fmt(float(np.mean(wall)) if wall else None, '.1f')} |")
+        out.append("")
+    large = [r for r in rows if r["set"] == "large"]
+    if large:
+        small = {(r["pair"], r["method"]): r["mean"] for r in rows if r["set"] in ("tosca", "faust")}
+        out += ["## About 100,000 vertices against the 5k pair", "",
+                "Each shape remeshed independently; the default `match` goes through 5,000-vertex proxies. "
+                "Targets: error <= 1.1 x the 5k error + 0.005, <= 60 s CPU, <= 4 GB.", "",
+                "| split | pair | method | vertices | error | 5k error | bound | CPU s | wall s | peak MB |",
+                "|---|---|---|---|---|---|---|---|---|---|"]
+        for r in sorted(large, key=lambda r: (r["split"], r["pair"], r["method"])):
+            ref = small.get((r["pair"], r["method"]))
+            bound = None if ref is None else 1.1 * ref + 0.005
+            met = "" if bound is None else (" met" if r["mean"] <= bound else " NOT met")
+            out.append(f"| {r['split']} | {r['pair']} | {r['method']} | {r.get('n_vertices')} | {r['mean']:.4f} | "
+                       f"{_fmt(ref)} | {_fmt(bound)}{met} | "
+                       f"{_fmt(r['cpu_s'], '.1f')} | {_fmt(r['wall_s'], '.1f')} | {_fmt(r.get('peak_mb'), '.0f')} |")
         out.append("")
     clouds = [r for r in rows if r["set"] in CLOUD_NOISE and r["split"] == "report"]
     if clouds:
