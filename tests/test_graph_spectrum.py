@@ -369,6 +369,7 @@ def test_point_cloud_graphs(sphere):
 
 
 def test_cache_in_memory_and_on_disk(sphere, tmp_path):
+    set_cache_dir(None)
     clear_cache()
     g = build_graph(sphere, "binary")
     assert not is_cached(g, 6)

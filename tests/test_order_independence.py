@@ -91,7 +91,8 @@ def test_dense_matchers_are_vertex_order_independent(pair, name):
 @pytest.mark.parametrize("name", _sparse_names())
 def test_sparse_matchers_are_vertex_order_independent(pair, name):
     a, b, pa, pb, perm_a, inv_a, perm_b, inv_b, _ = pair
-    det = st.create_plugin("keypoints", "adf-maxima", t=2.0, K=30)  # small t: many maxima on 642 vertices
+    # small absolute t: many maxima on 642 vertices
+    det = st.create_plugin("keypoints", "adf-maxima", t=2.0, K=30, time_scale="absolute")
     kp_a, kp_b = det.detect(a), det.detect(b)
     assert len(kp_a) >= 6 and len(kp_b) >= 6
     m = st.create_plugin("sparse_matchers", name).match(a, b, kp_a, kp_b)

@@ -184,15 +184,21 @@ def run_local(
     how a run is executed."""
     from threadpoolctl import threadpool_limits
 
+    from shape_toolkit.core import spectrum as spm
+
     by_prep: dict[str, list[Job]] = {}
     for j in todo:
         by_prep.setdefault(j.prepare_key, []).append(j)
-    with threadpool_limits(limits=1):
-        for pkey, js in by_prep.items():
-            info = prepare_job(preps[pkey])
-            log(info)
-            for j in js:
-                finish(execute_job(j, info))
+    before = spm._CACHE_DIR  # the jobs point the spectrum cache at the run folder: restored after
+    try:
+        with threadpool_limits(limits=1):
+            for pkey, js in by_prep.items():
+                info = prepare_job(preps[pkey])
+                log(info)
+                for j in js:
+                    finish(execute_job(j, info))
+    finally:
+        spm._CACHE_DIR = before
 
 
 def run_dask(

@@ -27,6 +27,7 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.matching._common import basis_of, farthest_point_sampling, fmap_from_p2p
+from shape_toolkit.plugins.weightings.cotangent import CotangentWeighting
 
 __all__ = ["PROXY_VERTICES", "LIFT_K", "make_proxy", "lift_map"]
 
@@ -34,6 +35,8 @@ __all__ = ["PROXY_VERTICES", "LIFT_K", "make_proxy", "lift_map"]
 PROXY_VERTICES = 5000
 #: eigenfunctions of the full shapes the lift uses
 LIFT_K = 40
+#: a mesh above 4x this many times the proxy size is first clustered to this many times it
+CLUSTER_FIRST = 20
 
 
 def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, np.ndarray]:
@@ -50,6 +53,12 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=np.asarray(shape.faces, dtype=np.int32)))
+    if len(V) > 4 * CLUSTER_FIRST * n_vertices:
+        # quadric edge collapse costs minutes at 10^6 vertices: first a vertex clustering (linear time) to
+        # about CLUSTER_FIRST x the proxy size, on cells of the matching size; proxy vertices are then moved
+        # to their nearest input vertex below
+        cell = float(np.sqrt(shape.area / (CLUSTER_FIRST * n_vertices)))
+        ms.meshing_decimation_clustering(threshold=pymeshlab.PureValue(cell))
     ms.meshing_decimation_quadric_edge_collapse(
         targetfacenum=int(2 * n_vertices), optimalplacement=False, preservetopology=True, preservenormal=True,
         qualitythr=0.3, autoclean=True,
@@ -59,8 +68,22 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
     pf = np.asarray(m.face_matrix(), dtype=np.int64)
     if len(pf) == 0:
         raise InvalidShapeError(f"{shape!r}: decimation to {n_vertices} vertices left no face")
-    dist, ids = cKDTree(V).query(pv)  # exact: optimalplacement=False keeps input positions
-    return Shape(V[ids], pf, name=f"{shape.name}-proxy"), np.asarray(ids, dtype=np.int64)
+    ids = np.asarray(cKDTree(V).query(pv)[1], dtype=np.int64)  # exact unless clustered: no vertex moved
+    # a proxy the spectra can take: no flat face (the cotangent weights' rule), no vertex on no face,
+    # no two proxy vertices on one input vertex
+    P = V[ids]
+    e2 = np.stack([((P[pf[:, a]] - P[pf[:, b]]) ** 2).sum(axis=1) for a, b in ((0, 1), (1, 2), (2, 0))], axis=1)
+    area = 0.5 * np.linalg.norm(np.cross(P[pf[:, 1]] - P[pf[:, 0]], P[pf[:, 2]] - P[pf[:, 0]]), axis=1)
+    pf = pf[area >= CotangentWeighting.DEGENERATE * e2.max(axis=1)]
+    uniq, inv = np.unique(ids, return_inverse=True)
+    pf = inv.ravel()[pf]
+    pf = pf[(pf[:, 0] != pf[:, 1]) & (pf[:, 1] != pf[:, 2]) & (pf[:, 0] != pf[:, 2])]
+    used = np.unique(pf)
+    remap = np.full(len(uniq), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    if len(used) < 4:
+        raise InvalidShapeError(f"{shape!r}: decimation to {n_vertices} vertices left no surface")
+    return Shape(V[uniq[used]], remap[pf], name=f"{shape.name}-proxy"), uniq[used]
 
 
 def lift_map(
@@ -106,14 +129,15 @@ def lift_map(
     candidates = int(min(candidates, n_t))
     _, near = cKDTree(np.asarray(source.vertices)[rows]).query(np.asarray(source.vertices))
     centre = T_rows[near]  # (n_s,) full target vertex
-    _, cand = cKDTree(np.asarray(target.vertices)).query(np.asarray(target.vertices)[centre], k=candidates)
-    cand = np.asarray(cand, dtype=np.int64).reshape(n_s, -1)
+    tree_t = cKDTree(np.asarray(target.vertices))
     pts = (e_t @ C.T).astype(np.float32)  # target vertices in the source's spectral coordinates
     q = e_s.astype(np.float32)
     out = np.empty(n_s, dtype=np.int64)
+    # blocks of source vertices: memory ~ block x candidates x k, never n x candidates (12 GB at 10^6)
     step = max(1, 2**22 // max(1, candidates * k))
     for a in range(0, n_s, step):
-        c = cand[a : a + step]
+        c = np.asarray(tree_t.query(np.asarray(target.vertices)[centre[a : a + step]], k=candidates)[1],
+                       dtype=np.int64).reshape(-1, candidates)
         d = ((pts[c] - q[a : a + step, None, :]) ** 2).sum(axis=2)
         out[a : a + step] = c[np.arange(len(c)), np.argmin(d, axis=1)]
     info = {"proxy_vertices": [int(len(src_ids)), int(len(tgt_ids))], "lift_k": k, "candidates": candidates,
