@@ -27,7 +27,7 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.matching._common import basis_of, farthest_point_sampling, fmap_from_p2p
-from shape_toolkit.plugins.weightings.cotangent import CotangentWeighting
+from shape_toolkit.plugins.weightings.cotangent import flat_faces
 
 __all__ = ["PROXY_VERTICES", "LIFT_K", "make_proxy", "lift_map"]
 
@@ -71,10 +71,7 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
     ids = np.asarray(cKDTree(V).query(pv)[1], dtype=np.int64)  # exact unless clustered: no vertex moved
     # a proxy the spectra can take: no flat face (the cotangent weights' rule), no vertex on no face,
     # no two proxy vertices on one input vertex
-    P = V[ids]
-    e2 = np.stack([((P[pf[:, a]] - P[pf[:, b]]) ** 2).sum(axis=1) for a, b in ((0, 1), (1, 2), (2, 0))], axis=1)
-    area = 0.5 * np.linalg.norm(np.cross(P[pf[:, 1]] - P[pf[:, 0]], P[pf[:, 2]] - P[pf[:, 0]]), axis=1)
-    pf = pf[area >= CotangentWeighting.DEGENERATE * e2.max(axis=1)]
+    pf = pf[~flat_faces(V[ids], pf)]
     uniq, inv = np.unique(ids, return_inverse=True)
     pf = inv.ravel()[pf]
     pf = pf[(pf[:, 0] != pf[:, 1]) & (pf[:, 1] != pf[:, 2]) & (pf[:, 0] != pf[:, 2])]

@@ -37,8 +37,7 @@ class CotangentWeighting(Weighting):
     def weigh(self, shape: Shape, edges: np.ndarray) -> Weights:
         """Cotangent weights and Voronoi vertex areas of a triangle mesh (``edges`` unused)."""
         v, f = shape.vertices, shape.require_faces("cotangent weights")
-        e2 = np.stack([((v[f[:, a]] - v[f[:, b]]) ** 2).sum(axis=1) for a, b in ((0, 1), (1, 2), (2, 0))], axis=1)
-        flat = np.asarray(shape.face_areas) < self.DEGENERATE * e2.max(axis=1)
+        flat = flat_faces(v, f)
         if flat.any():
             f = f[~flat]
         if len(f) == 0:  # libigl's mass matrix of no face asks for gigabytes (std::bad_alloc, or the OOM killer)
@@ -59,6 +58,16 @@ class CotangentWeighting(Weighting):
         info = {"negative_weights": negative, "clamped": bool(self.clamp_negative and negative),
                 "degenerate_faces_skipped": int(flat.sum())}
         return Weights(W, np.asarray(mass, dtype=np.float64), info)
+
+
+def flat_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Mask ``(m,)`` of the numerically flat faces of ``faces`` ``(m, 3)`` on ``vertices`` ``(n, 3)``: area
+    below :attr:`CotangentWeighting.DEGENERATE` times the longest edge squared (cotangents above ~10^8)."""
+    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces)
+    e = [v[f[:, b]] - v[f[:, a]] for a, b in ((0, 1), (1, 2), (2, 0))]
+    longest2 = np.max([(x * x).sum(axis=1) for x in e], axis=0)
+    area = 0.5 * np.linalg.norm(np.cross(e[0], -e[2]), axis=1)
+    return area < CotangentWeighting.DEGENERATE * longest2
 
 
 @hookimpl
