@@ -25,13 +25,13 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from shape_toolkit.core.eigen import smallest_eigenpairs  # noqa: E402
-from shape_toolkit.core.graph import build_graph  # noqa: E402
 from shape_toolkit.core.shape import Shape  # noqa: E402
 from shape_toolkit.core.spectrum import Spectrum, compute_spectrum, laplacian_matrix  # noqa: E402
 from shape_toolkit.errors import SolverError  # noqa: E402
 from shape_toolkit.features import geodesics  # noqa: E402
 from shape_toolkit.features.heat import heat_distances, heat_kernel_signature  # noqa: E402
 from shape_toolkit.features.scales import multiscale_times  # noqa: E402
+from shape_toolkit.spectra import build_graph  # noqa: E402
 
 
 def log(msg: str) -> None:

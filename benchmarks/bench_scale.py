@@ -316,7 +316,7 @@ def child(stages: list[str], data: Path, a: str, b: str, s: int, baseline_dir: s
     import warnings
 
     warnings.filterwarnings("ignore")
-    from shape_toolkit.core.spectrum import SpectrumSpec
+    from shape_toolkit.spectra import SpectrumSpec
 
     A, B, ta, tb, A0, B0 = load_pair(data, a, b, s)
     seeds = seeds_of(np.asarray(A0.vertices), ta, tb)

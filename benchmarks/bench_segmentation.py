@@ -44,7 +44,7 @@ sys.path.insert(0, {repo!r})
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.results.labels import draw_constraints
 from shape_toolkit.api.registry import create_plugin
-from shape_toolkit.core.graph import build_graph
+from shape_toolkit.spectra import build_graph
 from shape_toolkit.core.spectrum import compute_spectrum
 from threadpoolctl import threadpool_limits
 art = articulated_shape(subdivisions={sub})

@@ -69,7 +69,6 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from shape_toolkit.api.registry import create_plugin, get_plugin, get_registry  # noqa: E402
-from shape_toolkit.core.spectrum import merge_specs  # noqa: E402
 from shape_toolkit.data.datasets import read_face_labels  # noqa: E402
 from shape_toolkit.io.mesh import load_shape  # noqa: E402
 from shape_toolkit.metrics.segmentation import (  # noqa: E402
@@ -79,6 +78,7 @@ from shape_toolkit.metrics.segmentation import (  # noqa: E402
 )
 from shape_toolkit.plugins.segmenters._common import face_labels_of  # noqa: E402
 from shape_toolkit.results.labels import clicks_from_segmentation, vertex_to_face_labels  # noqa: E402
+from shape_toolkit.spectra import compute_declared  # noqa: E402
 from shape_toolkit.validation import jsonable  # noqa: E402
 
 #: (row name, plugin name, extra params, constraints: None / "default" / "one-must-link")
@@ -438,13 +438,8 @@ def run_mesh(psb: Path, mesh_id: str, seed: int, log, methods=None, tuned: dict 
             "one-must-link": benchmark_constraints(shape, truths[0], 1, seed)}
     plugins = {name: _make(plugin, params, k, seed, tuned) for name, plugin, params, _ in methods}
     t0 = time.perf_counter()
-    specs = merge_specs(s for p in plugins.values() for s in p.spectrum_specs())
-    spectra, spec_errors = [], []
-    for spec in specs:
-        try:
-            spectra.append(spec.compute(shape))
-        except Exception as exc:
-            spec_errors.append(f"{spec.to_dict()}: {type(exc).__name__}: {exc}")
+    spec_errors: list[str] = []
+    spectra = compute_declared(shape, plugins.values(), errors=spec_errors)
     t_spec = time.perf_counter() - t0
     for name, _plugin, _params, cmode in methods:
         seg = plugins[name]

@@ -25,10 +25,10 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from shape_toolkit.api.registry import create_plugin  # noqa: E402
-from shape_toolkit.core.spectrum import shape_spectrum  # noqa: E402
 from shape_toolkit.data.datasets import read_vts  # noqa: E402
 from shape_toolkit.io.mesh import load_shape  # noqa: E402
 from shape_toolkit.metrics.keypoints import ground_truth_map, repeatability_report  # noqa: E402
+from shape_toolkit.spectra import shape_spectrum  # noqa: E402
 
 RADII = (0.025, 0.05, 0.1)
 SETUPS = [

@@ -115,9 +115,9 @@ def worker_shape(name: str, timeout: float, out) -> None:
     import numpy as np
 
     from shape_toolkit import create_plugin
-    from shape_toolkit.core.graph import build_graph
     from shape_toolkit.core.spectrum import compute_spectrum
     from shape_toolkit.io.mesh import load_shape
+    from shape_toolkit.spectra import build_graph
 
     shape = load_shape(shape_path(data_root(), name))
     names = plugin_names()

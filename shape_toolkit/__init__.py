@@ -6,9 +6,9 @@ heat kernels, descriptors, keypoints -> matchers and segmenters -> metrics -> be
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.registry import available_plugins, create_plugin, get_plugin, get_registry
-from shape_toolkit.core.graph import ShapeGraph, build_graph
+from shape_toolkit.core.graph import ShapeGraph
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, compute_spectrum, default_spec, laplacian_matrix
+from shape_toolkit.core.spectrum import Spectrum, compute_spectrum, laplacian_matrix
 from shape_toolkit.errors import (
     DisconnectedGraphError,
     InvalidShapeError,
@@ -20,6 +20,7 @@ from shape_toolkit.errors import (
     SpectrumMismatchError,
     ToolkitError,
 )
+from shape_toolkit.spectra import SpectrumSpec, build_graph, default_spec
 
 __version__ = "0.1.0"
 

@@ -35,11 +35,12 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, merge_specs
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.plugins.matching._common import orientation_verdict, paired_descriptors
 from shape_toolkit.plugins.matching.multires import PROXY_VERTICES
 from shape_toolkit.results.correspondence import Correspondence, read_seeds
+from shape_toolkit.spectra import SpectrumSpec, compute_declared, merge_specs
 from shape_toolkit.validation import check_seeds
 
 __all__ = [
@@ -247,7 +248,8 @@ class Pipeline:
             specs = merge_specs(s for specs in declared.values() for s in specs)
             t0 = time.perf_counter()
             say(f"{self.name}: spectra ({', '.join(str(s.to_dict()) for s in specs) or 'none'})")
-            spectra = {"source": [s.compute(source) for s in specs], "target": [s.compute(target) for s in specs]}
+            src_list, tgt_list = compute_declared([source, target], specs)
+            spectra = {"source": src_list, "target": tgt_list}
             timings["spectra"] = time.perf_counter() - t0
             src_spectra, tgt_spectra = spectra["source"], spectra["target"]
         else:  # given by the caller: fail before any work when one does not fit a stage

@@ -315,8 +315,8 @@ def test_param_table_is_a_one_line_rejection_naming_the_parameter(tmp_path, caps
 
 def test_build_graph_and_registry_refuse_names_that_are_not_strings():
     from shape_toolkit.api.registry import get_plugin
-    from shape_toolkit.core.graph import build_graph
     from shape_toolkit.errors import PluginError
+    from shape_toolkit.spectra import build_graph
 
     with pytest.raises(ParameterError, match="weighting must be the name of a weighting plugin, got dict"):
         build_graph(icosphere(1), {"a": 1})
@@ -421,7 +421,7 @@ def test_cotangent_weights_of_a_mesh_with_only_flat_faces_are_refused_within_bou
     code = (
         "import numpy as np\n"
         "from shape_toolkit.core.shape import Shape\n"
-        "from shape_toolkit.core.graph import build_graph\n"
+        "from shape_toolkit.spectra import build_graph\n"
         "from shape_toolkit.errors import InvalidShapeError\n"
         "for v, f in (([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]]),\n"
         "             ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 1, 2]])):\n"

@@ -15,9 +15,9 @@ from shape_toolkit.bench import read_rows
 from shape_toolkit.bench.store import load_output, load_prepared, prepared_path
 from shape_toolkit.cli import main
 from shape_toolkit.core import spectrum as spm
-from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.spectrum import CacheWarning, compute_spectrum
 from shape_toolkit.data.generate import icosphere
+from shape_toolkit.spectra import build_graph
 
 
 @pytest.fixture

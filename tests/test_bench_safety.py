@@ -17,7 +17,8 @@ from shape_toolkit.api.registry import get_registry
 from shape_toolkit.bench import load_config, read_rows, run_benchmark, write_report
 from shape_toolkit.bench.store import LOCK, BenchWarning
 from shape_toolkit.cli import main
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
+from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.spectra import SpectrumSpec
 
 CONFIG = """
 [run]

@@ -11,9 +11,8 @@ import pytest
 from PIL import Image
 
 from shape_toolkit.cli import main
-from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.shape import Shape, check_colors
-from shape_toolkit.core.spectrum import default_spec, is_cached
+from shape_toolkit.core.spectrum import is_cached
 from shape_toolkit.data.corruptions import glue
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.data.synthetic import synthetic_dataset
@@ -23,6 +22,7 @@ from shape_toolkit.io.mesh import ColorWarning, load_shape, save_shape
 from shape_toolkit.pipeline import PRESETS, load_pipeline
 from shape_toolkit.plugins.keypoints.adf_maxima import ADFMaxima
 from shape_toolkit.plugins.matching.sparse.photometric import PhotometricMatcher
+from shape_toolkit.spectra import build_graph, default_spec
 
 
 @pytest.fixture(scope="module")

@@ -268,8 +268,8 @@ def test_every_whole_file_writer_survives_an_interrupted_write(sphere, tmp_path,
     from shape_toolkit.bench import executors, store
     from shape_toolkit.bench.tasks import prepare
     from shape_toolkit.core import spectrum as spm
-    from shape_toolkit.core.graph import build_graph
     from shape_toolkit.data.datasets import load_item, synthetic_refs, write_labels
+    from shape_toolkit.spectra import build_graph
 
     row = {"key": "k", "status": "ok", "task_name": "t", "task_kind": "x", "item": "i",
            "method_label": "m", "metrics": {}}

@@ -11,7 +11,6 @@ import pytest
 from shape_toolkit.api.registry import available_plugins, create_plugin, get_plugin
 from shape_toolkit.cli import main as cli_main
 from shape_toolkit.core.eigen import smallest_eigenpairs
-from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, laplacian_matrix
 from shape_toolkit.data.generate import icosphere
@@ -26,6 +25,7 @@ from shape_toolkit.metrics.keypoints import (
     keypoint_repeatability,
     repeatability_report,
 )
+from shape_toolkit.spectra import build_graph
 
 DIRS = np.array([[0, 0, 1], [1, 0, 0], [0, -1, 0], [-0.6, 0.8, 0.0]], float)
 HEIGHTS = [1.2, 0.9, 0.7, 0.5]
@@ -390,7 +390,7 @@ def _run(plugin, shape, spectrum=None, tips=None):
 def test_plugins_declare_and_check_their_spectrum(family, name, params):
     from sklearn.base import clone
 
-    from shape_toolkit.core.spectrum import default_spec
+    from shape_toolkit.spectra import default_spec
 
     shape, tips = bumpy(2)
     plug = create_plugin(family, name, **params)

@@ -88,8 +88,8 @@ def test_fmap_zoomout_orientation_term_resolves_the_flip(pair):
 @pytest.fixture(scope="module")
 def small_basis():
     """A 642-vertex shape, its unit-area basis (k = 12) and two smooth descriptor columns."""
-    from shape_toolkit.core.spectrum import default_spec
     from shape_toolkit.plugins.matching._common import basis_of
+    from shape_toolkit.spectra import default_spec
 
     A = articulated_shape(ANGLES_A, subdivisions=3).shape
     b = basis_of(default_spec(13).compute(A), 12)

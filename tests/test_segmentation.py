@@ -242,8 +242,8 @@ def test_segmenters_declare_their_spectrum_and_clone(body, body_constraints, nam
     output, random_state follows sklearn's semantics."""
     from sklearn.base import clone
 
-    from shape_toolkit.core.spectrum import default_spec
     from shape_toolkit.errors import SpectrumMismatchError
+    from shape_toolkit.spectra import default_spec
 
     shape = body.shape
     # csc declares the vertex graph's spectrum only with graph="vertex" (on a mesh its default, the

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from shape_toolkit.api.registry import create_plugin
-from shape_toolkit.core.spectrum import default_spec
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.matching._common import basis_of
 from shape_toolkit.plugins.matching.dense.fmap_zoomout import zoomout_residual
+from shape_toolkit.spectra import default_spec
 
 
 @pytest.fixture(scope="module")

@@ -9,19 +9,58 @@ from __future__ import annotations
 
 import inspect
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar, Protocol, TypeAlias
 
 import numpy as np
 import scipy.sparse as sp
 
 from shape_toolkit.errors import ParameterError
 
-if TYPE_CHECKING:  # pragma: no cover
-    from shape_toolkit.core.shape import Shape
-    from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
-    from shape_toolkit.results.correspondence import Correspondence
+# This layer names no type of the layers above it, not even for type checkers (no type-only import
+# cycle): the data objects below are those of shape_toolkit.core and shape_toolkit.results.
+#: a :class:`shape_toolkit.core.shape.Shape`
+Shape: TypeAlias = Any
+#: a :class:`shape_toolkit.core.spectrum.Spectrum`
+Spectrum: TypeAlias = Any
+#: a :class:`shape_toolkit.results.correspondence.Correspondence`
+Correspondence: TypeAlias = Any
+
+
+class SpectrumSpec(Protocol):
+    """What a plugin declares it needs (a :class:`shape_toolkit.spectra.SpectrumSpec`): what this layer uses of it."""
+
+    k: int
+
+    @property
+    def kind(self) -> tuple[Any, ...]:
+        """Everything but ``k``: two specs of one kind share their eigenpairs."""
+
+    def compute(self, shape: Shape) -> Spectrum:
+        """The spectrum of ``shape`` this spec describes."""
+
+    def check(self, spectrum: Spectrum, shape: Shape, who: str = ...) -> Spectrum:
+        """``spectrum`` when it satisfies this spec on ``shape``; else a typed error."""
+
+    def pick(self, spectra: Iterable[Spectrum], shape: Shape, who: str = ...) -> Spectrum:
+        """The first of ``spectra`` that satisfies this spec on ``shape``; else a typed error."""
+
+
+def merge_specs(specs: Iterable[SpectrumSpec | None]) -> list[SpectrumSpec]:
+    """One spec per kind (the largest ``k`` of each), in first-seen order; None entries are skipped.
+    A caller computes these once and every method picks its own."""
+    out: list[SpectrumSpec] = []
+    for spec in specs:
+        if spec is None:
+            continue
+        for i, have in enumerate(out):
+            if have.kind == spec.kind:
+                out[i] = have if have.k >= spec.k else spec
+                break
+        else:
+            out.append(spec)
+    return out
 
 
 class BasePlugin:
@@ -84,8 +123,7 @@ class BasePlugin:
         """Every spectrum this plugin needs: its own and its nested plugins', one per kind."""
         own = self.spectrum_spec()
         specs = ([own] if own is not None else []) + [s for p in self._nested_plugins() for s in p.spectrum_specs()]
-        # SpectrumSpec.merge_all, reached through the spec (this layer does not import the core)
-        return type(specs[0]).merge_all(specs) if specs else []
+        return merge_specs(specs)
 
     def _nested_plugins(self) -> list[BasePlugin]:
         """Plugins this one calls (e.g. a matcher's descriptor), for :meth:`spectrum_specs`."""
@@ -125,6 +163,10 @@ class Weighting(BasePlugin, ABC):
     family = "weightings"
     #: True when the scheme ignores the given edges and needs triangles (e.g. cotangent)
     needs_faces: ClassVar[bool] = False
+    #: the weighting (registry name) a spectrum declared with this one uses on a point cloud, if it needs faces
+    point_cloud_weighting: ClassVar[str | None] = None
+    #: what to do when its Laplacian is numerically disconnected (empty: the general advice)
+    disconnection_hint: ClassVar[str] = ""
 
     @abstractmethod
     def weigh(self, shape: Shape, edges: np.ndarray) -> Weights:

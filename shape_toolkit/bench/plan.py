@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from shape_toolkit.bench.config import BenchConfig, MethodSpec, TaskSpec
-from shape_toolkit.core.spectrum import SpectrumSpec, merge_specs
+from shape_toolkit.spectra import SpectrumSpec, merge_specs
 from shape_toolkit.validation import dumps_json
 
 __all__ = ["Job", "PrepareJob", "plan", "row_key", "subject_spec", "create_method", "declared_specs"]

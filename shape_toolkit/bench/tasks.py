@@ -25,10 +25,11 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, merge_specs
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.data.corruptions import RESAMPLING, apply_corruption, carry_correspondence, carry_labels
 from shape_toolkit.data.datasets import DatasetItem
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.spectra import SpectrumSpec, merge_specs
 
 __all__ = [
     "Prepared",
@@ -129,16 +130,10 @@ def prepare(
 
 def compute_spectrum_cached(spec: SpectrumSpec, shape: Shape) -> tuple[Spectrum, bool]:
     """``spec`` computed on ``shape`` through the content cache (largest connected component, as
-    corruptions may split a shape); returns ``(Spectrum, cache_hit)``."""
-    from shape_toolkit.core import spectrum as spm
-    from shape_toolkit.core.graph import build_graph
-
-    s = spec.for_shape(shape)
-    graph = build_graph(shape, s.weighting, **dict(s.weighting_params))
-    k = min(int(s.k), shape.n_vertices - 1) if shape.n_vertices > 1 else 1
-    hit = spm.is_cached(graph, k, laplacian=s.laplacian, use_mass=s.use_mass, components="largest")
-    out = spm.compute_spectrum(graph, k, laplacian=s.laplacian, use_mass=s.use_mass, components="largest")
-    return out, hit
+    corruptions may split a shape; ``k`` capped by :func:`~shape_toolkit.spectra.spectrum_k`); returns
+    ``(Spectrum, cache_hit)``."""
+    hit = spec.is_cached(shape, components="largest")
+    return spec.compute(shape, components="largest"), hit
 
 
 def spectrum_for(spec: SpectrumSpec, shape: Shape, pool: Sequence[SpectrumSpec] = ()) -> tuple[Spectrum, bool]:
@@ -158,9 +153,7 @@ def spectrum_for(spec: SpectrumSpec, shape: Shape, pool: Sequence[SpectrumSpec] 
 def received_spec(spec: SpectrumSpec, shape: Shape) -> dict[str, Any]:
     """What a row records for a spectrum ``spec`` given on ``shape`` (its ``to_dict`` as applied to
     the shape: ``k`` capped at the vertex count, a mesh-only weighting swapped on point clouds)."""
-    out = spec.for_shape(shape).to_dict()
-    out["k"] = min(out["k"], shape.n_vertices - 1) if shape.n_vertices > 1 else 1
-    return out
+    return spec.for_shape(shape).to_dict()
 
 
 def method_specs(method: Any, detector: Any = None) -> tuple[list[SpectrumSpec], SpectrumSpec | None]:

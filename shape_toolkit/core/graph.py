@@ -1,4 +1,7 @@
-"""Shape graphs (thesis 3.2): connectivity from mesh edges or neighbourhoods, weights from shape_toolkit.plugins."""
+"""Shape graphs (thesis 3.2): connectivity from mesh edges or neighbourhoods, weights from a weighting object.
+
+The weighting comes in as an object (any object with ``weigh(shape, edges)``, e.g. a weighting plugin); this
+layer resolves no names: :func:`shape_toolkit.spectra.build_graph` turns a plugin name into the object."""
 
 from __future__ import annotations
 
@@ -32,6 +35,8 @@ class ShapeGraph:
     weighting: str = ""
     params: dict[str, Any] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
+    #: what to do when the Laplacian turns out numerically disconnected (the weighting's ``disconnection_hint``)
+    hint: str = ""
 
     def __repr__(self) -> str:
         return (
@@ -118,31 +123,31 @@ def weights_from_edges(n: int, edges: np.ndarray, w: np.ndarray) -> sp.csr_matri
 
 def build_graph(
     shape: Shape,
-    weighting: str = "gaussian",
+    weighting: Any,
     *,
+    name: str | None = None,
     connectivity: str = "auto",
     n_neighbors: int | None = None,
     radius: float | None = None,
-    **params: Any,
 ) -> ShapeGraph:
-    """Build the shape graph of ``shape`` with a weighting plugin (by name) and its parameters.
+    """Build the shape graph of ``shape`` with a weighting object (``weigh(shape, edges)``, e.g. a
+    weighting plugin); ``name`` labels the graph (its ``weighting``, part of the spectrum cache key;
+    default the object's class name). Names of plugins are resolved above: :func:`shape_toolkit.spectra.build_graph`.
 
     ``connectivity``: ``"mesh"`` (mesh edges), ``"knn"`` (``n_neighbors``, default 10), ``"epsilon"``
     (``radius``, in the shape's length units) or ``"auto"`` (mesh edges for meshes, kNN otherwise).
 
     Weightings that build their own connectivity instead of weighing the graph's edges
-    (``uses_edges = False``, the default of those with ``needs_faces``): ``cotangent`` needs the
-    mesh triangles, so any connectivity but ``"auto"``/``"mesh"`` is a :class:`ParameterError`;
-    ``intrinsic-delaunay`` honours ``"knn"`` on a mesh by treating its vertices as a point cloud
-    (local Delaunay triangulations of ``n_neighbors`` neighbours, default the plugin's own
-    ``n_neighbors``) and refuses ``"epsilon"``.
+    (``uses_edges = False``, the default of those with ``needs_faces``): one that needs the mesh
+    triangles (cotangent) refuses any connectivity but ``"auto"``/``"mesh"`` with a :class:`ParameterError`;
+    one that triangulates points itself (intrinsic Delaunay) honours ``"knn"`` on a mesh by treating its
+    vertices as a point cloud (local Delaunay triangulations of ``n_neighbors`` neighbours, default the
+    weighting's own ``n_neighbors``) and refuses ``"epsilon"``.
     """
-    from shape_toolkit.api.registry import create_plugin
-
-    if not isinstance(weighting, str):  # a dict or list from a JSON parameter (--param weighting={...})
+    if not callable(getattr(weighting, "weigh", None)) or isinstance(weighting, type):
         shown = repr(weighting) if len(repr(weighting)) <= 60 else repr(weighting)[:57] + "..."
         raise ParameterError(
-            f"weighting must be the name of a weighting plugin, got {type(weighting).__name__} {shown}"
+            f"weighting must be a weighting object (with a weigh() method), got {type(weighting).__name__} {shown}"
         )
     if not isinstance(connectivity, str) or connectivity not in ("auto", "mesh", "knn", "epsilon"):
         raise ParameterError(
@@ -152,7 +157,8 @@ def build_graph(
         isinstance(n_neighbors, bool) or not isinstance(n_neighbors, (int, np.integer))
     ):
         raise ParameterError(f"n_neighbors must be an integer, got {n_neighbors!r}")
-    scheme = create_plugin("weightings", weighting, **params)
+    scheme = weighting
+    weighting = type(scheme).__name__ if name is None else str(name)
     requested = connectivity
     if connectivity == "auto":
         connectivity = "mesh" if shape.is_mesh else "knn"
@@ -183,9 +189,10 @@ def _build_own_connectivity(
     """Weightings that make their own edges (cotangent, intrinsic Delaunay): honour or refuse the
     requested connectivity, never ignore it."""
     if requested == "epsilon" or (requested == "knn" and getattr(scheme, "needs_faces", False)):
+        cloud = getattr(scheme, "point_cloud_weighting", None)
         alternatives = (
             "use connectivity='auto' or 'mesh', or a weighting of graph edges (gaussian, binary)"
-            + ("" if requested == "epsilon" else ", or 'intrinsic-delaunay' for a kNN point-cloud Laplacian")
+            + ("" if requested == "epsilon" or not cloud else f", or {cloud!r} for a kNN point-cloud Laplacian")
         )
         raise ParameterError(
             f"the {weighting!r} weighting builds its own edges from "
@@ -210,7 +217,7 @@ def _finish(shape: Shape, scheme: Any, weighting: str, result: Any, connectivity
     if not np.isfinite(W.data).all():
         raise InvalidShapeError(
             f"weighting {weighting!r} produced non-finite weights on {shape!r} (degenerate "
-            "triangles or coincident vertices?): clean the shape or use 'intrinsic-delaunay'"
+            "triangles or coincident vertices?): clean the shape or use the intrinsic-delaunay weighting"
         )
     mass = result.mass
     if mass is not None:
@@ -218,4 +225,5 @@ def _finish(shape: Shape, scheme: Any, weighting: str, result: Any, connectivity
         if mass.shape != (shape.n_vertices,) or not np.isfinite(mass).all():
             raise InvalidShapeError(f"weighting {weighting!r} returned an invalid mass vector")
     info = {"connectivity": connectivity, **(result.info or {})}
-    return ShapeGraph(shape, W, mass, weighting, scheme.get_params(), info)
+    params = scheme.get_params() if hasattr(scheme, "get_params") else {}
+    return ShapeGraph(shape, W, mass, weighting, params, info, str(getattr(scheme, "disconnection_hint", "")))

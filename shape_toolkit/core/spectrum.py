@@ -1,4 +1,7 @@
-"""Graph Laplacians (thesis 2.6.1) and their smallest eigenpairs, cached by content."""
+"""Graph Laplacians (thesis 2.6.1) and their smallest eigenpairs, cached by content.
+
+What spectrum a method needs, by plugin name (``SpectrumSpec``), and computing it from names, live in
+:mod:`shape_toolkit.spectra`: this module takes graphs, which take weighting objects."""
 
 from __future__ import annotations
 
@@ -7,7 +10,6 @@ import json
 import os
 import warnings
 from collections import OrderedDict
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,8 +19,7 @@ import scipy.sparse as sp
 
 from shape_toolkit.core.eigen import fix_signs, smallest_eigenpairs
 from shape_toolkit.core.graph import ShapeGraph
-from shape_toolkit.core.shape import Shape
-from shape_toolkit.errors import DisconnectedGraphError, ParameterError, SpectrumMismatchError
+from shape_toolkit.errors import DisconnectedGraphError, ParameterError
 from shape_toolkit.validation import atomic_output
 
 __all__ = [
@@ -31,11 +32,7 @@ __all__ = [
     "set_cache_dir",
     "clear_cache",
     "is_cached",
-    "SpectrumSpec",
-    "shape_spectrum",
     "null_count",
-    "default_spec",
-    "merge_specs",
 ]
 
 LAPLACIANS = ("combinatorial", "normalized", "random-walk")
@@ -377,13 +374,8 @@ def compute_spectrum(
 
         shown = ", ".join(f"{x:.2e}" for x in vals[: min(len(vals), n_null + 1)])
         what = "connected" if vertices is None else f"largest component ({len(vertices)} vertices) is connected"
-        hint = {
-            "gaussian": "leave the Gaussian bandwidth unset (local, scale-free bandwidths keep every weight "
-            ">= exp(-1/2)) or give a larger one",
-            "cotangent": "use the 'intrinsic-delaunay' weighting (non-negative weights on poor triangulations) "
-            "or clean degenerate triangles",
-        }.get(graph.weighting, "use a weighting whose weights do not vanish (binary, intrinsic-delaunay, "
-                               "gaussian with its default local bandwidth)")
+        hint = graph.hint or ("use a weighting whose weights do not vanish (binary, intrinsic-delaunay, "
+                              "gaussian with its default local bandwidth)")
         raise NumericallyDisconnectedGraphError(
             f"the shape graph is structurally {what} but numerically disconnected: the {laplacian} "
             f"Laplacian ({graph.weighting!r} weights) has {n_null} eigenvalues that are zero to solver "
@@ -445,157 +437,3 @@ def null_count(eigenvalues: np.ndarray, rtol: float = 1e-8) -> int:
         return 0
     scale = max(float(np.abs(vals).max()), 1e-300)
     return int(np.sum(vals <= rtol * scale))
-
-
-#: weightings that need triangles; on a point cloud their spectrum becomes the intrinsic-Delaunay one
-_MESH_ONLY = {"cotangent": "intrinsic-delaunay"}
-
-
-@dataclass(frozen=True)
-class SpectrumSpec:
-    """The spectrum a method needs, as data: a weighting plugin and its parameters, a Laplacian,
-    the mass matrix or not, and ``k`` eigenpairs (capped at the vertex count).
-
-    Methods declare one through ``spectrum_spec()``; callers compute it once with
-    :meth:`compute` (through the content cache) and pass it in; methods check what they are
-    given with :meth:`check`. ``use_mass=None`` means: whenever the weighting has a mass and the
-    Laplacian is combinatorial.
-    """
-
-    k: int
-    weighting: str = "cotangent"
-    laplacian: str = "combinatorial"
-    use_mass: bool | None = None
-    weighting_params: tuple[tuple[str, Any], ...] = ()
-
-    def __post_init__(self) -> None:
-        if isinstance(self.k, bool) or not isinstance(self.k, (int, np.integer)) or self.k < 1:
-            raise ParameterError(f"a spectrum spec needs k >= 1 eigenpairs, got {self.k!r}")
-        if self.laplacian not in LAPLACIANS:
-            raise ParameterError(f"unknown Laplacian {self.laplacian!r}; choose one of {', '.join(LAPLACIANS)}")
-        if isinstance(self.weighting_params, dict):
-            object.__setattr__(self, "weighting_params", tuple(sorted(self.weighting_params.items())))
-
-    def for_shape(self, shape: Shape) -> SpectrumSpec:
-        """This spec as it applies to ``shape``: ``k`` capped at the vertex count, and a mesh-only
-        weighting (cotangent) replaced by its point-cloud counterpart (intrinsic Delaunay)."""
-        weighting = self.weighting
-        if not shape.is_mesh and weighting in _MESH_ONLY:
-            weighting = _MESH_ONLY[weighting]
-        k = int(min(self.k, shape.n_vertices))
-        if weighting == self.weighting and k == self.k:
-            return self
-        return SpectrumSpec(k, weighting, self.laplacian, self.use_mass, self.weighting_params)
-
-    def merge(self, other: SpectrumSpec) -> SpectrumSpec | None:
-        """One spec serving both ``self`` and ``other`` (the larger ``k``), or None if their kinds differ."""
-        if self.kind != other.kind:
-            return None
-        return self if self.k >= other.k else other
-
-    @classmethod
-    def merge_all(cls, specs: Iterable[SpectrumSpec | None]) -> list[SpectrumSpec]:
-        """One spec per kind (the largest ``k`` of each), in first-seen order; None entries skipped."""
-        out: list[SpectrumSpec] = []
-        for spec in specs:
-            if spec is None:
-                continue
-            for i, have in enumerate(out):
-                if (merged := have.merge(spec)) is not None:
-                    out[i] = merged
-                    break
-            else:
-                out.append(spec)
-        return out
-
-    @property
-    def kind(self) -> tuple[Any, ...]:
-        """Everything but ``k``: two specs of one kind share their eigenpairs."""
-        return (self.weighting, self.weighting_params, self.laplacian, self.use_mass)
-
-    def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready description (what a benchmark row records)."""
-        out: dict[str, Any] = {"weighting": self.weighting, "laplacian": self.laplacian, "k": int(self.k)}
-        if self.use_mass is not None:
-            out["use_mass"] = bool(self.use_mass)
-        if self.weighting_params:
-            out["params"] = dict(self.weighting_params)
-        return out
-
-    def compute(self, shape: Shape, *, components: str = "raise") -> Spectrum:
-        """The spectrum of ``shape`` that this spec describes, through the content cache."""
-        from shape_toolkit.core.graph import build_graph
-
-        spec = self.for_shape(shape)
-        graph = build_graph(shape, spec.weighting, **dict(spec.weighting_params))
-        return compute_spectrum(graph, spec.k, laplacian=spec.laplacian, use_mass=spec.use_mass,
-                                components=components)
-
-    def check(self, spectrum: Spectrum, shape: Shape, who: str = "this method") -> Spectrum:
-        """``spectrum`` if it is of this spec's kind for ``shape`` with at least ``k`` eigenpairs;
-        else :class:`~shape_toolkit.errors.SpectrumMismatchError` saying what was expected."""
-        spec = self.for_shape(shape)
-        if not isinstance(spectrum, Spectrum):
-            raise SpectrumMismatchError(f"{who} needs a Spectrum, got {type(spectrum).__name__}")
-        problems = []
-        if spectrum.n_vertices != shape.n_vertices:
-            problems.append(f"{spectrum.n_vertices} rows for {shape.n_vertices} vertices")
-        if spectrum.k < spec.k:
-            problems.append(f"{spectrum.k} eigenpairs, fewer than {spec.k}")
-        if spectrum.weighting != spec.weighting:
-            problems.append(f"weighting {spectrum.weighting!r}")
-        if spectrum.laplacian != spec.laplacian:
-            problems.append(f"Laplacian {spectrum.laplacian!r}")
-        if spec.use_mass is not None and spectrum.generalized != spec.use_mass:
-            problems.append("the mass matrix" if spectrum.generalized else "no mass matrix")
-        given_params = spectrum.meta.get("weighting_params")
-        if spec.weighting_params and given_params is not None and dict(spec.weighting_params) != {
-            k: given_params.get(k) for k, _ in spec.weighting_params
-        }:
-            problems.append(f"weighting parameters {given_params}")
-        if problems:
-            raise SpectrumMismatchError(
-                f"{who} needs the spectrum {spec.to_dict()}, but was given one with {', '.join(problems)}"
-            )
-        return spectrum
-
-    def pick(self, spectra: Iterable[Spectrum], shape: Shape, who: str = "this method") -> Spectrum:
-        """The first of ``spectra`` that satisfies this spec on ``shape``; a typed error when none does."""
-        candidates = list(spectra)
-        for s in candidates:
-            try:
-                return self.check(s, shape, who)
-            except SpectrumMismatchError:
-                continue
-        given = ", ".join(repr(s) for s in candidates) or "none"
-        raise SpectrumMismatchError(
-            f"{who} needs the spectrum {self.for_shape(shape).to_dict()}; none given matches (given: {given})"
-        )
-
-
-def shape_spectrum(shape: Shape, k: int, *, kind: str = "lbo", **spec: Any) -> Spectrum:
-    """The toolkit's default spectrum of ``shape``, ``k`` eigenpairs (the one place that says what
-    "default" means): ``kind='lbo'`` is the Laplace-Beltrami operator (cotangent weights with
-    Voronoi mass, intrinsic Delaunay on point clouds); ``kind='graph'`` the combinatorial
-    Laplacian of the Gaussian-weighted graph (thesis ch. 2-3; with another ``weighting``, its mass
-    matrix too when it has one). Extra keywords override the spec."""
-    return default_spec(k, kind, **spec).compute(shape)
-
-
-def default_spec(k: int, kind: str = "lbo", **overrides: Any) -> SpectrumSpec:
-    """The :class:`SpectrumSpec` behind :func:`shape_spectrum`."""
-    if kind == "lbo":
-        base: dict[str, Any] = {"weighting": "cotangent", "laplacian": "combinatorial", "use_mass": True}
-    elif kind == "graph":  # the weighting's own operator: a mass only where the weighting has one
-        base = {"weighting": "gaussian", "laplacian": "combinatorial", "use_mass": None}
-    else:
-        raise ParameterError(f"unknown spectrum kind {kind!r}; choose 'lbo' or 'graph'")
-    base.update(overrides)
-    return SpectrumSpec(int(k), **base)
-
-
-def merge_specs(specs: Iterable[SpectrumSpec | None]) -> list[SpectrumSpec]:
-    """One spec per kind (the largest ``k`` of each), in first-seen order; None entries are skipped
-    (:meth:`SpectrumSpec.merge_all`). A caller computes these once and every method picks its own
-    with :meth:`SpectrumSpec.pick`."""
-    return SpectrumSpec.merge_all(specs)

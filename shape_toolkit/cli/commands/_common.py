@@ -238,10 +238,12 @@ def declared_spectra(plugin: Any, shape: Any) -> tuple[list | None, list[dict]]:
     """The spectra ``plugin`` declares (``spectrum_specs()``), computed once on ``shape`` through the
     content cache, to pass in as ``spectrum=``; and their JSON descriptions for the output.
     ``(None, [])`` for a plugin that needs none."""
-    specs = list(plugin.spectrum_specs()) if hasattr(plugin, "spectrum_specs") else []
+    from shape_toolkit.spectra import compute_declared, declared_specs
+
+    specs = declared_specs(plugin)
     if not specs:
         return None, []
-    return [s.compute(shape) for s in specs], [s.for_shape(shape).to_dict() for s in specs]
+    return compute_declared(shape, specs), [s.for_shape(shape).to_dict() for s in specs]
 
 
 # --------------------------------------------------------------------------------------------

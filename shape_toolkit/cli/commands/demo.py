@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from shape_toolkit.cli.commands._common import add_quiet, positive_int_arg, random_state_arg, status
-from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.spectrum import compute_spectrum
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.embedding import choose_dimension
 from shape_toolkit.io.mesh import save_shape
+from shape_toolkit.spectra import build_graph
 
 
 def register(sub: argparse._SubParsersAction) -> None:

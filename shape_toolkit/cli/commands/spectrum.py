@@ -19,10 +19,10 @@ from shape_toolkit.cli.commands._common import (
     status,
     write_ply,
 )
-from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.spectrum import LAPLACIANS, compute_spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
+from shape_toolkit.spectra import build_graph
 
 
 def register(sub: argparse._SubParsersAction) -> None:

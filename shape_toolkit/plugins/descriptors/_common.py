@@ -8,9 +8,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec, null_count
+from shape_toolkit.core.spectrum import Spectrum, null_count
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.scales import check_times, descriptor_times
+from shape_toolkit.spectra import SpectrumSpec, default_spec
 from shape_toolkit.validation import check_vertex_ids
 
 #: ``K`` (non-null eigenpairs) of the keypoint descriptors when not given (section 7.3.1)

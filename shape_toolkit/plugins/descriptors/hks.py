@@ -7,10 +7,11 @@ import numpy as np
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.features.heat import heat_kernel_signature
 from shape_toolkit.features.scales import check_times, default_times
 from shape_toolkit.plugins.descriptors._common import check_K, own_spectrum
+from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 #: ``K`` of the spectral descriptors when not given
 DEFAULT_K = 100

@@ -7,11 +7,12 @@ import numpy as np
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.basis import spectral_basis
 from shape_toolkit.plugins.descriptors._common import check_K, own_spectrum
 from shape_toolkit.plugins.descriptors.hks import DEFAULT_K
+from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 __all__ = ["WKSDescriptor", "wave_kernel_signature"]
 

@@ -7,12 +7,13 @@ import numpy as np
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import KeypointDetector
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.basis import spectral_basis
 from shape_toolkit.features.geodesics import adjacency, ring_maxima
 from shape_toolkit.features.heat import heat_kernel_signature
 from shape_toolkit.features.scales import check_times
+from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 #: what ``t`` is measured in (``time_scale``): the spectrum's own time scales, or absolute
 TIME_SCALES = ("first", "last", "absolute")

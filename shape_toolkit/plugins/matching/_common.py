@@ -12,9 +12,10 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.results.correspondence import nearest_neighbors
+from shape_toolkit.spectra import SpectrumSpec, default_spec
 from shape_toolkit.validation import check_seeds as _check_seeds
 
 

@@ -100,8 +100,8 @@ def lift_map(
     target's vertices per proxy vertex, at least 16). Returns the map and an info dict."""
     from scipy.spatial import cKDTree
 
-    from shape_toolkit.core.spectrum import shape_spectrum
     from shape_toolkit.results.correspondence import nearest_neighbors
+    from shape_toolkit.spectra import shape_spectrum
 
     proxy_map = np.asarray(proxy_map, dtype=np.int64)
     ok = proxy_map >= 0

@@ -16,9 +16,10 @@ from sklearn.cluster import KMeans
 from threadpoolctl import threadpool_limits
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import SpectrumSpec, default_spec, fix_signs
+from shape_toolkit.core.spectrum import fix_signs
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.results.labels import face_to_vertex_labels, relabel_consecutive, vertex_to_face_labels
+from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 
 def check_n_segments(k: Any, n: int, *, allow_none: bool) -> int | None:
@@ -660,7 +661,7 @@ def segment_per_component(
     elif not points:
         return None
     else:  # a point cloud: the components of the segmenter's own (kNN) graph
-        from shape_toolkit.core.graph import build_graph
+        from shape_toolkit.spectra import build_graph
 
         n_comp, vcomp = build_graph(shape, getattr(seg, "weighting", "gaussian")).components
         face_comp, vcomp = np.zeros(0, dtype=np.int64), np.asarray(vcomp, dtype=np.int64)

@@ -24,7 +24,7 @@ from scipy.optimize import nnls
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
@@ -36,6 +36,7 @@ from shape_toolkit.plugins.segmenters._common import (
     split_disconnected_clouds,
 )
 from shape_toolkit.results.labels import coerce_constraints
+from shape_toolkit.spectra import SpectrumSpec
 from shape_toolkit.validation import seed_of
 
 

@@ -92,9 +92,9 @@ from scipy.spatial import cKDTree
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
-from shape_toolkit.core.graph import build_graph, weights_from_edges
+from shape_toolkit.core.graph import weights_from_edges
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import DisconnectedGraphError, ParameterError
 from shape_toolkit.features.embedding import commute_time_embedding
 from shape_toolkit.plugins.segmenters._common import (
@@ -111,6 +111,7 @@ from shape_toolkit.plugins.segmenters._common import (
     split_disconnected_clouds,
 )
 from shape_toolkit.results.labels import coerce_constraints
+from shape_toolkit.spectra import SpectrumSpec, build_graph
 from shape_toolkit.validation import seed_of
 
 

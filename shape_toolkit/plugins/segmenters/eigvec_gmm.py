@@ -28,9 +28,8 @@ from sklearn.mixture import GaussianMixture
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
-from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import LAPLACIANS, Spectrum, SpectrumSpec, fix_signs, null_count
+from shape_toolkit.core.spectrum import LAPLACIANS, Spectrum, fix_signs, null_count
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.segmenters._common import (
     canonical_order,
@@ -42,6 +41,7 @@ from shape_toolkit.plugins.segmenters._common import (
     split_disconnected_clouds,
 )
 from shape_toolkit.results.labels import relabel_consecutive
+from shape_toolkit.spectra import SpectrumSpec, build_graph
 from shape_toolkit.validation import seed_of
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.embedding import commute_time_embedding
 from shape_toolkit.plugins.segmenters._common import (
@@ -34,6 +34,7 @@ from shape_toolkit.plugins.segmenters._common import (
     segmenter_spec,
     split_disconnected_clouds,
 )
+from shape_toolkit.spectra import SpectrumSpec
 from shape_toolkit.validation import seed_of
 
 _LAPLACIAN = {

@@ -17,11 +17,11 @@ import scipy.sparse as sp
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.eigen import smallest_eigenpairs
-from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.plugins.segmenters._common import check_n_segments, kmeans_labels, reports_constraints, row_normalize
 from shape_toolkit.results.labels import coerce_constraints
+from shape_toolkit.spectra import build_graph
 from shape_toolkit.validation import seed_of
 
 

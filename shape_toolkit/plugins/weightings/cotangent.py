@@ -30,6 +30,13 @@ class CotangentWeighting(Weighting):
     needs_faces = True
     #: builds its edges from the triangles: the graph's connectivity must be the mesh's
     uses_edges = False
+    #: the weighting a spectrum declared with this one uses on a point cloud (no triangles)
+    point_cloud_weighting = "intrinsic-delaunay"
+    #: what to do when the Laplacian is numerically disconnected (``NumericallyDisconnectedGraphError``)
+    disconnection_hint = (
+        "use the 'intrinsic-delaunay' weighting (non-negative weights on poor triangulations) "
+        "or clean degenerate triangles"
+    )
 
     def __init__(self, clamp_negative: bool = False):
         self.clamp_negative = clamp_negative

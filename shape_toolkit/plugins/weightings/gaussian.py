@@ -57,6 +57,12 @@ class GaussianWeighting(Weighting):
     :class:`~shape_toolkit.errors.ParameterError` giving the smallest safe bandwidth.
     """
 
+    #: what to do when the Laplacian is numerically disconnected (``NumericallyDisconnectedGraphError``)
+    disconnection_hint = (
+        "leave the Gaussian bandwidth unset (local, scale-free bandwidths keep every weight "
+        ">= exp(-1/2)) or give a larger one"
+    )
+
     def __init__(self, bandwidth: float | str | None = None, bandwidth_scale: float = 1.0):
         self.bandwidth = bandwidth
         self.bandwidth_scale = bandwidth_scale

@@ -22,11 +22,12 @@ import numpy as np
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.matching._common import _given, basis_of, check_seeds, fmap_from_p2p, resolve_plugin
 from shape_toolkit.plugins.matching.dense.fmap_zoomout import zoomout_residual
 from shape_toolkit.results.correspondence import Correspondence
+from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 __all__ = ["BestOfMatcher"]
 

@@ -23,10 +23,11 @@ from scipy.spatial import cKDTree
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.matching._common import Basis, basis_of, check_seeds
 from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
+from shape_toolkit.spectra import SpectrumSpec, default_spec
 from shape_toolkit.validation import check_random_state
 
 __all__ = ["EMRegistrationMatcher", "em_register", "procrustes"]

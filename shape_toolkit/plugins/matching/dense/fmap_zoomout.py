@@ -30,7 +30,7 @@ import numpy as np
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
+from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.core.surface import cloud_surface
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.descriptors.wks import wave_kernel_signature as _wks
@@ -45,6 +45,7 @@ from shape_toolkit.plugins.matching._common import (  # noqa: F401  (farthest_po
     normalize_columns,
 )
 from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
+from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 __all__ = [
     "FmapZoomOutMatcher", "fit_functional_map", "zoomout", "orientation_operators", "multiplication_operators",
