@@ -449,3 +449,34 @@ def test_a_flat_triangle_is_left_out_of_the_cotangent_weights():
     vals = compute_spectrum(g, 10).eigenvalues
     ref = compute_spectrum(build_graph(sphere, "cotangent"), 10).eigenvalues
     np.testing.assert_allclose(vals[1:4], ref[1:4], rtol=0.05)  # l(l+1) = 2 on the unit sphere, nearly
+
+
+def test_core_build_graph_takes_a_weighting_object_and_the_facade_resolves_names(sphere4):
+    from shape_toolkit.core.graph import build_graph as core_build_graph
+    from shape_toolkit.plugins.weightings.cotangent import CotangentWeighting
+
+    by_name = build_graph(sphere4, "cotangent")
+    by_object = core_build_graph(sphere4, CotangentWeighting(), name="cotangent")
+    assert by_object.weighting == by_name.weighting == "cotangent"
+    assert by_object.content_hash == by_name.content_hash
+    assert core_build_graph(sphere4, CotangentWeighting()).weighting == "CotangentWeighting"
+    with pytest.raises(ParameterError, match="weighting object"):
+        core_build_graph(sphere4, "cotangent")
+
+
+def test_declared_spectra_have_one_eigenpair_per_analysed_vertex():
+    """The one k rule (compute_declared, SpectrumSpec.compute, the benchmark's cached spectra): the solver
+    returns all n eigenpairs of an n-vertex graph, so k is capped at n, not n - 1; with
+    components='largest', at the largest component's size."""
+    from shape_toolkit.bench.tasks import compute_spectrum_cached, received_spec
+    from shape_toolkit.spectra import SpectrumSpec, compute_declared
+
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    tet = Shape(corners, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    spec = SpectrumSpec(10, "binary", "combinatorial", False)
+    (spectrum,) = compute_declared(tet, [spec])
+    assert spectrum.k == tet.n_vertices == 4
+    assert compute_spectrum_cached(spec, tet)[0].k == 4
+    assert received_spec(spec, tet)["k"] == 4
+    two = Shape(np.r_[tet.vertices, tet.vertices[:3] + 5.0], np.r_[tet.faces, [[4, 5, 6]]])
+    assert compute_declared([two], [spec], components="largest")[0][0].k == 4

@@ -39,7 +39,7 @@ def check_n_segments(k: Any, n: int, *, allow_none: bool) -> int | None:
 
 def segmenter_spec(k: int, weighting: str, laplacian: str) -> SpectrumSpec:
     """The spectrum a segmenter declares: ``k`` eigenpairs of the ``laplacian`` of the ``weighting``
-    graph, no mass matrix (:func:`shape_toolkit.core.spectrum.default_spec` of kind ``graph``)."""
+    graph, no mass matrix (:func:`shape_toolkit.spectra.default_spec` of kind ``graph``)."""
     return default_spec(int(k), "graph", weighting=weighting, laplacian=laplacian)
 
 
