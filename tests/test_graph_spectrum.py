@@ -480,3 +480,26 @@ def test_declared_spectra_have_one_eigenpair_per_analysed_vertex():
     assert received_spec(spec, tet)["k"] == 4
     two = Shape(np.r_[tet.vertices, tet.vertices[:3] + 5.0], np.r_[tet.faces, [[4, 5, 6]]])
     assert compute_declared([two], [spec], components="largest")[0][0].k == 4
+
+
+def test_compute_spectrum_takes_a_solver_object(sphere4):
+    from shape_toolkit.core.eigen import EigenSolver
+
+    g = build_graph(sphere4, "cotangent")
+    clear_cache()
+    default = compute_spectrum(g, 12)
+    assert compute_spectrum(g, 12, solver=EigenSolver()) is default  # the default solver: the same cache entry
+    assert not is_cached(g, 12, solver=EigenSolver(method="dense"))
+    dense = compute_spectrum(g, 12, solver=EigenSolver(method="dense"))
+    assert dense is not default and is_cached(g, 12, solver=EigenSolver(method="dense"))
+    np.testing.assert_allclose(dense.eigenvalues, default.eigenvalues, rtol=1e-6, atol=1e-9)
+    calls = []
+
+    def counting(A, k, M=None):
+        calls.append(k)
+        return EigenSolver()(A, k, M)
+
+    compute_spectrum(g, 5, solver=counting, cache=False)
+    assert calls == [5]
+    with pytest.raises(ParameterError, match="method must be one of"):
+        EigenSolver(method="lobpcg")

@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as la
@@ -24,7 +25,7 @@ import scipy.sparse.linalg as sla
 
 from shape_toolkit.errors import ParameterError, SolverError
 
-__all__ = ["DEFAULT_BLAS_THREADS", "METHODS", "fix_signs", "smallest_eigenpairs"]
+__all__ = ["DEFAULT_BLAS_THREADS", "METHODS", "EigenSolver", "fix_signs", "smallest_eigenpairs"]
 
 #: Accepted values of ``method``.
 METHODS = ("auto", "dense", "krylov", "arpack", "arpack-splu")
@@ -525,6 +526,27 @@ def smallest_eigenpairs(
     info["blas_threads"] = DEFAULT_BLAS_THREADS
     with _blas_limit(DEFAULT_BLAS_THREADS):
         return _smallest_eigenpairs(A, k, M, **kwargs)
+
+
+@dataclass(frozen=True)
+class EigenSolver:
+    """:func:`smallest_eigenpairs` with its choices fixed, as an object to inject
+    (``compute_spectrum(graph, k, solver=EigenSolver(method="arpack"))``); called as ``solver(A, k, M)``
+    it returns eigenvalues ``(k,)`` ascending and M-orthonormal eigenvectors ``(n, k)``."""
+
+    method: str = "auto"
+    tol: float = 1e-8
+    blas_threads: int | str | None = "auto"
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ParameterError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
+
+    def __call__(
+        self, A: sp.spmatrix, k: int, M: sp.spmatrix | np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` smallest eigenpairs of ``A u = lambda M u``."""
+        return smallest_eigenpairs(A, k, M, method=self.method, tol=self.tol, blas_threads=self.blas_threads)
 
 
 def _smallest_eigenpairs(

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.core.eigen import fix_signs, smallest_eigenpairs
+from shape_toolkit.core.eigen import EigenSolver, fix_signs
 from shape_toolkit.core.graph import ShapeGraph
 from shape_toolkit.errors import DisconnectedGraphError, ParameterError
 from shape_toolkit.validation import atomic_output
@@ -267,19 +267,24 @@ def _cache_put(key: str, spec: Spectrum, disk: bool = True) -> None:
 
 
 # -- solving ----------------------------------------------------------------------------------
-def _solve(W: sp.csr_matrix, mass: np.ndarray | None, k: int, laplacian: str):
+def _solve(W: sp.csr_matrix, mass: np.ndarray | None, k: int, laplacian: str, solver: Any):
     d = np.asarray(W.sum(axis=1)).ravel()
     L = sp.csr_matrix(sp.diags(d) - W)
     # a diagonal mass goes to the solver as its diagonal vector: no sparse diagonal matrix to build and scan
     if laplacian == "combinatorial":
-        return smallest_eigenpairs(L, k, None if mass is None else np.asarray(mass, dtype=np.float64))
+        return solver(L, k, None if mass is None else np.asarray(mass, dtype=np.float64))
     _require_positive_degrees(d, laplacian)
     # both go through the better-conditioned generalized problem (D - W) v = lambda D v (eq. 2.79)
-    vals, v = smallest_eigenpairs(L, k, d)
+    vals, v = solver(L, k, d)
     if laplacian == "normalized":
         u = v * np.sqrt(d)[:, None]
         return vals, u / np.linalg.norm(u, axis=0)
     return vals, v
+
+
+def _solver_part(solver: Any) -> tuple[Any, ...]:
+    """The cache key's part for ``solver``: nothing for the default one (keys of earlier versions hold)."""
+    return () if solver is None or solver == EigenSolver() else (solver,)
 
 
 def _resolve_use_mass(graph: ShapeGraph, laplacian: str, use_mass: bool | None) -> bool:
@@ -296,10 +301,11 @@ def is_cached(
     use_mass: bool | None = None,
     sign_fix: bool = False,
     components: str = "raise",
+    solver: Any = None,
 ) -> bool:
     """True when :func:`compute_spectrum` with these arguments would be served from the cache."""
     use_mass = _resolve_use_mass(graph, laplacian, use_mass)
-    key = _cache_key(graph, int(k), laplacian, use_mass, bool(sign_fix), components)
+    key = _cache_key(graph, int(k), laplacian, use_mass, bool(sign_fix), components, *_solver_part(solver))
     return _cache_get(key) is not None
 
 
@@ -312,6 +318,7 @@ def compute_spectrum(
     sign_fix: bool = False,
     components: str = "raise",
     cache: bool = True,
+    solver: Any = None,
 ) -> Spectrum:
     """The ``k`` smallest eigenpairs of the chosen Laplacian of ``graph``, ascending.
 
@@ -319,6 +326,9 @@ def compute_spectrum(
     ``L u = lambda M u``. A disconnected graph raises :class:`DisconnectedGraphError` unless
     ``components='largest'``, which analyses the largest component only (the other vertices get
     zero rows; ``meta['vertices']`` lists the analysed ones); see also :func:`component_spectra`.
+    ``solver``: the eigensolver object, called as ``solver(L, k, M)`` (default :class:`EigenSolver()`, i.e.
+    :func:`~shape_toolkit.core.eigen.smallest_eigenpairs` with ``method="auto"``); another one is part of the
+    cache key through its ``repr``.
     """
     if laplacian not in LAPLACIANS:
         raise ParameterError(f"unknown Laplacian {laplacian!r}; choose one of {', '.join(LAPLACIANS)}")
@@ -337,7 +347,7 @@ def compute_spectrum(
             f"{int(np.sum(graph.mass <= 0))} vertices have zero mass (unreferenced or degenerate): "
             "clean the shape first"
         )
-    key = _cache_key(graph, int(k), laplacian, bool(use_mass), bool(sign_fix), components)
+    key = _cache_key(graph, int(k), laplacian, bool(use_mass), bool(sign_fix), components, *_solver_part(solver))
     if cache and (hit := _cache_get(key)) is not None:
         return hit
 
@@ -353,7 +363,7 @@ def compute_spectrum(
             raise ParameterError(f"k must be in [1, {len(vertices)}] (largest component)")
         W = W[vertices][:, vertices]
         mass = mass[vertices] if mass is not None else None
-    vals, vecs = _solve(sp.csr_matrix(W), mass, int(k), laplacian)
+    vals, vecs = _solve(sp.csr_matrix(W), mass, int(k), laplacian, EigenSolver() if solver is None else solver)
     vals = np.maximum(vals, 0.0) if vals[0] > -1e-9 * max(abs(vals[-1]), 1.0) else vals
     # Numerically disconnected: one zero eigenvalue per component is expected (thesis 2.6.1), here
     # one (the analysed graph is connected). The spectrum's scale is the median of L_ii / M_ii (M the
