@@ -503,3 +503,13 @@ def test_compute_spectrum_takes_a_solver_object(sphere4):
     assert calls == [5]
     with pytest.raises(ParameterError, match="method must be one of"):
         EigenSolver(method="lobpcg")
+
+
+def test_core_build_graph_leaves_the_callers_weighting_object_alone():
+    from shape_toolkit.core.graph import build_graph as core_build_graph
+    from shape_toolkit.plugins.weightings.intrinsic_delaunay import IntrinsicDelaunayWeighting
+
+    scheme = IntrinsicDelaunayWeighting()
+    before = scheme.get_params()
+    g = core_build_graph(icosphere(2), scheme, name="intrinsic-delaunay", connectivity="knn", n_neighbors=7)
+    assert scheme.get_params() == before and g.params["n_neighbors"] == 7

@@ -5,6 +5,7 @@ layer resolves no names: :func:`shape_toolkit.spectra.build_graph` turns a plugi
 
 from __future__ import annotations
 
+import copy
 import hashlib
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -206,7 +207,7 @@ def _build_own_connectivity(
         if shape.is_mesh:
             target = Shape(shape.vertices)
         if n_neighbors is not None and "n_neighbors" in scheme.get_params():
-            scheme.set_params(n_neighbors=int(n_neighbors))
+            scheme = copy.deepcopy(scheme).set_params(n_neighbors=int(n_neighbors))  # the caller's object stays
     return _finish(shape, scheme, weighting, scheme.weigh(target, np.zeros((0, 2), np.int64)), connectivity)
 
 
