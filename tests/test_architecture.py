@@ -23,6 +23,7 @@ LAYERS = [
     ("features", ["shape_toolkit.features"]),
     ("results", ["shape_toolkit.results"]),
     ("io", ["shape_toolkit.io"]),
+    ("viz", ["shape_toolkit.viz"]),
     ("data", ["shape_toolkit.data"]),
     ("plugins", ["shape_toolkit.plugins"]),
     ("pipeline", ["shape_toolkit.pipeline"]),
