@@ -1,10 +1,24 @@
 """Read and write shapes: triangle meshes (OFF, PLY, OBJ, STL) and point clouds (PLY, XYZ, PCD).
 
-Text formats and PLY (ascii and binary) are parsed here with numpy, so every problem is reported
-as a :class:`ShapeFileError` naming the file and the line; PCD is read with Open3D. STL triangle
-soups are welded (exactly coincident corners merged, first-occurrence order). Polygons are
-triangulated as fans. Indices are 0-based in the API and in every file written, except where the
-format itself is 1-based (OBJ).
+Every file is validated before anything large is allocated or a library sees it (size against the
+header's counts, counts against :data:`MAX_VERTICES`), and every problem is a :class:`ShapeFileError`
+naming the file (and the line, where there is one). STL is read by libigl (``readSTL``) and LZF-compressed
+PCD by Open3D, after those checks. STL triangle soups are welded (exactly coincident corners merged,
+first-occurrence order). Polygons are triangulated as fans. Indices are 0-based in the API and in every
+file written, except where the format itself is 1-based (OBJ).
+
+OFF, OBJ, PLY, XYZ and ascii/binary PCD keep numpy parsers, because the libraries accept malformed
+files without an error (checked with libigl 2.6.3 and Open3D 0.19.0):
+
+- libigl reads face index 4294967298 as 2 in OFF and OBJ (32-bit wrap: a wrong mesh that passes every
+  range check), OBJ index 0 as -1, PLY float list indices 1.5 as 1, leaves PLY polygons untriangulated,
+  returns uninitialised coordinates for a truncated binary PLY, and prints its errors on stdout;
+- Open3D returns uninitialised coordinates for an OFF vertex ``1 abc 0`` and for a truncated ascii PCD,
+  an empty mesh for ``OFF 3 1 0`` on one line and for an OBJ polygon ``f 1/1 2/2 3/3 4/4``, drops a
+  malformed XYZ line, and both keep PLY face indices out of range (7 of 3 vertices, -1);
+- Open3D divides PLY colours by 255 whatever their type (float 1.0 gives 0.0039, ushort 65535 gives
+  257) and ignores ``r g b``; libigl reads no colours; neither samples OBJ textures per vertex;
+- writers: libigl's ``writeOFF`` keeps 15 digits and Open3D's writers 6; ours round-trip float64.
 
 Per-vertex colours (``Shape.colors``, RGB in [0, 1]) are read from PLY (vertex ``red green blue``,
 also ``r g b`` or ``diffuse_*``, any numeric type: integer types are 8-bit except ``ushort``,
