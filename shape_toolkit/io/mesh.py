@@ -42,6 +42,7 @@ from __future__ import annotations
 import os
 import re
 import sys
+import threading
 import warnings
 from collections.abc import Callable, Sequence
 from contextlib import contextmanager
@@ -957,22 +958,30 @@ def _read_stl(p: Path, want_colors: bool = True) -> _ParsedColors:
     return (*_weld(v.reshape(-1, 3, 3)), None)
 
 
+_QUIET_LOCK = threading.Lock()  # two threads swapping the same file descriptors would lose the real ones
+
+
 @contextmanager
 def _quiet():
     """Silence C-level output (libigl prints its parse errors to stdout, which is the CLI's JSON)."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    try:
-        with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), 1)
-            os.dup2(null.fileno(), 2)
+    with _QUIET_LOCK:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        try:
+            saved = [os.dup(1), os.dup(2)]
+        except OSError:  # no standard streams (a daemon): nothing to silence
             yield
-    finally:
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        os.close(saved[0])
-        os.close(saved[1])
+            return
+        try:
+            with open(os.devnull, "wb") as null:
+                os.dup2(null.fileno(), 1)
+                os.dup2(null.fileno(), 2)
+                yield
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
 
 
 # --------------------------------------------------------------------------------------------
