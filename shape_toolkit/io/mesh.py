@@ -921,8 +921,9 @@ def _weld(corners: np.ndarray) -> _Parsed:
 
 
 def _read_stl(p: Path, want_colors: bool = True) -> _ParsedColors:
-    """STL through libigl's ``readSTL`` (a triangle soup in file order), welded here. Validated first:
-    libigl 2.6 returns uninitialised coordinates without an error for a truncated binary file."""
+    """STL through libigl's ``readSTL`` (a triangle soup in file order), welded here. Checked first, so
+    the count limit applies before libigl allocates and a refusal says what is wrong (libigl 2.6 says
+    "Failed to open file" for an ascii STL without facets, and names no line)."""
     size = p.stat().st_size
     with open(p, "rb") as fh:
         head = fh.read(84)
