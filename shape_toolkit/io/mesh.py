@@ -17,7 +17,8 @@ files without an error (checked with libigl 2.6.3 and Open3D 0.19.0):
   an empty mesh for ``OFF 3 1 0`` on one line and for an OBJ polygon ``f 1/1 2/2 3/3 4/4``, drops a
   malformed XYZ line, and both keep PLY face indices out of range (7 of 3 vertices, -1);
 - Open3D divides PLY colours by 255 whatever their type (float 1.0 gives 0.0039, ushort 65535 gives
-  257) and ignores ``r g b``; libigl reads no colours; neither samples OBJ textures per vertex;
+  257) and ignores ``r g b``; libigl's ``readOFF`` divides float COFF colours by 255 too (the COFF
+  files written here would come back dark); neither samples OBJ textures per vertex;
 - writers: libigl's ``writeOFF`` keeps 15 digits and Open3D's writers 6; ours round-trip float64.
 
 Per-vertex colours (``Shape.colors``, RGB in [0, 1]) are read from PLY (vertex ``red green blue``,
