@@ -142,7 +142,7 @@ def run_one(kind: str, seed: int, method: str, args: argparse.Namespace) -> dict
         "n_chain_pairs": T - 1, "seconds": time.perf_counter() - t0,
     }
     if kind == "merged" and seed == args.seeds[0] and method in args.figure_methods:
-        from shape_toolkit.io.viz import render_trajectories
+        from shape_toolkit.viz import render_trajectories
 
         colors = pullback_sequence_colors(seq.frames, maps[: T - 1])
         render_trajectories(list(seq.frames), chain.ids, figure_path(method), colors=colors, n_tracks=150, tail=5,
@@ -334,7 +334,7 @@ def report(rows: list[dict], meta: dict) -> str:
     for m in meta["figure_methods"]:
         if figure_path(m).exists():
             out += ["", f"![{m} trajectories]({figure_path(m).name})", "",
-                    f"Figure: `{m}`, chained, on the first merged sequence, drawn by `io.viz.render_trajectories` "
+                    f"Figure: `{m}`, chained, on the first merged sequence, drawn by `viz.render_trajectories` "
                     "(what `shape-toolkit track --png` writes); each frame coloured by pull-back of the last "
                     "frame's position colours, so a correct tracking looks the same in every frame."]
     out += ["", "## Findings", "", *meta.get("findings", ["(see the tables)"]), ""]

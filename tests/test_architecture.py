@@ -24,6 +24,7 @@ LAYERS = [
     ("features", ["shape_toolkit.features"]),
     ("results", ["shape_toolkit.results"]),
     ("io", ["shape_toolkit.io"]),
+    ("viz", ["shape_toolkit.viz"]),
     ("data", ["shape_toolkit.data"]),
     ("spectra", ["shape_toolkit.spectra"]),
     ("plugins", ["shape_toolkit.plugins"]),

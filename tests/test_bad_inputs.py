@@ -388,7 +388,7 @@ def test_evaluate_segmentation_explains_an_undefined_cut_discrepancy(tmp_path, c
 @pytest.mark.parametrize("n", [1, 2])
 def test_render_draws_clouds_of_one_or_two_points(tmp_path, n):
     """view --png on a 1- or 2-point cloud: the view frame's SVD had fewer axes than 3 (IndexError)."""
-    from shape_toolkit.io.viz import render_shapes
+    from shape_toolkit.viz import render_shapes
 
     out = render_shapes([{"shape": Shape(np.arange(3 * n, dtype=float).reshape(n, 3))}], tmp_path / "c.png")
     assert out.read_bytes()[:4] == b"\x89PNG"

@@ -425,3 +425,17 @@ def test_duplicate_faces_rule(tmp_mesh_dir):
         assert load_shape(p, duplicate_faces="drop").faces.tolist() == [[0, 1, 2], [0, 2, 3]]
     with pytest.raises(ParameterError):
         load_shape(p, duplicate_faces="maybe")
+
+
+def test_stl_read_by_libigl_after_the_checks_is_quiet(sphere, tmp_mesh_dir, capfd):
+    """libigl reads STL (the soup welded as before); its parse errors become a ShapeFileError, and what it
+    prints on the C-level stdout (the CLI's JSON) is silenced."""
+    p = tmp_mesh_dir / "a.stl"
+    p.write_text("solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex a b c\nendloop\n"
+                 "endfacet\nendsolid x\n")
+    _fails(p, "libigl cannot read this ascii STL")
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+    save_shape(sphere, p)
+    s = load_shape(p)
+    assert s.n_faces == sphere.n_faces and np.abs(s.vertices[s.faces] - sphere.vertices[sphere.faces]).max() < 1e-6

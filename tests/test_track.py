@@ -15,9 +15,9 @@ from shape_toolkit.cli import main
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.synthetic import SEQUENCE_LIMB_LENGTHS, articulated_shape, pose_sequence
 from shape_toolkit.errors import ParameterError, ShapeFileError
-from shape_toolkit.io.viz import save_colored_ply
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.results.trajectories import Trajectories, chain_maps, compose_maps, trajectory_drift
+from shape_toolkit.viz import save_colored_ply
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import pytest
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.io.viz import label_colors, match_colors, render_shape, render_shapes, save_colored_ply
+from shape_toolkit.viz import label_colors, match_colors, render_shape, render_shapes, save_colored_ply
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +104,7 @@ def test_match_colors_identity_transfers_exactly(body):
 
 
 def test_pullback_colours_every_source_vertex(body):
-    from shape_toolkit.io.viz import pullback_colors
+    from shape_toolkit.viz import pullback_colors
 
     s, _ = body
     rng = np.random.default_rng(0)
@@ -119,7 +119,7 @@ def test_pullback_colours_every_source_vertex(body):
 
 
 def test_align_labels_hungarian_gives_the_truth_palette(body):
-    from shape_toolkit.io.viz import align_labels
+    from shape_toolkit.viz import align_labels
 
     _, labels = body
     perm = np.array([3, 5, 0, 1, 2, 4])
@@ -143,7 +143,7 @@ def test_label_colour_depends_on_value_only():
 
 def test_plotly_show_figure(body):
     pytest.importorskip("plotly")
-    from shape_toolkit.io.viz import show
+    from shape_toolkit.viz import show
 
     s, labels = body
     fig = show(s, labels=labels, points=[0, 1], title="parts")
@@ -162,7 +162,7 @@ def test_colorbar_panel_and_long_title(body, tmp_path):
 
 
 def test_label_colors_cost_grows_with_distinct_labels_not_their_values():
-    from shape_toolkit.io.viz import label_colors
+    from shape_toolkit.viz import label_colors
 
     lab = np.array([0, 2**62, -1, 2**62, 3])  # a palette sized by the largest value would need exabytes
     c = label_colors(lab)
@@ -174,7 +174,7 @@ def test_both_renderers_share_one_lambert_shading(body, tmp_path, monkeypatch):
     """_shaded_faces: a face turned to the light keeps its colour, one edge-on to it keeps the
     ambient share, a flipped face shades like the front; render_shape and render_trajectories
     both draw meshes through it."""
-    from shape_toolkit.io import viz
+    from shape_toolkit import viz
 
     light = viz._LIGHT
     e1 = np.cross(light, [0.0, 0.0, 1.0])

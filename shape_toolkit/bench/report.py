@@ -509,7 +509,7 @@ def _cost_fig(task: str, cells: dict, figs: _Figs) -> list[str]:
 
 
 def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[str]:
-    from shape_toolkit.io.viz import align_labels, pullback_colors, render_shapes
+    from shape_toolkit.viz import align_labels, pullback_colors, render_shapes
 
     parts = []
     done_methods: set[str] = set()

@@ -1,7 +1,13 @@
 """Repair common mesh defects and report exactly what changed.
 
 Topological repairs are done here with numpy (exact, deterministic, and every output vertex
-keeps track of the input vertex it came from); only isotropic remeshing calls pymeshlab.
+keeps track of the input vertex it came from); only isotropic remeshing calls pymeshlab. The
+libraries' filters do not do the same job (checked with Open3D 0.19.0 and pymeshlab 2025.7):
+none returns the index map that :attr:`CleanupReport.vertex_map` reports; Open3D's
+``remove_degenerate_triangles`` keeps zero-area faces with three distinct vertices and its
+``remove_duplicated_triangles`` keeps face (2, 1, 0) next to (0, 1, 2); pymeshlab's
+``meshing_remove_duplicate_faces`` keeps the later face of that pair, (2, 1, 0), where the report
+counts the earlier one as kept.
 """
 
 from __future__ import annotations

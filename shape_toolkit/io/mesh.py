@@ -1,10 +1,25 @@
 """Read and write shapes: triangle meshes (OFF, PLY, OBJ, STL) and point clouds (PLY, XYZ, PCD).
 
-Text formats and PLY (ascii and binary) are parsed here with numpy, so every problem is reported
-as a :class:`ShapeFileError` naming the file and the line; PCD is read with Open3D. STL triangle
-soups are welded (exactly coincident corners merged, first-occurrence order). Polygons are
-triangulated as fans. Indices are 0-based in the API and in every file written, except where the
-format itself is 1-based (OBJ).
+Every file is validated before anything large is allocated or a library sees it (size against the
+header's counts, counts against :data:`MAX_VERTICES`), and every problem is a :class:`ShapeFileError`
+naming the file (and the line, where there is one). STL is read by libigl (``readSTL``) and LZF-compressed
+PCD by Open3D, after those checks. STL triangle soups are welded (exactly coincident corners merged,
+first-occurrence order). Polygons are triangulated as fans. Indices are 0-based in the API and in every
+file written, except where the format itself is 1-based (OBJ).
+
+OFF, OBJ, PLY, XYZ and ascii/binary PCD keep numpy parsers, because the libraries accept malformed
+files without an error (checked with libigl 2.6.3 and Open3D 0.19.0):
+
+- libigl reads face index 4294967298 as 2 in OFF and OBJ (32-bit wrap: a wrong mesh that passes every
+  range check), OBJ index 0 as -1, PLY float list indices 1.5 as 1, leaves PLY polygons untriangulated,
+  returns uninitialised coordinates for a truncated binary PLY, and prints its errors on stdout;
+- Open3D returns uninitialised coordinates for an OFF vertex ``1 abc 0`` and for a truncated ascii PCD,
+  an empty mesh for ``OFF 3 1 0`` on one line and for an OBJ polygon ``f 1/1 2/2 3/3 4/4``, drops a
+  malformed XYZ line, and both keep PLY face indices out of range (7 of 3 vertices, -1);
+- Open3D divides PLY colours by 255 whatever their type (float 1.0 gives 0.0039, ushort 65535 gives
+  257) and ignores ``r g b``; libigl's ``readOFF`` divides float COFF colours by 255 too (the COFF
+  files written here would come back dark); neither samples OBJ textures per vertex;
+- writers: libigl's ``writeOFF`` keeps 15 digits and Open3D's writers 6; ours round-trip float64.
 
 Per-vertex colours (``Shape.colors``, RGB in [0, 1]) are read from PLY (vertex ``red green blue``,
 also ``r g b`` or ``diffuse_*``, any numeric type: integer types are 8-bit except ``ushort``,
@@ -25,10 +40,13 @@ y z r g b`` and XYZ as ``x y z r g b`` (all three exact floats), PCD as PCL's pa
 
 from __future__ import annotations
 
+import os
 import re
 import sys
+import threading
 import warnings
 from collections.abc import Callable, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -903,47 +921,69 @@ def _weld(corners: np.ndarray) -> _Parsed:
     return flat[first[order]], rank[inv.ravel()].reshape(-1, 3).astype(np.int64)
 
 
-def _read_stl(p: Path) -> _Parsed:
+def _read_stl(p: Path, want_colors: bool = True) -> _ParsedColors:
+    """STL through libigl's ``readSTL`` (a triangle soup in file order), welded here. Checked first, so
+    the count limit applies before libigl allocates and a refusal says what is wrong (libigl 2.6 says
+    "Failed to open file" for an ascii STL without facets, and names no line)."""
     size = p.stat().st_size
     with open(p, "rb") as fh:
         head = fh.read(84)
-    if len(head) >= 84:
-        n = int(np.frombuffer(head, dtype="<u4", count=1, offset=80)[0])
-        if size == 84 + 50 * n:
-            _check_count(n, "triangles")
-            if n == 0:
-                raise _Err("binary STL with 0 triangles")
-            soup = np.fromfile(p, dtype=_STL_DT, count=n, offset=84)
-            return _weld(soup["v"])
-    if not head.lstrip().lower().startswith(b"solid"):
-        raise _Err(
-            "neither a valid binary STL (size does not match the triangle count) nor ascii STL "
-            "(no 'solid' keyword): the file is probably truncated"
-        )
-    text = _read_text(p)
-    toks = re.findall(r"^\s*vertex\s+(\S+)\s+(\S+)\s+(\S+)", text, flags=re.MULTILINE)
-    if not toks:
-        raise _Err("ascii STL without any 'vertex' line")
-    if len(toks) % 3:
-        raise _Err(f"ascii STL has {len(toks)} vertex lines, not a multiple of 3 (truncated?)")
-    n_facets = len(re.findall(r"^\s*endfacet", text, flags=re.MULTILINE))
-    if n_facets * 3 != len(toks):
-        raise _Err(f"ascii STL has {len(toks)} vertex lines for {n_facets} facets (truncated?)")
-    _check_count(len(toks) // 3, "triangles")
+    binary = len(head) >= 84 and size == 84 + 50 * int(np.frombuffer(head, dtype="<u4", count=1, offset=80)[0])
+    if binary:
+        n = (size - 84) // 50
+        _check_count(n, "triangles")
+        if n == 0:
+            raise _Err("binary STL with 0 triangles")
+    else:
+        if not head.lstrip().lower().startswith(b"solid"):
+            raise _Err(
+                "neither a valid binary STL (size does not match the triangle count) nor ascii STL "
+                "(no 'solid' keyword): the file is probably truncated"
+            )
+        text = _read_text(p)
+        n_vertex = len(re.findall(r"^\s*vertex\s", text, flags=re.MULTILINE))
+        if not n_vertex:
+            raise _Err("ascii STL without any 'vertex' line")
+        n = len(re.findall(r"^\s*endfacet", text, flags=re.MULTILINE))
+        if n * 3 != n_vertex:
+            raise _Err(f"ascii STL has {n_vertex} vertex lines for {n} facets (truncated?)")
+        _check_count(n, "triangles")
+    import igl
+
     try:
-        arr = np.array(toks, dtype=np.float64)
-    except ValueError:
-        bad = next(t for row in toks for t in row if not _isfloat(t))
-        raise _Err(f"non-numeric vertex value {bad!r}") from None
-    return _weld(arr.reshape(-1, 3, 3))
+        with _quiet():
+            v, f, _ = igl.readSTL(str(p))
+    except RuntimeError as e:  # libigl's message names no line
+        raise _Err(f"libigl cannot read this {'binary' if binary else 'ascii'} STL ({e})") from None
+    if f.shape != (n, 3) or not np.array_equal(f.ravel(), np.arange(3 * n)):
+        raise _Err(f"libigl read {f.shape[0]} triangles of the {n} in the file")
+    return (*_weld(v.reshape(-1, 3, 3)), None)
 
 
-def _isfloat(t: str) -> bool:
-    try:
-        float(t)
-        return True
-    except ValueError:
-        return False
+_QUIET_LOCK = threading.Lock()  # two threads swapping the same file descriptors would lose the real ones
+
+
+@contextmanager
+def _quiet():
+    """Silence C-level output (libigl prints its parse errors to stdout, which is the CLI's JSON)."""
+    with _QUIET_LOCK:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        try:
+            saved = [os.dup(1), os.dup(2)]
+        except OSError:  # no standard streams (a daemon): nothing to silence
+            yield
+            return
+        try:
+            with open(os.devnull, "wb") as null:
+                os.dup2(null.fileno(), 1)
+                os.dup2(null.fileno(), 2)
+                yield
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
 
 
 # --------------------------------------------------------------------------------------------
@@ -1179,20 +1219,11 @@ def _write_stl(fh, shape: Shape, binary: bool) -> None:
     fh.write("".join(parts).encode())
 
 
-def _geometry_only(reader: Callable[[Path], _Parsed]) -> Callable[[Path, bool], _ParsedColors]:
-    """A reader of a format without colours, in the ``(path, want_colors) -> (v, f, None)`` form."""
-
-    def read(p: Path, want_colors: bool = True) -> _ParsedColors:
-        return (*reader(p), None)
-
-    return read
-
-
 _READERS: dict[str, Callable[[Path, bool], _ParsedColors]] = {
     ".off": _read_off,
     ".obj": _read_obj,
     ".ply": _read_ply,
-    ".stl": _geometry_only(_read_stl),
+    ".stl": _read_stl,
     ".xyz": _read_xyz,
     ".pcd": _read_pcd,
 }

@@ -426,7 +426,7 @@ def write_ply(path: str | os.PathLike | None, shape: Any, colors: np.ndarray) ->
     """Write ``shape`` with vertex ``colors`` ``(n, 3)`` in [0, 1] to ``path`` (PLY); None: nothing."""
     if path is None:
         return None
-    from shape_toolkit.io.viz import save_colored_ply
+    from shape_toolkit.viz import save_colored_ply
 
     save_colored_ply(shape, path, colors)
     return str(path)

@@ -113,7 +113,7 @@ def _showcase(out: Path, random_state: int, workers: int, quiet: bool) -> dict:
 def _spectrum_figures(shape, spec, out: Path) -> list[str]:
     """``spectrum.png`` (eigenvalues against their index) and ``eigenvectors.png`` (eigenvectors 2-4
     on the shape, diverging colours symmetric about 0, with colour bars)."""
-    from shape_toolkit.io.viz import _mpl, render_shapes
+    from shape_toolkit.viz import _mpl, render_shapes
 
     _, plt = _mpl()
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -141,8 +141,8 @@ def _spectrum_figures(shape, spec, out: Path) -> list[str]:
 def _match_demo(out: Path, random_state: int, args: argparse.Namespace) -> dict:
     """The strongest pipeline (``zoomout``) between two generated poses, with the pull-back colour
     render ``match.png``, coloured PLY files and its error against the exact ground truth."""
-    from shape_toolkit.io.viz import pullback_colors, render_shapes, save_colored_ply
     from shape_toolkit.pipeline import load_pipeline
+    from shape_toolkit.viz import pullback_colors, render_shapes, save_colored_ply
 
     a = articulated_shape(subdivisions=3, random_state=random_state + 1)
     b = articulated_shape(subdivisions=3, random_state=random_state + 2)

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     nearest = D.min(axis=0)
     ply = None
     if args.ply:
-        from shape_toolkit.io.viz import scalar_colors
+        from shape_toolkit.viz import scalar_colors
 
         ply = write_ply(args.ply, shape, scalar_colors(nearest, "magma_r"))
     fin = nearest[np.isfinite(nearest)]

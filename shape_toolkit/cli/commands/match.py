@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     save_map(out, corr)
     plys = None
     if args.ply:
-        from shape_toolkit.io.viz import pullback_colors
+        from shape_toolkit.viz import pullback_colors
 
         ps, pt = ply_pair(args.ply)
         cs, ct = pullback_colors(source, target, corr.target_of)

@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     # a segmenter that works per face (dual graph) keeps its own face labels
     written = face_labels_of(seg, shape.faces, labels) if args.faces else labels
     write_labels(out, written)
-    from shape_toolkit.io.viz import label_colors
+    from shape_toolkit.viz import label_colors
 
     ply = write_ply(args.ply, shape, label_colors(labels))
     result = {

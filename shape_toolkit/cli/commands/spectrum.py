@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         )
     ply = None
     if args.ply:
-        from shape_toolkit.io.viz import eigenvector_colors
+        from shape_toolkit.viz import eigenvector_colors
 
         # with --largest-component the other vertices hold zeros (white)
         ply = write_ply(args.ply, shape, eigenvector_colors(spec.eigenvectors[:, args.eigenvector]))

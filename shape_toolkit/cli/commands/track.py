@@ -132,7 +132,7 @@ def pullback_sequence_colors(
     positions in its bounding box) and every frame ``t`` takes, vertex by vertex, the colour of
     the last-frame vertex its chained maps ``t -> ... -> T-1`` reach (grey where lost), so a good
     tracking makes all frames look alike (pull-back, as ``match --ply``)."""
-    from shape_toolkit.io.viz import pullback_colors
+    from shape_toolkit.viz import pullback_colors
 
     last = frames[-1]
     out = []
@@ -239,19 +239,19 @@ def run(args: argparse.Namespace) -> int:
             colors = pullback_sequence_colors(frames, maps)
             title = f"{pipe.name}: {traj.n_tracks} trajectories through {traj.n_frames} frames"
             if png:
-                from shape_toolkit.io.viz import render_trajectories
+                from shape_toolkit.viz import render_trajectories
 
                 render_trajectories(frames, traj.ids, png, colors=colors, n_tracks=args.tracks,
                                     tail=args.tail, title=title)
                 written["png"] = str(png)
             if gif:
-                from shape_toolkit.io.viz import render_trajectories
+                from shape_toolkit.viz import render_trajectories
 
                 render_trajectories(frames, traj.ids, gif, colors=colors, n_tracks=args.tracks,
                                     tail=args.tail, title=title)
                 written["gif"] = str(gif)
             if ply_dir:
-                from shape_toolkit.io.viz import save_colored_ply
+                from shape_toolkit.viz import save_colored_ply
 
                 ply_dir.mkdir(exist_ok=True)
                 written["ply"] = [str(save_colored_ply(f, ply_dir / f"frame_{t:03d}.ply", c))

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
         )
     seconds = time.perf_counter() - t0
     write_labels(output, vertex_to_face_labels(test.faces, out) if args.faces else out)
-    from shape_toolkit.io.viz import label_colors
+    from shape_toolkit.viz import label_colors
 
     ply = write_ply(args.ply, test, label_colors(out))
     values, counts = np.unique(out, return_counts=True)

@@ -83,7 +83,7 @@ def read_scalar(path: str, n: int, column: int = 0) -> np.ndarray:
 def view_items(args: argparse.Namespace) -> list[dict[str, Any]]:
     """What the viewer shows, computed without any GUI: ``[{"name", "shape", "colors" (n, 3) in
     [0, 1], "points"}]``; every input problem raises a typed one-line error."""
-    from shape_toolkit.io.viz import label_colors, pullback_colors, scalar_colors
+    from shape_toolkit.viz import label_colors, pullback_colors, scalar_colors
 
     shape = load_shape(args.shape)
     points = None
@@ -178,7 +178,7 @@ def _png(args: argparse.Namespace) -> int:
     out = check_output_path(args.png, "--png", suffixes=(".png",))
     check_distinct(out, *inputs)
     items = view_items(args)
-    from shape_toolkit.io.viz import render_shapes
+    from shape_toolkit.viz import render_shapes
 
     panels = [{"shape": it["shape"], "colors": it["colors"], "points": it["points"], "title": _literal(it["name"])}
               for it in items]
