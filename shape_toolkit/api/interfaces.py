@@ -22,6 +22,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from shape_toolkit.core.shape import Shape
     from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
     from shape_toolkit.results.correspondence import Correspondence
+    from shape_toolkit.results.segmentation import Segmentation
 
 
 class BasePlugin:
@@ -195,7 +196,8 @@ class DenseMatcher(BasePlugin, ABC):
 
 
 class Segmenter(BasePlugin, ABC):
-    """Assigns one label per vertex.
+    """Assigns one label per vertex (and per face, on a mesh): a
+    :class:`~shape_toolkit.results.segmentation.Segmentation`.
 
     ``takes_constraints``: whether :meth:`segment` uses must-link / cannot-link ``constraints``
     (semi-supervised methods set it True). One that does not refuses them with
@@ -227,8 +229,9 @@ class Segmenter(BasePlugin, ABC):
         *,
         spectrum: Spectrum | None = None,
         constraints: Any | None = None,
-    ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1``."""
+    ) -> Segmentation:
+        """The segmentation: int64 vertex labels ``(n,)`` in ``0..k-1``, int64 face labels ``(m,)`` on a
+        mesh (None on a point cloud), and ``info`` (e.g. the constraints kept)."""
 
 
 #: family name -> (base class, name of the method a plugin must provide)
