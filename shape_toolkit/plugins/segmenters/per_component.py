@@ -3,7 +3,7 @@ style of scikit-learn's ``OneVsRestClassifier``.
 
 A mesh of several connected components (of the vertex graph, or of the dual graph, where faces meeting
 only at a vertex are apart), with vertices on no face, or a point cloud whose kNN graph falls apart, is
-segmented one piece at a time by clones of the wrapped segmenter, ``n_segments`` shared between the
+segmented one piece at a time by copies of the wrapped segmenter, ``n_segments`` shared between the
 pieces (:func:`segments_per_component`); specks and debris join their nearest segment
 (:func:`nearest_label_per_piece`). The built-in segmenters wrap themselves when the shape asks for it
 (:class:`~shape_toolkit.plugins.segmenters.base.BaseSegmenter`); wrap any other segmenter explicitly.
@@ -132,7 +132,7 @@ def nearest_label_per_piece(
 
 
 class PerComponent(Segmenter):
-    """Segments each connected piece of a shape with its own clone of ``segmenter``.
+    """Segments each connected piece of a shape with its own copy of ``segmenter``.
 
     ``pieces``: which pieces of a mesh: ``"vertex"`` (connected components of the vertex graph),
     ``"dual"`` (of the dual graph: faces meeting only at a vertex are apart; a vertex shared by several
@@ -182,7 +182,7 @@ class PerComponent(Segmenter):
         """The segmentation of ``shape`` piece by piece, or None when it is one piece (a connected mesh
         whose every vertex is on a face, a point cloud whose graph is connected).
 
-        Each piece is segmented by a clone of the segmenter with its share of ``n_segments``
+        Each piece is segmented by a copy of the segmenter with its share of ``n_segments``
         (:func:`segments_per_component`: by area; at least one for a piece holding a constraint end, two
         for one holding a cannot-link, and its clicked parts; a piece of fewer than ``MIN_SPLIT_SIZE``
         vertices or faces is never split, larger ones at most one segment per ``MIN_SPLIT_SIZE // 2``),
