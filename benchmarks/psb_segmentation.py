@@ -41,12 +41,12 @@ Protocol (stated again in the results file):
 - Time and peak memory (``tracemalloc``: numpy and Python allocations; native buffers of Open3D,
   PyMaxflow and ARPACK are not seen) per method, also per 10k faces. Spectra are computed once per
   mesh for all methods (``spectrum_specs()`` merged) and not counted in a method's time.
-- Predicted labels are per face when the segmenter provides ``face_labels_`` (``sdf``, ``smoothed``,
-  ``ncut``, ``seeded-walk``); otherwise predicted vertex labels become face labels by majority (ties to
-  the smallest label). Every face counts once, as in Chen et al.'s definitions (Rand index over the
-  ``N choose 2`` face pairs); ``--area-weighted`` weighs faces by area instead. The area-weighted Rand
-  index error is reported alongside either way. Cut discrepancy uses Dijkstra distances over mesh
-  edges (see ``shape_toolkit.metrics.segmentation``).
+- Predicted labels are the segmentation's ``face_labels``: the segmenter's own where it segments faces
+  (``sdf``, ``smoothed``, ``ncut``, ``seeded-walk``, ``csc`` on the dual graph); otherwise predicted vertex
+  labels become face labels by majority (ties to the smallest label). Every face counts once, as in Chen
+  et al.'s definitions (Rand index over the ``N choose 2`` face pairs); ``--area-weighted`` weighs faces
+  by area instead. The area-weighted Rand index error is reported alongside either way. Cut discrepancy
+  uses Dijkstra distances over mesh edges (see ``shape_toolkit.metrics.segmentation``).
 - Means: per mesh over its human segmentations, then over the meshes of a category, then over the
   categories (every category weighs the same, as in the PSB's 19-category averages).
 """
@@ -76,7 +76,6 @@ from shape_toolkit.metrics.segmentation import (  # noqa: E402
     rand_index_error,
     segmentation_scores,
 )
-from shape_toolkit.plugins.segmenters._common import face_labels_of  # noqa: E402
 from shape_toolkit.results.labels import clicks_from_segmentation, vertex_to_face_labels  # noqa: E402
 from shape_toolkit.spectra import compute_declared  # noqa: E402
 from shape_toolkit.validation import jsonable  # noqa: E402
@@ -340,16 +339,14 @@ def tune(psb: Path, ids: list[str], seed: int, log, area_weighted: bool = False)
 
         for i, params in enumerate(SDF_GRID):
             seg = create_plugin("segmenters", "sdf", n_segments=k, random_state=seed, **params)
-            seg.segment(shape)
-            sdf_err[i][mesh_id] = err(seg.face_labels_)
+            sdf_err[i][mesh_id] = err(seg.segment(shape).face_labels)
         for i, params in enumerate(NCUT_GRID):
             seg = create_plugin("segmenters", "ncut", n_segments=k, **params)
-            seg.segment(shape)
-            ncut_err[i][mesh_id] = err(seg.face_labels_)
+            ncut_err[i][mesh_id] = err(seg.segment(shape).face_labels)
         base = create_plugin("segmenters", SMOOTH_TUNE_BASE[0], n_segments=k, random_state=seed,
                              **SMOOTH_TUNE_BASE[1])
         try:
-            fl0 = vertex_to_face_labels(shape.faces, base.segment(shape))
+            fl0 = vertex_to_face_labels(shape.faces, base.segment(shape).labels)
         except Exception as exc:  # reported by the main run
             log(f"  tune {mesh_id}: {SMOOTH_TUNE_BASE[0]} failed ({type(exc).__name__}: {exc})")
             fl0 = None
@@ -402,11 +399,11 @@ def _loo_rows(rows, shape, truths, methods, plugins, spectra, k, seed, tuned, we
                 continue
             seg = _make(plugin, params, k, seed, tuned)
             try:
-                labels = seg.segment(shape, spectrum=spectra if seg.spectrum_specs() else None, constraints=cons)
+                result = seg.segment(shape, spectrum=spectra if seg.spectrum_specs() else None, constraints=cons)
             except Exception as exc:  # recorded as a failure of the loo row
                 rows[f"{name}-loo"] = {"error": f"{type(exc).__name__}: {exc}", "seconds": 0.0}
                 continue
-            per_name.setdefault(f"{name}-loo", []).append(ri(face_labels_of(seg, shape.faces, labels)))
+            per_name.setdefault(f"{name}-loo", []).append(ri(result.face_labels))
     for name, vals in per_name.items():
         if name in rows:
             continue
@@ -447,10 +444,10 @@ def run_mesh(psb: Path, mesh_id: str, seed: int, log, methods=None, tuned: dict 
                   "constraints": cons[cmode] if cmode else None}
         t = time.perf_counter()
         try:
-            labels = seg.segment(shape, **kwargs)
+            result = seg.segment(shape, **kwargs)
             error = None
         except Exception as exc:
-            labels, error = None, f"{type(exc).__name__}: {exc}"
+            result, error = None, f"{type(exc).__name__}: {exc}"
         dt = time.perf_counter() - t
         peak = float("nan")
         if trace_memory and error is None:  # a second run, traced (tracemalloc slows Python code down)
@@ -467,7 +464,7 @@ def run_mesh(psb: Path, mesh_id: str, seed: int, log, methods=None, tuned: dict 
             rows[name] = {"error": error, "seconds": dt}
             log(f"  {mesh_id:>4s} {name:26s} FAILED: {error}")
             continue
-        pred = face_labels_of(seg, shape.faces, labels)
+        pred = result.face_labels
         ref = truths[1:] if cmode and len(truths) > 1 else truths
         sc = _scores(pred, ref, shape, weights)
         rows[name] = dict(sc)

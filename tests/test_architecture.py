@@ -239,7 +239,7 @@ def _run(family, plugin, a, b):
         parts = articulated_shape(subdivisions=2).labels
         must = np.array([np.flatnonzero(parts == p)[[0, -1]] for p in np.unique(parts)])
         cons = Constraints(must, must[:2, 0][None]) if plugin.accepts_constraints() else None
-        return plugin.segment(a, constraints=cons)
+        return plugin.segment(a, constraints=cons).labels
     seeds = np.column_stack([np.arange(0, a.n_vertices, max(1, a.n_vertices // 12))] * 2)
     if family == "sparse_matchers":
         return plugin.match(a, a, seeds[:, 0], seeds[:, 1])

@@ -15,6 +15,7 @@ from shape_toolkit.bench import read_rows, run_benchmark
 from shape_toolkit.bench.config import load_config
 from shape_toolkit.bench.store import BenchWarning
 from shape_toolkit.cli import main
+from shape_toolkit.results.segmentation import Segmentation
 
 CONFIG = """
 [run]
@@ -125,7 +126,7 @@ class _Flaky(Segmenter):
     def segment(self, shape, *, spectrum=None, constraints=None):
         if shape.name == "pose1":
             raise RuntimeError("flaky segmenter refuses pose1")
-        return np.zeros(shape.n_vertices, dtype=np.int64)
+        return Segmentation(np.zeros(shape.n_vertices, dtype=np.int64))
 
 
 class _FlakyPlugin:

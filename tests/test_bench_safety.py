@@ -18,6 +18,7 @@ from shape_toolkit.bench import load_config, read_rows, run_benchmark, write_rep
 from shape_toolkit.bench.store import LOCK, BenchWarning
 from shape_toolkit.cli import main
 from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.results.segmentation import Segmentation
 from shape_toolkit.spectra import SpectrumSpec
 
 CONFIG = """
@@ -208,7 +209,7 @@ class _Recorder(Segmenter):
 
     def segment(self, shape, *, spectrum=None, constraints=None):
         RECEIVED.append((f"k={self.k}", spectrum))
-        return np.zeros(shape.n_vertices, dtype=np.int64)
+        return Segmentation(np.zeros(shape.n_vertices, dtype=np.int64))
 
 
 class _RecorderPlugin:
@@ -265,7 +266,7 @@ class _TwoKinds(_Recorder):
         RECEIVED.append(("two", spectrum))
         for spec in self.spectrum_specs():  # each part finds its own among what it was given
             spec.pick(spectrum, shape)
-        return np.zeros(shape.n_vertices, dtype=np.int64)
+        return Segmentation(np.zeros(shape.n_vertices, dtype=np.int64))
 
 
 class _TwoKindsPlugin:

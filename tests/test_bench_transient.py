@@ -16,6 +16,7 @@ from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.registry import get_registry
 from shape_toolkit.bench import read_rows
 from shape_toolkit.cli import main
+from shape_toolkit.results.segmentation import Segmentation
 
 CONFIG = """
 [run]
@@ -48,7 +49,7 @@ class _Flaky:
     def segment(self, shape, *, spectrum=None, constraints=None):
         if FAULT["on"]:
             raise PermissionError(errno.EACCES, "Permission denied", FAULT["path"])
-        return np.zeros(shape.n_vertices, dtype=np.int64)
+        return Segmentation(np.zeros(shape.n_vertices, dtype=np.int64))
 
 
 class _FlakyPlugin:

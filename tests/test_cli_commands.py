@@ -391,8 +391,8 @@ def test_constraints_from_a_segmentation_feed_segment(pose, capsys, monkeypatch,
 
     with warnings.catch_warnings(record=True):  # broken clicks are reported as a ConstraintWarning
         warnings.simplefilter("always")
-        seg.segment(a.shape, constraints=cons)
-    assert np.array_equal(written, seg.face_labels_)  # not the vertex labels converted back
+        res = seg.segment(a.shape, constraints=cons)
+    assert np.array_equal(written, res.face_labels)  # not the vertex labels converted back
     # errors: one line, exit 2, nothing written
     for bad in (["constraints", d / "a.off", d / "a.seg"],  # per-face labels without --faces
                 ["constraints", d / "a.off", d / "a.seg", "--faces", "--min-segment-fraction", "1.5"],

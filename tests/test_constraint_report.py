@@ -1,5 +1,5 @@
 """Constraints kept or reported (issue 30, item 4): a constrained segmenter either keeps every
-must-link and cannot-link, or says how many it could not keep and why, in ``constraints_kept_``,
+must-link and cannot-link, or says how many it could not keep and why, in ``info["constraints"]``,
 in the CLI's JSON and as one warning line on stderr."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.cli import main
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.io.mesh import save_shape
-from shape_toolkit.plugins.segmenters._common import ConstraintWarning
+from shape_toolkit.plugins.segmenters.constraints import ConstraintWarning
 from shape_toolkit.results.labels import (
     Constraints,
     clicks_from_segmentation,
@@ -46,9 +46,10 @@ def test_too_few_segments_for_the_clicked_parts_is_reported(limbs, method):
     shape, clicks = limbs
     seg = create_plugin("segmenters", method, n_segments=3)
     with pytest.warns(ConstraintWarning, match=r"3 segments for 6 clicked parts") as got:
-        labels = seg.segment(shape, constraints=clicks)
+        res = seg.segment(shape, constraints=clicks)
+        labels = res.labels
     assert len(got) == 1
-    rep = seg.constraints_kept_
+    rep = res.info["constraints"]
     assert rep == constraint_report(labels, clicks)  # the counts are those of the labels returned
     assert rep["cannot_link_broken"] > 0 and rep["clicked_parts"] == 6
 
@@ -67,8 +68,9 @@ def test_kept_constraints_are_said_kept_without_a_warning():
         seg = create_plugin("segmenters", method, **({} if method == "seeded-walk" else {"n_segments": 2}))
         with warnings.catch_warnings():
             warnings.simplefilter("error", ConstraintWarning)
-            labels = seg.segment(shape, constraints=clicks)
-        rep = seg.constraints_kept_
+            res = seg.segment(shape, constraints=clicks)
+            labels = res.labels
+        rep = res.info["constraints"]
         assert rep["reason"] is None and rep == constraint_report(labels, clicks)
         assert rep["must_link_broken"] == rep["cannot_link_broken"] == 0
 
@@ -83,7 +85,7 @@ def test_cli_segment_reports_broken_clicks(limbs, tmp_path, capsys):
                  "-o", str(tmp_path / "l.txt")])
     out, err = capsys.readouterr()
     assert code == 0
-    rep = json.loads(out)["diagnostics"]["constraints_kept_"]
+    rep = json.loads(out)["info"]["constraints"]
     assert rep["clicked_parts"] == 6 and rep["cannot_link_broken"] > 0
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "warning:" in lines[0] and "clicked parts" in lines[0]

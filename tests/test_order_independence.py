@@ -139,8 +139,8 @@ def test_segmenters_are_vertex_order_independent(pair, name, extra):
     def run(shape, c):
         params = {"n_segments": 5} if "n_segments" in st.create_plugin("segmenters", name).get_params() else {}
         seg = st.create_plugin("segmenters", name, **params, **extra)
-        labels = seg.segment(shape, constraints=c if seg.accepts_constraints() else None)  # unsupervised: refused
-        return labels, getattr(seg, "face_labels_", None)
+        res = seg.segment(shape, constraints=c if seg.accepts_constraints() else None)  # unsupervised: refused
+        return res.labels, res.face_labels if res.info["per"] == "face" else None
 
     lab, fl = run(a, cons)
     lab_p, fl_p = run(pa, cons_p)

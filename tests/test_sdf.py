@@ -32,13 +32,14 @@ def test_sdf_of_a_sphere_is_about_its_diameter(sphere):
 def test_sdf_segmenter_gives_k_face_segments_reproducibly(body):
     seg = st.create_plugin("segmenters", "sdf", n_segments=4, random_state=0)
     assert seg.spectrum_spec() is None and seg.spectrum_specs() == []
-    v = seg.segment(body)
+    res = seg.segment(body)
+    v = res.labels
     assert v.shape == (body.n_vertices,) and v.min() >= 0
-    assert seg.face_labels_.shape == (body.n_faces,)
-    assert len(np.unique(seg.face_labels_)) == 4
+    assert res.face_labels.shape == (body.n_faces,)
+    assert len(np.unique(res.face_labels)) == 4
     again = st.create_plugin("segmenters", "sdf", n_segments=4, random_state=0)
-    again.segment(body)
-    np.testing.assert_array_equal(again.face_labels_, seg.face_labels_)
+    again_res = again.segment(body)
+    np.testing.assert_array_equal(again_res.face_labels, res.face_labels)
 
 
 def test_sdf_is_vertex_order_invariant(body):
@@ -48,9 +49,9 @@ def test_sdf_is_vertex_order_invariant(body):
     permuted = Shape(body.vertices[perm], inv[body.faces])
     a = st.create_plugin("segmenters", "sdf", n_segments=3)
     b = st.create_plugin("segmenters", "sdf", n_segments=3)
-    a.segment(body)
-    b.segment(permuted)
-    np.testing.assert_array_equal(a.face_labels_, b.face_labels_)
+    a_res = a.segment(body)
+    b_res = b.segment(permuted)
+    np.testing.assert_array_equal(a_res.face_labels, b_res.face_labels)
 
 
 def test_sdf_bad_parameters(body):
@@ -64,8 +65,8 @@ def test_sdf_on_several_components(body):
     two = Shape(np.vstack([body.vertices, body.vertices + [5.0, 0, 0]]),
                 np.vstack([body.faces, body.faces + body.n_vertices]))
     seg = st.create_plugin("segmenters", "sdf", n_segments=3)
-    seg.segment(two)
-    assert len(np.unique(seg.face_labels_)) >= 2  # components are never merged with each other
+    res = seg.segment(two)
+    assert len(np.unique(res.face_labels)) >= 2  # components are never merged with each other
 
 
 def test_smoothed_wraps_a_name_or_an_instance_and_clones(body):
@@ -74,15 +75,16 @@ def test_smoothed_wraps_a_name_or_an_instance_and_clones(body):
     sm = st.create_plugin("segmenters", "smoothed", base=base, smoothing_lambda=0.5)
     assert sm.get_params(deep=True)["base__n_segments"] == 3
     assert sm.spectrum_specs() == base.spectrum_specs()
-    v = sm.segment(body)
-    assert v.shape == (body.n_vertices,) and sm.face_labels_.shape == (body.n_faces,)
+    sm_res = sm.segment(body)
+    v = sm_res.labels
+    assert v.shape == (body.n_vertices,) and sm_res.face_labels.shape == (body.n_faces,)
     clone = sklearn_base.clone(sm)
-    clone.segment(body)
-    np.testing.assert_array_equal(clone.face_labels_, sm.face_labels_)
+    clone_res = clone.segment(body)
+    np.testing.assert_array_equal(clone_res.face_labels, sm_res.face_labels)
     by_name = st.create_plugin("segmenters", "smoothed", base="spectral-clustering", n_segments=3,
                                smoothing_lambda=0.5)
-    by_name.segment(body)
-    np.testing.assert_array_equal(by_name.face_labels_, sm.face_labels_)
+    by_name_res = by_name.segment(body)
+    np.testing.assert_array_equal(by_name_res.face_labels, sm_res.face_labels)
     assert by_name.base_.n_segments == 3
     # the base's spectrum is passed through
     spec = base.spectrum_spec().compute(body)

@@ -1,6 +1,6 @@
 """Face-based part segmenters (issue 13): ``ncut`` (recursive normalized cuts on the concavity-weighted
 dual graph), ``seeded-walk`` (random walks from must-link clicks) and the connected-part relabelling
-they share with ``sdf`` (``_common.merge_to_segments``)."""
+they share with ``sdf`` (``merging.merge_to_segments``)."""
 
 from __future__ import annotations
 
@@ -14,8 +14,14 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.metrics.segmentation import rand_index_error
-from shape_toolkit.plugins.segmenters._common import face_segments_to_vertices, merge_to_segments
-from shape_toolkit.results.labels import ConstraintError, Constraints, draw_constraints, vertex_to_face_labels
+from shape_toolkit.plugins.segmenters.merging import merge_to_segments
+from shape_toolkit.results.labels import (
+    ConstraintError,
+    Constraints,
+    draw_constraints,
+    face_segments_to_vertices,
+    vertex_to_face_labels,
+)
 
 NEW = {"ncut": "shape_toolkit.plugins.segmenters.ncut", "seeded-walk": "shape_toolkit.plugins.segmenters.seeded_walk"}
 
@@ -86,9 +92,10 @@ def test_ncut_finds_the_limbs(body):
     b, truth = body
     seg = create_plugin("segmenters", "ncut", n_segments=6)
     assert seg.spectrum_spec() is None and seg.spectrum_specs() == []
-    v = seg.segment(b.shape)
+    res = seg.segment(b.shape)
+    v = res.labels
     assert v.shape == (b.shape.n_vertices,) and v.dtype == np.int64
-    fl = seg.face_labels_
+    fl = res.face_labels
     assert fl.shape == (b.shape.n_faces,) and len(np.unique(fl)) == 6 == seg.n_segments_
     err = rand_index_error(fl, truth)
     # the truth's limbs reach onto the sphere (cap_angle) while cuts follow the concave junction
@@ -103,8 +110,8 @@ def test_ncut_components_are_separate_segments(sphere):
     far = Shape(sphere.vertices + [5.0, 0, 0], sphere.faces)
     two = Shape(np.vstack([sphere.vertices, far.vertices]), np.vstack([sphere.faces, sphere.faces + sphere.n_vertices]))
     seg = create_plugin("segmenters", "ncut", n_segments=2)
-    seg.segment(two)
-    fl = seg.face_labels_
+    res = seg.segment(two)
+    fl = res.face_labels
     assert len(np.unique(fl[: sphere.n_faces])) == 1 and len(np.unique(fl[sphere.n_faces:])) == 1
     assert fl[0] != fl[-1]
 
@@ -123,9 +130,9 @@ def test_ncut_is_scale_invariant(body):
     big = Shape(b.shape.vertices * 37.0, b.shape.faces)
     a = create_plugin("segmenters", "ncut", n_segments=4)
     c = create_plugin("segmenters", "ncut", n_segments=4)
-    a.segment(b.shape)
-    c.segment(big)
-    assert rand_index_error(a.face_labels_, c.face_labels_) < 1e-3
+    a_res = a.segment(b.shape)
+    c_res = c.segment(big)
+    assert rand_index_error(a_res.face_labels, c_res.face_labels) < 1e-3
 
 
 # -- seeded-walk --------------------------------------------------------------------------------
@@ -133,9 +140,10 @@ def test_seeded_walk_follows_one_click_pair_per_part(body):
     b, truth = body
     cons = draw_constraints(b.labels, b.shape.edges, n_must_per_segment=1, n_cannot_per_boundary=1, random_state=0)
     seg = create_plugin("segmenters", "seeded-walk")
-    v = seg.segment(b.shape, constraints=cons)
+    res = seg.segment(b.shape, constraints=cons)
+    v = res.labels
     assert v.shape == (b.shape.n_vertices,) and seg.n_segments_ == 6
-    assert rand_index_error(seg.face_labels_, truth) < 0.2 < 0.5 * _baselines(truth)
+    assert rand_index_error(res.face_labels, truth) < 0.2 < 0.5 * _baselines(truth)
     # every must-linked pair ends in one segment, every cannot-linked pair in two
     assert np.all(v[cons.must_link[:, 0]] == v[cons.must_link[:, 1]])
     assert seg.n_cannot_violated_ == 0
@@ -154,12 +162,12 @@ def test_seeded_walk_repairs_a_violated_cannot_link():
     must = [[idx[0, 2], idx[1, 3]], [idx[40, 2], idx[39, 3]]]
     u, w = idx[5, 2], idx[12, 2]  # both near the left seed
     seg = create_plugin("segmenters", "seeded-walk")
-    lab = seg.segment(strip, constraints=Constraints(must, []))
+    lab = seg.segment(strip, constraints=Constraints(must, [])).labels
     assert lab[u] == lab[w]
-    lab2 = seg.segment(strip, constraints=Constraints(must, [[u, w]]))
+    lab2 = seg.segment(strip, constraints=Constraints(must, [[u, w]])).labels
     assert lab2[u] != lab2[w] and seg.n_cannot_violated_ == 0
     assert create_plugin("segmenters", "seeded-walk", cannot_rounds=0).segment(
-        strip, constraints=Constraints(must, [[u, w]]))[u] == lab[u]
+        strip, constraints=Constraints(must, [[u, w]])).labels[u] == lab[u]
 
 
 def test_seeded_walk_errors_and_unseeded_components(sphere):
@@ -176,29 +184,29 @@ def test_seeded_walk_errors_and_unseeded_components(sphere):
     # a second component without any click becomes its own segment
     far = sphere.vertices + [5.0, 0, 0]
     two = Shape(np.vstack([sphere.vertices, far]), np.vstack([sphere.faces, sphere.faces + sphere.n_vertices]))
-    lab = seg.segment(two, constraints=Constraints([[0, 1]], []))
+    lab = seg.segment(two, constraints=Constraints([[0, 1]], [])).labels
     assert seg.n_segments_ == 2 and lab[0] != lab[-1]
     assert len(np.unique(lab[: sphere.n_vertices])) == 1
     # ... but a speck (a separate piece too small to split) joins the segment nearest to it, whole
     n = two.n_vertices
     specks = _with_pieces(two, [(_TET[0] * 0.01 + [1.2 + 0.02 * i, 0, 0], _TET[1]) for i in range(30)])
-    lab = seg.segment(specks, constraints=Constraints([[0, 1]], []))
+    lab = seg.segment(specks, constraints=Constraints([[0, 1]], [])).labels
     assert seg.n_segments_ == 2 and len(np.unique(lab)) == 2 and set(lab[n:]) == {lab[0]}
-    assert np.array_equal(lab[:n], seg.segment(two, constraints=Constraints([[0, 1]], [])))
+    assert np.array_equal(lab[:n], seg.segment(two, constraints=Constraints([[0, 1]], [])).labels)
     # a speck holding a cannot-link end is not joined to the segment it is cannot-linked to
-    lab = seg.segment(specks, constraints=Constraints([[0, 1]], [[n, 0]]))
+    lab = seg.segment(specks, constraints=Constraints([[0, 1]], [[n, 0]])).labels
     assert lab[n] != lab[0] and seg.n_cannot_violated_ == 0
     # no seeded piece (the clicks on vertices of no face): specks stay segments of their own
     tet = Shape(np.vstack([_TET[0], [[5.0, 5, 5], [6.0, 6, 6]]]), _TET[1])
-    assert len(seg.segment(tet, constraints=Constraints([[4, 5]], []))) == 6
+    assert len(seg.segment(tet, constraints=Constraints([[4, 5]], [])).labels) == 6
 
 
 def test_seeded_walk_smoothing_option(body):
     b, truth = body
     cons = draw_constraints(b.labels, b.shape.edges, n_must_per_segment=1, random_state=0)
     seg = create_plugin("segmenters", "seeded-walk", smoothing_lambda=0.5)
-    seg.segment(b.shape, constraints=cons)
-    assert rand_index_error(seg.face_labels_, truth) < 0.2
+    res = seg.segment(b.shape, constraints=cons)
+    assert rand_index_error(res.face_labels, truth) < 0.2
 
 
 # -- csc on the dual graph ----------------------------------------------------------------------
@@ -207,10 +215,11 @@ def test_csc_on_the_dual_graph(body):
     cons = draw_constraints(b.labels, b.shape.edges, n_must_per_segment=1, n_cannot_per_boundary=1, random_state=0)
     seg = create_plugin("segmenters", "csc", n_segments=6, graph="dual")
     assert seg.spectrum_spec() is None and seg.spectrum_specs() == []
-    v = seg.segment(b.shape, constraints=cons)
-    assert v.shape == (b.shape.n_vertices,) and seg.face_labels_.shape == (b.shape.n_faces,)
-    assert len(np.unique(seg.face_labels_)) == 6
-    assert rand_index_error(seg.face_labels_, truth) < 0.2 < 0.5 * _baselines(truth)
+    res = seg.segment(b.shape, constraints=cons)
+    v = res.labels
+    assert v.shape == (b.shape.n_vertices,) and res.face_labels.shape == (b.shape.n_faces,)
+    assert len(np.unique(res.face_labels)) == 6
+    assert rand_index_error(res.face_labels, truth) < 0.2 < 0.5 * _baselines(truth)
     assert seg.n_must_edges_ > 0 and seg.n_cannot_edges_ > 0
     W = seg.modified_weights(b.shape, cons)
     assert W.shape == (b.shape.n_faces, b.shape.n_faces) and 0 < W.data.min() and W.data.max() <= 1.0
@@ -286,18 +295,19 @@ def test_csc_kmeans_starts_from_the_clicks():
     truth = vertex_to_face_labels(shape.faces, vl)
     cons = draw_constraints(vl, shape.edges, n_must_per_segment=1, n_cannot_per_boundary=3, random_state=0)
     seeded = create_plugin("segmenters", "csc", n_segments=3)  # defaults: dual graph on a mesh, seeded
-    seeded.segment(shape, constraints=cons)
-    assert seeded.n_seed_groups_ == 3 and len(np.unique(seeded.face_labels_)) == 3
-    assert rand_index_error(seeded.face_labels_, truth) < 0.06
+    seeded_res = seeded.segment(shape, constraints=cons)
+    assert seeded.n_seed_groups_ == 3 and len(np.unique(seeded_res.face_labels)) == 3
+    assert rand_index_error(seeded_res.face_labels, truth) < 0.06
     free = create_plugin("segmenters", "csc", n_segments=3, kmeans_init="k-means++")
-    free.segment(shape, constraints=cons)
-    assert rand_index_error(free.face_labels_, truth) > 0.3
+    free_res = free.segment(shape, constraints=cons)
+    assert rand_index_error(free_res.face_labels, truth) > 0.3
     with pytest.raises(ParameterError, match="kmeans_init"):
         create_plugin("segmenters", "csc", n_segments=3, kmeans_init="random").segment(shape, constraints=cons)
 
 
 def test_seeded_kmeans_groups_and_order_independence():
-    from shape_toolkit.plugins.segmenters._common import must_link_groups, seeded_kmeans_labels
+    from shape_toolkit.plugins.segmenters.constraints import must_link_groups
+    from shape_toolkit.plugins.segmenters.kmeans import seeded_kmeans_labels
 
     groups = must_link_groups(np.array([[5, 1], [1, 7], [2, 3]]))
     assert sorted(map(list, groups)) == [[1, 5, 7], [2, 3]] and must_link_groups(np.zeros((0, 2))) == []
@@ -320,7 +330,7 @@ def test_seeded_kmeans_groups_and_order_independence():
 def test_seeded_kmeans_never_separates_a_must_link_group():
     """Two clicks on one large part stay in one segment even where splitting that part lowers the
     k-means objective (seeds used only as the start let Lloyd's steps pull them apart)."""
-    from shape_toolkit.plugins.segmenters._common import seeded_kmeans_labels
+    from shape_toolkit.plugins.segmenters.kmeans import seeded_kmeans_labels
 
     rng = np.random.default_rng(0)
     X = np.concatenate([rng.normal(0.0, 0.3, 50), rng.normal(10.0, 0.3, 50), rng.normal(11.0, 0.3, 5)])[:, None]
@@ -358,12 +368,13 @@ def test_csc_graph_auto_is_dual_on_meshes_and_vertex_on_point_clouds(body):
     cons = draw_constraints(b.labels, b.shape.edges, n_must_per_segment=1, n_cannot_per_boundary=1, random_state=0)
     seg = create_plugin("segmenters", "csc", n_segments=6)
     assert seg.graph == "auto" and seg.spectrum_spec() is None
-    seg.segment(b.shape, constraints=cons)
-    assert seg.face_labels_.shape == (b.shape.n_faces,)
+    res = seg.segment(b.shape, constraints=cons)
+    assert res.face_labels.shape == (b.shape.n_faces,)
     cloud = Shape(b.shape.vertices)
     seg_c = create_plugin("segmenters", "csc", n_segments=6)
-    v = seg_c.segment(cloud, constraints=cons)
-    assert v.shape == (cloud.n_vertices,) and not hasattr(seg_c, "face_labels_")
+    res_c = seg_c.segment(cloud, constraints=cons)
+    v = res_c.labels
+    assert v.shape == (cloud.n_vertices,) and res_c.face_labels is None
     assert rand_index_error(v, b.labels) < 0.25
 
 
@@ -388,15 +399,15 @@ def test_csc_makes_the_unclicked_parts_by_normalized_cuts():
     cons = _clicks_on_strip_and_first_bump(shape)
     assert sorted(vl[cons.must_link[:, 0]].tolist()) == [0, 1]  # the clicks name parts 0 and 1 only
     seg = create_plugin("segmenters", "csc", n_segments=3)
-    seg.segment(shape, constraints=cons)
+    res = seg.segment(shape, constraints=cons)
     assert seg.k_mismatch == "ncut" and seg.n_seed_groups_ == 2 and seg.n_cuts_ == 1
-    assert len(np.unique(seg.face_labels_)) == 3 and rand_index_error(seg.face_labels_, truth) < 0.06
+    assert len(np.unique(res.face_labels)) == 3 and rand_index_error(res.face_labels, truth) < 0.06
     for a, b in cons.must_link:  # every must-link satisfied (the clicked vertices' faces)
         fa, fb = seg._face_of_vertex(shape)[[a, b]]
-        assert seg.face_labels_[fa] == seg.face_labels_[fb]
+        assert res.face_labels[fa] == res.face_labels[fb]
     old = create_plugin("segmenters", "csc", n_segments=3, k_mismatch="kmeans")
-    old.segment(shape, constraints=cons)
-    assert old.n_cuts_ == 0 and rand_index_error(old.face_labels_, truth) > 0.3
+    old_res = old.segment(shape, constraints=cons)
+    assert old.n_cuts_ == 0 and rand_index_error(old_res.face_labels, truth) > 0.3
     with pytest.raises(ParameterError, match="k_mismatch"):
         create_plugin("segmenters", "csc", n_segments=3, k_mismatch="gmm").segment(shape, constraints=cons)
 
@@ -408,17 +419,17 @@ def test_csc_unclicked_parts_are_vertex_order_independent():
     inv = np.argsort(perm)  # vertex i of shape is vertex inv[i] of the permuted one
     permuted = Shape(shape.vertices[perm], inv[shape.faces])
     seg, seg_p = (create_plugin("segmenters", "csc", n_segments=3) for _ in range(2))
-    seg.segment(shape, constraints=cons)
-    seg_p.segment(permuted, constraints=Constraints(inv[cons.must_link], None))
+    res = seg.segment(shape, constraints=cons)
+    seg_p_res = seg_p.segment(permuted, constraints=Constraints(inv[cons.must_link], None))
     assert seg.n_cuts_ == seg_p.n_cuts_ == 1
-    assert rand_index_error(seg.face_labels_, seg_p.face_labels_) == 0.0  # faces keep their order
+    assert rand_index_error(res.face_labels, seg_p_res.face_labels) == 0.0  # faces keep their order
 
 
 def test_sweep_cut_never_separates_kept_together_nodes():
     """A path 0-1-...-9 with one weak edge 4-5: the best cut is there, unless 4 and 5 must stay
     together; then the next best one is taken, and with every node kept together there is none."""
-    from shape_toolkit.plugins.segmenters._common import split_by_normalized_cuts, sweep_cut
     from shape_toolkit.plugins.segmenters.ncut import sweep_cut as ncut_sweep_cut
+    from shape_toolkit.plugins.segmenters.normalized_cuts import split_by_normalized_cuts, sweep_cut
 
     assert ncut_sweep_cut is sweep_cut  # one place, re-exported
     pairs, _ = _strip([0] * 10)
@@ -457,16 +468,16 @@ def test_csc_with_more_clicked_parts_than_k_keeps_the_weakly_separated_groups_to
                                  [vid(1.1, 0.3), vid(1.3, 0.5)]]), None)
     truth = vertex_to_face_labels(shape.faces, (vl == 1).astype(np.int64))  # bump 1 against the rest
     seg = create_plugin("segmenters", "csc", n_segments=2)
-    seg.segment(shape, constraints=cons)
+    res = seg.segment(shape, constraints=cons)
     assert seg.n_seed_groups_ == 3 and seg.n_cuts_ == 1
-    assert rand_index_error(seg.face_labels_, truth) < 0.03
+    assert rand_index_error(res.face_labels, truth) < 0.03
     old = create_plugin("segmenters", "csc", n_segments=2, k_mismatch="kmeans")
-    old.segment(shape, constraints=cons)
-    assert old.n_cuts_ == 0 and rand_index_error(old.face_labels_, truth) > 0.3
+    old_res = old.segment(shape, constraints=cons)
+    assert old.n_cuts_ == 0 and rand_index_error(old_res.face_labels, truth) > 0.3
 
 
 def test_segments_per_component_by_area_clicks_and_ties():
-    from shape_toolkit.plugins.segmenters._common import segments_per_component
+    from shape_toolkit.plugins.segmenters.per_component import segments_per_component
 
     keys = np.array([[0.0, 0, 0], [1.0, 0, 0]])
     assert segments_per_component(12, np.array([4.0, 1.0]), np.array([0, 0]), keys).tolist() == [9, 3]
@@ -503,20 +514,21 @@ def test_a_mesh_of_two_components_is_segmented_component_by_component(name):
     cons = clicks_from_segmentation(shape, truth, faces=False)
     seg = create_plugin("segmenters", name, n_segments=12)
     given = seg.accepts_constraints()  # the unsupervised ones refuse clicks
-    labels = seg.segment(shape, constraints=cons if given else None)
-    assert seg.segments_per_component_ == [6, 6] and seg.n_components_ == 2
+    res = seg.segment(shape, constraints=cons if given else None)
+    labels = res.labels
+    assert res.info["segments_per_component"] == [6, 6] and res.info["n_components"] == 2
     assert not set(labels[:na]) & set(labels[na:]) and len(np.unique(labels)) == 12
-    assert len(seg.face_labels_) == shape.n_faces
+    assert len(res.face_labels) == shape.n_faces
     alone = create_plugin("segmenters", name, n_segments=6)
     sub_cons = Constraints(cons.must_link[cons.must_link.max(axis=1) < na],
                            cons.cannot_link[cons.cannot_link.max(axis=1) < na])
-    assert rand_index_error(labels[:na], alone.segment(a.shape, constraints=sub_cons if given else None)) == 0.0
+    assert rand_index_error(labels[:na], alone.segment(a.shape, constraints=sub_cons if given else None).labels) == 0.0
     # vertex order: a permuted mesh gives the permuted segmentation
     perm = np.random.default_rng(0).permutation(shape.n_vertices)
     inv = np.argsort(perm)
     moved = Shape(shape.vertices[perm], inv[shape.faces])
     pcons = Constraints(inv[cons.must_link], inv[cons.cannot_link])
-    again = create_plugin("segmenters", name, n_segments=12).segment(moved, constraints=pcons if given else None)
+    again = create_plugin("segmenters", name, n_segments=12).segment(moved, constraints=pcons if given else None).labels
     assert rand_index_error(again[inv], labels) == 0.0
 
 
@@ -540,22 +552,24 @@ def test_csc_on_the_dual_graph_segments_two_bodies_meeting_at_one_vertex():
     truth = np.r_[a.labels, np.delete(b.labels, ib) + 6]
     cons = clicks_from_segmentation(shape, truth, faces=False)
     seg = create_plugin("segmenters", "csc", n_segments=12)
-    labels = seg.segment(shape, constraints=cons)
-    assert seg.n_components_ == 2 and seg.segments_per_component_ == [6, 6] and len(np.unique(seg.face_labels_)) == 12
+    res = seg.segment(shape, constraints=cons)
+    labels = res.labels
+    assert res.info["n_components"] == 2 and res.info["segments_per_component"] == [6, 6]
+    assert len(np.unique(res.face_labels)) == 12
     assert labels.max() < 12 and (labels >= 0).all()
-    assert not set(seg.face_labels_[:fa]) & set(seg.face_labels_[fa:])
+    assert not set(res.face_labels[:fa]) & set(res.face_labels[fa:])
     alone = create_plugin("segmenters", "csc", n_segments=6)
     inside = (cons.must_link < na).all(axis=1) & (cons.must_link != ia).all(axis=1)
     sub_cons = Constraints(cons.must_link[inside], cons.cannot_link[(cons.cannot_link < na).all(axis=1)])
-    alone.segment(a.shape, constraints=sub_cons)
-    assert rand_index_error(seg.face_labels_[:fa], alone.face_labels_) == 0.0
+    alone_res = alone.segment(a.shape, constraints=sub_cons)
+    assert rand_index_error(res.face_labels[:fa], alone_res.face_labels) == 0.0
     # vertex order: a permuted mesh gives the permuted segmentation
     perm = np.random.default_rng(0).permutation(shape.n_vertices)
     inv = np.argsort(perm)
     again = create_plugin("segmenters", "csc", n_segments=12)
-    again.segment(Shape(shape.vertices[perm], inv[shape.faces]),
-                  constraints=Constraints(inv[cons.must_link], inv[cons.cannot_link]))
-    assert rand_index_error(again.face_labels_, seg.face_labels_) == 0.0
+    again_res = again.segment(Shape(shape.vertices[perm], inv[shape.faces]),
+                              constraints=Constraints(inv[cons.must_link], inv[cons.cannot_link]))
+    assert rand_index_error(again_res.face_labels, res.face_labels) == 0.0
 
 
 @pytest.mark.parametrize("name", ["ncut", "sdf", "csc"])
@@ -567,21 +581,21 @@ def test_dual_graph_segmenters_keep_n_segments_whatever_the_pieces(name):
     n = a.shape.n_vertices
     specks = _with_pieces(a.shape, [(_TET[0] * 0.01 + [3 + 0.02 * i, 0, 0], _TET[1]) for i in range(300)])
     seg = create_plugin("segmenters", name, n_segments=6)
-    seg.segment(specks)
-    assert len(np.unique(seg.face_labels_)) == 6 and seg.segments_per_component_[0] == 6
+    res = seg.segment(specks)
+    assert len(np.unique(res.face_labels)) == 6 and res.info["segments_per_component"][0] == 6
     three = Shape(np.vstack([a.shape.vertices + [x, 0, 0] for x in (0.0, 5.0, -5.0)]),
                   np.vstack([a.shape.faces + i * n for i in range(3)]))
-    labels = create_plugin("segmenters", name, n_segments=2).segment(three)
+    labels = create_plugin("segmenters", name, n_segments=2).segment(three).labels
     assert len(np.unique(labels)) == 2
     # a point face [v, v, v] is a piece of the dual graph of its own, of no area: the body keeps its segments
     point = Shape(a.shape.vertices, np.vstack([a.shape.faces, [[0, 0, 0]]]))
     whole = create_plugin("segmenters", name, n_segments=6)
-    whole.segment(a.shape)
+    whole_res = whole.segment(a.shape)
     seg = create_plugin("segmenters", name, n_segments=6)
-    seg.segment(point)
-    assert seg.segments_per_component_ == [6, 0]
-    assert np.array_equal(seg.face_labels_[:-1], whole.face_labels_) or \
-        rand_index_error(seg.face_labels_[:-1], whole.face_labels_) == 0.0
+    res = seg.segment(point)
+    assert res.info["segments_per_component"] == [6, 0]
+    assert np.array_equal(res.face_labels[:-1], whole_res.face_labels) or \
+        rand_index_error(res.face_labels[:-1], whole_res.face_labels) == 0.0
 
 
 @pytest.mark.parametrize("name", ["csc", "spectral-clustering", "eigvec-gmm", "ccskl"])
@@ -600,14 +614,16 @@ def test_a_point_cloud_whose_graph_falls_apart_is_segmented_piece_by_piece(name)
     def c(x):
         return x if given else None
 
-    labels = seg.segment(cloud, constraints=c(cons))
-    assert seg.n_components_ == 2 and seg.segments_per_component_ == [6, 6] and len(np.unique(labels)) == 12
-    assert not set(labels[:n]) & set(labels[n:]) and not hasattr(seg, "face_labels_")
+    res = seg.segment(cloud, constraints=c(cons))
+    labels = res.labels
+    assert res.info["n_components"] == 2 and res.info["segments_per_component"] == [6, 6]
+    assert len(np.unique(labels)) == 12
+    assert not set(labels[:n]) & set(labels[n:]) and res.face_labels is None
     alone = create_plugin("segmenters", name, n_segments=6)
-    ref = alone.segment(Shape(a.shape.vertices, None), constraints=c(Constraints(ml[:6], cons.cannot_link)))
+    ref = alone.segment(Shape(a.shape.vertices, None), constraints=c(Constraints(ml[:6], cons.cannot_link))).labels
     assert rand_index_error(labels[:n], ref) == 0.0
     moved = create_plugin("segmenters", name, n_segments=6).segment(
-        Shape(cloud.vertices[n:], None), constraints=c(Constraints(ml[6:] - n, cons.cannot_link)))
+        Shape(cloud.vertices[n:], None), constraints=c(Constraints(ml[6:] - n, cons.cannot_link))).labels
     assert rand_index_error(labels[n:], moved) == 0.0
 
 
@@ -620,14 +636,16 @@ def test_a_vertex_shared_by_pieces_goes_with_the_piece_that_labels_it():
     V, F, n = a.shape.vertices, a.shape.faces, a.shape.n_vertices
     none = np.zeros((0, 2), dtype=np.int64)
     alone = create_plugin("segmenters", "csc", n_segments=6)
-    ref = alone.segment(a.shape, constraints=Constraints([[0, 5]], [[0, 107]]))
+    alone_res = alone.segment(a.shape, constraints=Constraints([[0, 5]], [[0, 107]]))
+    ref = alone_res.labels
     fin = Shape(np.vstack([V, V[0] + [[0.01, 0, 0], [0, 0.01, 0]]]), np.vstack([[[0, n, n + 1]], F]))
     point = Shape(V, np.vstack([[[0, 0, 0]], F]))
     for shape in (fin, point):  # the small piece (a speck, or no area) is wished no segment of its own
         seg = create_plugin("segmenters", "csc", n_segments=6)
-        labels = seg.segment(shape, constraints=Constraints([[0, 5]], [[0, 107]]))
-        assert seg.segments_per_component_ == [0, 6]  # the must-link is kept, the cannot-link too
-        assert rand_index_error(seg.face_labels_[1:], alone.face_labels_) == 0.0
+        res = seg.segment(shape, constraints=Constraints([[0, 5]], [[0, 107]]))
+        labels = res.labels
+        assert res.info["segments_per_component"] == [0, 6]  # the must-link is kept, the cannot-link too
+        assert rand_index_error(res.face_labels[1:], alone_res.face_labels) == 0.0
         assert rand_index_error(labels[:n], ref) == 0.0
     # a bowtie whose second body is three times larger: the joint belongs to it
     ia, ib = int(np.argmax(V[:, 0])), int(np.argmin(b.shape.vertices[:, 0]))
@@ -641,17 +659,18 @@ def test_a_vertex_shared_by_pieces_goes_with_the_piece_that_labels_it():
     # a cannot-link from the joint reaches b's piece: b's labels are those of b alone with it
     b_alone = Shape(vb, b.shape.faces)
     free = create_plugin("segmenters", "csc", n_segments=5)
-    free.segment(b_alone)
-    same = np.flatnonzero(free.face_labels_ == free.face_labels_[np.flatnonzero(np.any(b.shape.faces == ib, 1))[0]])
+    free_res = free.segment(b_alone)
+    joint_face = np.flatnonzero(np.any(b.shape.faces == ib, 1))[0]
+    same = np.flatnonzero(free_res.face_labels == free_res.face_labels[joint_face])
     far = int(b.shape.faces[same[-1], 0])  # a vertex of the joint's segment, on its last face
     cut = create_plugin("segmenters", "csc", n_segments=5)
-    cut.segment(b_alone, constraints=Constraints(none, [[ib, far]]))
-    assert rand_index_error(cut.face_labels_, free.face_labels_) > 0  # the cannot-link matters
+    cut_res = cut.segment(b_alone, constraints=Constraints(none, [[ib, far]]))
+    assert rand_index_error(cut_res.face_labels, free_res.face_labels) > 0  # the cannot-link matters
     seg = create_plugin("segmenters", "csc", n_segments=6)
-    seg.segment(bow, constraints=Constraints(none, [[ia, int(idx[far])]]))
+    res = seg.segment(bow, constraints=Constraints(none, [[ia, int(idx[far])]]))
     fa = a.shape.n_faces
-    assert seg.segments_per_component_ == [1, 5]
-    assert rand_index_error(seg.face_labels_[fa:], cut.face_labels_) == 0.0
+    assert res.info["segments_per_component"] == [1, 5]
+    assert rand_index_error(res.face_labels[fa:], cut_res.face_labels) == 0.0
 
 
 @pytest.mark.parametrize("name", ["csc", "ncut", "sdf", "spectral-clustering"])
@@ -663,19 +682,20 @@ def test_a_speck_beside_a_body_gets_no_segment_of_its_own(name):
     speck = Shape(np.vstack([V, V[0] + [[1.0, 0, 0], [1.01, 0, 0], [1.0, 0.01, 0]]]),
                   np.vstack([F, [[n, n + 1, n + 2]]]))
     seg = create_plugin("segmenters", name, n_segments=6)
-    labels = seg.segment(speck)
-    assert seg.segments_per_component_ == [6, 0] and len(np.unique(labels)) == 6
-    assert len(np.unique(seg.face_labels_)) == 6 and len(seg.face_labels_) == speck.n_faces
+    res = seg.segment(speck)
+    labels = res.labels
+    assert res.info["segments_per_component"] == [6, 0] and len(np.unique(labels)) == 6
+    assert len(np.unique(res.face_labels)) == 6 and len(res.face_labels) == speck.n_faces
 
 
 def test_components_with_a_must_link_across_and_lone_vertices():
     a, _, shape, truth = _two_bodies()
     seg = create_plugin("segmenters", "csc", n_segments=12)
     with pytest.raises(ConstraintError, match="separate pieces"):
-        seg.segment(shape, constraints=Constraints([[0, a.shape.n_vertices]], []))
+        res = seg.segment(shape, constraints=Constraints([[0, a.shape.n_vertices]], []))
     # two vertices on no face take their nearest vertex's segment; more components than segments: one each
     lone = Shape(np.vstack([a.shape.vertices, a.shape.vertices[:2] + 1e-3]), a.shape.faces)
-    labels = create_plugin("segmenters", "spectral-clustering", n_segments=6).segment(lone)
+    labels = create_plugin("segmenters", "spectral-clustering", n_segments=6).segment(lone).labels
     assert labels[-2:].tolist() == labels[:2].tolist() and len(np.unique(labels)) == 6
     with pytest.raises(ParameterError):  # n_segments = 1 is refused as before, not hidden by the split
         create_plugin("segmenters", "spectral-clustering", n_segments=1).segment(shape)
@@ -683,8 +703,9 @@ def test_components_with_a_must_link_across_and_lone_vertices():
     three = Shape(np.vstack([a.shape.vertices + [x, 0, 0] for x in (0.0, 5.0, -5.0)]),
                   np.vstack([a.shape.faces + i * n for i in range(3)]))
     seg = create_plugin("segmenters", "spectral-clustering", n_segments=2)
-    labels = seg.segment(three)  # three equal components for two segments: a tie, broken by position
-    assert seg.segments_per_component_ == [1, 0, 1] and len(np.unique(labels)) == 2
+    res = seg.segment(three)  # three equal components for two segments: a tie, broken by position
+    labels = res.labels
+    assert res.info["segments_per_component"] == [1, 0, 1] and len(np.unique(labels)) == 2
     assert set(labels[n:2 * n]) == set(labels[:n]) != set(labels[2 * n:])  # x = 5 joins its nearest, x = 0
     # a body and 300 tiny separate pieces: the body gets the segments, the pieces join it
     tet = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]) * 0.01
@@ -692,8 +713,9 @@ def test_components_with_a_must_link_across_and_lone_vertices():
                    np.vstack([a.shape.faces] + [np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]) + n + 4 * i
                                                  for i in range(300)]))
     seg = create_plugin("segmenters", "spectral-clustering", n_segments=6)
-    labels = seg.segment(pieces)
-    assert seg.segments_per_component_[0] == 6 and len(np.unique(labels)) == 6 and len(seg.face_labels_) == \
+    res = seg.segment(pieces)
+    labels = res.labels
+    assert res.info["segments_per_component"][0] == 6 and len(np.unique(labels)) == 6 and len(res.face_labels) == \
         pieces.n_faces
 
 
@@ -719,38 +741,43 @@ def test_components_clicks_cannot_links_debris_and_small_pieces():
     n = a.shape.n_vertices
     cons = clicks_from_segmentation(shape, truth, faces=False)  # 6 clicked parts on each body
     seg = create_plugin("segmenters", "csc", n_segments=4)
-    labels = seg.segment(shape, constraints=cons)
-    assert seg.segments_per_component_ == [2, 2] and len(np.unique(labels)) == 4
+    res = seg.segment(shape, constraints=cons)
+    labels = res.labels
+    assert res.info["segments_per_component"] == [2, 2] and len(np.unique(labels)) == 4
     # a large triangle of 3 vertices beside the body: one segment, no error about its size
     tri = (np.array([[5.0, 0, 0], [9.0, 0, 0], [5.0, 4.0, 0]]), np.array([[0, 1, 2]]))
     seg = create_plugin("segmenters", "spectral-clustering", n_segments=6)
-    labels = seg.segment(_with_pieces(a.shape, [tri]))
-    assert seg.segments_per_component_ == [5, 1] and len(np.unique(labels)) == 6
+    res = seg.segment(_with_pieces(a.shape, [tri]))
+    labels = res.labels
+    assert res.info["segments_per_component"] == [5, 1] and len(np.unique(labels)) == 6
     # three equal bodies, two segments: a cannot-link between the 1st and 2nd keeps both segmented
     three = _with_pieces(a.shape, [(a.shape.vertices + [5.0, 0, 0], a.shape.faces),
                                    (a.shape.vertices - [5.0, 0, 0], a.shape.faces)])
     seg = create_plugin("segmenters", "csc", n_segments=2)
-    labels = seg.segment(three, constraints=Constraints([], [[0, n]]))
-    assert seg.segments_per_component_ == [1, 1, 0] and labels[0] != labels[n]
+    res = seg.segment(three, constraints=Constraints([], [[0, n]]))
+    labels = res.labels
+    assert res.info["segments_per_component"] == [1, 1, 0] and labels[0] != labels[n]
     # ... and a cannot-link inside the first, with three segments, gives it two (CSC's cannot-links are
     # soft within a component, so only the share is checked)
     seg = create_plugin("segmenters", "csc", n_segments=3)
     tip = int(np.flatnonzero(a.labels == 1)[0])
-    seg.segment(three, constraints=Constraints([], [[0, tip]]))
-    assert seg.segments_per_component_[0] == 2
+    res = seg.segment(three, constraints=Constraints([], [[0, tip]]))
+    assert res.info["segments_per_component"][0] == 2
     # debris: two thin strips far from each other join, each whole, the segment nearest to them
     strips = [(np.array([[x, 0, 0], [x + 0.01, 0, 0], [x, 0.01, 0], [x + 0.01, 0.01, 0]]),
                np.array([[0, 1, 2], [1, 3, 2]])) for x in (3.0, -3.0)]
     seg = create_plugin("segmenters", "spectral-clustering", n_segments=2)
-    labels = seg.segment(_with_pieces(a.shape, strips))
-    assert seg.segments_per_component_ == [2, 0, 0]
+    res = seg.segment(_with_pieces(a.shape, strips))
+    labels = res.labels
+    assert res.info["segments_per_component"] == [2, 0, 0]
     assert len(set(labels[n:n + 4])) == 1 and len(set(labels[n + 4:])) == 1
-    assert len(set(seg.face_labels_[a.shape.n_faces:a.shape.n_faces + 2])) == 1
+    assert len(set(res.face_labels[a.shape.n_faces:a.shape.n_faces + 2])) == 1
     # n_segments chosen by the method: small pieces are not split
     tets = [(_TET[0] * 0.01 + [3 + 0.1 * i, 0, 0], _TET[1]) for i in range(5)]
     seg = create_plugin("segmenters", "spectral-clustering")
-    labels = seg.segment(_with_pieces(a.shape, tets))
+    res = seg.segment(_with_pieces(a.shape, tets))
+    labels = res.labels
     assert all(len(set(labels[n + 4 * i:n + 4 * i + 4])) == 1 for i in range(5))
     # nothing of the split is left on the instance when it then segments a connected mesh
-    seg.segment(a.shape)
-    assert not hasattr(seg, "face_labels_") and not hasattr(seg, "segments_per_component_")
+    res = seg.segment(a.shape)
+    assert "segments_per_component" not in res.info and not hasattr(seg, "segments_per_component_")

@@ -26,6 +26,8 @@ Shape: TypeAlias = Any
 Spectrum: TypeAlias = Any
 #: a :class:`shape_toolkit.results.correspondence.Correspondence`
 Correspondence: TypeAlias = Any
+#: a :class:`shape_toolkit.results.segmentation.Segmentation`
+Segmentation: TypeAlias = Any
 
 
 class SpectrumSpec(Protocol):
@@ -237,7 +239,8 @@ class DenseMatcher(BasePlugin, ABC):
 
 
 class Segmenter(BasePlugin, ABC):
-    """Assigns one label per vertex.
+    """Assigns one label per vertex (and per face, on a mesh): a
+    :class:`~shape_toolkit.results.segmentation.Segmentation`.
 
     ``takes_constraints``: whether :meth:`segment` uses must-link / cannot-link ``constraints``
     (semi-supervised methods set it True). One that does not refuses them with
@@ -269,8 +272,9 @@ class Segmenter(BasePlugin, ABC):
         *,
         spectrum: Spectrum | None = None,
         constraints: Any | None = None,
-    ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1``."""
+    ) -> Segmentation:
+        """The segmentation: int64 vertex labels ``(n,)`` in ``0..k-1``, int64 face labels ``(m,)`` on a
+        mesh (None on a point cloud), and ``info`` (e.g. the constraints kept)."""
 
 
 #: family name -> (base class, name of the method a plugin must provide)

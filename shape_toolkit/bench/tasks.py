@@ -411,8 +411,8 @@ class SegmentationTask(TaskAdapter):
             constraints = draw_constraints(
                 prepared.target_labels[0], prepared.target.edges, random_state=random_state, **c
             )
-        labels = method.segment(prepared.target, spectrum=spectra.get("target"), constraints=constraints)
-        return {"labels": np.asarray(labels, dtype=np.int64)}
+        result = method.segment(prepared.target, spectrum=spectra.get("target"), constraints=constraints)
+        return {"labels": result.labels}
 
 
 # -- matching ---------------------------------------------------------------------------------

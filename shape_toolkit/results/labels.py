@@ -14,12 +14,15 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
 
 from shape_toolkit.errors import ParameterError, ShapeFileError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from shape_toolkit.core.shape import Shape
 
 __all__ = [
     "read_vertex_ids",
@@ -33,6 +36,7 @@ __all__ = [
     "clicks_from_segmentation",
     "vertex_to_face_labels",
     "face_to_vertex_labels",
+    "face_segments_to_vertices",
     "relabel_consecutive",
     "segment_adjacency",
     "constraint_report",
@@ -347,6 +351,21 @@ def face_to_vertex_labels(
     first[1:] = r[1:] != r[:-1]
     out[r[first]] = uniq[coo.col[key][first]]
     return out
+
+
+def face_segments_to_vertices(shape: Shape, face_labels: np.ndarray) -> np.ndarray:
+    """Per-vertex labels int64 ``(n,)`` of the mesh ``shape`` from its face labels ``(m,)``: the label of
+    the largest incident area (:func:`face_to_vertex_labels`); vertices in no face take their nearest
+    vertex's. What a segmenter of faces returns as vertex labels."""
+    vl = face_to_vertex_labels(shape.faces, face_labels, shape.n_vertices, shape.face_areas)
+    lone = vl < 0
+    if lone.any():
+        from scipy.spatial import cKDTree
+
+        ok = np.flatnonzero(~lone)
+        _, j = cKDTree(shape.vertices[ok]).query(shape.vertices[lone])
+        vl[lone] = vl[ok[j]]
+    return vl
 
 
 def segment_adjacency(labels: np.ndarray, edges: np.ndarray) -> np.ndarray:

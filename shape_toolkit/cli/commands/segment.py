@@ -28,7 +28,6 @@ from shape_toolkit.cli.commands._common import (
 from shape_toolkit.data.datasets import write_labels
 from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError, ParameterError
 from shape_toolkit.io.mesh import load_shape
-from shape_toolkit.plugins.segmenters._common import face_labels_of
 from shape_toolkit.results.labels import load_constraints
 
 
@@ -45,7 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", help="labels file (default: SHAPE_STEM.METHOD.labels.txt, "
                    "or .seg with --faces)")
     p.add_argument("--faces", action="store_true",
-                   help="write one label per face (the method's own face labels where it has them, "
+                   help="write one label per face (the method's own face labels where it segments faces, "
                    "else the majority of the face's vertices), PSB .seg format")
     add_ply(p, "the segments (one colour per label)")
     p.add_argument("--json", action="store_true", help="print JSON")
@@ -98,10 +97,10 @@ def run(args: argparse.Namespace) -> int:
             # segments it piece by piece with their own spectra, or raises this error itself
             spectra, used = None, []
         st.update(f"segment: {args.method}")
-        labels = seg.segment(shape, spectrum=spectra, constraints=constraints)
+        result = seg.segment(shape, spectrum=spectra, constraints=constraints)
     elapsed = time.perf_counter() - t0
-    # a segmenter that works per face (dual graph) keeps its own face labels
-    written = face_labels_of(seg, shape.faces, labels) if args.faces else labels
+    labels = result.labels
+    written = result.face_labels if args.faces else labels  # a segmenter of faces: its own face labels
     write_labels(out, written)
     from shape_toolkit.viz import label_colors
 
@@ -119,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
         "n_constraints": {"must_link": constraints.n_must, "cannot_link": constraints.n_cannot}
         if constraints is not None else None,
         "segment_sizes": np.bincount(labels).tolist(),
+        "info": result.info,
         "diagnostics": _diagnostics(seg),
         "seconds": round(elapsed, 3),
     }

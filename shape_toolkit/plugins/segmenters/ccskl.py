@@ -22,20 +22,15 @@ import numpy as np
 from scipy.optimize import nnls
 
 from shape_toolkit.api.hookspecs import hookimpl
-from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.segmenters._common import (
-    check_n_segments,
-    kmeans_labels,
-    reports_constraints,
-    row_normalize,
-    segment_per_component,
-    segmenter_spec,
-    split_disconnected_clouds,
-)
+from shape_toolkit.plugins.segmenters.base import BaseSegmenter, segmenter_spec
+from shape_toolkit.plugins.segmenters.embedding import row_normalize
+from shape_toolkit.plugins.segmenters.kmeans import kmeans_labels
+from shape_toolkit.plugins.segmenters.n_segments import check_n_segments
 from shape_toolkit.results.labels import coerce_constraints
+from shape_toolkit.results.segmentation import Segmentation
 from shape_toolkit.spectra import SpectrumSpec
 from shape_toolkit.validation import seed_of
 
@@ -58,7 +53,7 @@ def learn_spectral_weights(U: np.ndarray, must: np.ndarray, cannot: np.ndarray) 
     return beta if np.any(beta > 0) else np.ones(m)
 
 
-class CCSKL(Segmenter):
+class CCSKL(BaseSegmenter):
     """Li & Liu 2009 spectral kernel learning from pairwise constraints (see module doc).
 
     ``n_eigenvectors`` (``m``, default 20) smallest eigenvectors of the normalized Laplacian.
@@ -66,6 +61,7 @@ class CCSKL(Segmenter):
     """
 
     takes_constraints = True
+    split_clouds = True
 
     def __init__(
         self,
@@ -92,15 +88,8 @@ class CCSKL(Segmenter):
         """``n_eigenvectors`` eigenpairs of the normalized Laplacian of the ``weighting`` graph."""
         return segmenter_spec(self._check_m(), self.weighting, "normalized")
 
-    @reports_constraints
-    @split_disconnected_clouds(constrained=True)
-    def segment(
-        self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
-    ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1``; ``constraints``: Constraints, dict or JSON path. A mesh of
-        several components is segmented component by component (:func:`segment_per_component`)."""
-        if (split := segment_per_component(self, shape, constraints)) is not None:
-            return split
+    def _segment(self, shape: Shape, *, spectrum: Spectrum | None, constraints: Any) -> Segmentation:
+        """The segmentation of a shape of one piece (``constraints``: Constraints, dict or JSON path)."""
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=False)
         m = self.n_eigenvectors
@@ -118,7 +107,7 @@ class CCSKL(Segmenter):
         labels = kmeans_labels(X, k, seed, self.n_init)
         self.beta_ = beta.tolist()
         self.n_segments_ = int(labels.max() + 1)
-        return labels
+        return Segmentation.of_vertices(shape, labels)
 
 
 @hookimpl

@@ -71,8 +71,9 @@ boundaries along concave creases only; Lai et al. weaken convex ones too, by a f
 tuning half of the PSB meshes the error fell steadily as the factor went from 0.4 to 0 (0.102, 0.077 at
 0.2, 0.074 at 0.1, 0.072 at 0), so the end of that range, the rule itself, is the default rather than a
 fitted value. A clicked
-vertex stands for its incident face of smallest index; the labels are per face (``face_labels_``), and
-:meth:`segment` returns per-vertex labels (largest incident area). The L-embedding of the dual graph is
+vertex stands for its incident face of smallest index; the labels are per face (``face_labels`` of the
+returned :class:`~shape_toolkit.results.segmentation.Segmentation`; its vertex labels are those of the
+largest incident area). The L-embedding of the dual graph is
 computed by the algorithm (no shared spectrum is declared unless ``graph="vertex"``). The dual graph is
 the default because it won on the tuning half of the PSB benchmark (25 meshes, 19 categories, one
 must-link per segment: Rand index error 0.079 against 0.156 on the vertex graph, both with the first two
@@ -91,26 +92,19 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from shape_toolkit.api.hookspecs import hookimpl
-from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.graph import weights_from_edges
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import DisconnectedGraphError, ParameterError
 from shape_toolkit.features.embedding import commute_time_embedding
-from shape_toolkit.plugins.segmenters._common import (
-    check_n_segments,
-    face_segments_to_vertices,
-    kmeans_labels,
-    laplacian_embedding_of,
-    must_link_groups,
-    reports_constraints,
-    seeded_kmeans_labels,
-    segment_per_component,
-    segmenter_spec,
-    split_by_normalized_cuts,
-    split_disconnected_clouds,
-)
+from shape_toolkit.plugins.segmenters.base import BaseSegmenter, segmenter_spec
+from shape_toolkit.plugins.segmenters.constraints import must_link_groups
+from shape_toolkit.plugins.segmenters.embedding import laplacian_embedding_of
+from shape_toolkit.plugins.segmenters.kmeans import kmeans_labels, seeded_kmeans_labels
+from shape_toolkit.plugins.segmenters.n_segments import check_n_segments
+from shape_toolkit.plugins.segmenters.normalized_cuts import split_by_normalized_cuts
 from shape_toolkit.results.labels import coerce_constraints
+from shape_toolkit.results.segmentation import Segmentation
 from shape_toolkit.spectra import SpectrumSpec, build_graph
 from shape_toolkit.validation import seed_of
 
@@ -128,7 +122,7 @@ def propagation_volumes(X: np.ndarray, pairs: np.ndarray, tree: cKDTree | None =
     return out
 
 
-class ConstrainedSpectralClustering(Segmenter):
+class ConstrainedSpectralClustering(BaseSegmenter):
     """CSC (Algorithm 4): constraint propagation in the commute-time embedding, modified Laplacian.
 
     Parameters: ``n_segments`` (``k``, required), ``n_embedding`` (``p >= k`` eigenpairs of the
@@ -149,6 +143,7 @@ class ConstrainedSpectralClustering(Segmenter):
     """
 
     takes_constraints = True
+    split_clouds = True
 
     def __init__(
         self,
@@ -197,6 +192,10 @@ class ConstrainedSpectralClustering(Segmenter):
             return None
         k = self.n_segments if isinstance(self.n_segments, (int, np.integer)) else None
         return segmenter_spec(self._n_embedding(k) + 1, self.weighting, "combinatorial")
+
+    def component_graph(self, shape: Shape) -> str:
+        """The graph CSC clusters (:meth:`_graph`): its pieces are segmented one by one."""
+        return self._graph(shape)
 
     def _graph(self, shape: Shape | None = None) -> str:
         """``"vertex"`` or ``"dual"`` (``"auto"``: dual for a mesh, vertex for a point cloud; ``"auto"``
@@ -319,17 +318,9 @@ class ConstrainedSpectralClustering(Segmenter):
             setattr(self, attr, int(touched.sum()))
         return weights_from_edges(n, np.stack([ei, ej], axis=1), w)
 
-    @reports_constraints
-    @split_disconnected_clouds(constrained=True)
-    def segment(
-        self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
-    ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1``; ``constraints``: Constraints, dict or JSON path. With
-        ``graph="dual"`` the clustering is per face (``face_labels_``). A mesh of several components is
-        segmented component by component (:func:`segment_per_component`)."""
+    def _segment(self, shape: Shape, *, spectrum: Spectrum | None, constraints: Any) -> Segmentation:
+        """The segmentation of a shape of one piece; with ``graph="dual"`` the clustering is per face."""
         dual = self._graph(shape) == "dual"
-        if (split := segment_per_component(self, shape, constraints, by_faces=dual)) is not None:
-            return split
         n = shape.n_faces if dual else shape.n_vertices
         # per-vertex labels are returned: at most n_vertices segments on either graph
         k = check_n_segments(self.n_segments, min(n, shape.n_vertices), allow_none=False)
@@ -359,10 +350,7 @@ class ConstrainedSpectralClustering(Segmenter):
         self.n_seed_groups_ = len(groups)
         self.modified_eigenvalues_ = vals.tolist()
         self.n_segments_ = int(labels.max() + 1)
-        if dual:
-            self.face_labels_ = labels
-            return face_segments_to_vertices(shape, labels)
-        return labels
+        return Segmentation.of_faces(shape, labels) if dual else Segmentation.of_vertices(shape, labels)
 
 
 @hookimpl

@@ -27,20 +27,14 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.mixture import GaussianMixture
 
 from shape_toolkit.api.hookspecs import hookimpl
-from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import LAPLACIANS, Spectrum, fix_signs, null_count
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.segmenters._common import (
-    canonical_order,
-    check_n_segments,
-    fit_predict_invariant,
-    segment_per_component,
-    segmenter_spec,
-    single_thread,
-    split_disconnected_clouds,
-)
+from shape_toolkit.plugins.segmenters.base import BaseSegmenter, segmenter_spec
+from shape_toolkit.plugins.segmenters.kmeans import canonical_order, fit_predict_invariant, single_thread
+from shape_toolkit.plugins.segmenters.n_segments import check_n_segments
 from shape_toolkit.results.labels import relabel_consecutive
+from shape_toolkit.results.segmentation import Segmentation
 from shape_toolkit.spectra import SpectrumSpec, build_graph
 from shape_toolkit.validation import seed_of
 
@@ -56,7 +50,7 @@ def _knee(ks: np.ndarray, values: np.ndarray) -> int:
     return int(ks[int(np.argmax(1.0 - x - y))])
 
 
-class EigvecGMMSegmenter(Segmenter):
+class EigvecGMMSegmenter(BaseSegmenter):
     """Thesis 4.3: eigenvector selection by 1D GMMs at the extremities, then a ``q``-D GMM.
 
     Parameters: ``n_segments`` (None: chosen by BIC in ``[2, max_segments]``), ``n_eigenvectors``
@@ -73,7 +67,7 @@ class EigvecGMMSegmenter(Segmenter):
 
     Vertex-order independent: the eigenvectors are sign-fixed, the subsamples are chosen by value and
     every GMM is fitted on the vertices in a canonical order of their embedding
-    (:func:`~shape_toolkit.plugins.segmenters._common.canonical_order`), so a permuted mesh gets the
+    (:func:`~shape_toolkit.plugins.segmenters.kmeans.canonical_order`), so a permuted mesh gets the
     permuted labels (up to label names; exactly degenerate eigenvalues, as on symmetric shapes, leave
     the eigenbasis itself undetermined).
 
@@ -83,6 +77,8 @@ class EigvecGMMSegmenter(Segmenter):
     ``bic_curve_`` (``{k: BIC}``, sklearn's convention: lower is better; None when ``k`` is
     given), ``bic_monotone_``, ``n_segments_rule_``, ``n_segments_``.
     """
+
+    split_clouds = True
 
     def __init__(
         self,
@@ -168,21 +164,13 @@ class EigvecGMMSegmenter(Segmenter):
         ncomp, lab = connected_components(A[ids][:, ids], directed=False)
         return int(ncomp), float(np.bincount(lab).max() / len(ids))
 
-    @split_disconnected_clouds(constrained=False)
-    def segment(
-        self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
-    ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1``. An unsupervised method: ``constraints`` are refused
-        (:class:`ParameterError`), not ignored. A mesh of several components is segmented component by
-        component (:func:`segment_per_component`)."""
-        self.check_constraints(constraints)
-        if (split := segment_per_component(self, shape, None)) is not None:
-            return split
+    def _segment(self, shape: Shape, *, spectrum: Spectrum | None, constraints: Any) -> Segmentation:
+        """The segmentation of a shape of one piece (an unsupervised method: no constraints)."""
         with single_thread(), warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)
-            return self._segment(shape, spectrum)
+            return Segmentation.of_vertices(shape, self._labels(shape, spectrum))
 
-    def _segment(self, shape: Shape, spectrum: Spectrum | None) -> np.ndarray:
+    def _labels(self, shape: Shape, spectrum: Spectrum | None) -> np.ndarray:
         n = shape.n_vertices
         k, p = self._check(n)
         spectrum = self._spectrum(shape, spectrum)

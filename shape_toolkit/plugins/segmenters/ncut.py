@@ -16,15 +16,16 @@ graph's affinities drop across them.
    degrees; each side must hold at least ``min_fraction`` of the whole mesh's volume. The segment
    whose best cut has the smallest Ncut is split, until ``n_segments`` segments exist.
 3. Segments = connected parts of equal labels (as PSB counts them); parts beyond ``n_segments`` are
-   merged into their neighbours, smallest first (:func:`~shape_toolkit.plugins.segmenters._common.merge_to_segments`).
+   merged into their neighbours, smallest first (:func:`~shape_toolkit.plugins.segmenters.merging.merge_to_segments`).
    A mesh of several pieces of the dual graph (separate components, or parts meeting only at a vertex)
    is segmented piece by piece, ``n_segments`` shared by area and pieces beyond it joining their nearest
-   segment (:func:`~shape_toolkit.plugins.segmenters._common.segment_per_component`).
+   segment (:class:`~shape_toolkit.plugins.segmenters.per_component.PerComponent`).
 
 The eigenproblems are the algorithm's own (like CSC's modified Laplacian): no shared spectrum is
 declared (``spectrum_spec()`` is None). The solver is deterministic, so the method takes no
-``random_state``. Labels are per face (``face_labels_``, what PSB scores); :meth:`segment` returns
-per-vertex labels (the label of the largest incident area).
+``random_state``. Labels are per face (``face_labels`` of the returned
+:class:`~shape_toolkit.results.segmentation.Segmentation`, what PSB scores); its vertex labels are those
+of the largest incident area.
 
 Defaults (``concavity_scale = 5``, ``n_vectors = 3``, ``min_weight = 1e-3``) were chosen on the tuning
 half of the shared PSB meshes only (``benchmarks/psb_segmentation.py``; the ``concavity_scale`` x
@@ -40,23 +41,19 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.api.hookspecs import hookimpl
-from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import concavity_weights, dual_adjacency
-from shape_toolkit.plugins.segmenters._common import (
-    check_n_segments,
-    face_segments_to_vertices,
-    merge_to_segments,
-    segment_per_component,
-    split_by_normalized_cuts,
-    sweep_cut,
-)
+from shape_toolkit.plugins.segmenters.base import BaseSegmenter
+from shape_toolkit.plugins.segmenters.merging import merge_to_segments
+from shape_toolkit.plugins.segmenters.n_segments import check_n_segments
+from shape_toolkit.plugins.segmenters.normalized_cuts import split_by_normalized_cuts, sweep_cut
+from shape_toolkit.results.segmentation import Segmentation
 
 __all__ = ["NormalizedCutSegmenter", "sweep_cut"]
 
 
-class NormalizedCutSegmenter(Segmenter):
+class NormalizedCutSegmenter(BaseSegmenter):
     """Recursive two-way normalized cuts on the concavity-weighted dual graph (see module doc).
 
     Parameters: ``n_segments`` (``k``, required), ``concavity_scale``, ``convex_factor``,
@@ -64,8 +61,8 @@ class NormalizedCutSegmenter(Segmenter):
     (eigenvectors swept per split), ``min_fraction`` (smallest side of a cut, fraction of the mesh's
     volume), ``tol`` (eigensolver tolerance).
 
-    After :meth:`segment`: ``face_labels_`` (``(m,)``, what PSB scores), ``cut_labels_`` (before the
-    connected-part relabelling), ``ncut_values_`` (Ncut of each cut made, in order), ``n_segments_``.
+    After :meth:`segment` of a mesh of one piece: ``cut_labels_`` (before the connected-part
+    relabelling), ``ncut_values_`` (Ncut of each cut made, in order), ``n_segments_``.
     """
 
     def __init__(
@@ -87,6 +84,13 @@ class NormalizedCutSegmenter(Segmenter):
         self.min_fraction = min_fraction
         self.tol = tol
 
+    def component_graph(self, shape: Shape) -> str:
+        """``"dual"``: the pieces of the dual graph are segmented one by one."""
+        return "dual"
+
+    def _check_params(self, shape: Shape) -> None:
+        self._check(len(shape.require_faces("normalized-cut segmentation")))
+
     def _check(self, m: int) -> tuple[int, int, float]:
         k = check_n_segments(self.n_segments, m, allow_none=False)
         nv = self.n_vectors
@@ -97,17 +101,10 @@ class NormalizedCutSegmenter(Segmenter):
             raise ParameterError(f"min_fraction must be in [0, 0.5), got {self.min_fraction!r}")
         return int(k), int(nv), mf
 
-    def segment(self, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
-        """int64 vertex labels ``(n,)``; face labels in ``face_labels_`` (``constraints`` are refused:
-        :class:`ParameterError`, an unsupervised method). A mesh
-        of several pieces (of the dual graph) is segmented piece by piece (:func:`segment_per_component`),
-        so that ``n_segments`` holds however many pieces there are."""
-        self.check_constraints(constraints)
-        faces = shape.require_faces("normalized-cut segmentation")
-        m = len(faces)
+    def _segment(self, shape: Shape, *, spectrum: Any, constraints: Any) -> Segmentation:
+        """The face segmentation of a mesh of one piece (of the dual graph)."""
+        m = shape.n_faces
         k, nv, mf = self._check(m)
-        if (split := segment_per_component(self, shape, None, by_faces=True)) is not None:
-            return split
         pairs, w = concavity_weights(shape, concavity_scale=self.concavity_scale,
                                      convex_factor=self.convex_factor, min_weight=self.min_weight)
         W = dual_adjacency(m, pairs, w)
@@ -115,9 +112,8 @@ class NormalizedCutSegmenter(Segmenter):
                                                              min_fraction=mf, tol=float(self.tol))
         self.cut_labels_ = labels
         fl = merge_to_segments(labels, pairs, np.asarray(shape.face_areas, dtype=np.float64), k)
-        self.face_labels_ = fl
         self.n_segments_ = int(fl.max() + 1) if m else 0
-        return face_segments_to_vertices(shape, fl)
+        return Segmentation.of_faces(shape, fl)
 
 
 @hookimpl

@@ -17,16 +17,15 @@ segmenter.
 4. the alpha-expansion graph cut of :func:`shape_toolkit.features.smoothing.smooth_labels` with unary
    costs ``-log p`` and the concavity-aware dihedral boundary cost.
 
-Labels are per face (``face_labels_``, what PSB scores); :meth:`segment` returns per-vertex labels (the
-label of the largest incident area), as the :class:`~shape_toolkit.api.interfaces.Segmenter` interface
-asks. Clusters are numbered by increasing SDF. It needs no spectrum (``spectrum_spec()`` is None). A mesh
-of several pieces of the dual graph is segmented piece by piece (the SDF of each piece on its own),
-``n_segments`` shared by area
-(:func:`~shape_toolkit.plugins.segmenters._common.segment_per_component`).
+Labels are per face (``face_labels`` of the returned :class:`~shape_toolkit.results.segmentation.Segmentation`,
+what PSB scores); its vertex labels are those of the largest incident area. Clusters are numbered by
+increasing SDF. It needs no spectrum (``spectrum_spec()`` is None). A mesh of several pieces of the dual
+graph is segmented piece by piece (the SDF of each piece on its own), ``n_segments`` shared by area
+(:class:`~shape_toolkit.plugins.segmenters.per_component.PerComponent`).
 
 ``smoothed``: ``base`` (a registry name or a segmenter instance, sklearn-style nested plugin) segments,
-its labels become face labels (its ``face_labels_`` if it has some, else the vertex majority) and are
-smoothed by :func:`~shape_toolkit.features.smoothing.smooth_labels`.
+its face labels (its own, or the vertex majority) are smoothed by
+:func:`~shape_toolkit.features.smoothing.smooth_labels`.
 """
 
 from __future__ import annotations
@@ -42,13 +41,10 @@ from shape_toolkit.api.interfaces import BasePlugin, Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, dual_adjacency, dual_graph, smooth_labels
-from shape_toolkit.plugins.segmenters._common import (
-    face_labels_of,
-    merge_to_segments,
-    reports_constraints,
-    segment_per_component,
-)
-from shape_toolkit.plugins.segmenters._common import face_segments_to_vertices as _vertex_labels
+from shape_toolkit.plugins.segmenters.base import BaseSegmenter
+from shape_toolkit.plugins.segmenters.kmeans import single_thread
+from shape_toolkit.plugins.segmenters.merging import merge_to_segments
+from shape_toolkit.results.segmentation import Segmentation
 from shape_toolkit.validation import seed_of
 
 _GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
@@ -184,7 +180,7 @@ def _check_k(k: Any, m: int) -> int:
     return int(k)
 
 
-class SDFSegmenter(Segmenter):
+class SDFSegmenter(BaseSegmenter):
     """CGAL's SDF segmentation: per-face SDF, 1-D GMM with ``n_segments`` clusters, graph cut.
 
     Parameters: ``n_segments`` (``k``), ``n_rays`` / ``cone_angle`` (SDF rays), ``filter_iterations``
@@ -192,8 +188,8 @@ class SDFSegmenter(Segmenter):
     the graph cut; 0 = plain GMM labels), ``convex_factor``, ``geometric`` (area / edge-length weights),
     ``n_init`` (GMM restarts), ``random_state`` (GMM initialisation, sklearn semantics).
 
-    After :meth:`segment`: ``face_labels_`` (what PSB scores), ``sdf_`` (normalised per-face SDF),
-    ``gmm_labels_`` (before the graph cut), ``n_segments_`` (labels left after the cut).
+    After :meth:`segment` of a mesh of one piece: ``sdf_`` (normalised per-face SDF), ``gmm_labels_``
+    (before the graph cut), ``n_segments_`` (labels left after the cut).
     """
 
     def __init__(
@@ -223,15 +219,15 @@ class SDFSegmenter(Segmenter):
         self.n_init = n_init
         self.random_state = random_state
 
-    def segment(self, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
-        """int64 vertex labels ``(n,)``; face labels in ``face_labels_``. ``constraints`` are refused
-        (:class:`ParameterError`): an unsupervised method."""
-        from sklearn.mixture import GaussianMixture
+    def component_graph(self, shape: Shape) -> str:
+        """``"dual"``: the pieces of the dual graph are segmented one by one."""
+        return "dual"
 
-        self.check_constraints(constraints)
+    def _check_params(self, shape: Shape) -> None:
+        self._k_and_clusters(shape)
 
-        from shape_toolkit.plugins.segmenters._common import single_thread
-
+    def _k_and_clusters(self, shape: Shape) -> tuple[int | None, int]:
+        """``(k, number of GMM clusters)``, checked."""
         faces = shape.require_faces("SDF segmentation")
         k = None if self.n_segments is None else _check_k(self.n_segments, len(faces))
         nc = self.n_clusters if self.n_clusters is not None else k
@@ -242,8 +238,13 @@ class SDFSegmenter(Segmenter):
             nc = min(nc, k)
         if int(self.n_rays) < 1:
             raise ParameterError(f"n_rays must be >= 1, got {self.n_rays!r}")
-        if (split := segment_per_component(self, shape, None, by_faces=True)) is not None:
-            return split
+        return k, nc
+
+    def _segment(self, shape: Shape, *, spectrum: Any, constraints: Any) -> Segmentation:
+        """The face segmentation of a mesh of one piece (of the dual graph)."""
+        from sklearn.mixture import GaussianMixture
+
+        k, nc = self._k_and_clusters(shape)
         seed = seed_of(self.random_state)
         x = normalized_sdf(shape, int(self.n_rays), float(self.cone_angle), int(self.filter_iterations),
                            float(self.log_alpha))
@@ -264,22 +265,21 @@ class SDFSegmenter(Segmenter):
         else:
             fl = self.gmm_labels_.copy()
         self.cluster_labels_ = np.asarray(fl, dtype=np.int64)
-        pairs, _, _ = dual_graph(faces)
+        pairs, _, _ = dual_graph(shape.faces)
         fl = merge_to_segments(self.cluster_labels_, pairs, np.asarray(shape.face_areas, dtype=np.float64), k)
-        self.face_labels_ = fl
         self.n_segments_ = int(fl.max() + 1)
-        return _vertex_labels(shape, fl)
+        return Segmentation.of_faces(shape, fl)
 
 
-class SmoothedSegmenter(Segmenter):
+class SmoothedSegmenter(BaseSegmenter):
     """Any segmenter followed by the dual-graph graph cut of
     :func:`~shape_toolkit.features.smoothing.smooth_labels`.
 
     Parameters: ``base`` (registry name or segmenter instance; a name is created with its defaults),
     ``n_segments`` (when not None, passed to the base), ``smoothing_lambda``, ``spread``,
     ``convex_factor``, ``geometric`` (see :func:`smooth_labels`). Spectra: those of the base (passed
-    through). After :meth:`segment`: ``base_`` (the fitted base), ``base_face_labels_``,
-    ``face_labels_``.
+    through). After :meth:`segment`: ``base_`` (the fitted base), ``base_face_labels_`` (the base's
+    face labels, before smoothing), ``n_segments_``.
     """
 
     def __init__(
@@ -324,20 +324,21 @@ class SmoothedSegmenter(Segmenter):
     def spectrum_specs(self):
         return self._make_base().spectrum_specs()
 
-    @reports_constraints
-    def segment(self, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
-        faces = shape.require_faces("label smoothing")
+    def component_graph(self, shape: Shape) -> None:
+        """None: the base segments the pieces."""
+        return None
+
+    def _segment(self, shape: Shape, *, spectrum: Any, constraints: Any) -> Segmentation:
+        """The base's face labels, smoothed."""
+        shape.require_faces("label smoothing")
         b = self._make_base()
-        self.check_constraints(constraints)  # the base's answer, before any work
-        vl = b.segment(shape, spectrum=spectrum, constraints=constraints)
-        fl0 = face_labels_of(b, faces, vl)
+        fl0 = b.segment(shape, spectrum=spectrum, constraints=constraints).face_labels
         fl = smooth_labels(shape, fl0, None, float(self.smoothing_lambda), on="faces", spread=int(self.spread),
                            convex_factor=float(self.convex_factor), geometric=bool(self.geometric))
         self.base_ = b
         self.base_face_labels_ = np.asarray(fl0, dtype=np.int64)
-        self.face_labels_ = fl
         self.n_segments_ = int(len(np.unique(fl)))
-        return _vertex_labels(shape, fl)
+        return Segmentation.of_faces(shape, fl)
 
 
 @hookimpl

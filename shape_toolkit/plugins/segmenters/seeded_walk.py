@@ -23,8 +23,9 @@ plugin ``csc``), which propagates the same constraints through the commute-time 
 Mesh components that hold no seed become segments of their own, except specks (fewer than
 ``MIN_SPLIT_SIZE`` = 20 faces and no constrained vertex), which join the segment nearest to them. The
 number of segments is the number of must-link groups (plus such components), so the method takes no
-``n_segments``; it has no randomness and declares no spectrum. Labels are per face (``face_labels_``);
-:meth:`segment` returns per-vertex labels (largest incident area).
+``n_segments``; it has no randomness and declares no spectrum. Labels are per face (``face_labels`` of
+the returned :class:`~shape_toolkit.results.segmentation.Segmentation`; its vertex labels are those of
+the largest incident area).
 """
 
 from __future__ import annotations
@@ -35,28 +36,24 @@ import numpy as np
 import scipy.sparse as sp
 
 from shape_toolkit.api.hookspecs import hookimpl
-from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, concavity_weights, dual_adjacency, smooth_labels
-from shape_toolkit.plugins.segmenters._common import (
-    MIN_SPLIT_SIZE,
-    face_segments_to_vertices,
-    must_link_groups,
-    nearest_label_per_piece,
-    reports_constraints,
-)
+from shape_toolkit.plugins.segmenters.base import BaseSegmenter
+from shape_toolkit.plugins.segmenters.constraints import must_link_groups
+from shape_toolkit.plugins.segmenters.per_component import MIN_SPLIT_SIZE, nearest_label_per_piece
 from shape_toolkit.results.labels import ConstraintError, coerce_constraints
+from shape_toolkit.results.segmentation import Segmentation
 
 
-class SeededWalkSegmenter(Segmenter):
+class SeededWalkSegmenter(BaseSegmenter):
     """Random walks from must-link seeds on the concavity-weighted dual graph (see module doc).
 
     Parameters: ``concavity_scale``, ``convex_factor``, ``min_weight`` (the affinities of
     :func:`~shape_toolkit.features.smoothing.concavity_weights`), ``cannot_rounds`` (cannot-link repair
     rounds; 0 ignores cannot-links), ``smoothing_lambda`` (0: no graph cut).
 
-    After :meth:`segment`: ``face_labels_`` ``(m,)``, ``probabilities_`` ``(m, k)`` (float32),
+    After :meth:`segment`: ``probabilities_`` ``(m, k)`` (float32),
     ``n_segments_``, ``n_cannot_violated_`` (cannot-links whose ends share a segment at the end).
     """
 
@@ -77,9 +74,12 @@ class SeededWalkSegmenter(Segmenter):
         self.cannot_rounds = cannot_rounds
         self.smoothing_lambda = smoothing_lambda
 
-    @reports_constraints
-    def segment(self, shape: Shape, *, spectrum: Any = None, constraints: Any | None = None) -> np.ndarray:
-        """int64 vertex labels ``(n,)``; ``constraints`` (Constraints, dict or JSON path) are required."""
+    def component_graph(self, shape: Shape) -> None:
+        """None: pieces without a seed are handled by the walk itself (see the module doc)."""
+        return None
+
+    def _segment(self, shape: Shape, *, spectrum: Any, constraints: Any) -> Segmentation:
+        """The face segmentation; ``constraints`` (Constraints, dict or JSON path) are required."""
         from scipy.sparse.csgraph import connected_components
         from scipy.sparse.linalg import splu
 
@@ -181,11 +181,11 @@ class SeededWalkSegmenter(Segmenter):
             best = nearest_label_per_piece(centre[sf], comp[sf], centre, np.where(speck[comp], -1, fl))
             fl[sf] = [best[p] for p in comp[sf].tolist()]
         self.probabilities_ = X.astype(np.float32)
-        self.face_labels_ = fl
         self.n_segments_ = int(len(np.unique(fl)))
-        vl = face_segments_to_vertices(shape, fl)
+        result = Segmentation.of_faces(shape, fl)
+        vl = result.labels
         self.n_cannot_violated_ = int(np.sum(vl[cl[:, 0]] == vl[cl[:, 1]])) if len(cl) else 0
-        return vl
+        return result
 
 
 @hookimpl

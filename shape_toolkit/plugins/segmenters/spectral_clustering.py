@@ -21,19 +21,15 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.api.hookspecs import hookimpl
-from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.embedding import commute_time_embedding
-from shape_toolkit.plugins.segmenters._common import (
-    check_n_segments,
-    kmeans_labels,
-    row_normalize,
-    segment_per_component,
-    segmenter_spec,
-    split_disconnected_clouds,
-)
+from shape_toolkit.plugins.segmenters.base import BaseSegmenter, segmenter_spec
+from shape_toolkit.plugins.segmenters.embedding import row_normalize
+from shape_toolkit.plugins.segmenters.kmeans import kmeans_labels
+from shape_toolkit.plugins.segmenters.n_segments import check_n_segments
+from shape_toolkit.results.segmentation import Segmentation
 from shape_toolkit.spectra import SpectrumSpec
 from shape_toolkit.validation import seed_of
 
@@ -45,7 +41,7 @@ _LAPLACIAN = {
 }
 
 
-class SpectralClustering(Segmenter):
+class SpectralClustering(BaseSegmenter):
     """k-means on the first ``n_segments`` eigenvectors of a graph Laplacian (see module doc).
 
     ``n_segments=None`` picks ``k`` in ``[2, max_segments]`` at the largest eigengap
@@ -54,6 +50,7 @@ class SpectralClustering(Segmenter):
     """
 
     presets = {"ng2001": {"variant": "ng"}, "luxburg-unnormalized": {"variant": "unnormalized"}}
+    split_clouds = True
 
     def __init__(
         self,
@@ -87,16 +84,8 @@ class SpectralClustering(Segmenter):
             raise ParameterError(f"unknown variant {self.variant!r}; choose one of {', '.join(_LAPLACIAN)}")
         return segmenter_spec(self._kmax() + 1, self.weighting, _LAPLACIAN[self.variant])
 
-    @split_disconnected_clouds(constrained=False)
-    def segment(
-        self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
-    ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1``. An unsupervised baseline: ``constraints`` are refused
-        (:class:`ParameterError`), not ignored. A mesh of several components is segmented component by
-        component (:func:`segment_per_component`)."""
-        self.check_constraints(constraints)
-        if (split := segment_per_component(self, shape, None)) is not None:
-            return split
+    def _segment(self, shape: Shape, *, spectrum: Spectrum | None, constraints: Any) -> Segmentation:
+        """The segmentation of a shape of one piece (an unsupervised baseline: no constraints)."""
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=True)
         kmax = self._kmax(n)
@@ -118,7 +107,7 @@ class SpectralClustering(Segmenter):
         self.n_segments_ = int(labels.max() + 1)
         self.eigenvalues_ = vals[: k + 1].tolist()
         self.embedding_dim_ = int(X.shape[1])
-        return labels
+        return Segmentation.of_vertices(shape, labels)
 
 
 @hookimpl

@@ -15,17 +15,20 @@ import numpy as np
 import scipy.sparse as sp
 
 from shape_toolkit.api.hookspecs import hookimpl
-from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.eigen import smallest_eigenpairs
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.plugins.segmenters._common import check_n_segments, kmeans_labels, reports_constraints, row_normalize
+from shape_toolkit.plugins.segmenters.base import BaseSegmenter
+from shape_toolkit.plugins.segmenters.embedding import row_normalize
+from shape_toolkit.plugins.segmenters.kmeans import kmeans_labels
+from shape_toolkit.plugins.segmenters.n_segments import check_n_segments
 from shape_toolkit.results.labels import coerce_constraints
+from shape_toolkit.results.segmentation import Segmentation
 from shape_toolkit.spectra import build_graph
 from shape_toolkit.validation import seed_of
 
 
-class SpectralLearning(Segmenter):
+class SpectralLearning(BaseSegmenter):
     """Kamvar et al. 2003 on the shape graph (Gaussian weights): constrained affinities, then
     row-normalised k-means on the ``k`` smallest eigenvectors of ``D - A``.
 
@@ -50,11 +53,12 @@ class SpectralLearning(Segmenter):
         self.n_init = n_init
         self.random_state = random_state
 
-    @reports_constraints
-    def segment(
-        self, shape: Shape, *, spectrum: Spectrum | None = None, constraints: Any | None = None
-    ) -> np.ndarray:
-        """int64 labels ``(n,)`` in ``0..k-1``; the spectrum is recomputed on the modified affinities."""
+    def component_graph(self, shape: Shape) -> None:
+        """None: the shape is segmented whole (its graph may be in pieces)."""
+        return None
+
+    def _segment(self, shape: Shape, *, spectrum: Spectrum | None, constraints: Any) -> Segmentation:
+        """The segmentation; the spectrum is recomputed on the modified affinities."""
         n = shape.n_vertices
         k = check_n_segments(self.n_segments, n, allow_none=False)
         seed = seed_of(self.random_state)
@@ -75,7 +79,7 @@ class SpectralLearning(Segmenter):
         labels = kmeans_labels(row_normalize(vecs), k, seed, self.n_init)
         self.n_added_edges_, self.n_removed_edges_ = added, removed
         self.n_segments_ = int(labels.max() + 1)
-        return labels
+        return Segmentation.of_vertices(shape, labels)
 
 
 @hookimpl
