@@ -13,6 +13,7 @@ most 1; the rest is the outlier class). Orientation repair: :mod:`.orientation_r
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -169,8 +170,7 @@ class EMFit:
 
 @dataclass
 class Embedding:
-    """What EM registers: source points ``X`` ``(n, K)``, target points ``Y`` ``(n', K)``, and the
-    area-normalized bases they come from (None: no coarse-to-fine refinement)."""
+    """What EM registers: source ``X`` ``(n, K)``, target ``Y`` ``(n', K)``, their bases (None: no refinement)."""
 
     X: np.ndarray
     Y: np.ndarray
@@ -435,7 +435,7 @@ class EMRegistrationMatcher(DenseMatcher):
     def match(self, source: Shape, target: Shape, *, seeds: np.ndarray | None = None,
               source_spectrum: Spectrum | None = None, target_spectrum: Spectrum | None = None,
               source_descriptors: np.ndarray | None = None, target_descriptors: np.ndarray | None = None,
-              n_times: int | None = None, progress: Any = None) -> Correspondence:
+              n_times: int | None = None, progress: Callable[[str], None] | None = None) -> Correspondence:
         """Dense map source -> target with sparse posteriors (descriptors, ``n_times``, ``progress``: unused)."""
         self._check()
         if self.orientation != "none":

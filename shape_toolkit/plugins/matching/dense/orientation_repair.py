@@ -13,6 +13,7 @@ wraps the matcher rather than following it. Design notes and measurements:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any, Protocol
 
@@ -64,7 +65,8 @@ class OrientationRepair(DenseMatcher):
         self.matcher = matcher
         self.orientation = orientation
 
-    def _registration(self) -> Registration:
+    def registration(self) -> Registration:
+        """The wrapped matcher, checked: a :class:`Registration`."""
         if self.orientation not in ("preserving", "reversing", "none"):
             raise ParameterError(f"orientation must be one of preserving, reversing, none; got {self.orientation!r}")
         needed = ("embedding_spec", "start", "solve", "transform_of", "refines", "refine", "finish")
@@ -88,7 +90,7 @@ class OrientationRepair(DenseMatcher):
         """The registration's embedding spectrum with ``ORIENTATION_K + 1`` eigenpairs at least (scoring)."""
         if self.matcher is None or self.orientation == "none":
             return None
-        return self._registration().embedding_spec(ORIENTATION_K)
+        return self.registration().embedding_spec(ORIENTATION_K)
 
     def match(
         self,
@@ -101,10 +103,10 @@ class OrientationRepair(DenseMatcher):
         source_descriptors: np.ndarray | None = None,
         target_descriptors: np.ndarray | None = None,
         n_times: int | None = None,
-        progress: Any = None,
+        progress: Callable[[str], None] | None = None,
     ) -> Correspondence:
         """The registration's dense map, its side repaired (descriptors, ``n_times``, ``progress``: unused)."""
-        m = self._registration()
+        m = self.registration()
         on = self.orientation != "none"
         emb, Q0, info = m.start(source, target, seeds, source_spectrum, target_spectrum, ORIENTATION_K if on else 0)
         fit, k_done = m.solve(emb, Q0), emb.K
