@@ -44,7 +44,7 @@ the pipeline's own stage timings (``info["timings"]``, wall) and, timed by wrapp
 ``em_registration``'s functions in the child only (the package is not changed), the wall and CPU time
 of the polish (``_polish``, the ``polish_k`` refinement), of every coarse-to-fine refinement
 (``_refine``, the polish's included), of their nearest-neighbour searches (``_nearest``), of EM itself
-(``em_register``) and of the orientation check (``_orient``). Runs with preset stages write
+(``em_register``) and of the orientation check (``OrientationRepair.side_check``). Runs with preset stages write
 ``benchmarks/results/scale_presets.md`` (+ ``.json``)::
 
     python benchmarks/bench_scale.py --splits 1 2 3 --accuracy-pairs '' \\
@@ -263,7 +263,7 @@ def parse_stages(text: str) -> list[str]:
 #: ``em_registration`` functions timed inside a preset stage: report key -> (attribute owner, name)
 TIMED = {"polish": ("EMRegistrationMatcher", "_polish"), "refine_steps": ("EMRegistrationMatcher", "_refine"),
          "nearest": (None, "_nearest"), "em_register": (None, "em_register"),
-         "orientation_check": ("EMRegistrationMatcher", "_orient")}
+         "orientation_check": ("OrientationRepair", "side_check")}
 
 
 def instrument_em(clock: dict) -> None:

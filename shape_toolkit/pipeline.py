@@ -1,5 +1,5 @@
 """Named, declarative matching pipelines: keypoints -> sparse matcher -> descriptors -> dense
-matcher -> refinement, each stage a plugin that can be swapped in a small dict/TOML spec.
+matcher -> refinement -> orientation repair, each stage a plugin that can be swapped in a small dict/TOML spec.
 
 A spec (dict, or a TOML file with the same layout)::
 
@@ -16,16 +16,18 @@ A spec (dict, or a TOML file with the same layout)::
     params = { beta = 0.25 }
     [refine]                          # optional: a dense matcher seeded with the dense map
     plugin = "em-registration"
+    [orient]                          # optional: the [refine] registration's map made to keep orientation
+    plugin = "orientation-repair"
 
-Each stage takes ``plugin``, optional ``preset`` and ``params``. Seeds given by the caller
-replace the keypoint and sparse stages. The result is a :class:`Correspondence` whose ``info``
-records the stages, their timings and the number of seeds.
+Each stage takes ``plugin``, optional ``preset`` and ``params``. ``[orient]`` wraps the ``[refine]``
+registration (it restarts it from repaired maps), which then registers only; the orientation is set in
+``[orient]``. Seeds given by the caller replace the keypoint and sparse stages. The result is a
+:class:`Correspondence` whose ``info`` records the stages, their timings and the number of seeds.
 """
 
 from __future__ import annotations
 
 import copy
-import inspect
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -38,48 +40,55 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.plugins.matching._common import orientation_verdict, paired_descriptors
+from shape_toolkit.plugins.matching.dense.orientation_repair import OrientationRepair
 from shape_toolkit.plugins.matching.multires import PROXY_VERTICES
 from shape_toolkit.results.correspondence import Correspondence, read_seeds
 from shape_toolkit.spectra import SpectrumSpec, compute_declared, merge_specs
 from shape_toolkit.validation import check_seeds
 
 __all__ = [
-    "STAGES", "PRESETS", "Pipeline", "load_pipeline", "run_pipeline", "read_seeds",
+    "STAGES", "PRESETS", "ORIENT_PLUGINS", "Pipeline", "load_pipeline", "run_pipeline", "read_seeds",
     "paired_descriptors",
 ]
 
-#: stage name -> plugin family, in execution order
+#: stage name -> plugin family, in execution order (``orientation``: no registry family, see ORIENT_PLUGINS)
 STAGES: dict[str, str] = {
     "keypoints": "keypoints",
     "sparse": "sparse_matchers",
     "descriptors": "descriptors",
     "dense": "dense_matchers",
     "refine": "dense_matchers",
+    "orient": "orientation",
 }
+
+#: the [orient] stage's plugins: each wraps the [refine] registration
+ORIENT_PLUGINS: dict[str, type] = {"orientation-repair": OrientationRepair}
 
 #: built-in pipelines
 PRESETS: dict[str, dict[str, Any]] = {
     "sharma2012": {
         "description": "thesis ch. 7: ADF keypoints, replicator matching, heat-distance "
         "descriptors, seed growing (Alg. 6), EM registration (Alg. 7), its map polished on 100 "
-        "Laplace-Beltrami eigenvectors (an extension)",
+        "Laplace-Beltrami eigenvectors (an extension) after the orientation repair",
         "keypoints": {"plugin": "adf-maxima", "preset": "thesis-dense"},
         "sparse": {"plugin": "replicator"},
         "descriptors": {"plugin": "heat-distance"},
         "dense": {"plugin": "seed-growing"},
         "refine": {"plugin": "em-registration", "params": {"polish_k": 100}},
+        "orient": {"plugin": "orientation-repair"},
     },
     "topo-robust": {
         "description": "thesis 7.4: ADF keypoints, replicator matching (orientation-checked), small-scale "
         "heat-diffusion descriptors (eq. 6.61-6.63), seed growing (Alg. 6), EM on the thesis's embedding "
         "(graph Laplacian, commute-time scaling, scree dimension; Alg. 7), coarse-to-fine refinement (40 graph, "
-        "then 100 Laplace-Beltrami eigenvectors; an extension)",
+        "then 100 Laplace-Beltrami eigenvectors; an extension), orientation repair",
         "keypoints": {"plugin": "adf-maxima", "preset": "thesis-dense"},
         "sparse": {"plugin": "replicator"},
         "descriptors": {"plugin": "heat-diffusion", "params": {"K": 50, "time_ratio": 1.5}},
         "dense": {"plugin": "seed-growing", "params": {
             "descriptor": "heat-diffusion", "descriptor_params": {"K": 50, "time_ratio": 1.5}}},
         "refine": {"plugin": "em-registration", "preset": "thesis", "params": {"k_final": 40, "polish_k": 100}},
+        "orient": {"plugin": "orientation-repair"},
     },
     "seed-growing": {
         "description": "ADF keypoints, replicator matching, heat-distance descriptors, seed growing",
@@ -129,9 +138,9 @@ PRESETS["topo-robust-photometric"] = {
     "is off (on uncoloured shapes use topo-robust)",
     "sparse": {"plugin": "photometric"},
 }
-# EM's geometry-only side reference can mirror a map that the colour seeds got right (generated textured
-# pairs, tuning split of benchmarks/photometric_seeds.py: mean error 0.0355 with the check, 0.0175 without,
-# never worse on any of its 16 runs)
+# EM's geometry-only side reference can mirror a map that the colour seeds got right: no [orient] stage, and EM
+# registers only (measured: benchmarks/results/em_registration_notes.md)
+del PRESETS["topo-robust-photometric"]["orient"]
 PRESETS["topo-robust-photometric"]["refine"]["params"]["orientation"] = "none"
 
 _STAGE_KEYS = {"plugin", "preset", "params"}
@@ -173,13 +182,23 @@ class Pipeline:
             raise ParameterError("a pipeline needs a [dense] stage")
         if ("sparse" in self.stages) != ("keypoints" in self.stages):
             raise ParameterError("the [sparse] and [keypoints] stages go together")
-        for stage in self.stages:  # fail early on unknown plugins and parameters
-            self._create(stage)
+        if "orient" in self.stages:
+            if "refine" not in self.stages:
+                raise ParameterError("the [orient] stage repairs the [refine] registration: add a [refine] stage")
+            if "orientation" in self.stages["refine"]["params"] or "matcher" in self.stages["orient"]["params"]:
+                raise ParameterError("with an [orient] stage, the orientation is set in [orient], which wraps the "
+                                     "[refine] matcher (it registers only)")
+        self.plugins()  # fail early on unknown plugins and parameters
 
     def _create(self, stage: str) -> Any:
         from shape_toolkit.api.registry import create_plugin
 
         st = self.stages[stage]
+        if STAGES[stage] == "orientation":
+            if st["plugin"] not in ORIENT_PLUGINS or st["preset"]:
+                raise ParameterError(f"[{stage}] takes one of {', '.join(ORIENT_PLUGINS)} without a preset, "
+                                     f"got {st['plugin']!r}" + (f" preset {st['preset']!r}" if st["preset"] else ""))
+            return ORIENT_PLUGINS[st["plugin"]]().set_params(**st["params"])
         return create_plugin(STAGES[stage], st["plugin"], st["preset"], **st["params"])
 
     def to_dict(self) -> dict[str, Any]:
@@ -193,8 +212,15 @@ class Pipeline:
         return f"Pipeline({self.name!r}: {chain})"
 
     def plugins(self) -> dict[str, Any]:
-        """A fresh plugin instance per stage, ``{stage: plugin}``, in execution order."""
-        return {stage: self._create(stage) for stage in self.stages}
+        """A fresh plugin instance per stage, ``{stage: plugin}``, in execution order; the [orient] plugin
+        wraps the [refine] one, which then registers only (``orientation="none"``)."""
+        plugins = {stage: self._create(stage) for stage in self.stages}
+        if "orient" in plugins:
+            refine = plugins["refine"]
+            if "orientation" in refine.get_params(deep=False):
+                refine.set_params(orientation="none")
+            plugins["orient"].set_params(matcher=refine).registration()
+        return plugins
 
     def spectrum_specs(self) -> list[SpectrumSpec]:
         """Every spectrum the stages need (one per kind, the largest ``k``): what a caller computes
@@ -218,7 +244,7 @@ class Pipeline:
         spectra each stage declared and received; ``info['orientation']`` whether the final map keeps
         orientation (:func:`~shape_toolkit.plugins.matching._common.orientation_verdict`: ``preserving``,
         ``reversing`` for a mirror image, or ``undecided``). ``progress(message)`` hears each stage, and the
-        iterations of a stage plugin whose ``match`` takes ``progress=(done, total)``. Shapes of more
+        messages of the dense matchers (their ``match``'s ``progress``). Shapes of more
         than 1.5 ``proxy`` vertices (None or 0: never) are matched through proxies of ``proxy`` vertices
         and the map lifted to full resolution (:mod:`~shape_toolkit.plugins.matching.multires`;
         ``info['proxy']``), unless ``spectra`` are given."""
@@ -236,12 +262,12 @@ class Pipeline:
             timings[stage] = time.perf_counter() - t0
             return out
 
-        def counts(stage: str, plugin: Any) -> dict[str, Any]:
-            """``progress=(done, total)`` for a stage plugin whose ``match`` reports its iterations."""
-            if progress is None or "progress" not in inspect.signature(plugin.match).parameters:
-                return {}
+        def counts(stage: str) -> Callable[..., None] | None:
+            """The ``progress`` a dense matcher of ``stage`` reports to: its messages under the stage's name."""
+            if progress is None:
+                return None
             head = f"{self.name}: {stage} ({self.stages[stage]['plugin']})"
-            return {"progress": lambda done, total=None: say(f"{head} {done}/{total}" if total else f"{head} {done}")}
+            return lambda done, total=None: say(f"{head} {done}/{total}" if total else f"{head} {done}")
 
         declared = _declared(plugins)
         if spectra is None:
@@ -269,8 +295,7 @@ class Pipeline:
                                               det.detect(target, spectrum=tgt_spectra)))
             info["n_keypoints"] = [int(len(kps[0])), int(len(kps[1]))]
             matcher = plugins["sparse"]
-            seeds = timed("sparse", lambda: matcher.match(source, target, kps[0], kps[1], **sides,
-                                                          **counts("sparse", matcher)))
+            seeds = timed("sparse", lambda: matcher.match(source, target, kps[0], kps[1], **sides))
             seeds = np.asarray(seeds, dtype=np.int64).reshape(-1, 2)
             if len(seeds) == 0:
                 raise ParameterError(
@@ -281,7 +306,7 @@ class Pipeline:
         info["n_seeds"] = 0 if seeds is None else int(len(seeds))
 
         dense = plugins["dense"]
-        kwargs: dict[str, Any] = {"seeds": seeds, **sides}
+        kwargs: dict[str, Any] = {"seeds": seeds, **sides, "progress": counts("dense")}
         if "descriptors" in self.stages:
             if seeds is None or len(seeds) == 0:
                 raise ParameterError(
@@ -291,20 +316,15 @@ class Pipeline:
             ds, dt, n_times = timed("descriptors", lambda: paired_descriptors(
                 desc, source, target, seeds[:, 0], seeds[:, 1], **sides
             ))
-            accepted = inspect.signature(dense.match).parameters
-            if "source_descriptors" in accepted:
-                kwargs["source_descriptors"], kwargs["target_descriptors"] = ds, dt
-            if "n_times" in accepted:
-                kwargs["n_times"] = n_times
-        kwargs.update(counts("dense", dense))
+            kwargs.update(source_descriptors=ds, target_descriptors=dt, n_times=n_times)
         corr = timed("dense", lambda: dense.match(source, target, **kwargs))
         info["n_dense"] = corr.n_matched
         if "refine" in self.stages:
             pairs = corr.pairs()
             if len(pairs) == 0:
                 raise ParameterError(f"pipeline {self.name!r}: the dense stage matched no vertex")
-            ref = plugins["refine"]
-            corr = timed("refine", lambda: ref.match(source, target, seeds=pairs, **sides, **counts("refine", ref)))
+            ref = plugins.get("orient", plugins["refine"])  # [orient] runs the [refine] registration itself
+            corr = timed("refine", lambda: ref.match(source, target, seeds=pairs, **sides, progress=counts("refine")))
         # every pipeline says whether its map keeps orientation: a mirror image is never returned silently
         info["orientation"] = orientation_verdict(source, target, corr.target_of)
         if info["orientation"]["verdict"] != "preserving":

@@ -262,7 +262,7 @@ def test_seeds_out_of_range(pair):
 def test_pipeline_specs(tmp_path):
     assert {"sharma2012", "zoomout"} <= set(PRESETS)
     p = load_pipeline("sharma2012")
-    assert list(p.stages) == ["keypoints", "sparse", "descriptors", "dense", "refine"]
+    assert list(p.stages) == ["keypoints", "sparse", "descriptors", "dense", "refine", "orient"]
     spec = p.to_dict()
     spec["dense"]["params"] = {"beta": 0.5}
     assert Pipeline(spec).stages["dense"]["params"] == {"beta": 0.5}

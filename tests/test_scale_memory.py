@@ -26,6 +26,7 @@ from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.metrics import geodesic_errors
 from shape_toolkit.plugins.matching.dense import em_registration as em_mod
+from shape_toolkit.plugins.matching.dense.orientation_repair import ORIENTATION_K
 
 REPO = Path(__file__).resolve().parent.parent
 ANGLES_A = [0.4, 0.4, -0.3, -0.3, 0.2]
@@ -129,7 +130,7 @@ def test_em_registration_work_is_linear_on_a_23k_pair(em_child):
     em = create_plugin("dense_matchers", "em-registration")
     high = [(q, p) for q, p, d in r["calls"] if d > 12]
     assert high, "the orientation refinement searched no high-dimensional neighbours"
-    steps = int(np.ceil((em.ORIENTATION_K - em.k) / em.refine_step))
+    steps = int(np.ceil((ORIENTATION_K - em.k) / em.refine_step))
     work = sum(q * p for q, p in high)
     assert work <= (steps * em.refine_samples + 120) * m
     assert work < n * m  # fails on the old code (6 n m)
@@ -186,8 +187,8 @@ def test_single_precision_neighbours_on_real_embeddings(pair):
 def test_em_register_sampled_path(pair):
     A, B, seeds = pair
     em = create_plugin("dense_matchers", "em-registration")
-    X, Y = em._embeddings(A, B, None, None)
-    Q0 = em._initial_transform(X, Y, seeds, A, B)
+    emb = em.embedding(A, B, None, None)
+    X, Y, Q0 = emb.X, emb.Y, em.initial_transform(emb, seeds)
     Q1, s1, P1 = em_mod.em_register(X, Y, Q0)
     Q2, s2, P2 = em_mod.em_register(X, Y, Q0, max_samples=len(Y))  # no sampling below the size
     np.testing.assert_array_equal(Q1, Q2)

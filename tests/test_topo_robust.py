@@ -27,8 +27,9 @@ from shape_toolkit.plugins.matching._common import (
     symmetry_map,
     symmetry_validity,
 )
-from shape_toolkit.plugins.matching.dense.em_registration import procrustes
+from shape_toolkit.plugins.matching.dense.em_registration import EMFit, procrustes
 from shape_toolkit.plugins.matching.dense.fmap_zoomout import farthest_point_sampling
+from shape_toolkit.plugins.matching.dense.orientation_repair import OrientationRepair
 from shape_toolkit.plugins.matching.sparse.photometric import PhotometricMatcher
 
 ANGLES_A = [0.4, 0.4, -0.3, -0.3, 0.2]
@@ -218,18 +219,18 @@ def test_em_repairs_a_map_with_two_legs_on_one(pair):
     A, B, mirror = pair
     T, leg = _two_legs_on_one(A, mirror)
     em = create_plugin("dense_matchers", "em-registration", k=8, k_final=24)
-    X, Y, bs, bt = em._embeddings(A.shape, B.shape, None, None, with_bases=True)
-    Q = procrustes(Y[T].T @ X)
-    first = (Q, 1.0, None, T.copy(), np.zeros(len(T)), 0)
+    emb = em.embedding(A.shape, B.shape)
+    Q = procrustes(emb.Y[T].T @ emb.X)
+    first = EMFit(Q, 1.0, None, T.copy(), np.zeros(len(T)), 0)
     info: dict = {}
-    out = em._orient(X, Y, first, A.shape, B.shape, info, (bs, bt), None, None)
+    out = OrientationRepair(em).side_check(emb, first, A.shape, B.shape, info)
     assert info["orientation_replaced_area"] > 0.5 * np.mean(leg)
     pos = np.asarray(B.shape.vertices)
 
     def leg_err(t):
         return float(np.mean(np.linalg.norm(pos[t[leg]] - pos[leg], axis=1)))
 
-    assert leg_err(T) > 0.3 and leg_err(out[3]) < 0.2 * leg_err(T)
+    assert leg_err(T) > 0.3 and leg_err(out.target_of) < 0.2 * leg_err(T)
 
 
 def test_em_takes_the_reference_where_a_mirrored_part_has_no_valid_symmetry(pair, monkeypatch):
@@ -243,10 +244,10 @@ def test_em_takes_the_reference_where_a_mirrored_part_has_no_valid_symmetry(pair
     real = common.symmetry_validity
     monkeypatch.setattr(common, "symmetry_validity", lambda *a, **k: real(*a, **k) & ~legs)
     em = create_plugin("dense_matchers", "em-registration", k=8, k_final=24)
-    X, Y, bs, bt = em._embeddings(A.shape, B.shape, None, None, with_bases=True)
-    first = (procrustes(Y[T].T @ X), 1.0, None, T.copy(), np.zeros(len(T)), 0)
+    emb = em.embedding(A.shape, B.shape)
+    first = EMFit(procrustes(emb.Y[T].T @ emb.X), 1.0, None, T.copy(), np.zeros(len(T)), 0)
     info: dict = {}
-    out = em._orient(X, Y, first, A.shape, B.shape, info, (bs, bt), None, None)
+    out = OrientationRepair(em).side_check(emb, first, A.shape, B.shape, info)
     assert info["orientation_mirrored_area"] < 0.1 * np.mean(legs)  # hardly any swap: S is invalid on the legs
     assert info["orientation_replaced_area"] > 0.5 * np.mean(legs)
     pos = np.asarray(B.shape.vertices)
@@ -254,7 +255,7 @@ def test_em_takes_the_reference_where_a_mirrored_part_has_no_valid_symmetry(pair
     def leg_err(t):
         return float(np.mean(np.linalg.norm(pos[t[legs]] - pos[legs], axis=1)))
 
-    assert leg_err(T) > 0.3 and leg_err(out[3]) < 0.2 * leg_err(T)
+    assert leg_err(T) > 0.3 and leg_err(out.target_of) < 0.2 * leg_err(T)
 
 
 def test_side_caches_share_and_key_on_identity(pair, monkeypatch):
@@ -328,10 +329,8 @@ def test_em_orientation_rescue_undoes_a_mirror_the_side_check_missed(pair, monke
     simulated here by switching the check off), the map still reverses orientation on the whole: EM
     restarts from the orientation-aware functional map and the result preserves orientation. A map
     that preserves orientation is never touched."""
-    from shape_toolkit.plugins.matching.dense.em_registration import EMRegistrationMatcher
-
     A, B, mirror = pair
-    monkeypatch.setattr(EMRegistrationMatcher, "_orient", lambda self, X, Y, first, *a, **k: first)
+    monkeypatch.setattr(OrientationRepair, "side_check", lambda self, emb, first, *a, **k: first)
     s = np.random.default_rng(0).choice(A.shape.n_vertices, 40, replace=False)
     kw = dict(k=8, k_final=24)
     rescued = create_plugin("dense_matchers", "em-registration", **kw).match(

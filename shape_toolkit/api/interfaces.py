@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import inspect
 from abc import ABC, abstractmethod
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol, TypeAlias
 
@@ -221,7 +221,10 @@ class SparseMatcher(BasePlugin, ABC):
 
 
 class DenseMatcher(BasePlugin, ABC):
-    """A correspondence for every source vertex."""
+    """A correspondence for every source vertex.
+
+    Every dense matcher accepts every argument of :meth:`match` and ignores those it does not use (a
+    pipeline passes them all; they are declared here, not discovered)."""
 
     family = "dense_matchers"
 
@@ -234,8 +237,15 @@ class DenseMatcher(BasePlugin, ABC):
         seeds: np.ndarray | None = None,
         source_spectrum: Spectrum | None = None,
         target_spectrum: Spectrum | None = None,
+        source_descriptors: np.ndarray | None = None,
+        target_descriptors: np.ndarray | None = None,
+        n_times: int | None = None,
+        progress: Callable[[str], None] | None = None,
     ) -> Correspondence:
-        """The dense map; ``seeds`` is an optional int64 ``(q, 2)`` array of known matches."""
+        """The dense map. Optional: ``seeds`` int64 ``(q, 2)`` known matches; ``source_descriptors``,
+        ``target_descriptors`` float64 ``(n, d)`` and ``(n', d)`` per-vertex descriptors (a pipeline's
+        [descriptors] stage, computed with the seeds as matched keypoints: keypoint-major, ``n_times`` values
+        per keypoint); ``progress(message)`` hears the matcher's iterations."""
 
 
 class Segmenter(BasePlugin, ABC):

@@ -79,6 +79,9 @@ class BestOfMatcher(DenseMatcher):
         seeds: np.ndarray | None = None,
         source_spectrum: Spectrum | None = None,
         target_spectrum: Spectrum | None = None,
+        source_descriptors: np.ndarray | None = None,
+        target_descriptors: np.ndarray | None = None,
+        n_times: int | None = None,
         progress: Callable[[str], None] | None = None,
     ) -> Correspondence:
         """The map of least residual among the matchers' maps source -> target."""

@@ -15,8 +15,9 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.matching.dense.em_registration import EMRegistrationMatcher
+from shape_toolkit.plugins.matching.dense.em_registration import Embedding, EMRegistrationMatcher
 
 __all__ = ["EigvecAlignmentMatcher", "histogram_alignment"]
 
@@ -78,14 +79,16 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         )
         self.bins = bins
 
-    def match(self, source, target, *, seeds=None, source_spectrum=None, target_spectrum=None):
-        """Dense map source -> target with sparse posteriors (no seeds needed)."""
+    def start(self, source: Shape, target: Shape, seeds: np.ndarray | None, source_spectrum=None,
+              target_spectrum=None, min_dim: int = 0) -> tuple[Embedding, np.ndarray, dict]:
+        """The aligned eigenvectors (no scaling, no bases: no refinement) and the histogram alignment ``Q0``;
+        ``seeds`` are ignored."""
         self._check()
-        bs, bt = self._bases(source, target, source_spectrum, target_spectrum)
+        bs, bt = self._bases(source, target, source_spectrum, target_spectrum, min_dim)
         K = self._shared_dimension(int(self.k), bs, bt)  # one size on both shapes, however small
         X, Y = bs.evecs[:, 1 : K + 1], bt.evecs[:, 1 : K + 1]
         Q0, _ = histogram_alignment(X, Y, bs.mass, bt.mass, int(self.bins))
-        return self._finish(X, Y, Q0, target, {"Q0": Q0})
+        return Embedding(X, Y), Q0, {"Q0": Q0}
 
 
 @hookimpl

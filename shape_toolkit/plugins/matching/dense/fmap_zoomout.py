@@ -431,6 +431,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         target_spectrum: Spectrum | None = None,
         source_descriptors: np.ndarray | None = None,
         target_descriptors: np.ndarray | None = None,
+        n_times: int | None = None,
         progress: Callable[[str], None] | None = None,
     ) -> Correspondence:
         """Dense map source -> target (every source vertex matched); ``info['C']`` holds the

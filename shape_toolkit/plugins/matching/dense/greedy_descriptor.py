@@ -6,6 +6,8 @@ neighbourhood consistency. Default descriptors are the heat-kernel maps of the s
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from shape_toolkit.api.hookspecs import hookimpl
@@ -50,6 +52,8 @@ class GreedyDescriptorMatcher(UsesDescriptor, DenseMatcher):
         target_spectrum: Spectrum | None = None,
         source_descriptors: np.ndarray | None = None,
         target_descriptors: np.ndarray | None = None,
+        n_times: int | None = None,
+        progress: Callable[[str], None] | None = None,
     ) -> Correspondence:
         """Dense map source -> target by nearest descriptors; confidence ``1 / (1 + distance)``."""
         seeds = check_seeds(seeds, source.n_vertices, target.n_vertices)

@@ -11,6 +11,7 @@ vertices unmatched (different samplings, topological changes, scores above ``bet
 from __future__ import annotations
 
 import heapq
+from collections.abc import Callable
 
 import numpy as np
 
@@ -137,6 +138,7 @@ class SeedGrowingMatcher(UsesDescriptor, DenseMatcher):
         source_descriptors: np.ndarray | None = None,
         target_descriptors: np.ndarray | None = None,
         n_times: int | None = None,
+        progress: Callable[[str], None] | None = None,
     ) -> Correspondence:
         """One-to-one dense map grown from the seeds; ``confidence = 1 / (1 + score)``."""
         if not self.beta > 0:

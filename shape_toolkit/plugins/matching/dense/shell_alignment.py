@@ -108,6 +108,9 @@ class ShellAlignmentMatcher(DenseMatcher):
         seeds: np.ndarray | None = None,
         source_spectrum: Spectrum | None = None,
         target_spectrum: Spectrum | None = None,
+        source_descriptors: np.ndarray | None = None,
+        target_descriptors: np.ndarray | None = None,
+        n_times: int | None = None,
         progress: Callable[[str], None] | None = None,
     ) -> Correspondence:
         """Dense map source -> target (every source vertex matched); ``info["C"]`` holds the last

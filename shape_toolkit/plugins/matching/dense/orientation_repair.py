@@ -1,0 +1,224 @@
+"""Orientation repair: a registration's map made to keep (or reverse) orientation; the pipelines' ``[orient]``
+stage.
+
+EM registration, like every intrinsic method, cannot tell a map from its mirror image, and on articulated
+bodies it can settle on a map that is right on some parts and mirrored on others (FAUST: legs swapped).
+:class:`OrientationRepair` wraps a registration matcher (:class:`~shape_toolkit.plugins.matching.dense.
+em_registration.EMRegistrationMatcher`): it decides the side of each region against an orientation-aware
+functional map (:meth:`~OrientationRepair.side_check`) and replaces a map that still reverses orientation on
+the whole (:meth:`~OrientationRepair.rescue`). Both restart the registration from repaired maps, so the stage
+wraps the matcher rather than following it. Design notes and measurements:
+``benchmarks/results/em_registration_notes.md``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any, Protocol
+
+import numpy as np
+
+from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.results.correspondence import Correspondence
+from shape_toolkit.spectra import SpectrumSpec
+
+__all__ = ["ORIENTATION_K", "OrientationRepair", "Registration"]
+
+#: embedding size of the refined maps the orientation is scored on (see :meth:`OrientationRepair.score`)
+ORIENTATION_K = 30
+#: number of farthest-point samples of the source the orientation is scored on
+N_SCORED = 120
+
+
+class Registration(Protocol):
+    """What :class:`OrientationRepair` needs of the matcher it wraps (``EMRegistrationMatcher`` has it):
+    ``emb`` is the matcher's embedding (``K``, ``bases``), a fit has ``target_of``, ``Q``, ``sigma``,
+    ``posteriors``, ``confidence`` and ``n_confident`` (a dataclass)."""
+
+    def embedding_spec(self, min_dim: int = 0) -> SpectrumSpec: ...
+
+    def start(self, source: Shape, target: Shape, seeds: np.ndarray | None, source_spectrum: Any,
+              target_spectrum: Any, min_dim: int = 0) -> tuple[Any, np.ndarray, dict]: ...
+
+    def solve(self, emb: Any, Q0: np.ndarray) -> Any: ...
+
+    def transform_of(self, emb: Any, target_of: np.ndarray) -> np.ndarray: ...
+
+    def refines(self, emb: Any) -> bool: ...
+
+    def refine(self, emb: Any, target_of: np.ndarray, k_final: int | None = None,
+               rows: np.ndarray | None = None) -> np.ndarray: ...
+
+    def finish(self, emb: Any, fit: Any, source: Shape, target: Shape, info: dict, k_done: int | None = None,
+               source_spectrum: Any = None, target_spectrum: Any = None) -> Correspondence: ...
+
+
+class OrientationRepair(DenseMatcher):
+    """The map of the registration ``matcher`` with the side of ``orientation`` (``"preserving"``,
+    ``"reversing"``; ``"none"``: the registration's map as it is). Only meshes are repaired (the side
+    reference needs outward normals); ``info`` records every decision (``orientation_*``)."""
+
+    def __init__(self, matcher: Any = None, orientation: str = "preserving"):
+        self.matcher = matcher
+        self.orientation = orientation
+
+    def registration(self) -> Registration:
+        """The wrapped matcher, checked: a :class:`Registration`."""
+        if self.orientation not in ("preserving", "reversing", "none"):
+            raise ParameterError(f"orientation must be one of preserving, reversing, none; got {self.orientation!r}")
+        needed = ("embedding_spec", "start", "solve", "transform_of", "refines", "refine", "finish")
+        if self.matcher is None or not all(hasattr(self.matcher, a) for a in needed):
+            raise ParameterError(f"orientation repair wraps a registration matcher such as em-registration "
+                                 f"(it restarts the registration), got {self.matcher!r}")
+        return self.matcher
+
+    def reference_plugins(self) -> list:
+        """The matchers the side is decided against: the symmetry self-map, the side reference, the fine map."""
+        from shape_toolkit.plugins.matching._common import fine_matcher, side_matcher, symmetry_matcher
+
+        if self.orientation == "none":
+            return []
+        return [symmetry_matcher(), side_matcher(self.orientation), fine_matcher(self.orientation)]
+
+    def _nested_plugins(self) -> list:
+        return ([] if self.matcher is None else [self.matcher]) + self.reference_plugins()
+
+    def spectrum_spec(self) -> SpectrumSpec | None:
+        """The registration's embedding spectrum with ``ORIENTATION_K + 1`` eigenpairs at least (scoring)."""
+        if self.matcher is None or self.orientation == "none":
+            return None
+        return self.registration().embedding_spec(ORIENTATION_K)
+
+    def match(
+        self,
+        source: Shape,
+        target: Shape,
+        *,
+        seeds: np.ndarray | None = None,
+        source_spectrum: Spectrum | None = None,
+        target_spectrum: Spectrum | None = None,
+        source_descriptors: np.ndarray | None = None,
+        target_descriptors: np.ndarray | None = None,
+        n_times: int | None = None,
+        progress: Callable[[str], None] | None = None,
+    ) -> Correspondence:
+        """The registration's dense map, its side repaired (descriptors, ``n_times``, ``progress``: unused)."""
+        m = self.registration()
+        on = self.orientation != "none"
+        emb, Q0, info = m.start(source, target, seeds, source_spectrum, target_spectrum, ORIENTATION_K if on else 0)
+        fit, k_done = m.solve(emb, Q0), emb.K
+        if on and source.is_mesh and target.is_mesh:
+            fit = self.side_check(emb, fit, source, target, info, source_spectrum, target_spectrum)
+            info["orientation_score"] = self.score(emb, source, target, fit.target_of)
+            if info["orientation_score"] < 0:
+                fit, k_done = self.rescue(emb, fit, source, target, info, source_spectrum, target_spectrum)
+        return m.finish(emb, fit, source, target, info, k_done, source_spectrum, target_spectrum)
+
+    def score(self, emb: Any, source: Shape, target: Shape, t: np.ndarray, refined: bool = True) -> float:
+        """Signed local triple-product score (``orientation_score``; about +1 for the wanted orientation) of
+        the map ``t`` ``(n,)`` on ``N_SCORED`` farthest-point samples of the source (~10 % of its size apart:
+        local enough for articulations, coarse enough for the map's noise); unmatched samples are skipped.
+        ``refined``: the map is first refined to ``ORIENTATION_K`` dimensions on the registration's bases
+        (only for scoring: a coarse EM map is too noisy locally for its triplets to vote reliably)."""
+        from shape_toolkit.plugins.matching._common import farthest_point_sampling, orientation_score
+
+        rows = farthest_point_sampling(np.asarray(source.vertices), min(N_SCORED, source.n_vertices))
+        if refined and emb.bases is not None and 0 < emb.K < ORIENTATION_K and np.all(t >= 0):
+            t = self.matcher.refine(emb, t, ORIENTATION_K, rows=rows)
+        rows = rows[t[rows] >= 0]
+        want = 1.0 if self.orientation == "preserving" else -1.0
+        return want * orientation_score(source, target, np.column_stack([rows, t[rows]]))
+
+    def side_check(self, emb: Any, first: Any, source: Shape, target: Shape, info: dict,
+                   source_spectrum: Any = None, target_spectrum: Any = None) -> Any:
+        """Each region takes ``T(x)`` or its mirror image ``T(S(x))`` (``S`` the source's intrinsic symmetry),
+        whichever is nearer the side reference ``R`` (an orientation-aware functional map); ``R(x)`` where
+        ``S`` is no symmetry, or where neither is near ``R`` while ``T`` piles two parts onto one. When a
+        region changes, that map and the registration run again from it compete with the fit ``first``:
+        the one nearest ``R`` on average is returned."""
+        from shape_toolkit.plugins.matching._common import side_reference, symmetry_map, symmetry_validity
+
+        m = self.matcher
+        ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation)
+        t = first.target_of
+        sym = symmetry_map(source, source_spectrum)
+        valid = symmetry_validity(source, sym, ref.basis, ref.k_smooth)
+        area = ref.basis.mass.sum()
+        info["orientation_symmetry_valid_area"] = float(ref.basis.mass[valid].sum() / area)
+        swap = ref.prefer(t, np.where(valid, t[sym], -1))
+        info["orientation_mirrored_area"] = float(ref.basis.mass[swap].sum() / area)
+        t_c = np.where(swap, t[sym], t)
+        # neither T nor T(S) where the reference is, and T piles two parts onto one: a wrong part
+        # (where T is one-to-one the reference may be the one that is wrong); and the parts the
+        # reference puts on the other side where S is no symmetry (its mirror image cannot be trusted)
+        lost = (ref.disagrees(t_c) & ref.overlaps(t_c)) | (ref.prefer(t, t[sym]) & ~valid)
+        info["orientation_replaced_area"] = float(ref.basis.mass[lost].sum() / area)
+        info["orientation_flipped"] = False
+        if not swap.any() and not lost.any():
+            return first
+        # the combined map (refined as the registration refines its own) and the registration run again
+        # from it (EM smooths the seams, but may fall back to the first map) are candidates
+        t_c = np.where(lost, ref.target_of, t_c)
+        Qc = m.transform_of(emb, t_c)
+        if m.refines(emb) and np.all(t_c >= 0):
+            t_c = m.refine(emb, t_c)
+        cands = {"first": first, "combined": replace(first, Q=Qc, target_of=t_c, confidence=np.zeros(len(t_c)),
+                                                     n_confident=0),
+                 "em_again": m.solve(emb, Qc)}
+        errs = {name: ref.mean_sq_distance(c.target_of) for name, c in cands.items()}
+        info["orientation_reference"] = errs
+        best = min(errs, key=errs.get)
+        info["orientation_choice"] = best
+        if best == "first":
+            return first
+        info["orientation_flipped"] = "all" if info["orientation_mirrored_area"] > 0.5 else "local"
+        return cands[best]
+
+    def rescue(self, emb: Any, first: Any, source: Shape, target: Shape, info: dict,
+               source_spectrum: Any = None, target_spectrum: Any = None) -> tuple[Any, int]:
+        """For a map that still reverses orientation on the whole (:meth:`score` < 0): the first candidate
+        that scores positive among the registration run again from the side reference's map, from the fine
+        orientation-aware functional map, then those two maps themselves (``first`` when none does). Returns
+        the fit and the embedding size its map is refined to (polishing goes on from there);
+        ``info["orientation_rescue"]``: the scores and the choice."""
+        from shape_toolkit.plugins.matching._common import _given, fine_matcher, side_reference
+
+        m, K = self.matcher, emb.K
+        rescue = {"score_before": info["orientation_score"], "choice": "first"}
+        info["orientation_rescue"] = rescue
+        starts: dict[str, tuple[np.ndarray, int]] = {}
+
+        def start(name: str) -> tuple[np.ndarray, int]:
+            if name not in starts:
+                if name == "reference_map":
+                    ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation)
+                    starts[name] = (np.asarray(ref.target_of), int(ref.source_points.shape[1]))
+                else:
+                    fm = fine_matcher(self.orientation)
+                    ss = fm._spectrum(source, _given(source_spectrum))
+                    st = fm._spectrum(target, _given(target_spectrum))
+                    res = fm.match(source, target, source_spectrum=[ss], target_spectrum=[st])
+                    starts[name] = (np.asarray(res.target_of), int(res.info["k_final"]))
+            return starts[name]
+
+        for name in ("em_from_reference_map", "em_from_fine_map", "reference_map", "fine_map"):
+            t, k_map = start(name.removeprefix("em_from_"))
+            Q = m.transform_of(emb, t)
+            if name.startswith("em_from_"):
+                cand, k_done = m.solve(emb, Q), K
+                score = self.score(emb, source, target, cand.target_of)
+            else:  # a functional map's own map is already fine: scored as it is, EM's Q, sigma, P kept
+                cand, k_done = replace(first, Q=Q, target_of=t, confidence=np.zeros(len(t)), n_confident=0), k_map
+                score = self.score(emb, source, target, t, refined=False)
+            rescue[f"score_{name}"] = score
+            if score > 0:
+                rescue["choice"] = name
+                info["orientation_score"] = score
+                if not name.startswith("em_from_"):
+                    info["posteriors_of"] = "em-before-rescue"
+                return cand, k_done
+        return first, K

@@ -1,0 +1,71 @@
+"""Issue 26: orientation repair is a pipeline stage of its own (``[orient]``, wrapping the ``[refine]``
+registration), EM returns a typed result, and the optional dense-matcher arguments are declared in
+``DenseMatcher.match`` (no discovery by signature)."""
+
+from __future__ import annotations
+
+import inspect
+
+import numpy as np
+import pytest
+
+from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.api.registry import create_plugin, get_registry
+from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.errors import ParameterError
+from shape_toolkit.pipeline import PRESETS, Pipeline, load_pipeline
+from shape_toolkit.plugins.matching.dense.em_registration import EMFit
+from shape_toolkit.plugins.matching.dense.orientation_repair import ORIENTATION_K, OrientationRepair
+
+
+def test_every_dense_matcher_accepts_the_declared_arguments():
+    declared = [p for p in inspect.signature(DenseMatcher.match).parameters if p != "self"]
+    assert {"seeds", "source_descriptors", "target_descriptors", "n_times", "progress"} <= set(declared)
+    reg = get_registry()
+    for name in reg.names("dense_matchers"):
+        params = inspect.signature(reg.get("dense_matchers", name).match).parameters
+        if any(p.kind is p.VAR_KEYWORD for p in params.values()):
+            continue
+        assert set(declared) <= set(params), (name, sorted(set(declared) - set(params)))
+
+
+def test_orient_stage_wraps_the_refine_registration():
+    pipe = load_pipeline("sharma2012")
+    assert list(pipe.stages)[-2:] == ["refine", "orient"]
+    plugins = pipe.plugins()
+    assert isinstance(plugins["orient"], OrientationRepair) and plugins["orient"].matcher is plugins["refine"]
+    assert plugins["refine"].orientation == "none"  # the registration registers only; the stage repairs
+    em_kind = plugins["refine"].spectrum_spec().kind
+    assert any(s.kind == em_kind and s.k >= ORIENTATION_K + 1 for s in pipe.spectrum_specs())
+    assert "orient" not in PRESETS["topo-robust-photometric"]  # colour seeds decide the side there
+    with pytest.raises(ParameterError, match="add a \\[refine\\] stage"):
+        Pipeline({"dense": "seed-growing", "orient": "orientation-repair"})
+    with pytest.raises(ParameterError, match="set in \\[orient\\]"):
+        Pipeline({"dense": "seed-growing", "refine": {"plugin": "em-registration", "params": {"orientation": "none"}},
+                  "orient": "orientation-repair"})
+    with pytest.raises(ParameterError, match="orientation-repair"):
+        Pipeline({"dense": "seed-growing", "refine": "em-registration", "orient": "mirror-fix"})
+    with pytest.raises(ParameterError, match="registration matcher"):
+        Pipeline({"dense": "seed-growing", "refine": "fmap-zoomout", "orient": "orientation-repair"})
+    reversing = Pipeline({"dense": "seed-growing", "refine": "em-registration",
+                          "orient": {"plugin": "orientation-repair", "params": {"orientation": "reversing"}}})
+    assert reversing.plugins()["orient"].orientation == "reversing"
+
+
+def test_em_direct_equals_em_wrapped_in_the_repair_stage():
+    """``em-registration`` with its default ``orientation`` is the registration inside the repair stage."""
+    A = articulated_shape([0.4, 0.4, -0.3, -0.3, 0.2], subdivisions=2).shape
+    B = articulated_shape([-0.4, 0.4, 0.3, -0.3, -0.2], subdivisions=2).shape
+    ids = np.arange(0, A.n_vertices, 11)
+    seeds = np.column_stack([ids, ids])
+    direct = create_plugin("dense_matchers", "em-registration").match(A, B, seeds=seeds)
+    staged = OrientationRepair(create_plugin("dense_matchers", "em-registration", orientation="none")).match(
+        A, B, seeds=seeds)
+    np.testing.assert_array_equal(direct.target_of, staged.target_of)
+    assert direct.info["orientation_score"] == staged.info["orientation_score"]
+    em = create_plugin("dense_matchers", "em-registration", orientation="none")
+    emb, Q0, _ = em.start(A, B, seeds)
+    fit = em.solve(emb, Q0)
+    assert isinstance(fit, EMFit) and fit.Q.shape == (emb.K, emb.K) and fit.posteriors.shape == (A.n_vertices,
+                                                                                                 B.n_vertices)
+    assert fit.target_of.shape == fit.confidence.shape == (A.n_vertices,) and fit.n_confident <= A.n_vertices
