@@ -37,8 +37,9 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, merge_specs
 from shape_toolkit.errors import ParameterError, ShapeFileError
-from shape_toolkit.plugins.matching._common import orientation_verdict, paired_descriptors
+from shape_toolkit.plugins.matching.descriptors import paired_descriptors
 from shape_toolkit.plugins.matching.multires import PROXY_VERTICES
+from shape_toolkit.plugins.matching.orientation import orientation_verdict
 from shape_toolkit.results.correspondence import Correspondence, read_seeds
 from shape_toolkit.validation import check_seeds
 

@@ -14,21 +14,20 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from shape_toolkit.api.registry import create_plugin
+from shape_toolkit.core.geometry import farthest_point_sampling, outward_vertex_normals
 from shape_toolkit.data.corruptions import CORRUPTIONS, apply_corruption, carry_correspondence, glue
 from shape_toolkit.data.synthetic import articulated_shape, procedural_texture, synthetic_dataset
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.pipeline import PRESETS, load_pipeline
-from shape_toolkit.plugins.matching._common import (
-    clear_side_caches,
+from shape_toolkit.plugins.matching.dense.em_registration import procrustes
+from shape_toolkit.plugins.matching.orientation import (
+    SideCache,
     orient_pairs,
     orientation_score,
-    outward_vertex_normals,
     side_reference,
     symmetry_map,
     symmetry_validity,
 )
-from shape_toolkit.plugins.matching.dense.em_registration import procrustes
-from shape_toolkit.plugins.matching.dense.fmap_zoomout import farthest_point_sampling
 from shape_toolkit.plugins.matching.sparse.photometric import PhotometricMatcher
 
 ANGLES_A = [0.4, 0.4, -0.3, -0.3, 0.2]
@@ -236,7 +235,7 @@ def test_em_takes_the_reference_where_a_mirrored_part_has_no_valid_symmetry(pair
     """Legs swapped where S is no symmetry (``symmetry_validity`` false on the legs, as on FAUST poses
     whose S covers too little area): T(S(x)) cannot be trusted there, so the part the reference puts on
     the other side takes the reference's own map, and the legs come out right."""
-    import shape_toolkit.plugins.matching._common as common
+    import shape_toolkit.plugins.matching.orientation as common
 
     A, B, mirror = pair
     T, legs = _legs_swapped(A, mirror)
@@ -258,12 +257,12 @@ def test_em_takes_the_reference_where_a_mirrored_part_has_no_valid_symmetry(pair
 
 
 def test_side_caches_share_and_key_on_identity(pair, monkeypatch):
-    """The sparse stage and EM share one symmetry map and one side reference per (shapes, spectra);
-    another Shape object (even with the same content) is computed anew."""
-    import shape_toolkit.plugins.matching._common as common
+    """Callers that share a SideCache (the sparse stage and EM) share one symmetry map and one side
+    reference per (shapes, spectra); another Shape object (even with the same content) is computed anew."""
+    import shape_toolkit.plugins.matching.orientation as common
 
     A, B, _ = pair
-    clear_side_caches()
+    cache = SideCache()
     calls = []
     real = common.side_matcher
 
@@ -272,15 +271,15 @@ def test_side_caches_share_and_key_on_identity(pair, monkeypatch):
         return real(orientation)
 
     monkeypatch.setattr(common, "side_matcher", counting)
-    r1 = side_reference(A.shape, B.shape)
-    assert side_reference(A.shape, B.shape) is r1
-    s1 = symmetry_map(A.shape)
-    assert symmetry_map(A.shape) is s1 and not s1.flags.writeable
+    r1 = side_reference(A.shape, B.shape, cache=cache)
+    assert side_reference(A.shape, B.shape, cache=cache) is r1
+    s1 = symmetry_map(A.shape, cache=cache)
+    assert symmetry_map(A.shape, cache=cache) is s1 and not s1.flags.writeable
     n = len(calls)
-    assert side_reference(A.shape, B.shape, orientation="reversing") is not r1  # another key
+    assert side_reference(A.shape, B.shape, orientation="reversing", cache=cache) is not r1  # another key
     copy_a = type(A.shape)(**{f: getattr(A.shape, f) for f in A.shape.__dataclass_fields__})
-    assert side_reference(copy_a, B.shape) is not r1 and len(calls) > n
-    clear_side_caches()
+    assert side_reference(copy_a, B.shape, cache=cache) is not r1 and len(calls) > n
+    assert side_reference(A.shape, B.shape) is not r1  # no cache: computed anew
 
 
 # -- EM: the thesis's embedding -------------------------------------------------------------------

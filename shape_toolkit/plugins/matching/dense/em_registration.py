@@ -22,11 +22,13 @@ from scipy.spatial import cKDTree
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.core.geometry import nearest_neighbors
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.plugins.matching._common import Basis, basis_of, check_seeds
-from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
+from shape_toolkit.features.basis import Basis, basis_of
+from shape_toolkit.plugins.matching.validation import check_seeds
+from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.validation import check_random_state
 
 __all__ = ["EMRegistrationMatcher", "em_register", "procrustes"]
@@ -462,7 +464,7 @@ class EMRegistrationMatcher(DenseMatcher):
 
     @staticmethod
     def _orientation_rows(source: Shape) -> np.ndarray:
-        from shape_toolkit.plugins.matching.dense.fmap_zoomout import farthest_point_sampling
+        from shape_toolkit.core.geometry import farthest_point_sampling
 
         return farthest_point_sampling(np.asarray(source.vertices), min(120, source.n_vertices))
 
@@ -472,7 +474,7 @@ class EMRegistrationMatcher(DenseMatcher):
         for the map's local noise); unmatched samples are skipped. With ``bases``, the map is
         first refined to ``ORIENTATION_K`` dimensions (:meth:`_refine`; only for scoring: a coarse
         EM map is too noisy locally for its triplets to vote reliably)."""
-        from shape_toolkit.plugins.matching._common import orientation_score
+        from shape_toolkit.plugins.matching.orientation import orientation_score
 
         rows = self._orientation_rows(source)
         if bases is not None and 0 < K < self.ORIENTATION_K and np.all(t >= 0):
@@ -482,7 +484,7 @@ class EMRegistrationMatcher(DenseMatcher):
         return want * orientation_score(source, target, np.column_stack([rows, t[rows]]))
 
     def _nested_plugins(self) -> list:
-        from shape_toolkit.plugins.matching._common import fine_matcher, side_matcher, symmetry_matcher
+        from shape_toolkit.plugins.matching.orientation import fine_matcher, side_matcher, symmetry_matcher
 
         if self.orientation == "none":
             return []
@@ -491,7 +493,7 @@ class EMRegistrationMatcher(DenseMatcher):
     def _orient(self, X, Y, first, source: Shape, target: Shape, info: dict, bases, source_spectrum,
                 target_spectrum=None):
         """Orientation check of the class docstring: the chosen :meth:`_solve` result."""
-        from shape_toolkit.plugins.matching._common import side_reference, symmetry_map, symmetry_validity
+        from shape_toolkit.plugins.matching.orientation import side_reference, symmetry_map, symmetry_validity
 
         K = X.shape[1]
         ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation)
@@ -552,7 +554,8 @@ class EMRegistrationMatcher(DenseMatcher):
         functional map's own map is chosen, ``Q``, ``sigma`` and the posteriors stay those of EM's first
         run (``info["posteriors_of"] = "em-before-rescue"``) and every vertex is matched (confidence 0).
         ``info["orientation_rescue"]``: the scores, the choice."""
-        from shape_toolkit.plugins.matching._common import _given, fine_matcher, side_reference
+        from shape_toolkit.plugins.matching.descriptors import shared_spectra as _given
+        from shape_toolkit.plugins.matching.orientation import fine_matcher, side_reference
 
         K = X.shape[1]
         rescue = {"score_before": info["orientation_score"], "choice": "first"}
