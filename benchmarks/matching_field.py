@@ -162,7 +162,6 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
     from shape_toolkit.io.mesh import load_shape
     from shape_toolkit.metrics.correspondence import is_flipped, paired_geodesic_distances
     from shape_toolkit.pipeline import load_pipeline
-    from shape_toolkit.plugins.matching._common import clear_side_caches
 
     pipes = {m: load_pipeline(m) for m in methods if m != "pyfm" and m not in PUBLISHED}
     blas, rev = _blas(), code_revision()
@@ -210,7 +209,6 @@ def run(data: Path, jobs: list[tuple[str, str, str, str]], methods: list[str], t
                 times[m] = (None, None)
                 continue
             clear_cache()
-            clear_side_caches()
             c0, w0 = time.process_time(), time.perf_counter()
             mon = MemoryMonitor().__enter__()
             if m == "pyfm":

@@ -11,7 +11,7 @@ unless ``OPENBLAS_NUM_THREADS`` is set), under ``cProfile`` with ``time.process_
 clock, so the stage times are CPU seconds and robust to other load on the machine; a stage is the
 cumulative time of the functions listed in ``STAGES`` (a function called inside another stage
 counts in both only where said). The ZoomOut final point map (every source vertex against every
-target vertex, the last call) is timed apart by a wrapper around ``fmap_zoomout._point_map``.
+target vertex, the last call) is timed apart by a wrapper around ``features.basis._point_map``.
 The best of ``--repeat`` runs (by total) is kept. The nearest-neighbour table times each search
 on the embeddings ``Phi_t C^T`` / ``Phi_s`` of a real match at three basis sizes.
 """
@@ -48,10 +48,10 @@ STAGES = {
         ("descriptor compression", "fmap_zoomout.py", "compress_descriptors"),
         ("orientation operators (both)", "fmap_zoomout.py", "orientation_operators"),
         ("functional map fit (incl. multiplication operators)", "fmap_zoomout.py", "fit_functional_map"),
-        ("farthest point samples (both)", "fmap_zoomout.py", "farthest_point_sampling"),
-        ("ZoomOut: point maps (nearest neighbours)", "fmap_zoomout.py", "_point_map"),
-        ("ZoomOut: functional maps from point maps", "matching/_common.py", "fmap_from_p2p"),
-        ("ZoomOut total (incl. final point map)", "fmap_zoomout.py", "zoomout"),
+        ("farthest point samples (both)", "core/geometry.py", "farthest_point_sampling"),
+        ("ZoomOut: point maps (nearest neighbours)", "features/basis.py", "_point_map"),
+        ("ZoomOut: functional maps from point maps", "features/basis.py", "fmap_from_p2p"),
+        ("ZoomOut total (incl. final point map)", "features/basis.py", "zoomout"),
     ],
     "pyfm": [
         ("spectra (both shapes, 200 eigenpairs)", "mesh/trimesh.py", "process"),
@@ -94,8 +94,8 @@ def child(method: str, data: Path, ds: str, a: str, b: str) -> dict:
     A, B = load_shape(data / ds / f"{a}.off"), load_shape(data / ds / f"{b}.off")
     final = {"cpu": 0.0}  # CPU of the last point map (the final one: every source vertex)
     if method == "zoomout":
+        from shape_toolkit.features import basis as fz  # ZoomOut looks its point map up there
         from shape_toolkit.pipeline import load_pipeline
-        from shape_toolkit.plugins.matching.dense import fmap_zoomout as fz
 
         inner = fz._point_map
 
@@ -142,10 +142,10 @@ def nn_table(data: Path, ds: str, a: str, b: str) -> list[dict]:
     warnings.filterwarnings("ignore")
     from scipy.spatial import cKDTree
 
+    from shape_toolkit.core.geometry import nearest_neighbors
+    from shape_toolkit.features.basis import basis_of
     from shape_toolkit.io.mesh import load_shape
-    from shape_toolkit.plugins.matching._common import basis_of
     from shape_toolkit.plugins.matching.dense.fmap_zoomout import FmapZoomOutMatcher
-    from shape_toolkit.results.correspondence import nearest_neighbors
 
     A, B = load_shape(data / ds / f"{a}.off"), load_shape(data / ds / f"{b}.off")
     m = FmapZoomOutMatcher()

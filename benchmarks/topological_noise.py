@@ -333,7 +333,7 @@ def report(args) -> None:
         "- Last runs of 2026-12-02 (`topo-robust` and `sharma2012` only; every other row unchanged): EM's "
         "orientation rescue (`EMRegistrationMatcher._rescue`): a map whose triple-product orientation score is "
         "still negative after the side check is usually a mirror image, and EM restarts from the side reference's "
-        "map, then from a finer orientation-aware functional map (`matching._common.fine_matcher`), then those "
+        "map, then from a finer orientation-aware functional map (`matching.orientation.fine_matcher`), then those "
         "maps themselves; the first with a positive score wins. Decided on development pairs only (listed above): "
         "clean FAUST 0.064 -> 0.038 (14 pairs; `zoomout` 0.037 there), clean TOSCA and TOSCA at 6 contacts never "
         "triggered (16 runs), FAUST at 6 contacts +0.013 (8 pairs: 0.348 -> 0.458 on tr_reg_016-032, 0.153 -> "
@@ -360,7 +360,7 @@ def report(args) -> None:
         "by dataset FAUST 0.41x and TOSCA 0.68x pyFM (both met). Clean: 0.043 = 0.99x `zoomout` (target 1.2x: "
         "**met**; TOSCA 0.94x, FAUST 1.06x). With 10 pairs one pair moves a mean by up to 0.03: these are real "
         "results on held-out pairs, not margins to rely on.",
-        "- First run of 2026-12-02: the source's symmetry map S (`matching._common.symmetry_matcher`) became a "
+        "- First run of 2026-12-02: the source's symmetry map S (`matching.orientation.symmetry_matcher`) became a "
         "finer functional map (k = 30, ZoomOut to 110 on every vertex, instead of k = 20 -> 50 on 1000 samples), "
         "chosen on development pairs (clean FAUST 0.069 -> 0.064, clean TOSCA unchanged, FAUST at 6 contacts "
         "0.257 -> 0.232); held out, `topo-robust` went 0.077/0.118/0.128 -> 0.070/0.122/0.090. The `zoomout` and "

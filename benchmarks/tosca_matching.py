@@ -298,7 +298,7 @@ def write_results(summary: list[dict], output: Path, n_pairs: int, geodesics: st
         "maps that swap left and right. Left-right disambiguation: `zoomout` and `zoomout-fast` use the "
         "orientation-preserving term of Ren et al. 2018 in the functional map fit (outward normals); "
         "`sharma2012`, `topo-robust`, `seed-growing` and `ovsjanikov2010` decide the side of each keypoint "
-        "match against a coarse functional map with that term (`matching._common.side_reference`): a match "
+        "match against a coarse functional map with that term (`matching.orientation.side_reference`): a match "
         "(a, b) or its mirror image (S(a), b), S the source's intrinsic symmetry where S passes the "
         "involution check (`symmetry_validity`), whichever agrees better, and drops matches far from it; "
         "`em-registration` decides per region of its dense map between T(x) and T(S(x)) the same way, and "

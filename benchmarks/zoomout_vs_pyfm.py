@@ -165,7 +165,7 @@ NOTES = [
     " solve, its own eigenbasis (lumped mass, 200 eigenpairs) and its 128-eigenpair WKS.",
     "- Left-right swaps: on a few FAUST pairs *both* pipelines return a swapped map (mean error 0.1-0.37 with"
     " a symmetric-aware error of 0.02-0.09; which of the two is worse varies). The extrinsic triple-product"
-    " cue (`matching._common.orientation_score`, 500 samples) scores our swapped maps on tr_reg_007-008,"
+    " cue (`matching.orientation.orientation_score`, 500 samples) scores our swapped maps on tr_reg_007-008,"
     " 010-020 and 031-041 at +0.65 to +0.91, i.e. as orientation *preserving*, like the correct ones (+0.76"
     " to +0.97): a fallback on that cue cannot catch them, and a larger orientation weight (3, 10) did not"
     " remove them on the first 8 tuning pairs (3 created a new swap). Not fixed.",

@@ -39,9 +39,10 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError, ShapeFileError
-from shape_toolkit.plugins.matching._common import orientation_verdict, paired_descriptors
 from shape_toolkit.plugins.matching.dense.orientation_repair import OrientationRepair
+from shape_toolkit.plugins.matching.descriptors import paired_descriptors
 from shape_toolkit.plugins.matching.multires import PROXY_VERTICES
+from shape_toolkit.plugins.matching.orientation import orientation_verdict, side_cache_scope
 from shape_toolkit.results.correspondence import Correspondence, read_seeds
 from shape_toolkit.spectra import SpectrumSpec, compute_declared, merge_specs
 from shape_toolkit.validation import check_seeds
@@ -242,7 +243,7 @@ class Pipeline:
         :meth:`spectrum_specs` (computed here through the content cache when None); every stage
         receives them and picks the one it declares. ``info['spectra']`` records, per stage, the
         spectra each stage declared and received; ``info['orientation']`` whether the final map keeps
-        orientation (:func:`~shape_toolkit.plugins.matching._common.orientation_verdict`: ``preserving``,
+        orientation (:func:`~shape_toolkit.plugins.matching.orientation.orientation_verdict`: ``preserving``,
         ``reversing`` for a mirror image, or ``undecided``). ``progress(message)`` hears each stage, and the
         messages of the dense matchers (their ``match``'s ``progress``). Shapes of more
         than 1.5 ``proxy`` vertices (None or 0: never) are matched through proxies of ``proxy`` vertices
@@ -251,6 +252,13 @@ class Pipeline:
         say = progress or (lambda _msg: None)
         if proxy and spectra is None and max(source.n_vertices, target.n_vertices) > 1.5 * proxy:
             return self._run_through_proxies(source, target, seeds, int(proxy), say)
+        with side_cache_scope():  # the sparse stage and the orientation repair share symmetry map and sides
+            return self._run_stages(source, target, seeds, spectra, progress, say)
+
+    def _run_stages(self, source: Shape, target: Shape, seeds: np.ndarray | None,
+                    spectra: dict[str, Sequence[Spectrum]] | None, progress: Callable[[str], None] | None,
+                    say: Callable[[str], None]) -> Correspondence:
+        """:meth:`run` at full resolution."""
         timings: dict[str, float] = {}
         info: dict[str, Any] = {"pipeline": self.name}
         plugins = self.plugins()

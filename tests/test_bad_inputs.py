@@ -145,7 +145,7 @@ def test_histogram_alignment_refuses_embeddings_of_different_sizes():
 
 
 def test_shared_dimension_needs_a_non_constant_eigenvector():
-    from shape_toolkit.plugins.matching._common import Basis
+    from shape_toolkit.features.basis import Basis
     from shape_toolkit.plugins.matching.dense.em_registration import EMRegistrationMatcher
 
     one = Basis(np.zeros(1), np.ones((1, 1)), np.ones(1))

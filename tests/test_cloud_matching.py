@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from shape_toolkit.api.registry import create_plugin
+from shape_toolkit.core.geometry import outward_vertex_normals, vertex_normals
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.surface import cloud_surface
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import InvalidShapeError
-from shape_toolkit.plugins.matching._common import outward_vertex_normals, vertex_normals
 
 
 def test_the_local_surface_of_a_sphere_cloud_faces_outwards():

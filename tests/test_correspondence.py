@@ -7,6 +7,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from shape_toolkit.core.geometry import nearest_neighbors
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.metrics import (
@@ -22,7 +23,6 @@ from shape_toolkit.results.correspondence import (
     Correspondence,
     from_pairs,
     load_map,
-    nearest_neighbors,
     save_map,
     transfer_function,
     transfer_labels,

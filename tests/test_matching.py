@@ -88,7 +88,7 @@ def test_fmap_zoomout_orientation_term_resolves_the_flip(pair):
 @pytest.fixture(scope="module")
 def small_basis():
     """A 642-vertex shape, its unit-area basis (k = 12) and two smooth descriptor columns."""
-    from shape_toolkit.plugins.matching._common import basis_of
+    from shape_toolkit.features.basis import basis_of
     from shape_toolkit.spectra import default_spec
 
     A = articulated_shape(ANGLES_A, subdivisions=3).shape
@@ -101,6 +101,7 @@ def small_basis():
 def test_fmap_operators_match_their_definitions(small_basis):
     import igl
 
+    from shape_toolkit.core.geometry import outward_face_normals
     from shape_toolkit.plugins.matching.dense import fmap_zoomout as fz
 
     A, b, desc = small_basis
@@ -115,7 +116,7 @@ def test_fmap_operators_match_their_definitions(small_basis):
     O = fz.orientation_operators(A, b, k, desc)
     F = np.asarray(A.faces)
     G = igl.grad(np.asarray(A.vertices, dtype=np.float64), F).toarray().reshape(3, len(F), -1)
-    N = fz._outward_face_normals(A)
+    N = outward_face_normals(A)
     area = np.asarray(A.face_areas)
     ref = np.zeros_like(O)
     for f in range(len(F)):
@@ -136,8 +137,8 @@ def test_fmap_operators_match_their_definitions(small_basis):
 def test_fmap_descriptor_compression_leaves_the_fit_unchanged(small_basis):
     """The energy sums over descriptor columns: one orthogonal mixing of the columns on both shapes
     changes nothing, and dropping the directions with a negligible share changes (almost) nothing."""
-    from shape_toolkit.plugins.matching._common import normalize_columns
     from shape_toolkit.plugins.matching.dense import fmap_zoomout as fz
+    from shape_toolkit.plugins.matching.descriptors import normalize_columns
 
     A, b, _ = small_basis
     V = np.asarray(A.vertices)
@@ -158,7 +159,7 @@ def test_fmap_descriptor_compression_leaves_the_fit_unchanged(small_basis):
 
 
 def test_farthest_point_sampling_matches_the_definition():
-    from shape_toolkit.plugins.matching.dense.fmap_zoomout import farthest_point_sampling
+    from shape_toolkit.core.geometry import farthest_point_sampling
 
     P = np.random.default_rng(2).standard_normal((300, 3))
     got = farthest_point_sampling(P, 40, start=7)

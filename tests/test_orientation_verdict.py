@@ -15,7 +15,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.io.mesh import save_shape
 from shape_toolkit.pipeline import run_pipeline
-from shape_toolkit.plugins.matching._common import orientation_verdict
+from shape_toolkit.plugins.matching.orientation import orientation_verdict
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -7,6 +7,7 @@ import pytest
 
 pytest.importorskip("maxflow")
 
+from shape_toolkit.core.geometry import dual_graph  # noqa: E402
 from shape_toolkit.core.shape import Shape  # noqa: E402
 from shape_toolkit.errors import ParameterError  # noqa: E402
 from shape_toolkit.features.smoothing import (  # noqa: E402
@@ -14,7 +15,6 @@ from shape_toolkit.features.smoothing import (  # noqa: E402
     concavity_weights,
     dihedral_edge_costs,
     dual_adjacency,
-    dual_graph,
     potts_energy,
     smooth_labels,
 )

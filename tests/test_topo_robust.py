@@ -14,22 +14,21 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from shape_toolkit.api.registry import create_plugin
+from shape_toolkit.core.geometry import farthest_point_sampling, outward_vertex_normals
 from shape_toolkit.data.corruptions import CORRUPTIONS, apply_corruption, carry_correspondence, glue
 from shape_toolkit.data.synthetic import articulated_shape, procedural_texture, synthetic_dataset
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.pipeline import PRESETS, load_pipeline
-from shape_toolkit.plugins.matching._common import (
-    clear_side_caches,
+from shape_toolkit.plugins.matching.dense.em_registration import EMFit, procrustes
+from shape_toolkit.plugins.matching.dense.orientation_repair import OrientationRepair
+from shape_toolkit.plugins.matching.orientation import (
+    SideCache,
     orient_pairs,
     orientation_score,
-    outward_vertex_normals,
     side_reference,
     symmetry_map,
     symmetry_validity,
 )
-from shape_toolkit.plugins.matching.dense.em_registration import EMFit, procrustes
-from shape_toolkit.plugins.matching.dense.fmap_zoomout import farthest_point_sampling
-from shape_toolkit.plugins.matching.dense.orientation_repair import OrientationRepair
 from shape_toolkit.plugins.matching.sparse.photometric import PhotometricMatcher
 
 ANGLES_A = [0.4, 0.4, -0.3, -0.3, 0.2]
@@ -237,7 +236,7 @@ def test_em_takes_the_reference_where_a_mirrored_part_has_no_valid_symmetry(pair
     """Legs swapped where S is no symmetry (``symmetry_validity`` false on the legs, as on FAUST poses
     whose S covers too little area): T(S(x)) cannot be trusted there, so the part the reference puts on
     the other side takes the reference's own map, and the legs come out right."""
-    import shape_toolkit.plugins.matching._common as common
+    import shape_toolkit.plugins.matching.orientation as common
 
     A, B, mirror = pair
     T, legs = _legs_swapped(A, mirror)
@@ -259,12 +258,12 @@ def test_em_takes_the_reference_where_a_mirrored_part_has_no_valid_symmetry(pair
 
 
 def test_side_caches_share_and_key_on_identity(pair, monkeypatch):
-    """The sparse stage and EM share one symmetry map and one side reference per (shapes, spectra);
-    another Shape object (even with the same content) is computed anew."""
-    import shape_toolkit.plugins.matching._common as common
+    """Callers that share a SideCache (the sparse stage and EM) share one symmetry map and one side
+    reference per (shapes, spectra); another Shape object (even with the same content) is computed anew."""
+    import shape_toolkit.plugins.matching.orientation as common
 
     A, B, _ = pair
-    clear_side_caches()
+    cache = SideCache()
     calls = []
     real = common.side_matcher
 
@@ -273,15 +272,50 @@ def test_side_caches_share_and_key_on_identity(pair, monkeypatch):
         return real(orientation)
 
     monkeypatch.setattr(common, "side_matcher", counting)
-    r1 = side_reference(A.shape, B.shape)
-    assert side_reference(A.shape, B.shape) is r1
-    s1 = symmetry_map(A.shape)
-    assert symmetry_map(A.shape) is s1 and not s1.flags.writeable
+    r1 = side_reference(A.shape, B.shape, cache=cache)
+    assert side_reference(A.shape, B.shape, cache=cache) is r1
+    s1 = symmetry_map(A.shape, cache=cache)
+    assert symmetry_map(A.shape, cache=cache) is s1 and not s1.flags.writeable
     n = len(calls)
-    assert side_reference(A.shape, B.shape, orientation="reversing") is not r1  # another key
+    assert side_reference(A.shape, B.shape, orientation="reversing", cache=cache) is not r1  # another key
     copy_a = type(A.shape)(**{f: getattr(A.shape, f) for f in A.shape.__dataclass_fields__})
-    assert side_reference(copy_a, B.shape) is not r1 and len(calls) > n
-    clear_side_caches()
+    assert side_reference(copy_a, B.shape, cache=cache) is not r1 and len(calls) > n
+    assert side_reference(A.shape, B.shape) is not r1  # no cache: computed anew
+
+
+def test_a_pipeline_run_computes_each_side_reference_once(pair, monkeypatch):
+    """Inside one pipeline run the sparse stage and the orientation repair share one scoped SideCache:
+    the side matcher runs once per orientation asked for, and nothing is kept after the run."""
+    import shape_toolkit.plugins.matching.orientation as orientation
+    from shape_toolkit.pipeline import load_pipeline
+
+    A, B, _ = pair
+    calls = []
+    real = orientation.side_matcher
+
+    def counting(o="preserving"):
+        calls.append(o)
+        return real(o)
+
+    monkeypatch.setattr(orientation, "side_matcher", counting)
+    load_pipeline("topo-robust").run(A.shape, B.shape)
+    first = len(calls)
+    assert first >= 1
+    computed = []
+    real_match = type(real()).match
+
+    def counting_match(self, source, target, *a, **k):
+        computed.append("symmetry" if source is target else "sides")
+        return real_match(self, source, target, *a, **k)
+
+    monkeypatch.setattr(type(real()), "match", counting_match)
+    load_pipeline("topo-robust").run(A.shape, B.shape)
+    # one side reference and one symmetry map for the whole run (sparse stage + orientation repair)
+    assert sorted(computed) == ["sides", "symmetry"]
+    with orientation.side_cache_scope() as cache:
+        side_reference(A.shape, B.shape)
+        assert side_reference(A.shape, B.shape, cache=cache) is side_reference(A.shape, B.shape)
+    assert orientation._SCOPE.get() is None
 
 
 # -- EM: the thesis's embedding -------------------------------------------------------------------

@@ -9,8 +9,7 @@ import pytest
 from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.matching._common import basis_of
-from shape_toolkit.plugins.matching.dense.fmap_zoomout import zoomout_residual
+from shape_toolkit.features.basis import basis_of, zoomout_residual
 from shape_toolkit.spectra import default_spec
 
 
@@ -37,7 +36,7 @@ def test_residual_is_zero_for_the_identity_and_grows_with_a_scrambled_map(poses)
     assert zoomout_residual(C, b, b, scrambled) > 0.5
     # sign flips of eigenvectors are a change of basis, not of the map: the residual does not move
     s = np.where(np.arange(30) % 3 == 1, -1.0, 1.0)
-    from shape_toolkit.plugins.matching._common import Basis
+    from shape_toolkit.features.basis import Basis
 
     flipped = Basis(b.evals, b.evecs * s, b.mass)
     np.testing.assert_allclose(zoomout_residual(np.diag(s), b, flipped, ident), 0.0, atol=1e-9)

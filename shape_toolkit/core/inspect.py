@@ -6,9 +6,8 @@ Everything is computed with numpy sorting and ``scipy.sparse.csgraph`` in O(m lo
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components as _cc
 
+from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.shape import Shape, coordinate_scale
 
 __all__ = [
@@ -27,12 +26,6 @@ DEGENERATE_REL_AREA = 1e-12
 #: ... or when its longest edge is below this fraction of the bounding-box diagonal (at that size the
 #: corners differ only in the last bits of their coordinates: the face has no usable geometry).
 DEGENERATE_REL_LENGTH = 1e-12
-
-
-def _components(n: int, edges: np.ndarray) -> tuple[int, np.ndarray]:
-    g = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    k, labels = _cc(g.tocsr(), directed=False)
-    return int(k), labels.astype(np.int64)
 
 
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -62,7 +55,7 @@ def connected_components(shape: Shape) -> tuple[int, np.ndarray]:
     Labels are numbered in order of each component's lowest vertex index; every unreferenced
     vertex is a component of its own. Needs a triangle mesh.
     """
-    return _components(shape.n_vertices, _all_edges(shape.require_faces("connected components")))
+    return edge_components(shape.n_vertices, _all_edges(shape.require_faces("connected components")))
 
 
 def duplicate_vertex_map(vertices: np.ndarray) -> np.ndarray:
@@ -165,9 +158,7 @@ def face_fans(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         [np.stack([lo[:-1][same], lo[1:][same]], 1), np.stack([hi[:-1][same], hi[1:][same]], 1)]
     )
     n_corners = 3 * m
-    g = sp.coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), (n_corners, n_corners))
-    _, labels = _cc(g.tocsr(), directed=False)
-    labels = labels.astype(np.int64)
+    _, labels = edge_components(n_corners, links)
     labels[np.repeat(~good, 3).reshape(m, 3).ravel()] = -1
     return f.ravel(), labels
 
@@ -186,7 +177,7 @@ def _boundary_loops(boundary: np.ndarray) -> int:
     if len(boundary) == 0:
         return 0
     verts, inv = np.unique(boundary, return_inverse=True)
-    k, _ = _components(len(verts), inv.reshape(-1, 2))
+    k, _ = edge_components(len(verts), inv.reshape(-1, 2))
     return int(len(boundary) - len(verts) + k)
 
 
@@ -229,7 +220,7 @@ def mesh_info(shape: Shape) -> dict:
     f = shape.faces
     edges, counts = edge_face_counts(f)
     all_edges = _all_edges(f) if degenerate_index_faces(f).any() else edges
-    n_comp, _ = _components(shape.n_vertices, all_edges)
+    n_comp, _ = edge_components(shape.n_vertices, all_edges)
     n_bnd = int((counts == 1).sum())
     n_nme = int((counts > 2).sum())
     n_nmv = len(_non_manifold_vertices(f))

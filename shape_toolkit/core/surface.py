@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from shape_toolkit.core.geometry import signed_volume
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError
 
@@ -71,7 +72,6 @@ def cloud_surface(shape: Shape, n_neighbors: int = FAN_NEIGHBORS) -> Shape:
     F = F[area2 > 1e-12 * max(float(np.median(area2)), 1e-300)]
     if len(F) == 0:
         raise InvalidShapeError(f"{shape!r}: the points span no surface (all collinear?)")
-    vol = np.einsum("ij,ij->i", P[F[:, 0]], np.cross(P[F[:, 1]], P[F[:, 2]])).sum()
-    if vol < 0:
+    if signed_volume(P, F) < 0:
         F = F[:, [0, 2, 1]]
     return Shape(P, F, name=shape.name)

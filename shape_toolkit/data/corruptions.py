@@ -14,9 +14,10 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
+from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 
@@ -176,8 +177,7 @@ def _keep(shape: Shape, keep: np.ndarray, largest: bool = True) -> Corruption:
     if largest:
         n = sub.n_vertices
         e = sub.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-        A = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-        _, lab = connected_components(A, directed=False)
+        _, lab = edge_components(n, e)
         sizes = np.bincount(lab[used])
         big = int(np.argmax(sizes))
         used &= lab == big

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.errors import ParameterError
@@ -426,9 +427,6 @@ def pose_sequence(
 
 def _count_contacts(base: Shape, kept: np.ndarray) -> int:
     """Number of welded patches: connected groups (along ``base``'s edges) of removed vertices."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
     gone = np.setdiff1d(np.arange(base.n_vertices), kept)
     if gone.size == 0:
         return 0
@@ -436,5 +434,4 @@ def _count_contacts(base: Shape, kept: np.ndarray) -> int:
     sel = np.isin(e[:, 0], gone) & np.isin(e[:, 1], gone)
     pos = np.full(base.n_vertices, -1)
     pos[gone] = np.arange(gone.size)
-    A = sp.coo_matrix((np.ones(int(sel.sum())), (pos[e[sel, 0]], pos[e[sel, 1]])), shape=(gone.size, gone.size))
-    return int(connected_components(A, directed=False)[0])
+    return edge_components(gone.size, np.column_stack([pos[e[sel, 0]], pos[e[sel, 1]]]))[0]

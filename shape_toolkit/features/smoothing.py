@@ -37,11 +37,11 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from shape_toolkit.core.geometry import dual_graph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 
 __all__ = [
-    "dual_graph",
     "dihedral_edge_costs",
     "concavity_weights",
     "dual_adjacency",
@@ -53,54 +53,6 @@ __all__ = [
 
 #: smallest probability / normalised angle before taking the log (CGAL's value)
 EPS = 5e-6
-
-
-def dual_graph(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The mesh's dual graph.
-
-    Returns ``pairs`` int64 ``(p, 2)`` (face ids ``f < g`` sharing an edge, sorted; around a non-manifold
-    edge every pair of its faces), ``edges`` int64 ``(p, 2)`` (the shared mesh edge, vertex ids ``i < j``)
-    and ``consistent`` bool ``(p,)`` (the two faces run through the shared edge in opposite directions,
-    i.e. they are consistently oriented). Edges of degenerate faces with a repeated vertex are skipped.
-    """
-    f = np.asarray(faces, dtype=np.int64)
-    m = len(f)
-    a = f.ravel()
-    b = f[:, [1, 2, 0]].ravel()
-    fid = np.repeat(np.arange(m, dtype=np.int64), 3)
-    ok = a != b
-    a, b, fid = a[ok], b[ok], fid[ok]
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    fwd = a < b
-    order = np.lexsort((fid, hi, lo))
-    lo, hi, fid, fwd = lo[order], hi[order], fid[order], fwd[order]
-    new = np.ones(len(lo), dtype=bool)
-    new[1:] = (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1])
-    starts = np.flatnonzero(new)
-    sizes = np.diff(np.append(starts, len(lo)))
-    out_p, out_e, out_c = [], [], []
-    two = starts[sizes == 2]
-    if len(two):
-        out_p.append(np.column_stack([fid[two], fid[two + 1]]))
-        out_e.append(np.column_stack([lo[two], hi[two]]))
-        out_c.append(fwd[two] != fwd[two + 1])
-    for s, z in zip(starts[sizes > 2], sizes[sizes > 2]):  # non-manifold edges: rare, every pair
-        ii, jj = np.triu_indices(int(z), 1)
-        out_p.append(np.column_stack([fid[s + ii], fid[s + jj]]))
-        out_e.append(np.tile([lo[s], hi[s]], (len(ii), 1)))
-        out_c.append(fwd[s + ii] != fwd[s + jj])
-    if not out_p:
-        return np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64), np.zeros(0, bool)
-    pairs = np.concatenate(out_p).astype(np.int64)
-    edges = np.concatenate(out_e).astype(np.int64)
-    cons = np.concatenate(out_c)
-    keep = pairs[:, 0] != pairs[:, 1]  # a face listing the same edge twice
-    pairs, edges, cons = pairs[keep], edges[keep], cons[keep]
-    swap = pairs[:, 0] > pairs[:, 1]
-    pairs[swap] = pairs[swap][:, ::-1]
-    # in face order, so that the output (and every sum over it) is the same whatever the vertex numbering
-    order = np.lexsort((pairs[:, 1], pairs[:, 0]))
-    return pairs[order], edges[order], cons[order]
 
 
 def _opposite(faces: np.ndarray, fids: np.ndarray, edges: np.ndarray) -> np.ndarray:

@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.results.labels import _INT_TOKEN, _MAX_ABS_INT, _read_small_text, read_int_file
@@ -29,7 +28,6 @@ __all__ = [
     "transfer_labels",
     "save_map",
     "load_map",
-    "nearest_neighbors",
 ]
 
 
@@ -279,61 +277,6 @@ def load_map(
             "(map files are 0-based)"
         )
     return Correspondence(t, n_target)
-
-
-def nearest_neighbors(
-    points: np.ndarray, queries: np.ndarray, k: int = 1, *, chunk: int | None = None,
-    dtype: type = np.float64,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Euclidean ``k`` nearest ``points`` ``(n, d)`` of each query ``(q, d)``: squared distances
-    and indices ``(q, k)`` (``(q,)`` when k == 1). KD-tree in low dimension, chunked BLAS brute
-    force in high dimension (memory ``chunk * n``, never ``q * n``; ``chunk`` None: at most 1024
-    queries and ``2**22`` distances per block, 32 MB in double precision whatever ``n``, so a
-    245k-vertex target does not take 2 GB of temporaries). ``dtype=np.float32`` runs the
-    brute force in single precision (about 3x faster; near-ties within ~1e-6 relative may resolve
-    differently)."""
-    X, Q = np.asarray(points), np.asarray(queries)
-    if X.ndim != 2 or Q.ndim != 2 or X.shape[1] != Q.shape[1]:
-        raise ParameterError(f"points {X.shape} and queries {Q.shape} must be (n, d) and (q, d)")
-    k = int(min(k, len(X)))
-    if X.shape[1] <= 12:
-        d, i = cKDTree(np.asarray(X, dtype=np.float64)).query(np.asarray(Q, dtype=np.float64), k=k)
-        d = np.asarray(d) ** 2
-        i = np.asarray(i, dtype=np.int64)
-        return d, i
-    # no float64 copies in the brute force: single precision stays single (memory ~ n d, not 2 n d)
-    X, Q = np.ascontiguousarray(X, dtype=dtype), np.ascontiguousarray(Q, dtype=dtype)
-    if chunk is None:
-        chunk = int(np.clip(2**22 // max(1, len(X)), 16, 1024))
-    # ||q - x||^2 = ||q||^2 - 2 (q.x - ||x||^2 / 2): with the points augmented by a column -||x||^2 / 2
-    # and the queries by a column of ones, one GEMM gives the score to maximise and nothing else is
-    # computed per distance (than forming ||x||^2 - 2 q.x: 1.6x faster on 5000 x 20000 x 60 in single
-    # precision, 1.7-2.1x on the polish's searches at 45k vertices; measured 2026-12-02, same neighbours)
-    XaT = np.empty((X.shape[1] + 1, len(X)), dtype=dtype)
-    XaT[:-1] = X.T
-    XaT[-1] = -0.5 * np.einsum("ij,ij->i", X, X, dtype=np.float64)
-    del X
-    Qa = np.ones((min(chunk, len(Q)), Q.shape[1] + 1), dtype=dtype)
-    D = np.empty((len(Q), k))
-    I = np.empty((len(Q), k), dtype=np.int64)
-    for s in range(0, len(Q), chunk):
-        q = Q[s : s + chunk]
-        qa = Qa[: len(q)]
-        qa[:, :-1] = q
-        score = qa @ XaT
-        if k == 1:
-            j = score.argmax(axis=1)[:, None]
-        else:
-            j = np.argpartition(score, score.shape[1] - k, axis=1)[:, -k:]
-            o = (-np.take_along_axis(score, j, 1)).argsort(axis=1)
-            j = np.take_along_axis(j, o, 1)
-        I[s : s + chunk] = j
-        D[s : s + chunk] = (np.einsum("ij,ij->i", q, q, dtype=np.float64)[:, None]
-                            - 2.0 * np.take_along_axis(score, j, 1))
-    D = np.maximum(D, 0.0)
-    if k == 1:
-        return D[:, 0], I[:, 0]
-    return D, I
 
 
 def read_seeds(

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import scipy.sparse as sp
 
+from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.errors import ParameterError, ShapeFileError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -180,10 +181,7 @@ class Constraints:
                     )
             # must-links are transitive: a cannot-link inside one must-linked group is contradictory
             n = int(max(self.must_link.max(), self.cannot_link.max())) + 1
-            g = sp.coo_matrix(
-                (np.ones(self.n_must), (self.must_link[:, 0], self.must_link[:, 1])), shape=(n, n)
-            )
-            _, comp = sp.csgraph.connected_components(g, directed=False)
+            _, comp = edge_components(n, self.must_link)
             clash = np.flatnonzero(comp[self.cannot_link[:, 0]] == comp[self.cannot_link[:, 1]])
             if clash.size:
                 i = int(clash[0])
@@ -266,8 +264,7 @@ def constraint_report(labels: np.ndarray, constraints: Constraints) -> dict[str,
     if len(ml):
         ids = np.unique(ml)
         pos = np.searchsorted(ids, ml)
-        g = sp.coo_matrix((np.ones(len(pos)), (pos[:, 0], pos[:, 1])), shape=(ids.size, ids.size))
-        parts = int(sp.csgraph.connected_components(g, directed=False)[0])
+        parts = edge_components(ids.size, pos)[0]
     n_segments = int(np.unique(labels).size)
     reason = None
     if must_broken or cannot_broken:

@@ -24,9 +24,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from shape_toolkit.core.geometry import farthest_point_sampling, nearest_neighbors
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.plugins.matching._common import basis_of, farthest_point_sampling, fmap_from_p2p
+from shape_toolkit.features.basis import basis_of, fmap_from_p2p
 from shape_toolkit.plugins.weightings.cotangent import flat_faces
 
 __all__ = ["PROXY_VERTICES", "LIFT_K", "make_proxy", "lift_map"]
@@ -100,7 +101,6 @@ def lift_map(
     target's vertices per proxy vertex, at least 16). Returns the map and an info dict."""
     from scipy.spatial import cKDTree
 
-    from shape_toolkit.results.correspondence import nearest_neighbors
     from shape_toolkit.spectra import shape_spectrum
 
     proxy_map = np.asarray(proxy_map, dtype=np.int64)

@@ -1,5 +1,5 @@
 """Several dense matchers on one pair, the most plausible map kept: the one of least ZoomOut residual
-(:func:`~shape_toolkit.plugins.matching.dense.fmap_zoomout.zoomout_residual`) in a common basis of both
+(:func:`~shape_toolkit.features.basis.zoomout_residual`) in a common basis of both
 shapes. The ``auto`` pipeline runs ``fmap-zoomout`` (intrinsic: robust to pose, fragile under non-isometry
 and merged contacts) and ``shell-alignment`` (extrinsic and spectral: robust to non-isometry and merges,
 fragile under a change of pose) and keeps what the pair calls for.
@@ -24,8 +24,9 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.plugins.matching._common import _given, basis_of, check_seeds, fmap_from_p2p, resolve_plugin
-from shape_toolkit.plugins.matching.dense.fmap_zoomout import zoomout_residual
+from shape_toolkit.features.basis import basis_of, fmap_from_p2p, zoomout_residual
+from shape_toolkit.plugins.matching.descriptors import resolve_plugin, shared_spectra
+from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
@@ -90,7 +91,8 @@ class BestOfMatcher(DenseMatcher):
         spec_s, spec_t = self._spectrum(source, source_spectrum), self._spectrum(target, target_spectrum)
         k = int(min(self.k, spec_s.k, spec_t.k))
         bs, bt = basis_of(spec_s, k), basis_of(spec_t, k)
-        share_s, share_t = _given(source_spectrum), _given(target_spectrum)  # each matcher picks its own
+        # each matcher picks its own spectra among these
+        share_s, share_t = shared_spectra(source_spectrum), shared_spectra(target_spectrum)
         best, candidates, skipped, first_error = None, [], [], None
         for name, m in zip(self._names(), matchers):
             try:

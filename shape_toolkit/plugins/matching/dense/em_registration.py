@@ -23,12 +23,14 @@ from scipy.spatial import cKDTree
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher, merge_specs
+from shape_toolkit.core.geometry import nearest_neighbors
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.plugins.matching._common import Basis, basis_of, check_seeds
+from shape_toolkit.features.basis import Basis, basis_of
 from shape_toolkit.plugins.matching.dense.orientation_repair import ORIENTATION_K, OrientationRepair
-from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
+from shape_toolkit.plugins.matching.validation import check_seeds
+from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 from shape_toolkit.validation import check_random_state
 

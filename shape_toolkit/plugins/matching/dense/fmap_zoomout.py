@@ -1,24 +1,14 @@
-"""Functional maps (Ovsjanikov et al. 2012) with descriptor preservation, Laplacian
-commutativity, descriptor-commutativity and the orientation-preserving term of Ren et al. 2018,
-refined by ZoomOut (Melzi et al. 2019).
+"""Functional maps (Ovsjanikov et al. 2012) fitted on descriptors with Laplacian commutativity,
+descriptor commutativity and the orientation term of Ren et al. 2018, refined by ZoomOut (Melzi et al. 2019).
 
-Left-right disambiguation: intrinsic descriptors are invariant to reflections, so a map and its
-mirror image fit them equally well. The orientation term ``sum_f ||C O_t(f) - O_s(f) C||^2``,
-with ``O(f) g = <n x grad f, grad g>`` projected on the bases, changes sign under a reflection
-(the normal ``n`` flips relative to the tangent frame), so it only favours orientation-preserving
-maps. Normals are made outward (positive signed volume) on both shapes before it is built.
+Left and right: intrinsic descriptors cannot tell a map from its mirror image; the orientation term
+``sum_f ||C O_t(f) - O_s(f) C||^2`` (``O(f) g = <n x grad f, grad g>``, outward normals) changes sign under
+a reflection, so it favours orientation-preserving maps.
 
-Solver: the energy is quadratic in ``vec(C)`` (``k_s k_t`` unknowns, 900 for k = 30), so instead
-of an iterative L-BFGS we assemble its normal equations with Kronecker identities and solve one
-small dense SPD system, exactly.
-
-Speed: the energy is invariant under one orthogonal mixing ``D -> D V`` of the descriptor columns
-applied to both shapes (every term sums over columns, and the operators are linear in the
-descriptor), so the columns are first rotated onto the principal directions of both shapes'
-descriptors together and the directions carrying a negligible share of their energy dropped
-(:func:`compress_descriptors`; 50 WKS columns keep about 15). The ZoomOut nearest-neighbour
-queries run as single-precision brute force (BLAS), the fastest of the searches measured in
-``benchmarks/results/matching_profile.md``.
+Solver: the energy is quadratic in ``vec(C)``, so its normal equations (Kronecker identities) are solved
+exactly as one small dense SPD system. It is invariant under one orthogonal mixing of the descriptor
+columns of both shapes, so the columns are first rotated onto their principal directions and the weak
+ones dropped (:func:`compress_descriptors`).
 """
 
 from __future__ import annotations
@@ -29,36 +19,22 @@ import numpy as np
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.core.geometry import farthest_point_sampling, outward_face_normals
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.core.surface import cloud_surface
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.features.basis import Basis, basis_of, spectral_basis, zoomout, zoomout_select
 from shape_toolkit.plugins.descriptors.wks import wave_kernel_signature as _wks
-from shape_toolkit.plugins.matching._common import (  # noqa: F401  (farthest_point_sampling: re-exported)
-    Basis,
-    UsesDescriptor,
-    basis_of,
-    check_descriptors,
-    check_seeds,
-    farthest_point_sampling,
-    fmap_from_p2p,
-    normalize_columns,
-)
-from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
+from shape_toolkit.plugins.matching.descriptors import UsesDescriptor, normalize_columns, shared_spectra
+from shape_toolkit.plugins.matching.validation import check_descriptors, check_seeds
+from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 __all__ = [
-    "FmapZoomOutMatcher", "fit_functional_map", "zoomout", "orientation_operators", "multiplication_operators",
-    "compress_descriptors", "wave_kernel_signature", "farthest_point_sampling",
+    "FmapZoomOutMatcher", "fit_functional_map", "orientation_operators", "multiplication_operators",
+    "compress_descriptors", "wave_kernel_signature",
 ]
-
-
-def _outward_face_normals(shape: Shape) -> np.ndarray:
-    V, F = shape.vertices, shape.faces
-    N = np.asarray(shape.face_normals, dtype=np.float64)
-    vol = np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum()
-    return -N if vol < 0 else N
-
 
 def orientation_operators(
     shape: Shape, basis: Basis, k: int, descriptors: np.ndarray
@@ -70,7 +46,7 @@ def orientation_operators(
     F = np.asarray(shape.faces)
     m = F.shape[0]
     G = igl.grad(np.asarray(shape.vertices, dtype=np.float64), F).tocsr()
-    N = _outward_face_normals(shape)
+    N = outward_face_normals(shape)
     # per-face area weights redistributed to the three corners (lumped, mass-normalized)
     fa = np.asarray(shape.face_areas, dtype=np.float64)
     total = float(fa.sum())
@@ -194,75 +170,13 @@ def fit_functional_map(
     return c.reshape(k, k, order="F")
 
 
-def _point_map(C: np.ndarray, emb_s: np.ndarray, emb_t: np.ndarray) -> np.ndarray:
-    """Nearest row of ``emb_t[:, :kt] @ C.T`` for each row of ``emb_s[:, :ks]`` (single precision)."""
-    ks, kt = C.shape
-    points = emb_t[:, :kt] @ C.T.astype(emb_t.dtype)
-    return nearest_neighbors(points, emb_s[:, :ks], dtype=np.float32)[1]
-
-
-def zoomout(
-    C: np.ndarray, src: Basis, tgt: Basis, k_final: int, step: int = 1,
-    rows: np.ndarray | None = None, cols: np.ndarray | None = None,
-    progress: Callable[[str], None] | None = None, final: bool = True,
-) -> tuple[np.ndarray, np.ndarray]:
-    """ZoomOut (Melzi et al. 2019): alternate point map and functional map while the basis grows
-    from ``C.shape`` to ``k_final`` by ``step``; returns the final ``C_ts`` and the point map of
-    every source vertex. ``rows``/``cols`` (source/target vertex samples) speed up the inner
-    iterations (the final point map always covers every source vertex). Point maps are nearest
-    neighbours in single precision (:func:`~shape_toolkit.results.correspondence.nearest_neighbors`);
-    ``progress`` receives one message per iteration. ``final=False`` skips the point map of every
-    source vertex: the returned map then covers ``rows`` only (``-1`` elsewhere)."""
-    k = C.shape[0]
-    e_s = np.asarray(src.evecs[:, :k_final], dtype=np.float32)
-    e_t = np.asarray(tgt.evecs[:, :k_final], dtype=np.float32)
-    q_s = e_s if rows is None else e_s[rows]
-    q_t = e_t if cols is None else e_t[cols]
-    n_iter = max(0, -(-(k_final - k) // step))
-    it = 0
-    while k < k_final:
-        T = _point_map(C, q_s, q_t)
-        if cols is not None:
-            T = cols[T]
-        k = min(k + step, k_final)
-        C = fmap_from_p2p(src, tgt, T, k, k, rows=rows)
-        it += 1
-        if progress is not None:
-            progress(f"zoomout: iteration {it}/{n_iter} (k = {k})")
-    if not final and rows is not None:
-        T = np.full(e_s.shape[0], -1, dtype=np.int64)
-        T[rows] = _point_map(C, q_s, e_t)
-        return C, T
-    return C, _point_map(C, e_s, e_t)
-
-
-def zoomout_residual(C: np.ndarray, src: Basis, tgt: Basis, target_of: np.ndarray,
-                     rows: np.ndarray | None = None) -> float:
-    """ZoomOut's own energy at a fixed point: the mass-weighted mean over the source vertices ``rows``
-    (default all) of ``||Phi_s(x) C - Phi_t(T(x))||^2`` for the functional map ``C`` ``(k, k)`` and the
-    point map ``target_of`` ``(n_s,)``, in the area-normalized bases (unitless). A map that is the
-    point-map of a smooth, near-isometric functional map has a small residual; a flipped or swapped
-    part leaves high-frequency disagreement, so between two refined hypotheses of one pair the
-    smaller residual is the more plausible map."""
-    ks, kt = C.shape
-    ids = np.arange(src.evecs.shape[0]) if rows is None else np.asarray(rows)
-    diff = src.evecs[ids, :ks] @ C - tgt.evecs[np.asarray(target_of)[ids], :kt]
-    w = src.mass[ids]
-    return float((w * (diff**2).sum(axis=1)).sum() / max(float(w.sum()), 1e-300))
-
-
 def wave_kernel_signature(
     spectrum: Spectrum, n_energies: int = 100, variance: float = 7.0, band: float = 1.0,
 ) -> np.ndarray:
     """WKS (Aubry et al. 2011) ``(n, n_energies)`` on the first ``round(band * K)`` (at least 2) of the
-    ``K`` non-null eigenpairs of ``spectrum`` (``band`` 1: every one)
-    (:func:`shape_toolkit.plugins.descriptors.wks.wave_kernel_signature`): what ``fmap-zoomout``
-    uses by default, on its own Laplace-Beltrami spectrum (cotangent weights *with* the mass
-    matrix). The ``wks`` descriptor plugin declares a graph spectrum without the mass matrix, which
-    depends on the sampling and made ZoomOut's maps much worse on independently remeshed pairs
-    (TOSCA cat0-cat1: mean error 0.132 instead of 0.034)."""
-    from shape_toolkit.features.basis import spectral_basis
-
+    ``K`` non-null eigenpairs of ``spectrum`` (``band`` 1: every one): ``fmap-zoomout``'s default descriptor,
+    on its own Laplace-Beltrami spectrum (with the mass matrix, which does not depend on the sampling as
+    the ``wks`` plugin's graph spectrum does)."""
     vals, U = spectral_basis(spectrum)
     if band < 1.0:
         K = max(2, int(round(band * vals.size)))
@@ -273,11 +187,9 @@ def wave_kernel_signature(
 #: the keys a hypothesis of :class:`FmapZoomOutMatcher` may override
 HYPOTHESIS_KEYS = frozenset({"k", "band", "w_descr", "w_lap", "w_dcomm", "w_orient"})
 
-#: the default hypotheses: the fit of pyFM's README (k = 30, the relative weights 1 / 0.1 / 1 / 1, the
-#: WKS on every eigenpair), the same on the coarser half of the eigenpairs, and a coarser fit (two thirds
-#: of the matcher's ``k``: 20 for 30) whose orientation term outweighs the rest (10), on both bands.
-#: Chosen on the tuning half of the field benchmark only (FAUST people 0-1, TOSCA dogs;
-#: ``benchmarks/matching_field.py``)
+#: the default hypotheses: pyFM's README fit (k = 30, weights 1 / 0.1 / 1 / 1, WKS on every eigenpair), the
+#: same on the coarser half of the eigenpairs, and a coarser fit (two thirds of ``k``) whose orientation term
+#: outweighs the rest, on both bands (chosen on the field benchmark's tuning half only)
 DEFAULT_HYPOTHESES: tuple[dict, ...] = (
     {}, {"band": 0.5}, {"k": 20, "w_orient": 10.0}, {"k": 20, "w_orient": 10.0, "band": 0.5},
 )
@@ -290,32 +202,24 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     caller passes ``source_descriptors``/``target_descriptors``); a name, a ``{plugin, preset,
     params}`` table or an instance; None (default) is the WKS (:func:`wave_kernel_signature`;
     ``descriptor_params`` may set ``n_energies`` and ``variance``) on this matcher's own
-    Laplace-Beltrami eigenpairs (``k + zoomout_iters * zoomout_step``); ``n_descriptors`` evenly spaced
-    columns are kept. ``k``: size of the fitted map; ZoomOut then grows it by ``zoomout_step`` for
-    ``zoomout_iters`` iterations (``zoomout_iters=0`` disables it). ``orientation``:
-    ``"preserving"`` (default), ``"reversing"`` or ``"none"`` (weight ``w_orient``).
-    ``zoomout_samples``: target vertices (farthest point sampling) the source vertices are matched
-    to inside ZoomOut iterations
-    (None: all). Seeds, when given, add one heat-kernel descriptor per seed pair.
+    Laplace-Beltrami eigenpairs; ``n_descriptors`` evenly spaced columns are kept. ``k``: size of the
+    fitted map; ZoomOut then grows it by ``zoomout_step`` for ``zoomout_iters`` iterations (0: none).
+    ``orientation``: ``"preserving"`` (default), ``"reversing"`` or ``"none"`` (weight ``w_orient``).
+    ``zoomout_samples``: farthest-point target vertices matched to inside ZoomOut (None: all). Seeds
+    add one heat-kernel descriptor per seed pair.
 
-    ``hypotheses``: several fits of the functional map, each a mapping that overrides some of ``k``,
-    ``w_descr``, ``w_lap``, ``w_dcomm``, ``w_orient`` and ``band`` (the default WKS on the first
-    ``round(band * K)`` of the ``K`` non-null eigenpairs; 1: all, 0.5: the coarser half). Each is
-    refined by ZoomOut on ``selection_samples`` farthest-point source vertices and the one with the
-    smallest ZoomOut residual (:func:`zoomout_residual`, ZoomOut's own energy at ``k_final``) is then
-    refined on every vertex from half way (the leading block of its sampled map);
-    ``info["hypotheses"]`` records every residual and the choice. None:
-    :data:`DEFAULT_HYPOTHESES`; ``[{}]``: the single fit of earlier versions. Why: the fit is
-    fragile -- which pairs come out with a part swapped (the legs of two people, say) depends on its
-    basis size, orientation weight and descriptor band -- while the refined map's residual tells a
-    swapped map from a sound one (the swap leaves high-frequency disagreement). ``band`` applies to
-    the default WKS only; with given descriptors or a descriptor plugin every hypothesis uses them.
+    ``hypotheses``: several fits, each a mapping overriding some of ``k``, the four weights and ``band``
+    (the default WKS on the first ``round(band * K)`` of the ``K`` non-null eigenpairs). The one ZoomOut
+    refines best on ``selection_samples`` source vertices (:func:`~shape_toolkit.features.basis.zoomout_select`)
+    is refined on every vertex; ``info["hypotheses"]`` records the residuals and the choice. None:
+    :data:`DEFAULT_HYPOTHESES`; ``[{}]``: a single fit. Why: which pairs come out with a part swapped
+    depends on the fit's basis size, orientation weight and band, while the refined map's residual tells
+    a swapped map from a sound one. ``band`` applies to the default WKS only.
     """
 
     presets = {
-        # the same final basis (110) in 8 ZoomOut steps of 10 instead of 16 of 5: on 8 FAUST tuning
-        # pairs the same mean error (0.0442 against 0.0441). Target sampling (1000 or 2000 candidates)
-        # was 12 % worse than pyFM on TOSCA and 28-39 % worse on FAUST held-out pairs: not used.
+        # fast: the same final basis (110) in half the steps; no target sampling (both: measured notes in
+        # benchmarks/results/fmap_zoomout_notes.md)
         "fast": {"zoomout_iters": 8, "zoomout_step": 10, "zoomout_samples": None},
         "accurate": {"zoomout_iters": 16, "zoomout_step": 5, "zoomout_samples": None},
     }
@@ -458,8 +362,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         elif source_descriptors is None or target_descriptors is None:
             desc = self._descriptor_plugin()
             # the descriptor picks its own declared spectrum among what the caller gave
-            descs[None] = (desc.compute(source, spectrum=_share(source_spectrum)),
-                           desc.compute(target, spectrum=_share(target_spectrum)))
+            descs[None] = (desc.compute(source, spectrum=shared_spectra(source_spectrum)),
+                           desc.compute(target, spectrum=shared_spectra(target_spectrum)))
         else:
             descs[None] = (source_descriptors, target_descriptors)
         seed_cols = None
@@ -507,10 +411,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 progress(f"fmap-zoomout: functional map fit (k = {k0}, {ds.shape[1]} descriptor directions)")
             return fit_functional_map(bs, bt, ds, dt, k0, **w, orient_src=Os, orient_tgt=Ot)
 
-        # every source vertex queries (the functional map of each iteration is then the exact
-        # projection of the point map): sampling the queries fits C on a sample and cost FAUST tuning
-        # pairs 5-15 %; sampling the candidate targets (zoomout_samples) cost FAUST held-out pairs 28 %
-        # against pyFM, so the default samples nothing, as pyFM's README pipeline
+        # every source vertex queries, so each functional map is the exact projection of the point map;
+        # the default samples no target either, as pyFM's README pipeline (notes: fmap_zoomout_notes.md)
         cols = None
         if self.zoomout_samples and self.zoomout_samples < target.n_vertices:
             cols = farthest_point_sampling(np.asarray(target.vertices), int(self.zoomout_samples))
@@ -519,21 +421,11 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         if not meshes:
             info["orientation_term"] = "on the local surface of the point cloud(s) (core.surface.cloud_surface)"
         chosen = 0
-        if len(fits) > 1:
-            # each hypothesis refined on farthest-point samples of the source, in steps twice as large
-            # (half the iterations); the map of smallest ZoomOut residual is refined in full below
+        if len(fits) > 1:  # each refined on farthest-point source samples in steps twice as large
             rows = farthest_point_sampling(np.asarray(source.vertices), min(int(self.selection_samples),
                                                                             source.n_vertices))
-            residuals, refined = [], []
-            for C0 in fits:
-                Cz, Tz = zoomout(C0, bs, bt, k_final, 2 * self.zoomout_step, rows, cols, final=False)
-                residuals.append(zoomout_residual(Cz, bs, bt, Tz, rows))
-                refined.append(Cz)
-            chosen = int(np.argmin(residuals))
-            # the full refinement starts half way, from the leading block of the chosen sampled map:
-            # the small-k steps are done, and the costly large-k ones see every vertex
-            k_mid = (fits[chosen].shape[0] + k_final) // 2
-            fits[chosen] = refined[chosen][:k_mid, :k_mid]
+            chosen, residuals, start = zoomout_select(fits, bs, bt, k_final, 2 * self.zoomout_step, rows, cols)
+            fits[chosen] = start
             info["hypotheses"] = {"tried": [dict(h) for h in hyps], "residuals": residuals, "chosen": chosen}
             if progress is not None:
                 progress(f"fmap-zoomout: hypothesis {chosen} {hyps[chosen]} chosen (residuals "
@@ -541,14 +433,6 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         C, T = zoomout(fits[chosen], bs, bt, k_final, self.zoomout_step, None, cols, progress=progress)
         info["C"] = C
         return Correspondence(T, target.n_vertices, info=info)
-
-
-def _share(given):
-    """What to hand a nested plugin: the caller's spectra (it picks its own among them), or, when
-    the caller gave none, None (it computes its declared spectrum through the cache)."""
-    if given is None:
-        return None
-    return list(given) if isinstance(given, (list, tuple)) else [given]
 
 
 @hookimpl

@@ -12,11 +12,13 @@ import numpy as np
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.core.geometry import nearest_neighbors
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.matching._common import UsesDescriptor, check_descriptors, check_seeds
-from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
+from shape_toolkit.plugins.matching.descriptors import UsesDescriptor
+from shape_toolkit.plugins.matching.validation import check_descriptors, check_seeds
+from shape_toolkit.results.correspondence import Correspondence
 
 __all__ = ["GreedyDescriptorMatcher"]
 

@@ -78,7 +78,7 @@ class OrientationRepair(DenseMatcher):
 
     def reference_plugins(self) -> list:
         """The matchers the side is decided against: the symmetry self-map, the side reference, the fine map."""
-        from shape_toolkit.plugins.matching._common import fine_matcher, side_matcher, symmetry_matcher
+        from shape_toolkit.plugins.matching.orientation import fine_matcher, side_matcher, symmetry_matcher
 
         if self.orientation == "none":
             return []
@@ -124,7 +124,8 @@ class OrientationRepair(DenseMatcher):
         local enough for articulations, coarse enough for the map's noise); unmatched samples are skipped.
         ``refined``: the map is first refined to ``ORIENTATION_K`` dimensions on the registration's bases
         (only for scoring: a coarse EM map is too noisy locally for its triplets to vote reliably)."""
-        from shape_toolkit.plugins.matching._common import farthest_point_sampling, orientation_score
+        from shape_toolkit.core.geometry import farthest_point_sampling
+        from shape_toolkit.plugins.matching.orientation import orientation_score
 
         rows = farthest_point_sampling(np.asarray(source.vertices), min(N_SCORED, source.n_vertices))
         if refined and emb.bases is not None and 0 < emb.K < ORIENTATION_K and np.all(t >= 0):
@@ -140,7 +141,7 @@ class OrientationRepair(DenseMatcher):
         ``S`` is no symmetry, or where neither is near ``R`` while ``T`` piles two parts onto one. When a
         region changes, that map and the registration run again from it compete with the fit ``first``:
         the one nearest ``R`` on average is returned."""
-        from shape_toolkit.plugins.matching._common import side_reference, symmetry_map, symmetry_validity
+        from shape_toolkit.plugins.matching.orientation import side_reference, symmetry_map, symmetry_validity
 
         m = self.matcher
         ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation)
@@ -185,7 +186,8 @@ class OrientationRepair(DenseMatcher):
         orientation-aware functional map, then those two maps themselves (``first`` when none does). Returns
         the fit and the embedding size its map is refined to (polishing goes on from there);
         ``info["orientation_rescue"]``: the scores and the choice."""
-        from shape_toolkit.plugins.matching._common import _given, fine_matcher, side_reference
+        from shape_toolkit.plugins.matching.descriptors import shared_spectra as _given
+        from shape_toolkit.plugins.matching.orientation import fine_matcher, side_reference
 
         m, K = self.matcher, emb.K
         rescue = {"score_before": info["orientation_score"], "choice": "first"}

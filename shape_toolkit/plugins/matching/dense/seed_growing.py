@@ -20,12 +20,8 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.matching._common import (
-    UsesDescriptor,
-    check_descriptors,
-    check_seeds,
-    paired_descriptors,
-)
+from shape_toolkit.plugins.matching.descriptors import UsesDescriptor, paired_descriptors
+from shape_toolkit.plugins.matching.validation import check_descriptors, check_seeds
 from shape_toolkit.results.correspondence import Correspondence
 
 __all__ = ["SeedGrowingMatcher", "seed_growing"]

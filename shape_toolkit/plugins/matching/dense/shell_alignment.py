@@ -32,11 +32,13 @@ import numpy as np
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.core.geometry import nearest_neighbors, vertex_normals
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.matching._common import Basis, basis_of, check_seeds, vertex_normals
-from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
+from shape_toolkit.features.basis import Basis, basis_of
+from shape_toolkit.plugins.matching.validation import check_seeds
+from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 __all__ = ["ShellAlignmentMatcher", "shell_coordinates"]
@@ -50,8 +52,7 @@ def _centred(shape: Shape, basis: Basis, area: float) -> np.ndarray:
 def shell_coordinates(shape: Shape, basis: Basis, k: int, area: float) -> np.ndarray:
     """The shell of resolution ``k``: vertex coordinates ``(n, 3)``, centred (mass-weighted) and divided
     by ``sqrt(area)``, low-pass filtered on the first ``k`` functions of ``basis``."""
-    phi = basis.evecs[:, :k]
-    return phi @ (phi.T @ (basis.mass[:, None] * _centred(shape, basis, area)))
+    return basis.low_pass(_centred(shape, basis, area), k)
 
 
 class ShellAlignmentMatcher(DenseMatcher):

@@ -22,7 +22,7 @@ from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins.matching._common import check_keypoints
+from shape_toolkit.plugins.matching.validation import check_keypoints
 
 __all__ = ["PhotometricMatcher", "ring_color_descriptors", "geometric_texture"]
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
-from shape_toolkit.plugins.matching._common import AssociationGraph, AssociationMatcherBase
+from shape_toolkit.plugins.matching.association import AssociationGraph, AssociationMatcherBase
 
 __all__ = ["ReplicatorMatcher", "replicator_dynamics"]
 
@@ -36,7 +36,7 @@ def replicator_dynamics(
 
 class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
     """Association graph (spectral-distance consistency, ADF pruning; see
-    :func:`shape_toolkit.plugins.matching._common.association_graph`) + replicator dynamics on ``W + I/2``
+    :func:`shape_toolkit.plugins.matching.association.association_graph`) + replicator dynamics on ``W + I/2``
     (Pelillo's regularization, whose strict maximizers are maximal cliques). Matches are read
     from the support of the limit (``x > min_score * max(x)``), one-to-one, most weight first."""
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
-from shape_toolkit.plugins.matching._common import AssociationGraph, AssociationMatcherBase
+from shape_toolkit.plugins.matching.association import AssociationGraph, AssociationMatcherBase
 
 __all__ = ["SpectralMatcher"]
 

@@ -10,8 +10,9 @@ from scipy.optimize import linear_sum_assignment
 
 from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
+from shape_toolkit.features.basis import normalized_spectrum
 from shape_toolkit.features.heat import heat_distances
-from shape_toolkit.plugins.matching._common import check_keypoints, normalized_spectrum
+from shape_toolkit.plugins.matching.validation import check_keypoints
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 __all__ = ["UmeyamaMatcher", "umeyama_assignment"]
