@@ -1,14 +1,11 @@
-"""Dense probabilistic matching by EM registration of spectral embeddings (thesis Algorithm 7,
-section 7.4.1; Horaud et al. 2011).
-
-The source embedding points ``x_i`` (first ``k`` non-null Laplace-Beltrami eigenvectors, area
-normalized) are the means of an isotropic Gaussian mixture with a uniform outlier class; the
-target embedding points ``x'_j`` are the data. EM estimates an orthogonal ``k x k`` transform
-``Q`` (eigenvector signs, order and mixing) and the variance ``sigma`` (eq. 7.1-7.3).
-
-Memory stays linear: the E-step keeps the ``n_neighbors`` nearest source means of each target point;
-the posteriors are a sparse ``(n_src, n_tgt)`` matrix of ``P(source i | target j)`` (columns sum to at
-most 1; the rest is the outlier class). Orientation repair: :mod:`.orientation_repair`.
+"""Dense probabilistic matching by EM registration of spectral embeddings (thesis Algorithm 7, section 7.4.1;
+Horaud et al. 2011). The source embedding points ``x_i`` (first ``k`` non-null Laplace-Beltrami eigenvectors,
+area normalized) are the means of an isotropic Gaussian mixture with a uniform outlier class; the target
+embedding points ``x'_j`` are the data. EM estimates an orthogonal ``k x k`` transform ``Q`` (eigenvector
+signs, order and mixing) and the variance ``sigma`` (eq. 7.1-7.3). Memory stays linear: the E-step keeps the
+``n_neighbors`` nearest source means of each target point; the posteriors are a sparse ``(n_src, n_tgt)``
+matrix of ``P(source i | target j)`` (columns sum to at most 1; the rest is the outlier class).
+Orientation repair: :mod:`.orientation_repair`.
 """
 
 from __future__ import annotations
