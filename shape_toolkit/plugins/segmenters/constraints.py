@@ -11,8 +11,8 @@ from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
+from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.results.labels import coerce_constraints, constraint_report
 from shape_toolkit.results.segmentation import Segmentation
 
@@ -21,15 +21,12 @@ def must_link_groups(must_link: np.ndarray) -> list[np.ndarray]:
     """The node sets ``[ids, ...]`` joined by the ``(m, 2)`` must-link pairs: connected components of
     the must-link graph over the constrained nodes (a chain of clicks is one group), each sorted, the
     groups in order of first appearance in ``must_link`` (row-major)."""
-    from scipy.sparse.csgraph import connected_components
-
     ml = np.asarray(must_link, dtype=np.int64).reshape(-1, 2)
     if len(ml) == 0:
         return []
     nodes, inv = np.unique(ml, return_inverse=True)
     inv = inv.reshape(-1, 2)
-    g = sp.coo_matrix((np.ones(len(ml)), (inv[:, 0], inv[:, 1])), shape=(len(nodes), len(nodes)))
-    _, comp = connected_components(g, directed=False)
+    _, comp = edge_components(len(nodes), inv)
     seen, first = np.unique(comp[inv.ravel()], return_index=True)
     return [nodes[comp == c] for c in seen[np.argsort(first)]]
 
