@@ -7,6 +7,7 @@ A plugin may subclass these bases (recommended) or simply provide the same metho
 
 from __future__ import annotations
 
+import functools
 import inspect
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
@@ -16,6 +17,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 import scipy.sparse as sp
 
+from shape_toolkit.api.params import Param, validate_params
 from shape_toolkit.errors import ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -33,6 +35,23 @@ class BasePlugin:
     family: ClassVar[str] = ""
     #: named parameter sets, e.g. {"sparse": {...}, "dense": {...}}
     presets: ClassVar[dict[str, dict[str, Any]]] = {}
+    #: per constructor parameter: accepted values and a one-line description (:mod:`shape_toolkit.api.params`)
+    parameter_constraints: ClassVar[dict[str, Param]] = {}
+    #: methods that check the parameters first (the family's work method and ``spectrum_spec``)
+    _validated_methods: ClassVar[tuple[str, ...]] = ("spectrum_spec",)
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        for name in cls._validated_methods:
+            fn = cls.__dict__.get(name)
+            if callable(fn) and not getattr(fn, "__isabstractmethod__", False) and not hasattr(fn, "_validates"):
+                setattr(cls, name, _validating(fn))
+
+    def _validate_params(self) -> None:
+        """Check the current parameter values against :attr:`parameter_constraints` (raises
+        :class:`ParameterError`); done before the family method and ``spectrum_spec`` run."""
+        declared = self.parameter_constraints
+        validate_params(type(self).__name__, declared, {n: getattr(self, n) for n in declared if hasattr(self, n)})
 
     @classmethod
     def _param_names(cls) -> list[str]:
@@ -109,6 +128,18 @@ class BasePlugin:
         return f"{type(self).__name__}({args})"
 
 
+def _validating(fn: Any) -> Any:
+    """``fn`` preceded by the parameter check (scikit-learn validates at fit, not in ``__init__``)."""
+
+    @functools.wraps(fn)
+    def wrapper(self: BasePlugin, *args: Any, **kwargs: Any) -> Any:
+        self._validate_params()
+        return fn(self, *args, **kwargs)
+
+    wrapper._validates = True  # type: ignore[attr-defined]
+    return wrapper
+
+
 @dataclass
 class Weights:
     """What a weighting scheme returns: symmetric weights ``W`` (n, n) CSR, optional lumped mass
@@ -123,6 +154,7 @@ class Weighting(BasePlugin, ABC):
     """Edge-weighting scheme of a shape graph (thesis 3.3.3)."""
 
     family = "weightings"
+    _validated_methods = ("weigh", "spectrum_spec")
     #: True when the scheme ignores the given edges and needs triangles (e.g. cotangent)
     needs_faces: ClassVar[bool] = False
 
@@ -135,6 +167,7 @@ class KeypointDetector(BasePlugin, ABC):
     """Detects sparse, repeatable vertices."""
 
     family = "keypoints"
+    _validated_methods = ("detect", "spectrum_spec")
 
     @abstractmethod
     def detect(self, shape: Shape, *, spectrum: Spectrum | None = None) -> np.ndarray:
@@ -145,6 +178,7 @@ class Descriptor(BasePlugin, ABC):
     """Per-vertex feature vectors."""
 
     family = "descriptors"
+    _validated_methods = ("compute", "spectrum_spec")
 
     @abstractmethod
     def compute(
@@ -161,6 +195,7 @@ class SparseMatcher(BasePlugin, ABC):
     """One-to-one matching of the keypoints of two shapes."""
 
     family = "sparse_matchers"
+    _validated_methods = ("match", "spectrum_spec")
 
     @abstractmethod
     def match(
@@ -180,6 +215,7 @@ class DenseMatcher(BasePlugin, ABC):
     """A correspondence for every source vertex."""
 
     family = "dense_matchers"
+    _validated_methods = ("match", "spectrum_spec")
 
     @abstractmethod
     def match(
@@ -202,6 +238,7 @@ class Segmenter(BasePlugin, ABC):
     :class:`ParameterError` (:meth:`check_constraints`) instead of ignoring them silently."""
 
     family = "segmenters"
+    _validated_methods = ("segment", "spectrum_spec")
     #: whether :meth:`segment` uses its ``constraints``; False: they are refused
     takes_constraints: ClassVar[bool] = False
 

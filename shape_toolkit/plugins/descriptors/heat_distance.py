@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
@@ -54,8 +53,3 @@ class HeatDistanceDescriptor(KeypointHeatMixin, Descriptor):
         spectrum, K, t, kp = self.inputs(shape, spectrum, keypoints)
         D = heat_distances(spectrum, t, kp, None, normalization=self.normalization, K=K)
         return np.ascontiguousarray(D.transpose(2, 1, 0)).reshape(shape.n_vertices, -1)
-
-
-@hookimpl
-def toolkit_descriptors() -> dict[str, type]:
-    return {"heat-distance": HeatDistanceDescriptor}

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
@@ -63,8 +62,3 @@ class HKSDescriptor(Descriptor):
         if self.log:
             out = np.log(np.maximum(out, np.finfo(float).tiny))
         return out
-
-
-@hookimpl
-def toolkit_descriptors() -> dict[str, type]:
-    return {"hks": HKSDescriptor}

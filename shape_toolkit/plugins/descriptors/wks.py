@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
@@ -84,8 +83,3 @@ class WKSDescriptor(Descriptor):
         spectrum = own_spectrum(self, shape, spectrum)
         vals, U = spectral_basis(spectrum, self.K)
         return wave_kernel_signature(vals, U, int(self.n_energies), float(self.variance))
-
-
-@hookimpl
-def toolkit_descriptors() -> dict[str, type]:
-    return {"wks": WKSDescriptor}

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import KeypointDetector
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
@@ -111,8 +110,3 @@ class ADFMaxima(KeypointDetector):
         if self.max_keypoints is not None:
             peaks = peaks[: int(self.max_keypoints)]
         return peaks
-
-
-@hookimpl
-def toolkit_keypoint_detectors() -> dict[str, type]:
-    return {"adf-maxima": ADFMaxima}

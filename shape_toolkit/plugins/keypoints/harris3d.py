@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import KeypointDetector
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
@@ -169,8 +168,3 @@ class Harris3D(KeypointDetector):
             if not kept or np.min(np.linalg.norm(V[kept] - V[c], axis=1)) > min_dist:
                 kept.append(int(c))
         return np.asarray(kept, dtype=np.int64)
-
-
-@hookimpl
-def toolkit_keypoint_detectors() -> dict[str, type]:
-    return {"harris3d": Harris3D}

@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 from scipy.optimize import nnls
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
@@ -118,8 +117,3 @@ class CCSKL(Segmenter):
         self.beta_ = beta.tolist()
         self.n_segments_ = int(labels.max() + 1)
         return labels
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"ccskl": CCSKL}

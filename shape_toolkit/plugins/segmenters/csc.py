@@ -90,7 +90,6 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.graph import build_graph, weights_from_edges
 from shape_toolkit.core.shape import Shape
@@ -362,8 +361,3 @@ class ConstrainedSpectralClustering(Segmenter):
             self.face_labels_ = labels
             return face_segments_to_vertices(shape, labels)
         return labels
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"csc": ConstrainedSpectralClustering}

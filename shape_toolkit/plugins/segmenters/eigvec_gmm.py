@@ -26,7 +26,6 @@ from scipy.sparse.csgraph import connected_components
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.mixture import GaussianMixture
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.shape import Shape
@@ -266,8 +265,3 @@ class EigvecGMMSegmenter(Segmenter):
         self.n_segments_ = int(labels.max() + 1)
         self.embedding_dim_ = int(X.shape[1])
         return labels
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"eigvec-gmm": EigvecGMMSegmenter}

@@ -39,7 +39,6 @@ from typing import Any
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
@@ -118,8 +117,3 @@ class NormalizedCutSegmenter(Segmenter):
         self.face_labels_ = fl
         self.n_segments_ = int(fl.max() + 1) if m else 0
         return face_segments_to_vertices(shape, fl)
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"ncut": NormalizedCutSegmenter}

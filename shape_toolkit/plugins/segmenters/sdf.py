@@ -37,7 +37,6 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import BasePlugin, Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
@@ -338,8 +337,3 @@ class SmoothedSegmenter(Segmenter):
         self.face_labels_ = fl
         self.n_segments_ = int(len(np.unique(fl)))
         return _vertex_labels(shape, fl)
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"sdf": SDFSegmenter, "smoothed": SmoothedSegmenter}

@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
@@ -186,8 +185,3 @@ class SeededWalkSegmenter(Segmenter):
         vl = face_segments_to_vertices(shape, fl)
         self.n_cannot_violated_ = int(np.sum(vl[cl[:, 0]] == vl[cl[:, 1]])) if len(cl) else 0
         return vl
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"seeded-walk": SeededWalkSegmenter}

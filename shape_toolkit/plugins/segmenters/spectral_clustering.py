@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
@@ -118,8 +117,3 @@ class SpectralClustering(Segmenter):
         self.eigenvalues_ = vals[: k + 1].tolist()
         self.embedding_dim_ = int(X.shape[1])
         return labels
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"spectral-clustering": SpectralClustering}

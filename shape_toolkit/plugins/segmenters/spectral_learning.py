@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.core.eigen import smallest_eigenpairs
 from shape_toolkit.core.graph import build_graph
@@ -76,8 +75,3 @@ class SpectralLearning(Segmenter):
         self.n_added_edges_, self.n_removed_edges_ = added, removed
         self.n_segments_ = int(labels.max() + 1)
         return labels
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"spectral-learning": SpectralLearning}

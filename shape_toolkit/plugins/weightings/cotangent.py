@@ -6,7 +6,6 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Weighting, Weights
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError
@@ -68,8 +67,3 @@ def flat_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     longest2 = np.max([(x * x).sum(axis=1) for x in e], axis=0)
     area = 0.5 * np.linalg.norm(np.cross(e[0], -e[2]), axis=1)
     return area < CotangentWeighting.DEGENERATE * longest2
-
-
-@hookimpl
-def toolkit_weightings() -> dict[str, type]:
-    return {"cotangent": CotangentWeighting}

@@ -26,7 +26,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Weighting, Weights
 from shape_toolkit.core.graph import weights_from_edges
 from shape_toolkit.core.shape import Shape
@@ -154,8 +153,3 @@ def _round_up(x: float, digits: int = 3) -> float:
         return x
     q = 10.0 ** (np.floor(np.log10(x)) - digits + 1)
     return float(np.ceil(x / q * (1 - 1e-12)) * q)
-
-
-@hookimpl
-def toolkit_weightings() -> dict[str, type]:
-    return {"gaussian": GaussianWeighting}

@@ -6,7 +6,6 @@ import numpy as np
 import robust_laplacian
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Weighting, Weights
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
@@ -58,8 +57,3 @@ class IntrinsicDelaunayWeighting(Weighting):
         W.eliminate_zeros()
         negative = int(np.count_nonzero(W.data < -1e-12) // 2)
         return Weights(W, np.asarray(M.diagonal(), dtype=np.float64), {"negative_weights": negative})
-
-
-@hookimpl
-def toolkit_weightings() -> dict[str, type]:
-    return {"intrinsic-delaunay": IntrinsicDelaunayWeighting}

@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
@@ -112,8 +111,3 @@ class BestOfMatcher(DenseMatcher):
         info = dict(best[2].info)
         info.update({"candidates": candidates, "chosen": best[1], "skipped": skipped})
         return Correspondence(best[2].target_of, target.n_vertices, best[2].confidence, best[2].posteriors, info)
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"best-of": BestOfMatcher}

@@ -14,7 +14,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.matching.dense.em_registration import EMRegistrationMatcher
 
@@ -86,8 +85,3 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         X, Y = bs.evecs[:, 1 : K + 1], bt.evecs[:, 1 : K + 1]
         Q0, _ = histogram_alignment(X, Y, bs.mass, bt.mass, int(self.bins))
         return self._finish(X, Y, Q0, target, {"Q0": Q0})
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"eigvec-alignment": EigvecAlignmentMatcher}

@@ -20,7 +20,6 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
@@ -633,8 +632,3 @@ class EMRegistrationMatcher(DenseMatcher):
         Q0 = self._initial_transform(X, Y, seeds, source, target)
         info = {"n_seeds": 0 if seeds is None else len(seeds)}
         return self._finish(X, Y, Q0, target, info, source, (bs, bt), source_spectrum, target_spectrum)
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"em-registration": EMRegistrationMatcher}

@@ -27,7 +27,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
@@ -547,8 +546,3 @@ def _share(given):
     if given is None:
         return None
     return list(given) if isinstance(given, (list, tuple)) else [given]
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"fmap-zoomout": FmapZoomOutMatcher}

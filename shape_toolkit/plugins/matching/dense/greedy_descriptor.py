@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
@@ -88,8 +87,3 @@ class GreedyDescriptorMatcher(UsesDescriptor, DenseMatcher):
                 used[j] = True
                 conf[r] = 1.0 / (1.0 + np.sqrt(d2[r, c_]))
         return Correspondence(target_of, target.n_vertices, conf)
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"greedy-descriptor": GreedyDescriptorMatcher}

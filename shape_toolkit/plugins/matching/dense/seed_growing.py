@@ -14,7 +14,6 @@ import heapq
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
@@ -173,8 +172,3 @@ class SeedGrowingMatcher(UsesDescriptor, DenseMatcher):
             target_of, target.n_vertices, conf,
             info={"n_seeds": int(len(seeds)), "n_keypoints": n_kp, "n_times": n_times},
         )
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"seed-growing": SeedGrowingMatcher}

@@ -30,7 +30,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec, default_spec
@@ -172,8 +171,3 @@ class ShellAlignmentMatcher(DenseMatcher):
         residual = float(ms @ ((Xs - Xt[T]) ** 2).sum(axis=1) + mt @ ((Xt - Xs[Tr]) ** 2).sum(axis=1))
         return Correspondence(T, target.n_vertices, info={"C": C, "residual": residual, "frame": "given",
                                                           "k_schedule": list(ks)})
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"shell-alignment": ShellAlignmentMatcher}

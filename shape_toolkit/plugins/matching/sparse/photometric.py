@@ -18,7 +18,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
@@ -199,8 +198,3 @@ class PhotometricMatcher(SparseMatcher):
             j = lo + int(np.argmin(d[lo:hi]))
             new[i], cost[i] = ball.indices[j], d[j]
         return new, cost
-
-
-@hookimpl
-def toolkit_sparse_matchers() -> dict[str, type]:
-    return {"photometric": PhotometricMatcher}

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.plugins.matching._common import AssociationGraph, AssociationMatcherBase
 
@@ -63,8 +62,3 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
         A = graph.W + 0.5 * np.eye(len(graph.nodes))
         return replicator_dynamics(A, graph.unary, int(self.max_iter))
-
-
-@hookimpl
-def toolkit_sparse_matchers() -> dict[str, type]:
-    return {"replicator": ReplicatorMatcher}

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.plugins.matching._common import AssociationGraph, AssociationMatcherBase
 
@@ -70,8 +69,3 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
                 break
             x = x_new
         return x
-
-
-@hookimpl
-def toolkit_sparse_matchers() -> dict[str, type]:
-    return {"rrwm": RRWMMatcher}

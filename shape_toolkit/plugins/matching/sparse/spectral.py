@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.plugins.matching._common import AssociationGraph, AssociationMatcherBase
 
@@ -39,8 +38,3 @@ class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
         _, vecs = np.linalg.eigh(M)  # N is small (candidate matches of sparse keypoints)
         x = vecs[:, -1]
         return np.abs(x) if x.sum() >= 0 else np.abs(-x)
-
-
-@hookimpl
-def toolkit_sparse_matchers() -> dict[str, type]:
-    return {"spectral": SpectralMatcher}

@@ -8,7 +8,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.core.spectrum import SpectrumSpec, default_spec
 from shape_toolkit.features.heat import heat_distances
@@ -66,8 +65,3 @@ class UmeyamaMatcher(SparseMatcher):
         score = (np.abs(UA[:, -r:]) @ np.abs(UB[:, -r:]).T)[rows, cols]
         keep = score >= float(self.min_score) * float(score.max())
         return np.column_stack([kp_s[rows[keep]], kp_t[cols[keep]]]).astype(np.int64)
-
-
-@hookimpl
-def toolkit_sparse_matchers() -> dict[str, type]:
-    return {"umeyama": UmeyamaMatcher}
