@@ -42,8 +42,8 @@ class BasePlugin:
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        for name in cls._validated_methods:
-            fn = cls.__dict__.get(name)
+        for name in cls._validated_methods:  # also methods a mixin provides
+            fn = getattr(cls, name, None)
             if callable(fn) and not getattr(fn, "__isabstractmethod__", False) and not hasattr(fn, "_validates"):
                 setattr(cls, name, _validating(fn))
 

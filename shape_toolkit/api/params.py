@@ -26,7 +26,10 @@ import numpy as np
 
 from shape_toolkit.errors import ParameterError
 
-__all__ = ["Constraint", "Interval", "Options", "InstanceOf", "PluginRef", "Param", "RANDOM_STATE", "validate_params"]
+__all__ = [
+    "Constraint", "Interval", "Options", "InstanceOf", "ListOf", "PluginRef", "Param", "RANDOM_STATE",
+    "validate_params",
+]
 
 
 def _fmt(x: float) -> str:
@@ -135,6 +138,25 @@ class InstanceOf(Constraint):
 
     def describe(self) -> str:
         return " or ".join(("an " if n[0].lower() in "aeiou" else "a ") + n for n in self.type_name.split(" | "))
+
+
+class ListOf(Constraint):
+    """A list, tuple or 1-D array of at least ``min_len`` items, each accepted by ``item``."""
+
+    def __init__(self, item: Constraint, min_len: int = 1):
+        self.item, self.min_len = item, min_len
+        self.type_name = f"list[{item.type_name}]"
+
+    def accepts(self, value: Any) -> bool:
+        if isinstance(value, np.ndarray):
+            if value.ndim != 1:
+                return False
+            value = value.tolist()
+        return isinstance(value, (list, tuple)) and len(value) >= self.min_len and all(map(self.item.accepts, value))
+
+    def describe(self) -> str:
+        count = f"at least {self.min_len}" if self.min_len > 1 else "one or more"
+        return f"a list of {count}, each {self.item.describe()}"
 
 
 class PluginRef(Constraint):

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from shape_toolkit.api.interfaces import Descriptor
+from shape_toolkit.api.params import Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.features.heat import heat_distances
+from shape_toolkit.features.heat import NORMALIZATIONS, heat_distances
 from shape_toolkit.plugins.descriptors._common import KeypointHeatMixin
 
 
@@ -25,6 +26,10 @@ class HeatDistanceDescriptor(KeypointHeatMixin, Descriptor):
     """
 
     _who = "heat-distance"
+    parameter_constraints = {
+        **KeypointHeatMixin.parameter_constraints,
+        "normalization": Param(Options(*NORMALIZATIONS), doc="metric of the heat distances (eq. 6.43: unit-sphere)"),
+    }
 
     def __init__(
         self,

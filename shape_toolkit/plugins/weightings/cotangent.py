@@ -7,6 +7,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from shape_toolkit.api.interfaces import Weighting, Weights
+from shape_toolkit.api.params import Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError
 
@@ -29,6 +30,8 @@ class CotangentWeighting(Weighting):
     needs_faces = True
     #: builds its edges from the triangles: the graph's connectivity must be the mesh's
     uses_edges = False
+
+    parameter_constraints = {"clamp_negative": Param(bool, doc="set negative cotangent weights to 0")}
 
     def __init__(self, clamp_negative: bool = False):
         self.clamp_negative = clamp_negative

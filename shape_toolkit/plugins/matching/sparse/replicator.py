@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from shape_toolkit.api.interfaces import SparseMatcher
+from shape_toolkit.api.params import Param
+from shape_toolkit.plugins._params import ASSOCIATION, POSITIVE_INT
 from shape_toolkit.plugins.matching._common import AssociationGraph, AssociationMatcherBase
 
 __all__ = ["ReplicatorMatcher", "replicator_dynamics"]
@@ -38,6 +40,8 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
     :func:`shape_toolkit.plugins.matching._common.association_graph`) + replicator dynamics on ``W + I/2``
     (Pelillo's regularization, whose strict maximizers are maximal cliques). Matches are read
     from the support of the limit (``x > min_score * max(x)``), one-to-one, most weight first."""
+
+    parameter_constraints = {**ASSOCIATION, "max_iter": Param(POSITIVE_INT, doc="replicator iterations")}
 
     def __init__(
         self,

@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from shape_toolkit.api.interfaces import SparseMatcher
+from shape_toolkit.api.params import Param
+from shape_toolkit.plugins._params import ASSOCIATION, FRACTION, POSITIVE, POSITIVE_INT
 from shape_toolkit.plugins.matching._common import AssociationGraph, AssociationMatcherBase
 
 __all__ = ["RRWMMatcher", "sinkhorn"]
@@ -25,6 +27,13 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
     """RRWM: ``x <- alpha P^T x + (1 - alpha) y`` with ``P`` the affinity divided by its largest
     degree and ``y`` the Sinkhorn normalization of ``exp(inflation x / max x)`` arranged as the
     ``(P, Q)`` keypoint matrix; iterated to convergence and discretized one-to-one."""
+
+    parameter_constraints = {
+        **ASSOCIATION,
+        "alpha": Param(FRACTION, doc="weight of the random walk against the reweighting jump"),
+        "inflation": Param(POSITIVE, doc="sharpness of the reweighting jump exp(inflation x / max x)"),
+        "max_iter": Param(POSITIVE_INT, doc="iterations"),
+    }
 
     def __init__(
         self,

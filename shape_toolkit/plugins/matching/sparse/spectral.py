@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from shape_toolkit.api.interfaces import SparseMatcher
+from shape_toolkit.plugins._params import ASSOCIATION
 from shape_toolkit.plugins.matching._common import AssociationGraph, AssociationMatcherBase
 
 __all__ = ["SpectralMatcher"]
@@ -14,6 +15,8 @@ __all__ = ["SpectralMatcher"]
 
 class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
     """Leordeanu-Hebert spectral relaxation on the association graph of section 7.2.1."""
+
+    parameter_constraints = ASSOCIATION
 
     def __init__(
         self,

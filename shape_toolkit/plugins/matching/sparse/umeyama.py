@@ -11,6 +11,7 @@ from scipy.optimize import linear_sum_assignment
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.core.spectrum import SpectrumSpec, default_spec
 from shape_toolkit.features.heat import heat_distances
+from shape_toolkit.plugins._params import ASSOCIATION
 from shape_toolkit.plugins.matching._common import check_keypoints, normalized_spectrum
 
 __all__ = ["UmeyamaMatcher", "umeyama_assignment"]
@@ -31,6 +32,8 @@ class UmeyamaMatcher(SparseMatcher):
     """Umeyama's method on keypoint affinity matrices ``exp(-d^2 / (2 sigma^2))`` of unit-sphere
     heat distances (eq. 6.43, same time for both shapes, as in the association graph).
     Pairs scoring below ``min_score`` times the best are dropped."""
+
+    parameter_constraints = {p: ASSOCIATION[p] for p in ("k", "time", "sigma", "min_score")}
 
     def __init__(
         self, k: int = 20, time: float | None = None, sigma: float = 0.5, min_score: float = 0.0,
