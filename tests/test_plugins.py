@@ -13,6 +13,7 @@ import pytest
 
 from shape_toolkit import ParameterError, PluginError, build_graph
 from shape_toolkit.api.interfaces import FAMILY_INTERFACES, BasePlugin, Weighting, Weights
+from shape_toolkit.api.params import RANDOM_STATE, Interval, ListOf, Options, Param, validate_params
 from shape_toolkit.api.registry import FAMILY_GROUPS, Registry, available_plugins, get_plugin
 from shape_toolkit.data.generate import icosphere
 
@@ -180,3 +181,92 @@ def test_an_entry_point_naming_a_module_is_refused_and_the_legacy_group_is_not_r
     finally:
         sys.path.remove(str(site))
         sys.modules.pop("tp_weights", None)
+
+
+def test_every_builtin_plugin_declares_each_parameter_and_its_defaults_pass():
+    for family, names in available_plugins().items():
+        for name in names:
+            cls = get_plugin(family, name)
+            declared = cls.parameter_constraints
+            assert set(declared) == set(cls._param_names()), (family, name, set(declared) ^ set(cls._param_names()))
+            for pname, par in declared.items():
+                assert isinstance(par, Param) and par.doc and "\n" not in par.doc, (name, pname)
+                assert par.describe() and par.type_name, (name, pname)
+            obj = cls()
+            obj._validate_params()  # the defaults are allowed values
+            for preset in cls.presets.values():
+                obj.set_params(**preset)._validate_params()
+
+
+def test_parameter_constraints_accept_describe_and_refuse_in_one_line():
+    pos_int = Interval(int, 1)
+    assert pos_int.accepts(3) and pos_int.accepts(np.int64(3))
+    assert not any(pos_int.accepts(v) for v in (0, True, 2.0, "3", None))
+    unit = Interval(float, 0, 1, closed="left")
+    assert unit.accepts(0) and unit.accepts(0.5) and not unit.accepts(1.0) and not unit.accepts(float("nan"))
+    assert unit.describe() == "a float in [0, 1)" and Interval(float, 0, None, closed="neither").describe() == (
+        "a positive float")
+    assert not Interval(float).accepts(float("inf")) and Interval(float).describe() == "a finite float"
+    times = ListOf(Interval(float, 0, None, closed="neither"))
+    assert times.accepts([1.0, 2]) and times.accepts(np.array([0.5])) and not times.accepts([]) and not times.accepts(
+        [1.0, -1.0])
+    bw = Param(None, Options("auto", "mean"), Interval(float, 0, None, closed="neither"), doc="bandwidth")
+    assert bw.type_name == "str | float | None" and bw.describe() == "None, 'auto', 'mean' or a positive float"
+    assert bw.accepts(None) and bw.accepts("auto") and bw.accepts(0.3) and not bw.accepts("local")
+    assert RANDOM_STATE.accepts(0) and RANDOM_STATE.accepts(np.random.default_rng(0)) and not RANDOM_STATE.accepts(-1)
+    with pytest.raises(ParameterError) as err:
+        validate_params("GaussianWeighting", {"bandwidth": bw}, {"bandwidth": -1})
+    assert str(err.value) == "GaussianWeighting: bandwidth must be None, 'auto', 'mean' or a positive float, got -1"
+    # at use, not in __init__ (scikit-learn's clone contract): construction stores anything
+    from sklearn.base import clone
+
+    g = get_plugin("weightings", "gaussian")(bandwidth="wide")
+    assert clone(g).bandwidth == "wide"
+    with pytest.raises(ParameterError, match=r"^GaussianWeighting: bandwidth must be .*, got 'wide'$"):
+        g.weigh(icosphere(1), icosphere(1).edges)
+    with pytest.raises(ParameterError, match=r"^ADFMaxima: K must be a positive int, got 0$"):
+        get_plugin("keypoints", "adf-maxima")(K=0).spectrum_spec()  # spectrum_spec checks too
+
+
+def test_plugins_show_prints_type_range_and_description(capsys):
+    from shape_toolkit.cli import main
+
+    assert main(["plugins", "show", "gaussian"]) == 0
+    out = capsys.readouterr().out
+    assert ("bandwidth = None  [str | float | None] None, 'auto', 'local', 'mean' or a positive float: sigma in "
+            "length units") in out
+    assert "bandwidth_scale = 1.0  [float] a positive float: factor on the automatic bandwidths" in out
+    assert main(["plugins", "show", "csc", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    rs = {p["name"]: p for p in info["parameters"]}["random_state"]
+    assert rs["type"] == "int | Generator | RandomState | None" and rs["doc"].startswith("seed")
+
+
+def test_random_state_reaches_only_the_plugins_that_take_it(tmp_path, capsys):
+    """`segment --random-state 0` works with every segmenter (ncut has no randomness and broke); every dense
+    matcher is built the same way (create_seeded)."""
+    from shape_toolkit.api.registry import create_seeded
+    from shape_toolkit.cli import main
+    from shape_toolkit.data.synthetic import articulated_shape
+    from shape_toolkit.io.mesh import save_shape
+
+    body = articulated_shape(subdivisions=2, random_state=1)
+    mesh = tmp_path / "body.off"
+    save_shape(body.shape, mesh)
+    clicks = tmp_path / "clicks.json"
+    from shape_toolkit.results.labels import draw_constraints, save_constraints
+
+    save_constraints(clicks, draw_constraints(body.labels, body.shape.edges, random_state=0))
+    for name in available_plugins()["segmenters"]:
+        cls = get_plugin("segmenters", name)
+        extra = ["--constraints", str(clicks)] if cls.takes_constraints else []
+        k = [] if name == "seeded-walk" else ["-k", "3"]
+        code = main(["segment", str(mesh), "--method", name, *k, "--random-state", "0", *extra,
+                     "-o", str(tmp_path / f"{name}.txt"), "--json"])
+        captured = capsys.readouterr()
+        assert code == 0, (name, captured.err)
+    for name in available_plugins()["dense_matchers"]:
+        obj = create_seeded("dense_matchers", name, None, 0)
+        takes = "random_state" in type(obj)._param_names()
+        assert (obj.get_params(deep=False).get("random_state") == 0) is takes, name
+    assert create_seeded("segmenters", "csc", None, 0, random_state=5).random_state == 5  # a given one wins

@@ -176,13 +176,13 @@ def create_plugin(family: str, name: str, preset: str | None = None, **params: A
     return get_registry().create(family, name, preset, **params)
 
 
-def create_seeded(family: str, name: str, preset: str | None, random_state: Any, **params: Any) -> Any:
-    """:func:`create_plugin` with ``random_state`` passed only to a plugin that takes it (and not already given
-    in ``params``): a seed for a whole run or command line, harmless for deterministic plugins."""
+def create_seeded(family: str, name: str, preset: str | None, seed: Any, **params: Any) -> Any:
+    """:func:`create_plugin` with ``random_state=seed`` passed only to a plugin that takes it, unless ``params``
+    give one: a seed for a whole run or command line, harmless for deterministic plugins (None: no seed)."""
     cls = get_registry().get(family, name)
     names = cls._param_names() if issubclass(cls, BasePlugin) else list(inspect.signature(cls).parameters)
-    if random_state is not None and "random_state" in names and "random_state" not in params:
-        params["random_state"] = random_state
+    if seed is not None and "random_state" in names and "random_state" not in params:
+        params["random_state"] = seed
     return create_plugin(family, name, preset, **params)
 
 

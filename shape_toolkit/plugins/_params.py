@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from shape_toolkit.api.params import Interval, ListOf, Options, Param
+from shape_toolkit.api.params import Interval, ListOf, Options, Param, PluginRef
 from shape_toolkit.core.spectrum import LAPLACIANS
 
 #: the weighting plugin of the graph whose spectrum a plugin declares
@@ -30,3 +30,17 @@ ASSOCIATION = {
     "min_score": Param(FRACTION, doc="drop matches scoring below this fraction of the best"),
     "orientation": Param(Options("preserving", "reversing", "none"), doc="side of each match (meshes)"),
 }
+
+#: the descriptor a matcher computes on both shapes: a name, a {plugin, preset, params} table or an object
+DESCRIPTOR = Param(PluginRef("descriptors"), dict, doc="descriptor plugin computed on both shapes")
+#: parameters of a descriptor given by name
+DESCRIPTOR_PARAMS = Param(None, dict, doc="parameters of the descriptor given by name")
+#: which side of a symmetric shape a map keeps
+ORIENTATION = Param(Options("preserving", "reversing", "none"), doc="orientation the map keeps (meshes)")
+
+#: the number of segments of a segmenter
+N_SEGMENTS = Param(None, Interval(int, 2), doc="number of segments (None: chosen by the method, where it can)")
+#: restarts of k-means / GMM
+N_INIT = Param(POSITIVE_INT, doc="restarts of the clustering (the best is kept)")
+#: the weight of convex dihedral angles in concavity-weighted dual graphs
+CONVEX_FACTOR = Param(NON_NEGATIVE, doc="weight of convex edges relative to concave ones")

@@ -22,9 +22,11 @@ import numpy as np
 from scipy.optimize import nnls
 
 from shape_toolkit.api.interfaces import Segmenter
+from shape_toolkit.api.params import RANDOM_STATE, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins._params import N_INIT, N_SEGMENTS, POSITIVE_INT, WEIGHTING
 from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
     kmeans_labels,
@@ -65,6 +67,14 @@ class CCSKL(Segmenter):
 
     takes_constraints = True
 
+    parameter_constraints = {
+        "n_segments": N_SEGMENTS,
+        "n_eigenvectors": Param(POSITIVE_INT, doc="eigenvectors of the embedding (at least n_segments)"),
+        "weighting": WEIGHTING,
+        "n_init": N_INIT,
+        "random_state": RANDOM_STATE,
+    }
+
     def __init__(
         self,
         n_segments: int | None = None,
@@ -82,8 +92,6 @@ class CCSKL(Segmenter):
 
     def _check_m(self) -> int:
         m = self.n_eigenvectors
-        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
-            raise ParameterError(f"n_eigenvectors must be a positive integer, got {m!r}")
         return int(m)
 
     def spectrum_spec(self) -> SpectrumSpec:

@@ -21,10 +21,11 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.api.interfaces import Segmenter
+from shape_toolkit.api.params import RANDOM_STATE, Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, SpectrumSpec
-from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.embedding import commute_time_embedding
+from shape_toolkit.plugins._params import N_INIT, N_SEGMENTS, POSITIVE_INT, WEIGHTING
 from shape_toolkit.plugins.segmenters._common import (
     check_n_segments,
     kmeans_labels,
@@ -52,6 +53,15 @@ class SpectralClustering(Segmenter):
     """
 
     presets = {"ng2001": {"variant": "ng"}, "luxburg-unnormalized": {"variant": "unnormalized"}}
+
+    parameter_constraints = {
+        "n_segments": N_SEGMENTS,
+        "variant": Param(Options(*_LAPLACIAN), doc="spectral clustering variant (its Laplacian)"),
+        "weighting": WEIGHTING,
+        "max_segments": Param(POSITIVE_INT, doc="most segments when n_segments is None (eigengap)"),
+        "n_init": N_INIT,
+        "random_state": RANDOM_STATE,
+    }
 
     def __init__(
         self,
@@ -81,8 +91,6 @@ class SpectralClustering(Segmenter):
     def spectrum_spec(self) -> SpectrumSpec:
         """``kmax + 1`` eigenpairs (``kmax``: ``n_segments`` or ``max_segments``) of the variant's
         Laplacian of the ``weighting`` graph, no mass matrix."""
-        if not isinstance(self.variant, str) or self.variant not in _LAPLACIAN:
-            raise ParameterError(f"unknown variant {self.variant!r}; choose one of {', '.join(_LAPLACIAN)}")
         return segmenter_spec(self._kmax() + 1, self.weighting, _LAPLACIAN[self.variant])
 
     @split_disconnected_clouds(constrained=False)

@@ -15,10 +15,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from shape_toolkit.api.interfaces import Segmenter
+from shape_toolkit.api.params import RANDOM_STATE
 from shape_toolkit.core.eigen import smallest_eigenpairs
 from shape_toolkit.core.graph import build_graph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.plugins._params import N_INIT, N_SEGMENTS, WEIGHTING
 from shape_toolkit.plugins.segmenters._common import check_n_segments, kmeans_labels, reports_constraints, row_normalize
 from shape_toolkit.results.labels import coerce_constraints
 from shape_toolkit.validation import seed_of
@@ -35,6 +37,13 @@ class SpectralLearning(Segmenter):
     """
 
     takes_constraints = True
+
+    parameter_constraints = {
+        "n_segments": N_SEGMENTS,
+        "weighting": WEIGHTING,
+        "n_init": N_INIT,
+        "random_state": RANDOM_STATE,
+    }
 
     def __init__(
         self,

@@ -14,7 +14,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from shape_toolkit.api.params import Param
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins._params import POSITIVE_INT
 from shape_toolkit.plugins.matching.dense.em_registration import EMRegistrationMatcher
 
 __all__ = ["EigvecAlignmentMatcher", "histogram_alignment"]
@@ -57,6 +59,12 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
     baseline as published: its own embedding and no orientation cue (it matches up to symmetry)."""
 
     presets: dict = {}
+    parameter_constraints = {
+        **{p: c for p, c in EMRegistrationMatcher.parameter_constraints.items()
+           if p in ("k", "outlier_weight", "n_neighbors", "max_iter", "tol", "threshold", "one_to_one",
+                    "fill_unmatched")},
+        "bins": Param(POSITIVE_INT, doc="histogram bins of the eigenvector alignment"),
+    }
 
     def __init__(
         self,

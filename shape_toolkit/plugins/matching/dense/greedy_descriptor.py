@@ -9,9 +9,11 @@ from __future__ import annotations
 import numpy as np
 
 from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.api.params import Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins._params import DESCRIPTOR, DESCRIPTOR_PARAMS, POSITIVE_INT
 from shape_toolkit.plugins.matching._common import UsesDescriptor, check_descriptors, check_seeds
 from shape_toolkit.results.correspondence import Correspondence, nearest_neighbors
 
@@ -24,6 +26,14 @@ class GreedyDescriptorMatcher(UsesDescriptor, DenseMatcher):
     passes descriptors. ``log_scale`` compares log descriptors (heat values span decades).
     ``one_to_one``: greedy global assignment over the ``candidates`` nearest targets of each
     source vertex, most similar pairs first (leaves some vertices unmatched)."""
+
+    parameter_constraints = {
+        "descriptor": DESCRIPTOR,
+        "descriptor_params": DESCRIPTOR_PARAMS,
+        "log_scale": Param(bool, doc="compare log descriptors"),
+        "one_to_one": Param(bool, doc="greedy one-to-one assignment"),
+        "candidates": Param(POSITIVE_INT, doc="nearest targets considered per source vertex (one_to_one)"),
+    }
 
     def __init__(
         self,
