@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from shape_toolkit.api.params import Interval, ListOf, Options, Param, PluginRef
+from shape_toolkit.api.params import InstanceOf, Interval, ListOf, Options, Param, PluginRef
 from shape_toolkit.core.spectrum import LAPLACIANS
 
 #: the weighting plugin of the graph whose spectrum a plugin declares
@@ -32,9 +32,10 @@ ASSOCIATION = {
 }
 
 #: the descriptor a matcher computes on both shapes: a name, a {plugin, preset, params} table or an object
-DESCRIPTOR = Param(PluginRef("descriptors"), dict, doc="descriptor plugin computed on both shapes")
+TABLE = InstanceOf(dict, name="table")
+DESCRIPTOR = Param(PluginRef("descriptors"), TABLE, doc="descriptor plugin computed on both shapes")
 #: parameters of a descriptor given by name
-DESCRIPTOR_PARAMS = Param(None, dict, doc="parameters of the descriptor given by name")
+DESCRIPTOR_PARAMS = Param(None, TABLE, doc="parameters of the descriptor given by name")
 #: which side of a symmetric shape a map keeps
 ORIENTATION = Param(Options("preserving", "reversing", "none"), doc="orientation the map keeps (meshes)")
 
