@@ -327,7 +327,7 @@ def test_build_graph_and_registry_refuse_names_that_are_not_strings():
 def test_spectral_clustering_variant_table_is_a_typed_error():
     from shape_toolkit.api.registry import create_plugin
 
-    with pytest.raises(ParameterError, match="variant must be 'ng', 'unnormalized', 'random-walk', 'commute-time'"):
+    with pytest.raises(ParameterError, match="variant must be one of 'ng', 'unnormalized', 'random-walk', 'commute"):
         create_plugin("segmenters", "spectral-clustering", n_segments=3, variant={"a": 1}).segment(icosphere(1))
 
 

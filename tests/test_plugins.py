@@ -211,12 +211,13 @@ def test_parameter_constraints_accept_describe_and_refuse_in_one_line():
     assert times.accepts([1.0, 2]) and times.accepts(np.array([0.5])) and not times.accepts([]) and not times.accepts(
         [1.0, -1.0])
     bw = Param(None, Options("auto", "mean"), Interval(float, 0, None, closed="neither"), doc="bandwidth")
-    assert bw.type_name == "str | float | None" and bw.describe() == "None, 'auto', 'mean' or a positive float"
+    assert bw.type_name == "str | float | None" and bw.describe() == "None, one of 'auto', 'mean' or a positive float"
     assert bw.accepts(None) and bw.accepts("auto") and bw.accepts(0.3) and not bw.accepts("local")
     assert RANDOM_STATE.accepts(0) and RANDOM_STATE.accepts(np.random.default_rng(0)) and not RANDOM_STATE.accepts(-1)
     with pytest.raises(ParameterError) as err:
         validate_params("GaussianWeighting", {"bandwidth": bw}, {"bandwidth": -1})
-    assert str(err.value) == "GaussianWeighting: bandwidth must be None, 'auto', 'mean' or a positive float, got -1"
+    assert str(err.value) == (
+        "GaussianWeighting: bandwidth must be None, one of 'auto', 'mean' or a positive float, got -1")
     # at use, not in __init__ (scikit-learn's clone contract): construction stores anything
     from sklearn.base import clone
 
@@ -233,7 +234,7 @@ def test_plugins_show_prints_type_range_and_description(capsys):
 
     assert main(["plugins", "show", "gaussian"]) == 0
     out = capsys.readouterr().out
-    assert ("bandwidth = None  [str | float | None] None, 'auto', 'local', 'mean' or a positive float: sigma in "
+    assert ("bandwidth = None  [str | float | None] None, one of 'auto', 'local', 'mean' or a positive float: sigma in "
             "length units") in out
     assert "bandwidth_scale = 1.0  [float] a positive float: factor on the automatic bandwidths" in out
     assert main(["plugins", "show", "csc", "--json"]) == 0

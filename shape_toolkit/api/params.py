@@ -113,7 +113,7 @@ class Options(Constraint):
         return any(type(value) is type(v) and value == v for v in self.values)
 
     def describe(self) -> str:
-        return ", ".join(repr(v) for v in self.values)
+        return repr(self.values[0]) if len(self.values) == 1 else f"one of {', '.join(repr(v) for v in self.values)}"
 
 
 class InstanceOf(Constraint):

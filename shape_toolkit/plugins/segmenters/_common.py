@@ -592,7 +592,7 @@ def reports_constraints(segment: Callable) -> Callable:
             warnings.warn(
                 f"{type(self).__name__} broke {rep['must_link_broken']} of {rep['must_link']} must-links and "
                 f"{rep['cannot_link_broken']} of {rep['cannot_link']} cannot-links: {rep['reason']}",
-                ConstraintWarning, stacklevel=2,
+                ConstraintWarning, stacklevel=3,  # the caller of segment (past BasePlugin's parameter check)
             )
         return labels
 
