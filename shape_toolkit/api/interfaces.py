@@ -7,7 +7,6 @@ A plugin may subclass these bases (recommended) or simply provide the same metho
 
 from __future__ import annotations
 
-import functools
 import inspect
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
@@ -17,7 +16,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.api.params import Param, validate_params
+from shape_toolkit.api.params import Param, check_before, validate_params
 from shape_toolkit.errors import ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -42,10 +41,7 @@ class BasePlugin:
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        for name in cls._validated_methods:  # also methods a mixin provides
-            fn = getattr(cls, name, None)
-            if callable(fn) and not getattr(fn, "__isabstractmethod__", False) and not hasattr(fn, "_validates"):
-                setattr(cls, name, _validating(fn))
+        check_before(cls, cls._validated_methods)
 
     def _validate_params(self) -> None:
         """Check the current parameter values against :attr:`parameter_constraints` (raises
@@ -126,18 +122,6 @@ class BasePlugin:
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params(deep=False).items())
         return f"{type(self).__name__}({args})"
-
-
-def _validating(fn: Any) -> Any:
-    """``fn`` preceded by the parameter check (scikit-learn validates at fit, not in ``__init__``)."""
-
-    @functools.wraps(fn)
-    def wrapper(self: BasePlugin, *args: Any, **kwargs: Any) -> Any:
-        self._validate_params()
-        return fn(self, *args, **kwargs)
-
-    wrapper._validates = True  # type: ignore[attr-defined]
-    return wrapper
 
 
 @dataclass

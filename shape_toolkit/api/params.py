@@ -18,6 +18,7 @@ the shape, stay as code in the plugin.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -28,7 +29,7 @@ from shape_toolkit.errors import ParameterError
 
 __all__ = [
     "Constraint", "Interval", "Options", "InstanceOf", "ListOf", "PluginRef", "Param", "RANDOM_STATE",
-    "validate_params",
+    "validate_params", "check_before",
 ]
 
 
@@ -225,3 +226,22 @@ def validate_params(owner: str, constraints: Mapping[str, Param], values: Mappin
     for name, param in constraints.items():
         if name in values and not param.accepts(values[name]):
             raise ParameterError(f"{owner}: {name} must be {param.describe()}, got {_shown(values[name])}")
+
+
+def _checked(fn: Callable) -> Callable:
+    @functools.wraps(fn)
+    def wrapper(self: Any, *args: Any, **kwargs: Any) -> Any:
+        self._validate_params()
+        return fn(self, *args, **kwargs)
+
+    wrapper._validates = True  # type: ignore[attr-defined]
+    return wrapper
+
+
+def check_before(cls: type, methods: tuple[str, ...]) -> None:
+    """Make each of ``methods`` of ``cls`` (its own or a mixin's; abstract ones aside) call
+    ``self._validate_params()`` first: checked at use, as scikit-learn checks at ``fit``, never in ``__init__``."""
+    for name in methods:
+        fn = getattr(cls, name, None)
+        if callable(fn) and not getattr(fn, "__isabstractmethod__", False) and not hasattr(fn, "_validates"):
+            setattr(cls, name, _checked(fn))
