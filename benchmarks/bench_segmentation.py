@@ -51,11 +51,7 @@ art = articulated_shape(subdivisions={sub})
 shape = art.shape
 cons = draw_constraints(art.labels, shape.edges, random_state=0)
 _ = shape.edges, shape.face_areas
-from shape_toolkit.api.registry import available_plugins, get_registry
-import importlib
-for _name, _mod in (("ncut", "ncut"), ("seeded-walk", "seeded_walk")):  # older installed metadata
-    if not get_registry().has("segmenters", _name):
-        get_registry().register(importlib.import_module("shape_toolkit.plugins.segmenters." + _mod), name="b-" + _name)
+from shape_toolkit.api.registry import available_plugins
 available_plugins()  # load every plugin module (sklearn, igl imports) before timing
 import shape_toolkit.plugins.segmenters.csc, shape_toolkit.plugins.segmenters.eigvec_gmm  # noqa: E401
 import shape_toolkit.plugins.segmenters.sdf, shape_toolkit.plugins.segmenters.ncut  # noqa: E401

@@ -123,20 +123,13 @@ CATEGORIES = ["human", "cup", "glasses", "airplane", "ant", "chair", "octopus", 
 PUBLISHED = "human 0.103, RandCuts 0.152, NormCuts 0.172, ShapeDiam 0.175, KMeans about 0.25"
 
 
-#: segmenters added after the installed metadata of an older editable install: registered through their
-#: hook modules when their entry points are missing (``pip install -e .`` makes this a no-op)
-BUILTINS = {"ncut": "shape_toolkit.plugins.segmenters.ncut",
-            "seeded-walk": "shape_toolkit.plugins.segmenters.seeded_walk"}
-
-
 def ensure_builtins() -> None:
-    """Make every segmenter of :data:`METHODS` available (see :data:`BUILTINS`)."""
-    import importlib
-
+    """Every segmenter of :data:`METHODS` comes through its entry point; stale installed metadata (an
+    editable install older than pyproject.toml) is named here rather than deep in a run."""
     reg = get_registry()
-    for name, module in BUILTINS.items():
-        if not reg.has("segmenters", name):
-            reg.register(importlib.import_module(module), name=f"builtin-{name}")
+    missing = [name for name in ("ncut", "seeded-walk") if not reg.has("segmenters", name)]
+    if missing:
+        raise RuntimeError(f"segmenters {missing} are not installed: reinstall (pip install -e .)")
 
 
 def machine() -> dict:

@@ -4,7 +4,6 @@ The data flow: file -> :class:`Shape` -> :class:`ShapeGraph` -> :class:`Spectrum
 heat kernels, descriptors, keypoints -> matchers and segmenters -> metrics -> benchmarks.
 """
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.registry import available_plugins, create_plugin, get_plugin, get_registry
 from shape_toolkit.core.graph import ShapeGraph
 from shape_toolkit.core.shape import Shape
@@ -33,7 +32,6 @@ __all__ = [
     "build_graph",
     "compute_spectrum",
     "laplacian_matrix",
-    "hookimpl",
     "get_registry",
     "get_plugin",
     "create_plugin",

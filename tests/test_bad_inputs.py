@@ -327,7 +327,7 @@ def test_build_graph_and_registry_refuse_names_that_are_not_strings():
 def test_spectral_clustering_variant_table_is_a_typed_error():
     from shape_toolkit.api.registry import create_plugin
 
-    with pytest.raises(ParameterError, match="unknown variant"):
+    with pytest.raises(ParameterError, match="variant must be one of 'ng', 'unnormalized', 'random-walk', 'commute"):
         create_plugin("segmenters", "spectral-clustering", n_segments=3, variant={"a": 1}).segment(icosphere(1))
 
 
@@ -337,12 +337,12 @@ def test_param_names_are_checked_before_any_work(capsys, mesh_file):
 
 
 @pytest.mark.parametrize(("family", "name", "params", "needle"), [
-    ("dense_matchers", "fmap-zoomout", {"descriptor_params": [1, 2]}, "descriptor_params must be a table"),
+    ("dense_matchers", "fmap-zoomout", {"descriptor_params": [1, 2]}, "descriptor_params must be None or a table"),
     ("dense_matchers", "fmap-zoomout", {"descriptor_params": {"a": 1}}, "take n_energies and variance"),
     ("dense_matchers", "fmap-zoomout", {"zoomout_samples": {"a": 1}}, "zoomout_samples must be None or a positive"),
-    ("dense_matchers", "greedy-descriptor", {"descriptor_params": "zzz"}, "descriptor_params must be a table"),
-    ("descriptors", "hks", {"times": {"a": 1}}, "diffusion times must be a number"),
-    ("descriptors", "hks", {"times": "zzz"}, "diffusion times must be a number"),
+    ("dense_matchers", "greedy-descriptor", {"descriptor_params": "zzz"}, "descriptor_params must be None or a table"),
+    ("descriptors", "hks", {"times": {"a": 1}}, "times must be None, a positive float or a list"),
+    ("descriptors", "hks", {"times": "zzz"}, "times must be None, a positive float or a list"),
 ])
 def test_plugin_parameters_of_the_wrong_kind_are_typed_errors(family, name, params, needle):
     """The same kind of --param value on transfer-labels (matchers) and describe: internal errors before."""

@@ -8,7 +8,6 @@ import textwrap
 import numpy as np
 import pytest
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.api.registry import get_registry
 from shape_toolkit.bench import read_rows, run_benchmark
@@ -129,18 +128,12 @@ class _Flaky(Segmenter):
         return Segmentation(np.zeros(shape.n_vertices, dtype=np.int64))
 
 
-class _FlakyPlugin:
-    @hookimpl
-    def toolkit_segmenters(self):
-        return {"flaky-test": _Flaky}
-
-
 @pytest.fixture
 def flaky():
     reg = get_registry()
-    reg.register(_FlakyPlugin(), name="flaky-test")
+    reg.register("segmenters", "flaky-test", _Flaky)
     yield
-    reg.unregister("flaky-test")
+    reg.unregister("segmenters", "flaky-test")
 
 
 def test_failed_rows_are_recorded_and_run_goes_on(config_path, tmp_path, flaky, capsys):

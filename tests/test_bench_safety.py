@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Segmenter
 from shape_toolkit.api.registry import get_registry
 from shape_toolkit.bench import load_config, read_rows, run_benchmark, write_report
@@ -212,19 +211,13 @@ class _Recorder(Segmenter):
         return Segmentation(np.zeros(shape.n_vertices, dtype=np.int64))
 
 
-class _RecorderPlugin:
-    @hookimpl
-    def toolkit_segmenters(self):
-        return {"spectrum-recorder-test": _Recorder}
-
-
 @pytest.fixture
 def recorder():
     reg = get_registry()
-    reg.register(_RecorderPlugin(), name="spectrum-recorder-test")
+    reg.register("segmenters", "spectrum-recorder-test", _Recorder)
     RECEIVED.clear()
     yield
-    reg.unregister("spectrum-recorder-test")
+    reg.unregister("segmenters", "spectrum-recorder-test")
 
 
 def test_row_records_the_spectrum_the_method_received(tmp_path, recorder):
@@ -269,15 +262,9 @@ class _TwoKinds(_Recorder):
         return Segmentation(np.zeros(shape.n_vertices, dtype=np.int64))
 
 
-class _TwoKindsPlugin:
-    @hookimpl
-    def toolkit_segmenters(self):
-        return {"two-kinds-test": _TwoKinds}
-
-
 def test_a_method_declaring_two_kinds_receives_both(tmp_path):
     reg = get_registry()
-    reg.register(_TwoKindsPlugin(), name="two-kinds-test")
+    reg.register("segmenters", "two-kinds-test", _TwoKinds)
     RECEIVED.clear()
     try:
         text = CONFIG.replace(
@@ -292,7 +279,7 @@ def test_a_method_declaring_two_kinds_receives_both(tmp_path):
         assert isinstance(given, list) and {g.weighting for g in given} == {"gaussian", "binary"}
         assert sorted(r["weighting"] for r in rows[0]["spectra"]) == ["binary", "gaussian"]
     finally:
-        reg.unregister("two-kinds-test")
+        reg.unregister("segmenters", "two-kinds-test")
 
 
 @pytest.mark.parametrize("address", ["notaurl", "tcp://127.0.0.1:abc", "tcp://127.0.0.1:99999", "http://x:1",

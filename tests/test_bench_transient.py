@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.registry import get_registry
 from shape_toolkit.bench import read_rows
 from shape_toolkit.cli import main
@@ -52,18 +51,12 @@ class _Flaky:
         return Segmentation(np.zeros(shape.n_vertices, dtype=np.int64))
 
 
-class _FlakyPlugin:
-    @hookimpl
-    def toolkit_segmenters(self):
-        return {"flaky-write-test": _Flaky}
-
-
 @pytest.fixture
 def flaky():
     reg = get_registry()
-    reg.register(_FlakyPlugin(), name="flaky-write-test")
+    reg.register("segmenters", "flaky-write-test", _Flaky)
     yield
-    reg.unregister("flaky-write-test")
+    reg.unregister("segmenters", "flaky-write-test")
     FAULT["on"] = False
 
 

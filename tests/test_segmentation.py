@@ -351,7 +351,7 @@ def test_cli_segment_and_evaluate(small_case, capsys, monkeypatch):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["segment", "body.off", "--method", "csc", "-k", "1", "--json"], "n_segments must be >= 2"),
+        (["segment", "body.off", "--method", "csc", "-k", "1", "--json"], "n_segments must be None or an int >= 2"),
         (["segment", "body.off", "--method", "nope", "-k", "3"], "unknown segmenters plugin"),
         (["segment", "body.off", "--method", "csc", "-k", "3", "--constraints", "bad.json"], "out of range"),
         (["evaluate-segmentation", "body.off", "short.txt", "--truth", "truth.seg"],
@@ -373,7 +373,8 @@ def test_cli_error_exit_in_a_subprocess(small_case):
     d, _ = small_case
     r = _cli("segment", "body.off", "--method", "eigvec-gmm", "-k", "1", cwd=d)
     assert r.returncode == 2 and r.stdout == ""
-    assert r.stderr.strip() == "shape-toolkit segment: error: n_segments must be >= 2, got 1"
+    assert r.stderr.strip() == (
+        "shape-toolkit segment: error: EigvecGMMSegmenter: n_segments must be None or an int >= 2, got 1")
     r = _cli("segment", "body.off", "--method", "eigvec-gmm", "-k", "0", cwd=d)  # caught by the parser
     assert r.returncode == 2 and r.stdout == "" and len(r.stderr.strip().splitlines()) == 1
     assert "positive integer, got 0" in r.stderr

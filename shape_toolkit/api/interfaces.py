@@ -16,6 +16,7 @@ from typing import Any, ClassVar, Protocol, TypeAlias
 import numpy as np
 import scipy.sparse as sp
 
+from shape_toolkit.api.params import Param, check_before, validate_params
 from shape_toolkit.errors import ParameterError
 
 # This layer names no type of the layers above it, not even for type checkers (no type-only import
@@ -74,6 +75,20 @@ class BasePlugin:
     family: ClassVar[str] = ""
     #: named parameter sets, e.g. {"sparse": {...}, "dense": {...}}
     presets: ClassVar[dict[str, dict[str, Any]]] = {}
+    #: per constructor parameter: accepted values and a one-line description (:mod:`shape_toolkit.api.params`)
+    parameter_constraints: ClassVar[dict[str, Param]] = {}
+    #: methods that check the parameters first (the family's work method and ``spectrum_spec``)
+    _validated_methods: ClassVar[tuple[str, ...]] = ("spectrum_spec",)
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        check_before(cls, cls._validated_methods)
+
+    def _validate_params(self) -> None:
+        """Check the current parameter values against :attr:`parameter_constraints` (raises
+        :class:`ParameterError`); done before the family method and ``spectrum_spec`` run."""
+        declared = self.parameter_constraints
+        validate_params(type(self).__name__, declared, {n: getattr(self, n) for n in declared if hasattr(self, n)})
 
     @classmethod
     def _param_names(cls) -> list[str]:
@@ -163,6 +178,7 @@ class Weighting(BasePlugin, ABC):
     """Edge-weighting scheme of a shape graph (thesis 3.3.3)."""
 
     family = "weightings"
+    _validated_methods = ("weigh", "spectrum_spec")
     #: True when the scheme ignores the given edges and needs triangles (e.g. cotangent)
     needs_faces: ClassVar[bool] = False
     #: the weighting (registry name) a spectrum declared with this one uses on a point cloud, if it needs faces
@@ -179,6 +195,7 @@ class KeypointDetector(BasePlugin, ABC):
     """Detects sparse, repeatable vertices."""
 
     family = "keypoints"
+    _validated_methods = ("detect", "spectrum_spec")
 
     @abstractmethod
     def detect(self, shape: Shape, *, spectrum: Spectrum | None = None) -> np.ndarray:
@@ -189,6 +206,7 @@ class Descriptor(BasePlugin, ABC):
     """Per-vertex feature vectors."""
 
     family = "descriptors"
+    _validated_methods = ("compute", "spectrum_spec")
 
     @abstractmethod
     def compute(
@@ -205,6 +223,7 @@ class SparseMatcher(BasePlugin, ABC):
     """One-to-one matching of the keypoints of two shapes."""
 
     family = "sparse_matchers"
+    _validated_methods = ("match", "spectrum_spec")
 
     @abstractmethod
     def match(
@@ -227,6 +246,7 @@ class DenseMatcher(BasePlugin, ABC):
     pipeline passes them all; they are declared here, not discovered)."""
 
     family = "dense_matchers"
+    _validated_methods = ("match", "spectrum_spec")
 
     @abstractmethod
     def match(
@@ -257,6 +277,7 @@ class Segmenter(BasePlugin, ABC):
     :class:`ParameterError` (:meth:`check_constraints`) instead of ignoring them silently."""
 
     family = "segmenters"
+    _validated_methods = ("segment", "spectrum_spec")
     #: whether :meth:`segment` uses its ``constraints``; False: they are refused
     takes_constraints: ClassVar[bool] = False
 

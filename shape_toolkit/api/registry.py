@@ -1,104 +1,75 @@
 """Plugin discovery through entry points, lazily, and lookup by ``(family, name)``.
 
-Each family has its own entry-point group, ``shape_toolkit.<family>`` (for example
-``shape_toolkit.dense_matchers``). An entry point's name *is* the plugin's registry name; its value
-is either a module implementing the family's pluggy hook (what the built-ins use) or a class::
+One plugin is one class and one entry-point line naming it. Each family has its own group,
+``shape_toolkit.<family>`` (for example ``shape_toolkit.dense_matchers``); an entry point's name *is* the
+plugin's registry name and its value the class::
 
     [project.entry-points."shape_toolkit.weightings"]
-    inverse-length = "my_package.weights"                 # a module with @hookimpl toolkit_weightings
-    [project.entry-points."shape_toolkit.descriptors"]
-    my-descriptor = "my_package.desc:MyDescriptor"        # or the class itself
+    inverse-length = "my_package.weights:InverseLength"
 
-Listing reads entry-point metadata only; nothing is imported until a plugin is used, and then
-only its own module. The older single group ``toolkit`` (a module per entry point, any family,
-found through its hooks) keeps working: those modules are imported when a full table is needed.
+Listing reads entry-point metadata only; nothing is imported until a plugin is used, and then only its
+own module. Classes can also be registered in-process (:meth:`Registry.register`: tests, notebooks).
 """
 
 from __future__ import annotations
 
 import importlib.metadata
-import types
-import warnings
+import inspect
 from typing import Any
 
-import pluggy
-
-from shape_toolkit.api.hookspecs import (
-    ENTRY_POINT_GROUP,
-    FAMILY_GROUPS,
-    FAMILY_HOOKS,
-    PROJECT,
-    ToolkitHookSpecs,
-)
 from shape_toolkit.api.interfaces import FAMILY_INTERFACES, BasePlugin
 from shape_toolkit.errors import ParameterError, PluginError
 
 __all__ = [
-    "Registry", "get_registry", "get_plugin", "create_plugin", "available_plugins", "plugins_taking_constraints",
+    "FAMILY_GROUPS", "Registry", "get_registry", "get_plugin", "create_plugin", "create_seeded", "available_plugins",
+    "plugins_taking_constraints",
 ]
+
+#: family name -> entry-point group whose names are that family's plugin names
+FAMILY_GROUPS: dict[str, str] = {family: f"shape_toolkit.{family}" for family in FAMILY_INTERFACES}
+
+
+def _class_path(cls: type) -> str:
+    return f"{cls.__module__}:{cls.__qualname__}"
 
 
 class Registry:
-    """Entry-point names per family (read without importing), a pluggy plugin manager for hook
-    modules, and the ``(family, name) -> class`` table filled as plugins are used."""
+    """Entry-point names per family (read without importing) and the ``(family, name) -> class`` table,
+    filled as plugins are used or registered."""
 
     def __init__(self, load_entry_points: bool = True):
-        self.pm = pluggy.PluginManager(PROJECT)
-        self.pm.add_hookspecs(ToolkitHookSpecs)
         self.broken: dict[str, str] = {}
-        self._entry_points: dict[str, dict[str, importlib.metadata.EntryPoint]] = {f: {} for f in FAMILY_HOOKS}
-        self._legacy: list[importlib.metadata.EntryPoint] = []
-        self._classes: dict[str, dict[str, type]] = {f: {} for f in FAMILY_HOOKS}
-        self._hooks_read = False
+        self._entry_points: dict[str, dict[str, importlib.metadata.EntryPoint]] = {f: {} for f in FAMILY_GROUPS}
+        self._classes: dict[str, dict[str, type]] = {f: {} for f in FAMILY_GROUPS}
         if load_entry_points:
             for family, group in FAMILY_GROUPS.items():
                 for ep in importlib.metadata.entry_points(group=group):
                     self._entry_points[family].setdefault(ep.name, ep)
-            self._legacy = list(importlib.metadata.entry_points(group=ENTRY_POINT_GROUP))
 
     # -- registration -------------------------------------------------------------------------
-    def register(self, plugin: object, name: str | None = None) -> None:
-        """Register a module or object implementing the family hooks (tests, notebooks)."""
-        self.pm.register(plugin, name=name)
-        self._add_hook_classes(plugin, name or repr(plugin))
+    def register(self, family: str, name: str, cls: type) -> None:
+        """Register ``cls`` as the ``family`` plugin ``name`` in this process (tests, notebooks); a name an
+        entry point already gives another class is refused."""
+        self._check_family(family)
+        self._add_class(family, name, cls, _class_path(cls) if isinstance(cls, type) else repr(cls))
 
-    def unregister(self, name: str) -> None:
-        """Forget the plugin object registered as ``name`` and every class it provided."""
-        plugin = self.pm.unregister(name=name)
-        for table in self._classes.values():
-            for key in [k for k, cls in table.items() if getattr(cls, "_toolkit_provider", None) == name]:
-                del table[key]
-        del plugin
+    def unregister(self, family: str, name: str) -> None:
+        """Forget the class registered (or loaded) as ``name`` in ``family``."""
+        self._classes[family].pop(name, None)
 
-    def _add_hook_classes(self, plugin: object, origin: str, only: tuple[str, str] | None = None) -> None:
-        for family, hook in FAMILY_HOOKS.items():
-            if only is not None and family != only[0]:
-                continue
-            fn = getattr(plugin, hook, None)
-            if fn is None:
-                continue
-            for pname, cls in (fn() or {}).items():
-                if only is not None and pname != only[1]:
-                    continue
-                self._add_class(family, pname, cls, origin)
-
-    def _add_class(self, family: str, name: str, cls: type, origin: str) -> None:
+    def _add_class(self, family: str, name: str, cls: Any, origin: str) -> None:
         base, method = FAMILY_INTERFACES[family]
-        if not callable(getattr(cls, method, None)):
+        if not isinstance(cls, type) or not callable(getattr(cls, method, None)):
             raise PluginError(
                 f"plugin {origin!r} offers {family} {name!r} without a {method}() method "
                 f"(see {base.__module__}.{base.__name__})"
             )
         known = self._classes[family].get(name)
         if known is not None and known is not cls:
-            raise PluginError(f"two plugins register {family} {name!r}: {known.__module__} and {cls.__module__}")
+            raise PluginError(f"two plugins register {family} {name!r}: {_class_path(known)} and {origin}")
         ep = self._entry_points[family].get(name)
         if known is None and ep is not None and origin != ep.value:
-            raise PluginError(f"two plugins register {family} {name!r}: {ep.value} and {cls.__module__}")
-        try:
-            cls._toolkit_provider = origin
-        except (AttributeError, TypeError):  # pragma: no cover - exotic class objects
-            pass
+            raise PluginError(f"two plugins register {family} {name!r}: {ep.value} and {origin}")
         self._classes[family][name] = cls
 
     def _load_entry_point(self, family: str, name: str) -> None:
@@ -113,56 +84,31 @@ class Registry:
         except Exception as exc:  # a broken third-party plugin must not break the rest
             self.broken[name] = f"{type(exc).__name__}: {exc}"
             raise PluginError(f"{family} plugin {name!r} failed to load: {type(exc).__name__}: {exc}") from None
-        if isinstance(obj, types.ModuleType):
-            if not self.pm.is_registered(obj):
-                self.pm.register(obj, name=f"{family}:{name}")
-            self._add_hook_classes(obj, ep.value, only=(family, name))
-            if name not in self._classes[family]:
-                raise PluginError(
-                    f"entry point {name!r} of group {ep.group!r} names module {ep.value!r}, whose "
-                    f"{FAMILY_HOOKS[family]}() hook does not offer {name!r}"
-                )
-        else:
-            self._add_class(family, name, obj, ep.value)
-
-    def _read_legacy_hooks(self) -> None:
-        """Import the modules of the older ``toolkit`` group and read every hook once."""
-        if self._hooks_read:
-            return
-        self._hooks_read = True
-        for ep in self._legacy:
-            if self.pm.get_plugin(ep.name) is not None or self.pm.is_blocked(ep.name):
-                continue
-            try:
-                module = ep.load()
-            except Exception as exc:  # a broken third-party plugin must not break the rest
-                self.broken[ep.name] = f"{type(exc).__name__}: {exc}"
-                warnings.warn(f"shape_toolkit plugin {ep.name!r} failed to load: {exc}", stacklevel=3)
-                continue
-            if not self.pm.is_registered(module):
-                self.pm.register(module, name=ep.name)
-                self._add_hook_classes(module, ep.name)
+        if not isinstance(obj, type):
+            raise PluginError(
+                f"entry point {name!r} of group {ep.group!r} names {ep.value!r}, not a class: write "
+                f"'package.module:Class' (installed metadata older than the package? reinstall it)"
+            )
+        self._add_class(family, name, obj, ep.value)
 
     # -- lookup -------------------------------------------------------------------------------
     def names(self, family: str) -> list[str]:
-        """Sorted plugin names of ``family``, without importing any lazily declared plugin."""
+        """Sorted plugin names of ``family``, without importing any plugin."""
         self._check_family(family)
-        if self._legacy:
-            self._read_legacy_hooks()
         return sorted(set(self._entry_points[family]) | set(self._classes[family]))
 
     def families(self) -> dict[str, list[str]]:
         """``{family: sorted names}`` for every family (empty lists allowed)."""
-        return {fam: self.names(fam) for fam in FAMILY_HOOKS}
+        return {fam: self.names(fam) for fam in FAMILY_GROUPS}
 
     def entry_point(self, family: str, name: str) -> str | None:
-        """The ``module[:attr]`` an entry point declares for ``(family, name)``, without importing it."""
+        """The ``module:Class`` an entry point declares for ``(family, name)``, without importing it."""
         ep = self._entry_points.get(family, {}).get(name)
         return None if ep is None else ep.value
 
     def _check_family(self, family: str) -> None:
-        if family not in FAMILY_HOOKS:
-            raise PluginError(f"unknown plugin family {family!r}; families: {sorted(FAMILY_HOOKS)}")
+        if family not in FAMILY_GROUPS:
+            raise PluginError(f"unknown plugin family {family!r}; families: {sorted(FAMILY_GROUPS)}")
 
     def has(self, family: str, name: str) -> bool:
         """Whether ``name`` is a plugin of ``family`` (reads metadata; imports nothing new)."""
@@ -176,8 +122,6 @@ class Registry:
             raise PluginError(f"a {family} plugin is named by a string, got {type(name).__name__} {shown}")
         if name not in self._classes[family] and name in self._entry_points[family]:
             self._load_entry_point(family, name)
-        if name not in self._classes[family]:
-            self._read_legacy_hooks()
         try:
             return self._classes[family][name]
         except KeyError:
@@ -230,6 +174,16 @@ def get_plugin(family: str, name: str) -> type:
 def create_plugin(family: str, name: str, preset: str | None = None, **params: Any) -> Any:
     """Shortcut for ``get_registry().create(family, name, preset, **params)``."""
     return get_registry().create(family, name, preset, **params)
+
+
+def create_seeded(family: str, name: str, preset: str | None, seed: Any, **params: Any) -> Any:
+    """:func:`create_plugin` with ``random_state=seed`` passed only to a plugin that takes it, unless ``params``
+    give one: a seed for a whole run or command line, harmless for deterministic plugins (None: no seed)."""
+    cls = get_registry().get(family, name)
+    names = cls._param_names() if issubclass(cls, BasePlugin) else list(inspect.signature(cls).parameters)
+    if seed is not None and "random_state" in names and "random_state" not in params:
+        params["random_state"] = seed
+    return create_plugin(family, name, preset, **params)
 
 
 def plugins_taking_constraints() -> list[str]:

@@ -1,5 +1,6 @@
 """``shape-toolkit plugins list [--json]`` (every family, plus the matching pipelines) and
-``shape-toolkit plugins show NAME`` (parameters, defaults, presets, declared spectrum)."""
+``shape-toolkit plugins show NAME`` (parameters with defaults, types, allowed values and descriptions from the
+class's ``parameter_constraints``; presets; declared spectrum)."""
 
 from __future__ import annotations
 
@@ -50,13 +51,18 @@ def plugin_info(family: str, name: str) -> dict[str, Any]:
     the spectrum it declares with its default parameters (None when it needs none)."""
     reg = get_registry()
     cls = reg.get(family, name)
+    declared = getattr(cls, "parameter_constraints", None) or {}
     params = []
     for par in list(inspect.signature(cls.__init__).parameters.values())[1:]:
         if par.kind in (par.VAR_POSITIONAL, par.VAR_KEYWORD):
             continue
+        decl = declared.get(par.name)
         params.append({"name": par.name,
                        "default": None if par.default is par.empty else jsonable(par.default),
-                       "required": par.default is par.empty})
+                       "required": par.default is par.empty,
+                       "type": decl.type_name if decl else None,
+                       "allowed": decl.describe() if decl else None,
+                       "doc": decl.doc if decl else None})
     spectra: Any = None
     try:
         spectra = [s.to_dict() for s in cls().spectrum_specs()] if hasattr(cls, "spectrum_specs") else []
@@ -122,7 +128,10 @@ def show_cmd(args: argparse.Namespace) -> int:
             print(f"  class: {info['class']}{ep}")
             print("  parameters:" if info["parameters"] else "  parameters: none")
             for par in info["parameters"]:
-                print(f"    {par['name']} = {'(required)' if par['required'] else repr(par['default'])}")
+                line = f"    {par['name']} = {'(required)' if par['required'] else repr(par['default'])}"
+                if par["type"] is not None:  # declared: type, allowed values, one-line description
+                    line += f"  [{par['type']}] {par['allowed']}: {par['doc']}"
+                print(line)
             for pname, pvals in info["presets"].items():
                 print(f"  preset {pname}: {', '.join(f'{k}={v!r}' for k, v in pvals.items())}")
         sp = info["spectra"]

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from shape_toolkit.api.registry import create_plugin
+from shape_toolkit.api.registry import create_seeded
 from shape_toolkit.cli.commands._common import (
     add_ply,
     add_quiet,
@@ -71,9 +71,10 @@ def run(args: argparse.Namespace) -> int:
     shape = load_shape(args.shape)
     if args.n_segments is not None:
         params["n_segments"] = args.n_segments
-    if args.random_state is not None:
-        params["random_state"] = args.random_state
-    seg = create_plugin("segmenters", args.method, preset=args.preset, **params)
+    if args.random_state is not None:  # the flag wins over --param random_state=...
+        params.pop("random_state", None)
+    # the seed goes to the segmenters that have randomness (k-means, GMM), not to deterministic ones (ncut)
+    seg = create_seeded("segmenters", args.method, args.preset, args.random_state, **params)
     if args.constraints is not None and hasattr(seg, "accepts_constraints") and not seg.accepts_constraints():
         from shape_toolkit.api.registry import plugins_taking_constraints
 

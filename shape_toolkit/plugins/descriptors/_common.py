@@ -7,10 +7,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from shape_toolkit.api.params import Interval, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, null_count
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.scales import check_times, descriptor_times
+from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE_INT, TIMES, WEIGHTING
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 from shape_toolkit.validation import check_vertex_ids
 
@@ -18,12 +20,13 @@ from shape_toolkit.validation import check_vertex_ids
 DEFAULT_K = 25
 
 
+#: ``K`` of a spectral descriptor: None (the plugin's default) or a count of non-null eigenpairs
+K_PARAM = Param(None, POSITIVE_INT, doc="non-null eigenpairs used (None: the plugin's default)")
+
+
 def check_K(K: object, default: int) -> int:
-    """``K`` as a positive int (``default`` when None)."""
-    kk = default if K is None else K
-    if isinstance(kk, bool) or not isinstance(kk, (int, np.integer)) or kk < 1:
-        raise ParameterError(f"K must be a positive integer, got {kk!r}")
-    return int(kk)
+    """``K`` as an int (``default`` when None; the value is declared and checked as :data:`K_PARAM`)."""
+    return int(default if K is None else K)  # type: ignore[call-overload]
 
 
 def own_spectrum(plugin: object, shape: Shape, spectrum: Spectrum | None) -> Spectrum:
@@ -74,6 +77,15 @@ class KeypointHeatMixin:
     ``laplacian``)."""
 
     _who = "heat descriptor"
+    parameter_constraints = {
+        "times": Param(None, *TIMES, doc="diffusion times (None: n_times scales from the scree rule)"),
+        "n_times": Param(POSITIVE_INT, doc="number of times when times is None"),
+        "K": K_PARAM,
+        "alpha": Param(Interval(float, 0, 1, closed="neither"), doc="scree-rule level of the first time"),
+        "time_ratio": Param(Interval(float, 1, None, closed="neither"), doc="ratio of consecutive times"),
+        "weighting": WEIGHTING,
+        "laplacian": LAPLACIAN,
+    }
 
     def spectrum_spec(self) -> SpectrumSpec:
         """``2K + 1`` eigenpairs of the ``laplacian`` of the ``weighting`` graph (no mass)."""

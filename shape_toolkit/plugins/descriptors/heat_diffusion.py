@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
@@ -54,8 +53,3 @@ class HeatDiffusionDescriptor(KeypointHeatMixin, Descriptor):
         self_diff = heat_kernel_signature(spectrum, t, K=K)  # (n, tau)
         out = np.concatenate([H.transpose(1, 2, 0), self_diff[:, None, :]], axis=1)
         return out.reshape(shape.n_vertices, -1)
-
-
-@hookimpl
-def toolkit_descriptors() -> dict[str, type]:
-    return {"heat-diffusion": HeatDiffusionDescriptor}

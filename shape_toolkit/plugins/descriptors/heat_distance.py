@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
+from shape_toolkit.api.params import Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.features.heat import heat_distances
+from shape_toolkit.features.heat import NORMALIZATIONS, heat_distances
 from shape_toolkit.plugins.descriptors._common import KeypointHeatMixin
 
 
@@ -26,6 +26,10 @@ class HeatDistanceDescriptor(KeypointHeatMixin, Descriptor):
     """
 
     _who = "heat-distance"
+    parameter_constraints = {
+        **KeypointHeatMixin.parameter_constraints,
+        "normalization": Param(Options(*NORMALIZATIONS), doc="metric of the heat distances (eq. 6.43: unit-sphere)"),
+    }
 
     def __init__(
         self,
@@ -54,8 +58,3 @@ class HeatDistanceDescriptor(KeypointHeatMixin, Descriptor):
         spectrum, K, t, kp = self.inputs(shape, spectrum, keypoints)
         D = heat_distances(spectrum, t, kp, None, normalization=self.normalization, K=K)
         return np.ascontiguousarray(D.transpose(2, 1, 0)).reshape(shape.n_vertices, -1)
-
-
-@hookimpl
-def toolkit_descriptors() -> dict[str, type]:
-    return {"heat-distance": HeatDistanceDescriptor}

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
+from shape_toolkit.api.params import Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.features.heat import heat_kernel_signature
-from shape_toolkit.features.scales import check_times, default_times
-from shape_toolkit.plugins.descriptors._common import check_K, own_spectrum
+from shape_toolkit.features.scales import default_times
+from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE_INT, TIMES, WEIGHTING
+from shape_toolkit.plugins.descriptors._common import K_PARAM, check_K, own_spectrum
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 #: ``K`` of the spectral descriptors when not given
@@ -27,6 +28,16 @@ class HKSDescriptor(Descriptor):
     ``scale='trace'`` divides by the heat trace (scale-normalised HKS); ``log`` takes the log.
     Output ``(n, n_times)``; ``keypoints`` are ignored.
     """
+
+    parameter_constraints = {
+        "n_times": Param(POSITIVE_INT, doc="number of log-spaced times when times is None"),
+        "times": Param(None, *TIMES, doc="diffusion times (None: n_times spanning the spectrum)"),
+        "K": K_PARAM,
+        "scale": Param(Options("none", "trace"), doc="'trace': divide by the heat trace (scale-normalised HKS)"),
+        "log": Param(bool, doc="take the logarithm"),
+        "weighting": WEIGHTING,
+        "laplacian": LAPLACIAN,
+    }
 
     def __init__(
         self,
@@ -55,8 +66,6 @@ class HKSDescriptor(Descriptor):
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None
     ) -> np.ndarray:
         """HKS ``(n, T)`` float64 of ``shape``."""
-        if self.times is not None:
-            check_times(self.times)
         spectrum = own_spectrum(self, shape, spectrum)
         K = self.K  # None: every non-null eigenpair of the declared spectrum (K capped at n - 1)
         times = default_times(spectrum, self.n_times, K) if self.times is None else self.times
@@ -64,8 +73,3 @@ class HKSDescriptor(Descriptor):
         if self.log:
             out = np.log(np.maximum(out, np.finfo(float).tiny))
         return out
-
-
-@hookimpl
-def toolkit_descriptors() -> dict[str, type]:
-    return {"hks": HKSDescriptor}

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Descriptor
+from shape_toolkit.api.params import Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.basis import spectral_basis
-from shape_toolkit.plugins.descriptors._common import check_K, own_spectrum
+from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE, POSITIVE_INT, WEIGHTING
+from shape_toolkit.plugins.descriptors._common import K_PARAM, check_K, own_spectrum
 from shape_toolkit.plugins.descriptors.hks import DEFAULT_K
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
@@ -55,6 +56,14 @@ class WKSDescriptor(Descriptor):
     ``(n, n_energies)``.
     """
 
+    parameter_constraints = {
+        "n_energies": Param(POSITIVE_INT, doc="number of log-energies"),
+        "K": K_PARAM,
+        "variance": Param(POSITIVE, doc="width of the energy filters, in energy spacings"),
+        "weighting": WEIGHTING,
+        "laplacian": LAPLACIAN,
+    }
+
     def __init__(
         self,
         n_energies: int = 100,
@@ -78,15 +87,6 @@ class WKSDescriptor(Descriptor):
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None
     ) -> np.ndarray:
         """WKS ``(n, n_energies)`` float64 of ``shape``."""
-        if not isinstance(self.n_energies, (int, np.integer)) or self.n_energies < 1:
-            raise ParameterError(f"n_energies must be a positive integer, got {self.n_energies!r}")
-        if not self.variance > 0:
-            raise ParameterError(f"variance must be positive, got {self.variance!r}")
         spectrum = own_spectrum(self, shape, spectrum)
         vals, U = spectral_basis(spectrum, self.K)
         return wave_kernel_signature(vals, U, int(self.n_energies), float(self.variance))
-
-
-@hookimpl
-def toolkit_descriptors() -> dict[str, type]:
-    return {"wks": WKSDescriptor}

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import KeypointDetector
+from shape_toolkit.api.params import Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.basis import spectral_basis
 from shape_toolkit.features.geodesics import adjacency, ring_maxima
 from shape_toolkit.features.heat import heat_kernel_signature
-from shape_toolkit.features.scales import check_times
+from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE, POSITIVE_INT, WEIGHTING
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 #: what ``t`` is measured in (``time_scale``): the spectrum's own time scales, or absolute
@@ -48,6 +48,16 @@ class ADFMaxima(KeypointDetector):
         "thesis-dense": {"t": 50.0, "K": 50, "ring": 2, "time_scale": "absolute"},
     }
 
+    parameter_constraints = {
+        "t": Param(POSITIVE, doc="diffusion time, in the units time_scale says"),
+        "K": Param(POSITIVE_INT, doc="non-null eigenpairs of the ADF"),
+        "ring": Param(POSITIVE_INT, doc="a keypoint is the strict maximum of its ring-ring (mesh edges)"),
+        "max_keypoints": Param(None, POSITIVE_INT, doc="keep only the strongest maxima (None: all)"),
+        "weighting": WEIGHTING,
+        "laplacian": LAPLACIAN,
+        "time_scale": Param(Options(*TIME_SCALES), doc="unit of t: 1/lambda_1, 1/lambda_K or absolute"),
+    }
+
     def __init__(
         self,
         t: float = 1.0,
@@ -67,8 +77,6 @@ class ADFMaxima(KeypointDetector):
         self.time_scale = time_scale
 
     def _check_K(self) -> int:
-        if isinstance(self.K, bool) or not isinstance(self.K, (int, np.integer)) or self.K < 1:
-            raise ParameterError(f"K must be a positive integer, got {self.K!r}")
         return int(self.K)
 
     def spectrum_spec(self) -> SpectrumSpec:
@@ -77,14 +85,12 @@ class ADFMaxima(KeypointDetector):
 
     def adf(self, shape: Shape, *, spectrum: Spectrum | None = None) -> np.ndarray:
         """The auto-diffusion function ``(n,)`` this detector maximises."""
-        check_times(self.t)
+        self._validate_params()
         K = self._check_K()
         if K + 1 > shape.n_vertices:
             raise ParameterError(
                 f"K = {K} needs {K + 1} eigenpairs but the shape has {shape.n_vertices} vertices"
             )
-        if self.time_scale not in TIME_SCALES:
-            raise ParameterError(f"time_scale must be one of {', '.join(TIME_SCALES)}, got {self.time_scale!r}")
         spectrum = self._spectrum(shape, spectrum)
         return heat_kernel_signature(spectrum, self.time(spectrum), K=K)[:, 0]
 
@@ -97,12 +103,6 @@ class ADFMaxima(KeypointDetector):
 
     def detect(self, shape: Shape, *, spectrum: Spectrum | None = None) -> np.ndarray:
         """0-based int64 keypoint ids ``(p,)``, strongest first."""
-        if isinstance(self.ring, bool) or not isinstance(self.ring, (int, np.integer)) or self.ring < 1:
-            raise ParameterError(f"ring must be a positive integer, got {self.ring!r}")
-        if self.max_keypoints is not None and (
-            not isinstance(self.max_keypoints, (int, np.integer)) or self.max_keypoints < 1
-        ):
-            raise ParameterError(f"max_keypoints must be a positive integer, got {self.max_keypoints!r}")
         values = self.adf(shape, spectrum=spectrum)
         # relative tolerance: flat plateaus (values equal up to round-off) would otherwise
         # yield maxima decided by rounding noise
@@ -112,8 +112,3 @@ class ADFMaxima(KeypointDetector):
         if self.max_keypoints is not None:
             peaks = peaks[: int(self.max_keypoints)]
         return peaks
-
-
-@hookimpl
-def toolkit_keypoint_detectors() -> dict[str, type]:
-    return {"adf-maxima": ADFMaxima}

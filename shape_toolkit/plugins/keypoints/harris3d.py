@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import KeypointDetector
+from shape_toolkit.api.params import Interval, Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.geodesics import adjacency, k_ring_all, ring_maxima
+from shape_toolkit.plugins._params import POSITIVE, POSITIVE_INT
 
 _MIN_POINTS = 10  # enough points for a well-posed 6-parameter quadratic fit
 
@@ -66,6 +67,16 @@ class Harris3D(KeypointDetector):
         },
     }
 
+    parameter_constraints = {
+        "neighbourhood": Param(Options("adaptive", "rings"), doc="Euclidean radius within the mesh, or k-rings"),
+        "neighbourhood_param": Param(POSITIVE, doc="radius (x bounding-box diagonal), or the ring count for 'rings'"),
+        "k": Param(Interval(float), doc="Harris parameter of R = AB - C^2 - k (A + B)^2"),
+        "ring": Param(POSITIVE_INT, doc="candidates are strict maxima over their ring-ring"),
+        "selection": Param(Options("fraction", "clustering"), doc="keep the strongest fraction, or spread them"),
+        "selection_param": Param(POSITIVE, doc="fraction of the vertices, or min distance (x diagonal)"),
+        "max_rings": Param(POSITIVE_INT, doc="rings searched for the adaptive neighbourhood"),
+    }
+
     def __init__(
         self,
         neighbourhood: str = "adaptive",
@@ -85,26 +96,9 @@ class Harris3D(KeypointDetector):
         self.max_rings = max_rings
 
     def _validate(self) -> None:
-        if self.neighbourhood not in ("adaptive", "rings"):
-            raise ParameterError(
-                f"neighbourhood must be 'adaptive' or 'rings', got {self.neighbourhood!r}"
-            )
-        if self.selection not in ("fraction", "clustering"):
-            raise ParameterError(
-                f"selection must be 'fraction' or 'clustering', got {self.selection!r}"
-            )
-        if not (np.isfinite(self.neighbourhood_param) and self.neighbourhood_param > 0):
-            raise ParameterError(f"neighbourhood_param must be positive, got {self.neighbourhood_param!r}")
+        self._validate_params()
         if self.neighbourhood == "rings" and int(self.neighbourhood_param) != self.neighbourhood_param:
             raise ParameterError("with neighbourhood='rings', neighbourhood_param is a ring count")
-        if not (np.isfinite(self.selection_param) and self.selection_param > 0):
-            raise ParameterError(f"selection_param must be positive, got {self.selection_param!r}")
-        if not np.isfinite(self.k):
-            raise ParameterError(f"k must be finite, got {self.k!r}")
-        for name in ("ring", "max_rings"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ParameterError(f"{name} must be a positive integer, got {v!r}")
 
     def neighbourhoods(self, shape: Shape) -> list[np.ndarray]:
         """Per-vertex neighbourhood ids (each includes the vertex)."""
@@ -169,8 +163,3 @@ class Harris3D(KeypointDetector):
             if not kept or np.min(np.linalg.norm(V[kept] - V[c], axis=1)) > min_dist:
                 kept.append(int(c))
         return np.asarray(kept, dtype=np.int64)
-
-
-@hookimpl
-def toolkit_keypoint_detectors() -> dict[str, type]:
-    return {"harris3d": Harris3D}

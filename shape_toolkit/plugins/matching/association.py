@@ -9,7 +9,6 @@ import numpy as np
 
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.basis import normalized_spectrum
 from shape_toolkit.plugins.matching.orientation import orient_pairs, side_matcher, symmetry_matcher
 from shape_toolkit.plugins.matching.validation import check_keypoints
@@ -139,11 +138,7 @@ class AssociationMatcherBase:
         (``S`` the source's intrinsic symmetry), whichever agrees better with an orientation-aware
         functional map (:func:`side_reference`). The spectra of the symmetry and reference
         matchers are declared through ``spectrum_specs()``."""
-        if not self.sigma > 0 or not self.adf_ratio > 1 or self.max_candidates < 1:
-            raise ParameterError("need sigma > 0, adf_ratio > 1 and max_candidates >= 1")
-        orientation = getattr(self, "orientation", "none")
-        if orientation not in ("preserving", "reversing", "none"):
-            raise ParameterError(f"orientation must be 'preserving', 'reversing' or 'none', got {orientation!r}")
+        orientation = getattr(self, "orientation", "none")  # parameters: declared (_params.ASSOCIATION)
         kp_s = check_keypoints(source_keypoints, source.n_vertices, "source")
         kp_t = check_keypoints(target_keypoints, target.n_vertices, "target")
         ss, st = self._spectrum(source, source_spectrum), self._spectrum(target, target_spectrum)

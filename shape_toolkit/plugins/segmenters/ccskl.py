@@ -21,10 +21,11 @@ from typing import Any
 import numpy as np
 from scipy.optimize import nnls
 
-from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.params import RANDOM_STATE, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins._params import N_INIT, N_SEGMENTS, POSITIVE_INT, WEIGHTING
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter, segmenter_spec
 from shape_toolkit.plugins.segmenters.embedding import row_normalize
 from shape_toolkit.plugins.segmenters.kmeans import kmeans_labels
@@ -63,6 +64,14 @@ class CCSKL(BaseSegmenter):
     takes_constraints = True
     split_clouds = True
 
+    parameter_constraints = {
+        "n_segments": N_SEGMENTS,
+        "n_eigenvectors": Param(POSITIVE_INT, doc="eigenvectors of the embedding (at least n_segments)"),
+        "weighting": WEIGHTING,
+        "n_init": N_INIT,
+        "random_state": RANDOM_STATE,
+    }
+
     def __init__(
         self,
         n_segments: int | None = None,
@@ -80,8 +89,6 @@ class CCSKL(BaseSegmenter):
 
     def _check_m(self) -> int:
         m = self.n_eigenvectors
-        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
-            raise ParameterError(f"n_eigenvectors must be a positive integer, got {m!r}")
         return int(m)
 
     def spectrum_spec(self) -> SpectrumSpec:
@@ -108,8 +115,3 @@ class CCSKL(BaseSegmenter):
         self.beta_ = beta.tolist()
         self.n_segments_ = int(labels.max() + 1)
         return Segmentation.of_vertices(shape, labels)
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"ccskl": CCSKL}

@@ -65,6 +65,6 @@ def report_constraints(segmenter: Any, result: Segmentation, constraints: Any, n
         warnings.warn(
             f"{type(segmenter).__name__} broke {rep['must_link_broken']} of {rep['must_link']} must-links and "
             f"{rep['cannot_link_broken']} of {rep['cannot_link']} cannot-links: {rep['reason']}",
-            ConstraintWarning, stacklevel=3,
+            ConstraintWarning, stacklevel=4,  # the caller of segment (past the template and the parameter check)
         )
     return result.with_info(constraints=rep)

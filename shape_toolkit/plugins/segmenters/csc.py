@@ -91,12 +91,13 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.params import RANDOM_STATE, Options, Param
 from shape_toolkit.core.graph import weights_from_edges
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import DisconnectedGraphError, ParameterError
 from shape_toolkit.features.embedding import commute_time_embedding
+from shape_toolkit.plugins._params import CONVEX_FACTOR, N_INIT, N_SEGMENTS, POSITIVE, POSITIVE_INT, WEIGHTING
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter, segmenter_spec
 from shape_toolkit.plugins.segmenters.constraints import must_link_groups
 from shape_toolkit.plugins.segmenters.embedding import laplacian_embedding_of
@@ -145,6 +146,22 @@ class ConstrainedSpectralClustering(BaseSegmenter):
     takes_constraints = True
     split_clouds = True
 
+    parameter_constraints = {
+        "n_segments": N_SEGMENTS,
+        "n_embedding": Param(None, POSITIVE_INT, doc="eigenvectors of the embedding (None: max(k, 10))"),
+        "epsilon": Param(POSITIVE, doc="weight of the graph's own edges in the modified weights"),
+        "must_weight": Param(POSITIVE, doc="weight of must-link edges"),
+        "weighting": WEIGHTING,
+        "cannot_mode": Param(Options("bisector", "volume"), doc="how cannot-links cut the embedding"),
+        "output_dim": Param(None, POSITIVE_INT, doc="dimension of the modified embedding (None: k - 1)"),
+        "graph": Param(Options("auto", "vertex", "dual"), doc="vertex graph, dual (face) graph, or auto"),
+        "kmeans_init": Param(Options("constraints", "k-means++"), doc="k-means start: from the clicks or k-means++"),
+        "k_mismatch": Param(Options("ncut", "kmeans"), doc="parts when the clicked groups are not k"),
+        "convex_factor": CONVEX_FACTOR,
+        "n_init": N_INIT,
+        "random_state": RANDOM_STATE,
+    }
+
     def __init__(
         self,
         n_segments: int | None = None,
@@ -178,8 +195,6 @@ class ConstrainedSpectralClustering(BaseSegmenter):
 
     def _n_embedding(self, k: int | None) -> int:
         p = self.n_embedding if self.n_embedding is not None else max(k or 0, 10)
-        if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or p < 1:
-            raise ParameterError(f"n_embedding must be a positive integer, got {p!r}")
         return int(p)
 
     def spectrum_spec(self) -> SpectrumSpec | None:
@@ -200,15 +215,6 @@ class ConstrainedSpectralClustering(BaseSegmenter):
     def _graph(self, shape: Shape | None = None) -> str:
         """``"vertex"`` or ``"dual"`` (``"auto"``: dual for a mesh, vertex for a point cloud; ``"auto"``
         itself when no shape is given)."""
-        if self.graph not in ("auto", "vertex", "dual"):
-            raise ParameterError(f"graph must be 'auto', 'vertex' or 'dual', got {self.graph!r}")
-        if self.kmeans_init not in ("constraints", "k-means++"):
-            raise ParameterError(f"kmeans_init must be 'constraints' or 'k-means++', got {self.kmeans_init!r}")
-        if self.k_mismatch not in ("ncut", "kmeans"):
-            raise ParameterError(f"k_mismatch must be 'ncut' or 'kmeans', got {self.k_mismatch!r}")
-        cf = self.convex_factor
-        if isinstance(cf, bool) or not isinstance(cf, (int, float, np.number)) or not (np.isfinite(cf) and cf >= 0):
-            raise ParameterError(f"convex_factor must be finite and >= 0, got {cf!r}")
         if self.graph == "auto" and shape is not None:
             return "dual" if shape.is_mesh else "vertex"
         return self.graph
@@ -261,10 +267,6 @@ class ConstrainedSpectralClustering(BaseSegmenter):
         p = self._n_embedding(k)
         if not 1 <= p <= n - 1:
             raise ParameterError(f"n_embedding must be an integer in [1, {n - 1}], got {p!r}")
-        if self.cannot_mode not in ("bisector", "volume"):
-            raise ParameterError(f"cannot_mode must be 'bisector' or 'volume', got {self.cannot_mode!r}")
-        if not self.epsilon > 0 or not self.must_weight > 0:
-            raise ParameterError("epsilon and must_weight must be positive (the topology is kept)")
         cons = coerce_constraints(constraints, shape.n_vertices)
         if dual:
             from scipy.sparse.csgraph import connected_components
@@ -351,8 +353,3 @@ class ConstrainedSpectralClustering(BaseSegmenter):
         self.modified_eigenvalues_ = vals.tolist()
         self.n_segments_ = int(labels.max() + 1)
         return Segmentation.of_faces(shape, labels) if dual else Segmentation.of_vertices(shape, labels)
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"csc": ConstrainedSpectralClustering}

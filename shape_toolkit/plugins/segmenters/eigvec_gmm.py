@@ -26,10 +26,11 @@ from scipy.sparse.csgraph import connected_components
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.mixture import GaussianMixture
 
-from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.params import RANDOM_STATE, Interval, Options, Param
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.spectrum import LAPLACIANS, Spectrum, fix_signs, null_count
+from shape_toolkit.core.spectrum import Spectrum, fix_signs, null_count
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins._params import LAPLACIAN, N_INIT, N_SEGMENTS, POSITIVE_INT, WEIGHTING
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter, segmenter_spec
 from shape_toolkit.plugins.segmenters.kmeans import canonical_order, fit_predict_invariant, single_thread
 from shape_toolkit.plugins.segmenters.n_segments import check_n_segments
@@ -79,6 +80,21 @@ class EigvecGMMSegmenter(BaseSegmenter):
     """
 
     split_clouds = True
+    parameter_constraints = {
+        "n_segments": N_SEGMENTS,
+        "n_eigenvectors": Param(POSITIVE_INT, doc="eigenvectors u_2 .. u_{p+1} clustered"),
+        "zero_threshold": Param(Interval(float, 0, 1, closed="left"), doc="eigenvector values treated as zero"),
+        "max_components_1d": Param(POSITIVE_INT, doc="GMM components tried per eigenvector"),
+        "min_component_fraction": Param(Interval(float, 0, 1, closed="right"), doc="smallest component kept"),
+        "max_segments": Param(POSITIVE_INT, doc="most segments when n_segments is None"),
+        "laplacian": LAPLACIAN,
+        "weighting": WEIGHTING,
+        "covariance_type": Param(Options("full", "diag", "tied", "spherical"), doc="GMM covariance"),
+        "n_init": N_INIT,
+        "max_fit_samples_1d": Param(POSITIVE_INT, doc="samples of each 1-D GMM fit"),
+        "max_fit_samples": Param(POSITIVE_INT, doc="samples of the final GMM fit"),
+        "random_state": RANDOM_STATE,
+    }
 
     def __init__(
         self,
@@ -113,17 +129,11 @@ class EigvecGMMSegmenter(BaseSegmenter):
 
     def _check_p(self) -> int:
         p = self.n_eigenvectors
-        if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or p < 1:
-            raise ParameterError(f"n_eigenvectors must be a positive integer, got {p!r}")
         return int(p)
 
     def spectrum_spec(self) -> SpectrumSpec:
         """``n_eigenvectors + 1`` eigenpairs (the null one and ``u_2 .. u_{p+1}``) of the chosen
         Laplacian of the ``weighting`` graph, no mass matrix."""
-        if self.laplacian not in LAPLACIANS:
-            raise ParameterError(
-                f"unknown laplacian {self.laplacian!r}; choose one of {', '.join(LAPLACIANS)}"
-            )
         return segmenter_spec(self._check_p() + 1, self.weighting, self.laplacian)
 
     def _check(self, n: int) -> tuple[int | None, int]:
@@ -131,18 +141,6 @@ class EigvecGMMSegmenter(BaseSegmenter):
         p = self._check_p()
         if not 1 <= p <= n - 1:
             raise ParameterError(f"n_eigenvectors must be an integer in [1, {n - 1}], got {p!r}")
-        if not 0 <= self.zero_threshold < 1:
-            raise ParameterError(f"zero_threshold must be in [0, 1), got {self.zero_threshold}")
-        if not 0 < self.min_component_fraction <= 1:
-            raise ParameterError("min_component_fraction must be in (0, 1]")
-        if not isinstance(self.max_components_1d, (int, np.integer)) or self.max_components_1d < 1:
-            raise ParameterError("max_components_1d must be an integer >= 1")
-        if self.laplacian not in LAPLACIANS:
-            raise ParameterError(
-                f"unknown laplacian {self.laplacian!r}; choose one of {', '.join(LAPLACIANS)}"
-            )
-        if self.covariance_type not in ("full", "diag", "tied", "spherical"):
-            raise ParameterError(f"unknown covariance_type {self.covariance_type!r}")
         if k is None:
             check_n_segments(self.max_segments, n, allow_none=False)
         return k, p
@@ -254,8 +252,3 @@ class EigvecGMMSegmenter(BaseSegmenter):
         self.n_segments_ = int(labels.max() + 1)
         self.embedding_dim_ = int(X.shape[1])
         return labels
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"eigvec-gmm": EigvecGMMSegmenter}

@@ -40,10 +40,10 @@ from typing import Any
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.params import Interval, Param
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import concavity_weights, dual_adjacency
+from shape_toolkit.plugins._params import CONVEX_FACTOR, N_SEGMENTS, NON_NEGATIVE, POSITIVE_INT
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter
 from shape_toolkit.plugins.segmenters.merging import merge_to_segments
 from shape_toolkit.plugins.segmenters.n_segments import check_n_segments
@@ -64,6 +64,16 @@ class NormalizedCutSegmenter(BaseSegmenter):
     After :meth:`segment` of a mesh of one piece: ``cut_labels_`` (before the connected-part
     relabelling), ``ncut_values_`` (Ncut of each cut made, in order), ``n_segments_``.
     """
+
+    parameter_constraints = {
+        "n_segments": N_SEGMENTS,
+        "concavity_scale": Param(NON_NEGATIVE, doc="how strongly concave edges are weakened"),
+        "convex_factor": CONVEX_FACTOR,
+        "min_weight": Param(NON_NEGATIVE, doc="floor of the dual-graph weights"),
+        "n_vectors": Param(POSITIVE_INT, doc="eigenvectors tried per two-way cut"),
+        "min_fraction": Param(Interval(float, 0, 0.5, closed="left"), doc="smallest part of a cut (area share)"),
+        "tol": Param(NON_NEGATIVE, doc="eigensolver tolerance"),
+    }
 
     def __init__(
         self,
@@ -94,11 +104,7 @@ class NormalizedCutSegmenter(BaseSegmenter):
     def _check(self, m: int) -> tuple[int, int, float]:
         k = check_n_segments(self.n_segments, m, allow_none=False)
         nv = self.n_vectors
-        if isinstance(nv, bool) or not isinstance(nv, (int, np.integer)) or nv < 1:
-            raise ParameterError(f"n_vectors must be an integer >= 1, got {nv!r}")
         mf = float(self.min_fraction)
-        if not np.isfinite(mf) or not 0 <= mf < 0.5:
-            raise ParameterError(f"min_fraction must be in [0, 0.5), got {self.min_fraction!r}")
         return int(k), int(nv), mf
 
     def _segment(self, shape: Shape, *, spectrum: Any, constraints: Any) -> Segmentation:
@@ -114,8 +120,3 @@ class NormalizedCutSegmenter(BaseSegmenter):
         fl = merge_to_segments(labels, pairs, np.asarray(shape.face_areas, dtype=np.float64), k)
         self.n_segments_ = int(fl.max() + 1) if m else 0
         return Segmentation.of_faces(shape, fl)
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"ncut": NormalizedCutSegmenter}

@@ -36,11 +36,12 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import BasePlugin, Segmenter
+from shape_toolkit.api.params import RANDOM_STATE, Interval, Param, PluginRef
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, dual_adjacency, dual_graph, smooth_labels
+from shape_toolkit.plugins._params import CONVEX_FACTOR, N_INIT, N_SEGMENTS, NON_NEGATIVE, POSITIVE, POSITIVE_INT
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter
 from shape_toolkit.plugins.segmenters.kmeans import single_thread
 from shape_toolkit.plugins.segmenters.merging import merge_to_segments
@@ -173,8 +174,6 @@ def normalized_sdf(
 
 
 def _check_k(k: Any, m: int) -> int:
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 2:
-        raise ParameterError(f"n_segments must be an integer >= 2, got {k!r}")
     if k > m:
         raise ParameterError(f"n_segments = {k} exceeds the number of faces ({m})")
     return int(k)
@@ -191,6 +190,20 @@ class SDFSegmenter(BaseSegmenter):
     After :meth:`segment` of a mesh of one piece: ``sdf_`` (normalised per-face SDF), ``gmm_labels_``
     (before the graph cut), ``n_segments_`` (labels left after the cut).
     """
+
+    parameter_constraints = {
+        "n_segments": N_SEGMENTS,
+        "n_clusters": Param(None, Interval(int, 2), doc="GMM clusters of the SDF (None: n_segments)"),
+        "n_rays": Param(POSITIVE_INT, doc="rays per face of the SDF"),
+        "cone_angle": Param(POSITIVE, doc="opening of the ray cone (radians)"),
+        "filter_iterations": Param(Interval(int, 0), doc="bilateral smoothing steps of the SDF"),
+        "log_alpha": Param(POSITIVE, doc="log normalisation of the SDF"),
+        "smoothing_lambda": Param(NON_NEGATIVE, doc="boundary cost of the graph cut (0: plain GMM labels)"),
+        "convex_factor": CONVEX_FACTOR,
+        "geometric": Param(bool, doc="area and edge-length weights"),
+        "n_init": N_INIT,
+        "random_state": RANDOM_STATE,
+    }
 
     def __init__(
         self,
@@ -282,6 +295,15 @@ class SmoothedSegmenter(BaseSegmenter):
     face labels, before smoothing), ``n_segments_``.
     """
 
+    parameter_constraints = {
+        "base": Param(PluginRef("segmenters"), doc="the segmenter whose labels are smoothed"),
+        "n_segments": N_SEGMENTS,
+        "smoothing_lambda": Param(NON_NEGATIVE, doc="boundary cost of the graph cut"),
+        "spread": Param(Interval(int, 0), doc="rings the boundaries may move"),
+        "convex_factor": CONVEX_FACTOR,
+        "geometric": Param(bool, doc="area and edge-length weights"),
+    }
+
     def __init__(
         self,
         base: Any = "eigvec-gmm",
@@ -339,8 +361,3 @@ class SmoothedSegmenter(BaseSegmenter):
         self.base_face_labels_ = np.asarray(fl0, dtype=np.int64)
         self.n_segments_ = int(len(np.unique(fl)))
         return Segmentation.of_faces(shape, fl)
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"sdf": SDFSegmenter, "smoothed": SmoothedSegmenter}

@@ -35,10 +35,11 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.params import Interval, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, concavity_weights, dual_adjacency, smooth_labels
+from shape_toolkit.plugins._params import CONVEX_FACTOR, NON_NEGATIVE
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter
 from shape_toolkit.plugins.segmenters.constraints import must_link_groups
 from shape_toolkit.plugins.segmenters.per_component import MIN_SPLIT_SIZE, nearest_label_per_piece
@@ -58,6 +59,14 @@ class SeededWalkSegmenter(BaseSegmenter):
     """
 
     takes_constraints = True
+
+    parameter_constraints = {
+        "concavity_scale": Param(NON_NEGATIVE, doc="how strongly concave edges are weakened"),
+        "convex_factor": CONVEX_FACTOR,
+        "min_weight": Param(NON_NEGATIVE, doc="floor of the dual-graph weights"),
+        "cannot_rounds": Param(Interval(int, 0), doc="rounds of separating cannot-linked clicks"),
+        "smoothing_lambda": Param(NON_NEGATIVE, doc="boundary smoothing by graph cut (0: off)"),
+    }
 
     def __init__(
         self,
@@ -86,11 +95,7 @@ class SeededWalkSegmenter(BaseSegmenter):
         faces = shape.require_faces("seeded random-walk segmentation")
         m, n = len(faces), shape.n_vertices
         rounds = self.cannot_rounds
-        if isinstance(rounds, bool) or not isinstance(rounds, (int, np.integer)) or rounds < 0:
-            raise ParameterError(f"cannot_rounds must be an integer >= 0, got {rounds!r}")
         lam = float(self.smoothing_lambda)
-        if not np.isfinite(lam) or lam < 0:
-            raise ParameterError(f"smoothing_lambda must be finite and >= 0, got {self.smoothing_lambda!r}")
         cons = coerce_constraints(constraints, n)
         if cons is None or cons.n_must == 0:
             raise ParameterError("seeded-walk needs must-link constraints: each group of must-linked "
@@ -186,8 +191,3 @@ class SeededWalkSegmenter(BaseSegmenter):
         vl = result.labels
         self.n_cannot_violated_ = int(np.sum(vl[cl[:, 0]] == vl[cl[:, 1]])) if len(cl) else 0
         return result
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"seeded-walk": SeededWalkSegmenter}

@@ -20,11 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.params import RANDOM_STATE, Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.embedding import commute_time_embedding
+from shape_toolkit.plugins._params import N_INIT, N_SEGMENTS, POSITIVE_INT, WEIGHTING
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter, segmenter_spec
 from shape_toolkit.plugins.segmenters.embedding import row_normalize
 from shape_toolkit.plugins.segmenters.kmeans import kmeans_labels
@@ -51,6 +51,15 @@ class SpectralClustering(BaseSegmenter):
 
     presets = {"ng2001": {"variant": "ng"}, "luxburg-unnormalized": {"variant": "unnormalized"}}
     split_clouds = True
+
+    parameter_constraints = {
+        "n_segments": N_SEGMENTS,
+        "variant": Param(Options(*_LAPLACIAN), doc="spectral clustering variant (its Laplacian)"),
+        "weighting": WEIGHTING,
+        "max_segments": Param(POSITIVE_INT, doc="most segments when n_segments is None (eigengap)"),
+        "n_init": N_INIT,
+        "random_state": RANDOM_STATE,
+    }
 
     def __init__(
         self,
@@ -80,8 +89,6 @@ class SpectralClustering(BaseSegmenter):
     def spectrum_spec(self) -> SpectrumSpec:
         """``kmax + 1`` eigenpairs (``kmax``: ``n_segments`` or ``max_segments``) of the variant's
         Laplacian of the ``weighting`` graph, no mass matrix."""
-        if not isinstance(self.variant, str) or self.variant not in _LAPLACIAN:
-            raise ParameterError(f"unknown variant {self.variant!r}; choose one of {', '.join(_LAPLACIAN)}")
         return segmenter_spec(self._kmax() + 1, self.weighting, _LAPLACIAN[self.variant])
 
     def _segment(self, shape: Shape, *, spectrum: Spectrum | None, constraints: Any) -> Segmentation:
@@ -108,8 +115,3 @@ class SpectralClustering(BaseSegmenter):
         self.eigenvalues_ = vals[: k + 1].tolist()
         self.embedding_dim_ = int(X.shape[1])
         return Segmentation.of_vertices(shape, labels)
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"spectral-clustering": SpectralClustering}

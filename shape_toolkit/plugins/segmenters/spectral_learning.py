@@ -14,10 +14,11 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.params import RANDOM_STATE
 from shape_toolkit.core.eigen import smallest_eigenpairs
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.plugins._params import N_INIT, N_SEGMENTS, WEIGHTING
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter
 from shape_toolkit.plugins.segmenters.embedding import row_normalize
 from shape_toolkit.plugins.segmenters.kmeans import kmeans_labels
@@ -39,6 +40,13 @@ class SpectralLearning(BaseSegmenter):
     """
 
     takes_constraints = True
+
+    parameter_constraints = {
+        "n_segments": N_SEGMENTS,
+        "weighting": WEIGHTING,
+        "n_init": N_INIT,
+        "random_state": RANDOM_STATE,
+    }
 
     def __init__(
         self,
@@ -80,8 +88,3 @@ class SpectralLearning(BaseSegmenter):
         self.n_added_edges_, self.n_removed_edges_ = added, removed
         self.n_segments_ = int(labels.max() + 1)
         return Segmentation.of_vertices(shape, labels)
-
-
-@hookimpl
-def toolkit_segmenters() -> dict[str, type]:
-    return {"spectral-learning": SpectralLearning}

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Weighting, Weights
 from shape_toolkit.core.graph import weights_from_edges
 from shape_toolkit.core.shape import Shape
@@ -16,8 +15,3 @@ class BinaryWeighting(Weighting):
     def weigh(self, shape: Shape, edges: np.ndarray) -> Weights:
         """Unit weights on the ``(e, 2)`` edges."""
         return Weights(weights_from_edges(shape.n_vertices, edges, np.ones(len(edges))))
-
-
-@hookimpl
-def toolkit_weightings() -> dict[str, type]:
-    return {"binary": BinaryWeighting}

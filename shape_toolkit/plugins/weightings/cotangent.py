@@ -6,8 +6,8 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Weighting, Weights
+from shape_toolkit.api.params import Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError
 
@@ -37,6 +37,8 @@ class CotangentWeighting(Weighting):
         "use the 'intrinsic-delaunay' weighting (non-negative weights on poor triangulations) "
         "or clean degenerate triangles"
     )
+
+    parameter_constraints = {"clamp_negative": Param(bool, doc="set negative cotangent weights to 0")}
 
     def __init__(self, clamp_negative: bool = False):
         self.clamp_negative = clamp_negative
@@ -75,8 +77,3 @@ def flat_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     longest2 = np.max([(x * x).sum(axis=1) for x in e], axis=0)
     area = 0.5 * np.linalg.norm(np.cross(e[0], -e[2]), axis=1)
     return area < CotangentWeighting.DEGENERATE * longest2
-
-
-@hookimpl
-def toolkit_weightings() -> dict[str, type]:
-    return {"cotangent": CotangentWeighting}

@@ -26,11 +26,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Weighting, Weights
+from shape_toolkit.api.params import Options, Param
 from shape_toolkit.core.graph import weights_from_edges
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins._params import POSITIVE
 
 #: a weight below this fraction of the largest weight is zero to solver precision (the relative
 #: resolution of the eigensolver, ``shape_toolkit.core.eigen``: shift ``-1e-8 * scale``, tol 1e-8)
@@ -62,6 +63,11 @@ class GaussianWeighting(Weighting):
         "leave the Gaussian bandwidth unset (local, scale-free bandwidths keep every weight "
         ">= exp(-1/2)) or give a larger one"
     )
+    parameter_constraints = {
+        "bandwidth": Param(None, Options(*_MODES), POSITIVE,
+                           doc="sigma in length units, or a rule (None: 'auto', the mean edge length, floored)"),
+        "bandwidth_scale": Param(POSITIVE, doc="factor on the automatic bandwidths ('auto', 'mean', 'local')"),
+    }
 
     def __init__(self, bandwidth: float | str | None = None, bandwidth_scale: float = 1.0):
         self.bandwidth = bandwidth
@@ -73,20 +79,6 @@ class GaussianWeighting(Weighting):
         edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
         length = np.linalg.norm(shape.vertices[edges[:, 0]] - shape.vertices[edges[:, 1]], axis=1)
         bw = "auto" if self.bandwidth is None else self.bandwidth
-        if isinstance(bw, str):
-            if bw not in _MODES:
-                raise ParameterError(
-                    f"bandwidth must be a positive number, 'auto', 'local' or 'mean', got {bw!r}"
-                )
-            s = self.bandwidth_scale
-            if isinstance(s, bool) or not isinstance(s, (int, float, np.number)) or not (0 < s < np.inf):
-                raise ParameterError(f"bandwidth_scale must be a positive finite number, got {s!r}")
-        else:
-            if isinstance(bw, bool) or not isinstance(bw, (int, float, np.number)) or not (0 < bw < np.inf):
-                raise ParameterError(
-                    f"Gaussian bandwidth must be a positive finite number (in the shape's length units), "
-                    f"'auto', 'local' or 'mean', got {bw!r}"
-                )
         if len(edges) == 0:
             return Weights(weights_from_edges(n, edges, np.zeros(0)), info={"bandwidth": bw})
 
@@ -160,8 +152,3 @@ def _round_up(x: float, digits: int = 3) -> float:
         return x
     q = 10.0 ** (np.floor(np.log10(x)) - digits + 1)
     return float(np.ceil(x / q * (1 - 1e-12)) * q)
-
-
-@hookimpl
-def toolkit_weightings() -> dict[str, type]:
-    return {"gaussian": GaussianWeighting}

@@ -6,10 +6,11 @@ import numpy as np
 import robust_laplacian
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import Weighting, Weights
+from shape_toolkit.api.params import Interval, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
+from shape_toolkit.plugins._params import NON_NEGATIVE
 
 
 class IntrinsicDelaunayWeighting(Weighting):
@@ -25,21 +26,24 @@ class IntrinsicDelaunayWeighting(Weighting):
     #: connectivity='knn' on a mesh by treating its vertices as a point cloud
     uses_edges = False
 
+    parameter_constraints = {
+        "mollify_factor": Param(NON_NEGATIVE, doc="mollification against degenerate triangles, x mean edge length"),
+        "n_neighbors": Param(Interval(int, 3), doc="neighbours of the local triangulations (point clouds only)"),
+    }
+
     def __init__(self, mollify_factor: float = 1e-5, n_neighbors: int = 30):
         self.mollify_factor = mollify_factor
         self.n_neighbors = n_neighbors
 
     def weigh(self, shape: Shape, edges: np.ndarray) -> Weights:
         """Intrinsic-Delaunay cotangent weights and lumped vertex areas."""
-        if self.mollify_factor < 0:
-            raise ParameterError(f"mollify_factor must be >= 0, got {self.mollify_factor}")
         v = np.ascontiguousarray(shape.vertices)
         if shape.is_mesh:
             L, M = robust_laplacian.mesh_laplacian(
                 v, np.ascontiguousarray(shape.faces), mollify_factor=self.mollify_factor
             )
         else:
-            if not 3 <= self.n_neighbors < shape.n_vertices:
+            if not self.n_neighbors < shape.n_vertices:  # the range that depends on the shape
                 raise ParameterError(
                     f"n_neighbors must be in [3, {shape.n_vertices - 1}], got {self.n_neighbors}"
                 )
@@ -58,8 +62,3 @@ class IntrinsicDelaunayWeighting(Weighting):
         W.eliminate_zeros()
         negative = int(np.count_nonzero(W.data < -1e-12) // 2)
         return Weights(W, np.asarray(M.diagonal(), dtype=np.float64), {"negative_weights": negative})
-
-
-@hookimpl
-def toolkit_weightings() -> dict[str, type]:
-    return {"intrinsic-delaunay": IntrinsicDelaunayWeighting}

@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.api.params import InstanceOf, Interval, ListOf, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import InvalidShapeError, ParameterError
@@ -49,14 +49,17 @@ class BestOfMatcher(DenseMatcher):
     named in ``info["skipped"]``; when none can, the first one's error is raised."""
 
     presets: dict = {}
+    parameter_constraints = {
+        "matchers": Param(ListOf(InstanceOf(str, dict, DenseMatcher, name="dense matcher")),
+                          doc="dense matchers to run (names, tables or objects)"),
+        "k": Param(Interval(int, 2), doc="Laplace-Beltrami eigenfunctions of the ZoomOut residual"),
+    }
 
     def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int = 64):
         self.matchers = matchers
         self.k = k
 
     def _matchers(self) -> list:
-        if not isinstance(self.matchers, (tuple, list)) or len(self.matchers) < 1:
-            raise ParameterError(f"matchers must be a non-empty list, got {self.matchers!r}")
         return [_matcher(m) for m in self.matchers]
 
     def _names(self) -> list[str]:
@@ -68,8 +71,6 @@ class BestOfMatcher(DenseMatcher):
 
     def spectrum_spec(self) -> SpectrumSpec:
         """The Laplace-Beltrami spectrum with ``k + 1`` eigenpairs (the common basis of the residual)."""
-        if isinstance(self.k, bool) or not isinstance(self.k, (int, np.integer)) or self.k < 2:
-            raise ParameterError(f"k must be an integer >= 2, got {self.k!r}")
         return default_spec(int(self.k) + 1)
 
     def match(
@@ -118,8 +119,3 @@ class BestOfMatcher(DenseMatcher):
         info = dict(best[2].info)
         info.update({"candidates": candidates, "chosen": best[1], "skipped": skipped})
         return Correspondence(best[2].target_of, target.n_vertices, best[2].confidence, best[2].posteriors, info)
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"best-of": BestOfMatcher}

@@ -14,9 +14,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from shape_toolkit.api.hookspecs import hookimpl
+from shape_toolkit.api.params import Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins._params import POSITIVE_INT
 from shape_toolkit.plugins.matching.dense.em_registration import Embedding, EMRegistrationMatcher
 
 __all__ = ["EigvecAlignmentMatcher", "histogram_alignment"]
@@ -59,6 +60,12 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
     baseline as published: its own embedding and no orientation cue (it matches up to symmetry)."""
 
     presets: dict = {}
+    parameter_constraints = {
+        **{p: c for p, c in EMRegistrationMatcher.parameter_constraints.items()
+           if p in ("k", "outlier_weight", "n_neighbors", "max_iter", "tol", "threshold", "one_to_one",
+                    "fill_unmatched")},
+        "bins": Param(POSITIVE_INT, doc="histogram bins of the eigenvector alignment"),
+    }
 
     def __init__(
         self,
@@ -89,8 +96,3 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         X, Y = bs.evecs[:, 1 : K + 1], bt.evecs[:, 1 : K + 1]
         Q0, _ = histogram_alignment(X, Y, bs.mass, bt.mass, int(self.bins))
         return Embedding(X, Y), Q0, {"Q0": Q0}
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"eigvec-alignment": EigvecAlignmentMatcher}

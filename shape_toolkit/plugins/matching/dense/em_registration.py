@@ -18,13 +18,14 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher, merge_specs
+from shape_toolkit.api.params import RANDOM_STATE, Interval, Options, Param
 from shape_toolkit.core.geometry import nearest_neighbors
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.features.basis import Basis, basis_of
+from shape_toolkit.plugins._params import FRACTION, NON_NEGATIVE, ORIENTATION, POSITIVE_INT
 from shape_toolkit.plugins.matching.dense.orientation_repair import ORIENTATION_K, OrientationRepair
 from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
@@ -202,6 +203,28 @@ class EMRegistrationMatcher(DenseMatcher):
     """
 
     presets = {"thesis": {"spectrum": "graph", "scaling": "commute-time", "dimension": "scree", "k": 10}}
+    parameter_constraints = {
+        "k": Param(Interval(int, 1, 100), doc="embedding dimension"),
+        "outlier_weight": Param(Interval(float, 0, 1, closed="left"), doc="weight of the uniform outlier class"),
+        "n_neighbors": Param(POSITIVE_INT, doc="target neighbours of each source point in the E-step"),
+        "max_iter": Param(POSITIVE_INT, doc="EM iterations"),
+        "tol": Param(NON_NEGATIVE, doc="stop when the variance changes less than this"),
+        "threshold": Param(FRACTION, doc="posterior below which a vertex stays unmatched"),
+        "one_to_one": Param(bool, doc="keep one source vertex per target vertex"),
+        "fill_unmatched": Param(bool, doc="give unmatched vertices their nearest neighbour"),
+        "spectrum": Param(Options("lbo", "graph"), doc="embedding eigenvectors: Laplace-Beltrami or graph"),
+        "weighting": Param(None, str, doc="weighting of the graph spectrum (None: the default)"),
+        "scaling": Param(Options("none", "commute-time"), doc="scaling of the embedding"),
+        "dimension": Param(Options("fixed", "scree"), doc="embedding dimension: k, or the scree rule"),
+        "dimension_threshold": Param(Interval(float, 0, 1, closed="neither"), doc="level of the scree rule"),
+        "orientation": ORIENTATION,
+        "k_final": Param(None, Interval(int, None, 200), doc="refine the map up to this many eigenvectors"),
+        "refine_step": Param(POSITIVE_INT, doc="eigenvectors added per refinement step"),
+        "max_samples": Param(None, POSITIVE_INT, doc="target points EM samples (None: all)"),
+        "refine_samples": Param(None, POSITIVE_INT, doc="target points of the refinement (None: all)"),
+        "polish_k": Param(None, Interval(int, 1, 200), doc="final Laplace-Beltrami refinement size (None: off)"),
+        "random_state": RANDOM_STATE,
+    }
 
     def __init__(
         self, k: int = 8, outlier_weight: float = 0.1, n_neighbors: int = 10, max_iter: int = 50, tol: float = 1e-5,
@@ -233,30 +256,7 @@ class EMRegistrationMatcher(DenseMatcher):
         self.random_state = random_state
 
     def _check(self) -> None:
-        if not isinstance(self.k, (int, np.integer)) or not 1 <= self.k <= 100:
-            raise ParameterError(f"k must be an integer in [1, 100], got {self.k!r}")
-        if not 0 <= self.outlier_weight < 1:
-            raise ParameterError("outlier_weight must be in [0, 1)")
-        if self.n_neighbors < 1 or self.max_iter < 1:
-            raise ParameterError("n_neighbors and max_iter must be >= 1")
-        choices = {"spectrum": ("lbo", "graph"), "scaling": ("none", "commute-time"),
-                   "dimension": ("fixed", "scree"), "orientation": ("preserving", "reversing", "none")}
-        for name, valid in choices.items():
-            if getattr(self, name) not in valid:
-                raise ParameterError(f"{name} must be one of {', '.join(valid)}; got {getattr(self, name)!r}")
-        if not 0 < self.dimension_threshold < 1:
-            raise ParameterError("dimension_threshold must be in (0, 1)")
-        if self.k_final is not None and (not isinstance(self.k_final, (int, np.integer)) or self.k_final > 200):
-            raise ParameterError(f"k_final must be None or an integer <= 200, got {self.k_final!r}")
-        pk = self.polish_k
-        if pk is not None and (isinstance(pk, bool) or not isinstance(pk, (int, np.integer)) or not 1 <= pk <= 200):
-            raise ParameterError(f"polish_k must be None or an integer in [1, 200], got {self.polish_k!r}")
-        if self.refine_step < 1:
-            raise ParameterError("need refine_step >= 1")
-        for name in ("max_samples", "refine_samples"):
-            v = getattr(self, name)
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
-                raise ParameterError(f"{name} must be None or a positive integer, got {v!r}")
+        self._validate_params()
         check_random_state(self.random_state)
 
     def _k_needed(self, min_dim: int = 0) -> int:
@@ -443,8 +443,3 @@ class EMRegistrationMatcher(DenseMatcher):
                 source, target, seeds=seeds, source_spectrum=source_spectrum, target_spectrum=target_spectrum)
         emb, Q0, info = self.start(source, target, seeds, source_spectrum, target_spectrum)
         return self.finish(emb, self.solve(emb, Q0), source, target, info, None, source_spectrum, target_spectrum)
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"em-registration": EMRegistrationMatcher}

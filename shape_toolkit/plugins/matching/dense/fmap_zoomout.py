@@ -17,14 +17,22 @@ from collections.abc import Callable
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.api.params import InstanceOf, Interval, ListOf, Param
 from shape_toolkit.core.geometry import farthest_point_sampling, outward_face_normals
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.core.surface import cloud_surface
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.basis import Basis, basis_of, spectral_basis, zoomout, zoomout_select
+from shape_toolkit.plugins._params import (
+    DESCRIPTOR,
+    DESCRIPTOR_PARAMS,
+    NON_NEGATIVE,
+    ORIENTATION,
+    POSITIVE,
+    POSITIVE_INT,
+)
 from shape_toolkit.plugins.descriptors.wks import wave_kernel_signature as _wks
 from shape_toolkit.plugins.matching.descriptors import UsesDescriptor, normalize_columns, shared_spectra
 from shape_toolkit.plugins.matching.validation import check_descriptors, check_seeds
@@ -224,6 +232,24 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         "accurate": {"zoomout_iters": 16, "zoomout_step": 5, "zoomout_samples": None},
     }
 
+    parameter_constraints = {
+        "k": Param(Interval(int, 2), doc="size of the fitted functional map"),
+        "descriptor": Param(None, *DESCRIPTOR.constraints, doc="descriptor plugin (None: WKS on the own basis)"),
+        "descriptor_params": DESCRIPTOR_PARAMS,
+        "n_descriptors": Param(POSITIVE_INT, doc="evenly spaced descriptor columns kept"),
+        "w_descr": Param(NON_NEGATIVE, doc="weight of the descriptor term"),
+        "w_lap": Param(NON_NEGATIVE, doc="weight of the Laplacian commutativity term"),
+        "w_dcomm": Param(NON_NEGATIVE, doc="weight of the descriptor commutativity term"),
+        "w_orient": Param(NON_NEGATIVE, doc="weight of the orientation term"),
+        "orientation": ORIENTATION,
+        "zoomout_iters": Param(Interval(int, 0), doc="ZoomOut iterations (0: off)"),
+        "zoomout_step": Param(POSITIVE_INT, doc="eigenfunctions added per ZoomOut iteration"),
+        "zoomout_samples": Param(None, POSITIVE_INT, doc="target samples inside ZoomOut (None: all)"),
+        "seed_time": Param(POSITIVE, doc="time of the heat-kernel descriptor of each seed pair"),
+        "hypotheses": Param(None, ListOf(InstanceOf(dict, name="mapping")), doc="fits tried (None: the default set)"),
+        "selection_samples": Param(Interval(int, 10), doc="samples of the residual choosing a hypothesis"),
+    }
+
     def __init__(
         self,
         k: int = 30,
@@ -259,17 +285,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         self.selection_samples = selection_samples
 
     def _check(self) -> None:
-        if not isinstance(self.k, (int, np.integer)) or self.k < 2:
-            raise ParameterError(f"k must be an integer >= 2, got {self.k!r}")
-        if self.orientation not in ("preserving", "reversing", "none"):
-            raise ParameterError(
-                f"orientation must be 'preserving', 'reversing' or 'none', got {self.orientation!r}"
-            )
-        if self.zoomout_iters < 0 or self.zoomout_step < 1:
-            raise ParameterError("zoomout_iters must be >= 0 and zoomout_step >= 1")
-        for name in ("w_descr", "w_lap", "w_dcomm", "w_orient"):
-            if getattr(self, name) < 0:
-                raise ParameterError(f"{name} must be >= 0")
+        self._validate_params()
         for h in self._hypotheses():
             if not isinstance(h, dict) or set(h) - HYPOTHESIS_KEYS:
                 raise ParameterError(
@@ -283,14 +299,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 w = h.get(name, 0.0)
                 if isinstance(w, bool) or not isinstance(w, (int, float)) or not w >= 0:
                     raise ParameterError(f"a hypothesis {name} must be a number >= 0, got {w!r}")
-        if not isinstance(self.selection_samples, (int, np.integer)) or self.selection_samples < 10:
-            raise ParameterError(f"selection_samples must be an integer >= 10, got {self.selection_samples!r}")
-        zs = self.zoomout_samples
-        if zs is not None and (isinstance(zs, bool) or not isinstance(zs, (int, np.integer)) or zs < 1):
-            raise ParameterError(f"zoomout_samples must be None or a positive integer, got {zs!r}")
         dp = self.descriptor_params
-        if dp is not None and not isinstance(dp, dict):
-            raise ParameterError(f"descriptor_params must be a table of descriptor parameters, got {dp!r}")
         if self.descriptor is None and dp and set(dp) - {"n_energies", "variance"}:
             raise ParameterError(
                 f"descriptor_params of the built-in WKS take n_energies and variance, got {sorted(dp)}"
@@ -435,6 +444,3 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         return Correspondence(T, target.n_vertices, info=info)
 
 
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"fmap-zoomout": FmapZoomOutMatcher}

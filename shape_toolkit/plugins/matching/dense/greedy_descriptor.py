@@ -10,12 +10,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.api.params import Param
 from shape_toolkit.core.geometry import nearest_neighbors
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins._params import DESCRIPTOR, DESCRIPTOR_PARAMS, POSITIVE_INT
 from shape_toolkit.plugins.matching.descriptors import UsesDescriptor
 from shape_toolkit.plugins.matching.validation import check_descriptors, check_seeds
 from shape_toolkit.results.correspondence import Correspondence
@@ -29,6 +30,14 @@ class GreedyDescriptorMatcher(UsesDescriptor, DenseMatcher):
     passes descriptors. ``log_scale`` compares log descriptors (heat values span decades).
     ``one_to_one``: greedy global assignment over the ``candidates`` nearest targets of each
     source vertex, most similar pairs first (leaves some vertices unmatched)."""
+
+    parameter_constraints = {
+        "descriptor": DESCRIPTOR,
+        "descriptor_params": DESCRIPTOR_PARAMS,
+        "log_scale": Param(bool, doc="compare log descriptors"),
+        "one_to_one": Param(bool, doc="greedy one-to-one assignment"),
+        "candidates": Param(POSITIVE_INT, doc="nearest targets considered per source vertex (one_to_one)"),
+    }
 
     def __init__(
         self,
@@ -94,8 +103,3 @@ class GreedyDescriptorMatcher(UsesDescriptor, DenseMatcher):
                 used[j] = True
                 conf[r] = 1.0 / (1.0 + np.sqrt(d2[r, c_]))
         return Correspondence(target_of, target.n_vertices, conf)
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"greedy-descriptor": GreedyDescriptorMatcher}

@@ -15,11 +15,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.api.params import Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins._params import DESCRIPTOR, DESCRIPTOR_PARAMS, POSITIVE, POSITIVE_INT
 from shape_toolkit.plugins.matching.descriptors import UsesDescriptor, paired_descriptors
 from shape_toolkit.plugins.matching.validation import check_descriptors, check_seeds
 from shape_toolkit.results.correspondence import Correspondence
@@ -109,6 +110,14 @@ class SeedGrowingMatcher(UsesDescriptor, DenseMatcher):
     ``beta * M``); ``ring`` the neighbourhood size (2-ring in the thesis). Needs seeds.
     """
 
+    parameter_constraints = {
+        "beta": Param(POSITIVE, doc="threshold on the matching score (eq. 6.66) per keypoint"),
+        "ring": Param(POSITIVE_INT, doc="neighbourhood size in rings"),
+        "descriptor": DESCRIPTOR,
+        "descriptor_params": DESCRIPTOR_PARAMS,
+        "max_keypoints": Param(POSITIVE_INT, doc="seeds used as descriptor keypoints"),
+    }
+
     def __init__(
         self,
         beta: float = 0.6,
@@ -137,10 +146,6 @@ class SeedGrowingMatcher(UsesDescriptor, DenseMatcher):
         progress: Callable[[str], None] | None = None,
     ) -> Correspondence:
         """One-to-one dense map grown from the seeds; ``confidence = 1 / (1 + score)``."""
-        if not self.beta > 0:
-            raise ParameterError(f"beta must be positive, got {self.beta!r}")
-        if not isinstance(self.ring, (int, np.integer)) or self.ring < 1:
-            raise ParameterError(f"ring must be a positive integer, got {self.ring!r}")
         seeds = check_seeds(seeds, source.n_vertices, target.n_vertices)
         if seeds is None or len(seeds) == 0:
             raise ParameterError("seed-growing needs seed matches (e.g. from a sparse matcher)")
@@ -171,8 +176,3 @@ class SeedGrowingMatcher(UsesDescriptor, DenseMatcher):
             target_of, target.n_vertices, conf,
             info={"n_seeds": int(len(seeds)), "n_keypoints": n_kp, "n_times": n_times},
         )
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"seed-growing": SeedGrowingMatcher}

@@ -30,13 +30,14 @@ from collections.abc import Callable
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.api.params import Interval, ListOf, Param
 from shape_toolkit.core.geometry import nearest_neighbors, vertex_normals
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.basis import Basis, basis_of
+from shape_toolkit.plugins._params import NON_NEGATIVE, POSITIVE_INT
 from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec, default_spec
@@ -68,6 +69,13 @@ class ShellAlignmentMatcher(DenseMatcher):
     """
 
     presets = {"fast": {"k_schedule": (6, 12, 24, 48), "iters": 3}}
+    parameter_constraints = {
+        "k_schedule": Param(ListOf(Interval(int, 2)), doc="increasing shell resolutions (eigenfunctions)"),
+        "alpha": Param(NON_NEGATIVE, doc="weight of the spectral coordinates against positions"),
+        "beta": Param(NON_NEGATIVE, doc="weight of the shells' unit normals"),
+        "mu": Param(NON_NEGATIVE, doc="damping of eigenfunction k's displacement by mu lambda_k^2"),
+        "iters": Param(POSITIVE_INT, doc="alignment steps per resolution"),
+    }
 
     def __init__(
         self,
@@ -89,12 +97,6 @@ class ShellAlignmentMatcher(DenseMatcher):
                 or not all(isinstance(k, (int, np.integer)) and not isinstance(k, bool) and k >= 2 for k in ks)
                 or list(ks) != sorted(set(ks))):
             raise ParameterError(f"k_schedule must be increasing integers >= 2, got {ks!r}")
-        for name in ("alpha", "beta", "mu"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (v >= 0 and np.isfinite(v)):
-                raise ParameterError(f"{name} must be a finite number >= 0, got {v!r}")
-        if isinstance(self.iters, bool) or not isinstance(self.iters, (int, np.integer)) or self.iters < 1:
-            raise ParameterError(f"iters must be an integer >= 1, got {self.iters!r}")
         return tuple(int(k) for k in ks)
 
     def spectrum_spec(self) -> SpectrumSpec:
@@ -177,8 +179,3 @@ class ShellAlignmentMatcher(DenseMatcher):
         residual = float(ms @ ((Xs - Xt[T]) ** 2).sum(axis=1) + mt @ ((Xt - Xs[Tr]) ** 2).sum(axis=1))
         return Correspondence(T, target.n_vertices, info={"C": C, "residual": residual, "frame": "given",
                                                           "k_schedule": list(ks)})
-
-
-@hookimpl
-def toolkit_dense_matchers() -> dict[str, type]:
-    return {"shell-alignment": ShellAlignmentMatcher}

@@ -18,10 +18,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
+from shape_toolkit.api.params import Interval, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins._params import POSITIVE_INT
 from shape_toolkit.plugins.matching.validation import check_keypoints
 
 __all__ = ["PhotometricMatcher", "ring_color_descriptors", "geometric_texture"]
@@ -122,6 +123,14 @@ class PhotometricMatcher(SparseMatcher):
     descriptor's own radius ``n_rings * ring_width``; 0: keep the keypoints. Matches stay
     one-to-one (a target vertex reached twice keeps the closer descriptor)."""
 
+    parameter_constraints = {
+        "n_rings": Param(POSITIVE_INT, doc="rings of the colour descriptor"),
+        "ring_width": Param(POSITIVE_INT, doc="mesh edges per ring"),
+        "ratio": Param(Interval(float, 0, 1, closed="right"), doc="Lowe's ratio test"),
+        "require_colors": Param(bool, doc="raise when neither shape has colours (else geometric texture)"),
+        "refine_rings": Param(None, Interval(int, 0), doc="rings searched to move a matched target keypoint"),
+    }
+
     def __init__(self, n_rings: int = 4, ring_width: int = 2, ratio: float = 0.8, require_colors: bool = False,
                  refine_rings: int | None = None):
         self.n_rings = n_rings
@@ -133,11 +142,7 @@ class PhotometricMatcher(SparseMatcher):
     def match(self, source, target, source_keypoints, target_keypoints, *,
               source_spectrum=None, target_spectrum=None, source_colors=None, target_colors=None) -> np.ndarray:
         """Matched ``[source_vertex, target_vertex]`` pairs, int64 ``(q, 2)``."""
-        if int(self.n_rings) < 1 or int(self.ring_width) < 1 or not 0 < self.ratio <= 1:
-            raise ParameterError("need n_rings >= 1, ring_width >= 1 and 0 < ratio <= 1")
         refine = int(self.n_rings) * int(self.ring_width) if self.refine_rings is None else self.refine_rings
-        if isinstance(refine, bool) or not isinstance(refine, (int, np.integer)) or refine < 0:
-            raise ParameterError(f"refine_rings must be None or an integer >= 0, got {self.refine_rings!r}")
         source.require_faces("photometric matching")
         target.require_faces("photometric matching")
         if (source_colors is None) != (target_colors is None):
@@ -199,8 +204,3 @@ class PhotometricMatcher(SparseMatcher):
             j = lo + int(np.argmin(d[lo:hi]))
             new[i], cost[i] = ball.indices[j], d[j]
         return new, cost
-
-
-@hookimpl
-def toolkit_sparse_matchers() -> dict[str, type]:
-    return {"photometric": PhotometricMatcher}

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
+from shape_toolkit.api.params import Param
+from shape_toolkit.plugins._params import ASSOCIATION, POSITIVE_INT
 from shape_toolkit.plugins.matching.association import AssociationGraph, AssociationMatcherBase
 
 __all__ = ["ReplicatorMatcher", "replicator_dynamics"]
@@ -40,6 +41,8 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
     (Pelillo's regularization, whose strict maximizers are maximal cliques). Matches are read
     from the support of the limit (``x > min_score * max(x)``), one-to-one, most weight first."""
 
+    parameter_constraints = {**ASSOCIATION, "max_iter": Param(POSITIVE_INT, doc="replicator iterations")}
+
     def __init__(
         self,
         k: int = 20,
@@ -63,8 +66,3 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
         A = graph.W + 0.5 * np.eye(len(graph.nodes))
         return replicator_dynamics(A, graph.unary, int(self.max_iter))
-
-
-@hookimpl
-def toolkit_sparse_matchers() -> dict[str, type]:
-    return {"replicator": ReplicatorMatcher}

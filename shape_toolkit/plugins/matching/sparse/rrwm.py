@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
+from shape_toolkit.api.params import Param
+from shape_toolkit.plugins._params import ASSOCIATION, FRACTION, POSITIVE, POSITIVE_INT
 from shape_toolkit.plugins.matching.association import AssociationGraph, AssociationMatcherBase
 
 __all__ = ["RRWMMatcher", "sinkhorn"]
@@ -26,6 +27,13 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
     """RRWM: ``x <- alpha P^T x + (1 - alpha) y`` with ``P`` the affinity divided by its largest
     degree and ``y`` the Sinkhorn normalization of ``exp(inflation x / max x)`` arranged as the
     ``(P, Q)`` keypoint matrix; iterated to convergence and discretized one-to-one."""
+
+    parameter_constraints = {
+        **ASSOCIATION,
+        "alpha": Param(FRACTION, doc="weight of the random walk against the reweighting jump"),
+        "inflation": Param(POSITIVE, doc="sharpness of the reweighting jump exp(inflation x / max x)"),
+        "max_iter": Param(POSITIVE_INT, doc="iterations"),
+    }
 
     def __init__(
         self,
@@ -70,8 +78,3 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
                 break
             x = x_new
         return x
-
-
-@hookimpl
-def toolkit_sparse_matchers() -> dict[str, type]:
-    return {"rrwm": RRWMMatcher}

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
+from shape_toolkit.plugins._params import ASSOCIATION
 from shape_toolkit.plugins.matching.association import AssociationGraph, AssociationMatcherBase
 
 __all__ = ["SpectralMatcher"]
@@ -15,6 +15,8 @@ __all__ = ["SpectralMatcher"]
 
 class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
     """Leordeanu-Hebert spectral relaxation on the association graph of section 7.2.1."""
+
+    parameter_constraints = ASSOCIATION
 
     def __init__(
         self,
@@ -39,8 +41,3 @@ class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
         _, vecs = np.linalg.eigh(M)  # N is small (candidate matches of sparse keypoints)
         x = vecs[:, -1]
         return np.abs(x) if x.sum() >= 0 else np.abs(-x)
-
-
-@hookimpl
-def toolkit_sparse_matchers() -> dict[str, type]:
-    return {"spectral": SpectralMatcher}

@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from shape_toolkit.api.hookspecs import hookimpl
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.features.basis import normalized_spectrum
 from shape_toolkit.features.heat import heat_distances
+from shape_toolkit.plugins._params import ASSOCIATION
 from shape_toolkit.plugins.matching.validation import check_keypoints
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
@@ -33,6 +33,8 @@ class UmeyamaMatcher(SparseMatcher):
     """Umeyama's method on keypoint affinity matrices ``exp(-d^2 / (2 sigma^2))`` of unit-sphere
     heat distances (eq. 6.43, same time for both shapes, as in the association graph).
     Pairs scoring below ``min_score`` times the best are dropped."""
+
+    parameter_constraints = {p: ASSOCIATION[p] for p in ("k", "time", "sigma", "min_score")}
 
     def __init__(
         self, k: int = 20, time: float | None = None, sigma: float = 0.5, min_score: float = 0.0,
@@ -67,8 +69,3 @@ class UmeyamaMatcher(SparseMatcher):
         score = (np.abs(UA[:, -r:]) @ np.abs(UB[:, -r:]).T)[rows, cols]
         keep = score >= float(self.min_score) * float(score.max())
         return np.column_stack([kp_s[rows[keep]], kp_t[cols[keep]]]).astype(np.int64)
-
-
-@hookimpl
-def toolkit_sparse_matchers() -> dict[str, type]:
-    return {"umeyama": UmeyamaMatcher}

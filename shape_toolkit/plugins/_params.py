@@ -1,0 +1,47 @@
+"""Parameter declarations shared by several plugins (:mod:`shape_toolkit.api.params`)."""
+
+from __future__ import annotations
+
+from shape_toolkit.api.params import InstanceOf, Interval, ListOf, Options, Param, PluginRef
+from shape_toolkit.core.spectrum import LAPLACIANS
+
+#: the weighting plugin of the graph whose spectrum a plugin declares
+WEIGHTING = Param(str, doc="weighting plugin of the graph (its name, see plugins list)")
+#: the Laplacian of that spectrum
+LAPLACIAN = Param(Options(*LAPLACIANS), doc="Laplacian of the declared spectrum")
+#: a count of at least one (iterations, rings, eigenpairs, samples, ...)
+POSITIVE_INT = Interval(int, 1)
+#: a positive finite number
+POSITIVE = Interval(float, 0, None, closed="neither")
+#: a finite number >= 0
+NON_NEGATIVE = Interval(float, 0)
+#: a fraction in [0, 1]
+FRACTION = Interval(float, 0, 1)
+#: diffusion times: one positive number or a list of them
+TIMES = (POSITIVE, ListOf(POSITIVE))
+
+#: the association-graph matchers (replicator, spectral, rrwm; umeyama shares k, time, sigma)
+ASSOCIATION = {
+    "k": Param(POSITIVE_INT, doc="non-null eigenpairs of the heat kernel"),
+    "time": Param(None, POSITIVE, doc="diffusion time of the heat-kernel affinities (None: from the spectrum)"),
+    "sigma": Param(POSITIVE, doc="width of the pairwise consistency kernel"),
+    "adf_ratio": Param(Interval(float, 1, None, closed="neither"), doc="max ratio of two candidates' ADF values"),
+    "max_candidates": Param(POSITIVE_INT, doc="target candidates per source keypoint"),
+    "min_score": Param(FRACTION, doc="drop matches scoring below this fraction of the best"),
+    "orientation": Param(Options("preserving", "reversing", "none"), doc="side of each match (meshes)"),
+}
+
+#: the descriptor a matcher computes on both shapes: a name, a {plugin, preset, params} table or an object
+TABLE = InstanceOf(dict, name="table")
+DESCRIPTOR = Param(PluginRef("descriptors"), TABLE, doc="descriptor plugin computed on both shapes")
+#: parameters of a descriptor given by name
+DESCRIPTOR_PARAMS = Param(None, TABLE, doc="parameters of the descriptor given by name")
+#: which side of a symmetric shape a map keeps
+ORIENTATION = Param(Options("preserving", "reversing", "none"), doc="orientation the map keeps (meshes)")
+
+#: the number of segments of a segmenter
+N_SEGMENTS = Param(None, Interval(int, 2), doc="number of segments (None: chosen by the method, where it can)")
+#: restarts of k-means / GMM
+N_INIT = Param(POSITIVE_INT, doc="restarts of the clustering (the best is kept)")
+#: the weight of convex dihedral angles in concavity-weighted dual graphs
+CONVEX_FACTOR = Param(NON_NEGATIVE, doc="weight of convex edges relative to concave ones")
