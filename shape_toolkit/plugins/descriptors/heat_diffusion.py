@@ -8,7 +8,7 @@ from shape_toolkit.api.interfaces import Descriptor
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.features.heat import heat_kernel, heat_kernel_signature
-from shape_toolkit.plugins.descriptors._common import KeypointHeatMixin
+from shape_toolkit.plugins.descriptors.heat_spectrum import KeypointHeatMixin
 
 
 class HeatDiffusionDescriptor(KeypointHeatMixin, Descriptor):

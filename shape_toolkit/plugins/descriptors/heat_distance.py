@@ -9,7 +9,7 @@ from shape_toolkit.api.params import Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.features.heat import NORMALIZATIONS, heat_distances
-from shape_toolkit.plugins.descriptors._common import KeypointHeatMixin
+from shape_toolkit.plugins.descriptors.heat_spectrum import KeypointHeatMixin
 
 
 class HeatDistanceDescriptor(KeypointHeatMixin, Descriptor):

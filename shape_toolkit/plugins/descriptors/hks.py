@@ -11,7 +11,7 @@ from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.features.heat import heat_kernel_signature
 from shape_toolkit.features.scales import default_times
 from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE_INT, TIMES, WEIGHTING
-from shape_toolkit.plugins.descriptors._common import K_PARAM, check_K, own_spectrum
+from shape_toolkit.plugins.descriptors.heat_spectrum import K_PARAM, check_K, own_spectrum
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 #: ``K`` of the spectral descriptors when not given

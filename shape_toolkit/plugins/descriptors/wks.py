@@ -11,7 +11,7 @@ from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.basis import spectral_basis
 from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE, POSITIVE_INT, WEIGHTING
-from shape_toolkit.plugins.descriptors._common import K_PARAM, check_K, own_spectrum
+from shape_toolkit.plugins.descriptors.heat_spectrum import K_PARAM, check_K, own_spectrum
 from shape_toolkit.plugins.descriptors.hks import DEFAULT_K
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
