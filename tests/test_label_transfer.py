@@ -84,3 +84,30 @@ def test_cli_transfer_labels(shapes, tmp_path):
     cmd[4] = tmp_path / "short.txt"
     r = subprocess.run(list(map(str, cmd)), capture_output=True, text=True, cwd=REPO)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_thesis_preset_uses_the_l_embedding_of_algorithm_5(shapes):
+    """Preset ``thesis`` of eigvec-alignment (section 5.4): the unnormalized Gaussian-graph Laplacian without
+    mass, its commute-time embedding (eq. 5.1) registered by EM, histograms of the eigenvectors themselves;
+    the default keeps the unscaled Laplace-Beltrami eigenvectors."""
+    from shape_toolkit.api.registry import create_plugin
+    from shape_toolkit.plugins.matching.dense.eigvec_alignment import histogram_alignment
+
+    a, b = shapes
+    m = create_plugin("dense_matchers", "eigvec-alignment", "thesis")
+    spec = m.spectrum_spec()
+    assert spec.weighting == "gaussian" and spec.laplacian == "combinatorial" and spec.use_mass is False
+    emb, Q0, _ = m.start(a.shape, b.shape, None)
+    bs, bt = m._bases(a.shape, b.shape, None, None)
+    K = emb.X.shape[1]
+    np.testing.assert_allclose(emb.X, bs.evecs[:, 1 : K + 1] / np.sqrt(bs.evals[1 : K + 1]))
+    np.testing.assert_allclose(emb.Y, bt.evecs[:, 1 : K + 1] / np.sqrt(bt.evals[1 : K + 1]))
+    Q, _ = histogram_alignment(bs.evecs[:, 1 : K + 1], bt.evecs[:, 1 : K + 1], bs.mass, bt.mass, m.bins)
+    np.testing.assert_array_equal(Q0, Q)
+    d = create_plugin("dense_matchers", "eigvec-alignment")
+    assert d.spectrum_spec().use_mass is not False or d.spectrum_spec().weighting != "gaussian"
+    emb_d, _, _ = d.start(a.shape, b.shape, None)
+    bd, _ = d._bases(a.shape, b.shape, None, None)
+    np.testing.assert_array_equal(emb_d.X, bd.evecs[:, 1 : emb_d.X.shape[1] + 1])
+    labels, corr = probabilistic_label_transfer(a.shape, a.labels, b.shape, preset="thesis")
+    assert labels.shape == (b.shape.n_vertices,) and corr.posteriors is not None

@@ -57,13 +57,18 @@ def histogram_alignment(
 class EigvecAlignmentMatcher(EMRegistrationMatcher):
     """Mateus et al. 2008: histogram alignment of eigenvector signs and order, then EM
     registration (parameters as ``em-registration``, plus ``bins``). Seeds are ignored. The
-    baseline as published: its own embedding and no orientation cue (it matches up to symmetry)."""
+    baseline as published: its own embedding and no orientation cue (it matches up to symmetry).
 
-    presets: dict = {}
+    Default: area-normalized Laplace-Beltrami eigenvectors, unscaled. Preset ``thesis`` (Algorithm 5,
+    section 5.4): the unnormalized Laplacian ``D - W`` of the Gaussian graph (eq. 3.7) and its L-embedding,
+    the commute-time scaling ``Lambda^{-1/2} U^T`` of eq. 5.1; the histograms are those of the eigenvectors
+    themselves (a scaling per column would only move them between bins)."""
+
+    presets: dict = {"thesis": {"spectrum": "graph", "weighting": "gaussian", "scaling": "commute-time"}}
     parameter_constraints = {
         **{p: c for p, c in EMRegistrationMatcher.parameter_constraints.items()
            if p in ("k", "outlier_weight", "n_neighbors", "max_iter", "tol", "threshold", "one_to_one",
-                    "fill_unmatched")},
+                    "fill_unmatched", "spectrum", "weighting", "scaling")},
         "bins": Param(POSITIVE_INT, doc="histogram bins of the eigenvector alignment"),
     }
 
@@ -78,21 +83,24 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         threshold: float = 0.5,
         one_to_one: bool = False,
         fill_unmatched: bool = True,
+        spectrum: str = "lbo",
+        weighting: str | None = None,
+        scaling: str = "none",
     ):
         super().__init__(
             k=k, outlier_weight=outlier_weight, n_neighbors=n_neighbors, max_iter=max_iter,
             tol=tol, threshold=threshold, one_to_one=one_to_one, fill_unmatched=fill_unmatched,
-            orientation="none",
+            spectrum=spectrum, weighting=weighting, scaling=scaling, orientation="none",
         )
         self.bins = bins
 
     def start(self, source: Shape, target: Shape, seeds: np.ndarray | None, source_spectrum=None,
               target_spectrum=None, min_dim: int = 0) -> tuple[Embedding, np.ndarray, dict]:
-        """The aligned eigenvectors (no scaling, no bases: no refinement) and the histogram alignment ``Q0``;
-        ``seeds`` are ignored."""
+        """The embeddings (``scaling``; no bases: no refinement) and ``Q0``, the histogram alignment of their
+        eigenvectors; ``seeds`` are ignored."""
         self._check()
         bs, bt = self._bases(source, target, source_spectrum, target_spectrum, min_dim)
         K = self._shared_dimension(int(self.k), bs, bt)  # one size on both shapes, however small
         X, Y = bs.evecs[:, 1 : K + 1], bt.evecs[:, 1 : K + 1]
         Q0, _ = histogram_alignment(X, Y, bs.mass, bt.mass, int(self.bins))
-        return Embedding(X, Y), Q0, {"Q0": Q0}
+        return Embedding(self._embed(bs, K), self._embed(bt, K)), Q0, {"Q0": Q0}
