@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import shortest_path
 
+from shape_toolkit.core.inspect import connected_components
 from shape_toolkit.data.corruptions import (
     CORRUPTIONS,
     apply_corruption,
     carry_correspondence,
     carry_labels,
+    crop,
     gaussian_noise,
     holes,
     invert_vertex_map,
@@ -22,7 +24,7 @@ from shape_toolkit.data.corruptions import (
     shot_noise,
 )
 from shape_toolkit.data.synthetic import articulated_shape
-from shape_toolkit.errors import ParameterError
+from shape_toolkit.errors import InvalidShapeError, ParameterError
 
 
 @pytest.fixture(scope="module")
@@ -160,3 +162,33 @@ def test_every_corruption_carries_colours_with_the_surface(body, name):
     out, vmap = CORRUPTIONS[name](coloured, random_state=1)
     assert out.colors is not None
     np.testing.assert_array_equal(out.colors, coloured.colors[vmap])
+
+
+@pytest.mark.parametrize("strength", [0.1, 0.3, 0.5])
+def test_crop_removes_one_connected_region_of_the_requested_area(body, strength):
+    """``crop`` (partial shapes): the removed vertices hold the asked fraction of the area (to within a
+    vertex ring, plus at most 5% when the cut splits off a piece), form one connected region, and the kept ones keep exact coordinates and their back-map."""
+    s, labels = body
+    c, vm = crop(s, strength=strength, random_state=3)
+    removed = np.setdiff1d(np.arange(s.n_vertices), vm)
+    frac = s.vertex_areas[removed].sum() / s.area
+    assert strength - 0.02 < frac <= strength + 0.05  # + a piece the cut split off (at most 5%)
+    assert np.array_equal(c.vertices, s.vertices[vm]) and len(np.unique(vm)) == len(vm)
+    sub, _ = s.submesh(removed)
+    assert connected_components(sub)[0] == 1
+    assert carry_labels(labels, vm).shape == (c.n_vertices,)
+    c2, vm2 = crop(s, strength=strength, random_state=3)
+    assert np.array_equal(vm, vm2)
+    assert not np.array_equal(vm, crop(s, strength=strength, random_state=4)[1])
+
+
+def test_crop_refuses_a_cut_that_leaves_too_little_in_one_piece():
+    """Two separate spheres: cutting 30% around a vertex of one leaves the other as the largest piece, with half
+    the area, not 70%: refused, naming random_state (never a silently larger crop)."""
+    a = articulated_shape(subdivisions=2, limbs=np.array([[1.0, 0, 0]]), limb_length=0.01).shape
+    v = np.vstack([a.vertices, a.vertices + [10.0, 0, 0]])
+    f = np.vstack([a.faces, a.faces + a.n_vertices])
+    two = type(a)(v, f)
+    with pytest.raises(InvalidShapeError, match="random_state"):
+        crop(two, strength=0.3, random_state=0)
+    assert crop(two, strength=0.0)[0] is two

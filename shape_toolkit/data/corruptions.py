@@ -33,6 +33,7 @@ __all__ = [
     "shortcut",
     "glue",
     "partial",
+    "crop",
     "apply_corruption",
     "RESAMPLING",
     "invert_vertex_map",
@@ -351,6 +352,37 @@ def partial(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Co
     return _keep(shape, keep)
 
 
+def crop(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Corruption:
+    """A partial shape: cut away one connected region holding the fraction ``strength`` of the surface area, a
+    geodesic ball (along the mesh edges) around a random centre vertex; every vertex keeps its back-map, so the
+    ground truth survives. When the cut splits the rest (a limb cut at its root), the largest piece is kept
+    if it holds at least ``1 - strength - 0.05`` of the area; otherwise :class:`InvalidShapeError` asks
+    for another ``random_state``."""
+    shape.require_faces("crop")
+    s = _check_strength(strength, 0.0, 0.9)
+    if s == 0:
+        return shape, _identity(shape)
+    n, e = shape.n_vertices, shape.edges
+    rng = np.random.default_rng(random_state)
+    centre = int(rng.integers(n))
+    G = sp.coo_matrix((shape.edge_lengths, (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    dist = dijkstra(G, directed=False, indices=centre)
+    area = shape.vertex_areas
+    order = np.argsort(dist, kind="stable")
+    reach = np.isfinite(dist[order])
+    removed = np.cumsum(np.where(reach, area[order], 0.0)) <= s * area.sum()
+    keep = np.ones(n, dtype=bool)
+    keep[order[removed]] = False
+    out, vmap = _keep(shape, keep)
+    kept = float(area[vmap].sum() / area.sum())
+    if kept < 1.0 - s - 0.05:
+        raise InvalidShapeError(
+            f"crop: cutting {s:.0%} of the area around vertex {centre} leaves pieces, the largest with "
+            f"{kept:.0%} of the area (asked: {1 - s:.0%}); try another random_state"
+        )
+    return out, vmap
+
+
 #: corruption name (as used in configs) -> function
 CORRUPTIONS: dict[str, Callable[..., Corruption]] = {
     "rigid": rigid_motion,
@@ -363,6 +395,7 @@ CORRUPTIONS: dict[str, Callable[..., Corruption]] = {
     "shortcut": shortcut,
     "glue": glue,
     "partial": partial,
+    "crop": crop,
 }
 
 
