@@ -6,6 +6,7 @@ parameters and grids above the row cap before any work."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import textwrap
 import warnings
@@ -108,7 +109,8 @@ def test_report_never_deletes_or_replaces_a_users_files(run, tmp_path, capsys):
         assert all(Path(f).name not in mine for f in res["figures"])
         assert len(res["figures"]) == len(ours)
     on_disk = {p.name for p in (out / "figures").iterdir()}
-    assert on_disk == set(mine) | {Path(f).name for f in res["figures"]}  # the first report's are gone
+    ours_now = {Path(f).name for f in res["figures"] + res["vector_figures"]}  # PNG and PDF of each figure
+    assert on_disk == set(mine) | ours_now  # the first report's are gone
     assert _snapshot(run) == inputs  # the run's own files are untouched
     # a figure the user changed after the report is no longer the report's: it stays
     changed = Path(res["figures"][-1])
@@ -201,7 +203,7 @@ def test_a_report_into_the_run_folder_leaves_its_inputs_alone(run):
 # -- 2. user strings escaped in every report field -------------------------------------------
 PAYLOADS = ("<script>alert(1)</script>", '"><img src=x onerror=alert(1)>', "'><svg onload=alert(1)>")
 _TAGS = {"html", "head", "meta", "title", "style", "body", "h1", "h2", "h3", "p", "code", "ul", "li", "b",
-         "span", "table", "tr", "th", "td", "small", "details", "summary", "figure", "img", "figcaption"}
+         "span", "table", "tr", "th", "td", "small", "details", "summary", "figure", "img", "figcaption", "a"}
 
 
 class _Tags(HTMLParser):
@@ -219,9 +221,11 @@ def _assert_no_markup_from_data(text: str) -> None:
     for tag, attrs in parser.tags:
         assert tag in _TAGS, f"unexpected tag <{tag}>"
         for name, value in attrs:
-            assert name in ("charset", "name", "content", "title", "class", "style", "alt", "src"), (tag, name)
+            assert name in ("charset", "name", "content", "title", "class", "style", "alt", "src", "href"), (tag, name)
             if tag == "img" and name == "src":
                 assert value.startswith("data:image/png;base64,")
+            if name == "href":  # links to the report's own table and figure files only
+                assert tag == "a" and re.fullmatch(r"(tables/[\w.-]+\.(csv|tex)|figures/[\w.-]+\.pdf)", value), value
     for p in PAYLOADS:
         assert p not in text
 

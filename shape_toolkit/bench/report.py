@@ -1,20 +1,27 @@
-"""``bench report``: a self-contained HTML page (PNG figures inlined as base64) plus the PNG files.
+"""``bench report``: a self-contained HTML page (PNG figures inlined as base64) plus the figures as
+PNG and PDF files and every table as CSV and LaTeX (booktabs) files, linked from the page.
 
 Sections: a summary first (per task and dataset, the best method of each metric highlighted and
 every metric's direction marked, lower or higher is better); then per task and dataset a table of
 mean and standard deviation per method and corruption (never averaging different datasets), with
-an expandable per-item table; curve metrics (cumulative geodesic error, eigenvalues, scree alpha)
-per method side by side; metric versus corruption strength; runtime and memory per method; the
-shared precomputation; failed rows; rendered shapes (segmentations in the ground truth's palette,
-matched by the Hungarian method; keypoints; maps by pull-back colour transfer). Figures are made
-for a full-width page (about 1200 px), with labelled axes and units.
+an expandable per-item table. "Best" only where it means something: a best shared within the
+printed precision is named a tie, a constant column (memory: within 1 MB) has none, and a metric a
+method gives no value of is n/a with a note under the table saying why (never 0, never best);
+GCE and LCE are marked as rewarding under-segmentation. Then curve metrics (cumulative geodesic
+error, eigenvalues, scree alpha) per method side by side; metric versus corruption strength;
+runtime and memory per method; the shared precomputation; failed rows; rendered shapes
+(segmentations in the ground truth's palette, matched by the Hungarian method; keypoints; maps by
+pull-back colour transfer). Figures are made for a full-width page (about 1200 px), with labelled
+axes and units.
 """
 
 from __future__ import annotations
 
 import base64
+import csv
 import hashlib
 import html
+import io
 import json
 import math
 import os
@@ -39,7 +46,8 @@ from shape_toolkit.bench.store import (
 )
 from shape_toolkit.errors import ParameterError
 
-__all__ = ["write_report", "check_report_output", "summarize", "method_id", "metric_direction", "MANIFEST"]
+__all__ = ["write_report", "check_report_output", "summarize", "method_id", "metric_direction", "latex_escape",
+           "rewards_under_segmentation", "MANIFEST"]
 
 #: metrics where a larger value is better (everything else with a direction: lower is better)
 _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
@@ -68,12 +76,33 @@ def _arrow(name: str) -> str:
     return {"higher": " &uarr;", "lower": " &darr;"}.get(d, "")
 
 
+#: metrics that reward under-segmentation (one segment for the whole shape scores their best value, 0)
+_UNDER_SEGMENTATION = re.compile(r"(?:^|_)(?:gce|lce)(?:$|_)", re.IGNORECASE)
+_UNDER_NOTE = ("rewards under-segmentation: GCE and LCE score one segment for the whole shape as perfect (0); "
+               "read them with n_segments and the other scores")
+#: memory columns: differences below this many MB are noise, never a best
+_MEMORY_TOLERANCE_MB = 1.0
+
+
+def rewards_under_segmentation(name: str) -> bool:
+    """Whether a metric rewards under-segmentation (GCE, LCE: a single segment scores 0, the best)."""
+    return bool(_UNDER_SEGMENTATION.search(name))
+
+
+def _unit(name: str) -> str | None:
+    return _UNITS.get(name) or ("%" if name.startswith("r_smooth@") else None)
+
+
 def _header(name: str) -> str:
-    unit = _UNITS.get(name) or ("%" if name.startswith("r_smooth@") else None)
+    unit = _unit(name)
     unit = f" ({unit})" if unit else ""
     d = metric_direction(name)
     tip = {"higher": "higher is better", "lower": "lower is better"}.get(d, "no better direction")
-    return f"<th title='{tip}'>{html.escape(name)}{unit}{_arrow(name)}</th>"
+    mark = ""
+    if rewards_under_segmentation(name):
+        tip += "; rewards under-segmentation (see the note under the table)"
+        mark = " &dagger;"
+    return f"<th title='{tip}'>{html.escape(name)}{unit}{_arrow(name)}{mark}</th>"
 
 
 def method_id(row: dict) -> str:
@@ -126,15 +155,16 @@ class _Figs:
 
     def __init__(self, folder: Path, say: Callable[[str], None] | None = None):
         self.folder = folder
-        self.files: list[Path] = []
+        self.files: list[Path] = []  # the PNGs the page shows
+        self.vector: list[Path] = []  # the same figures as PDF
         self.say = say or (lambda _msg: None)
 
     def fresh(self, name: str) -> Path:
-        """A path ``NN-NAME.png`` in the folder that no file (or link) occupies."""
+        """A path ``NN-NAME.png`` in the folder that no file (or link) occupies, nor its ``.pdf``."""
         stem = f"{len(self.files):02d}-{safe_name(name)}"
         p = self.folder / f"{stem}.png"
         n = 2
-        while os.path.lexists(p):  # someone else's file: leave it, take another name
+        while os.path.lexists(p) or os.path.lexists(p.with_suffix(".pdf")):  # someone else's: take another name
             p = self.folder / f"{stem}-{n}.png"
             n += 1
         return p
@@ -144,22 +174,29 @@ class _Figs:
 
         self.say(f"figure {len(self.files) + 1}: {name}")  # the layout and PNG encoding take the time
         p = self.fresh(name)
+        q = p.with_suffix(".pdf")
         try:
             fig.savefig(p, dpi=100, bbox_inches="tight", pad_inches=0.15)
+            fig.savefig(q, bbox_inches="tight", pad_inches=0.15, metadata={"CreationDate": None})
         except BaseException:
-            p.unlink(missing_ok=True)  # our own half-written file (the name was free)
+            p.unlink(missing_ok=True)  # our own half-written files (the names were free)
+            q.unlink(missing_ok=True)
             raise
         finally:
             plt.close(fig)
         self.files.append(p)
+        self.vector.append(q)
         return p
 
 
 def _img(path: Path, alt: str) -> str:
+    """A figure inlined as base64 PNG, its caption linking the PDF of the same figure when there is one."""
     data = base64.b64encode(path.read_bytes()).decode()
     cap = html.escape(alt)
     img = f'<img alt="{cap}" src="data:image/png;base64,{data}"/>'
-    return f"<figure>{img}<figcaption>{cap}</figcaption></figure>"
+    pdf = path.with_suffix(".pdf")
+    link = f" (<a href='{html.escape('figures/' + pdf.name)}'>PDF</a>)" if _regular(pdf) else ""
+    return f"<figure>{img}<figcaption>{cap}{link}</figcaption></figure>"
 
 
 def _num(v: float) -> str:
@@ -173,113 +210,371 @@ def _num(v: float) -> str:
     return f"{v:.4f}"
 
 
+def _spread(s: float) -> str:
+    """A standard deviation as printed after ``&plusmn;``."""
+    return f"{s:.2g}" if abs(s) < 1e-3 or abs(s) >= 1000 else f"{s:.3f}"
+
+
 def _fmt(m: float, s: float, n: int) -> str:
     """``mean &plusmn; std (n=...)``; no spread shown for a single value or a constant column."""
     text = _num(m)
     if n > 1 and s > 0:
-        spread = f"{s:.2g}" if abs(s) < 1e-3 or abs(s) >= 1000 else f"{s:.3f}"
-        text += f" &plusmn; {spread}"
+        text += f" &plusmn; {_spread(s)}"
     if n > 1:
         text += f" <small>(n={n})</small>"
     return text
 
 
-def _best(cells: dict, column: str) -> set:
-    """Keys of the cells holding the best mean of ``column`` (per dataset and corruption)."""
+def _no_value(v: Any) -> bool:
+    """A metric the row names but holds no value of: null (NaN and infinities are stored as null)."""
+    return v is None or (isinstance(v, float) and not math.isfinite(v))
+
+
+#: metrics a kind of method cannot produce whatever its rows hold, ``(family, column)``: shown as n/a
+_CANNOT = {("sparse_matchers", "matched_fraction")}
+#: why a kind of method has no value of a column: ``(family, part of the column name) -> reason``
+_WHY_NO_VALUE = {
+    ("sparse_matchers", "matched_fraction"): (
+        "a sparse matcher matches only its keypoints, so the share of the ground-truth points it matches "
+        "measures the keypoint sampling, not the method"),
+    ("sparse_matchers", "geodesic_error"): (
+        "no matched keypoint is among the ground-truth points evaluated (the truth_sample option)"),
+}
+
+
+def _why_no_value(family: str, column: str) -> str:
+    for (fam, part), why in _WHY_NO_VALUE.items():
+        if family == fam and part in column:
+            return why
+    return "the metric gave no value for its rows (null in results.jsonl)"
+
+
+def _cell_key(r: dict) -> tuple[str, str, str]:
+    return (str(r.get("dataset", "-")), method_id(r), str(r.get("corruption", "none")))
+
+
+def _gaps(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str, list]]]:
+    """``{task: {(dataset, method_id, corruption): {column: [rows without a value, ok rows, why]}}}``
+    over ok rows: the metrics a row names but has no value of (null, or one its kind of method
+    cannot produce), shown as n/a with a note, never as a number."""
+    out: dict = defaultdict(lambda: defaultdict(dict))
+    n_ok: dict = defaultdict(int)
+    for r in rows:
+        if r.get("status") != "ok":
+            continue
+        key = _cell_key(r)
+        n_ok[(r["task_name"], key)] += 1
+        for k, v in r["metrics"].items():
+            if _no_value(v):
+                out[r["task_name"]][key].setdefault(k, [0, 0, _why_no_value(str(r.get("family", "")), k)])[0] += 1
+    for task, cells in out.items():
+        for key, cols in cells.items():
+            for g in cols.values():
+                g[1] = n_ok[(task, key)]
+    return out
+
+
+def _ranks(cells: dict, column: str) -> dict[tuple[str, str, str], str]:
+    """``{cell key: "best" or "tie"}`` for ``column``, per dataset and corruption: the one best mean,
+    or the means sharing the best within the printed precision (memory: within 1 MB), named a tie.
+    Nothing where only one method has a value, or where they all share the best (a constant column:
+    nothing to choose)."""
     d = metric_direction(column)
     if d is None:
-        return set()
+        return {}
     groups: dict = defaultdict(list)
     for key, cols in cells.items():
         if column in cols and math.isfinite(cols[column][0]):
             groups[(key[0], key[2])].append((cols[column][0], key))
-    best = set()
+    out: dict = {}
     for items in groups.values():
-        if len({k[1] for _, k in items}) < 2:
+        if len(items) < 2:
             continue  # one method: nothing to compare
         target = max(v for v, _ in items) if d == "higher" else min(v for v, _ in items)
-        best |= {k for v, k in items if math.isclose(v, target, rel_tol=1e-12, abs_tol=1e-15)}
-    return best
+        if "memory" in column:
+            tied = {k for v, k in items if abs(v - target) < _MEMORY_TOLERANCE_MB}
+        else:
+            tied = {k for v, k in items if _num(v) == _num(target)}
+        if len(tied) == len(items):
+            continue  # constant within what is printed (memory: within 1 MB)
+        out.update(dict.fromkeys(tied, "best" if len(tied) == 1 else "tie"))
+    return out
 
 
-def _table(cells: dict, columns: list[str]) -> str:
-    """Mean and std per (dataset, method, corruption); the best of each column in bold."""
-    head = "<th>dataset</th><th>method</th><th>corruption</th>" + "".join(_header(c) for c in columns)
-    best = {c: _best(cells, c) for c in columns}
-    body = []
-    for key, cols in sorted(cells.items()):
-        ds, mid, corr = key
-        tds = []
-        for c in columns:
-            if c not in cols:
-                tds.append("<td>&ndash;</td>")
-            elif key in best[c]:
-                tds.append(f"<td class='best'>{_fmt(*cols[c])}</td>")
+_NA = "n/a"
+
+
+class _Grid:
+    """One table of the report kept as data (key columns as text; metric cells as ``(mean, std, n,
+    mark)``, ``_NA`` or None for no such column), so that its HTML, CSV and LaTeX show the same
+    numbers; ``notes`` (plain text) go under it."""
+
+    def __init__(self, title: str, keys: list[str], metrics: list[str], *, stats: bool, css: str = ""):
+        self.title = title
+        self.keys = keys
+        self.metrics = metrics
+        self.stats = stats  # cells are mean and std over n rows (else one value each)
+        self.css = css
+        self.rows: list[tuple[list[str], list[Any]]] = []
+        self.notes: list[str] = []
+
+
+def _html_cell(c: Any, stats: bool) -> str:
+    if c is None:
+        return "<td>&ndash;</td>"
+    if c is _NA:
+        return "<td class='na' title='no value: see the note under the table'>n/a</td>"
+    m, s, n, mark = c
+    text = _fmt(m, s, n) if stats else _num(m)
+    if mark == "best":
+        return f"<td class='best'>{text}</td>"
+    if mark == "tie":
+        return f"<td class='best' title='tied best within the printed precision'>{text} <small>tie</small></td>"
+    return f"<td>{text}</td>"
+
+
+def _html_table(g: _Grid) -> str:
+    head = "".join(f"<th>{html.escape(k)}</th>" for k in g.keys) + "".join(_header(c) for c in g.metrics)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(k)}</td>" for k in keys)
+        + "".join(_html_cell(c, g.stats) for c in cells) + "</tr>"
+        for keys, cells in g.rows
+    )
+    css = f" class='{g.css}'" if g.css else ""
+    notes = "".join(f"<p class='note'>{html.escape(n)}</p>" for n in g.notes)
+    return f"<table{css}><tr>{head}</tr>{body}</table>{notes}"
+
+
+def _csv_text(g: _Grid) -> str:
+    """The table as CSV: full-precision values (a mean table: ``COLUMN``, ``COLUMN_std`` and
+    ``COLUMN_n`` per metric), ``n/a`` where a method gives no value, empty where it has no such column."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    width = 3 if g.stats else 1
+    head = [_printable(k) for k in g.keys]
+    for c in g.metrics:
+        head += [_printable(c), _printable(f"{c}_std"), _printable(f"{c}_n")] if g.stats else [_printable(c)]
+    w.writerow(head)
+    for keys, cells in g.rows:
+        out = [_printable(k) for k in keys]
+        for c in cells:
+            if c is None:
+                out += [""] * width
+            elif c is _NA:
+                out += ([_NA, "", "0"] if g.stats else [_NA])
             else:
-                tds.append(f"<td>{_fmt(*cols[c])}</td>")
-        body.append(f"<tr><td>{html.escape(ds)}</td><td>{html.escape(mid)}</td>"
-                    f"<td>{html.escape(corr)}</td>{''.join(tds)}</tr>")
-    return f"<table><tr>{head}</tr>{''.join(body)}</table>"
+                out += [repr(float(c[0])), repr(float(c[1])), str(int(c[2]))] if g.stats else [repr(float(c[0]))]
+        w.writerow(out)
+    return buf.getvalue()
 
 
-def _item_table(rows: list[dict], columns: list[str]) -> str:
-    """Per-item values of every scalar metric, inside an expandable ``<details>``."""
+_TEX_ESCAPES = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
+                "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
+                "<": r"\textless{}", ">": r"\textgreater{}", "|": r"\textbar{}", "\u00b1": r"$\pm$",
+                "\u2020": r"\dag{}"}
+
+
+def latex_escape(text: Any) -> str:
+    """``text`` as literal LaTeX text: ``& % $ # _ { } ~ ^ \\`` (and ``< > |``) escaped, control
+    characters and unencodable ones replaced by ``?``, newlines by spaces."""
+    s = _printable(str(text).replace("\n", " ").replace("\r", " "))
+    return "".join(_TEX_ESCAPES.get(c, c) for c in s)
+
+
+def _tex_header(name: str) -> str:
+    unit = _unit(name)
+    text = latex_escape(name) + (f" ({latex_escape(unit)})" if unit else "")
+    text += {"higher": r" $\uparrow$", "lower": r" $\downarrow$"}.get(metric_direction(name) or "", "")
+    return text + (r"\textsuperscript{\dag}" if rewards_under_segmentation(name) else "")
+
+
+def _tex_cell(c: Any, stats: bool, show_n: bool) -> str:
+    if c is None:
+        return "--"
+    if c is _NA:
+        return _NA
+    m, s, n, mark = c
+    text = _num(m) if math.isfinite(m) else "--"
+    if stats and n > 1 and s > 0:
+        text += rf" $\pm$ {_spread(s)}"
+    if stats and show_n:
+        text += rf" {{\scriptsize (n={n})}}"
+    if mark == "best":
+        return rf"\textbf{{{text}}}"
+    if mark == "tie":
+        return rf"\textbf{{{text}}}\textsuperscript{{tie}}"
+    return text
+
+
+def _tex_text(g: _Grid) -> str:
+    """The table as a booktabs ``tabular`` (``\\usepackage{booktabs}``): the numbers as printed in
+    the HTML, best in bold, shared bests marked ``tie``; its notes as a paragraph under it."""
+    ns = {c[2] for _, cells in g.rows for c in cells if isinstance(c, tuple)}
+    show_n = g.stats and len(ns) > 1
+    lines = [f"% {latex_escape(g.title)}", "% written by shape-toolkit bench report; needs \\usepackage{booktabs}",
+             f"\\begin{{tabular}}{{{'l' * len(g.keys)}{'r' * len(g.metrics)}}}", r"\toprule",
+             " & ".join([latex_escape(k) for k in g.keys] + [_tex_header(c) for c in g.metrics]) + r" \\",
+             r"\midrule"]
+    for keys, cells in g.rows:
+        lines.append(" & ".join([latex_escape(k) for k in keys] + [_tex_cell(c, g.stats, show_n) for c in cells])
+                     + r" \\")
+    lines += [r"\bottomrule", r"\end{tabular}"]
+    notes = list(g.notes)
+    if g.stats and len(ns) == 1:
+        n = next(iter(ns))
+        notes.insert(0, f"Mean \u00b1 standard deviation over {n} row{'s' if n != 1 else ''} per cell.")
+    marks = {c[3] for _, cells in g.rows for c in cells if isinstance(c, tuple)} - {""}
+    if marks:
+        notes.insert(0, "Best in bold" + ("; tie: a best shared within the printed precision." if "tie" in marks
+                                          else "."))
+    if notes:
+        lines += [r"\par\smallskip", r"{\footnotesize " + r" \par ".join(latex_escape(n) for n in notes) + r"\par}"]
+    return "\n".join(lines) + "\n"
+
+
+class _Tables:
+    """The tables of one report, each written as CSV and LaTeX under fresh names in ``folder`` (a
+    name held by a file the report did not write is never reused), each file recorded in ``files``."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+        self.files: list[Path] = []
+        self.count = 0
+
+    def write(self, g: _Grid, name: str) -> str:
+        """Write ``g`` as ``NN-NAME.csv`` and ``.tex``; returns the HTML links to both."""
+        stem = f"{self.count:02d}-{safe_name(name)}"
+        cand, n = stem, 2
+        while any(os.path.lexists(self.folder / f"{cand}.{ext}") for ext in ("csv", "tex")):
+            cand, n = f"{stem}-{n}", n + 1
+        self.count += 1
+        links = []
+        for ext, text, what in (("csv", _csv_text(g), "CSV"), ("tex", _tex_text(g), "LaTeX (booktabs)")):
+            p = self.folder / f"{cand}.{ext}"
+            with open(p, "x", encoding="utf-8", newline="") as fh:  # "x": never through a link planted since
+                try:
+                    fh.write(text)
+                except BaseException:
+                    p.unlink(missing_ok=True)  # our own half-written file
+                    raise
+            self.files.append(p)
+            links.append(f"<a href='{html.escape('tables/' + p.name)}'>{what}</a>")
+        return f"<p class='dl'>This table as {' and '.join(links)}.</p>"
+
+
+def _mean_grid(task: str, cells: dict, gaps: dict) -> _Grid:
+    """Mean and std per (dataset, method, corruption); the best of each column marked (see
+    :func:`_ranks`); metrics without a value as n/a, and why, in notes under the table."""
+    valued = sorted({c for v in cells.values() for c in v} - {"seconds", "peak_memory_mb"})
+    columns = valued + ["seconds", "peak_memory_mb"]
+    g = _Grid(f"Task {task}: mean and standard deviation per method", ["dataset", "method", "corruption"],
+              columns, stats=True)
+    ranks = {c: _ranks(cells, c) for c in columns}
+    notes: dict = defaultdict(set)
+    for key in sorted(set(cells) | set(gaps)):
+        cols, gap = cells.get(key, {}), gaps.get(key, {})
+        row = []
+        for c in columns:
+            row.append((*cols[c], ranks[c].get(key, "")) if c in cols else _NA if c in gap else None)
+        g.rows.append((list(key), row))
+        for c, (missing, n, why) in gap.items():
+            if c not in valued:
+                notes[(c, "absent", why)].add(key[1])
+            elif missing == n:
+                notes[(c, "na", why)].add(key[1])
+            else:
+                notes[(c, "partial", why)].add(f"{key[1]} ({missing} of {n} rows)")
+    for (c, kind, why), who in sorted(notes.items()):
+        who = ", ".join(sorted(who))
+        g.notes.append({"absent": f"{c}: not computed for {who} because {why}; no method has a value, so the "
+                                  "column is left out.",
+                        "na": f"{c}: n/a for {who} because {why}.",
+                        "partial": f"{c}: no value for {who} because {why}; the mean is over the other rows."}[kind])
+    under = [c for c in columns if rewards_under_segmentation(c)]
+    if under:
+        g.notes.append(f"\u2020 {', '.join(under)}: {_UNDER_NOTE}.")
+    return g
+
+
+def _item_grid(task: str, rows: list[dict], columns: list[str]) -> _Grid | None:
+    """Per-item values of every scalar metric (None when the task has no ok row)."""
     ok = [r for r in rows if r.get("status") == "ok"]
     if not ok:
-        return ""
-    head = "<th>dataset</th><th>item</th><th>method</th><th>corruption</th>" + "".join(_header(c) for c in columns)
-    body = []
+        return None
+    g = _Grid(f"Task {task}: per-item values", ["dataset", "item", "method", "corruption"], columns, stats=False)
     for r in sorted(ok, key=lambda r: (str(r.get("dataset")), str(r.get("item")), method_id(r),
                                         str(r.get("corruption")))):
-        m = r.get("metrics") or {}
-        vals = []
+        m = r["metrics"]
+        cells = []
         for c in columns:
             v = r.get(c) if c in ("seconds", "peak_memory_mb") else m.get(c)
-            vals.append(f"<td>{_num(float(v))}</td>" if _is_num(v) else "<td>&ndash;</td>")
-        body.append(
-            f"<tr><td>{html.escape(str(r.get('dataset', '-')))}</td><td>{html.escape(str(r.get('item')))}</td>"
-            f"<td>{html.escape(method_id(r))}</td><td>{html.escape(str(r.get('corruption', 'none')))}</td>"
-            f"{''.join(vals)}</tr>"
-        )
-    return (f"<details><summary>per-item values ({len(ok)} rows)</summary>"
-            f"<table><tr>{head}</tr>{''.join(body)}</table></details>")
+            cells.append((float(v), 0.0, 1, "") if _is_num(v) else _NA if c in m and _no_value(v) else None)
+        g.rows.append(([str(r.get("dataset", "-")), str(r.get("item")), method_id(r),
+                        str(r.get("corruption", "none"))], cells))
+    if any(rewards_under_segmentation(c) for c in columns):
+        g.notes.append(f"\u2020 {', '.join(c for c in columns if rewards_under_segmentation(c))}: {_UNDER_NOTE}.")
+    return g
 
 
-def _summary_section(summ: dict, tasks: list[str], rows: list[dict]) -> str:
+def _failed_grid(failed: list[dict]) -> _Grid:
+    g = _Grid("Failed rows", ["task", "method", "item", "corruption", "error"], [], stats=False, css="failed")
+    for r in failed:
+        g.rows.append(([str(r.get("task_name")), method_id(r), str(r.get("item")), str(r.get("corruption")),
+                        str(r.get("error"))], []))
+    return g
+
+
+def _summary_section(summ: dict, tasks: list[str], rows: list[dict], gaps: dict | None = None) -> str:
     """The first section: per task and dataset, each directed metric's best method (uncorrupted
-    rows when there are any), with its value."""
+    rows when there are any), with its value; ties named, no best where all methods agree, and the
+    metrics no method has a value of named (``gaps``: see :func:`_gaps`)."""
     out = []
     for task in tasks:
         cells = summ.get(task, {})
+        task_gaps = (gaps or {}).get(task, {})
         kind = next((r.get("task_kind", "") for r in rows if r["task_name"] == task), "")
         for ds in sorted({k[0] for k in cells}):
             sub = {k: v for k, v in cells.items() if k[0] == ds}
             corr = "none" if any(k[2] == "none" for k in sub) else sorted({k[2] for k in sub})[0]
             sub = {k: v for k, v in sub.items() if k[2] == corr}
+            none_have = defaultdict(set)  # metrics named by rows of this group that no method has a value of
+            for k, cols in task_gaps.items():
+                if k[0] == ds and k[2] == corr:
+                    for c in cols:
+                        if not any(c in v for v in sub.values()):
+                            none_have[c].add(k[1])
             methods = sorted({k[1] for k in sub})
             cols = sorted({c for v in sub.values() for c in v if metric_direction(c)} - {"seconds", "peak_memory_mb"})
             items = []
             for c in cols:
-                if len(methods) == 1:  # nothing to rank: the value, with its direction
-                    only = [v[c][0] for v in sub.values() if c in v]
-                    if only:
-                        items.append(f"<li><b>{html.escape(c)}</b> ({metric_direction(c)} is better): "
-                                     f"{_num(only[0])}</li>")
-                    continue
-                best = _best(sub, c)
-                if not best:
-                    continue
-                names = ", ".join(sorted({k[1] for k in best}))
-                val = _num(sub[next(iter(best))][c][0])
-                items.append(f"<li><b>{html.escape(c)}</b> ({metric_direction(c)} is better): "
-                             f"<span class='best'>{html.escape(names)}</span> {val}</li>")
+                under = "; rewards under-segmentation" if rewards_under_segmentation(c) else ""
+                head = f"<li><b>{html.escape(c)}</b> ({metric_direction(c)} is better{under}): "
+                have = sorted((k[1], v[c][0]) for k, v in sub.items() if c in v)
+                ranks = _ranks(sub, c)
+                if len(methods) == 1 or len(have) == 1:  # nothing to rank: the value, with its direction
+                    who = "" if len(methods) == 1 else f"only {html.escape(have[0][0])} has a value: "
+                    items.append(f"{head}{who}{_num(have[0][1])}</li>")
+                elif not ranks:
+                    items.append(f"{head}no best: all {len(have)} methods give {_num(have[0][1])}</li>")
+                else:
+                    names = ", ".join(sorted({k[1] for k in ranks}))
+                    tie = "tie: " if len(ranks) > 1 else ""
+                    val = _num(sub[next(iter(ranks))][c][0])
+                    items.append(f"{head}<span class='best'>{tie}{html.escape(names)}</span> {val}</li>")
+            for c, who in sorted(none_have.items()):
+                items.append(f"<li><b>{html.escape(c)}</b>: n/a for {html.escape(', '.join(sorted(who)))} "
+                             "(no value; see the note under the table)</li>")
             what = f"{len(methods)} method{'s' if len(methods) != 1 else ''}: {', '.join(methods)}"
             body = (f"<ul>{''.join(items)}</ul>" if items
                     else "<p>no metric with a better direction here; see the table below.</p>")
             out.append(f"<h3>{html.escape(task)} ({html.escape(kind)}) on {html.escape(ds)}, "
                        f"corruption {html.escape(corr)}</h3><p>{html.escape(what)}</p>{body}")
     return ("<h2>Summary</h2><p>Best method per metric (&uarr; higher is better, &darr; lower is better; "
-            "best values are <span class='best'>highlighted</span> in every table).</p>" + "".join(out))
+            "best values are <span class='best'>highlighted</span> in every table). A best shared within the "
+            "printed precision is marked &ldquo;tie&rdquo;; a column where all methods agree (memory: within 1 MB) "
+            "has no best; n/a: the method gives no value of that metric (see the notes under the tables). "
+            "Every table is also written as CSV and LaTeX (booktabs), every figure also as PDF.</p>"
+            + "".join(out))
 
 
 #: row fields the report shows as text (the reader accepts a string, or null where noted in the store)
@@ -303,6 +598,9 @@ def _normalized(row: dict) -> dict:
             r[k] = json.dumps(v, sort_keys=True, default=str)
     if not isinstance(r.get("metrics"), dict):
         r["metrics"] = {}
+    fam = r.get("family")
+    if any((fam, k) in _CANNOT for k in r["metrics"]):  # whatever the row holds: no value (n/a), never a score
+        r["metrics"] = {k: None if (fam, k) in _CANNOT else v for k, v in r["metrics"].items()}
     return r
 
 
@@ -473,7 +771,8 @@ def _strength_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None
                 ax.errorbar(xs, [np.mean(pts[x]) for x in xs], yerr=[np.std(pts[x]) for x in xs],
                             marker="o", ms=4, capsize=3, label=_legend(mid))
             d = metric_direction(metric)
-            ax.set_title(_t(f"{metric}" + (f" ({d} is better)" if d else "")), fontsize=10)
+            under = ", rewards under-segmentation" if rewards_under_segmentation(metric) else ""
+            ax.set_title(_t(f"{metric}" + (f" ({d} is better{under})" if d else "")), fontsize=10)
             ax.set_xlabel(_t(f"{g} strength (0 = uncorrupted)"), fontsize=9)
             _style(ax, ys)
         handles, labels = axes.ravel()[0].get_legend_handles_labels()
@@ -552,14 +851,11 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
             else:
                 continue
             figs.say(f"figure {len(figs.files) + 1}: render of {method_id(r)} on {r['item']}")
-            p = render_shapes(
-                panels,
-                figs.fresh(f"render-{r['key']}"),
-                panel_size=min(4.5, 12.0 / len(panels)),
-                dpi=100,
-                title=_t(title),
-            )
+            p = figs.fresh(f"render-{r['key']}")
+            for path in (p, p.with_suffix(".pdf")):  # the same matplotlib figure, as PNG and as PDF
+                render_shapes(panels, path, panel_size=min(4.5, 12.0 / len(panels)), dpi=100, title=_t(title))
             figs.files.append(p)
+            figs.vector.append(p.with_suffix(".pdf"))
             parts.append(_img(p, title))
             done_methods.add(method_id(r))
         except Exception as exc:  # a broken output must not break the report
@@ -620,6 +916,9 @@ _CSS = (
     "figure{display:block;margin:.8em 0}figure img{width:100%;max-width:1200px;height:auto}"
     "figcaption{font-size:12px;color:#555}.err{color:#a00}small{color:#777}"
     "details{margin:.3em 0 1.5em}summary{cursor:pointer;color:#225}"
+    "td.na{color:#777;font-style:italic}table.failed td{text-align:left}"
+    "p.note{font-size:12px;color:#444;margin:-1em 0 .4em;max-width:1200px}p.note+p.note{margin-top:0}"
+    "p.dl{font-size:12px;margin:-.8em 0 1.5em}p.note+p.dl{margin-top:.3em}"
 )
 
 
@@ -627,7 +926,7 @@ _CSS = (
 #: replaces or deletes), with their SHA-256: ``{"generator": ..., "files": {relative path: digest}}``
 MANIFEST = ".bench-report.json"
 _GENERATOR = "shape-toolkit bench report"
-_OWNABLE = re.compile(r"index\.html|figures/[A-Za-z0-9._-]+\.png")
+_OWNABLE = re.compile(r"index\.html|figures/[A-Za-z0-9._-]+\.(?:png|pdf)|tables/[A-Za-z0-9._-]+\.(?:csv|tex)")
 
 
 def _digest(path: Path) -> str:
@@ -695,9 +994,10 @@ def check_report_output(out: str | os.PathLike) -> dict[str, str]:
             f"{page} exists and was not written by bench report; choose another report folder "
             "(the report never replaces a file it did not write)"
         )
-    figures = out / "figures"
-    if os.path.lexists(figures) and not figures.is_dir():
-        raise ParameterError(f"{figures} exists and is not a folder; choose another report folder")
+    for sub in ("figures", "tables"):
+        folder = out / sub
+        if os.path.lexists(folder) and not folder.is_dir():
+            raise ParameterError(f"{folder} exists and is not a folder; choose another report folder")
     return owned
 
 
@@ -720,8 +1020,9 @@ def write_report(
     renders: int = 3,
     progress: Callable[[str], None] | None = None,
 ) -> dict:
-    """Write ``index.html`` (self-contained) and PNG figures for a run folder; ``progress`` receives
-    one line per step (task, figure group). Returns ``{"html": path, "figures": [paths]}``.
+    """Write ``index.html`` (self-contained) with its figures (PNG, and PDF) and tables (CSV and
+    LaTeX) for a run folder; ``progress`` receives one line per step (task, figure group). Returns
+    ``{"html": path, "figures": [PNG paths], "vector_figures": [PDF paths], "tables": [CSV and TeX paths]}``.
 
     The report replaces or deletes only files it wrote itself (listed with their digests in
     ``OUTPUT/.bench-report.json``); a file it did not write is never touched: an ``index.html`` of
@@ -736,30 +1037,35 @@ def write_report(
     out = Path(output) if output else run / "report"
     owned = check_report_output(out)  # before any work
     (out / "figures").mkdir(parents=True, exist_ok=True)
+    (out / "tables").mkdir(exist_ok=True)
     say(f"reading {run / RESULTS}")
     rows = [_normalized(r) for r in read_rows(run)]
-    for rel in owned:  # the previous report's figures (still as it wrote them)
-        if rel.startswith("figures/"):
+    for rel in owned:  # the previous report's figures and tables (still as it wrote them)
+        if rel.startswith(("figures/", "tables/")):
             (out / rel).unlink(missing_ok=True)
     figs = _Figs(out / "figures", say)
+    tables = _Tables(out / "tables")
     path = out / "index.html"
     written: list[Path] = [path] if "index.html" in owned else []
     try:
         with _literal_figure_text():
-            page = _page(run, out, rows, figs, renders, say)
+            page = _page(run, out, rows, figs, tables, renders, say)
         tmp = out / ".index.html.tmp"
         tmp.write_text(page, encoding="utf-8", errors="replace")
         os.replace(tmp, path)
         written = [path]
     finally:
-        _write_manifest(out, written + figs.files)
-    say(f"wrote {path} ({len(figs.files)} figures)")
-    return {"html": path, "figures": list(figs.files)}
+        _write_manifest(out, written + figs.files + figs.vector + tables.files)
+    say(f"wrote {path} ({len(figs.files)} figures, {len(tables.files) // 2} tables as CSV and LaTeX)")
+    return {"html": path, "figures": list(figs.files), "vector_figures": list(figs.vector),
+            "tables": list(tables.files)}
 
 
-def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, renders: int, say: Callable[[str], None]) -> str:
-    """The HTML page of the report (its figures saved through ``figs``)."""
+def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, renders: int,
+          say: Callable[[str], None]) -> str:
+    """The HTML page of the report (its figures saved through ``figs``, its tables through ``tables``)."""
     summ = summarize(rows)
+    gaps = _gaps(rows)
     n_ok = sum(r.get("status") == "ok" for r in rows)
     failed = [r for r in rows if r.get("status") != "ok"]
     name = rows[0].get("run_name", run.name) if rows else run.name
@@ -770,7 +1076,7 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, renders: int, say
         f"<h1>Benchmark report: {html.escape(str(name))}</h1>",
         f"<p>{len(rows)} rows: {n_ok} ok, {len(failed)} failed. "
         f"Run folder: <code>{html.escape(str(run.resolve()))}</code>.</p>",
-        _summary_section(summ, tasks, rows),
+        _summary_section(summ, tasks, rows, gaps),
         "<p>Seconds are the method's own call (spectra come from the shared cache, timed separately); "
         "peak memory is the resident-set growth during that call (MB). Each dataset is reported on its "
         "own rows; values are mean &plusmn; standard deviation over items.</p>",
@@ -779,11 +1085,14 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, renders: int, say
         trows = [r for r in rows if r["task_name"] == task]
         say(f"task {i}/{len(tasks)}: {task} ({len(trows)} rows)")
         parts.append(f"<h2>Task {html.escape(task)} ({html.escape(str(trows[0].get('task_kind', '')))})</h2>")
-        cells = summ.get(task, {})
-        cols = sorted({c for v in cells.values() for c in v} - {"seconds", "peak_memory_mb"})
-        if cells:
-            parts.append(_table(cells, cols + ["seconds", "peak_memory_mb"]))
-            parts.append(_item_table(trows, cols + ["seconds"]))
+        cells, task_gaps = summ.get(task, {}), gaps.get(task, {})
+        if cells or task_gaps:
+            grid = _mean_grid(task, cells, task_gaps)
+            parts.append(_html_table(grid) + tables.write(grid, task))
+            items = _item_grid(task, trows, grid.metrics[:-1])  # seconds, not memory, per item
+            if items is not None:
+                parts.append(f"<details><summary>per-item values ({len(items.rows)} rows)</summary>"
+                             f"{_html_table(items)}{tables.write(items, f'{task}-items')}</details>")
         parts.append(_spectra_list(trows))
         datasets = sorted({str(r.get("dataset", "-")) for r in trows})
         for ds in datasets:
@@ -795,16 +1104,8 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, renders: int, say
             parts += _render_rows(run, trows, figs, renders)
     parts.append(_prepare_section(run, rows))
     if failed:
-        items = "".join(
-            f"<tr><td>{html.escape(str(r.get('task_name')))}</td><td>{html.escape(method_id(r))}</td>"
-            f"<td>{html.escape(str(r.get('item')))}</td><td>{html.escape(str(r.get('corruption')))}</td>"
-            f"<td style='text-align:left'>{html.escape(str(r.get('error')))}</td></tr>"
-            for r in failed
-        )
-        parts.append(
-            "<h2>Failed rows</h2><table><tr><th>task</th><th>method</th><th>item</th><th>corruption</th>"
-            f"<th>error</th></tr>{items}</table>"
-        )
+        grid = _failed_grid(failed)
+        parts.append("<h2>Failed rows</h2>" + _html_table(grid) + tables.write(grid, "failed"))
     parts.append(f"<p><small>Versions: {html.escape(json.dumps(versions))}</small></p>")
     page = (
         f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(str(name))}</title>"
