@@ -1,4 +1,5 @@
-"""Every example config validates as shipped and runs on a small subset.
+"""Every example config validates as shipped, runs on a small subset, and its report has CSV and
+LaTeX tables.
 
 The shipped file is loaded exactly (plugins, metrics, corruptions and dataset paths relative to
 $TOOLKIT_DATA are all checked), then run on one item with the first method of each task, at
@@ -9,9 +10,11 @@ Examples reading the shared data are skipped when it is absent.
 from __future__ import annotations
 
 import copy
+import csv
 import importlib.util
 import json
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -19,7 +22,9 @@ import numpy as np
 import pytest
 
 from shape_toolkit.bench.config import load_config, parse_config
+from shape_toolkit.bench.report import method_id, write_report
 from shape_toolkit.bench.runner import read_rows, run_benchmark
+from shape_toolkit.bench.store import safe_name
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -83,6 +88,27 @@ def test_example_runs_on_a_subset(config, tmp_path, request, monkeypatch):
     for r in rows:
         assert r["metrics"], r
         assert r["cpu_seconds"] is not None and r["cpu_seconds"] >= 0, r  # CPU time of the method's call
+    # its report has every table as CSV and LaTeX (booktabs), linked from the page (issue 28)
+    res = write_report(tmp_path / "run", renders=0)
+    page = res["html"].read_text(encoding="utf-8")
+    names = {p.name for p in res["tables"]}
+    for task in dict.fromkeys(r["task_name"] for r in rows):
+        for suffix in (".csv", ".tex", "-items.csv", "-items.tex"):
+            hit = [n for n in names if re.fullmatch(rf"\d\d-{re.escape(safe_name(task))}{suffix}", n)]
+            assert hit, (task, suffix, sorted(names))
+            assert f"href='tables/{hit[0]}'" in page
+    for t in res["tables"]:
+        text = t.read_text(encoding="utf-8")
+        if t.suffix == ".tex":
+            assert text.index(r"\toprule") < text.index(r"\midrule") < text.index(r"\bottomrule")
+        else:
+            head = next(csv.reader(text.splitlines()))
+            assert head[:2] == ["dataset", "method"] or head[:2] == ["dataset", "item"]
+    for t in res["tables"]:  # a sparse matcher's matched_fraction is never a score (n/a)
+        if t.suffix == ".csv" and "matched_fraction" in t.read_text():
+            for r in csv.DictReader(t.open(encoding="utf-8")):
+                if any(x["family"] == "sparse_matchers" and method_id(x) == r["method"] for x in rows):
+                    assert r["matched_fraction"] in ("n/a", ""), r
 
 
 def _tosca_results():
