@@ -375,8 +375,7 @@ _TEX_ESCAPES = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "
 
 
 def latex_escape(text: Any) -> str:
-    """``text`` as literal LaTeX text: ``& % $ # _ { } ~ ^ \\`` (and ``< > |``) escaped, control
-    characters and unencodable ones replaced by ``?``, newlines by spaces."""
+    """``text`` as literal LaTeX text (``& % $ # _ { } ~ ^ \\ < > |`` escaped, control characters as ``?``)."""
     s = _printable(str(text).replace("\n", " ").replace("\r", " "))
     return "".join(_TEX_ESCAPES.get(c, c) for c in s)
 
