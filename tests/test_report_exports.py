@@ -312,3 +312,29 @@ def test_a_second_report_replaces_its_own_tables_and_keeps_a_users(tmp_path):
     second = write_report(run, renders=0)
     assert mine.read_text() == "my edits" and mine not in second["tables"]
     assert {p.name for p in tables.iterdir()} == {mine.name} | {t.name for t in second["tables"]}
+
+
+def test_the_latex_tables_compile(report, tmp_path):
+    """Every .tex table, including one of labels made of LaTeX's special characters, through pdflatex
+    with booktabs (skipped where no pdflatex is installed: apt-get install texlive-latex-recommended)."""
+    import shutil
+    import subprocess
+
+    exe = shutil.which("pdflatex")
+    if exe is None:
+        pytest.skip("no pdflatex (apt-get install texlive-latex-base texlive-latex-recommended)")
+    labels = [r"$\frac{a$", r"\begin{x}", "$x^2$ and $", "_hidden", "a\x00b\x07", "50% & #1 ~z ^w {y} <b>|",
+              r"\end{tabular}"]
+    rows = [_row(f"k{i}{item}", lab, item, {"gce": 0.1 * (i % 3), f"recall{lab}": 0.5 + 0.1 * i, "x": None},
+                 task=f"t{lab}", memory=10.0 + i) for i, lab in enumerate(labels) for item in ("i1", "i2")]
+    rows.append(dict(rows[0], key="failed", status="failed", error=r"ValueError: bad \x & 100% {", metrics={}))
+    nasty = write_report(_write_rows(tmp_path / "run", rows), renders=0)
+    inputs = [t for t in report["tables"] + nasty["tables"] if t.suffix == ".tex"]
+    doc = tmp_path / "doc.tex"
+    doc.write_text("\\documentclass{article}\\usepackage[T1]{fontenc}\\usepackage{booktabs}"
+                   "\\usepackage[paperwidth=100cm,paperheight=40cm,margin=1cm]{geometry}\\begin{document}\n"
+                   + "\n".join(f"\\input{{{t.as_posix()}}}\\clearpage" for t in inputs) + "\n\\end{document}\n")
+    r = subprocess.run([exe, "-interaction=nonstopmode", "-halt-on-error", doc.name], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout[-2000:]
+    assert (tmp_path / "doc.pdf").stat().st_size > 1000
