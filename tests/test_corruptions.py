@@ -167,7 +167,8 @@ def test_every_corruption_carries_colours_with_the_surface(body, name):
 @pytest.mark.parametrize("strength", [0.1, 0.3, 0.5])
 def test_crop_removes_one_connected_region_of_the_requested_area(body, strength):
     """``crop`` (partial shapes): the removed vertices hold the asked fraction of the area (to within a
-    vertex ring, plus at most 5% when the cut splits off a piece), form one connected region, and the kept ones keep exact coordinates and their back-map."""
+    vertex ring, plus at most 5% when the cut splits off a piece), form one connected region, and the kept ones
+    keep exact coordinates and their back-map."""
     s, labels = body
     c, vm = crop(s, strength=strength, random_state=3)
     removed = np.setdiff1d(np.arange(s.n_vertices), vm)
