@@ -30,7 +30,10 @@ __all__ = [
 
 
 def check_times(times: float | Sequence[float] | np.ndarray) -> np.ndarray:
-    """Validate diffusion times: a float64 ``(T,)`` array of positive finite values."""
+    """Validate diffusion times: a float64 ``(T,)`` array of finite values ``>= 0``. ``t = 0`` is allowed (the
+    thesis's descriptor times ``{0, 20, 40, 80, 100}``, section 7.5): ``exp(-0 L)`` is the identity, so the
+    (deflated, truncated) kernel at ``t = 0`` is the projection ``sum_k u_ik u_jk`` onto the eigenvectors used;
+    nothing here divides by ``t``."""
     if isinstance(times, (str, bytes, dict)):
         raise ParameterError(f"diffusion times must be a number or a list of numbers, got {times!r}")
     try:
@@ -39,9 +42,9 @@ def check_times(times: float | Sequence[float] | np.ndarray) -> np.ndarray:
         raise ParameterError(f"diffusion times must be a number or a list of numbers, got {times!r}") from None
     if t.size == 0:
         raise ParameterError("at least one diffusion time is needed")
-    if not np.all(np.isfinite(t)) or np.any(t <= 0):
-        bad = t[~(np.isfinite(t) & (t > 0))][0]
-        raise ParameterError(f"diffusion times must be positive and finite, got {float(bad)!r}")
+    if not np.all(np.isfinite(t)) or np.any(t < 0):
+        bad = t[~(np.isfinite(t) & (t >= 0))][0]
+        raise ParameterError(f"diffusion times must be non-negative and finite, got {float(bad)!r}")
     return t
 
 

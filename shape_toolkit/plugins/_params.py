@@ -17,8 +17,8 @@ POSITIVE = Interval(float, 0, None, closed="neither")
 NON_NEGATIVE = Interval(float, 0)
 #: a fraction in [0, 1]
 FRACTION = Interval(float, 0, 1)
-#: diffusion times: one positive number or a list of them
-TIMES = (POSITIVE, ListOf(POSITIVE))
+#: diffusion times: one number >= 0 or a list of them (t = 0, the identity kernel, is in the thesis's tables)
+TIMES = (NON_NEGATIVE, ListOf(NON_NEGATIVE))
 
 #: the association-graph matchers (replicator, spectral, rrwm; umeyama shares k, time, sigma)
 ASSOCIATION = {
