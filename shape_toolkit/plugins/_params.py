@@ -29,6 +29,7 @@ ASSOCIATION = {
     "max_candidates": Param(POSITIVE_INT, doc="target candidates per source keypoint"),
     "min_score": Param(FRACTION, doc="drop matches scoring below this fraction of the best"),
     "orientation": Param(Options("preserving", "reversing", "none"), doc="side of each match (meshes)"),
+    "spectrum": Param(Options("lbo", "graph"), doc="heat-kernel spectrum: cotangent LBO, or Gaussian graph D - W"),
 }
 
 #: the descriptor a matcher computes on both shapes: a name, a {plugin, preset, params} table or an object

@@ -14,7 +14,20 @@ from shape_toolkit.plugins.matching.orientation import orient_pairs, side_matche
 from shape_toolkit.plugins.matching.validation import check_keypoints
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
-__all__ = ["AssociationGraph", "association_graph", "greedy_discretize", "AssociationMatcherBase"]
+__all__ = ["AssociationGraph", "association_graph", "association_spec", "greedy_discretize", "AssociationMatcherBase"]
+
+#: the literal setting of thesis 7.2.1 (preset ``thesis`` of replicator, spectral, rrwm): spectral distances of
+#: the Gaussian graph (eq. 3.7) and its combinatorial Laplacian ``D - W`` without mass (6.2.2), no side check
+#: (the thesis matches "only up to the symmetry")
+THESIS_SPARSE = {"spectrum": "graph", "orientation": "none"}
+
+
+def association_spec(k: int, spectrum: str = "lbo") -> SpectrumSpec:
+    """``k + 1`` eigenpairs of the cotangent Laplace-Beltrami operator (``"lbo"``) or of the Gaussian graph's
+    ``D - W`` without mass (``"graph"``, the thesis's heat kernel, eq. 6.7)."""
+    if spectrum == "graph":
+        return default_spec(int(k) + 1, "graph", weighting="gaussian", laplacian="combinatorial", use_mass=False)
+    return default_spec(int(k) + 1)
 
 
 @dataclass(frozen=True)
@@ -108,8 +121,8 @@ class AssociationMatcherBase:
     rrwm): build the graph, score its nodes with :meth:`_solve`, discretize one-to-one."""
 
     def spectrum_spec(self) -> SpectrumSpec:
-        """The Laplace-Beltrami spectrum with ``k + 1`` eigenpairs (see :func:`default_spec`)."""
-        return default_spec(int(self.k) + 1)
+        """``k + 1`` eigenpairs of the ``spectrum`` (:func:`association_spec`)."""
+        return association_spec(int(self.k), getattr(self, "spectrum", "lbo"))
 
     def _graph_params(self) -> dict:
         return dict(k=int(self.k), time=self.time, sigma=float(self.sigma),

@@ -10,7 +10,7 @@ import numpy as np
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.api.params import Param
 from shape_toolkit.plugins._params import ASSOCIATION, POSITIVE_INT
-from shape_toolkit.plugins.matching.association import AssociationGraph, AssociationMatcherBase
+from shape_toolkit.plugins.matching.association import THESIS_SPARSE, AssociationGraph, AssociationMatcherBase
 
 __all__ = ["ReplicatorMatcher", "replicator_dynamics"]
 
@@ -41,6 +41,7 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
     (Pelillo's regularization, whose strict maximizers are maximal cliques). Matches are read
     from the support of the limit (``x > min_score * max(x)``), one-to-one, most weight first."""
 
+    presets = {"thesis": dict(THESIS_SPARSE)}
     parameter_constraints = {**ASSOCIATION, "max_iter": Param(POSITIVE_INT, doc="replicator iterations")}
 
     def __init__(
@@ -53,6 +54,7 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
         min_score: float = 0.05,
         max_iter: int = 2000,
         orientation: str = "preserving",
+        spectrum: str = "lbo",
     ):
         self.k = k
         self.time = time
@@ -62,6 +64,7 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
         self.min_score = min_score
         self.max_iter = max_iter
         self.orientation = orientation
+        self.spectrum = spectrum
 
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
         A = graph.W + 0.5 * np.eye(len(graph.nodes))

@@ -9,7 +9,7 @@ import numpy as np
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.api.params import Param
 from shape_toolkit.plugins._params import ASSOCIATION, FRACTION, POSITIVE, POSITIVE_INT
-from shape_toolkit.plugins.matching.association import AssociationGraph, AssociationMatcherBase
+from shape_toolkit.plugins.matching.association import THESIS_SPARSE, AssociationGraph, AssociationMatcherBase
 
 __all__ = ["RRWMMatcher", "sinkhorn"]
 
@@ -28,6 +28,7 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
     degree and ``y`` the Sinkhorn normalization of ``exp(inflation x / max x)`` arranged as the
     ``(P, Q)`` keypoint matrix; iterated to convergence and discretized one-to-one."""
 
+    presets = {"thesis": dict(THESIS_SPARSE)}
     parameter_constraints = {
         **ASSOCIATION,
         "alpha": Param(FRACTION, doc="weight of the random walk against the reweighting jump"),
@@ -47,6 +48,7 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
         inflation: float = 30.0,
         max_iter: int = 300,
         orientation: str = "preserving",
+        spectrum: str = "lbo",
     ):
         self.k = k
         self.time = time
@@ -58,6 +60,7 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
         self.inflation = inflation
         self.max_iter = max_iter
         self.orientation = orientation
+        self.spectrum = spectrum
 
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
         W = graph.W + np.diag(graph.unary)

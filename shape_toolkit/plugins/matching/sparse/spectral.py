@@ -8,7 +8,7 @@ import numpy as np
 
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.plugins._params import ASSOCIATION
-from shape_toolkit.plugins.matching.association import AssociationGraph, AssociationMatcherBase
+from shape_toolkit.plugins.matching.association import THESIS_SPARSE, AssociationGraph, AssociationMatcherBase
 
 __all__ = ["SpectralMatcher"]
 
@@ -16,6 +16,7 @@ __all__ = ["SpectralMatcher"]
 class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
     """Leordeanu-Hebert spectral relaxation on the association graph of section 7.2.1."""
 
+    presets = {"thesis": dict(THESIS_SPARSE)}
     parameter_constraints = ASSOCIATION
 
     def __init__(
@@ -27,6 +28,7 @@ class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
         max_candidates: int = 8,
         min_score: float = 0.1,
         orientation: str = "preserving",
+        spectrum: str = "lbo",
     ):
         self.k = k
         self.time = time
@@ -35,6 +37,7 @@ class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
         self.max_candidates = max_candidates
         self.min_score = min_score
         self.orientation = orientation
+        self.spectrum = spectrum
 
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
         M = graph.W + np.diag(graph.unary)

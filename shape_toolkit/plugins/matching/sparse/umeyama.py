@@ -12,8 +12,9 @@ from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.features.basis import normalized_spectrum
 from shape_toolkit.features.heat import heat_distances
 from shape_toolkit.plugins._params import ASSOCIATION
+from shape_toolkit.plugins.matching.association import association_spec
 from shape_toolkit.plugins.matching.validation import check_keypoints
-from shape_toolkit.spectra import SpectrumSpec, default_spec
+from shape_toolkit.spectra import SpectrumSpec
 
 __all__ = ["UmeyamaMatcher", "umeyama_assignment"]
 
@@ -34,19 +35,23 @@ class UmeyamaMatcher(SparseMatcher):
     heat distances (eq. 6.43, same time for both shapes, as in the association graph).
     Pairs scoring below ``min_score`` times the best are dropped."""
 
-    parameter_constraints = {p: ASSOCIATION[p] for p in ("k", "time", "sigma", "min_score")}
+    presets = {"thesis": {"spectrum": "graph"}}  # 2.4.4 on the Gaussian graph's D - W, no mass
+    parameter_constraints = {p: ASSOCIATION[p] for p in ("k", "time", "sigma", "min_score", "spectrum")}
 
     def __init__(
         self, k: int = 20, time: float | None = None, sigma: float = 0.5, min_score: float = 0.0,
+        spectrum: str = "lbo",
     ):
         self.k = k
         self.time = time
         self.sigma = sigma
         self.min_score = min_score
+        self.spectrum = spectrum
 
     def spectrum_spec(self) -> SpectrumSpec:
-        """The Laplace-Beltrami spectrum with ``k + 1`` eigenpairs."""
-        return default_spec(int(self.k) + 1)
+        """``k + 1`` eigenpairs of the ``spectrum`` (:func:`~shape_toolkit.plugins.matching.association.
+        association_spec`: cotangent Laplace-Beltrami, or the Gaussian graph's ``D - W`` without mass)."""
+        return association_spec(int(self.k), self.spectrum)
 
     def match(self, source, target, source_keypoints, target_keypoints, *,
               source_spectrum=None, target_spectrum=None) -> np.ndarray:
