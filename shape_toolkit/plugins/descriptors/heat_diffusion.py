@@ -22,7 +22,14 @@ class HeatDiffusionDescriptor(KeypointHeatMixin, Descriptor):
     ``2K + 1`` eigenpairs of the Gaussian-weighted combinatorial Laplacian, ``K = 25`` when None.
     Needs ``keypoints``. To compare two shapes, give both the same ``times``: from
     :meth:`descriptor_times` on one of them, or :func:`shape_toolkit.features.scales.pair_times`.
+
+    Preset ``thesis`` (section 7.5: "tau = 5 and {t_1, ..., t_5} = {0, 20, 40, 80, 100}", ``K = 25`` of 7.3.1):
+    absolute times on the Gaussian graph's ``D - W`` without mass, ``t = 0`` (the identity kernel) included.
+    Absolute times mean another scale on every mesh (see ``adf-maxima``); the default times are scale-free.
     """
+
+    presets = {"thesis": {"times": [0.0, 20.0, 40.0, 80.0, 100.0], "K": 25, "weighting": "gaussian",
+                          "laplacian": "combinatorial"}}
 
     _who = "heat-diffusion"
 

@@ -23,9 +23,15 @@ class HeatDistanceDescriptor(KeypointHeatMixin, Descriptor):
     ``heat-diffusion`` (scree rule with ``K = 25``, section 7.3.1). Needs ``keypoints``.
     To compare two shapes, give both the same ``times``: from :meth:`descriptor_times` on one of
     them, or :func:`shape_toolkit.features.scales.pair_times`.
+
+    Preset ``thesis`` (7.3.1): the defaults spelled out, which are the text's: ``K = 25``, ``tau = 5``, ``t_1``
+    by the scree rule and logarithmically increasing times, unit hyper-sphere distance (eq. 6.43), Gaussian
+    graph ``D - W`` without mass.
     """
 
     _who = "heat-distance"
+    presets = {"thesis": {"K": 25, "n_times": 5, "times": None, "normalization": "unit-sphere",
+                          "weighting": "gaussian", "laplacian": "combinatorial"}}
     parameter_constraints = {
         **KeypointHeatMixin.parameter_constraints,
         "normalization": Param(Options(*NORMALIZATIONS), doc="metric of the heat distances (eq. 6.43: unit-sphere)"),

@@ -108,7 +108,12 @@ class SeedGrowingMatcher(UsesDescriptor, DenseMatcher):
     ``descriptor`` plugin (default ``heat-distance``, eq. 6.64-6.65) using the seeds as matched
     keypoints. ``beta`` is the threshold on eq. 6.66 *per keypoint* (the score is compared with
     ``beta * M``); ``ring`` the neighbourhood size (2-ring in the thesis). Needs seeds.
+
+    Preset ``thesis``: Algorithm 6 with the heat-diffusion descriptor of 7.4-7.5 (its ``thesis`` preset: times
+    ``{0, 20, 40, 80, 100}``, ``K = 25``) and a 2-ring; the text gives no value of ``beta``, the default stays.
     """
+
+    presets = {"thesis": {"ring": 2, "descriptor": {"plugin": "heat-diffusion", "preset": "thesis"}}}
 
     parameter_constraints = {
         "beta": Param(POSITIVE, doc="threshold on the matching score (eq. 6.66) per keypoint"),
