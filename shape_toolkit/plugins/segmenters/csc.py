@@ -80,6 +80,12 @@ must-link per segment: Rand index error 0.079 against 0.156 on the vertex graph,
 changes above, before ``k_mismatch``; ``benchmarks/results/psb_segmentation.md``), chosen there only;
 the held-out half is reported in that file.
 
+Preset ``thesis``: Algorithm 4 as written, every choice above undone: the vertex graph with Gaussian
+weights (eq. 3.7) and its unnormalized ``D - W`` (no mass), the ``k`` first non-null eigenpairs of ``L_hat``
+(``output_dim="k"``), every edge of a cannot-link volume set *to* ``epsilon`` and of a must-link volume *to*
+1 (``cannot_mode="volume"``, ``reweight="set"``), and plain k-means (k-means++ starts, ``n_init`` restarts)
+on ``X_hat`` whatever the number of clicked groups (``kmeans_init="k-means++"``, ``k_mismatch="kmeans"``).
+
 The hypersphere queries use a KD-tree on the rows of ``X``: memory stays linear in ``n``.
 """
 
@@ -145,6 +151,8 @@ class ConstrainedSpectralClustering(BaseSegmenter):
 
     takes_constraints = True
     split_clouds = True
+    presets = {"thesis": {"graph": "vertex", "weighting": "gaussian", "output_dim": "k", "cannot_mode": "volume",
+                          "reweight": "set", "must_weight": 1.0, "kmeans_init": "k-means++", "k_mismatch": "kmeans"}}
 
     parameter_constraints = {
         "n_segments": N_SEGMENTS,
@@ -153,7 +161,8 @@ class ConstrainedSpectralClustering(BaseSegmenter):
         "must_weight": Param(POSITIVE, doc="weight of must-link edges"),
         "weighting": WEIGHTING,
         "cannot_mode": Param(Options("bisector", "volume"), doc="how cannot-links cut the embedding"),
-        "output_dim": Param(None, POSITIVE_INT, doc="dimension of the modified embedding (None: k - 1)"),
+        "output_dim": Param(None, POSITIVE_INT, Options("k"), doc="dimension of the modified embedding (None: k - 1)"),
+        "reweight": Param(Options("monotone", "set"), doc="volume edges: min/max with the old weight, or set to it"),
         "graph": Param(Options("auto", "vertex", "dual"), doc="vertex graph, dual (face) graph, or auto"),
         "kmeans_init": Param(Options("constraints", "k-means++"), doc="k-means start: from the clicks or k-means++"),
         "k_mismatch": Param(Options("ncut", "kmeans"), doc="parts when the clicked groups are not k"),
@@ -178,8 +187,10 @@ class ConstrainedSpectralClustering(BaseSegmenter):
         convex_factor: float = 0.0,
         n_init: int = 10,
         random_state: int = 0,
+        reweight: str = "monotone",
     ):
         self.n_segments = n_segments
+        self.reweight = reweight
         self.n_embedding = n_embedding
         self.epsilon = epsilon
         self.must_weight = must_weight
@@ -313,8 +324,10 @@ class ConstrainedSpectralClustering(BaseSegmenter):
                     side[:] = False
                     side[ids] = (X[ids] - 0.5 * (X[i] + X[j])) @ (X[j] - X[i]) > 0
                     sel &= side[ei] != side[ej]
-                # monotone: a cannot-link never raises an affinity, a must-link never lowers one
-                w[sel] = np.minimum(w[sel], value) if cannot else np.maximum(w[sel], value)
+                if self.reweight == "set":  # the thesis: w_ij = epsilon (cannot) or 1 (must)
+                    w[sel] = value
+                else:  # monotone: a cannot-link never raises an affinity, a must-link never lowers one
+                    w[sel] = np.minimum(w[sel], value) if cannot else np.maximum(w[sel], value)
                 touched |= sel
                 sizes.append(int(len(ids)))
             setattr(self, attr, int(touched.sum()))
@@ -327,7 +340,7 @@ class ConstrainedSpectralClustering(BaseSegmenter):
         # per-vertex labels are returned: at most n_vertices segments on either graph
         k = check_n_segments(self.n_segments, min(n, shape.n_vertices), allow_none=False)
         seed = seed_of(self.random_state)
-        dim = k - 1 if self.output_dim is None else self.output_dim
+        dim = k - 1 if self.output_dim is None else (k if self.output_dim == "k" else self.output_dim)
         if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 1 <= dim <= n - 1:
             raise ParameterError(f"output_dim must be an integer in [1, {n - 1}], got {dim!r}")
         W_hat = self.modified_weights(shape, constraints, spectrum=spectrum)
