@@ -12,7 +12,11 @@
 The thesis observed that on regularly connected shape graphs the BIC curve can keep improving
 with ``k`` (no minimum, Fig. 4.4). When the BIC minimum falls on the last ``k`` tried, we say so
 (``bic_monotone_ = True``) and take the knee of the curve instead (the ``k`` farthest below the chord
-joining its end points), recorded in ``n_segments_rule_``.
+joining its end points), recorded in ``n_segments_rule_``; ``k_rule="bic-minimum"`` keeps the minimum.
+
+Preset ``thesis`` (4.3-4.4): ``p = 10`` eigenvectors of the Gaussian graph's ``D - W`` (no mass), the strict
+single-component test, full-covariance GMMs fitted on every vertex (MCLUST in the thesis; no subsample) and
+``k`` at the BIC minimum, even when it is the last ``k`` tried (Fig. 4.4).
 """
 
 from __future__ import annotations
@@ -80,6 +84,9 @@ class EigvecGMMSegmenter(BaseSegmenter):
     """
 
     split_clouds = True
+    presets = {"thesis": {"n_eigenvectors": 10, "laplacian": "combinatorial", "weighting": "gaussian",
+                          "min_component_fraction": 1.0, "covariance_type": "full", "k_rule": "bic-minimum",
+                          "max_fit_samples_1d": 10**9, "max_fit_samples": 10**9}}
     parameter_constraints = {
         "n_segments": N_SEGMENTS,
         "n_eigenvectors": Param(POSITIVE_INT, doc="eigenvectors u_2 .. u_{p+1} clustered"),
@@ -94,6 +101,7 @@ class EigvecGMMSegmenter(BaseSegmenter):
         "max_fit_samples_1d": Param(POSITIVE_INT, doc="samples of each 1-D GMM fit"),
         "max_fit_samples": Param(POSITIVE_INT, doc="samples of the final GMM fit"),
         "random_state": RANDOM_STATE,
+        "k_rule": Param(Options("knee", "bic-minimum"), doc="k when BIC keeps improving: the knee, or the minimum"),
     }
 
     def __init__(
@@ -112,7 +120,9 @@ class EigvecGMMSegmenter(BaseSegmenter):
         max_fit_samples_1d: int = 1500,
         max_fit_samples: int = 3000,
         random_state: int = 0,
+        k_rule: str = "knee",
     ):
+        self.k_rule = k_rule
         self.n_segments = n_segments
         self.n_eigenvectors = n_eigenvectors
         self.zero_threshold = zero_threshold
@@ -238,7 +248,7 @@ class EigvecGMMSegmenter(BaseSegmenter):
             self.bic_curve_ = {int(c): float(b) for c, b in zip(ks, bics)}
             best_k = int(ks[int(np.argmin(bics))])
             self.bic_monotone_ = bool(best_k == ks[-1])
-            if self.bic_monotone_:
+            if self.bic_monotone_ and self.k_rule == "knee":
                 k = _knee(ks.astype(np.float64), bics)
                 self.n_segments_rule_ = "bic-knee (BIC kept improving up to max_segments: no minimum)"
             else:
