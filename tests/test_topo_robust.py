@@ -320,7 +320,7 @@ def test_a_pipeline_run_computes_each_side_reference_once(pair, monkeypatch):
 
 # -- EM: the thesis's embedding -------------------------------------------------------------------
 def test_em_thesis_embedding_options_and_declared_spectrum(pair):
-    em = create_plugin("dense_matchers", "em-registration", "thesis")
+    em = create_plugin("dense_matchers", "em-registration", "topo-robust")  # commute-time (literal: "thesis")
     spec = em.spectrum_spec()
     assert spec.weighting == "gaussian" and spec.use_mass is False and spec.k == 31  # max(k, 30) + 1
     assert create_plugin("dense_matchers", "em-registration", orientation="none").spectrum_spec().k == 9
@@ -410,7 +410,7 @@ def test_topo_robust_preset_under_glued_contacts(pair):
     assert "topo-robust" in PRESETS
     pipe = load_pipeline("topo-robust")
     assert pipe.stages["descriptors"]["plugin"] == "heat-diffusion"
-    assert pipe.stages["refine"]["preset"] == "thesis"
+    assert pipe.stages["refine"]["preset"] == "topo-robust"
     # one contact: with more, the planar starfish's 180-degree rotation (an orientation-preserving
     # intrinsic symmetry that real bodies do not have) competes with the true map
     G, vm = glue(B.shape, strength=1, random_state=0)

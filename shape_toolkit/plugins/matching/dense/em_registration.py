@@ -192,9 +192,12 @@ class EMRegistrationMatcher(DenseMatcher):
     sparse posteriors (``n_neighbors`` per target vertex: memory linear in the vertex counts). The embedding
     (7.4.1): ``spectrum`` ``"lbo"`` or ``"graph"`` (``D - W`` with ``weighting``, no mass: eq. 6.24),
     ``scaling`` ``"none"`` or ``"commute-time"`` (eq. 2.92), ``dimension`` ``"fixed"`` or ``"scree"``
-    (eq. 2.97-2.99, ``dimension_threshold``); preset ``thesis``. Extensions: ``k_final`` refines the hard map
-    while the embedding grows (7.5.2 blames the small ``k`` for local errors), ``polish_k`` once more on the
-    Laplace-Beltrami basis; ``max_samples`` and ``refine_samples`` bound the work on large shapes.
+    (eq. 2.97-2.99, ``dimension_threshold``). Preset ``thesis``, 7.4.1 as written: eq. 6.24 at ``t = 0`` (plain
+    eigenvectors of the Gaussian graph's ``D - W``, no mass), ``3 <= k <= 10`` by the scree rule, Algorithm 7's
+    assignment (posterior > 0.5, the rest unmatched), no orientation repair; ``topo-robust``: that graph with
+    commute-time scaling (eq. 2.92). Extensions: ``k_final`` refines the hard map while the embedding grows (7.5.2
+    blames the small ``k`` for local errors), ``polish_k`` once more on the Laplace-Beltrami basis;
+    ``max_samples`` and ``refine_samples`` bound the work on large shapes.
 
     EM is intrinsic: a map and its mirror image fit equally well. Unless ``orientation`` is ``"none"``,
     :meth:`match` runs the registration inside :class:`~shape_toolkit.plugins.matching.dense.
@@ -202,7 +205,9 @@ class EMRegistrationMatcher(DenseMatcher):
     repaired maps. Why each choice, with measurements: ``benchmarks/results/em_registration_notes.md``.
     """
 
-    presets = {"thesis": {"spectrum": "graph", "scaling": "commute-time", "dimension": "scree", "k": 10}}
+    presets = {"thesis": {"spectrum": "graph", "weighting": "gaussian", "scaling": "none", "dimension": "scree",
+                          "k": 10, "threshold": 0.5, "fill_unmatched": False, "orientation": "none"},
+               "topo-robust": {"spectrum": "graph", "scaling": "commute-time", "dimension": "scree", "k": 10}}
     parameter_constraints = {
         "k": Param(Interval(int, 1, 100), doc="embedding dimension"),
         "outlier_weight": Param(Interval(float, 0, 1, closed="left"), doc="weight of the uniform outlier class"),
