@@ -341,8 +341,8 @@ def test_param_names_are_checked_before_any_work(capsys, mesh_file):
     ("dense_matchers", "fmap-zoomout", {"descriptor_params": {"a": 1}}, "take n_energies and variance"),
     ("dense_matchers", "fmap-zoomout", {"zoomout_samples": {"a": 1}}, "zoomout_samples must be None or a positive"),
     ("dense_matchers", "greedy-descriptor", {"descriptor_params": "zzz"}, "descriptor_params must be None or a table"),
-    ("descriptors", "hks", {"times": {"a": 1}}, "times must be None, a positive float or a list"),
-    ("descriptors", "hks", {"times": "zzz"}, "times must be None, a positive float or a list"),
+    ("descriptors", "hks", {"times": {"a": 1}}, "times must be None, a non-negative float or a list"),
+    ("descriptors", "hks", {"times": "zzz"}, "times must be None, a non-negative float or a list"),
 ])
 def test_plugin_parameters_of_the_wrong_kind_are_typed_errors(family, name, params, needle):
     """The same kind of --param value on transfer-labels (matchers) and describe: internal errors before."""
