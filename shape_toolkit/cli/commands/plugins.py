@@ -69,6 +69,8 @@ def plugin_info(family: str, name: str) -> dict[str, Any]:
     except (TypeError, ToolkitError) as exc:  # required parameters: the spec depends on them
         spectra = f"depends on the parameters ({' '.join(str(exc).split())[:80]})"
     doc = (inspect.getdoc(cls) or "").strip().split("\n\n")[0].replace("\n", " ")
+    presets = dict(getattr(cls, "presets", {}) or {})
+    defaults = {p["name"]: p["default"] for p in params}
     return {
         "family": family,
         "name": name,
@@ -77,9 +79,28 @@ def plugin_info(family: str, name: str) -> dict[str, Any]:
         "doc": doc,
         "randomized": any(p["name"] == "random_state" for p in params),
         "parameters": params,
-        "presets": jsonable(dict(getattr(cls, "presets", {}) or {})),
+        "presets": jsonable(presets),
+        "preset_differences": {name: preset_differences(defaults, jsonable(vals)) for name, vals in presets.items()},
         "spectra": spectra,
     }
+
+
+def preset_differences(defaults: dict[str, Any], values: dict[str, Any]) -> dict[str, list[Any]]:
+    """``{param: [default, preset value]}`` for the parameters a preset sets to something else than the default."""
+    return {k: [defaults.get(k), v] for k, v in values.items() if k not in defaults or defaults[k] != v}
+
+
+def _literal_sibling(name: str, presets: dict[str, Any]) -> str | None:
+    """The pipeline a literal ``NAME-thesis`` chain is the counterpart of, or the literal chain of ``NAME``."""
+    if name.endswith("-thesis") and name[: -len("-thesis")] in presets:
+        return name[: -len("-thesis")]
+    return f"{name}-thesis" if f"{name}-thesis" in presets else None
+
+
+def _stage_differences(first: dict[str, Any], second: dict[str, Any]) -> dict[str, list[Any]]:
+    """``{stage: [in first, in second]}`` (None: no such stage) for the stages two pipeline specs set differently."""
+    stages = [k for k in dict.fromkeys([*first, *second]) if k != "description"]
+    return {k: [jsonable(first.get(k)), jsonable(second.get(k))] for k in stages if first.get(k) != second.get(k)}
 
 
 def pipeline_info(name: str) -> dict[str, Any]:
@@ -88,11 +109,14 @@ def pipeline_info(name: str) -> dict[str, Any]:
 
     spec = PRESETS[name]
     pipe = load_pipeline(name)
+    sibling = _literal_sibling(name, PRESETS)
     return {
         "family": "pipelines",
         "name": name,
         "doc": spec.get("description", ""),
         "stages": {k: jsonable(v) for k, v in spec.items() if k != "description"},
+        "compared_with": sibling,
+        "stage_differences": _stage_differences(PRESETS[sibling], spec) if sibling else {},
         "spectra": [s.to_dict() for s in pipe.spectrum_specs()],
     }
 
@@ -123,6 +147,10 @@ def show_cmd(args: argparse.Namespace) -> int:
         if "stages" in info:
             for stage, st in info["stages"].items():
                 print(f"  stage {stage}: {st}")
+            if info["compared_with"]:
+                print(f"  {info['compared_with']} -> {info['name']}:")
+                for stage, (a, b) in info["stage_differences"].items():
+                    print(f"    stage {stage}: {a if a else '(none)'} -> {b if b else '(none)'}")
         else:
             ep = f"  [entry point {info['entry_point']}]" if info["entry_point"] else ""
             print(f"  class: {info['class']}{ep}")
@@ -134,6 +162,9 @@ def show_cmd(args: argparse.Namespace) -> int:
                 print(line)
             for pname, pvals in info["presets"].items():
                 print(f"  preset {pname}: {', '.join(f'{k}={v!r}' for k, v in pvals.items())}")
+                diff = info["preset_differences"][pname]
+                changes = "; ".join(f"{k} {a!r} -> {b!r}" for k, (a, b) in diff.items())
+                print(f"    default -> {pname}: {changes or 'no difference (the defaults are these values)'}")
         sp = info["spectra"]
         if isinstance(sp, str):
             print(f"  spectrum: {sp}")
