@@ -315,6 +315,8 @@ def test_a_pipeline_run_computes_each_side_reference_once(pair, monkeypatch):
     with orientation.side_cache_scope() as cache:
         side_reference(A.shape, B.shape)
         assert side_reference(A.shape, B.shape, cache=cache) is side_reference(A.shape, B.shape)
+        with orientation.side_cache_scope() as inner:  # a nested scope shares the open one
+            assert inner is cache
     assert orientation._SCOPE.get() is None
 
 

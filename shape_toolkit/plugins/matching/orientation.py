@@ -211,10 +211,10 @@ _SCOPE: ContextVar[SideCache | None] = ContextVar("side_cache_scope", default=No
 
 @contextlib.contextmanager
 def side_cache_scope(cache: SideCache | None = None) -> Iterator[SideCache]:
-    """A scope in which calls given no ``cache=`` share ``cache`` (a new :class:`SideCache` when None):
-    a pipeline opens one per run, so its sparse stage and its orientation repair compute each symmetry
-    map and side reference once. The scope is per thread and per task (a context variable)."""
-    cache = SideCache() if cache is None else cache
+    """A scope in which calls given no ``cache=`` share ``cache`` (None: the open scope's, else a new
+    :class:`SideCache`): a pipeline opens one per run, so its sparse stage and its orientation repair compute
+    each symmetry map and side reference once. The scope is per thread and per task (a context variable)."""
+    cache = (_SCOPE.get() or SideCache()) if cache is None else cache
     token = _SCOPE.set(cache)
     try:
         yield cache

@@ -112,10 +112,13 @@ class OrientationRepair(DenseMatcher):
         emb, Q0, info = m.start(source, target, seeds, source_spectrum, target_spectrum, ORIENTATION_K if on else 0)
         fit, k_done = m.solve(emb, Q0), emb.K
         if on and source.is_mesh and target.is_mesh:
-            fit = self.side_check(emb, fit, source, target, info, source_spectrum, target_spectrum)
-            info["orientation_score"] = self.score(emb, source, target, fit.target_of)
-            if info["orientation_score"] < 0:
-                fit, k_done = self.rescue(emb, fit, source, target, info, source_spectrum, target_spectrum)
+            from shape_toolkit.plugins.matching.orientation import side_cache_scope
+
+            with side_cache_scope():  # the side check and the rescue share one side reference (or the caller's)
+                fit = self.side_check(emb, fit, source, target, info, source_spectrum, target_spectrum)
+                info["orientation_score"] = self.score(emb, source, target, fit.target_of)
+                if info["orientation_score"] < 0:
+                    fit, k_done = self.rescue(emb, fit, source, target, info, source_spectrum, target_spectrum)
         return m.finish(emb, fit, source, target, info, k_done, source_spectrum, target_spectrum)
 
     def score(self, emb: Any, source: Shape, target: Shape, t: np.ndarray, refined: bool = True) -> float:
