@@ -192,4 +192,9 @@ def test_crop_refuses_a_cut_that_leaves_too_little_in_one_piece():
     two = type(a)(v, f)
     with pytest.raises(InvalidShapeError, match="random_state"):
         crop(two, strength=0.3, random_state=0)
+    # a centre on a piece smaller than the cut: the other piece is never cut into, and the short cut is refused
+    small = type(a)(np.vstack([a.vertices, 3 * a.vertices + [10.0, 0, 0]]), f)
+    centre_in_small = [rs for rs in range(20) if np.random.default_rng(rs).integers(small.n_vertices) < a.n_vertices]
+    with pytest.raises(InvalidShapeError, match="random_state"):
+        crop(small, strength=0.3, random_state=centre_in_small[0])
     assert crop(two, strength=0.0)[0] is two

@@ -355,9 +355,9 @@ def partial(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Co
 def crop(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Corruption:
     """A partial shape: cut away one connected region holding the fraction ``strength`` of the surface area, a
     geodesic ball (along the mesh edges) around a random centre vertex; every vertex keeps its back-map, so the
-    ground truth survives. When the cut splits the rest (a limb cut at its root), the largest piece is kept
-    if it holds at least ``1 - strength - 0.05`` of the area; otherwise :class:`InvalidShapeError` asks
-    for another ``random_state``."""
+    ground truth survives. When the cut splits the rest (a limb cut at its root), the largest piece is kept;
+    when what is kept is not ``1 - strength`` of the area to within 0.05 (a split, or a centre on a piece smaller
+    than the cut), :class:`InvalidShapeError` asks for another ``random_state``."""
     shape.require_faces("crop")
     s = _check_strength(strength, 0.0, 0.9)
     if s == 0:
@@ -370,15 +370,15 @@ def crop(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Corru
     area = shape.vertex_areas
     order = np.argsort(dist, kind="stable")
     reach = np.isfinite(dist[order])
-    removed = np.cumsum(np.where(reach, area[order], 0.0)) <= s * area.sum()
+    removed = reach & (np.cumsum(np.where(reach, area[order], 0.0)) <= s * area.sum())  # never another piece
     keep = np.ones(n, dtype=bool)
     keep[order[removed]] = False
     out, vmap = _keep(shape, keep)
     kept = float(area[vmap].sum() / area.sum())
-    if kept < 1.0 - s - 0.05:
+    if abs(kept - (1.0 - s)) > 0.05:  # the cut split the rest, or the centre's piece is smaller than the cut
         raise InvalidShapeError(
-            f"crop: cutting {s:.0%} of the area around vertex {centre} leaves pieces, the largest with "
-            f"{kept:.0%} of the area (asked: {1 - s:.0%}); try another random_state"
+            f"crop: cutting {s:.0%} of the area around vertex {centre} keeps one piece with {kept:.0%} of the "
+            f"area (asked: {1 - s:.0%}); try another random_state"
         )
     return out, vmap
 
