@@ -23,6 +23,7 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins._params import ORIENTATION
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec
 
@@ -62,14 +63,15 @@ class OrientationRepair(DenseMatcher):
     ``"reversing"``; ``"none"``: the registration's map as it is). Only meshes are repaired (the side
     reference needs outward normals); ``info`` records every decision (``orientation_*``)."""
 
+    parameter_constraints = {"orientation": ORIENTATION}
+
     def __init__(self, matcher: Any = None, orientation: str = "preserving"):
         self.matcher = matcher
         self.orientation = orientation
 
     def registration(self) -> Registration:
         """The wrapped matcher, checked: a :class:`Registration`."""
-        if self.orientation not in ("preserving", "reversing", "none"):
-            raise ParameterError(f"orientation must be one of preserving, reversing, none; got {self.orientation!r}")
+        self._validate_params()
         needed = ("embedding_spec", "start", "solve", "transform_of", "refines", "refine", "finish")
         if self.matcher is None or not all(hasattr(self.matcher, a) for a in needed):
             raise ParameterError(f"orientation repair wraps a registration matcher such as em-registration "
