@@ -5,6 +5,14 @@ Layout (every key is checked; an error names the key, e.g. ``tasks[0].methods[1]
     [run]
     name = "my-run"            # optional
     random_state = 0           # seeds corruptions and every plugin with a random_state
+    split = { by = "category", half = "report" }   # optional: run one half of a tuning/reporting split
+
+Split (``[run] split``): per dataset, the items' groups (``by = "category"``: a PSB mesh's category,
+a TOSCA pair's animal, a FAUST pair's subject, :func:`shape_toolkit.data.datasets.item_group`) are
+ordered by the SHA-1 of ``salt + group``; the first ``floor(tune_fraction * groups)`` form the
+*tune* half, the others the *report* half, and the run keeps the items of ``half`` only (a pair
+whose shapes fall in both halves is in neither). A group is never split. An unknown key, a dataset
+without groups or a half left empty is refused before any work, naming the key.
 
     [[datasets]]
     name = "psb"               # unique
@@ -78,6 +86,8 @@ __all__ = [
     "resolve_data_path",
     "grid_size",
     "MAX_ROWS",
+    "split_items",
+    "split_line",
 ]
 
 #: the rows ``bench run`` plans at most unless ``--max-rows`` raises it
@@ -168,6 +178,7 @@ class BenchConfig:
     source: str = ""
     raw: dict[str, Any] = field(default_factory=dict)
     planned_rows: int = 0
+    split: dict[str, Any] | None = None
 
 
 _NOT_A_SUBJECT = (
@@ -508,7 +519,7 @@ def parse_config(
     if max_rows is not None and (isinstance(max_rows, bool) or not isinstance(max_rows, int) or max_rows < 1):
         raise ParameterError(f"max_rows must be a positive integer, got {max_rows!r}")
     _check_keys(raw, {"run", "datasets", "corruptions", "tasks"}, "", ("datasets", "tasks"))
-    run = _check_keys(raw.get("run", {}), {"name", "random_state", "description"}, "run")
+    run = _check_keys(raw.get("run", {}), {"name", "random_state", "description", "split"}, "run")
     random_state = _int(run.get("random_state", 0), "run.random_state")
     if random_state > 2**32 - 1:  # every plugin's seed
         raise ConfigError("run.random_state", f"must be at most 2**32 - 1, got {random_state}")
@@ -517,6 +528,9 @@ def parse_config(
         raise ConfigError("run.description", f"must be a string, got {run['description']!r}")
 
     datasets = _validate_datasets(raw["datasets"], base, max_rows)
+    split = None
+    if "split" in run:
+        datasets, split = _apply_split(run["split"], datasets)
     corruptions = _validate_corruptions(raw.get("corruptions"))
 
     if not isinstance(raw["tasks"], list) or not raw["tasks"]:
@@ -571,6 +585,11 @@ def parse_config(
         if not isinstance(t["methods"], list) or not t["methods"]:
             raise ConfigError(f"{w}.methods", "must be a non-empty array of tables ([[tasks.methods]])")
         methods = [_check_method(kind, adapter, spectrum, m, f"{w}.methods[{j}]") for j, m in enumerate(t["methods"])]
+        for j, m in enumerate(t["methods"]):
+            _check_task_method(adapter, options, m, f"{w}.methods[{j}]")
+        if options.get("human_consistency"):
+            human = MethodSpec("human", "humans", None, {}, "human")
+            methods.append(((lambda human=human: [human]), 1))
         n_items = sum(_dataset_size(datasets[dn], limit) for dn in dict.fromkeys(dsel))
         n_corr = sum(corruptions[cn].size for cn in dict.fromkeys(csel))
         n_meth = sum(size for _, size in methods)
@@ -595,7 +614,98 @@ def parse_config(
         tasks.append(
             TaskSpec(tname, kind, tuple(dsel), tuple(cinst), tuple(mspecs), spectrum, tuple(metrics), options)
         )
-    return BenchConfig(name, random_state, datasets, tuple(tasks), source, raw, total)
+    return BenchConfig(name, random_state, datasets, tuple(tasks), source, raw, total, split)
+
+
+SPLIT_HALVES = ("tune", "report")
+
+
+def _split_halves(groups: list[str], salt: str, tune_fraction: float) -> dict[str, str]:
+    """``{group: "tune" | "report"}``: groups ordered by SHA-1 of ``salt + group``, the first
+    ``floor(tune_fraction * len(groups))`` tune."""
+    import hashlib
+
+    order = sorted(set(groups), key=lambda g: (hashlib.sha1(f"{salt}{g}".encode()).hexdigest(), g))
+    n_tune = int(math.floor(tune_fraction * len(order) + 1e-9))
+    return {g: ("tune" if i < n_tune else "report") for i, g in enumerate(order)}
+
+
+def split_items(refs: Any, *, salt: str = "", tune_fraction: float = 0.5) -> dict[str, list]:
+    """The items of one dataset by half: ``{"tune": [...], "report": [...], "neither": [...]}`` (a pair
+    whose two shapes' groups fall in both halves is in neither); deterministic, by group
+    (:func:`shape_toolkit.data.datasets.item_group`), never splitting a group. :class:`ParameterError`
+    when an item has no group."""
+    from shape_toolkit.data.datasets import item_group
+
+    groups = {}
+    for r in refs:
+        g = item_group(r)
+        if g is None:
+            raise ParameterError(f"item {r.name!r} ({r.kind}) has no group to split by")
+        groups[r.name] = g.split("+")
+    half_of = _split_halves([g for gs in groups.values() for g in gs], salt, tune_fraction)
+    out: dict[str, list] = {"tune": [], "report": [], "neither": []}
+    for r in refs:
+        halves = {half_of[g] for g in groups[r.name]}
+        out[halves.pop() if len(halves) == 1 else "neither"].append(r)
+    return out
+
+
+def _apply_split(raw: Any, datasets: dict[str, DatasetSpec]) -> tuple[dict[str, DatasetSpec], dict[str, Any]]:
+    """The datasets restricted to the split's half, and the split's summary (for the report)."""
+    from dataclasses import replace
+
+    w = "run.split"
+    sp = _check_keys(raw, {"by", "half", "salt", "tune_fraction"}, w, ("half",))
+    by = sp.get("by", "category")
+    if by != "category":
+        raise ConfigError(f"{w}.by", f"must be 'category' (the item's group: PSB category, animal, subject), "
+                                     f"got {by!r}")
+    half = sp["half"]
+    if half not in SPLIT_HALVES:
+        raise ConfigError(f"{w}.half", f"must be 'tune' or 'report', got {half!r}")
+    salt = sp.get("salt", "")
+    if not isinstance(salt, str):
+        raise ConfigError(f"{w}.salt", f"must be a string, got {salt!r}")
+    frac = sp.get("tune_fraction", 0.5)
+    if isinstance(frac, bool) or not isinstance(frac, (int, float)) or not 0 < frac < 1:
+        raise ConfigError(f"{w}.tune_fraction", f"must be a number in (0, 1), got {frac!r}")
+    out: dict[str, DatasetSpec] = {}
+    summary: dict[str, Any] = {"by": by, "half": half, "salt": salt, "tune_fraction": float(frac), "datasets": {}}
+    for dname, spec in datasets.items():
+        try:
+            halves = split_items(spec.refs, salt=salt, tune_fraction=float(frac))
+        except ParameterError as exc:
+            raise ConfigError(f"{w}.by", f"dataset {dname!r}: {exc}; only psb and tosca datasets have groups") from None
+        for h in SPLIT_HALVES:
+            if not halves[h]:
+                raise ConfigError(f"{w}.tune_fraction" if "tune_fraction" in sp else w,
+                                  f"leaves the {h} half of dataset {dname!r} empty ({len(spec.refs)} items); "
+                                  "use another tune_fraction or salt, or no split")
+        from shape_toolkit.data.datasets import item_group
+
+        summary["datasets"][dname] = {
+            h: {"items": len(v), "groups": sorted({item_group(r) for r in v})} for h, v in halves.items()
+        }
+        out[dname] = replace(spec, refs=tuple(halves[half]))
+    return out, summary
+
+
+def split_line(split: dict[str, Any] | None) -> str | None:
+    """One line saying which half of which split a run shows, and how many items; None without a split."""
+    if not split:
+        return None
+    parts = []
+    for dname, d in split["datasets"].items():
+        h = d[split["half"]]
+        other = "tune" if split["half"] == "report" else "report"
+        parts.append(f"{dname}: {h['items']} items in {len(h['groups'])} groups ({', '.join(h['groups'])}); "
+                     f"{d[other]['items']} {other} items left out" + (
+                         f", {d['neither']['items']} pairs across halves in neither" if d["neither"]["items"] else ""))
+    salt = "salt + " if split["salt"] else ""
+    return (f"Split: only the {split['half']} half is shown. Rule: per dataset, groups by {split['by']} "
+            f"ordered by SHA-1({salt}group name), the first {split['tune_fraction']:g} of them tune, the rest "
+            "report; " + "; ".join(parts) + ".")
 
 
 def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dict[str, DatasetSpec]:
@@ -666,6 +776,18 @@ def _validate_options(adapter: Any, options: Any, where: str) -> dict[str, Any]:
         msg = str(exc)
         key = next((k for k in sorted(options, key=len, reverse=True) if msg.startswith(k)), None)
         raise ConfigError(f"{where}.{key}" if key else where, msg) from None
+
+
+def _check_task_method(adapter: Any, options: dict[str, Any], m: Any, mw: str) -> None:
+    """A plugin method fits the task's options (:meth:`TaskAdapter.check_method`)."""
+    from shape_toolkit.api.registry import get_registry
+
+    if "plugin" not in m:
+        return
+    fam = _family_for(adapter.name, m["plugin"], mw)
+    problem = adapter.check_method(options, get_registry().get(fam, m["plugin"]), m.get("params") or {})
+    if problem:
+        raise ConfigError(f"{mw}.plugin", problem)
 
 
 def _check_method(kind: str, adapter: Any, spectrum: dict | None, m: Any, mw: str) -> tuple[Any, int]:

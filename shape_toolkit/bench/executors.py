@@ -27,6 +27,7 @@ from shape_toolkit.bench.progress import Progress
 from shape_toolkit.bench.store import (
     PREPARED,
     RESULTS,
+    SPLIT,
     WRITE_ERRNOS,
     Appender,
     RunFolderError,
@@ -118,6 +119,11 @@ def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_fail
     try:
         with atomic_output(run / "config.json", "run config") as tmp:
             tmp.write_text(dumps_json(config.raw, indent=2))
+        if config.split is not None:  # which half of which split the rows are (the report says so)
+            with atomic_output(run / SPLIT, "run split") as tmp:
+                tmp.write_text(dumps_json(config.split, indent=2))
+        elif (run / SPLIT).exists():
+            (run / SPLIT).unlink()
         clean_results(results, keep_failed=not retry_failed)
         clean_results_log(run / PREPARED)
     except ShapeFileError as exc:  # atomic_output's typed write failure, as the OSError below

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from shape_toolkit.bench.config import BenchConfig, MethodSpec, TaskSpec
+from shape_toolkit.data.datasets import item_group
 from shape_toolkit.spectra import SpectrumSpec, merge_specs
 from shape_toolkit.validation import dumps_json
 
@@ -63,7 +64,9 @@ class Job:
     """One row to compute. ``plugin`` is the registry name (a pipeline's name for pipelines),
     ``method_label`` the display name, ``task_kind`` the adapter and ``task_name`` the config's
     task; ``subject_spectrum`` is set for the spectrum task only (the spectrum *is* the result);
-    ``item_specs`` are the merged spectra the prepare stage computed for the item."""
+    ``item_specs`` are the merged spectra the prepare stage computed for the item; ``item_params``
+    the parameters set per item (``n_segments = "human-mode"``: the humans' count), given to the method
+    on top of ``params``; ``category`` the item's group (:func:`shape_toolkit.data.datasets.item_group`)."""
 
     key: str
     prepare_key: str
@@ -90,6 +93,8 @@ class Job:
     options: dict[str, Any]
     subject_spectrum: SpectrumSpec | None = None
     item_specs: tuple[SpectrumSpec, ...] = ()
+    item_params: dict[str, Any] = field(default_factory=dict)
+    category: str | None = None
 
 
 def subject_spec(task: TaskSpec, method: MethodSpec) -> SpectrumSpec:
@@ -113,6 +118,10 @@ def create_method(family: str, plugin: str, preset: str | None, params: dict, ra
         from shape_toolkit.bench.peers import create_peer
 
         return create_peer(plugin)
+    if family == "humans":
+        from shape_toolkit.bench.tasks import HumanSegmentations
+
+        return HumanSegmentations()
     from shape_toolkit.bench.tasks import _with_random_state
 
     return _with_random_state(family, plugin, preset, params, random_state)
@@ -127,17 +136,40 @@ def create_detector(keypoints: dict[str, Any] | None) -> Any:
     return create_plugin("keypoints", keypoints["plugin"], keypoints.get("preset"), **(keypoints.get("params") or {}))
 
 
-def declared_specs(task: TaskSpec, method: MethodSpec, random_state: int) -> list[SpectrumSpec]:
-    """Every spectrum a method of a (non-spectrum) task declares, its keypoint detector's included;
-    empty when the method cannot be created (its row will fail with the reason)."""
+def declared_specs(
+    task: TaskSpec, method: MethodSpec, random_state: int, item_params: dict[str, Any] | None = None
+) -> list[SpectrumSpec]:
+    """Every spectrum a method of a (non-spectrum) task declares (with the ``item_params`` of an item),
+    its keypoint detector's included; empty when the method cannot be created (its row will fail
+    with the reason)."""
     from shape_toolkit.bench.tasks import method_specs
 
     try:
-        obj = create_method(method.family, method.plugin, method.preset, method.params, random_state)
+        params = {**method.params, **(item_params or {})}
+        obj = create_method(method.family, method.plugin, method.preset, params, random_state)
         own, det = method_specs(obj, create_detector(method.keypoints))
     except Exception:  # noqa: BLE001 - reported by the row itself
         return []
     return own + ([det] if det is not None else [])
+
+
+def item_params_of(task: TaskSpec, method: MethodSpec, ref: Any, counts: dict[str, int]) -> dict[str, Any]:
+    """The parameters a task's options set for one item: ``n_segments`` (an integer, or the humans'
+    count with ``"human-mode"``, read once per item into ``counts``) unless the method sets its own."""
+    from shape_toolkit.bench.tasks import HUMAN_MODE
+
+    k = task.options.get("n_segments") if task.task_kind == "segmentation" else None
+    if k is None or method.family != "segmenters" or "n_segments" in method.params:
+        return {}
+    if k == HUMAN_MODE:
+        key = f"{ref.kind}:{ref.name}:{ref.paths.get('shape', '')}"
+        if key not in counts:
+            from shape_toolkit.data.datasets import truth_segment_counts
+            from shape_toolkit.metrics.segmentation import consensus_segment_count
+
+            counts[key] = consensus_segment_count(truth_segment_counts(ref))
+        k = counts[key]
+    return {"n_segments": int(k)}
 
 
 def plan(
@@ -150,18 +182,22 @@ def plan(
     jobs: list[Job] = []
     preps: dict[str, PrepareJob] = {}
     seen: set[str] = set()
-    declared: dict[tuple[str, int], list[SpectrumSpec]] = {}
+    declared: dict[tuple[str, int, str], list[SpectrumSpec]] = {}
+    counts: dict[str, int] = {}
     for task in config.tasks:
         adapter = TASKS[task.task_kind]
         geo = task.task_kind == "matching"
-        for m_index, m in enumerate(task.methods):
-            if task.task_kind != "spectrum":
-                declared[(task.task_name, m_index)] = declared_specs(task, m, config.random_state)
         for dname in task.datasets:
             ds = config.datasets[dname]
             refs = list(ds.refs)
             n = min(x for x in (ds.limit, limit, len(refs)) if x is not None)
             for ref in refs[:n]:
+                category = item_group(ref)
+                extra = [item_params_of(task, m, ref, counts) for m in task.methods]
+                for m_index, m in enumerate(task.methods):
+                    dkey = (task.task_name, m_index, dumps_json(extra[m_index], sort_keys=True))
+                    if task.task_kind != "spectrum" and dkey not in declared:
+                        declared[dkey] = declared_specs(task, m, config.random_state, extra[m_index])
                 for corr in task.corruptions:
                     seed = _seed(config.random_state, dname, ref.name, corr.name)
                     pident = {
@@ -184,7 +220,8 @@ def plan(
                         )
                     for m_index, m in enumerate(task.methods):
                         subject = subject_spec(task, m) if task.task_kind == "spectrum" else None
-                        specs = [subject] if subject else declared[(task.task_name, m_index)]
+                        specs = [subject] if subject else declared[
+                            (task.task_name, m_index, dumps_json(extra[m_index], sort_keys=True))]
                         if subject is None:
                             prep.specs = merge_specs(prep.specs + specs)
                         ident = {
@@ -195,6 +232,7 @@ def plan(
                             "plugin": m.plugin,
                             "preset": m.preset,
                             "params": m.params,
+                            **({"item_params": extra[m_index]} if extra[m_index] else {}),
                             "corruption": corr.name,
                             "corruption_params": corr.params,
                             "spectra": [s.to_dict() for s in specs],
@@ -233,6 +271,8 @@ def plan(
                                 metrics=tuple(task.metrics),
                                 options=task.options,
                                 subject_spectrum=subject,
+                                item_params=extra[m_index],
+                                category=category,
                             )
                         )
     jobs = [replace(j, item_specs=tuple(preps[j.prepare_key].specs)) for j in jobs]

@@ -30,6 +30,7 @@ from shape_toolkit.validation import atomic_output, dumps_json, jsonable
 __all__ = [
     "RESULTS",
     "PREPARED",
+    "SPLIT",
     "LOCK",
     "BenchWarning",
     "RunFolderError",
@@ -52,6 +53,7 @@ __all__ = [
 
 RESULTS = "results.jsonl"
 PREPARED = "prepare.jsonl"
+SPLIT = "split.json"  # which half of which tuning/reporting split the run's rows are (absent: no split)
 LOCK = ".lock"
 MARK = ".shape-toolkit-run"  # written in every run folder: 'bench run' writes only in folders it made
 INVALID_SUFFIX = ".invalid"
@@ -110,7 +112,9 @@ class Row:
     the method did. Field names have one meaning each: ``task_kind`` is the adapter (spectrum,
     keypoints, segmentation, matching), ``task_name`` the config's name for the task; ``plugin``
     the registry name (or pipeline name), ``method_label`` the display name; ``spectra`` lists the
-    spectra the method received (:meth:`SpectrumSpec.to_dict`), nothing else."""
+    spectra the method received (:meth:`SpectrumSpec.to_dict`), nothing else; ``category`` is the
+    item's group (PSB category, animal, subject; None when the dataset has none) and ``item_params``
+    the parameters set for this item on top of ``params`` (e.g. ``n_segments`` from the humans)."""
 
     key: str
     run_name: str
@@ -147,6 +151,8 @@ class Row:
     versions: dict[str, str] = field(default_factory=dict)
     worker: str = ""
     traceback: str | None = None
+    category: str | None = None
+    item_params: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON-ready row (NaN and infinities become null)."""

@@ -41,6 +41,8 @@ __all__ = [
     "received_spec",
     "method_specs",
     "lookup_metric",
+    "HumanSegmentations",
+    "HUMAN_MODE",
 ]
 
 
@@ -223,6 +225,11 @@ class TaskAdapter:
             )
         return {**self.option_defaults, **options}
 
+    def check_method(self, options: dict[str, Any], cls: type, params: dict[str, Any]) -> str | None:
+        """None when a method (its plugin class and parameters) fits the task's ``options``, else the
+        problem (default: every method fits)."""
+        return None
+
     def check_metric(self, name: str) -> str | None:
         """None when ``name`` is usable, else the problem."""
         if name not in self.metrics:
@@ -366,42 +373,146 @@ class KeypointsTask(TaskAdapter):
 
 
 # -- segmentation -----------------------------------------------------------------------------
-def _m_n_segments(p, o, opt):
-    lab = np.asarray(o["labels"])
-    return {"n_segments": int(np.unique(lab[lab >= 0]).size)}
+class HumanSegmentations:
+    """The method of the human-consistency row (``human_consistency = true``): the dataset's own
+    segmentations, each scored against the others (PSB's "Human" row); it declares no spectrum."""
+
+    def spectrum_spec(self) -> None:
+        """No spectrum."""
+        return None
 
 
-def _m_segmentation(p, o, opt):
-    """PSB scores (:func:`shape_toolkit.metrics.segmentation_scores`) on face labels, averaged over
-    every ground-truth segmentation: the dataset's own face labels when the mesh is unchanged,
+#: the n_segments option's value that takes each item's k from its ground truth
+HUMAN_MODE = "human-mode"
+#: the keys of the ``clicks`` option (:func:`shape_toolkit.results.labels.clicks_from_segmentation`)
+_CLICK_KEYS = ("n_must_per_segment", "n_cannot_per_boundary", "cannot_offset", "min_segment_fraction")
+
+
+def _truth_faces(p: Prepared) -> list[np.ndarray]:
+    """The item's ground truths per face: the dataset's own face labels when the mesh is unchanged,
     else face labels derived from the (carried) vertex labels."""
     from shape_toolkit.results.labels import vertex_to_face_labels
 
-    fn = lookup_metric("segmentation_scores")
-    if not p.target_labels:
+    if not p.target_labels and not p.target_face_labels:
         raise ParameterError(f"item {p.name!r} has no ground-truth segmentation")
     faces = p.target.require_faces("segmentation scores")
-    pred = vertex_to_face_labels(faces, np.asarray(o["labels"]))
-    truths = p.target_face_labels or [vertex_to_face_labels(faces, g) for g in p.target_labels]
-    res = fn(pred, truths, mesh=p.target)
-    return {
-        k: float(v) for k, v in res.items() if isinstance(v, (int, float, np.floating)) and k != "n_truths"
-    }
+    return list(p.target_face_labels) or [vertex_to_face_labels(faces, g) for g in p.target_labels]
+
+
+def _m_n_segments(p, o, opt):
+    if o.get("human"):  # the humans' own segment counts, averaged
+        return {"n_segments": float(np.mean([np.unique(t).size for t in _truth_faces(p)]))}
+    lab = np.asarray(o["labels"])
+    out: dict[str, Any] = {"n_segments": int(np.unique(lab[lab >= 0]).size)}
+    if "n_segments_given" in o:
+        out["n_segments_given"] = int(np.asarray(o["n_segments_given"]))
+    return out
+
+
+def _m_segmentation(p, o, opt):
+    """PSB scores (:func:`shape_toolkit.metrics.segmentation_scores`) of the predicted face labels (the
+    segmenter's own where it segments faces, else its vertex labels by majority) against every human
+    segmentation, averaged; against the others when the first one gave the clicks. The human row
+    (:func:`shape_toolkit.metrics.human_consistency_scores`) scores each human against the others.
+    Faces weigh their area (``face_weights = "area"``) or count once (``"uniform"``, PSB's
+    definition; then ``rand_index_error_area`` is added for comparison)."""
+    from shape_toolkit.results.labels import vertex_to_face_labels
+
+    truths = _truth_faces(p)
+    faces = p.target.require_faces("segmentation scores")
+    weights = p.target.face_areas if opt.get("face_weights", "area") == "area" else np.ones(len(faces))
+    if o.get("human"):
+        res = lookup_metric("human_consistency_scores")(truths, weights, mesh=p.target)
+        pred = None
+    else:
+        fl = o.get("face_labels")
+        pred = np.asarray(fl) if fl is not None and len(fl) == len(faces) else vertex_to_face_labels(
+            faces, np.asarray(o["labels"]))
+        skip = int(np.asarray(o.get("clicked_truth", -1)))
+        if 0 <= skip < len(truths) and len(truths) > 1:
+            truths = truths[:skip] + truths[skip + 1:]
+        res = lookup_metric("segmentation_scores")(pred, truths, weights, mesh=p.target)
+    out = {k: float(v) for k, v in res.items()
+           if isinstance(v, (int, float, np.floating)) and k != "n_truths"}
+    if opt.get("face_weights") == "uniform":
+        ri = lookup_metric("rand_index_error")
+        if pred is None:  # each human against the others, area-weighted
+            area = [float(np.mean([ri(t, u, p.target.face_areas) for j, u in enumerate(truths) if j != i]))
+                    for i, t in enumerate(truths)]
+        else:
+            area = [ri(pred, t, p.target.face_areas) for t in truths]
+        out["rand_index_error_area"] = float(np.mean(area))
+    return out
 
 
 class SegmentationTask(TaskAdapter):
     """Segmenters on each (corrupted) shape, scored against its ground-truth segmentations.
-    ``constraints`` options draw must/cannot-links from the first ground truth
-    (:func:`shape_toolkit.results.labels.draw_constraints`) for semi-supervised methods."""
+
+    Options: ``constraints`` draws must/cannot-links from the first ground truth's vertex labels
+    (:func:`shape_toolkit.results.labels.draw_constraints`); ``clicks`` draws them with the PSB
+    protocol from the first human's face labels (:func:`shape_toolkit.results.labels.clicks_from_segmentation`,
+    keys ``n_must_per_segment``, ``n_cannot_per_boundary``, ``cannot_offset``, ``min_segment_fraction``;
+    the run's ``random_state``), and the method is then scored against the other humans.
+    ``n_segments``: every method's number of segments (an integer, or ``"human-mode"``: per item, the
+    most frequent count among its human segmentations, PSB's nSeg-ByModel; a method's own
+    ``params.n_segments`` wins). ``face_weights``: ``"area"`` or ``"uniform"`` (every face counts once,
+    as PSB). ``human_consistency``: add a ``human`` row, each human against the others."""
 
     name = "segmentation"
     families = ("segmenters",)
-    option_defaults = {"constraints": None}
+    option_defaults = {
+        "constraints": None, "clicks": None, "n_segments": None, "face_weights": "area", "human_consistency": False,
+    }
     default_metrics = ("n_segments",)
-    metrics = {"n_segments": (_m_n_segments, ()), "segmentation": (_m_segmentation, ("segmentation_scores",))}
+    metrics = {
+        "n_segments": (_m_n_segments, ()),
+        "segmentation": (_m_segmentation, ("segmentation_scores", "human_consistency_scores", "rand_index_error")),
+    }
+
+    def check_options(self, options):
+        o = super().check_options(options)
+        k = o["n_segments"]
+        if k is not None and k != HUMAN_MODE and (isinstance(k, bool) or not isinstance(k, int) or k < 2):
+            raise ParameterError(f"n_segments must be an integer >= 2 or {HUMAN_MODE!r}, got {k!r}")
+        if o["face_weights"] not in ("area", "uniform"):
+            raise ParameterError(f"face_weights must be 'area' or 'uniform', got {o['face_weights']!r}")
+        if not isinstance(o["human_consistency"], bool):
+            raise ParameterError(f"human_consistency must be true or false, got {o['human_consistency']!r}")
+        for key in ("constraints", "clicks"):
+            if o[key] is not None and not isinstance(o[key], dict):
+                raise ParameterError(f"{key} must be a table, got {o[key]!r}")
+        if o["constraints"] is not None and o["clicks"] is not None:
+            raise ParameterError("clicks and constraints draw the same links two ways: give one of them")
+        c = o["clicks"]
+        if c is not None:
+            bad = sorted(set(c) - set(_CLICK_KEYS))
+            if bad:
+                raise ParameterError(f"clicks has no key {bad[0]!r}; known: {', '.join(_CLICK_KEYS)}")
+            for key, v in c.items():
+                lo = 0.0 if key == "min_segment_fraction" else 1
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or v < lo or (
+                        key != "min_segment_fraction" and not isinstance(v, int)):
+                    raise ParameterError(f"clicks {key} must be {'a number >= 0' if lo == 0.0 else 'an integer >= 1'}"
+                                         f", got {v!r}")
+        return o
+
+    def check_method(self, options: dict[str, Any], cls: type, params: dict[str, Any]) -> str | None:
+        """None when a method fits the options, else the problem: ``n_segments`` needs methods that
+        take ``n_segments`` (unless they set it themselves)."""
+        names = cls._param_names() if hasattr(cls, "_param_names") else []
+        if options.get("n_segments") is not None and "n_segments" not in names and "n_segments" not in params:
+            return (f"the task option n_segments = {options['n_segments']!r} sets each method's n_segments, "
+                    f"but {getattr(cls, '__name__', cls)} takes none: put it in a task without that option")
+        return None
 
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
+        if isinstance(method, HumanSegmentations):
+            if len(_truth_faces(prepared)) < 2:
+                raise ParameterError(f"item {prepared.name!r} has fewer than 2 human segmentations")
+            first = prepared.target_labels[0] if prepared.target_labels else np.zeros(0, np.int64)
+            return {"human": True, "labels": np.asarray(first)}
         constraints = None
+        clicked = -1
         if options.get("constraints") is not None:
             from shape_toolkit.results.labels import draw_constraints
 
@@ -411,8 +522,20 @@ class SegmentationTask(TaskAdapter):
             constraints = draw_constraints(
                 prepared.target_labels[0], prepared.target.edges, random_state=random_state, **c
             )
+        elif options.get("clicks") is not None:
+            from shape_toolkit.results.labels import clicks_from_segmentation
+
+            constraints = clicks_from_segmentation(prepared.target, _truth_faces(prepared)[0], faces=True,
+                                                   random_state=random_state, **options["clicks"])
+            clicked = 0
         result = method.segment(prepared.target, spectrum=spectra.get("target"), constraints=constraints)
-        return {"labels": result.labels}
+        out: dict[str, Any] = {"labels": result.labels, "clicked_truth": clicked}
+        if result.face_labels is not None:
+            out["face_labels"] = result.face_labels
+        k = getattr(method, "n_segments", None)
+        if options.get("n_segments") is not None and isinstance(k, (int, np.integer)):
+            out["n_segments_given"] = int(k)
+        return out
 
 
 # -- matching ---------------------------------------------------------------------------------

@@ -329,6 +329,8 @@ def _new_row(job: Job) -> Row:
         random_state=job.random_state,
         corruption_seed=job.corruption_seed,
         prepare_key=job.prepare_key,
+        category=job.category,
+        item_params=dict(job.item_params),
     )
 
 
@@ -391,7 +393,8 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
         spectra: dict[str, Any] = {}
         detector_spectra = None
         if job.subject_spectrum is None:
-            method = create_method(job.family, job.plugin, job.preset, job.params, job.random_state)
+            params = {**job.params, **job.item_params}
+            method = create_method(job.family, job.plugin, job.preset, params, job.random_state)
             detector = create_detector(job.keypoints)
             own, det_spec = method_specs(method, detector)
             got = _Received(job, prep, sides)

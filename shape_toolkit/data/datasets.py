@@ -35,6 +35,9 @@ __all__ = [
     "synthetic_refs",
     "open_dataset",
     "load_item",
+    "PSB_CATEGORIES",
+    "item_group",
+    "truth_segment_counts",
 ]
 
 
@@ -205,6 +208,47 @@ def open_dataset(kind: str, path: str | os.PathLike | None = None, **params: Any
         return fn(path, **params)
     except TypeError as exc:
         raise ParameterError(f"{kind} dataset: {exc}") from None
+
+
+#: PSB categories in id order: model ``ID`` (1..400) is of category ``PSB_CATEGORIES[(ID - 1) // 20]``
+PSB_CATEGORIES = ("human", "cup", "glasses", "airplane", "ant", "chair", "octopus", "table", "teddy", "hand",
+                  "plier", "fish", "bird", "spring", "armadillo", "bust", "mech", "bearing", "vase", "fourleg")
+
+
+def _shape_group(name: str) -> str:
+    """The group of one shape name: a FAUST subject (``tr_reg_NNN``: ``subject-NNN // 10``), else the
+    class prefix (the letters before the trailing digits: TOSCA's animal, ``cat0`` -> ``cat``)."""
+    stem = Path(name).stem
+    if stem.startswith("tr_reg_") and stem[7:].isdigit():
+        return f"subject-{int(stem[7:]) // 10}"
+    prefix = stem.rstrip("0123456789").rstrip("_-")
+    return prefix or stem
+
+
+def item_group(ref: ItemRef) -> str | None:
+    """The group of an item, for per-category tables and splits that never cut a group: a PSB mesh's
+    category (from its numeric id), the animal of a TOSCA-style pair (``cat``), the FAUST subject
+    (``subject-2``); a pair of shapes of two groups gets both, ``"a+b"`` (in no split half). None
+    when the item has no group (folder and synthetic datasets)."""
+    if ref.kind == "psb":
+        stem = Path(str(ref.paths.get("shape", ref.name))).stem
+        if stem.isdigit() and 1 <= int(stem) <= 20 * len(PSB_CATEGORIES):
+            return PSB_CATEGORIES[(int(stem) - 1) // 20]
+        return None
+    if ref.kind == "tosca":
+        groups = sorted({_shape_group(ref.paths["source"]), _shape_group(ref.paths["target"])})
+        return "+".join(groups)
+    return None
+
+
+def truth_segment_counts(ref: ItemRef) -> list[int]:
+    """Segments per ground-truth segmentation of an item, read from its label files without loading
+    the shape (PSB ``.seg`` face labels, a folder's ``.labels``; other kinds load the item)."""
+    if ref.kind == "psb":
+        return [int(np.unique(read_face_labels(s)).size) for s in ref.paths.get("segs", [])]
+    if ref.kind == "folder":
+        return [int(np.unique(read_labels(ref.paths["labels"])).size)] if "labels" in ref.paths else []
+    return [int(np.unique(lab).size) for lab in load_item(ref).labels]
 
 
 def _pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:

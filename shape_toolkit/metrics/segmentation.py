@@ -40,6 +40,8 @@ __all__ = [
     "cut_discrepancy",
     "matched_recall_precision",
     "segmentation_scores",
+    "human_consistency_scores",
+    "consensus_segment_count",
     "SEGMENTATION_METRICS",
 ]
 
@@ -291,3 +293,36 @@ def segmentation_scores(
     out["n_truths"] = len(per)
     out["per_truth"] = per
     return out
+
+
+def human_consistency_scores(
+    truth_face_labels_list: list[np.ndarray],
+    face_areas: np.ndarray | None = None,
+    mesh: Shape | None = None,
+) -> dict[str, Any]:
+    """PSB's "Human" row: each ground truth scored (:func:`segmentation_scores`) against the others,
+    every metric of :data:`SEGMENTATION_METRICS` averaged over the truths (NaN where undefined);
+    ``n_truths`` is their number. Needs at least two truths (:class:`ParameterError`)."""
+    truths = [np.asarray(t).ravel() for t in truth_face_labels_list]
+    if len(truths) < 2:
+        raise ParameterError(f"human consistency needs at least 2 ground-truth segmentations, got {len(truths)}")
+    per = [segmentation_scores(t, truths[:i] + truths[i + 1:], face_areas, mesh) for i, t in enumerate(truths)]
+    out: dict[str, Any] = {}
+    for name in SEGMENTATION_METRICS:
+        vals = np.array([p[name] for p in per], dtype=np.float64)
+        out[name] = float(np.nanmean(vals)) if np.isfinite(vals).any() else float("nan")
+    out["n_truths"] = len(truths)
+    return out
+
+
+def consensus_segment_count(counts: list[int] | np.ndarray) -> int:
+    """The number of segments the humans agree on (PSB's ``nSeg-ByModel`` rule): the most frequent of
+    ``counts`` (segments per human segmentation); a tie goes to the count closest to their median, then
+    to the larger; at least 2. :class:`ParameterError` for no count."""
+    c = np.asarray(counts, dtype=np.int64).ravel()
+    if c.size == 0:
+        raise ParameterError("no ground-truth segmentation to take the number of segments from")
+    values, freq = np.unique(c, return_counts=True)
+    tied = values[freq == freq.max()]
+    med = float(np.median(c))
+    return max(2, int(min(tied, key=lambda v: (abs(float(v) - med), -int(v)))))
