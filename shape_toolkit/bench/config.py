@@ -703,9 +703,9 @@ def split_line(split: dict[str, Any] | None) -> str | None:
                      f"{d[other]['items']} {other} items left out" + (
                          f", {d['neither']['items']} pairs across halves in neither" if d["neither"]["items"] else ""))
     salt = "salt + " if split["salt"] else ""
-    return (f"Split: only the {split['half']} half is shown. Rule: per dataset, groups by {split['by']} "
-            f"ordered by SHA-1({salt}group name), the first {split['tune_fraction']:g} of them tune, the rest "
-            "report; " + "; ".join(parts) + ".")
+    return (f"Split: only the {split['half']} half is shown. Rule: per dataset, the groups ({split['by']}) "
+            f"ordered by SHA-1({salt}group name), the first {100 * split['tune_fraction']:g}% of them (rounded down) "
+            "tune, the others report; " + "; ".join(parts) + ".")
 
 
 def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dict[str, DatasetSpec]:

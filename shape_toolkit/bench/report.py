@@ -37,6 +37,7 @@ import numpy as np
 
 from shape_toolkit.bench.store import (
     RESULTS,
+    SPLIT,
     load_output,
     load_prepared,
     prepared_path,
@@ -45,9 +46,10 @@ from shape_toolkit.bench.store import (
     safe_name,
 )
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.validation import atomic_output
 
 __all__ = ["write_report", "check_report_output", "summarize", "method_id", "metric_direction", "latex_escape",
-           "rewards_under_segmentation", "MANIFEST"]
+           "rewards_under_segmentation", "MANIFEST", "markdown_summary"]
 
 #: metrics where a larger value is better (everything else with a direction: lower is better)
 _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
@@ -278,12 +280,14 @@ def _ranks(cells: dict, column: str) -> dict[tuple[str, str, str], str]:
     """``{cell key: "best" or "tie"}`` for ``column``, per dataset and corruption: the one best mean,
     or the means sharing the best within the printed precision (memory: within 1 MB), named a tie.
     Nothing where only one method has a value, or where they all share the best (a constant column:
-    nothing to choose)."""
+    nothing to choose). The reference rows (:data:`REFERENCE_METHODS`, the humans) are never ranked."""
     d = metric_direction(column)
     if d is None:
         return {}
     groups: dict = defaultdict(list)
     for key, cols in cells.items():
+        if key[1] in REFERENCE_METHODS:
+            continue
         if column in cols and math.isfinite(cols[column][0]):
             groups[(key[0], key[2])].append((cols[column][0], key))
     out: dict = {}
@@ -302,6 +306,8 @@ def _ranks(cells: dict, column: str) -> dict[tuple[str, str, str], str]:
 
 
 _NA = "n/a"
+#: method names of reference rows, shown beside the methods but never ranked (the human-consistency row)
+REFERENCE_METHODS = frozenset({"human"})
 
 
 class _Grid:
@@ -439,9 +445,11 @@ class _Tables:
         self.folder = folder
         self.files: list[Path] = []
         self.count = 0
+        self.grids: list[_Grid] = []  # in the page's order, for the Markdown summary
 
     def write(self, g: _Grid, name: str) -> str:
         """Write ``g`` as ``NN-NAME.csv`` and ``.tex``; returns the HTML links to both."""
+        self.grids.append(g)
         stem = f"{self.count:02d}-{safe_name(name)}"
         cand, n = stem, 2
         while any(os.path.lexists(self.folder / f"{cand}.{ext}") for ext in ("csv", "tex")):
@@ -459,6 +467,97 @@ class _Tables:
             self.files.append(p)
             links.append(f"<a href='{html.escape('tables/' + p.name)}'>{what}</a>")
         return f"<p class='dl'>This table as {' and '.join(links)}.</p>"
+
+
+def _md_num(v: float) -> str:
+    """A number for a Markdown cell (3 decimals; integers as integers)."""
+    if not math.isfinite(v):
+        return "-"
+    if float(v).is_integer() and abs(v) < 1e12:
+        return str(int(v))
+    return f"{v:.3g}" if abs(v) >= 1000 or abs(v) < 1e-3 else f"{v:.3f}"
+
+
+def _md_text(g: _Grid) -> str:
+    """The table as GitHub Markdown: means (std and n are in the CSV), the best in bold, n/a, notes below."""
+    def cell(c: Any) -> str:
+        if c is None:
+            return "-"
+        if c is _NA:
+            return "n/a"
+        text = _md_num(c[0])
+        return f"**{text}**" if c[3] in ("best", "tie") else text
+
+    def esc(t: Any) -> str:
+        return _printable(str(t)).replace("|", "\\|")
+
+    lines = ["| " + " | ".join(esc(k) for k in g.keys + g.metrics) + " |",
+             "|" + "---|" * (len(g.keys) + len(g.metrics))]
+    for keys, cells in g.rows:
+        lines.append("| " + " | ".join([esc(k) for k in keys] + [cell(c) for c in cells]) + " |")
+    return "\n".join(lines + [""] + [esc(n) + "\n" for n in g.notes])
+
+
+#: the metric a per-category table shows, the first of these a task has
+_CATEGORY_METRICS = ("rand_index_error", "mean_geodesic_error", "label_recall", "repeatability@0.05")
+
+
+def _category_grid(task: str, rows: list[dict]) -> _Grid | None:
+    """Mean of the task's main metric per item category (PSB category, animal, subject) and method,
+    and the mean over categories (every category weighs the same, as PSB's averages); None when the
+    rows have no category or no such metric."""
+    ok = [r for r in rows if r.get("status") == "ok" and isinstance(r.get("category"), str)]
+    have = {k for r in ok for k, v in r["metrics"].items() if _is_num(v)}
+    metric = next((m for m in _CATEGORY_METRICS if m in have), None)
+    if metric is None:
+        return None
+    cats = sorted({r["category"] for r in ok})
+    acc: dict = defaultdict(lambda: defaultdict(list))
+    for r in ok:
+        v = r["metrics"].get(metric)
+        if _is_num(v):
+            acc[(str(r.get("dataset", "-")), method_id(r), str(r.get("corruption", "none")))][r["category"]].append(v)
+    g = _Grid(f"Task {task}: {metric} per category (mean over the category's items)",
+              ["dataset", "method", "corruption"], [*cats, "mean of categories"], stats=True)
+    for key in sorted(acc):
+        per = acc[key]
+        cells: list[Any] = [(float(np.mean(per[c])), float(np.std(per[c])), len(per[c]), "") if per.get(c) else None
+                            for c in cats]
+        means = [float(np.mean(v)) for v in per.values() if v]
+        cells.append((float(np.mean(means)), float(np.std(means)), len(means), ""))
+        g.rows.append((list(key), cells))
+    g.notes.append(f"{metric}: {metric_direction(metric) or 'no direction'} is better; 'mean of categories' "
+                   "averages the per-category means, so every category weighs the same.")
+    return g
+
+
+def _split_note(run: Path, rows: list[dict]) -> str | None:
+    """The one line saying which half of which split the run shows (``RUN/split.json``) and how many of
+    its items have rows, or None without a split."""
+    from shape_toolkit.bench.config import split_line
+
+    try:
+        line = split_line(json.loads((run / SPLIT).read_text(encoding="utf-8")))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    n = len({(r.get("dataset"), r.get("item")) for r in rows})
+    return f"{line} Items with rows in this run: {n}." if line else None
+
+
+def markdown_summary(name: str, tables: list[_Grid], *, command: str | None = None, split: str | None = None,
+                     n_rows: int = 0, n_failed: int = 0) -> str:
+    """The report's tables as one Markdown document: the command that regenerates it first, the split line,
+    then every table with its notes."""
+    lines = [f"# Benchmark report: {_printable(name)}", ""]
+    if command:
+        lines += ["Regenerate with:", "", f"    {_printable(command)}", ""]
+    lines.append(f"{n_rows} rows, {n_failed} failed. Means over items; each table is also written as CSV "
+                 "(with standard deviations and counts) and LaTeX in the report folder.")
+    if split:
+        lines += ["", split]
+    for g in tables:
+        lines += ["", f"## {_printable(g.title)}", "", _md_text(g)]
+    return "\n".join(lines).rstrip() + "\n"
 
 
 def _mean_grid(task: str, cells: dict, gaps: dict) -> _Grid:
@@ -1018,6 +1117,8 @@ def write_report(
     output: str | os.PathLike | None = None,
     renders: int = 3,
     progress: Callable[[str], None] | None = None,
+    markdown: str | os.PathLike | None = None,
+    command: str | None = None,
 ) -> dict:
     """Write ``index.html`` (self-contained) with its figures (PNG, and PDF) and tables (CSV and
     LaTeX) for a run folder; ``progress`` receives one line per step (task, figure group). Returns
@@ -1025,7 +1126,9 @@ def write_report(
 
     The report replaces or deletes only files it wrote itself (listed with their digests in
     ``OUTPUT/.bench-report.json``); a file it did not write is never touched: an ``index.html`` of
-    someone else is a :class:`ParameterError` before any work, other names are avoided."""
+    someone else is a :class:`ParameterError` before any work, other names are avoided. With ``markdown``,
+    the tables are also written there as one Markdown file (:func:`markdown_summary`), headed by
+    ``command`` (the command line that regenerates it)."""
     def say(msg: str) -> None:  # names from the rows: no control characters on a terminal
         if progress is not None:
             progress(_printable(msg))
@@ -1055,9 +1158,16 @@ def write_report(
         written = [path]
     finally:
         _write_manifest(out, written + figs.files + figs.vector + tables.files)
+    if markdown is not None:
+        text = markdown_summary(rows[0].get("run_name", run.name) if rows else run.name, tables.grids,
+                                command=command, split=_split_note(run, rows), n_rows=len(rows),
+                                n_failed=sum(r.get("status") != "ok" for r in rows))
+        with atomic_output(markdown, "Markdown report") as tmp:
+            tmp.write_text(text, encoding="utf-8")
+        say(f"wrote {markdown}")
     say(f"wrote {path} ({len(figs.files)} figures, {len(tables.files) // 2} tables as CSV and LaTeX)")
     return {"html": path, "figures": list(figs.files), "vector_figures": list(figs.vector),
-            "tables": list(tables.files)}
+            "tables": list(tables.files), "markdown": markdown}
 
 
 def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, renders: int,
@@ -1075,6 +1185,7 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
         f"<h1>Benchmark report: {html.escape(str(name))}</h1>",
         f"<p>{len(rows)} rows: {n_ok} ok, {len(failed)} failed. "
         f"Run folder: <code>{html.escape(str(run.resolve()))}</code>.</p>",
+        *([f"<p class='split'>{html.escape(split)}</p>"] if (split := _split_note(run, rows)) else []),
         _summary_section(summ, tasks, rows, gaps),
         "<p>Seconds are the method's own call (spectra come from the shared cache, timed separately); "
         "peak memory is the resident-set growth during that call (MB). Each dataset is reported on its "
@@ -1088,6 +1199,9 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
         if cells or task_gaps:
             grid = _mean_grid(task, cells, task_gaps)
             parts.append(_html_table(grid) + tables.write(grid, task))
+            cat = _category_grid(task, trows)
+            if cat is not None:
+                parts.append(_html_table(cat) + tables.write(cat, f"{task}-categories"))
             items = _item_grid(task, trows, grid.metrics[:-1])  # seconds, not memory, per item
             if items is not None:
                 parts.append(f"<details><summary>per-item values ({len(items.rows)} rows)</summary>"

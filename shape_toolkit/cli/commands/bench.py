@@ -76,12 +76,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--retry-failed", action="store_true", help="run failed rows again")
     add_quiet(r)
     r.add_argument("--report", action="store_true", help="write the report when the run ends")
+    r.add_argument("--markdown", metavar="FILE",
+                   help="with --report: also write its tables to FILE as Markdown, headed by this command")
     r.add_argument("--json", action="store_true", help='print {"rows", "failed", "reused", ...} at the end')
     r.set_defaults(func=run_cmd)
     rep = bsub.add_parser("report", help="write RUN_DIR/report/index.html and PNG figures")
     rep.add_argument("run_dir", help="a run folder written by bench run")
     rep.add_argument("-o", "--output", help="report folder (default RUN_DIR/report)")
     rep.add_argument("--renders", type=int, default=3, help="shapes rendered per task (default 3)")
+    rep.add_argument("--markdown", metavar="FILE", help="also write the tables to FILE as Markdown")
     rep.add_argument("--json", action="store_true", help="print the written files as JSON")
     add_quiet(rep)
     rep.set_defaults(func=report_cmd)
@@ -113,6 +116,8 @@ def run_cmd(args: argparse.Namespace) -> int:
     from shape_toolkit.bench.executors import run_benchmark
 
     args.output = str(default_output(args.output, args.config, "run"))
+    if args.markdown is not None:
+        _check_markdown(args.markdown, args.report)
     with _one_line_warnings():
         # every check happens before any work, the row count before any grid is expanded
         cfg = load_config(args.config, max_rows=args.max_rows or MAX_ROWS, limit=args.limit)
@@ -134,7 +139,8 @@ def run_cmd(args: argparse.Namespace) -> int:
         if args.report:
             from shape_toolkit.bench.report import write_report
 
-            report = str(write_report(args.output, progress=_say(args))["html"])
+            report = str(write_report(args.output, progress=_say(args), markdown=args.markdown,
+                                      command=_command_line())["html"])
     if args.json:
         print_json(
             {
@@ -157,13 +163,35 @@ def run_cmd(args: argparse.Namespace) -> int:
     return 1 if summary.failed else 0
 
 
+def _command_line() -> str:
+    """This command as typed, for the head of a Markdown report (``shape-toolkit`` and its arguments)."""
+    import shlex
+
+    return " ".join(["shape-toolkit", *(shlex.quote(a) for a in sys.argv[1:])])
+
+
+def _check_markdown(path: str, report: bool = True) -> None:
+    """``--markdown FILE`` usable before any work: with ``--report``, in an existing folder, not a folder."""
+    from shape_toolkit.errors import ParameterError
+
+    p = Path(path)
+    if not report:
+        raise ParameterError("--markdown writes the report's tables: give --report too")
+    if p.is_dir() or not p.parent.is_dir():
+        raise ParameterError(f"--markdown {path}: must be a file in an existing folder")
+
+
 def report_cmd(args: argparse.Namespace) -> int:
     from shape_toolkit.bench.report import write_report
 
+    if args.markdown is not None:
+        _check_markdown(args.markdown)
     with _one_line_warnings():
-        res = write_report(args.run_dir, output=args.output, renders=args.renders, progress=_say(args))
+        res = write_report(args.run_dir, output=args.output, renders=args.renders, progress=_say(args),
+                           markdown=args.markdown, command=_command_line())
     if args.json:
-        print_json({k: str(v) if not isinstance(v, list) else [str(x) for x in v] for k, v in res.items()})
+        print_json({k: (str(v) if v is not None else None) if not isinstance(v, list) else [str(x) for x in v]
+                    for k, v in res.items()})
     else:
         print(f"report: {res['html']} ({len(res['figures'])} figures)", file=sys.stdout)
     return 0
