@@ -498,8 +498,16 @@ class SegmentationTask(TaskAdapter):
 
     def check_method(self, options: dict[str, Any], cls: type, params: dict[str, Any]) -> str | None:
         """None when a method fits the options, else the problem: ``n_segments`` needs methods that
-        take ``n_segments`` (unless they set it themselves)."""
+        take ``n_segments`` (unless they set it themselves), ``clicks`` and ``constraints`` methods that
+        take constraints."""
+        from shape_toolkit.api.interfaces import Segmenter
+
         names = cls._param_names() if hasattr(cls, "_param_names") else []
+        drawn = next((k for k in ("clicks", "constraints") if options.get(k) is not None), None)
+        decides = getattr(cls, "accepts_constraints", None) is not getattr(Segmenter, "accepts_constraints", None)
+        if drawn and not getattr(cls, "takes_constraints", False) and not decides:
+            return (f"the task option {drawn} gives every method constraints, but {getattr(cls, '__name__', cls)} "
+                    "takes none (it is unsupervised): put it in a task without that option")
         if options.get("n_segments") is not None and "n_segments" not in names and "n_segments" not in params:
             return (f"the task option n_segments = {options['n_segments']!r} sets each method's n_segments, "
                     f"but {getattr(cls, '__name__', cls)} takes none: put it in a task without that option")
