@@ -544,13 +544,24 @@ def _split_note(run: Path, rows: list[dict]) -> str | None:
     return f"{line} Items with rows in this run: {n}." if line else None
 
 
+def _description(run: Path) -> str | None:
+    """The config's ``[run] description`` (``RUN/config.json``), or None."""
+    try:
+        d = json.loads((run / "config.json").read_text(encoding="utf-8")).get("run", {}).get("description")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return d if isinstance(d, str) and d.strip() else None
+
+
 def markdown_summary(name: str, tables: list[_Grid], *, command: str | None = None, split: str | None = None,
-                     n_rows: int = 0, n_failed: int = 0) -> str:
-    """The report's tables as one Markdown document: the command that regenerates it first, the split line,
-    then every table with its notes."""
+                     n_rows: int = 0, n_failed: int = 0, description: str | None = None) -> str:
+    """The report's tables as one Markdown document: the command that regenerates it first, the config's
+    description, the split line, then every table with its notes."""
     lines = [f"# Benchmark report: {_printable(name)}", ""]
     if command:
         lines += ["Regenerate with:", "", f"    {_printable(command)}", ""]
+    if description:
+        lines += [_printable(description.strip(), keep="\n"), ""]
     lines.append(f"{n_rows} rows, {n_failed} failed. Means over items; each table is also written as CSV "
                  "(with standard deviations and counts) and LaTeX in the report folder.")
     if split:
@@ -1161,7 +1172,7 @@ def write_report(
     if markdown is not None:
         text = markdown_summary(rows[0].get("run_name", run.name) if rows else run.name, tables.grids,
                                 command=command, split=_split_note(run, rows), n_rows=len(rows),
-                                n_failed=sum(r.get("status") != "ok" for r in rows))
+                                n_failed=sum(r.get("status") != "ok" for r in rows), description=_description(run))
         with atomic_output(markdown, "Markdown report") as tmp:
             tmp.write_text(text, encoding="utf-8")
         say(f"wrote {markdown}")
