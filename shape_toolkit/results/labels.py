@@ -486,7 +486,7 @@ def clicks_from_segmentation(
     random_state: int = 0,
 ) -> Constraints:
     """The clicks a person would give for a known segmentation, with the PSB benchmark's protocol
-    (``benchmarks/psb_segmentation.py``; its ``-1ml`` rows are the defaults here): ``labels`` has one
+    (``benchmarks/configs/psb_segmentation.toml``; its ``-1ml`` rows are the defaults here): ``labels`` has one
     label per face ``(m,)`` (PSB ``.seg``; a vertex takes its largest incident area) or per vertex
     ``(n,)`` of the mesh ``shape`` (``faces``: which; None: told by the count). Every segment with at
     least ``min_segment_fraction`` of the vertices gets ``n_must_per_segment`` must-links chained
