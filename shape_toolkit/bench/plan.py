@@ -90,6 +90,7 @@ class Job:
     options: dict[str, Any]
     subject_spectrum: SpectrumSpec | None = None
     item_specs: tuple[SpectrumSpec, ...] = ()
+    solver: str | None = None
 
 
 def subject_spec(task: TaskSpec, method: MethodSpec) -> SpectrumSpec:
@@ -203,6 +204,8 @@ def plan(
                             "metrics": list(task.metrics),
                             "options": task.options,
                         }
+                        if m.solver is not None:  # only then: the keys of earlier runs' rows hold
+                            ident["solver"] = m.solver
                         key = row_key(ident)
                         if key in seen:
                             continue
@@ -233,6 +236,7 @@ def plan(
                                 metrics=tuple(task.metrics),
                                 options=task.options,
                                 subject_spectrum=subject,
+                                solver=m.solver,
                             )
                         )
     jobs = [replace(j, item_specs=tuple(preps[j.prepare_key].specs)) for j in jobs]
