@@ -6,8 +6,9 @@ sparse solver is a shift-invert **block Krylov-Schur** iteration: ``A - sigma M`
 slightly negative, so the matrix is SPD) is factored once by CHOLMOD (through ``cholespy``), the
 operator ``M^1/2 (A - sigma M)^-1 M^1/2`` is applied to blocks of vectors (one multi-right-hand-side
 solve per block), and the basis is orthogonalised with matrix-matrix products (BLAS 3) instead of
-ARPACK's one-vector-at-a-time Gram-Schmidt. ``benchmarks/bench_eigensolver.py`` measures it
-against the usual ``scipy.sparse.linalg.eigsh`` shift-invert approach.
+ARPACK's one-vector-at-a-time Gram-Schmidt; converged Ritz pairs are locked at a restart.
+``benchmarks/configs/eigensolver.toml`` (``shape-toolkit bench run``, SciPy as ``peer = "scipy-eigsh"``)
+measures it against the usual ``scipy.sparse.linalg.eigsh`` shift-invert approach.
 """
 
 from __future__ import annotations
