@@ -477,13 +477,7 @@ def _spectrum_peer_method(m: dict, where: str, spectrum: dict) -> MethodSpec:
     if extra:
         raise ConfigError(f"{where}.{extra[0]}", "not allowed with an eigensolver peer (keys: peer, label, plugin, "
                                                  "spectrum)")  # fmt: skip
-    name = m["peer"]
-    if not isinstance(name, str):
-        raise ConfigError(f"{where}.peer", f"must be a peer name, got {name!r}")
-    try:
-        create_spectrum_peer(name)
-    except ToolkitError as exc:
-        raise ConfigError(f"{where}.peer", str(exc)) from None
+    name = _peer_name(m, where, create_spectrum_peer)
     plugin = _str(m.get("plugin", "cotangent"), f"{where}.plugin")
     fam = _family_for("spectrum", plugin, where)
     if "spectrum" in m and not isinstance(m["spectrum"], dict):
@@ -506,15 +500,21 @@ def _peer_method(task: str, m: dict, where: str) -> MethodSpec:
     extra = sorted(set(m) - {"peer", "label"})
     if extra:
         raise ConfigError(f"{where}.{extra[0]}", "not allowed with peer (a peer runs its own published pipeline)")
+    name = _peer_name(m, where, create_peer)
+    label = _str(m["label"], f"{where}.label") if "label" in m else f"peer:{name}"
+    return MethodSpec(name, "peers", None, {}, label)
+
+
+def _peer_name(m: dict, where: str, create: Any) -> str:
+    """The ``peer`` name of a method entry, checked by making the peer (``create(name)``)."""
     name = m["peer"]
     if not isinstance(name, str):
         raise ConfigError(f"{where}.peer", f"must be a peer name, got {name!r}")
     try:
-        create_peer(name)
+        create(name)
     except ToolkitError as exc:
         raise ConfigError(f"{where}.peer", str(exc)) from None
-    label = _str(m["label"], f"{where}.label") if "label" in m else f"peer:{name}"
-    return MethodSpec(name, "peers", None, {}, label)
+    return name
 
 
 def _dataset_size(spec: DatasetSpec, limit: int | None) -> int:
