@@ -124,3 +124,13 @@ def test_runner_compares_the_solver_with_scipy_eigsh_per_size(tmp_path):
     cells = summarize(read_rows(run))["spectrum"]  # what the report's mean table shows
     assert len(cells) == 4
     assert all({"cpu_seconds", "eigenvalue_error", "peak_memory_mb"} <= set(c) for c in cells.values())
+
+
+def test_eigenvalue_error_on_a_small_shape_uses_a_dense_reference(tmp_path):
+    """Below the dense crossover (ARPACK cannot take k close to n) the reference is LAPACK: both rows score."""
+    text = CONFIG.replace("subdivisions = 2", "subdivisions = 1").replace("splits = [1, 2]", "splits = [1]")
+    run = tmp_path / "run"
+    assert main(["bench", "run", str(_write(tmp_path, text)), "-o", str(run), "-q"]) == 0
+    rows = [json.loads(line) for line in (run / "results.jsonl").read_text().splitlines()]
+    assert len(rows) == 2 and all(r["n_vertices"] <= 400 for r in rows)
+    assert all(r["metrics"]["eigenvalue_error"] < 1e-10 for r in rows)
