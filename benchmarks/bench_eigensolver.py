@@ -81,28 +81,11 @@ def read_off(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def subdivide(v: np.ndarray, f: np.ndarray, s: int) -> tuple[np.ndarray, np.ndarray]:
-    """Split every triangle into ``s * s`` congruent ones on a barycentric grid (shared edges)."""
-    grid = [(i, j) for i in range(s + 1) for j in range(s + 1 - i)]
-    w = np.array([(i, j, s - i - j) for i, j in grid])
-    pos = {t: q for q, t in enumerate(grid)}
-    tris = []
-    for i in range(s):
-        for j in range(s - i):
-            tris.append((pos[i, j], pos[i + 1, j], pos[i, j + 1]))
-            if i + j < s - 1:
-                tris.append((pos[i + 1, j], pos[i + 1, j + 1], pos[i, j + 1]))
-    tris = np.array(tris)
-    nf, npt = len(f), len(w)
-    # a point's identity: its (vertex id, weight) pairs with non-zero weight, sorted by vertex id
-    vid = np.where(w[None] > 0, f[:, None, :], -1)
-    ww = np.broadcast_to(w, (nf, npt, 3))
-    o = np.argsort(vid, axis=2)
-    key = np.concatenate(
-        [np.take_along_axis(vid, o, 2), np.take_along_axis(ww, o, 2)], axis=2
-    ).reshape(-1, 6)
-    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    xyz = np.einsum("pk,fkd->fpd", w / s, v[f]).reshape(-1, 3)
-    return xyz[first], inv.ravel().reshape(nf, npt)[:, tris].reshape(-1, 3)
+    """Split every triangle into ``s * s`` congruent ones on a barycentric grid (shared edges): the
+    library's :func:`shape_toolkit.data.corruptions.split_triangles` (original vertices first)."""
+    from shape_toolkit.data.corruptions import split_triangles
+
+    return split_triangles(v, f, s)
 
 
 def icosphere(s: int) -> tuple[np.ndarray, np.ndarray]:

@@ -159,16 +159,17 @@ class SpectrumSpec:
             out["params"] = dict(self.weighting_params)
         return out
 
-    def compute(self, shape: Shape, *, components: str = "raise") -> Spectrum:
+    def compute(self, shape: Shape, *, components: str = "raise", solver: Any = None) -> Spectrum:
         """The spectrum of ``shape`` that this spec describes, through the content cache; ``k`` capped by
-        :func:`spectrum_k` (with ``components='largest'``, at the largest component's size)."""
+        :func:`spectrum_k` (with ``components='largest'``, at the largest component's size); ``solver``:
+        another eigensolver than the default (see :func:`~shape_toolkit.core.spectrum.compute_spectrum`)."""
         graph, kwargs = self._request(shape, components)
-        return compute_spectrum(graph, **kwargs)
+        return compute_spectrum(graph, **kwargs, solver=solver)
 
-    def is_cached(self, shape: Shape, *, components: str = "raise") -> bool:
+    def is_cached(self, shape: Shape, *, components: str = "raise", solver: Any = None) -> bool:
         """Whether :meth:`compute` with these arguments would be served from the cache."""
         graph, kwargs = self._request(shape, components)
-        return is_cached(graph, **kwargs)
+        return is_cached(graph, **kwargs, solver=solver)
 
     def _request(self, shape: Shape, components: str) -> tuple[ShapeGraph, dict[str, Any]]:
         """The graph and the :func:`compute_spectrum` arguments of this spec on ``shape``."""

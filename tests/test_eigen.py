@@ -529,3 +529,22 @@ def test_default_block_does_not_escalate_when_the_shift_exceeds_the_gaps():
     assert "escalated_from" not in info and info["block_size"] == 4
     # the dense reference itself is off by ~eps * max(diag(A) / d) ~ 4e-9 here (1e-6 relative)
     np.testing.assert_allclose(vals[1:], ref[1:], rtol=1e-5)
+
+
+@pytest.mark.parametrize("k, basis", [(30, 48), (60, 96)])
+def test_locked_restarts_keep_eigenvalues_and_subspace(generalized, k, basis):
+    """A small basis forces several thick restarts, so converged Ritz pairs are locked (decoupled from
+    the basis at tol): eigenvalues still match LAPACK to 1e-10, the eigenvectors span LAPACK's
+    subspace (every principal-angle cosine 1 to 1e-8), M-orthonormal."""
+    A, d, _, _ = generalized
+    s = 1 / np.sqrt(d)
+    ref, y = la.eigh(A.toarray() * s[:, None] * s[None, :], subset_by_index=(0, k))  # one more: the cut
+    info: dict = {}
+    vals, vecs = smallest_eigenpairs(A, k, d, method="krylov", block_size=4, max_basis=basis, info=info)
+    assert info["restarts"] >= 2 and info["locked"] > 0
+    np.testing.assert_allclose(vals[1:], ref[1:k], rtol=1e-10)
+    assert abs(vals[0]) < 1e-10 * ref[1]
+    assert ref[k] - ref[k - 1] > 1e-6 * ref[k]  # the cut is not inside a cluster, so the subspace is defined
+    cos = subspace_cosines(vecs, y[:, :k] * s[:, None], d)
+    np.testing.assert_allclose(cos, 1.0, atol=1e-8)
+    np.testing.assert_allclose(vecs.T @ (d[:, None] * vecs), np.eye(k), atol=1e-10)

@@ -148,6 +148,7 @@ class MethodSpec:
     method_label: str
     spectrum: dict[str, Any] | None = None
     keypoints: dict[str, Any] | None = None
+    solver: str | None = None  # a spectrum task's eigensolver peer (``peer = "scipy-eigsh"``); None: the toolkit's
 
 
 @dataclass(frozen=True)
@@ -477,25 +478,54 @@ def _pipeline_method(task: str, m: dict, where: str) -> MethodSpec:
     return MethodSpec(pipe.name, "pipelines", None, {"pipeline": spec}, label)
 
 
+def _spectrum_peer_method(m: dict, where: str, spectrum: dict) -> MethodSpec:
+    """A spectrum task's method computed by an eigensolver peer (``peer = "scipy-eigsh"``,
+    :data:`shape_toolkit.bench.peers.SPECTRUM_PEERS`): the same Laplacian and mass as the toolkit's row
+    of that weighting (``plugin``, default cotangent), solved by the peer instead of the toolkit."""
+    from shape_toolkit.bench.peers import create_spectrum_peer
+
+    extra = sorted(set(m) - {"peer", "label", "plugin", "spectrum"})
+    if extra:
+        raise ConfigError(f"{where}.{extra[0]}", "not allowed with an eigensolver peer (keys: peer, label, plugin, "
+                                                 "spectrum)")  # fmt: skip
+    name = _peer_name(m, where, create_spectrum_peer)
+    plugin = _str(m.get("plugin", "cotangent"), f"{where}.plugin")
+    fam = _family_for("spectrum", plugin, where)
+    if "spectrum" in m and not isinstance(m["spectrum"], dict):
+        raise ConfigError(f"{where}.spectrum", "must be a table")
+    if isinstance(m.get("spectrum"), dict) and "weighting" in m["spectrum"]:
+        raise ConfigError(f"{where}.spectrum.weighting", "the weighting of a spectrum task's method is its plugin")
+    mspec = _validate_spectrum({**spectrum, **m["spectrum"]}, f"{where}.spectrum") if "spectrum" in m else None
+    label = _str(m["label"], f"{where}.label") if "label" in m else f"peer:{name}"
+    return MethodSpec(plugin, fam, None, {}, label, mspec, None, name)
+
+
 def _peer_method(task: str, m: dict, where: str) -> MethodSpec:
     """A matching method run by a peer implementation (:mod:`shape_toolkit.bench.peers`, e.g.
     ``peer = "pyfm"``), side by side with the toolkit's methods."""
     from shape_toolkit.bench.peers import create_peer
 
     if task != "matching":
-        raise ConfigError(f"{where}.peer", 'peers are matching methods (task = "matching")')
+        raise ConfigError(f"{where}.peer", 'peers are matching methods (task = "matching") or eigensolvers '
+                                           '(task = "spectrum")')  # fmt: skip
     extra = sorted(set(m) - {"peer", "label"})
     if extra:
         raise ConfigError(f"{where}.{extra[0]}", "not allowed with peer (a peer runs its own published pipeline)")
+    name = _peer_name(m, where, create_peer)
+    label = _str(m["label"], f"{where}.label") if "label" in m else f"peer:{name}"
+    return MethodSpec(name, "peers", None, {}, label)
+
+
+def _peer_name(m: dict, where: str, create: Any) -> str:
+    """The ``peer`` name of a method entry, checked by making the peer (``create(name)``)."""
     name = m["peer"]
     if not isinstance(name, str):
         raise ConfigError(f"{where}.peer", f"must be a peer name, got {name!r}")
     try:
-        create_peer(name)
+        create(name)
     except ToolkitError as exc:
         raise ConfigError(f"{where}.peer", str(exc)) from None
-    label = _str(m["label"], f"{where}.label") if "label" in m else f"peer:{name}"
-    return MethodSpec(name, "peers", None, {}, label)
+    return name
 
 
 def _dataset_size(spec: DatasetSpec, limit: int | None) -> int:
@@ -796,6 +826,9 @@ def _check_method(kind: str, adapter: Any, spectrum: dict | None, m: Any, mw: st
     _check_keys(m, {"plugin", "pipeline", "peer", "preset", "label", "params", "spectrum", "keypoints"}, mw)
     if "pipeline" in m:
         spec = _pipeline_method(kind, m, mw)
+        return (lambda: [spec]), 1
+    if "peer" in m and kind == "spectrum" and spectrum is not None:
+        spec = _spectrum_peer_method(m, mw, spectrum)
         return (lambda: [spec]), 1
     if "peer" in m:
         spec = _peer_method(kind, m, mw)

@@ -7,20 +7,25 @@ subsample_step=2)``, ``fit(K=30, w_descr=1, w_lap=0.1, w_dcomm=1, w_orient=1)``,
 ``zoomout_refine(nit=16, step=5)``, ``get_p2p``. pyFM's ``p2p_21`` maps its second mesh to its
 first, so its first mesh is our target. A peer computes its own Laplacian spectrum inside its
 timed call (the toolkit's methods get theirs from the run's cache, timed separately).
+
+``scipy-eigsh`` (``peer = "scipy-eigsh"`` in a spectrum task): the spectrum of the same Laplacian and mass
+computed by SciPy's shift-invert ``eigsh`` instead of the toolkit's eigensolver (:class:`ScipyEigsh`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.results.correspondence import Correspondence
 
-__all__ = ["PEERS", "Peer", "create_peer", "pyfm_map"]
+__all__ = ["PEERS", "SPECTRUM_PEERS", "Peer", "ScipyEigsh", "create_peer", "create_spectrum_peer", "pyfm_map"]
 
 
 def pyfm_map(source: Shape, target: Shape) -> np.ndarray:
@@ -85,3 +90,51 @@ def create_peer(name: str) -> Peer:
     except importlib.metadata.PackageNotFoundError:  # pragma: no cover - installed from source
         version = "unknown"
     return Peer(name, fn, f"{dist} {version}")
+
+
+# -- eigensolver peers (``peer = "scipy-eigsh"`` in a spectrum task) ---------------------------------------
+@dataclass(frozen=True)
+class ScipyEigsh:
+    """SciPy's ``eigsh`` in shift-invert mode (SuperLU factor of ``A - sigma M``, ARPACK Lanczos), as
+    pyFM and LaPy compute a Laplacian spectrum; ``sigma`` is the toolkit solver's default shift
+    (``-1e-8 max(diag(A) / diag(M))``), so both solve the same shifted problem. Called as a spectrum
+    solver, ``solver(A, k, M)`` -> eigenvalues ``(k,)`` ascending and eigenvectors ``(n, k)``."""
+
+    tol: float = 0.0
+
+    def __call__(
+        self, A: sp.spmatrix, k: int, M: np.ndarray | sp.spmatrix | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` smallest eigenpairs of ``A u = lambda M u`` by ``scipy.sparse.linalg.eigsh``."""
+        import scipy.sparse.linalg as sla
+
+        A = sp.csr_matrix(A, dtype=np.float64)
+        n = A.shape[0]
+        if M is None:
+            Ms = None
+        else:
+            Ms = sp.diags(np.asarray(M, np.float64)).tocsr() if np.ndim(M) == 1 else sp.csr_matrix(M)
+        dm = np.ones(n) if Ms is None else Ms.diagonal()
+        sigma = -1e-8 * float(np.max(A.diagonal() / dm))
+        if k >= n - 1:  # ARPACK needs k < n - 1: what eigsh's users do, a dense solve
+            import scipy.linalg as la
+
+            vals, vecs = la.eigh(A.toarray(), None if Ms is None else Ms.toarray(), subset_by_index=(0, k - 1))
+            return vals, vecs
+        vals, vecs = sla.eigsh(A, k=int(k), M=Ms, sigma=sigma, which="LM", tol=self.tol)
+        order = np.argsort(vals)
+        return vals[order], vecs[:, order]
+
+
+#: eigensolver peer name -> (solver factory, distribution)
+SPECTRUM_PEERS: dict[str, tuple[Callable[[], Any], str]] = {
+    "scipy-eigsh": (ScipyEigsh, "scipy"),
+}
+
+
+def create_spectrum_peer(name: str) -> Any:
+    """The eigensolver peer ``name`` of :data:`SPECTRUM_PEERS` (a ``solver(A, k, M)`` callable);
+    :class:`ParameterError` when unknown."""
+    if name not in SPECTRUM_PEERS:
+        raise ParameterError(f"unknown eigensolver peer {name!r}; known: {', '.join(sorted(SPECTRUM_PEERS))}")
+    return SPECTRUM_PEERS[name][0]()

@@ -95,6 +95,7 @@ class Job:
     item_specs: tuple[SpectrumSpec, ...] = ()
     item_params: dict[str, Any] = field(default_factory=dict)
     category: str | None = None
+    solver: str | None = None
 
 
 def subject_spec(task: TaskSpec, method: MethodSpec) -> SpectrumSpec:
@@ -241,6 +242,8 @@ def plan(
                             "metrics": list(task.metrics),
                             "options": task.options,
                         }
+                        if m.solver is not None:  # only then: the keys of earlier runs' rows hold
+                            ident["solver"] = m.solver
                         key = row_key(ident)
                         if key in seen:
                             continue
@@ -273,6 +276,7 @@ def plan(
                                 subject_spectrum=subject,
                                 item_params=extra[m_index],
                                 category=category,
+                                solver=m.solver,
                             )
                         )
     jobs = [replace(j, item_specs=tuple(preps[j.prepare_key].specs)) for j in jobs]

@@ -56,7 +56,9 @@ _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matche
            "smooth")
 _LOWER = ("error", "discrepancy", "gce", "lce", "hamming", "seconds", "memory", "chance")
 #: units of known columns, shown in the headers
-_UNITS = {"seconds": "s", "peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
+#: the cost columns every row has (wall time, process CPU time of all threads, peak memory growth)
+_COST = ("seconds", "cpu_seconds", "peak_memory_mb")
+_UNITS = {"seconds": "s", "cpu_seconds": "s", "peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
           "median_geodesic_error": "sqrt(area)", "lambda2": "1/length^2", "mean_eigenvalue": "1/length^2"}
 
 
@@ -130,7 +132,7 @@ def _is_curve(v: Any) -> bool:
 
 def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str, tuple[float, float, int]]]]:
     """``{task_name: {(dataset, method_id, corruption): {column: (mean, std, count)}}}`` over ok
-    rows, for every scalar metric plus ``seconds`` and ``peak_memory_mb``; different datasets are
+    rows, for every scalar metric plus ``seconds``, ``cpu_seconds`` and ``peak_memory_mb``; different datasets are
     never averaged together."""
     acc: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
     for r in rows:
@@ -140,7 +142,7 @@ def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str
         for k, v in (r.get("metrics") or {}).items():
             if _is_num(v):
                 cell[k].append(float(v))
-        for k in ("seconds", "peak_memory_mb"):
+        for k in _COST:
             if _is_num(r.get(k)):
                 cell[k].append(float(r[k]))
     out: dict = {}
@@ -574,8 +576,8 @@ def markdown_summary(name: str, tables: list[_Grid], *, command: str | None = No
 def _mean_grid(task: str, cells: dict, gaps: dict) -> _Grid:
     """Mean and std per (dataset, method, corruption); the best of each column marked (see
     :func:`_ranks`); metrics without a value as n/a, and why, in notes under the table."""
-    valued = sorted({c for v in cells.values() for c in v} - {"seconds", "peak_memory_mb"})
-    columns = valued + ["seconds", "peak_memory_mb"]
+    valued = sorted({c for v in cells.values() for c in v} - set(_COST))
+    columns = valued + [c for c in _COST if any(c in v for v in cells.values())]
     g = _Grid(f"Task {task}: mean and standard deviation per method", ["dataset", "method", "corruption"],
               columns, stats=True)
     ranks = {c: _ranks(cells, c) for c in columns}
@@ -616,7 +618,7 @@ def _item_grid(task: str, rows: list[dict], columns: list[str]) -> _Grid | None:
         m = r["metrics"]
         cells = []
         for c in columns:
-            v = r.get(c) if c in ("seconds", "peak_memory_mb") else m.get(c)
+            v = r.get(c) if c in _COST else m.get(c)
             cells.append((float(v), 0.0, 1, "") if _is_num(v) else _NA if c in m and _no_value(v) else None)
         g.rows.append(([str(r.get("dataset", "-")), str(r.get("item")), method_id(r),
                         str(r.get("corruption", "none"))], cells))
@@ -653,7 +655,7 @@ def _summary_section(summ: dict, tasks: list[str], rows: list[dict], gaps: dict 
                         if not any(c in v for v in sub.values()):
                             none_have[c].add(k[1])
             methods = sorted({k[1] for k in sub})
-            cols = sorted({c for v in sub.values() for c in v if metric_direction(c)} - {"seconds", "peak_memory_mb"})
+            cols = sorted({c for v in sub.values() for c in v if metric_direction(c)} - set(_COST))
             items = []
             for c in cols:
                 under = "; rewards under-segmentation" if rewards_under_segmentation(c) else ""

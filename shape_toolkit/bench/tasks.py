@@ -130,12 +130,12 @@ def prepare(
     return p
 
 
-def compute_spectrum_cached(spec: SpectrumSpec, shape: Shape) -> tuple[Spectrum, bool]:
+def compute_spectrum_cached(spec: SpectrumSpec, shape: Shape, solver: Any = None) -> tuple[Spectrum, bool]:
     """``spec`` computed on ``shape`` through the content cache (largest connected component, as
-    corruptions may split a shape; ``k`` capped by :func:`~shape_toolkit.spectra.spectrum_k`); returns
-    ``(Spectrum, cache_hit)``."""
-    hit = spec.is_cached(shape, components="largest")
-    return spec.compute(shape, components="largest"), hit
+    corruptions may split a shape; ``k`` capped by :func:`~shape_toolkit.spectra.spectrum_k`), by the
+    eigensolver ``solver`` (None: the toolkit's); returns ``(Spectrum, cache_hit)``."""
+    hit = spec.is_cached(shape, components="largest", solver=solver)
+    return spec.compute(shape, components="largest", solver=solver), hit
 
 
 def spectrum_for(spec: SpectrumSpec, shape: Shape, pool: Sequence[SpectrumSpec] = ()) -> tuple[Spectrum, bool]:
@@ -293,6 +293,26 @@ def _m_scree(p, o, opt):
     return res
 
 
+def _m_eigenvalue_error(p, o, opt):
+    """Max relative eigenvalue error against a reference spectrum of the same Laplacian and mass: ARPACK
+    shift-invert on a CHOLMOD factor at full precision (``tol=0``; dense LAPACK for small or nearly full
+    problems), through the run's cache (so computed once per item); ``max_i |l_i - ref_i| / max(|ref_i|,
+    ref_2)``: the null eigenvalue is judged against the first non-zero one."""
+    from shape_toolkit.core.eigen import DENSE_MAX_N, EigenSolver
+
+    spectrum = o["spectrum"]
+    lam = np.asarray(spectrum.eigenvalues)
+    spec = SpectrumSpec(int(lam.size), spectrum.weighting, spectrum.laplacian, spectrum.mass is not None,
+                        dict(spectrum.meta.get("weighting_params") or {}))  # fmt: skip
+    n = p.target.n_vertices  # ARPACK needs k < n - 1: small problems get dense LAPACK instead
+    method = "dense" if n <= DENSE_MAX_N or 3 * lam.size >= n else "arpack"
+    ref = np.asarray(spec.compute(p.target, components="largest", solver=EigenSolver(method, tol=0.0)).eigenvalues)
+    if ref.size != lam.size:
+        raise ParameterError(f"reference spectrum has {ref.size} eigenvalues, the row {lam.size}")
+    den = np.maximum(np.abs(ref), abs(ref[1]) if ref.size > 1 else max(abs(ref[0]), 1e-300))
+    return {"eigenvalue_error": float(np.max(np.abs(np.sort(lam) - ref) / den))}
+
+
 class SpectrumTask(TaskAdapter):
     """Laplacian spectra of each shape under each weighting plugin (the compared methods)."""
 
@@ -308,11 +328,12 @@ class SpectrumTask(TaskAdapter):
         "eigenvalues": (_m_eigenvalues, ()),
         "lambda2": (_m_fiedler, ()),
         "scree_alpha": (_m_scree, ()),
+        "eigenvalue_error": (_m_eigenvalue_error, ()),
     }
 
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         spec = spectra["target"]  # the subject: computed inside the row, timed as the method
-        return {"eigenvalues": spec.eigenvalues, "n_vertices": prepared.target.n_vertices}
+        return {"eigenvalues": spec.eigenvalues, "n_vertices": prepared.target.n_vertices, "spectrum": spec}
 
 
 # -- keypoints --------------------------------------------------------------------------------

@@ -411,7 +411,12 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
             t0, c0 = time.perf_counter(), time.process_time()
             if job.subject_spectrum is not None:  # the spectrum *is* the result: timed as the method
                 spec = job.subject_spectrum
-                spectra["target"], row.spectrum_cache_hit = compute_spectrum_cached(spec, prep.target)
+                solver = None
+                if job.solver is not None:  # an eigensolver peer computes the same spectrum
+                    from shape_toolkit.bench.peers import create_spectrum_peer
+
+                    solver = create_spectrum_peer(job.solver)
+                spectra["target"], row.spectrum_cache_hit = compute_spectrum_cached(spec, prep.target, solver)
                 row.spectra = [received_spec(spec, prep.target)]
                 row.spectrum_seconds = time.perf_counter() - t0
             output = adapter.run(

@@ -34,6 +34,8 @@ __all__ = [
     "glue",
     "partial",
     "crop",
+    "subdivide",
+    "split_triangles",
     "apply_corruption",
     "RESAMPLING",
     "invert_vertex_map",
@@ -383,6 +385,66 @@ def crop(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Corru
     return out, vmap
 
 
+def split_triangles(vertices: np.ndarray, faces: np.ndarray, s: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every triangle split into ``s * s`` congruent ones on a flat barycentric grid, shared edges shared:
+    vertices ``(n', 3)`` with the original ``n`` first (same ids) and triangles ``(s^2 m, 3)``;
+    ``n' = n + (s - 1) E + (s - 1)(s - 2) m / 2`` for ``E`` edges and ``m`` triangles."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    s = int(s)
+    if s == 1:
+        return v.copy(), f.copy()
+    grid = [(i, j) for i in range(s + 1) for j in range(s + 1 - i)]
+    w = np.array([(i, j, s - i - j) for i, j in grid])
+    pos = {t: q for q, t in enumerate(grid)}
+    tris = []
+    for i in range(s):
+        for j in range(s - i):
+            tris.append((pos[i, j], pos[i + 1, j], pos[i, j + 1]))
+            if i + j < s - 1:
+                tris.append((pos[i + 1, j], pos[i + 1, j + 1], pos[i, j + 1]))
+    tris = np.array(tris)
+    nf, npt = len(f), len(w)
+    # a grid point's identity: its (vertex id, weight) pairs with non-zero weight, sorted by vertex id
+    vid = np.where(w[None] > 0, f[:, None, :], -1)
+    ww = np.broadcast_to(w, (nf, npt, 3))
+    o = np.argsort(vid, axis=2)
+    key = np.concatenate([np.take_along_axis(vid, o, 2), np.take_along_axis(ww, o, 2)], axis=2).reshape(-1, 6)
+    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    inv = inv.ravel().reshape(nf, npt)
+    xyz = np.einsum("pk,fkd->fpd", w / s, v[f]).reshape(-1, 3)[first]
+    # renumber: the original vertices first, with their ids (a corner of the grid is the original vertex)
+    new_id = np.full(len(first), -1, dtype=np.int64)
+    for c in range(3):
+        q = int(np.flatnonzero(w[:, c] == s)[0])
+        new_id[inv[:, q]] = f[:, c]
+        xyz[inv[:, q]] = v[f[:, c]]  # exact copies (the barycentric sum may round)
+    rest = new_id < 0
+    new_id[rest] = len(v) + np.arange(int(rest.sum()))
+    out_v = np.empty((len(v) + int(rest.sum()), 3))
+    out_v[: len(v)] = v  # every original vertex, also one no triangle uses
+    out_v[new_id] = xyz
+    return out_v, new_id[inv[:, tris]].reshape(-1, 3)
+
+
+def subdivide(shape: Shape, *, splits: int = 2, random_state: int = 0) -> Corruption:
+    """A finer mesh of the same surface: every triangle split ``splits x splits`` (flat, so the geometry
+    and the Laplacian's continuum limit are unchanged; ``splits^2`` times the triangles). The original
+    vertices keep their ids and positions; every new vertex maps to the nearest original vertex.
+    ``random_state`` is unused (the split is deterministic)."""
+    f = shape.require_faces("subdivide")
+    if isinstance(splits, bool) or not isinstance(splits, (int, np.integer)) or not 1 <= splits <= 64:
+        raise ParameterError(f"subdivide splits must be an integer in [1, 64], got {splits!r}")
+    v, nf = split_triangles(shape.vertices, f, int(splits))
+    n = shape.n_vertices
+    vmap = np.arange(len(v), dtype=np.int64)
+    if len(v) > n:
+        from scipy.spatial import cKDTree
+
+        vmap[n:] = cKDTree(shape.vertices).query(v[n:], k=1)[1]
+    return Shape(v, nf, shape.name, _carried_colors(shape, vmap)), vmap
+
+
 #: corruption name (as used in configs) -> function
 CORRUPTIONS: dict[str, Callable[..., Corruption]] = {
     "rigid": rigid_motion,
@@ -396,6 +458,7 @@ CORRUPTIONS: dict[str, Callable[..., Corruption]] = {
     "glue": glue,
     "partial": partial,
     "crop": crop,
+    "subdivide": subdivide,
 }
 
 
@@ -420,7 +483,7 @@ def apply_corruption(shape: Shape, name: str, *, random_state: int = 0, **params
 
 #: corruptions that resample the surface: their maps name the *nearest* original vertex, so an
 #: original vertex nobody maps to still exists (near its neighbours) rather than being removed
-RESAMPLING = frozenset({"remesh", "glue"})
+RESAMPLING = frozenset({"remesh", "glue", "subdivide"})
 
 
 def invert_vertex_map(
