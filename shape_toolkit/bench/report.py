@@ -47,7 +47,7 @@ from shape_toolkit.bench.store import (
 from shape_toolkit.errors import ParameterError
 
 __all__ = ["write_report", "check_report_output", "summarize", "method_id", "metric_direction", "latex_escape",
-           "rewards_under_segmentation", "MANIFEST"]
+           "rewards_under_segmentation", "report_colors", "MANIFEST", "SPLIT_FIELD"]
 
 #: metrics where a larger value is better (everything else with a direction: lower is better)
 _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
@@ -215,12 +215,13 @@ def _spread(s: float) -> str:
     return f"{s:.2g}" if abs(s) < 1e-3 or abs(s) >= 1000 else f"{s:.3f}"
 
 
-def _fmt(m: float, s: float, n: int) -> str:
-    """``mean &plusmn; std (n=...)``; no spread shown for a single value or a constant column."""
+def _fmt(m: float, s: float, n: int, show_n: bool = True) -> str:
+    """``mean &plusmn; std (n=...)``; no spread shown for a single value or a constant column, no
+    ``n`` when ``show_n`` is false (a table whose cells all have the same n says it once)."""
     text = _num(m)
     if n > 1 and s > 0:
-        text += f" &plusmn; {_spread(s)}"
-    if n > 1:
+        text += f" <small>&plusmn; {_spread(s)}</small>"
+    if n > 1 and show_n:
         text += f" <small>(n={n})</small>"
     return text
 
@@ -319,13 +320,13 @@ class _Grid:
         self.notes: list[str] = []
 
 
-def _html_cell(c: Any, stats: bool) -> str:
+def _html_cell(c: Any, stats: bool, show_n: bool = True) -> str:
     if c is None:
         return "<td>&ndash;</td>"
     if c is _NA:
         return "<td class='na' title='no value: see the note under the table'>n/a</td>"
     m, s, n, mark = c
-    text = _fmt(m, s, n) if stats else _num(m)
+    text = _fmt(m, s, n, show_n) if stats else _num(m)
     if mark == "best":
         return f"<td class='best'>{text}</td>"
     if mark == "tie":
@@ -333,16 +334,26 @@ def _html_cell(c: Any, stats: bool) -> str:
     return f"<td>{text}</td>"
 
 
+def _same_n(g: _Grid) -> int | None:
+    """The one row count every cell of a mean table has (None: they differ, or no cell)."""
+    ns = {c[2] for _, cells in g.rows for c in cells if isinstance(c, tuple)}
+    return next(iter(ns)) if g.stats and len(ns) == 1 else None
+
+
 def _html_table(g: _Grid) -> str:
+    """The table in a box at most 1,400 px wide that scrolls sideways when the table is wider (its
+    numbers never wrap: see the CSS); a mean table whose cells share one n says it once."""
     head = "".join(f"<th>{html.escape(k)}</th>" for k in g.keys) + "".join(_header(c) for c in g.metrics)
+    n = _same_n(g)
     body = "".join(
         "<tr>" + "".join(f"<td>{html.escape(k)}</td>" for k in keys)
-        + "".join(_html_cell(c, g.stats) for c in cells) + "</tr>"
+        + "".join(_html_cell(c, g.stats, n is None) for c in cells) + "</tr>"
         for keys, cells in g.rows
     )
     css = f" class='{g.css}'" if g.css else ""
-    notes = "".join(f"<p class='note'>{html.escape(n)}</p>" for n in g.notes)
-    return f"<table{css}><tr>{head}</tr>{body}</table>{notes}"
+    notes = [f"Mean \u00b1 standard deviation over n = {n} row{'s' if n != 1 else ''} per cell."] if n else []
+    notes = "".join(f"<p class='note'>{html.escape(x)}</p>" for x in notes + g.notes)
+    return f"<div class='tw'><table{css}><tr>{head}</tr>{body}</table></div>{notes}"
 
 
 def _csv_text(g: _Grid) -> str:
@@ -495,6 +506,28 @@ def _mean_grid(task: str, cells: dict, gaps: dict) -> _Grid:
     return g
 
 
+#: a row field that, when rows carry it, splits the long per-item tables into one table per value
+SPLIT_FIELD = "category"
+
+
+def _item_grids(task: str, rows: list[dict], columns: list[str]) -> list[tuple[str | None, _Grid]]:
+    """The per-item tables: ``[(None, grid)]``, or one ``(value, grid)`` per value of
+    :data:`SPLIT_FIELD` (sorted) when the task's ok rows carry that field (rows without it: ``-``)."""
+    ok = [r for r in rows if r.get("status") == "ok"]
+    values = sorted({str(r[SPLIT_FIELD]) for r in ok if r.get(SPLIT_FIELD) not in (None, "")})
+    if not values:
+        g = _item_grid(task, ok, columns)
+        return [] if g is None else [(None, g)]
+    out = []
+    for v in values + (["-"] if any(r.get(SPLIT_FIELD) in (None, "") for r in ok) else []):
+        sel = [r for r in ok if (str(r.get(SPLIT_FIELD)) if r.get(SPLIT_FIELD) not in (None, "") else "-") == v]
+        g = _item_grid(task, sel, columns)
+        if g is not None:
+            g.title += f", {SPLIT_FIELD} {v}"
+            out.append((v, g))
+    return out
+
+
 def _item_grid(task: str, rows: list[dict], columns: list[str]) -> _Grid | None:
     """Per-item values of every scalar metric (None when the task has no ok row)."""
     ok = [r for r in rows if r.get("status") == "ok"]
@@ -579,7 +612,7 @@ def _summary_section(summ: dict, tasks: list[str], rows: list[dict], gaps: dict 
 #: row fields the report shows as text (the reader accepts a string, or null where noted in the store)
 _TEXT_FIELDS = {"run_name": None, "task_name": "", "task_kind": "", "dataset": "-", "item": "", "plugin": "",
                 "family": "", "method_label": "", "corruption": "none", "corruption_kind": "none",
-                "corruption_group": "none", "error": "", "key": ""}
+                "corruption_group": "none", "error": "", "key": "", SPLIT_FIELD: None}
 
 
 def _normalized(row: dict) -> dict:
@@ -699,9 +732,15 @@ def _title(text: str, width_in: float = 12.0, fontsize: float = 12) -> str:
     return "\n".join(textwrap.wrap(text, max(20, int(width_in * 72 / (0.55 * fontsize)))))
 
 
-def _curve_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = None) -> list[str]:
+_DASHES = ("-", "--", ":", "-.")
+
+
+def _curve_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = None,
+                colors: dict | None = None) -> list[str]:
     """Curve metrics per method (mean over items, band min..max): one panel per corruption group,
-    every compared method (and peer) on the same axes; one figure per metric and dataset."""
+    every compared method (and peer) on the same axes, in its colour of the report (``colors``:
+    method id -> RGB) and one line style per corruption; one figure per metric and dataset."""
+    colors = colors if colors is not None else {}
     plt = _plt()
     parts = []
     curves: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
@@ -720,16 +759,19 @@ def _curve_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = 
         xl, yl, logx = _axes_for(metric)
         for ax, g in zip(axes.ravel(), groups):
             ys = []
+            styles = {c: _DASHES[i % len(_DASHES)] for i, c in enumerate(sorted({c for _, c in by_group[g]}))}
             for (mid, corr), cs in sorted(by_group[g].items()):
                 L = min(len(c) for c in cs)
                 arr = np.stack([c[:L] for c in cs])
                 x, y = arr[0, :, 0], arr[:, :, 1].mean(axis=0)
                 ys.extend(arr[:, :, 1].ravel())
                 label = mid if corr == "none" else f"{mid} {corr[len(g):]}".strip()
-                marker = "-o" if len(x) <= 12 else "-"  # few points: marked
-                ax.plot(x, y, marker, ms=4, lw=1.8, label=_legend(label[:48]))
+                marker = "o" if len(x) <= 12 else None  # few points: marked
+                ax.plot(x, y, linestyle=styles[corr], marker=marker, ms=4, lw=1.8, color=colors.get(mid),
+                        label=_legend(label[:48]))
                 if len(cs) > 1:
-                    ax.fill_between(x, arr[:, :, 1].min(axis=0), arr[:, :, 1].max(axis=0), alpha=0.12)
+                    ax.fill_between(x, arr[:, :, 1].min(axis=0), arr[:, :, 1].max(axis=0), alpha=0.12,
+                                    color=colors.get(mid))
             ax.set_title("uncorrupted" if g == "none" else _t(f"corruption: {g}"), fontsize=11)
             if logx:
                 ax.set_xscale("log")
@@ -744,9 +786,12 @@ def _curve_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = 
     return parts
 
 
-def _strength_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = None) -> list[str]:
-    """One figure per corruption group: a panel per scalar metric, metric vs strength per method."""
+def _strength_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = None,
+                   colors: dict | None = None) -> list[str]:
+    """One figure per corruption group: a panel per scalar metric, metric vs strength per method
+    (each in its colour of the report, ``colors``: method id -> RGB)."""
     plt = _plt()
+    colors = colors if colors is not None else {}
     parts = []
     ok = [r for r in rows if r.get("status") == "ok" and r["task_name"] == task
           and (dataset is None or str(r.get("dataset", "-")) == dataset)]
@@ -768,7 +813,7 @@ def _strength_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None
                 xs = sorted(pts)
                 ys.extend(v for x in xs for v in pts[x])
                 ax.errorbar(xs, [np.mean(pts[x]) for x in xs], yerr=[np.std(pts[x]) for x in xs],
-                            marker="o", ms=4, capsize=3, label=_legend(mid))
+                            marker="o", ms=4, capsize=3, color=colors.get(mid), label=_legend(mid))
             d = metric_direction(metric)
             under = ", rewards under-segmentation" if rewards_under_segmentation(metric) else ""
             ax.set_title(_t(f"{metric}" + (f" ({d} is better{under})" if d else "")), fontsize=10)
@@ -783,8 +828,10 @@ def _strength_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None
     return parts
 
 
-def _cost_fig(task: str, cells: dict, figs: _Figs) -> list[str]:
+def _cost_fig(task: str, cells: dict, figs: _Figs, colors: dict | None = None) -> list[str]:
+    """Mean run time and peak memory per method, one bar per method in its colour of the report."""
     plt = _plt()
+    colors = colors if colors is not None else {}
     by: dict = defaultdict(lambda: {"seconds": [], "peak_memory_mb": []})
     for (_ds, mid, _corr), cols in cells.items():
         for c in ("seconds", "peak_memory_mb"):
@@ -796,7 +843,7 @@ def _cost_fig(task: str, cells: dict, figs: _Figs) -> list[str]:
     fig, axes = plt.subplots(1, 2, figsize=(12, 1.2 + 0.45 * len(names)), layout="constrained", sharey=True)
     for ax, c, unit in zip(axes, ("seconds", "peak_memory_mb"), ("s", "MB")):
         vals = [float(np.mean(by[n][c])) if by[n][c] else 0.0 for n in names]
-        ax.barh(range(len(names)), vals, color="tab:blue" if c == "seconds" else "tab:orange")
+        ax.barh(range(len(names)), vals, color=[colors.get(n, "tab:blue") for n in names])
         ax.set_yticks(range(len(names)), [_t(n[:40]) for n in names], fontsize=10)
         what = "run time" if c == "seconds" else "peak memory growth"
         ax.set_xlabel(f"mean {what} per row ({unit}), lower is better", fontsize=10)
@@ -852,7 +899,7 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
             figs.say(f"figure {len(figs.files) + 1}: render of {method_id(r)} on {r['item']}")
             p = figs.fresh(f"render-{r['key']}")
             for path in (p, p.with_suffix(".pdf")):  # the same matplotlib figure, as PNG and as PDF
-                render_shapes(panels, path, panel_size=min(4.5, 12.0 / len(panels)), dpi=100, title=_t(title))
+                render_shapes(panels, path, panel_size=4.0, max_width=12.0, dpi=100, title=_t(title))
             figs.files.append(p)
             figs.vector.append(p.with_suffix(".pdf"))
             parts.append(_img(p, title))
@@ -862,6 +909,14 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
                 f"<p class='err'>could not render {html.escape(r['key'])}: {html.escape(str(exc))}</p>"
             )
     return parts
+
+
+def report_colors(rows: list[dict]) -> dict[str, tuple[float, float, float]]:
+    """The colour of each method of a report (method id -> RGB in [0, 1]), used by every figure of
+    it: :func:`shape_toolkit.viz.method_colors` of all the ok rows' method ids."""
+    from shape_toolkit.viz import method_colors
+
+    return method_colors(method_id(r) for r in rows if r.get("status") == "ok")
 
 
 def _spectra_list(rows: list[dict]) -> str:
@@ -908,14 +963,17 @@ def _prepare_section(run: Path, rows: list[dict]) -> str:
 
 _CSS = (
     "body{font-family:sans-serif;margin:1.5em auto;max-width:1240px;padding:0 1em;line-height:1.4}"
-    "table{border-collapse:collapse;margin:.5em 0 1.5em;font-size:13px}"
-    "td,th{border:1px solid #ccc;padding:3px 6px;text-align:right}"
+    "div.tw{max-width:min(100%,1400px);overflow-x:auto;margin:.5em 0 1.5em}"
+    "table{border-collapse:collapse;font-size:13px}"
+    "td,th{border:1px solid #ccc;padding:3px 6px;text-align:right;white-space:nowrap}"
+    "th{white-space:normal;min-width:4em;max-width:11em;vertical-align:bottom}"
+    "h3.cat{font-size:14px;margin:.8em 0 .2em}"
     "td:nth-child(-n+3){text-align:left}th{background:#eee}"
     "td.best,span.best{background:#d8f5d0;font-weight:bold}"
     "figure{display:block;margin:.8em 0}figure img{width:100%;max-width:1200px;height:auto}"
     "figcaption{font-size:12px;color:#555}.err{color:#a00}small{color:#777}"
     "details{margin:.3em 0 1.5em}summary{cursor:pointer;color:#225}"
-    "td.na{color:#777;font-style:italic}table.failed td{text-align:left}"
+    "td.na{color:#777;font-style:italic}table.failed td{text-align:left;white-space:normal}"
     "p.note{font-size:12px;color:#444;margin:-1em 0 .4em;max-width:1200px}p.note+p.note{margin-top:0}"
     "p.dl{font-size:12px;margin:-.8em 0 1.5em}p.note+p.dl{margin-top:.3em}"
 )
@@ -1070,6 +1128,7 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
     name = rows[0].get("run_name", run.name) if rows else run.name
     versions = next((r.get("versions") for r in rows if r.get("versions")), {})
     tasks = list(dict.fromkeys(r["task_name"] for r in rows))
+    colors = report_colors(rows)
     say(f"{len(rows)} rows, {len(tasks)} tasks -> {out / 'index.html'}")
     parts = [
         f"<h1>Benchmark report: {html.escape(str(name))}</h1>",
@@ -1088,16 +1147,22 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
         if cells or task_gaps:
             grid = _mean_grid(task, cells, task_gaps)
             parts.append(_html_table(grid) + tables.write(grid, task))
-            items = _item_grid(task, trows, grid.metrics[:-1])  # seconds, not memory, per item
-            if items is not None:
-                parts.append(f"<details><summary>per-item values ({len(items.rows)} rows)</summary>"
-                             f"{_html_table(items)}{tables.write(items, f'{task}-items')}</details>")
+            groups = _item_grids(task, trows, grid.metrics[:-1])  # seconds, not memory, per item
+            if groups:
+                n_items = sum(len(g.rows) for _, g in groups)
+                split = f", one table per {SPLIT_FIELD}" if groups[0][0] is not None else ""
+                body = "".join(
+                    (f"<h3 class='cat'>{html.escape(SPLIT_FIELD)} {html.escape(v)} ({len(g.rows)} rows)</h3>"
+                     if v is not None else "")
+                    + _html_table(g) + tables.write(g, f"{task}-items" + (f"-{v}" if v is not None else ""))
+                    for v, g in groups)
+                parts.append(f"<details><summary>per-item values ({n_items} rows{split})</summary>{body}</details>")
         parts.append(_spectra_list(trows))
         datasets = sorted({str(r.get("dataset", "-")) for r in trows})
         for ds in datasets:
-            parts += _curve_figs(task, rows, figs, ds if len(datasets) > 1 else None)
-            parts += _strength_figs(task, rows, figs, ds if len(datasets) > 1 else None)
-        parts += _cost_fig(task, cells, figs)
+            parts += _curve_figs(task, rows, figs, ds if len(datasets) > 1 else None, colors)
+            parts += _strength_figs(task, rows, figs, ds if len(datasets) > 1 else None, colors)
+        parts += _cost_fig(task, cells, figs, colors)
         if renders > 0:
             say(f"task {i}/{len(tasks)}: rendering up to {renders} shapes")
             parts += _render_rows(run, trows, figs, renders)
