@@ -102,7 +102,15 @@ def _header(name: str) -> str:
     if rewards_under_segmentation(name):
         tip += "; rewards under-segmentation (see the note under the table)"
         mark = " &dagger;"
-    return f"<th title='{tip}'>{html.escape(name)}{unit}{_arrow(name)}{mark}</th>"
+    shown = html.escape(name).replace("_", "_<wbr>")  # a long name may break after an underscore
+    return f"<th title='{tip}'>{shown}{unit}{_arrow(name)}{mark}</th>"
+
+
+def _header_text(name: str) -> str:
+    """The text of a metric's header cell (as :func:`_header` shows it)."""
+    unit = _unit(name)
+    d = {"higher": " \u2191", "lower": " \u2193"}.get(metric_direction(name) or "", "")
+    return name + (f" ({unit})" if unit else "") + d + (" \u2020" if rewards_under_segmentation(name) else "")
 
 
 def method_id(row: dict) -> str:
@@ -340,20 +348,89 @@ def _same_n(g: _Grid) -> int | None:
     return next(iter(ns)) if g.stats and len(ns) == 1 else None
 
 
-def _html_table(g: _Grid) -> str:
-    """The table in a box at most 1,400 px wide that scrolls sideways when the table is wider (its
-    numbers never wrap: see the CSS); a mean table whose cells share one n says it once."""
-    head = "".join(f"<th>{html.escape(k)}</th>" for k in g.keys) + "".join(_header(c) for c in g.metrics)
+#: the widest a table of the page may be (px); tables are split by columns to stay below it
+TABLE_MAX_PX = 1400
+#: width estimate of 13 px sans-serif text (px per character, generous) and of a cell's padding and border
+_CHAR_PX, _PAD_PX = 7.6, 14.0
+
+
+def _text_px(text: str, scale: float = 1.0) -> float:
+    return len(text) * _CHAR_PX * scale
+
+
+def _cell_px(c: Any, stats: bool, show_n: bool) -> float:
+    """Estimated width of a metric cell on one line (the ``&plusmn;``, ``n`` and ``tie`` in small type)."""
+    if c is None:
+        return _text_px("-") + _PAD_PX
+    if c is _NA:
+        return _text_px(_NA) + _PAD_PX
+    m, s, n, mark = c
+    w = _text_px(_num(m)) * (1.1 if mark else 1.0)  # best: bold
+    if stats and n > 1 and s > 0:
+        w += _text_px(f" \u00b1 {_spread(s)}", 0.85)
+    if stats and n > 1 and show_n:
+        w += _text_px(f" (n={n})", 0.85)
+    if mark == "tie":
+        w += _text_px(" tie", 0.85)
+    return w + _PAD_PX
+
+
+def _header_px(text: str) -> float:
+    """A header cell breaks at spaces and after underscores, and is at least 4em wide."""
+    pieces = [p for part in text.split() for p in re.split(r"(?<=_)", part) if p]
+    return max([52.0] + [_text_px(p, 1.1) for p in pieces]) + _PAD_PX
+
+
+def _column_widths(g: _Grid) -> tuple[list[float], list[float]]:
+    """Estimated widths (px) of the key columns and of the metric columns of ``g``'s HTML table."""
     n = _same_n(g)
-    body = "".join(
-        "<tr>" + "".join(f"<td>{html.escape(k)}</td>" for k in keys)
-        + "".join(_html_cell(c, g.stats, n is None) for c in cells) + "</tr>"
-        for keys, cells in g.rows
-    )
+    keys = [max([_header_px(k)] + [_text_px(r[0][i]) + _PAD_PX for r in g.rows]) for i, k in enumerate(g.keys)]
+    mets = [max([_header_px(_header_text(c))] + [_cell_px(r[1][j], g.stats, n is None) for r in g.rows])
+            for j, c in enumerate(g.metrics)]
+    return keys, mets
+
+
+def _column_parts(g: _Grid, budget: float = TABLE_MAX_PX - 80) -> list[list[int]]:
+    """The metric columns of ``g`` cut into consecutive groups that, after the key columns, fit
+    ``budget`` px (estimated); one group when the whole table fits."""
+    keys, mets = _column_widths(g)
+    parts: list[list[int]] = [[]]
+    used = sum(keys)
+    for j, w in enumerate(mets):
+        if parts[-1] and used + w > budget:
+            parts.append([])
+            used = sum(keys)
+        parts[-1].append(j)
+        used += w
+    return parts
+
+
+def _html_table(g: _Grid) -> str:
+    """The table as HTML: numbers never wrap (see the CSS); a table wider than :data:`TABLE_MAX_PX`
+    is cut into parts by columns, each repeating the key columns (``data-part='i/n'``,
+    ``data-keys``); each part sits in a box that scrolls sideways should it still be wider. A mean
+    table whose cells share one n says it once."""
+    n = _same_n(g)
+    parts = _column_parts(g) if g.metrics else [[]]
     css = f" class='{g.css}'" if g.css else ""
+    out = []
+    for i, cols in enumerate(parts, 1):
+        head = "".join(f"<th>{html.escape(k)}</th>" for k in g.keys) + "".join(_header(g.metrics[j]) for j in cols)
+        body = "".join(
+            "<tr>" + "".join(f"<td>{html.escape(k)}</td>" for k in keys)
+            + "".join(_html_cell(cells[j], g.stats, n is None) for j in cols) + "</tr>"
+            for keys, cells in g.rows
+        )
+        attrs = css
+        cap = ""
+        if len(parts) > 1:
+            attrs += f" data-part='{i}/{len(parts)}' data-keys='{len(g.keys)}'"
+            cap = (f"<caption>part {i} of {len(parts)}: columns {cols[0] + 1}-{cols[-1] + 1} of the "
+                   f"{len(g.metrics)} values (the same rows)</caption>")
+        out.append(f"<div class='tw'><table{attrs}>{cap}<tr>{head}</tr>{body}</table></div>")
     notes = [f"Mean \u00b1 standard deviation over n = {n} row{'s' if n != 1 else ''} per cell."] if n else []
     notes = "".join(f"<p class='note'>{html.escape(x)}</p>" for x in notes + g.notes)
-    return f"<div class='tw'><table{css}><tr>{head}</tr>{body}</table></div>{notes}"
+    return "".join(out) + notes
 
 
 def _csv_text(g: _Grid) -> str:
@@ -962,11 +1039,12 @@ def _prepare_section(run: Path, rows: list[dict]) -> str:
 
 
 _CSS = (
-    "body{font-family:sans-serif;margin:1.5em auto;max-width:1240px;padding:0 1em;line-height:1.4}"
-    "div.tw{max-width:min(100%,1400px);overflow-x:auto;margin:.5em 0 1.5em}"
+    "body{font-family:sans-serif;margin:1.5em auto;max-width:1400px;padding:0 1em;line-height:1.4}"
+    "div.tw{max-width:min(100%,1400px);overflow-x:auto;margin:.5em 0 1.5em}div.tw+div.tw{margin-top:-.8em}"
+    "caption{caption-side:top;text-align:left;font-size:12px;color:#555;padding:2px 0}"
     "table{border-collapse:collapse;font-size:13px}"
     "td,th{border:1px solid #ccc;padding:3px 6px;text-align:right;white-space:nowrap}"
-    "th{white-space:normal;min-width:4em;max-width:11em;vertical-align:bottom}"
+    "th{white-space:normal;min-width:4em;vertical-align:bottom}"
     "h3.cat{font-size:14px;margin:.8em 0 .2em}"
     "td:nth-child(-n+3){text-align:left}th{background:#eee}"
     "td.best,span.best{background:#d8f5d0;font-weight:bold}"
