@@ -1048,7 +1048,7 @@ _CSS = (
     "h3.cat{font-size:14px;margin:.8em 0 .2em}"
     "td:nth-child(-n+3){text-align:left}th{background:#eee}"
     "td.best,span.best{background:#d8f5d0;font-weight:bold}"
-    "figure{display:block;margin:.8em 0}figure img{width:100%;max-width:1200px;height:auto}"
+    "figure{display:block;margin:.8em 0}figure img{max-width:100%;height:auto}"
     "figcaption{font-size:12px;color:#555}.err{color:#a00}small{color:#777}"
     "details{margin:.3em 0 1.5em}summary{cursor:pointer;color:#225}"
     "td.na{color:#777;font-style:italic}table.failed td{text-align:left;white-space:normal}"
