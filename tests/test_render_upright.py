@@ -126,3 +126,13 @@ def test_method_colours_are_one_per_method_and_stable():
     c = method_colors(["b", "a", "c", "a"])
     assert list(c) == ["a", "b", "c"] and len(set(c.values())) == 3
     assert method_colors(["c", "b", "a"]) == c  # any order of the same names
+
+
+def test_the_report_takes_the_up_rule_and_refuses_another(tmp_path, capsys):
+    from shape_toolkit.bench.report import write_report
+    from shape_toolkit.cli import main
+
+    with pytest.raises(ParameterError, match="up must be one of"):
+        write_report(tmp_path, up="sideways")  # before any work: not even the run folder is looked at
+    assert main(["bench", "report", str(tmp_path), "--up", "sideways"]) == 2  # one line, exit 2
+    assert "--up" in capsys.readouterr().err

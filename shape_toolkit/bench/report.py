@@ -930,7 +930,9 @@ def _cost_fig(task: str, cells: dict, figs: _Figs, colors: dict | None = None) -
     return [_img(figs.save(fig, f"{task}-cost"), f"{task}: runtime and memory per method")]
 
 
-def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[str]:
+def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int, up: str = "longest") -> list[str]:
+    """Up to ``n`` rendered results (one per method), each shape upright by the ``up`` rule of
+    :func:`shape_toolkit.viz.upright_frame` and cropped tight."""
     from shape_toolkit.viz import align_labels, pullback_colors, render_shapes
 
     parts = []
@@ -976,7 +978,7 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
             figs.say(f"figure {len(figs.files) + 1}: render of {method_id(r)} on {r['item']}")
             p = figs.fresh(f"render-{r['key']}")
             for path in (p, p.with_suffix(".pdf")):  # the same matplotlib figure, as PNG and as PDF
-                render_shapes(panels, path, panel_size=4.0, max_width=12.0, dpi=100, title=_t(title))
+                render_shapes(panels, path, panel_size=4.0, max_width=12.0, dpi=100, title=_t(title), up=up)
             figs.files.append(p)
             figs.vector.append(p.with_suffix(".pdf"))
             parts.append(_img(p, title))
@@ -1154,9 +1156,11 @@ def write_report(
     output: str | os.PathLike | None = None,
     renders: int = 3,
     progress: Callable[[str], None] | None = None,
+    up: str = "longest",
 ) -> dict:
     """Write ``index.html`` (self-contained) with its figures (PNG, and PDF) and tables (CSV and
-    LaTeX) for a run folder; ``progress`` receives one line per step (task, figure group). Returns
+    LaTeX) for a run folder; ``progress`` receives one line per step (task, figure group); ``up``:
+    the rule that stands rendered shapes upright (:func:`shape_toolkit.viz.upright_frame`). Returns
     ``{"html": path, "figures": [PNG paths], "vector_figures": [PDF paths], "tables": [CSV and TeX paths]}``.
 
     The report replaces or deletes only files it wrote itself (listed with their digests in
@@ -1166,6 +1170,10 @@ def write_report(
         if progress is not None:
             progress(_printable(msg))
 
+    from shape_toolkit.viz import UP_RULES
+
+    if up not in UP_RULES:
+        raise ParameterError(f"up must be one of {', '.join(UP_RULES)}, got {up!r}")
     run = Path(run_dir)
     if not (run / RESULTS).exists():
         raise ParameterError(f"{run} is not a run folder: {RESULTS} not found (run 'bench run' first)")
@@ -1184,7 +1192,7 @@ def write_report(
     written: list[Path] = [path] if "index.html" in owned else []
     try:
         with _literal_figure_text():
-            page = _page(run, out, rows, figs, tables, renders, say)
+            page = _page(run, out, rows, figs, tables, renders, say, up)
         tmp = out / ".index.html.tmp"
         tmp.write_text(page, encoding="utf-8", errors="replace")
         os.replace(tmp, path)
@@ -1197,7 +1205,7 @@ def write_report(
 
 
 def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, renders: int,
-          say: Callable[[str], None]) -> str:
+          say: Callable[[str], None], up: str = "longest") -> str:
     """The HTML page of the report (its figures saved through ``figs``, its tables through ``tables``)."""
     summ = summarize(rows)
     gaps = _gaps(rows)
@@ -1215,7 +1223,10 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
         _summary_section(summ, tasks, rows, gaps),
         "<p>Seconds are the method's own call (spectra come from the shared cache, timed separately); "
         "peak memory is the resident-set growth during that call (MB). Each dataset is reported on its "
-        "own rows; values are mean &plusmn; standard deviation over items.</p>",
+        "own rows; values are mean &plusmn; standard deviation over items. Every method has one colour in all "
+        "the figures. Rendered shapes are upright: from their area-weighted principal axes, up is the "
+        + ("longest axis" if up == "longest" else "middle axis (the longest is horizontal)")
+        + ", the heavier end up, seen along the thinnest axis.</p>",
     ]
     for i, task in enumerate(tasks, 1):
         trows = [r for r in rows if r["task_name"] == task]
@@ -1243,7 +1254,7 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
         parts += _cost_fig(task, cells, figs, colors)
         if renders > 0:
             say(f"task {i}/{len(tasks)}: rendering up to {renders} shapes")
-            parts += _render_rows(run, trows, figs, renders)
+            parts += _render_rows(run, trows, figs, renders, up)
     parts.append(_prepare_section(run, rows))
     if failed:
         grid = _failed_grid(failed)

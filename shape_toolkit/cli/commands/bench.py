@@ -82,6 +82,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     rep.add_argument("run_dir", help="a run folder written by bench run")
     rep.add_argument("-o", "--output", help="report folder (default RUN_DIR/report)")
     rep.add_argument("--renders", type=int, default=3, help="shapes rendered per task (default 3)")
+    rep.add_argument("--up", choices=("longest", "middle"), default="longest",
+                     help="up direction of rendered shapes: their longest principal axis (standing shapes, the "
+                     "default) or the middle one (shapes longest lying down, such as quadrupeds)")
     rep.add_argument("--json", action="store_true", help="print the written files as JSON")
     add_quiet(rep)
     rep.set_defaults(func=report_cmd)
@@ -161,7 +164,8 @@ def report_cmd(args: argparse.Namespace) -> int:
     from shape_toolkit.bench.report import write_report
 
     with _one_line_warnings():
-        res = write_report(args.run_dir, output=args.output, renders=args.renders, progress=_say(args))
+        res = write_report(args.run_dir, output=args.output, renders=args.renders, progress=_say(args),
+                           up=args.up)
     if args.json:
         print_json({k: str(v) if not isinstance(v, list) else [str(x) for x in v] for k, v in res.items()})
     else:
