@@ -656,12 +656,15 @@ def render_trajectories(
     if p.suffix.lower() == ".gif":
         from matplotlib.animation import FuncAnimation, PillowWriter
 
-        sup = _wrap(title, cell, 10) if title else None
+        ph = panel_size * 1.3  # one frame at a time: a larger panel
+        gw = ph * aspect
+        gcell = max(gw, _MIN_PANEL * 1.3)
+        sup = _wrap(title, gcell, 10) if title else None
         head = 0.2 * (sup.count("\n") + 1) + 0.08 if sup else 0.0
-        width, height = cell + 2 * _MARGIN, panel_size + label_h + head + 2 * _MARGIN
+        width, height = gcell + 2 * _MARGIN, ph + label_h + head + 2 * _MARGIN
         fig = plt.figure(figsize=(width, height))
-        ax = fig.add_axes(((_MARGIN + (cell - w) / 2) / width, _MARGIN / height, w / width, panel_size / height))
-        label = fig.text(0.5, (_MARGIN + panel_size + 0.04) / height, "", ha="center", va="bottom", fontsize=10)
+        ax = fig.add_axes(((_MARGIN + (gcell - gw) / 2) / width, _MARGIN / height, gw / width, ph / height))
+        label = fig.text(0.5, (_MARGIN + ph + 0.04) / height, "", ha="center", va="bottom", fontsize=10)
 
         def update(t: int) -> list:
             ax.clear()
