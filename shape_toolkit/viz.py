@@ -533,9 +533,10 @@ def show(
 ):
     """An interactive 3D view for notebooks: a plotly ``Figure`` (``Mesh3d`` with per-vertex
     colours, or a point cloud) showing ``scalars`` ``(n,)``, ``labels`` ``(n,)`` or RGB ``colors``
-    ``(n, 3)``, with ``points`` (vertex ids) as red markers; ``height`` in pixels. The shape is
-    upright and seen from the front as in :func:`render_shape` (``up``: see :func:`upright_frame`). Displayed inline
-    when it is the last expression of a cell. Needs plotly (the ``viz`` extra)."""
+    ``(n, 3)``, with ``points`` (vertex ids) as red markers; ``height`` in pixels. The camera starts
+    as in :func:`render_shape`: the shape upright, seen along its thinnest axis (``up``: see
+    :func:`upright_frame`). Displayed inline when it is the last expression of a cell. Needs plotly
+    (the ``viz`` extra)."""
     try:
         import plotly.graph_objects as go
     except ImportError:
