@@ -1,9 +1,10 @@
 """Headless rendering of shapes to PNG (matplotlib Agg) and coloured PLY export.
 
-:func:`render_shape` draws a mesh (``Poly3DCollection``, Lambert-shaded face colours) or a point
+:func:`render_shape` draws a mesh (2D polygons in painter's order, Lambert-shaded face colours) or a point
 cloud with optional per-vertex ``scalars`` (colour map), ``labels`` (one colour per label) or
-explicit ``colors``, and highlights ``points`` (vertex ids, e.g. keypoints). Shapes are shown in
-their principal-axes frame (largest extent horizontal, smallest along the view direction), so no
+explicit ``colors``, and highlights ``points`` (vertex ids, e.g. keypoints). Shapes are shown
+upright (:func:`upright_frame`: principal axes, the up direction by a stated rule, the same for any
+rigid motion of the input) and cropped tight (each panel as wide as the shape's projection), so no
 camera needs to be chosen. :func:`pullback_colors` shows a correspondence by pull-back colour
 transfer (the source takes the colours of the target vertices it maps to, so every matched source
 vertex is coloured); :func:`match_colors` is the older push-forward. :func:`align_labels` renames a
@@ -36,6 +37,10 @@ __all__ = [
     "render_shapes",
     "save_colored_ply",
     "render_trajectories",
+    "upright_frame",
+    "method_colors",
+    "UP_RULES",
+    "PANELS_KEY",
 ]
 
 _NEUTRAL = np.array([0.75, 0.75, 0.75])
@@ -75,6 +80,14 @@ def label_colors(labels: np.ndarray) -> np.ndarray:
         values, inv = np.unique(lab[ok], return_inverse=True)
         out[ok] = np.asarray([_label_color(int(v)) for v in values], dtype=np.float64)[inv]
     return out
+
+
+def method_colors(methods) -> dict[str, tuple[float, float, float]]:
+    """One RGB colour (in [0, 1]) per method name, the same in every figure that is given the same
+    names: the distinct names are sorted and take the label colours 0, 1, 2, ... in that order
+    (tab10 first), so a report that passes all its methods once colours each alike everywhere."""
+    names = sorted({str(m) for m in methods})
+    return {m: _label_color(i) for i, m in enumerate(names)}
 
 
 def align_labels(labels: np.ndarray, reference: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
@@ -187,19 +200,72 @@ def match_colors(source: Shape, target: Shape, target_of: np.ndarray) -> tuple[n
     return cs, ct
 
 
-def _frame(v: np.ndarray) -> np.ndarray:
-    c = v - v.mean(axis=0)
-    rows = c[:: max(1, len(c) // 5000)]
-    # full_matrices for fewer than 3 points: three axes all the same (a reduced SVD has one per point)
-    _, _, vt = np.linalg.svd(rows, full_matrices=len(rows) < 3)
-    # keep each principal axis pointing like the input axis it is closest to (keeps "up" up)
-    for j in range(3):
-        i = int(np.argmax(np.abs(vt[j])))
-        if vt[j, i] < 0:
-            vt[j] *= -1
-    p = c @ vt.T  # columns: largest, middle, smallest extent
-    # matplotlib view: x right, z up, y into the screen
-    return np.stack([p[:, 0], p[:, 2], p[:, 1]], axis=1)
+#: the rules :func:`upright_frame` knows for the up direction
+UP_RULES = ("longest", "middle")
+
+
+def _moments(vertices: np.ndarray, faces: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Area-weighted centroid ``(3,)`` and covariance ``(3, 3)`` of a surface (each vertex weighs a
+    third of the area of its faces; a point cloud or a mesh of zero area: every point alike)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    w = np.ones(len(v))
+    if faces is not None and len(faces):
+        f = np.asarray(faces, dtype=np.int64)
+        area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+        if area.sum() > 0:
+            w = np.bincount(f.ravel(), np.repeat(area / 3.0, 3), minlength=len(v))
+    w = w / w.sum()
+    centre = w @ v
+    c = v - centre
+    return centre, (c * w[:, None]).T @ c
+
+
+def _heavier_end(axis: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """``axis`` ``(3,)`` signed so that the centroid (the origin of the centred vertices ``c``) lies
+    on its positive half of the extent: the heavier end first (legs, stems and tails are thinner
+    than what they carry). An exact tie keeps the sign of the largest component."""
+    h = c @ axis
+    mid = 0.5 * (h.max() + h.min())
+    if mid > 0 or (mid == 0 and axis[np.argmax(np.abs(axis))] < 0):
+        return -axis
+    return axis
+
+
+def upright_frame(
+    vertices: np.ndarray, faces: np.ndarray | None = None, *, up: str = "longest"
+) -> tuple[np.ndarray, np.ndarray]:
+    """The view of every render: ``(R, centre)`` with the rows of ``R`` ``(3, 3)`` the screen's
+    right, depth (into the screen) and up directions in input coordinates and ``centre`` ``(3,)``
+    the area centroid, so ``(vertices - centre) @ R.T`` are view coordinates (x right, y depth,
+    z up). Depends on the shape alone: the same for any rigid motion of the input and any vertex order.
+
+    The rule, from the area-weighted principal axes e1, e2, e3 (largest spread first):
+    - ``up="longest"`` (standing shapes: people, the default): up is e1, right is e2; ``"middle"``
+      (shapes that are longest lying down: quadrupeds, fish, planes): up is e2, right is e1;
+    - the view is along e3, the thinnest direction, so the screen shows the broadest silhouette;
+    - the sign of up (and of right): the area centroid lies above the middle of the shape's extent,
+      i.e. the heavier end is up (a body stands on its legs); depth completes a proper rotation,
+      so a render is never a mirror image.
+    Symmetric shapes (equal spreads, or a centroid exactly mid-extent) have no preferred frame; a
+    deterministic one is taken."""
+    if up not in UP_RULES:
+        raise ParameterError(f"up must be one of {', '.join(map(repr, UP_RULES))}, got {up!r}")
+    v = np.asarray(vertices, dtype=np.float64)
+    centre, cov = _moments(v, faces)
+    _, vec = np.linalg.eigh(cov)
+    e1, e2 = vec[:, 2], vec[:, 1]
+    upward, right = (e1, e2) if up == "longest" else (e2, e1)
+    c = v - centre
+    upward = _heavier_end(upward, c)
+    right = _heavier_end(right, c)
+    depth = np.cross(upward, right)  # (right, depth, up) right-handed: det(R) = +1
+    return np.stack([right, depth, upward]), centre
+
+
+def _frame(v: np.ndarray, faces: np.ndarray | None = None, up: str = "longest") -> np.ndarray:
+    """View coordinates ``(n, 3)`` (x right, y into the screen, z up) of :func:`upright_frame`."""
+    r, centre = upright_frame(v, faces, up=up)
+    return (np.asarray(v, dtype=np.float64) - centre) @ r.T
 
 
 #: direction of the light of every render (view frame: x right, y into the screen, z up)
@@ -219,44 +285,57 @@ def _shaded_faces(v: np.ndarray, faces: np.ndarray, colors: np.ndarray) -> tuple
     return tri, np.clip(colors[faces].mean(axis=1) * shade[:, None], 0, 1)
 
 
-def _draw(
-    ax, shape: Shape, colors: np.ndarray, points: np.ndarray | None, title: str | None, point_size: float
-) -> None:
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+#: the camera looks down on the shape by this angle (radians): a little of the top shows
+_ELEVATION = np.radians(10.0)
+#: PNG text chunk where a render records its panels' boxes (pixels: left, top, width, height)
+PANELS_KEY = "shape-toolkit-panels"
 
-    v = _frame(shape.vertices)
+
+def _project(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Orthographic projection of view coordinates ``v`` ``(n, 3)`` seen from ``_ELEVATION`` above:
+    screen positions ``(n, 2)`` (x right, y up) and depths ``(n,)`` (larger: farther)."""
+    ce, se = np.cos(_ELEVATION), np.sin(_ELEVATION)
+    return np.column_stack([v[:, 0], v[:, 2] * ce + v[:, 1] * se]), v[:, 1] * ce - v[:, 2] * se
+
+
+class _View:
+    """One shape as drawn: view coordinates, screen positions, depths and the screen bounding box."""
+
+    def __init__(self, v: np.ndarray):
+        self.v = v
+        self.xy, self.depth = _project(v)
+        lo, hi = self.xy.min(axis=0), self.xy.max(axis=0)
+        span = float((hi - lo).max())
+        pad = np.maximum(hi - lo, 1e-3 * max(span, 1e-300)) * 0.01 + 1e-3 * max(span, 1e-300)
+        self.lo, self.hi = lo - pad, hi + pad
+
+    @property
+    def aspect(self) -> float:
+        """Width over height of the screen bounding box."""
+        e = self.hi - self.lo
+        return float(e[0] / e[1])
+
+
+def _draw(ax, shape: Shape, view: _View, colors: np.ndarray, points: np.ndarray | None, point_size: float) -> None:
+    """Draw ``shape`` in the 2D axes ``ax``, far to near (painter's order), limits its bounding box."""
+    from matplotlib.collections import PolyCollection
+
     if shape.is_mesh:
-        tri, fc = _shaded_faces(v, shape.faces, colors)
-        coll = Poly3DCollection(tri, facecolors=fc, edgecolors=fc, linewidths=0.2)
-        ax.add_collection3d(coll)
+        _, fc = _shaded_faces(view.v, shape.faces, colors)
+        order = np.argsort(-view.depth[shape.faces].mean(axis=1), kind="stable")
+        tri = view.xy[shape.faces[order]]
+        ax.add_collection(PolyCollection(tri, facecolors=fc[order], edgecolors=fc[order], linewidths=0.25))
     else:
-        ax.scatter(v[:, 0], v[:, 1], v[:, 2], c=colors, s=2, depthshade=False)
+        order = np.argsort(-view.depth, kind="stable")
+        ax.scatter(view.xy[order, 0], view.xy[order, 1], c=colors[order], s=2, linewidths=0)
     if points is not None and len(points):
-        # drawn after the surface, whatever the depth sort says: a keypoint on the far side or in a
-        # fold is still shown (the depth sort hid most of them behind the mesh)
-        ax.computed_zorder = False
-        p = v[np.asarray(points, dtype=np.int64)]
-        ax.scatter(
-            p[:, 0],
-            p[:, 1],
-            p[:, 2],
-            c="red",
-            s=point_size,
-            edgecolors="black",
-            linewidths=0.5,
-            depthshade=False,
-            zorder=10,
-        )
-    lo, hi = v.min(axis=0), v.max(axis=0)
-    ext = np.maximum(hi - lo, 1e-3 * max(float((hi - lo).max()), 1e-300))
-    ax.set_xlim(lo[0], lo[0] + ext[0])
-    ax.set_ylim(lo[1], lo[1] + ext[1])
-    ax.set_zlim(lo[2], lo[2] + ext[2])
-    ax.set_box_aspect(tuple(ext / ext.max()), zoom=0.95)
-    ax.view_init(elev=12, azim=-90)
+        # drawn after the surface: a keypoint on the far side or in a fold is still shown
+        p = view.xy[np.asarray(points, dtype=np.int64)]
+        ax.scatter(p[:, 0], p[:, 1], c="red", s=point_size, edgecolors="black", linewidths=0.5, zorder=10)
+    ax.set_xlim(view.lo[0], view.hi[0])
+    ax.set_ylim(view.lo[1], view.hi[1])
+    ax.set_aspect("equal", adjustable="datalim")
     ax.set_axis_off()
-    if title:
-        ax.set_title(title, fontsize=10, pad=2)
 
 
 def _colors_for(shape: Shape, scalars, labels, colors, cmap, vmin=None, vmax=None) -> np.ndarray:
@@ -290,6 +369,24 @@ def _wrap(text: str, width_in: float, fontsize: float) -> str:
     return "\n".join(textwrap.wrap(text, chars)) or text
 
 
+def _save_with_panels(fig, path: Path, dpi: int, boxes: list[tuple[float, float, float, float]], height: float) -> None:
+    """Save ``fig`` to ``path``; a PNG records its panels' boxes (inches from the bottom left, figure
+    ``height`` inches) as pixels from the top left in the text chunk :data:`PANELS_KEY`."""
+    import json
+
+    meta = None
+    if path.suffix.lower() == ".png":
+        px = [[round(x * dpi), round((height - y - h) * dpi), round(w * dpi), round(h * dpi)] for x, y, w, h in boxes]
+        meta = {PANELS_KEY: json.dumps(px)}
+    elif path.suffix.lower() == ".pdf":
+        meta = {"CreationDate": None}
+    fig.savefig(path, dpi=dpi, metadata=meta)
+
+
+#: layout of :func:`render_shapes` (inches): outer margin, gap between panels, narrowest panel
+_MARGIN, _GAP, _MIN_PANEL = 0.05, 0.15, 1.2
+
+
 def render_shapes(
     panels: list[dict],
     path: str | os.PathLike,
@@ -297,49 +394,73 @@ def render_shapes(
     panel_size: float = 3.2,
     dpi: int = 100,
     title: str | None = None,
+    up: str = "longest",
+    max_width: float | None = None,
 ) -> Path:
-    """Render several shapes side by side into one PNG (``panel_size`` inches per panel); each panel
-    is a dict of :func:`render_shape` arguments (``shape`` plus optional scalars/labels/colors/points/
-    title/cmap/vmin/vmax, and ``colorbar``: a label string to draw a colour bar of the scalars)."""
+    """Render several shapes side by side into one PNG (or PDF, by the suffix of ``path``). Each
+    panel is a dict of :func:`render_shape` arguments (``shape`` plus optional scalars/labels/colors/
+    points/title/cmap/vmin/vmax/up, and ``colorbar``: a label string to draw a colour bar of the
+    scalars). Every shape is upright (:func:`upright_frame` with the panel's ``up`` rule, default
+    ``up``) and cropped tight: its panel is ``panel_size`` inches high and as wide as the shape's
+    projection (at least 1.2 in), the whole scaled down to ``max_width`` inches when wider. A PNG
+    records its panels' pixel boxes in the text chunk :data:`PANELS_KEY`."""
     _, plt = _mpl()
     if not panels:
         raise ParameterError("nothing to render")
-    width = panel_size * len(panels)
-    fs = 11
-    sup = _wrap(title, width, fs) if title else None
-    n_sup = sup.count("\n") + 1 if sup else 0
-    head = 0.28 * n_sup
-    foot = 0.45 if any(pn.get("colorbar") for pn in panels) else 0.0
-    fig = plt.figure(figsize=(width, panel_size + head + 0.3 + foot))
-    for i, pnl in enumerate(panels):
+    items = []
+    for pnl in panels:
         pnl = dict(pnl)
         shape = pnl.pop("shape")
-        ax = fig.add_subplot(1, len(panels), i + 1, projection="3d")
-        cmap = pnl.get("cmap", "viridis")
-        cols = _colors_for(
-            shape, pnl.get("scalars"), pnl.get("labels"), pnl.get("colors"), cmap, pnl.get("vmin"), pnl.get("vmax")
-        )
-        sub = _wrap(pnl["title"], panel_size, 10) if pnl.get("title") else None
-        _draw(ax, shape, cols, pnl.get("points"), sub, pnl.get("point_size", 30.0))
-        if pnl.get("colorbar") and pnl.get("scalars") is not None:
-            import matplotlib as mpl
+        cols = _colors_for(shape, pnl.get("scalars"), pnl.get("labels"), pnl.get("colors"),
+                           pnl.get("cmap", "viridis"), pnl.get("vmin"), pnl.get("vmax"))
+        view = _View(_frame(shape.vertices, shape.faces if shape.is_mesh else None, pnl.get("up", up)))
+        items.append((shape, pnl, cols, view))
+    h = float(panel_size)
+    widths = np.array([h * view.aspect for *_, view in items])
+    gaps = _GAP * (len(items) - 1) + 2 * _MARGIN
+    if max_width is not None and widths.sum() + gaps > max_width:
+        scale = max(max_width - gaps, 0.5) / widths.sum()
+        h, widths = h * scale, widths * scale
+    cells = np.maximum(widths, _MIN_PANEL)  # a panel narrower than its title: centred in a wider cell
+    width = float(cells.sum() + gaps)
+    fs = 11
+    sup = _wrap(title, width, fs) if title else None
+    head = 0.22 * (sup.count("\n") + 1) + 0.08 if sup else 0.0
+    subs = [_wrap(p["title"], c, 10) if p.get("title") else None for (_, p, _, _), c in zip(items, cells)]
+    sub_h = max((0.19 * (t.count("\n") + 1) + 0.06 for t in subs if t), default=0.0)
+    foot = 0.6 if any(p.get("colorbar") and p.get("scalars") is not None for _, p, _, _ in items) else 0.0
+    height = _MARGIN + head + sub_h + h + foot + _MARGIN
+    fig = plt.figure(figsize=(width, height))
+    boxes = []
+    x = _MARGIN
+    for (shape, pnl, cols, view), w, cell, sub in zip(items, widths, cells, subs):
+        left, bottom = x + (cell - w) / 2, _MARGIN + foot
+        ax = fig.add_axes((left / width, bottom / height, w / width, h / height))
+        _draw(ax, shape, view, cols, pnl.get("points"), pnl.get("point_size", 30.0))
+        boxes.append((left, bottom, float(w), h))
+        if sub:
+            fig.text((x + cell / 2) / width, (bottom + h + 0.04) / height, sub, ha="center", va="bottom", fontsize=10)
+        if foot:
+            if pnl.get("colorbar") and pnl.get("scalars") is not None:
+                import matplotlib as mpl
 
-            x = np.asarray(pnl["scalars"], dtype=np.float64)
-            fin = x[np.isfinite(x)]
-            lo = pnl.get("vmin", fin.min() if fin.size else 0.0)
-            hi = pnl.get("vmax", fin.max() if fin.size else 1.0)
-            sm = mpl.cm.ScalarMappable(norm=mpl.colors.Normalize(lo, hi if hi > lo else lo + 1), cmap=cmap)
-            cb = fig.colorbar(sm, ax=ax, orientation="horizontal", fraction=0.05, pad=0.02, shrink=0.8)
-            cb.set_label(str(pnl["colorbar"]), fontsize=9)
-            cb.ax.tick_params(labelsize=8)
-    total = panel_size + head + 0.3 + foot
-    top = 1 - (head + 0.1) / total
+                xs = np.asarray(pnl["scalars"], dtype=np.float64)
+                fin = xs[np.isfinite(xs)]
+                lo = pnl.get("vmin", fin.min() if fin.size else 0.0)
+                hi = pnl.get("vmax", fin.max() if fin.size else 1.0)
+                norm = mpl.colors.Normalize(lo, hi if hi > lo else lo + 1)
+                sm = mpl.cm.ScalarMappable(norm=norm, cmap=pnl.get("cmap", "viridis"))
+                cax = fig.add_axes(((x + 0.1 * cell) / width, (_MARGIN + 0.36) / height, 0.8 * cell / width,
+                                    0.12 / height))
+                cb = fig.colorbar(sm, cax=cax, orientation="horizontal")
+                cb.set_label(str(pnl["colorbar"]), fontsize=9)
+                cb.ax.tick_params(labelsize=8)
+        x += cell + _GAP
     if sup:
-        fig.suptitle(sup, fontsize=fs, y=0.995, va="top")
-    fig.subplots_adjust(left=0, right=1, bottom=0.02 + foot / total, top=top, wspace=0.02)
+        fig.text(0.5, 1 - _MARGIN / height, sup, ha="center", va="top", fontsize=fs)
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(p, dpi=dpi)
+    _save_with_panels(fig, p, dpi, boxes, height)
     plt.close(fig)
     return p
 
@@ -356,10 +477,12 @@ def render_shape(
     title: str | None = None,
     size: float = 4.0,
     dpi: int = 100,
+    up: str = "longest",
 ) -> Path:
     """Render ``shape`` to a PNG at ``path`` (headless): per-vertex ``scalars`` ``(n,)``,
     ``labels`` ``(n,)`` or RGB ``colors`` ``(n, 3)`` (0..1 or 0..255), and ``points`` (vertex ids)
-    drawn as red dots. Returns the path."""
+    drawn as red dots; upright by the ``up`` rule of :func:`upright_frame`, ``size`` inches high and
+    cropped to the shape. Returns the path."""
     pts = None if points is None else np.asarray(points, dtype=np.int64).ravel()
     if pts is not None and pts.size and (pts.min() < 0 or pts.max() >= shape.n_vertices):
         raise ParameterError(f"points must be vertex ids in [0, {shape.n_vertices - 1}]")
@@ -372,7 +495,7 @@ def render_shape(
         "cmap": cmap,
         "title": title,
     }
-    return render_shapes([panel], path, panel_size=size, dpi=dpi)
+    return render_shapes([panel], path, panel_size=size, dpi=dpi, up=up)
 
 
 def save_colored_ply(shape: Shape, path: str | os.PathLike, colors: np.ndarray) -> Path:
@@ -406,11 +529,14 @@ def show(
     cmap: str = "viridis",
     title: str | None = None,
     height: int = 480,
+    up: str = "longest",
 ):
     """An interactive 3D view for notebooks: a plotly ``Figure`` (``Mesh3d`` with per-vertex
     colours, or a point cloud) showing ``scalars`` ``(n,)``, ``labels`` ``(n,)`` or RGB ``colors``
-    ``(n, 3)``, with ``points`` (vertex ids) as red markers; ``height`` in pixels. Displayed inline
-    when it is the last expression of a cell. Needs plotly (the ``viz`` extra)."""
+    ``(n, 3)``, with ``points`` (vertex ids) as red markers; ``height`` in pixels. The camera starts
+    as in :func:`render_shape`: the shape upright, seen along its thinnest axis (``up``: see
+    :func:`upright_frame`). Displayed inline when it is the last expression of a cell. Needs plotly
+    (the ``viz`` extra)."""
     try:
         import plotly.graph_objects as go
     except ImportError:
@@ -419,7 +545,8 @@ def show(
         ) from None
     cols = _colors_for(shape, scalars, labels, colors, cmap)
     rgb = [f"rgb({r},{g},{b})" for r, g, b in np.clip(np.round(cols * 255), 0, 255).astype(int).tolist()]
-    v = shape.vertices
+    # upright as in render_shape: view coordinates (x right, y away from the camera, z up)
+    v = _frame(shape.vertices, shape.faces if shape.is_mesh else None, up)
     data = []
     if shape.is_mesh:
         f = shape.faces
@@ -435,7 +562,9 @@ def show(
     fig = go.Figure(data=data)
     fig.update_layout(title=title, height=height, margin={"l": 0, "r": 0, "t": 30 if title else 0, "b": 0},
                       scene={"aspectmode": "data", "xaxis": {"visible": False}, "yaxis": {"visible": False},
-                             "zaxis": {"visible": False}}, showlegend=False)
+                             "zaxis": {"visible": False},
+                             "camera": {"up": {"x": 0, "y": 0, "z": 1}, "eye": {"x": 0, "y": -2.0, "z": 0.35}}},
+                      showlegend=False)
     return fig
 
 
@@ -452,6 +581,7 @@ def render_trajectories(
     dpi: int = 100,
     fps: float = 3.0,
     title: str | None = None,
+    up: str = "longest",
 ) -> Path:
     """Dense trajectories over a sequence, as in thesis Figs. 7.17-7.18: a PNG with the chosen
     ``frames`` side by side (default all, at most 9 evenly spaced), or an animated GIF (``path``
@@ -463,7 +593,8 @@ def render_trajectories(
     colours, else grey) and the tails
     of ``n_tracks`` trajectories (farthest-point sample of frame 0, deterministic) over the last
     ``tail`` frames as polylines, blue (oldest) to green (current) as in the thesis. All frames
-    share one view: the principal-axes frame of frame 0, the same rule as :func:`render_shape`."""
+    share one view, cropped to the box of all frames: the upright frame of frame 0
+    (:func:`upright_frame` with the ``up`` rule), the same rule as :func:`render_shape`."""
     _, plt = _mpl()
     T = len(shapes)
     ids = np.asarray(trajectories)
@@ -486,76 +617,86 @@ def render_trajectories(
     frames = [int(f) for f in frames]
     if not frames or min(frames) < 0 or max(frames) >= T:
         raise ParameterError(f"frames must be a non-empty list of frame indices in [0, {T - 1}]")
-    # one view for every frame: the affine map that _frame applies to frame 0
-    v0 = shapes[0].vertices
-    c0 = v0.mean(axis=0)
-    lin = np.linalg.lstsq(v0 - c0, _frame(v0), rcond=None)[0]
-    views = [(s.vertices - c0) @ lin for s in shapes]
-    lo = np.min([v.min(axis=0) for v in views], axis=0)
-    hi = np.max([v.max(axis=0) for v in views], axis=0)
-    ext = np.maximum(hi - lo, 1e-3 * max(float((hi - lo).max()), 1e-300))
+    # one view for every frame: the upright frame of frame 0 (the rule of render_shape)
+    r0, c0 = upright_frame(shapes[0].vertices, shapes[0].faces if shapes[0].is_mesh else None, up=up)
+    views = [(s.vertices - c0) @ r0.T for s in shapes]
+    drawn = [_View(v) for v in views]
+    lo = np.min([d.lo for d in drawn], axis=0)
+    hi = np.max([d.hi for d in drawn], axis=0)
+    aspect = float((hi - lo)[0] / (hi - lo)[1])
     tracks = _spread_tracks(views[0], ids, n_tracks)
     blue_green = np.array([[0.1, 0.3, 1.0], [0.1, 0.85, 0.2]])
 
     def draw(ax, t: int) -> None:
-        from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
+        from matplotlib.collections import LineCollection
 
-        ax.computed_zorder = False  # mesh first, trajectories on top
-        v, s = views[t], shapes[t]
-        if s.is_mesh:
-            tri, fc = _shaded_faces(v, s.faces, cols[t])
-            ax.add_collection3d(Poly3DCollection(tri, facecolors=fc, edgecolors=fc, linewidths=0.2, zorder=1))
-        else:
-            ax.scatter(v[:, 0], v[:, 1], v[:, 2], c=cols[t], s=2, depthshade=False, zorder=1)
+        s, d = shapes[t], drawn[t]
+        _draw(ax, s, d, cols[t], None, 0.0)
         segs, segc = [], []
         first = max(0, t - tail)
         for k in range(first, t):
             a, b = ids[tracks, k], ids[tracks, k + 1]
             ok = (a >= 0) & (b >= 0)
-            segs.append(np.stack([views[k][a[ok]], views[k + 1][b[ok]]], axis=1))
+            segs.append(np.stack([drawn[k].xy[a[ok]], drawn[k + 1].xy[b[ok]]], axis=1))
             w = (k + 1 - first) / max(t - first, 1)
             segc += [blue_green[0] * (1 - w) + blue_green[1] * w] * int(ok.sum())
         if segs and sum(len(x) for x in segs):
-            ax.add_collection3d(Line3DCollection(np.concatenate(segs), colors=segc, linewidths=1.2, zorder=5))
+            ax.add_collection(LineCollection(np.concatenate(segs), colors=segc, linewidths=0.9, alpha=0.85, zorder=5))
         alive = ids[tracks, t]
-        p = v[alive[alive >= 0]]
-        if len(p):
-            ax.scatter(p[:, 0], p[:, 1], p[:, 2], c=[blue_green[1]], s=4, depthshade=False, zorder=6)
-        ax.set_xlim(lo[0], lo[0] + ext[0])
-        ax.set_ylim(lo[1], lo[1] + ext[1])
-        ax.set_zlim(lo[2], lo[2] + ext[2])
-        ax.set_box_aspect(tuple(ext / ext.max()), zoom=0.95)
-        ax.view_init(elev=12, azim=-90)
-        ax.set_axis_off()
-        ax.set_title(f"frame {t}", fontsize=10, pad=2)
+        q = d.xy[alive[alive >= 0]]
+        if len(q):
+            ax.scatter(q[:, 0], q[:, 1], c=[blue_green[1]], s=4, zorder=6)
+        ax.set_xlim(lo[0], hi[0])  # one box for all frames: the motion shows
+        ax.set_ylim(lo[1], hi[1])
 
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    head = 0.35 if title else 0.0
+    w = panel_size * aspect
+    cell = max(w, _MIN_PANEL)
+    label_h = 0.25
     if p.suffix.lower() == ".gif":
         from matplotlib.animation import FuncAnimation, PillowWriter
 
-        fig = plt.figure(figsize=(panel_size * 1.3, panel_size * 1.3 + head))
-        ax = fig.add_subplot(1, 1, 1, projection="3d")
+        ph = panel_size * 1.3  # one frame at a time: a larger panel
+        gw = ph * aspect
+        gcell = max(gw, _MIN_PANEL * 1.3)
+        sup = _wrap(title, gcell, 10) if title else None
+        head = 0.2 * (sup.count("\n") + 1) + 0.08 if sup else 0.0
+        width, height = gcell + 2 * _MARGIN, ph + label_h + head + 2 * _MARGIN
+        fig = plt.figure(figsize=(width, height))
+        ax = fig.add_axes(((_MARGIN + (gcell - gw) / 2) / width, _MARGIN / height, gw / width, ph / height))
+        label = fig.text(0.5, (_MARGIN + ph + 0.04) / height, "", ha="center", va="bottom", fontsize=10)
 
         def update(t: int) -> list:
             ax.clear()
             draw(ax, t)
+            label.set_text(f"frame {t}")
             return []
 
-        if title:
-            fig.suptitle(_wrap(title, panel_size * 1.3, 10), fontsize=10)
+        if sup:
+            fig.text(0.5, 1 - _MARGIN / height, sup, ha="center", va="top", fontsize=10)
         anim = FuncAnimation(fig, update, frames=range(T), blit=False)
         anim.save(p, writer=PillowWriter(fps=float(fps)), dpi=dpi)
         plt.close(fig)
         return p
-    fig = plt.figure(figsize=(panel_size * len(frames), panel_size + 0.3 + head))
+    n = len(frames)
+    width = cell * n + _GAP * (n - 1) + 2 * _MARGIN
+    sup = _wrap(title, width, 11) if title else None
+    head = 0.22 * (sup.count("\n") + 1) + 0.08 if sup else 0.0
+    height = panel_size + label_h + head + 2 * _MARGIN
+    fig = plt.figure(figsize=(width, height))
+    boxes = []
     for i, t in enumerate(frames):
-        draw(fig.add_subplot(1, len(frames), i + 1, projection="3d"), t)
-    if title:
-        fig.suptitle(_wrap(title, panel_size * len(frames), 11), fontsize=11, y=0.995, va="top")
-    fig.subplots_adjust(left=0, right=1, bottom=0.02, top=1 - (head + 0.1) / (panel_size + 0.3 + head), wspace=0.02)
-    fig.savefig(p, dpi=dpi)
+        x = _MARGIN + i * (cell + _GAP)
+        left = x + (cell - w) / 2
+        ax = fig.add_axes((left / width, _MARGIN / height, w / width, panel_size / height))
+        draw(ax, t)
+        boxes.append((left, _MARGIN, w, panel_size))
+        fig.text((x + cell / 2) / width, (_MARGIN + panel_size + 0.04) / height, f"frame {t}", ha="center",
+                 va="bottom", fontsize=10)
+    if sup:
+        fig.text(0.5, 1 - _MARGIN / height, sup, ha="center", va="top", fontsize=11)
+    _save_with_panels(fig, p, dpi, boxes, height)
     plt.close(fig)
     return p
 

@@ -203,7 +203,8 @@ def test_a_report_into_the_run_folder_leaves_its_inputs_alone(run):
 # -- 2. user strings escaped in every report field -------------------------------------------
 PAYLOADS = ("<script>alert(1)</script>", '"><img src=x onerror=alert(1)>', "'><svg onload=alert(1)>")
 _TAGS = {"html", "head", "meta", "title", "style", "body", "h1", "h2", "h3", "p", "code", "ul", "li", "b",
-         "span", "table", "tr", "th", "td", "small", "details", "summary", "figure", "img", "figcaption", "a"}
+         "span", "table", "tr", "th", "td", "small", "details", "summary", "figure", "img", "figcaption", "a",
+         "div", "caption", "wbr"}  # a table's scroll box, the caption of a table cut by columns, header breaks
 
 
 class _Tags(HTMLParser):
@@ -221,7 +222,10 @@ def _assert_no_markup_from_data(text: str) -> None:
     for tag, attrs in parser.tags:
         assert tag in _TAGS, f"unexpected tag <{tag}>"
         for name, value in attrs:
-            assert name in ("charset", "name", "content", "title", "class", "style", "alt", "src", "href"), (tag, name)
+            assert name in ("charset", "name", "content", "title", "class", "style", "alt", "src", "href",
+                            "data-part", "data-keys"), (tag, name)
+            if name in ("data-part", "data-keys"):  # a table cut by columns: part i/n, number of key columns
+                assert tag == "table" and re.fullmatch(r"\d+(/\d+)?", value), (name, value)
             if tag == "img" and name == "src":
                 assert value.startswith("data:image/png;base64,")
             if name == "href":  # links to the report's own table and figure files only

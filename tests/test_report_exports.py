@@ -36,21 +36,34 @@ CONFIG = {
 
 
 class _Page(HTMLParser):
-    """The tables of a report page (cells as text with their class), the hrefs, in page order."""
+    """The tables of a report page (cells as text with their class), the hrefs, in page order. The
+    parts of a table cut by columns (``data-part='i/n'``, ``data-keys``) are joined into one."""
 
     def __init__(self):
         super().__init__(convert_charrefs=True)
         self.tables: list[list[list[tuple[str, str]]]] = []
         self.hrefs: list[str] = []
+        self.parts: list[str] = []  # the data-part of every <table> seen
         self._cell: list | None = None
-        self._depth = 0
+        self._cont: list | None = None  # a continued table: [keys to skip, next row, cells seen in the row]
 
     def handle_starttag(self, tag, attrs):
         a = dict(attrs)
         if tag == "table":
-            self.tables.append([])
+            part = a.get("data-part")
+            if part:
+                self.parts.append(part)
+            if part and not part.startswith("1/"):
+                self._cont = [int(a["data-keys"]), -1, 0]
+            else:
+                self._cont = None
+                self.tables.append([])
         elif tag == "tr" and self.tables:
-            self.tables[-1].append([])
+            if self._cont is None:
+                self.tables[-1].append([])
+            else:
+                self._cont[1] += 1
+                self._cont[2] = 0
         elif tag in ("td", "th"):
             self._cell = ["", a.get("class") or ""]
         elif tag == "a":
@@ -58,7 +71,13 @@ class _Page(HTMLParser):
 
     def handle_endtag(self, tag):
         if tag in ("td", "th") and self._cell is not None:
-            self.tables[-1][-1].append((" ".join(self._cell[0].split()), self._cell[1]))
+            cell = (" ".join(self._cell[0].split()), self._cell[1])
+            if self._cont is None:
+                self.tables[-1][-1].append(cell)
+            else:
+                self._cont[2] += 1
+                if self._cont[2] > self._cont[0]:  # the key columns are repeated in every part
+                    self.tables[-1][self._cont[1]].append(cell)
             self._cell = None
 
     def handle_data(self, data):

@@ -49,7 +49,7 @@ from shape_toolkit.errors import ParameterError
 from shape_toolkit.validation import atomic_output
 
 __all__ = ["write_report", "check_report_output", "summarize", "method_id", "metric_direction", "latex_escape",
-           "rewards_under_segmentation", "MANIFEST", "markdown_summary"]
+           "rewards_under_segmentation", "report_colors", "MANIFEST", "SPLIT_FIELD", "markdown_summary"]
 
 #: metrics where a larger value is better (everything else with a direction: lower is better)
 _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
@@ -106,7 +106,15 @@ def _header(name: str) -> str:
     if rewards_under_segmentation(name):
         tip += "; rewards under-segmentation (see the note under the table)"
         mark = " &dagger;"
-    return f"<th title='{tip}'>{html.escape(name)}{unit}{_arrow(name)}{mark}</th>"
+    shown = html.escape(name).replace("_", "_<wbr>")  # a long name may break after an underscore
+    return f"<th title='{tip}'>{shown}{unit}{_arrow(name)}{mark}</th>"
+
+
+def _header_text(name: str) -> str:
+    """The text of a metric's header cell (as :func:`_header` shows it)."""
+    unit = _unit(name)
+    d = {"higher": " \u2191", "lower": " \u2193"}.get(metric_direction(name) or "", "")
+    return name + (f" ({unit})" if unit else "") + d + (" \u2020" if rewards_under_segmentation(name) else "")
 
 
 def method_id(row: dict) -> str:
@@ -219,12 +227,13 @@ def _spread(s: float) -> str:
     return f"{s:.2g}" if abs(s) < 1e-3 or abs(s) >= 1000 else f"{s:.3f}"
 
 
-def _fmt(m: float, s: float, n: int) -> str:
-    """``mean &plusmn; std (n=...)``; no spread shown for a single value or a constant column."""
+def _fmt(m: float, s: float, n: int, show_n: bool = True) -> str:
+    """``mean &plusmn; std (n=...)``; no spread shown for a single value or a constant column, no
+    ``n`` when ``show_n`` is false (a table whose cells all have the same n says it once)."""
     text = _num(m)
     if n > 1 and s > 0:
-        text += f" &plusmn; {_spread(s)}"
-    if n > 1:
+        text += f" <small>&plusmn; {_spread(s)}</small>"
+    if n > 1 and show_n:
         text += f" <small>(n={n})</small>"
     return text
 
@@ -327,13 +336,13 @@ class _Grid:
         self.notes: list[str] = []
 
 
-def _html_cell(c: Any, stats: bool) -> str:
+def _html_cell(c: Any, stats: bool, show_n: bool = True) -> str:
     if c is None:
         return "<td>&ndash;</td>"
     if c is _NA:
         return "<td class='na' title='no value: see the note under the table'>n/a</td>"
     m, s, n, mark = c
-    text = _fmt(m, s, n) if stats else _num(m)
+    text = _fmt(m, s, n, show_n) if stats else _num(m)
     if mark == "best":
         return f"<td class='best'>{text}</td>"
     if mark == "tie":
@@ -341,16 +350,95 @@ def _html_cell(c: Any, stats: bool) -> str:
     return f"<td>{text}</td>"
 
 
+def _same_n(g: _Grid) -> int | None:
+    """The one row count every cell of a mean table has (None: they differ, or no cell)."""
+    ns = {c[2] for _, cells in g.rows for c in cells if isinstance(c, tuple)}
+    return next(iter(ns)) if g.stats and len(ns) == 1 else None
+
+
+#: the widest a table of the page may be (px); tables are split by columns to stay below it
+TABLE_MAX_PX = 1400
+#: width estimate of 13 px sans-serif text (px per character, generous) and of a cell's padding and border
+_CHAR_PX, _PAD_PX = 7.6, 14.0
+
+
+def _text_px(text: str, scale: float = 1.0) -> float:
+    return len(text) * _CHAR_PX * scale
+
+
+def _cell_px(c: Any, stats: bool, show_n: bool) -> float:
+    """Estimated width of a metric cell on one line (the ``&plusmn;``, ``n`` and ``tie`` in small type)."""
+    if c is None:
+        return _text_px("-") + _PAD_PX
+    if c is _NA:
+        return _text_px(_NA) + _PAD_PX
+    m, s, n, mark = c
+    w = _text_px(_num(m)) * (1.1 if mark else 1.0)  # best: bold
+    if stats and n > 1 and s > 0:
+        w += _text_px(f" \u00b1 {_spread(s)}", 0.85)
+    if stats and n > 1 and show_n:
+        w += _text_px(f" (n={n})", 0.85)
+    if mark == "tie":
+        w += _text_px(" tie", 0.85)
+    return w + _PAD_PX
+
+
+def _header_px(text: str) -> float:
+    """A header cell breaks at spaces and after underscores, and is at least 4em wide."""
+    pieces = [p for part in text.split() for p in re.split(r"(?<=_)", part) if p]
+    return max([52.0] + [_text_px(p, 1.1) for p in pieces]) + _PAD_PX
+
+
+def _column_widths(g: _Grid) -> tuple[list[float], list[float]]:
+    """Estimated widths (px) of the key columns and of the metric columns of ``g``'s HTML table."""
+    n = _same_n(g)
+    keys = [max([_header_px(k)] + [_text_px(r[0][i]) + _PAD_PX for r in g.rows]) for i, k in enumerate(g.keys)]
+    mets = [max([_header_px(_header_text(c))] + [_cell_px(r[1][j], g.stats, n is None) for r in g.rows])
+            for j, c in enumerate(g.metrics)]
+    return keys, mets
+
+
+def _column_parts(g: _Grid, budget: float = TABLE_MAX_PX - 80) -> list[list[int]]:
+    """The metric columns of ``g`` cut into consecutive groups that, after the key columns, fit
+    ``budget`` px (estimated); one group when the whole table fits."""
+    keys, mets = _column_widths(g)
+    parts: list[list[int]] = [[]]
+    used = sum(keys)
+    for j, w in enumerate(mets):
+        if parts[-1] and used + w > budget:
+            parts.append([])
+            used = sum(keys)
+        parts[-1].append(j)
+        used += w
+    return parts
+
+
 def _html_table(g: _Grid) -> str:
-    head = "".join(f"<th>{html.escape(k)}</th>" for k in g.keys) + "".join(_header(c) for c in g.metrics)
-    body = "".join(
-        "<tr>" + "".join(f"<td>{html.escape(k)}</td>" for k in keys)
-        + "".join(_html_cell(c, g.stats) for c in cells) + "</tr>"
-        for keys, cells in g.rows
-    )
+    """The table as HTML: numbers never wrap (see the CSS); a table wider than :data:`TABLE_MAX_PX`
+    is cut into parts by columns, each repeating the key columns (``data-part='i/n'``,
+    ``data-keys``); each part sits in a box that scrolls sideways should it still be wider. A mean
+    table whose cells share one n says it once."""
+    n = _same_n(g)
+    parts = _column_parts(g) if g.metrics else [[]]
     css = f" class='{g.css}'" if g.css else ""
-    notes = "".join(f"<p class='note'>{html.escape(n)}</p>" for n in g.notes)
-    return f"<table{css}><tr>{head}</tr>{body}</table>{notes}"
+    out = []
+    for i, cols in enumerate(parts, 1):
+        head = "".join(f"<th>{html.escape(k)}</th>" for k in g.keys) + "".join(_header(g.metrics[j]) for j in cols)
+        body = "".join(
+            "<tr>" + "".join(f"<td>{html.escape(k)}</td>" for k in keys)
+            + "".join(_html_cell(cells[j], g.stats, n is None) for j in cols) + "</tr>"
+            for keys, cells in g.rows
+        )
+        attrs = css
+        cap = ""
+        if len(parts) > 1:
+            attrs += f" data-part='{i}/{len(parts)}' data-keys='{len(g.keys)}'"
+            cap = (f"<caption>part {i} of {len(parts)}: columns {cols[0] + 1}-{cols[-1] + 1} of the "
+                   f"{len(g.metrics)} values (the same rows)</caption>")
+        out.append(f"<div class='tw'><table{attrs}>{cap}<tr>{head}</tr>{body}</table></div>")
+    notes = [f"Mean \u00b1 standard deviation over n = {n} row{'s' if n != 1 else ''} per cell."] if n else []
+    notes = "".join(f"<p class='note'>{html.escape(x)}</p>" for x in notes + g.notes)
+    return "".join(out) + notes
 
 
 def _csv_text(g: _Grid) -> str:
@@ -607,6 +695,28 @@ def _mean_grid(task: str, cells: dict, gaps: dict) -> _Grid:
     return g
 
 
+#: a row field that, when rows carry it, splits the long per-item tables into one table per value
+SPLIT_FIELD = "category"
+
+
+def _item_grids(task: str, rows: list[dict], columns: list[str]) -> list[tuple[str | None, _Grid]]:
+    """The per-item tables: ``[(None, grid)]``, or one ``(value, grid)`` per value of
+    :data:`SPLIT_FIELD` (sorted) when the task's ok rows carry that field (rows without it: ``-``)."""
+    ok = [r for r in rows if r.get("status") == "ok"]
+    values = sorted({str(r[SPLIT_FIELD]) for r in ok if r.get(SPLIT_FIELD) not in (None, "")})
+    if not values:
+        g = _item_grid(task, ok, columns)
+        return [] if g is None else [(None, g)]
+    out = []
+    for v in values + (["-"] if any(r.get(SPLIT_FIELD) in (None, "") for r in ok) else []):
+        sel = [r for r in ok if (str(r.get(SPLIT_FIELD)) if r.get(SPLIT_FIELD) not in (None, "") else "-") == v]
+        g = _item_grid(task, sel, columns)
+        if g is not None:
+            g.title += f", {SPLIT_FIELD} {v}"
+            out.append((v, g))
+    return out
+
+
 def _item_grid(task: str, rows: list[dict], columns: list[str]) -> _Grid | None:
     """Per-item values of every scalar metric (None when the task has no ok row)."""
     ok = [r for r in rows if r.get("status") == "ok"]
@@ -691,7 +801,7 @@ def _summary_section(summ: dict, tasks: list[str], rows: list[dict], gaps: dict 
 #: row fields the report shows as text (the reader accepts a string, or null where noted in the store)
 _TEXT_FIELDS = {"run_name": None, "task_name": "", "task_kind": "", "dataset": "-", "item": "", "plugin": "",
                 "family": "", "method_label": "", "corruption": "none", "corruption_kind": "none",
-                "corruption_group": "none", "error": "", "key": ""}
+                "corruption_group": "none", "error": "", "key": "", SPLIT_FIELD: None}
 
 
 def _normalized(row: dict) -> dict:
@@ -811,9 +921,15 @@ def _title(text: str, width_in: float = 12.0, fontsize: float = 12) -> str:
     return "\n".join(textwrap.wrap(text, max(20, int(width_in * 72 / (0.55 * fontsize)))))
 
 
-def _curve_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = None) -> list[str]:
+_DASHES = ("-", "--", ":", "-.")
+
+
+def _curve_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = None,
+                colors: dict | None = None) -> list[str]:
     """Curve metrics per method (mean over items, band min..max): one panel per corruption group,
-    every compared method (and peer) on the same axes; one figure per metric and dataset."""
+    every compared method (and peer) on the same axes, in its colour of the report (``colors``:
+    method id -> RGB) and one line style per corruption; one figure per metric and dataset."""
+    colors = colors if colors is not None else {}
     plt = _plt()
     parts = []
     curves: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
@@ -832,16 +948,19 @@ def _curve_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = 
         xl, yl, logx = _axes_for(metric)
         for ax, g in zip(axes.ravel(), groups):
             ys = []
+            styles = {c: _DASHES[i % len(_DASHES)] for i, c in enumerate(sorted({c for _, c in by_group[g]}))}
             for (mid, corr), cs in sorted(by_group[g].items()):
                 L = min(len(c) for c in cs)
                 arr = np.stack([c[:L] for c in cs])
                 x, y = arr[0, :, 0], arr[:, :, 1].mean(axis=0)
                 ys.extend(arr[:, :, 1].ravel())
                 label = mid if corr == "none" else f"{mid} {corr[len(g):]}".strip()
-                marker = "-o" if len(x) <= 12 else "-"  # few points: marked
-                ax.plot(x, y, marker, ms=4, lw=1.8, label=_legend(label[:48]))
+                marker = "o" if len(x) <= 12 else None  # few points: marked
+                ax.plot(x, y, linestyle=styles[corr], marker=marker, ms=4, lw=1.8, color=colors.get(mid),
+                        label=_legend(label[:48]))
                 if len(cs) > 1:
-                    ax.fill_between(x, arr[:, :, 1].min(axis=0), arr[:, :, 1].max(axis=0), alpha=0.12)
+                    ax.fill_between(x, arr[:, :, 1].min(axis=0), arr[:, :, 1].max(axis=0), alpha=0.12,
+                                    color=colors.get(mid))
             ax.set_title("uncorrupted" if g == "none" else _t(f"corruption: {g}"), fontsize=11)
             if logx:
                 ax.set_xscale("log")
@@ -856,9 +975,12 @@ def _curve_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = 
     return parts
 
 
-def _strength_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = None) -> list[str]:
-    """One figure per corruption group: a panel per scalar metric, metric vs strength per method."""
+def _strength_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None = None,
+                   colors: dict | None = None) -> list[str]:
+    """One figure per corruption group: a panel per scalar metric, metric vs strength per method
+    (each in its colour of the report, ``colors``: method id -> RGB)."""
     plt = _plt()
+    colors = colors if colors is not None else {}
     parts = []
     ok = [r for r in rows if r.get("status") == "ok" and r["task_name"] == task
           and (dataset is None or str(r.get("dataset", "-")) == dataset)]
@@ -880,7 +1002,7 @@ def _strength_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None
                 xs = sorted(pts)
                 ys.extend(v for x in xs for v in pts[x])
                 ax.errorbar(xs, [np.mean(pts[x]) for x in xs], yerr=[np.std(pts[x]) for x in xs],
-                            marker="o", ms=4, capsize=3, label=_legend(mid))
+                            marker="o", ms=4, capsize=3, color=colors.get(mid), label=_legend(mid))
             d = metric_direction(metric)
             under = ", rewards under-segmentation" if rewards_under_segmentation(metric) else ""
             ax.set_title(_t(f"{metric}" + (f" ({d} is better{under})" if d else "")), fontsize=10)
@@ -895,8 +1017,10 @@ def _strength_figs(task: str, rows: list[dict], figs: _Figs, dataset: str | None
     return parts
 
 
-def _cost_fig(task: str, cells: dict, figs: _Figs) -> list[str]:
+def _cost_fig(task: str, cells: dict, figs: _Figs, colors: dict | None = None) -> list[str]:
+    """Mean run time and peak memory per method, one bar per method in its colour of the report."""
     plt = _plt()
+    colors = colors if colors is not None else {}
     by: dict = defaultdict(lambda: {"seconds": [], "peak_memory_mb": []})
     for (_ds, mid, _corr), cols in cells.items():
         for c in ("seconds", "peak_memory_mb"):
@@ -908,7 +1032,7 @@ def _cost_fig(task: str, cells: dict, figs: _Figs) -> list[str]:
     fig, axes = plt.subplots(1, 2, figsize=(12, 1.2 + 0.45 * len(names)), layout="constrained", sharey=True)
     for ax, c, unit in zip(axes, ("seconds", "peak_memory_mb"), ("s", "MB")):
         vals = [float(np.mean(by[n][c])) if by[n][c] else 0.0 for n in names]
-        ax.barh(range(len(names)), vals, color="tab:blue" if c == "seconds" else "tab:orange")
+        ax.barh(range(len(names)), vals, color=[colors.get(n, "tab:blue") for n in names])
         ax.set_yticks(range(len(names)), [_t(n[:40]) for n in names], fontsize=10)
         what = "run time" if c == "seconds" else "peak memory growth"
         ax.set_xlabel(f"mean {what} per row ({unit}), lower is better", fontsize=10)
@@ -918,7 +1042,9 @@ def _cost_fig(task: str, cells: dict, figs: _Figs) -> list[str]:
     return [_img(figs.save(fig, f"{task}-cost"), f"{task}: runtime and memory per method")]
 
 
-def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[str]:
+def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int, up: str = "longest") -> list[str]:
+    """Up to ``n`` rendered results (one per method), each shape upright by the ``up`` rule of
+    :func:`shape_toolkit.viz.upright_frame` and cropped tight."""
     from shape_toolkit.viz import align_labels, pullback_colors, render_shapes
 
     parts = []
@@ -964,7 +1090,7 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
             figs.say(f"figure {len(figs.files) + 1}: render of {method_id(r)} on {r['item']}")
             p = figs.fresh(f"render-{r['key']}")
             for path in (p, p.with_suffix(".pdf")):  # the same matplotlib figure, as PNG and as PDF
-                render_shapes(panels, path, panel_size=min(4.5, 12.0 / len(panels)), dpi=100, title=_t(title))
+                render_shapes(panels, path, panel_size=4.0, max_width=12.0, dpi=100, title=_t(title), up=up)
             figs.files.append(p)
             figs.vector.append(p.with_suffix(".pdf"))
             parts.append(_img(p, title))
@@ -974,6 +1100,14 @@ def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int) -> list[
                 f"<p class='err'>could not render {html.escape(r['key'])}: {html.escape(str(exc))}</p>"
             )
     return parts
+
+
+def report_colors(rows: list[dict]) -> dict[str, tuple[float, float, float]]:
+    """The colour of each method of a report (method id -> RGB in [0, 1]), used by every figure of
+    it: :func:`shape_toolkit.viz.method_colors` of all the ok rows' method ids."""
+    from shape_toolkit.viz import method_colors
+
+    return method_colors(method_id(r) for r in rows if r.get("status") == "ok")
 
 
 def _spectra_list(rows: list[dict]) -> str:
@@ -1019,15 +1153,19 @@ def _prepare_section(run: Path, rows: list[dict]) -> str:
 
 
 _CSS = (
-    "body{font-family:sans-serif;margin:1.5em auto;max-width:1240px;padding:0 1em;line-height:1.4}"
-    "table{border-collapse:collapse;margin:.5em 0 1.5em;font-size:13px}"
-    "td,th{border:1px solid #ccc;padding:3px 6px;text-align:right}"
+    "body{font-family:sans-serif;margin:1.5em auto;max-width:1400px;padding:0 1em;line-height:1.4}"
+    "div.tw{max-width:min(100%,1400px);overflow-x:auto;margin:.5em 0 1.5em}div.tw+div.tw{margin-top:-.8em}"
+    "caption{caption-side:top;text-align:left;font-size:12px;color:#555;padding:2px 0}"
+    "table{border-collapse:collapse;font-size:13px}"
+    "td,th{border:1px solid #ccc;padding:3px 6px;text-align:right;white-space:nowrap}"
+    "th{white-space:normal;min-width:4em;vertical-align:bottom}"
+    "h3.cat{font-size:14px;margin:.8em 0 .2em}"
     "td:nth-child(-n+3){text-align:left}th{background:#eee}"
     "td.best,span.best{background:#d8f5d0;font-weight:bold}"
-    "figure{display:block;margin:.8em 0}figure img{width:100%;max-width:1200px;height:auto}"
+    "figure{display:block;margin:.8em 0}figure img{max-width:100%;height:auto}"
     "figcaption{font-size:12px;color:#555}.err{color:#a00}small{color:#777}"
     "details{margin:.3em 0 1.5em}summary{cursor:pointer;color:#225}"
-    "td.na{color:#777;font-style:italic}table.failed td{text-align:left}"
+    "td.na{color:#777;font-style:italic}table.failed td{text-align:left;white-space:normal}"
     "p.note{font-size:12px;color:#444;margin:-1em 0 .4em;max-width:1200px}p.note+p.note{margin-top:0}"
     "p.dl{font-size:12px;margin:-.8em 0 1.5em}p.note+p.dl{margin-top:.3em}"
 )
@@ -1132,9 +1270,11 @@ def write_report(
     progress: Callable[[str], None] | None = None,
     markdown: str | os.PathLike | None = None,
     command: str | None = None,
+    up: str = "longest",
 ) -> dict:
     """Write ``index.html`` (self-contained) with its figures (PNG, and PDF) and tables (CSV and
-    LaTeX) for a run folder; ``progress`` receives one line per step (task, figure group). Returns
+    LaTeX) for a run folder; ``progress`` receives one line per step (task, figure group); ``up``:
+    the rule that stands rendered shapes upright (:func:`shape_toolkit.viz.upright_frame`). Returns
     ``{"html": path, "figures": [PNG paths], "vector_figures": [PDF paths], "tables": [CSV and TeX paths]}``.
 
     The report replaces or deletes only files it wrote itself (listed with their digests in
@@ -1146,6 +1286,10 @@ def write_report(
         if progress is not None:
             progress(_printable(msg))
 
+    from shape_toolkit.viz import UP_RULES
+
+    if up not in UP_RULES:
+        raise ParameterError(f"up must be one of {', '.join(UP_RULES)}, got {up!r}")
     run = Path(run_dir)
     if not (run / RESULTS).exists():
         raise ParameterError(f"{run} is not a run folder: {RESULTS} not found (run 'bench run' first)")
@@ -1164,7 +1308,7 @@ def write_report(
     written: list[Path] = [path] if "index.html" in owned else []
     try:
         with _literal_figure_text():
-            page = _page(run, out, rows, figs, tables, renders, say)
+            page = _page(run, out, rows, figs, tables, renders, say, up)
         tmp = out / ".index.html.tmp"
         tmp.write_text(page, encoding="utf-8", errors="replace")
         os.replace(tmp, path)
@@ -1184,7 +1328,7 @@ def write_report(
 
 
 def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, renders: int,
-          say: Callable[[str], None]) -> str:
+          say: Callable[[str], None], up: str = "longest") -> str:
     """The HTML page of the report (its figures saved through ``figs``, its tables through ``tables``)."""
     summ = summarize(rows)
     gaps = _gaps(rows)
@@ -1193,6 +1337,7 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
     name = rows[0].get("run_name", run.name) if rows else run.name
     versions = next((r.get("versions") for r in rows if r.get("versions")), {})
     tasks = list(dict.fromkeys(r["task_name"] for r in rows))
+    colors = report_colors(rows)
     say(f"{len(rows)} rows, {len(tasks)} tasks -> {out / 'index.html'}")
     parts = [
         f"<h1>Benchmark report: {html.escape(str(name))}</h1>",
@@ -1202,7 +1347,10 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
         _summary_section(summ, tasks, rows, gaps),
         "<p>Seconds are the method's own call (spectra come from the shared cache, timed separately); "
         "peak memory is the resident-set growth during that call (MB). Each dataset is reported on its "
-        "own rows; values are mean &plusmn; standard deviation over items.</p>",
+        "own rows; values are mean &plusmn; standard deviation over items. Every method has one colour in all "
+        "the figures. Rendered shapes are upright: from their area-weighted principal axes, up is the "
+        + ("longest axis" if up == "longest" else "middle axis (the longest is horizontal)")
+        + ", the heavier end up, seen along the thinnest axis.</p>",
     ]
     for i, task in enumerate(tasks, 1):
         trows = [r for r in rows if r["task_name"] == task]
@@ -1215,19 +1363,25 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
             cat = _category_grid(task, trows)
             if cat is not None:
                 parts.append(_html_table(cat) + tables.write(cat, f"{task}-categories"))
-            items = _item_grid(task, trows, grid.metrics[:-1])  # seconds, not memory, per item
-            if items is not None:
-                parts.append(f"<details><summary>per-item values ({len(items.rows)} rows)</summary>"
-                             f"{_html_table(items)}{tables.write(items, f'{task}-items')}</details>")
+            groups = _item_grids(task, trows, grid.metrics[:-1])  # seconds, not memory, per item
+            if groups:
+                n_items = sum(len(g.rows) for _, g in groups)
+                split = f", one table per {SPLIT_FIELD}" if groups[0][0] is not None else ""
+                body = "".join(
+                    (f"<h3 class='cat'>{html.escape(SPLIT_FIELD)} {html.escape(v)} ({len(g.rows)} rows)</h3>"
+                     if v is not None else "")
+                    + _html_table(g) + tables.write(g, f"{task}-items" + (f"-{v}" if v is not None else ""))
+                    for v, g in groups)
+                parts.append(f"<details><summary>per-item values ({n_items} rows{split})</summary>{body}</details>")
         parts.append(_spectra_list(trows))
         datasets = sorted({str(r.get("dataset", "-")) for r in trows})
         for ds in datasets:
-            parts += _curve_figs(task, rows, figs, ds if len(datasets) > 1 else None)
-            parts += _strength_figs(task, rows, figs, ds if len(datasets) > 1 else None)
-        parts += _cost_fig(task, cells, figs)
+            parts += _curve_figs(task, rows, figs, ds if len(datasets) > 1 else None, colors)
+            parts += _strength_figs(task, rows, figs, ds if len(datasets) > 1 else None, colors)
+        parts += _cost_fig(task, cells, figs, colors)
         if renders > 0:
             say(f"task {i}/{len(tasks)}: rendering up to {renders} shapes")
-            parts += _render_rows(run, trows, figs, renders)
+            parts += _render_rows(run, trows, figs, renders, up)
     parts.append(_prepare_section(run, rows))
     if failed:
         grid = _failed_grid(failed)

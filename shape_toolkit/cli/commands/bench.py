@@ -85,6 +85,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     rep.add_argument("-o", "--output", help="report folder (default RUN_DIR/report)")
     rep.add_argument("--renders", type=int, default=3, help="shapes rendered per task (default 3)")
     rep.add_argument("--markdown", metavar="FILE", help="also write the tables to FILE as Markdown")
+    rep.add_argument("--up", choices=("longest", "middle"), default="longest",
+                     help="up direction of rendered shapes: their longest principal axis (standing shapes, the "
+                     "default) or the middle one (shapes longest lying down, such as quadrupeds)")
     rep.add_argument("--json", action="store_true", help="print the written files as JSON")
     add_quiet(rep)
     rep.set_defaults(func=report_cmd)
@@ -188,7 +191,7 @@ def report_cmd(args: argparse.Namespace) -> int:
         _check_markdown(args.markdown)
     with _one_line_warnings():
         res = write_report(args.run_dir, output=args.output, renders=args.renders, progress=_say(args),
-                           markdown=args.markdown, command=_command_line())
+                           markdown=args.markdown, command=_command_line(), up=args.up)
     if args.json:
         print_json({k: (str(v) if v is not None else None) if not isinstance(v, list) else [str(x) for x in v]
                     for k, v in res.items()})
