@@ -25,6 +25,8 @@ Layout (every key is checked; an error names the key, e.g. ``tasks[0].methods[1]
     corruptions = ["none", "noise"]      # default: ["none"]
     metrics = ["rand_index"]   # default: the task's default metrics
     options = {}               # task options (see shape_toolkit.bench.tasks)
+    published = ["table-5.1"]  # optional: the thesis's printed numbers shown beside the measured rows
+                               # (shape_toolkit.bench.published; never measured, never best)
     [[tasks.methods]]
     plugin = "spectral-clustering"
     preset = "..."             # optional
@@ -528,13 +530,17 @@ def parse_config(
         w = f"tasks[{i}]"
         _check_keys(
             t,
-            {"task", "name", "datasets", "corruptions", "spectrum", "metrics", "methods", "options"},
+            {"task", "name", "datasets", "corruptions", "spectrum", "metrics", "methods", "options", "published"},
             w,
             ("task", "methods"),
         )
         kind = _str(t["task"], f"{w}.task")
         if kind not in TASKS:
             raise ConfigError(f"{w}.task", f"unknown task {kind!r}; known: {', '.join(TASKS)}")
+        if "published" in t:  # the thesis's numbers shown beside the measured rows (bench.published)
+            from shape_toolkit.bench.published import check_published
+
+            check_published(t["published"], f"{w}.published")
         adapter = TASKS[kind]
         tname = _str(t.get("name", kind), f"{w}.name")
         if tname in names:
