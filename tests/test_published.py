@@ -15,6 +15,7 @@ import pytest
 from shape_toolkit.bench.config import ConfigError, parse_config
 from shape_toolkit.bench.published import (
     PUBLISHED_LABEL,
+    PublishedKeyError,
     check_published,
     published_rows,
     published_tables,
@@ -82,7 +83,7 @@ def test_reference_rows_average_the_thesis_shapes():
     m, s, n = prop.cells["r_smooth@0.8"]
     assert n == 6 and m == pytest.approx((65.10 + 78.88 + 82.83 + 55.82 + 55.76 + 58.06) / 6)
     fig = reference_rows("figure-3.13")[0]
-    assert fig.cells["mean_eigenvalue"] == (5.96, 0.016, 8)  # printed as mean +- std over eight shapes
+    assert fig.cells["mean_degree"] == (5.96, 0.016, 8)  # printed as mean +- std over eight shapes
     conds = {r.corruption for r in reference_rows("table-5.2-II")}
     assert conds == {"topology", "sampling", "noise", "holes"}
 
@@ -91,7 +92,7 @@ def _raw(published) -> dict:
     return {
         "datasets": [{"name": "syn", "kind": "synthetic", "params": {"n_poses": 2, "subdivisions": 2}}],
         "tasks": [{"task": "spectrum", "name": "eig", "published": published, "spectrum": {"k": 12},
-                   "metrics": ["eigenvalues"],
+                   "metrics": ["eigenvalues", "mean_degree"],
                    "methods": [{"plugin": "gaussian"}, {"plugin": "cotangent"}]}],
     }
 
@@ -107,8 +108,8 @@ def test_bad_reference_refused_naming_the_key(value, key):
     with pytest.raises(ConfigError) as exc:
         parse_config(_raw(value))
     assert exc.value.key == key
-    with pytest.raises(ConfigError):
-        check_published(value, "x")
+    with pytest.raises(PublishedKeyError):
+        check_published(value)
 
 
 def test_report_shows_published_rows_never_best(tmp_path):
@@ -116,12 +117,12 @@ def test_report_shows_published_rows_never_best(tmp_path):
     run_benchmark(cfg, tmp_path / "run", progress=False)
     res = write_report(tmp_path / "run", renders=0)
     page = res["html"].read_text(encoding="utf-8")
-    assert page.count("class='published'") == 2  # one mean_eigenvalue cell per figure
+    assert page.count("class='published'") == 2  # one mean_degree cell per figure
     assert f"{PUBLISHED_LABEL}: gaussian" in page and "not measured here" in page
     mean_csv = next(p for p in res["tables"] if re.fullmatch(r"\d\d-eig\.csv", p.name))
     rows = list(csv.DictReader(mean_csv.open(encoding="utf-8")))
     published = [r for r in rows if r["method"].startswith(PUBLISHED_LABEL)]
-    assert [r["mean_eigenvalue"] for r in published] == ["5.96", "127.6"]
+    assert [r["mean_degree"] for r in published] == ["5.96", "127.6"]
     assert all(r["seconds"] == "" for r in published)  # no number the thesis did not print
     tex = mean_csv.with_suffix(".tex").read_text(encoding="utf-8")
     assert r"\textit{5.96" in tex and r"\textbf{5.96" not in tex
@@ -130,3 +131,20 @@ def test_report_shows_published_rows_never_best(tmp_path):
     # the published column is printed beside the measured one, but never decides a best
     assert "class='best'>5.96" not in page and "class='best'>127.6" not in page
     assert json.loads((tmp_path / "run" / "config.json").read_text())["tasks"][0]["published"]
+
+
+def test_mean_degree_is_the_trace_over_n(tmp_path):
+    """Eq. 3.8: with binary weights tr(L)/n is the mean valence, 2 |E| / n."""
+    from shape_toolkit.bench.runner import read_rows
+    from shape_toolkit.data.datasets import load_item, open_dataset
+
+    raw = _raw("figure-3.13")
+    raw["tasks"][0]["methods"] = [{"plugin": "binary"}]
+    run_benchmark(parse_config(raw), tmp_path / "run", progress=False)
+    items = [load_item(ref) for ref in open_dataset("synthetic", None, n_poses=2, subdivisions=2)]
+    shapes = {it.name: it.shape for it in items}
+    rows = read_rows(tmp_path / "run")
+    assert len(rows) == 2
+    for r in rows:
+        s = shapes[r["item"]]
+        assert r["metrics"]["mean_degree"] == pytest.approx(2 * len(s.edges) / s.n_vertices)

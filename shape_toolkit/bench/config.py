@@ -538,9 +538,13 @@ def parse_config(
         if kind not in TASKS:
             raise ConfigError(f"{w}.task", f"unknown task {kind!r}; known: {', '.join(TASKS)}")
         if "published" in t:  # the thesis's numbers shown beside the measured rows (bench.published)
-            from shape_toolkit.bench.published import check_published
+            from shape_toolkit.bench.published import PublishedKeyError, check_published
 
-            check_published(t["published"], f"{w}.published")
+            try:
+                check_published(t["published"])
+            except PublishedKeyError as exc:
+                at = "" if exc.index is None else f"[{exc.index}]"
+                raise ConfigError(f"{w}.published{at}", exc.problem) from None
         adapter = TASKS[kind]
         tname = _str(t.get("name", kind), f"{w}.name")
         if tname in names:

@@ -36,6 +36,7 @@ __all__ = [
     "published_tables",
     "published_rows",
     "check_published",
+    "PublishedKeyError",
     "reference_rows",
     "task_references",
 ]
@@ -127,24 +128,31 @@ def published_rows(table: str | None = None) -> list[PublishedRow]:
     return [r for r in rows if table is None or r.table == table]
 
 
-def check_published(value: Any, where: str) -> tuple[str, ...]:
-    """A config's ``published`` value (a table id or a list of ids) checked: each must be a table of the
-    data file with printed numbers. Raises :class:`~shape_toolkit.bench.config.ConfigError` naming
-    ``where`` (``tasks[0].published[1]``)."""
-    from shape_toolkit.bench.config import ConfigError
+class PublishedKeyError(ParameterError):
+    """A config's ``published`` value is bad; ``index`` is the bad entry of a list (None: the value)."""
 
+    def __init__(self, index: int | None, problem: str):
+        self.index = index
+        self.problem = problem
+        super().__init__(problem)
+
+
+def check_published(value: Any) -> tuple[str, ...]:
+    """A config's ``published`` value (a table id or a list of ids) checked: each must be a table of the
+    data file with printed numbers; returns the ids. Raises :class:`PublishedKeyError` (the config names
+    the key: ``tasks[0].published[1]``)."""
     ids = [value] if isinstance(value, str) else value
     if not isinstance(ids, list) or not ids:
-        raise ConfigError(where, f"must be a table id or a non-empty list of them, got {value!r}")
+        raise PublishedKeyError(None, f"must be a table id or a non-empty list of them, got {value!r}")
     tables, rows = _load()
     with_numbers = [t for t in tables if any(r.table == t for r in rows)]
     for j, t in enumerate(ids):
-        key = where if isinstance(value, str) else f"{where}[{j}]"
+        index = None if isinstance(value, str) else j
         if not isinstance(t, str) or t not in tables:
-            raise ConfigError(key, f"unknown published table {t!r}; known: {', '.join(with_numbers)}")
+            raise PublishedKeyError(index, f"unknown published table {t!r}; known: {', '.join(with_numbers)}")
         if t not in with_numbers:
-            raise ConfigError(key, f"{t} prints no numbers (the thesis shows it as a picture); "
-                                   f"tables with numbers: {', '.join(with_numbers)}")
+            raise PublishedKeyError(index, f"{t} prints no numbers (the thesis shows it as a picture); "
+                                           f"tables with numbers: {', '.join(with_numbers)}")
     return tuple(dict.fromkeys(ids))
 
 

@@ -267,6 +267,11 @@ def _m_fiedler(p, o, opt):
     return {"lambda2": float(lam[1]) if lam.size > 1 else float("nan")}
 
 
+def _m_mean_degree(p, o, opt):
+    """Thesis eq. 3.8: the mean weighted degree, tr(L)/n of the combinatorial Laplacian (Figs. 3.13-3.14)."""
+    return {"mean_degree": float(o["mean_degree"])}
+
+
 def _m_scree(p, o, opt):
     from shape_toolkit.features.scales import scree_alpha
 
@@ -301,11 +306,13 @@ class SpectrumTask(TaskAdapter):
         "eigenvalues": (_m_eigenvalues, ()),
         "lambda2": (_m_fiedler, ()),
         "scree_alpha": (_m_scree, ()),
+        "mean_degree": (_m_mean_degree, ()),
     }
 
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         spec = spectra["target"]  # the subject: computed inside the row, timed as the method
-        return {"eigenvalues": spec.eigenvalues, "n_vertices": prepared.target.n_vertices}
+        return {"eigenvalues": spec.eigenvalues, "n_vertices": prepared.target.n_vertices,
+                "mean_degree": float(np.mean(spec.degrees))}
 
 
 # -- keypoints --------------------------------------------------------------------------------
