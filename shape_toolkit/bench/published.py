@@ -177,7 +177,7 @@ def reference_rows(table: str) -> list[ReferenceRow]:
             std = (sum((v - mean) ** 2 for v in vals) / len(vals)) ** 0.5
             cells[col] = (mean, std, len(vals))
         settings = list(dict.fromkeys(r.setting for r in rs))
-        what = settings[0] if len(settings) == 1 else f"mean of {len(settings)}: {', '.join(settings)}"
+        what = settings[0] if len(settings) == 1 else f"mean of {len(settings)} (see the note)"
         out.append(ReferenceRow(f"thesis {table}: {what}", f"{PUBLISHED_LABEL}: {method}", condition, cells, table))
     return out
 

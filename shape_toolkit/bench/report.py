@@ -948,7 +948,7 @@ _CSS = (
     "td,th{border:1px solid #ccc;padding:3px 6px;text-align:right}"
     "td:nth-child(-n+3){text-align:left}th{background:#eee}"
     "td.best,span.best{background:#d8f5d0;font-weight:bold}"
-        "td.published{font-style:italic;color:#555;background:#f4f4f4}"
+    "td.published{font-style:italic;color:#555;background:#f4f4f4}"
     "figure{display:block;margin:.8em 0}figure img{width:100%;max-width:1200px;height:auto}"
     "figcaption{font-size:12px;color:#555}.err{color:#a00}small{color:#777}"
     "details{margin:.3em 0 1.5em}summary{cursor:pointer;color:#225}"
