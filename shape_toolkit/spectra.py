@@ -159,12 +159,13 @@ class SpectrumSpec:
             out["params"] = dict(self.weighting_params)
         return out
 
-    def compute(self, shape: Shape, *, components: str = "raise", solver: Any = None) -> Spectrum:
-        """The spectrum of ``shape`` that this spec describes, through the content cache; ``k`` capped by
-        :func:`spectrum_k` (with ``components='largest'``, at the largest component's size); ``solver``:
-        another eigensolver than the default (see :func:`~shape_toolkit.core.spectrum.compute_spectrum`)."""
+    def compute(self, shape: Shape, *, components: str = "raise", solver: Any = None, cache: bool = True) -> Spectrum:
+        """The spectrum of ``shape`` that this spec describes, through the content cache (``cache=False``:
+        solved afresh, e.g. to time the solver); ``k`` capped by :func:`spectrum_k` (with
+        ``components='largest'``, at the largest component's size); ``solver``: another eigensolver than
+        the default (see :func:`~shape_toolkit.core.spectrum.compute_spectrum`)."""
         graph, kwargs = self._request(shape, components)
-        return compute_spectrum(graph, **kwargs, solver=solver)
+        return compute_spectrum(graph, **kwargs, solver=solver, cache=cache)
 
     def is_cached(self, shape: Shape, *, components: str = "raise", solver: Any = None) -> bool:
         """Whether :meth:`compute` with these arguments would be served from the cache."""

@@ -97,3 +97,14 @@ def test_shared_tosca_and_psb(shared_data):
     assert [r.name for r in p][:2] == ["1", "2"]
     it = load_item(p[0])
     assert len(it.face_labels) >= 2 and all(len(f) == it.shape.n_faces for f in it.face_labels)
+
+
+def test_tosca_classes_keep_whole_animals(shared_data):
+    """classes = a split by animal: only pairs whose both shapes are of a listed class; an unknown class
+    is refused, naming it."""
+    refs = tosca_dataset(shared_data / "tosca5k", classes=["dog", "wolf"])
+    assert [r.name for r in refs] == [f"{a}-{b}" for a, b in (
+        ("dog0", "dog1"), ("dog0", "dog2"), ("dog0", "dog3"), ("dog1", "dog2"), ("dog1", "dog3"), ("dog2", "dog3"),
+        ("wolf0", "wolf1"), ("wolf0", "wolf2"), ("wolf1", "wolf2"))]
+    with pytest.raises(ParameterError, match="unknown class 'horse'"):
+        tosca_dataset(shared_data / "tosca5k", classes=["horse"])

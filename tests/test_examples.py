@@ -32,7 +32,8 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
-CONFIGS = sorted(EXAMPLES.glob("*/config.toml"))
+#: one config per example folder, and examples/thesis/: one config per thesis table or figure
+CONFIGS = sorted(EXAMPLES.glob("*/config.toml")) + sorted((EXAMPLES / "thesis").glob("*.toml"))
 
 
 def _needs_data(raw: dict) -> bool:
@@ -63,15 +64,16 @@ def _small(raw: dict) -> dict:
 
 
 def test_every_example_has_a_config_and_a_command():
-    assert len(CONFIGS) >= 5
-    readme = (EXAMPLES / "README.md").read_text()
+    assert len(CONFIGS) >= 12
     for c in CONFIGS:
-        assert f"examples/{c.parent.name}/config.toml" in readme
+        readme = (c.parent / "README.md" if c.parent.name == "thesis" else EXAMPLES / "README.md").read_text()
+        assert c.relative_to(EXAMPLES.parent).as_posix() in readme
         assert "shape-toolkit bench run" in c.read_text()  # the one command, in the file header
+    assert "thesis/README.md" in (EXAMPLES / "README.md").read_text()
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("config", CONFIGS, ids=[c.parent.name for c in CONFIGS])
+@pytest.mark.parametrize("config", CONFIGS, ids=[c.relative_to(EXAMPLES).with_suffix("").as_posix() for c in CONFIGS])
 def test_example_runs_on_a_subset(config, tmp_path, request, monkeypatch):
     raw = tomllib.loads(config.read_text())
     if _needs_data(raw):

@@ -33,6 +33,8 @@ without groups or a half left empty is refused before any work, naming the key.
     corruptions = ["none", "noise"]      # default: ["none"]
     metrics = ["rand_index"]   # default: the task's default metrics
     options = {}               # task options (see shape_toolkit.bench.tasks)
+    published = ["table-5.1"]  # optional: the thesis's printed numbers shown beside the measured rows
+                               # (shape_toolkit.bench.published; never measured, never best)
     [[tasks.methods]]
     plugin = "spectral-clustering"
     preset = "..."             # optional
@@ -572,13 +574,21 @@ def parse_config(
         w = f"tasks[{i}]"
         _check_keys(
             t,
-            {"task", "name", "datasets", "corruptions", "spectrum", "metrics", "methods", "options"},
+            {"task", "name", "datasets", "corruptions", "spectrum", "metrics", "methods", "options", "published"},
             w,
             ("task", "methods"),
         )
         kind = _str(t["task"], f"{w}.task")
         if kind not in TASKS:
             raise ConfigError(f"{w}.task", f"unknown task {kind!r}; known: {', '.join(TASKS)}")
+        if "published" in t:  # the thesis's numbers shown beside the measured rows (bench.published)
+            from shape_toolkit.bench.published import PublishedKeyError, check_published
+
+            try:
+                check_published(t["published"])
+            except PublishedKeyError as exc:
+                at = "" if exc.index is None else f"[{exc.index}]"
+                raise ConfigError(f"{w}.published{at}", exc.problem) from None
         adapter = TASKS[kind]
         tname = _str(t.get("name", kind), f"{w}.name")
         if tname in names:

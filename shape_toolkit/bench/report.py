@@ -343,6 +343,8 @@ def _html_cell(c: Any, stats: bool, show_n: bool = True) -> str:
         return "<td class='na' title='no value: see the note under the table'>n/a</td>"
     m, s, n, mark = c
     text = _fmt(m, s, n, show_n) if stats else _num(m)
+    if mark == "published":
+        return f"<td class='published' title='{_PUBLISHED_TIP}'>{text}</td>"
     if mark == "best":
         return f"<td class='best'>{text}</td>"
     if mark == "tie":
@@ -494,6 +496,8 @@ def _tex_cell(c: Any, stats: bool, show_n: bool) -> str:
         text += rf" $\pm$ {_spread(s)}"
     if stats and show_n:
         text += rf" {{\scriptsize (n={n})}}"
+    if mark == "published":
+        return rf"\textit{{{text}}}"
     if mark == "best":
         return rf"\textbf{{{text}}}"
     if mark == "tie":
@@ -518,7 +522,7 @@ def _tex_text(g: _Grid) -> str:
     if g.stats and len(ns) == 1:
         n = next(iter(ns))
         notes.insert(0, f"Mean \u00b1 standard deviation over {n} row{'s' if n != 1 else ''} per cell.")
-    marks = {c[3] for _, cells in g.rows for c in cells if isinstance(c, tuple)} - {""}
+    marks = {c[3] for _, cells in g.rows for c in cells if isinstance(c, tuple)} - {"", "published"}
     if marks:
         notes.insert(0, "Best in bold" + ("; tie: a best shared within the printed precision." if "tie" in marks
                                           else "."))
@@ -715,6 +719,38 @@ def _item_grids(task: str, rows: list[dict], columns: list[str]) -> list[tuple[s
             g.title += f", {SPLIT_FIELD} {v}"
             out.append((v, g))
     return out
+
+
+_PUBLISHED_TIP = "published in the thesis, on its own shapes: not measured here, never best"
+
+
+def _add_published(g: _Grid, tables: tuple[str, ...]) -> None:
+    """The thesis's printed numbers of ``tables`` (:mod:`shape_toolkit.bench.published`) as rows under the
+    measured ones: marked ``published`` (never best; no aggregate reads the grid), columns only the
+    thesis prints added before the cost columns, and a note saying what the rows are."""
+    from shape_toolkit.bench.published import PUBLISHED_LABEL, published_tables, reference_rows
+
+    refs = [r for t in tables for r in reference_rows(t)]
+    if not refs:
+        return
+    extra = [c for r in refs for c in r.cells if c not in g.metrics]
+    extra = list(dict.fromkeys(extra))
+    if extra:
+        at = g.metrics.index("seconds") if "seconds" in g.metrics else len(g.metrics)
+        g.metrics[at:at] = extra
+        g.rows = [(keys, cells[:at] + [None] * len(extra) + cells[at:]) for keys, cells in g.rows]
+    for r in refs:
+        g.rows.append(([r.dataset, r.method, r.corruption],
+                       [(*r.cells[c], "published") if c in r.cells else None for c in g.metrics]))
+    info = published_tables()
+    for t in tables:
+        tab = info[t]
+        g.notes.append(f"Rows '{PUBLISHED_LABEL}: ...' are the numbers printed in the thesis's {t} (section "
+                       f"{tab.section}, line {tab.line} of its text), measured on {tab.data}: not measured here, "
+                       "never marked best, left out of every summary; mean (and standard deviation) over the "
+                       "thesis's shapes.")
+    if extra:
+        g.notes.append(f"{', '.join(extra)}: printed by the thesis only; no measured method has this column.")
 
 
 def _item_grid(task: str, rows: list[dict], columns: list[str]) -> _Grid | None:
@@ -1162,6 +1198,7 @@ _CSS = (
     "h3.cat{font-size:14px;margin:.8em 0 .2em}"
     "td:nth-child(-n+3){text-align:left}th{background:#eee}"
     "td.best,span.best{background:#d8f5d0;font-weight:bold}"
+    "td.published{font-style:italic;color:#555;background:#f4f4f4}"
     "figure{display:block;margin:.8em 0}figure img{max-width:100%;height:auto}"
     "figcaption{font-size:12px;color:#555}.err{color:#a00}small{color:#777}"
     "details{margin:.3em 0 1.5em}summary{cursor:pointer;color:#225}"
@@ -1327,6 +1364,17 @@ def write_report(
             "tables": list(tables.files), "markdown": markdown}
 
 
+def _published_of(run: Path) -> dict[str, tuple[str, ...]]:
+    """``{task name: published table ids}`` from the run's ``config.json`` (none when unreadable)."""
+    from shape_toolkit.bench.published import task_references
+
+    try:
+        raw = json.loads((run / "config.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return task_references(raw)
+
+
 def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, renders: int,
           say: Callable[[str], None], up: str = "longest") -> str:
     """The HTML page of the report (its figures saved through ``figs``, its tables through ``tables``)."""
@@ -1338,6 +1386,7 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
     versions = next((r.get("versions") for r in rows if r.get("versions")), {})
     tasks = list(dict.fromkeys(r["task_name"] for r in rows))
     colors = report_colors(rows)
+    published = _published_of(run)
     say(f"{len(rows)} rows, {len(tasks)} tasks -> {out / 'index.html'}")
     parts = [
         f"<h1>Benchmark report: {html.escape(str(name))}</h1>",
@@ -1359,11 +1408,13 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
         cells, task_gaps = summ.get(task, {}), gaps.get(task, {})
         if cells or task_gaps:
             grid = _mean_grid(task, cells, task_gaps)
+            measured = grid.metrics[:-1]  # seconds, not memory, per item
+            _add_published(grid, published.get(task, ()))
             parts.append(_html_table(grid) + tables.write(grid, task))
             cat = _category_grid(task, trows)
             if cat is not None:
                 parts.append(_html_table(cat) + tables.write(cat, f"{task}-categories"))
-            groups = _item_grids(task, trows, grid.metrics[:-1])  # seconds, not memory, per item
+            groups = _item_grids(task, trows, measured)
             if groups:
                 n_items = sum(len(g.rows) for _, g in groups)
                 split = f", one table per {SPLIT_FIELD}" if groups[0][0] is not None else ""

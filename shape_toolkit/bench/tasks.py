@@ -130,12 +130,15 @@ def prepare(
     return p
 
 
-def compute_spectrum_cached(spec: SpectrumSpec, shape: Shape, solver: Any = None) -> tuple[Spectrum, bool]:
+def compute_spectrum_cached(
+    spec: SpectrumSpec, shape: Shape, solver: Any = None, *, cache: bool = True,
+) -> tuple[Spectrum, bool]:
     """``spec`` computed on ``shape`` through the content cache (largest connected component, as
     corruptions may split a shape; ``k`` capped by :func:`~shape_toolkit.spectra.spectrum_k`), by the
-    eigensolver ``solver`` (None: the toolkit's); returns ``(Spectrum, cache_hit)``."""
-    hit = spec.is_cached(shape, components="largest", solver=solver)
-    return spec.compute(shape, components="largest", solver=solver), hit
+    eigensolver ``solver`` (None: the toolkit's); returns ``(Spectrum, cache_hit)``. ``cache=False``
+    solves afresh (a spectrum task times the solver itself)."""
+    hit = cache and spec.is_cached(shape, components="largest", solver=solver)
+    return spec.compute(shape, components="largest", solver=solver, cache=cache), hit
 
 
 def spectrum_for(spec: SpectrumSpec, shape: Shape, pool: Sequence[SpectrumSpec] = ()) -> tuple[Spectrum, bool]:
@@ -274,6 +277,11 @@ def _m_fiedler(p, o, opt):
     return {"lambda2": float(lam[1]) if lam.size > 1 else float("nan")}
 
 
+def _m_mean_degree(p, o, opt):
+    """Thesis eq. 3.8: the mean weighted degree, tr(L)/n of the combinatorial Laplacian (Figs. 3.13-3.14)."""
+    return {"mean_degree": float(o["mean_degree"])}
+
+
 def _m_scree(p, o, opt):
     from shape_toolkit.features.scales import scree_alpha
 
@@ -329,11 +337,13 @@ class SpectrumTask(TaskAdapter):
         "lambda2": (_m_fiedler, ()),
         "scree_alpha": (_m_scree, ()),
         "eigenvalue_error": (_m_eigenvalue_error, ()),
+        "mean_degree": (_m_mean_degree, ()),
     }
 
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         spec = spectra["target"]  # the subject: computed inside the row, timed as the method
-        return {"eigenvalues": spec.eigenvalues, "n_vertices": prepared.target.n_vertices, "spectrum": spec}
+        return {"eigenvalues": spec.eigenvalues, "n_vertices": prepared.target.n_vertices, "spectrum": spec,
+                "mean_degree": float(np.mean(spec.degrees))}
 
 
 # -- keypoints --------------------------------------------------------------------------------

@@ -416,7 +416,9 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
                     from shape_toolkit.bench.peers import create_spectrum_peer
 
                     solver = create_spectrum_peer(job.solver)
-                spectra["target"], row.spectrum_cache_hit = compute_spectrum_cached(spec, prep.target, solver)
+                # solved afresh: a cached spectrum would time a lookup, not the solver
+                spectra["target"], row.spectrum_cache_hit = compute_spectrum_cached(spec, prep.target, solver,
+                                                                                    cache=False)
                 row.spectra = [received_spec(spec, prep.target)]
                 row.spectrum_seconds = time.perf_counter() - t0
             output = adapter.run(

@@ -109,9 +109,13 @@ def _require_dir(root: str | os.PathLike, what: str) -> Path:
     return p
 
 
-def tosca_dataset(root: str | os.PathLike, *, pairs: str = "pairs.txt") -> list[ItemRef]:
+def tosca_dataset(
+    root: str | os.PathLike, *, pairs: str = "pairs.txt", classes: list[str] | None = None
+) -> list[ItemRef]:
     """Pairs of a TOSCA-style folder: ``NAME.off`` meshes, ``corres/NAME.vts`` (1-based, row i of
-    every file of a class is the same point) and a tab/space separated ``pairs`` list (A B)."""
+    every file of a class is the same point) and a tab/space separated ``pairs`` list (A B). With
+    ``classes`` (e.g. ``["dog", "wolf"]``: a split by animal), only pairs whose two shapes' classes (the
+    letters before the digits) are listed."""
     root = _require_dir(root, "TOSCA-style")
     plist = root / pairs
     if plist.exists():
@@ -123,6 +127,14 @@ def tosca_dataset(root: str | os.PathLike, *, pairs: str = "pairs.txt") -> list[
         names = sorted(p.stem for p in root.glob("*.off"))
         cls = {n: n.rstrip("0123456789") for n in names}
         rows = [[a, b] for a in names for b in names if a < b and cls[a] == cls[b]]
+    if classes is not None:
+        if not isinstance(classes, (list, tuple)) or not all(isinstance(c, str) for c in classes):
+            raise ParameterError(f"classes must be a list of class names, got {classes!r}")
+        known = {n.rstrip("0123456789") for r in rows for n in r}
+        bad = sorted(set(classes) - known)
+        if bad:
+            raise ParameterError(f"classes: unknown class {bad[0]!r}; known: {', '.join(sorted(known))}")
+        rows = [r for r in rows if all(n.rstrip("0123456789") in classes for n in r)]
     refs = []
     for a, b in rows:
         paths = {"source": str(root / f"{a}.off"), "target": str(root / f"{b}.off")}
