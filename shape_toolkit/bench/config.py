@@ -36,8 +36,9 @@ counted from the grid sizes before anything is expanded; with ``max_rows`` (the 
 ``--max-rows``, default :data:`MAX_ROWS`) a config planning more is refused naming the count.
 
 A matching method may instead be ``pipeline = "zoomout"`` (a preset, TOML file or inline table of
-:mod:`shape_toolkit.pipeline`) or ``peer = "pyfm"`` (a peer's published pipeline,
-:mod:`shape_toolkit.bench.peers`), each with an optional ``label``.
+:mod:`shape_toolkit.pipeline`), ``peer = "pyfm"`` (a peer's published pipeline,
+:mod:`shape_toolkit.bench.peers`) or ``peer = "maps"`` with ``path = "maps/BCICP"`` (published maps
+``A_B.map`` in that folder of a pair dataset, uncorrupted only), each with an optional ``label``.
 
 Spectra: methods receive the spectra they declare (``spectrum_spec()`` of a plugin and of its
 keypoint detector, ``spectrum_specs()`` of a pipeline), so a ``spectrum`` table belongs to the
@@ -473,18 +474,44 @@ def _peer_method(task: str, m: dict, where: str) -> MethodSpec:
 
     if task != "matching":
         raise ConfigError(f"{where}.peer", 'peers are matching methods (task = "matching")')
-    extra = sorted(set(m) - {"peer", "label"})
-    if extra:
-        raise ConfigError(f"{where}.{extra[0]}", "not allowed with peer (a peer runs its own published pipeline)")
     name = m["peer"]
     if not isinstance(name, str):
         raise ConfigError(f"{where}.peer", f"must be a peer name, got {name!r}")
+    extra = sorted(set(m) - {"peer", "label", *(("path",) if name == "maps" else ())})
+    if extra:
+        raise ConfigError(f"{where}.{extra[0]}", "not allowed with peer (a peer runs its own published pipeline)")
+    if name == "maps" and "path" not in m:
+        raise ConfigError(f"{where}.path", 'peer "maps" needs path = "FOLDER" (its A_B.map files, relative to the '
+                          "dataset's folder)")
+    params = {"path": m["path"]} if name == "maps" else {}
     try:
-        create_peer(name)
+        create_peer(name, **params)
     except ToolkitError as exc:
-        raise ConfigError(f"{where}.peer", str(exc)) from None
-    label = _str(m["label"], f"{where}.label") if "label" in m else f"peer:{name}"
-    return MethodSpec(name, "peers", None, {}, label)
+        raise ConfigError(f"{where}.path" if params else f"{where}.peer", str(exc)) from None
+    default = f"maps:{Path(params['path']).name}" if params else f"peer:{name}"
+    label = _str(m["label"], f"{where}.label") if "label" in m else default
+    return MethodSpec(name, "peers", None, params, label)
+
+
+def _check_map_files(m: dict, where: str, datasets: dict[str, DatasetSpec], dsel: list[str],
+                     csel: list[str], limit: int | None) -> None:
+    """A ``peer = "maps"`` method: on uncorrupted pair datasets only, and a map file for every item
+    it will read (missing: the file is named; its contents are checked when the row reads it)."""
+    from shape_toolkit.bench.peers import map_file
+
+    if any(c != "none" for c in csel):
+        raise ConfigError(f"{where}.peer", 'published maps are maps of the clean pairs: a task with peer = "maps" '
+                          'takes corruptions = ["none"] only')
+    for dn in dict.fromkeys(dsel):
+        ds = datasets[dn]
+        if ds.kind != "tosca":
+            raise ConfigError(f"{where}.peer", f'published maps need a pair dataset (kind = "tosca"); dataset {dn!r} '
+                              f"is {ds.kind!r}")
+        for ref in ds.refs[: _dataset_size(ds, limit)]:
+            a, b = (Path(ref.paths[k]).stem for k in ("source", "target"))
+            f = map_file(ds.path, m["path"], a, b)
+            if not f.is_file():
+                raise ConfigError(f"{where}.path", f"published map file not found: {f} (for the pair {a}, {b})")
 
 
 def _dataset_size(spec: DatasetSpec, limit: int | None) -> int:
@@ -571,6 +598,9 @@ def parse_config(
         if not isinstance(t["methods"], list) or not t["methods"]:
             raise ConfigError(f"{w}.methods", "must be a non-empty array of tables ([[tasks.methods]])")
         methods = [_check_method(kind, adapter, spectrum, m, f"{w}.methods[{j}]") for j, m in enumerate(t["methods"])]
+        for j, m in enumerate(t["methods"]):
+            if m.get("peer") == "maps":
+                _check_map_files(m, f"{w}.methods[{j}]", datasets, dsel, csel, limit)
         n_items = sum(_dataset_size(datasets[dn], limit) for dn in dict.fromkeys(dsel))
         n_corr = sum(corruptions[cn].size for cn in dict.fromkeys(csel))
         n_meth = sum(size for _, size in methods)
@@ -671,13 +701,15 @@ def _validate_options(adapter: Any, options: Any, where: str) -> dict[str, Any]:
 def _check_method(kind: str, adapter: Any, spectrum: dict | None, m: Any, mw: str) -> tuple[Any, int]:
     """One ``[[tasks.methods]]`` entry checked without expanding its grid: ``(make, size)``, where
     ``make()`` expands and checks each grid point into :class:`MethodSpec` instances."""
-    _check_keys(m, {"plugin", "pipeline", "peer", "preset", "label", "params", "spectrum", "keypoints"}, mw)
+    _check_keys(m, {"plugin", "pipeline", "peer", "path", "preset", "label", "params", "spectrum", "keypoints"}, mw)
     if "pipeline" in m:
         spec = _pipeline_method(kind, m, mw)
         return (lambda: [spec]), 1
     if "peer" in m:
         spec = _peer_method(kind, m, mw)
         return (lambda: [spec]), 1
+    if "path" in m:
+        raise ConfigError(f"{mw}.path", 'only a published-maps peer (peer = "maps") takes a path')
     if "plugin" not in m:
         raise ConfigError(f"{mw}.plugin", "is required (or pipeline = ... / peer = ... for a matching method)")
     plugin = _str(m["plugin"], f"{mw}.plugin")

@@ -51,6 +51,8 @@ class PrepareJob:
     geodesic_method: str | None
     truth_sample: int | None
     specs: list[SpectrumSpec] = field(default_factory=list)
+    score_on: str = "target"
+    target: str = "pair"
 
     @property
     def sides(self) -> tuple[str, ...]:
@@ -112,7 +114,7 @@ def create_method(family: str, plugin: str, preset: str | None, params: dict, ra
     if family == "peers":
         from shape_toolkit.bench.peers import create_peer
 
-        return create_peer(plugin)
+        return create_peer(plugin, **params)
     from shape_toolkit.bench.tasks import _with_random_state
 
     return _with_random_state(family, plugin, preset, params, random_state)
@@ -175,12 +177,16 @@ def plan(
                         "geodesic_method": task.options.get("geodesic_method") if geo else None,
                         "truth_sample": task.options.get("truth_sample") if geo else None,
                     }
+                    protocol = {k: task.options[k] for k, default in (("score_on", "target"), ("target", "pair"))
+                                if geo and task.options.get(k, default) != default}
+                    pident.update(protocol)  # only when set: the keys of earlier runs stay valid
                     pkey = row_key(pident)
                     prep = preps.get(pkey)
                     if prep is None:
                         prep = preps[pkey] = PrepareJob(
                             pkey, run_dir, dname, ref.name, asdict(ref), corr.kind, dict(corr.params),
                             adapter.pairwise, seed, pident["geodesic_method"], pident["truth_sample"],
+                            **protocol,
                         )
                     for m_index, m in enumerate(task.methods):
                         subject = subject_spec(task, m) if task.task_kind == "spectrum" else None

@@ -110,7 +110,7 @@ def method_id(row: dict) -> str:
     p = row.get("params") if isinstance(row.get("params"), dict) else {}
     label = str(row.get("method_label"))
     shown = {k: v for k, v in sorted(p.items()) if not isinstance(v, dict) and len(repr(v)) <= 24}
-    if row.get("family") == "pipelines" or not shown:
+    if row.get("family") in ("pipelines", "peers") or not shown:
         return label
     return f"{label}({', '.join(f'{k}={v}' for k, v in shown.items())})"
 

@@ -247,6 +247,8 @@ def _prepare_item(pjob: PrepareJob, info: dict[str, Any]):
         random_state=pjob.seed,
         truth_sample=pjob.truth_sample,
         geodesic_method=pjob.geodesic_method,
+        score_on=pjob.score_on,
+        target=pjob.target,
     )
     save_prepared(path, prep, key=pjob.key, inputs=inputs)
     info["reused"] = False
