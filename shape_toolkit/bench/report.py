@@ -54,7 +54,7 @@ _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matche
            "smooth")
 _LOWER = ("error", "discrepancy", "gce", "lce", "hamming", "seconds", "memory", "chance")
 #: units of known columns, shown in the headers
-_UNITS = {"seconds": "s", "peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
+_UNITS = {"seconds": "s", "cpu_seconds": "s", "peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
           "median_geodesic_error": "sqrt(area)", "lambda2": "1/length^2", "mean_eigenvalue": "1/length^2"}
 
 
@@ -126,9 +126,13 @@ def _is_curve(v: Any) -> bool:
     )
 
 
+#: the cost columns of every row, shown after the metrics
+_COSTS = ("seconds", "cpu_seconds", "peak_memory_mb")
+
+
 def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str, tuple[float, float, int]]]]:
     """``{task_name: {(dataset, method_id, corruption): {column: (mean, std, count)}}}`` over ok
-    rows, for every scalar metric plus ``seconds`` and ``peak_memory_mb``; different datasets are
+    rows, for every scalar metric plus ``seconds``, ``cpu_seconds`` and ``peak_memory_mb``; different datasets are
     never averaged together."""
     acc: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
     for r in rows:
@@ -138,7 +142,7 @@ def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str
         for k, v in (r.get("metrics") or {}).items():
             if _is_num(v):
                 cell[k].append(float(v))
-        for k in ("seconds", "peak_memory_mb"):
+        for k in _COSTS:
             if _is_num(r.get(k)):
                 cell[k].append(float(r[k]))
     out: dict = {}
@@ -431,6 +435,40 @@ def _tex_text(g: _Grid) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _md_escape(text: Any) -> str:
+    return _printable(str(text).replace("\n", " ").replace("\r", " ")).replace("|", "\\|")
+
+
+def _md_text(g: _Grid) -> str:
+    """The table as GitHub markdown: the numbers as printed in the HTML (mean, std and n of a mean
+    table), best in bold, shared bests marked *tie*, n/a where a method gives no value; its notes under it."""
+    def cell(c: Any) -> str:
+        if c is None:
+            return "-"
+        if c is _NA:
+            return _NA
+        m, sd, n, mark = c
+        text = _num(m) if math.isfinite(m) else "-"
+        if g.stats and n > 1 and sd > 0:
+            text += f" \u00b1 {_spread(sd)}"
+        if g.stats and n > 1:
+            text += f" (n={n})"
+        return f"**{text}**" + (" *tie*" if mark == "tie" else "") if mark in ("best", "tie") else text
+
+    def head(c: str) -> str:
+        unit = _unit(c)
+        arrow = {"higher": " \u2191", "lower": " \u2193"}.get(metric_direction(c) or "", "")
+        dagger = " \u2020" if rewards_under_segmentation(c) else ""
+        return _md_escape(c) + (f" ({unit})" if unit else "") + arrow + dagger
+
+    cols = [_md_escape(k) for k in g.keys] + [head(c) for c in g.metrics]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for keys, cells in g.rows:
+        lines.append("| " + " | ".join([_md_escape(k) for k in keys] + [cell(c) for c in cells]) + " |")
+    lines += [""] + [_md_escape(n) + "\n" for n in g.notes]
+    return "\n".join(lines) + "\n"
+
+
 class _Tables:
     """The tables of one report, each written as CSV and LaTeX under fresh names in ``folder`` (a
     name held by a file the report did not write is never reused), each file recorded in ``files``."""
@@ -439,9 +477,11 @@ class _Tables:
         self.folder = folder
         self.files: list[Path] = []
         self.count = 0
+        self.grids: list[_Grid] = []  # in page order, for the markdown copy of the report
 
     def write(self, g: _Grid, name: str) -> str:
         """Write ``g`` as ``NN-NAME.csv`` and ``.tex``; returns the HTML links to both."""
+        self.grids.append(g)
         stem = f"{self.count:02d}-{safe_name(name)}"
         cand, n = stem, 2
         while any(os.path.lexists(self.folder / f"{cand}.{ext}") for ext in ("csv", "tex")):
@@ -464,8 +504,8 @@ class _Tables:
 def _mean_grid(task: str, cells: dict, gaps: dict) -> _Grid:
     """Mean and std per (dataset, method, corruption); the best of each column marked (see
     :func:`_ranks`); metrics without a value as n/a, and why, in notes under the table."""
-    valued = sorted({c for v in cells.values() for c in v} - {"seconds", "peak_memory_mb"})
-    columns = valued + ["seconds", "peak_memory_mb"]
+    valued = sorted({c for v in cells.values() for c in v} - set(_COSTS))
+    columns = valued + [c for c in _COSTS if c != "cpu_seconds" or any(c in v for v in cells.values())]
     g = _Grid(f"Task {task}: mean and standard deviation per method", ["dataset", "method", "corruption"],
               columns, stats=True)
     ranks = {c: _ranks(cells, c) for c in columns}
@@ -506,7 +546,7 @@ def _item_grid(task: str, rows: list[dict], columns: list[str]) -> _Grid | None:
         m = r["metrics"]
         cells = []
         for c in columns:
-            v = r.get(c) if c in ("seconds", "peak_memory_mb") else m.get(c)
+            v = r.get(c) if c in _COSTS else m.get(c)
             cells.append((float(v), 0.0, 1, "") if _is_num(v) else _NA if c in m and _no_value(v) else None)
         g.rows.append(([str(r.get("dataset", "-")), str(r.get("item")), method_id(r),
                         str(r.get("corruption", "none"))], cells))
@@ -1018,6 +1058,8 @@ def write_report(
     output: str | os.PathLike | None = None,
     renders: int = 3,
     progress: Callable[[str], None] | None = None,
+    markdown: str | os.PathLike | None = None,
+    command: str | None = None,
 ) -> dict:
     """Write ``index.html`` (self-contained) with its figures (PNG, and PDF) and tables (CSV and
     LaTeX) for a run folder; ``progress`` receives one line per step (task, figure group). Returns
@@ -1025,7 +1067,11 @@ def write_report(
 
     The report replaces or deletes only files it wrote itself (listed with their digests in
     ``OUTPUT/.bench-report.json``); a file it did not write is never touched: an ``index.html`` of
-    someone else is a :class:`ParameterError` before any work, other names are avoided."""
+    someone else is a :class:`ParameterError` before any work, other names are avoided.
+
+    With ``markdown``, the report's tables are also written to that file as markdown (a results file
+    kept in a repository), its first lines naming ``command`` (the command that regenerates it), the
+    code and the machine; returned as ``"markdown"``."""
     def say(msg: str) -> None:  # names from the rows: no control characters on a terminal
         if progress is not None:
             progress(_printable(msg))
@@ -1056,8 +1102,35 @@ def write_report(
     finally:
         _write_manifest(out, written + figs.files + figs.vector + tables.files)
     say(f"wrote {path} ({len(figs.files)} figures, {len(tables.files) // 2} tables as CSV and LaTeX)")
-    return {"html": path, "figures": list(figs.files), "vector_figures": list(figs.vector),
-            "tables": list(tables.files)}
+    res = {"html": path, "figures": list(figs.files), "vector_figures": list(figs.vector),
+           "tables": list(tables.files)}
+    if markdown is not None:
+        res["markdown"] = _write_markdown(Path(markdown), run, rows, tables.grids, command)
+        say(f"wrote {res['markdown']}")
+    return res
+
+
+def _write_markdown(path: Path, run: Path, rows: list[dict], grids: list[_Grid], command: str | None) -> Path:
+    """The tables of a report as one markdown file (see :func:`write_report`), written whole."""
+    from shape_toolkit.bench.worker import code_revision, machine_info, revision_label
+    from shape_toolkit.validation import atomic_output
+
+    name = rows[0].get("run_name", run.name) if rows else run.name
+    n_ok = sum(r.get("status") == "ok" for r in rows)
+    mach = machine_info()
+    out = [f"# {_md_escape(name)}", "",
+           f"Regenerate: `{command}`" if command else f"Regenerate: `shape-toolkit bench report {run}` (the run's "
+           "own command was not given)",
+           "",
+           f"{len(rows)} rows: {n_ok} ok, {len(rows) - n_ok} failed. Code when the report was written: "
+           f"{revision_label(code_revision())}. Machine: {mach['cpu']}, {mach['cores']} cores, BLAS "
+           f"{', '.join(mach['blas'])}. Seconds and CPU seconds are the method's own call (a published map's: "
+           "reading its file); spectra come from the run's cache, timed separately.", ""]
+    for g in grids:
+        out += [f"## {_md_escape(g.title)}", "", _md_text(g)]
+    with atomic_output(path, "markdown report", make_parents=True) as tmp:
+        Path(tmp).write_text("\n".join(out), encoding="utf-8")
+    return path
 
 
 def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, renders: int,

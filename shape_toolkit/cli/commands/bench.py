@@ -17,6 +17,7 @@ from shape_toolkit.cli.commands._common import (
     print_json,
     scheduler_address,
 )
+from shape_toolkit.errors import ParameterError
 
 RUN_EPILOG = """exit status:
   0  every row of the run folder succeeded
@@ -76,12 +77,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--retry-failed", action="store_true", help="run failed rows again")
     add_quiet(r)
     r.add_argument("--report", action="store_true", help="write the report when the run ends")
+    r.add_argument("--markdown", metavar="FILE", help="with --report: also write its tables to FILE as markdown, "
+                   "the first lines naming this command (a results file kept in a repository)")
     r.add_argument("--json", action="store_true", help='print {"rows", "failed", "reused", ...} at the end')
     r.set_defaults(func=run_cmd)
     rep = bsub.add_parser("report", help="write RUN_DIR/report/index.html and PNG figures")
     rep.add_argument("run_dir", help="a run folder written by bench run")
     rep.add_argument("-o", "--output", help="report folder (default RUN_DIR/report)")
     rep.add_argument("--renders", type=int, default=3, help="shapes rendered per task (default 3)")
+    rep.add_argument("--markdown", metavar="FILE", help="also write the report's tables to FILE as markdown")
     rep.add_argument("--json", action="store_true", help="print the written files as JSON")
     add_quiet(rep)
     rep.set_defaults(func=report_cmd)
@@ -107,12 +111,23 @@ def _say(args: argparse.Namespace):
     return lambda msg: print(f"report: {msg}", file=sys.stderr, flush=True)
 
 
+def _command(args: argparse.Namespace) -> str:
+    """The ``bench run`` command line as given (for the first lines of a markdown results file)."""
+    import shlex
+
+    return "shape-toolkit " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["bench"] else (
+        f"shape-toolkit bench run {shlex.quote(str(args.config))} -o {shlex.quote(str(args.output))} --report "
+        f"--markdown {shlex.quote(str(args.markdown))}")
+
+
 def run_cmd(args: argparse.Namespace) -> int:
     """Exit 0 when every row succeeded, 1 when some failed; usage errors raise (exit 2)."""
     from shape_toolkit.bench.config import MAX_ROWS, load_config
     from shape_toolkit.bench.executors import run_benchmark
 
     args.output = str(default_output(args.output, args.config, "run"))
+    if args.markdown and not args.report:
+        raise ParameterError("--markdown writes the report's tables: add --report")
     with _one_line_warnings():
         # every check happens before any work, the row count before any grid is expanded
         cfg = load_config(args.config, max_rows=args.max_rows or MAX_ROWS, limit=args.limit)
@@ -134,7 +149,8 @@ def run_cmd(args: argparse.Namespace) -> int:
         if args.report:
             from shape_toolkit.bench.report import write_report
 
-            report = str(write_report(args.output, progress=_say(args))["html"])
+            report = str(write_report(args.output, progress=_say(args), markdown=args.markdown,
+                                      command=_command(args) if args.markdown else None)["html"])
     if args.json:
         print_json(
             {
@@ -161,7 +177,8 @@ def report_cmd(args: argparse.Namespace) -> int:
     from shape_toolkit.bench.report import write_report
 
     with _one_line_warnings():
-        res = write_report(args.run_dir, output=args.output, renders=args.renders, progress=_say(args))
+        res = write_report(args.run_dir, output=args.output, renders=args.renders, progress=_say(args),
+                           markdown=args.markdown)
     if args.json:
         print_json({k: str(v) if not isinstance(v, list) else [str(x) for x in v] for k, v in res.items()})
     else:
