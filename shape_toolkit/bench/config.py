@@ -11,6 +11,7 @@ Layout (every key is checked; an error names the key, e.g. ``tasks[0].methods[1]
     kind = "psb"               # tosca | psb | folder | synthetic
     path = "psb"               # absolute, or relative to $TOOLKIT_DATA (else to the config's folder)
     limit = 4                  # optional: first N items
+    items = ["cat0-cat1"]      # optional: these items only, in this order (before limit)
     params = {}                # kind-specific (synthetic: n_poses, subdivisions, max_angle)
 
     [[corruptions]]
@@ -637,7 +638,7 @@ def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dic
     datasets: dict[str, DatasetSpec] = {}
     for i, d in enumerate(raw):
         w = f"datasets[{i}]"
-        _check_keys(d, {"name", "kind", "path", "limit", "params"}, w, ("kind",))
+        _check_keys(d, {"name", "kind", "path", "limit", "params", "items"}, w, ("kind",))
         kind = _str(d["kind"], f"{w}.kind")
         if kind not in DATASET_KINDS:
             raise ConfigError(
@@ -676,6 +677,16 @@ def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dic
             raise ConfigError(f"{w}.params" if params else f"{w}.path", str(exc)) from None
         if not refs:
             raise ConfigError(f"{w}.path", f"no items found in {path}")
+        if "items" in d:  # a declared selection of items, in the given order
+            by_name = {r.name: r for r in refs}
+            chosen = _names(d["items"], f"{w}.items", "item names")
+            for j, it in enumerate(chosen):
+                if it not in by_name:
+                    raise ConfigError(f"{w}.items[{j}]",
+                                      f"no item {it!r} in the dataset; e.g. {', '.join(list(by_name)[:5])}")
+            if len(set(chosen)) != len(chosen):
+                raise ConfigError(f"{w}.items", "lists an item twice")
+            refs = [by_name[it] for it in chosen]
         datasets[dname] = DatasetSpec(dname, kind, path, limit, dict(params), tuple(refs))
     return datasets
 

@@ -52,7 +52,7 @@ __all__ = ["write_report", "check_report_output", "summarize", "method_id", "met
 #: metrics where a larger value is better (everything else with a direction: lower is better)
 _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
            "smooth")
-_LOWER = ("error", "discrepancy", "gce", "lce", "hamming", "seconds", "memory", "chance")
+_LOWER = ("error", "discrepancy", "gce", "lce", "hamming", "seconds", "memory", "chance", "flipped")
 #: units of known columns, shown in the headers
 _UNITS = {"seconds": "s", "cpu_seconds": "s", "peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
           "median_geodesic_error": "sqrt(area)", "lambda2": "1/length^2", "mean_eigenvalue": "1/length^2"}
@@ -246,7 +246,17 @@ _WHY_NO_VALUE = {
 }
 
 
+#: why a column has no value whatever the method: ``part of the column name -> reason``
+_WHY_NO_DATA = {
+    "_sym": "the dataset has no symmetric ground truth (corres/B.sym.vts)",
+    "flipped": "the dataset has no symmetric ground truth (corres/B.sym.vts) to tell a mirrored map by",
+}
+
+
 def _why_no_value(family: str, column: str) -> str:
+    for part, why in _WHY_NO_DATA.items():
+        if part in column:
+            return why
     for (fam, part), why in _WHY_NO_VALUE.items():
         if family == fam and part in column:
             return why
