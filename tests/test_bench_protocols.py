@@ -104,6 +104,30 @@ def test_maps_peer_reproduces_a_hand_computation(tmp_path):
     assert row["method_label"] == "perm" and row["family"] == "peers"
 
 
+def test_markdown_report_names_the_command_and_says_na(tmp_path):
+    from shape_toolkit.bench.report import write_report
+
+    shape = icosphere(1)
+    folder = _pair_folder(tmp_path / "pair", shape, {"ident": np.arange(shape.n_vertices)})
+    _rows(_config(folder, _maps("ident")), tmp_path / "run")
+    md = tmp_path / "results" / "x.md"
+    res = write_report(tmp_path / "run", renders=0, markdown=md, command="shape-toolkit bench run c.toml --report")
+    text = md.read_text()
+    assert res["markdown"] == md and text.splitlines()[2] == "Regenerate: `shape-toolkit bench run c.toml --report`"
+    assert "| pair | ident | none |" in text and "no symmetric ground truth" in text
+
+
+def test_items_select_dataset_items_by_name(tmp_path):
+    folder = _pair_folder(tmp_path / "pair", icosphere(1), {})
+    cfg = _config(folder, '[[tasks.methods]]\npipeline = "zoomout"\n')
+    cfg["datasets"][0]["items"] = ["A-B"]
+    assert [r.name for r in parse_config(cfg).datasets["pair"].refs] == ["A-B"]
+    cfg["datasets"][0]["items"] = ["A-B", "B-A"]
+    with pytest.raises(ConfigError) as e:
+        parse_config(cfg)
+    assert e.value.key == "datasets[0].items[1]" and "no item 'B-A'" in str(e.value)
+
+
 def test_flips_are_counted_on_a_mirrored_map(tmp_path):
     shape = icosphere(2)
     mirror = _mirror(shape)
