@@ -1120,6 +1120,16 @@ def write_report(
     return res
 
 
+def _run_description(run: Path) -> str:
+    """The ``[run] description`` of the config the run folder holds (``config.json``), or ``""``."""
+    try:
+        raw = json.loads((run / "config.json").read_text(encoding="utf-8"))
+        d = raw.get("run", {}).get("description", "")
+    except (OSError, ValueError, AttributeError):
+        return ""
+    return d.strip() if isinstance(d, str) else ""
+
+
 def _write_markdown(path: Path, run: Path, rows: list[dict], grids: list[_Grid], command: str | None) -> Path:
     """The tables of a report as one markdown file (see :func:`write_report`), written whole."""
     from shape_toolkit.bench.worker import code_revision, machine_info, revision_label
@@ -1132,6 +1142,7 @@ def _write_markdown(path: Path, run: Path, rows: list[dict], grids: list[_Grid],
            f"Regenerate: `{command}`" if command else f"Regenerate: `shape-toolkit bench report {run}` (the run's "
            "own command was not given)",
            "",
+           *([_printable(description, keep="\n"), ""] if (description := _run_description(run)) else []),
            f"{len(rows)} rows: {n_ok} ok, {len(rows) - n_ok} failed. Code when the report was written: "
            f"{revision_label(code_revision())}. Machine: {mach['cpu']}, {mach['cores']} cores, BLAS "
            f"{', '.join(mach['blas'])}. Seconds and CPU seconds are the method's own call (a published map's: "
