@@ -242,3 +242,25 @@ def test_maps_peer_on_a_real_noniso_pair(shared_data, tmp_path):
     assert row["metrics"]["mean_geodesic_error"] == pytest.approx(d.mean(), rel=1e-5)
     assert row["metrics"]["mean_geodesic_error"] == pytest.approx(0.1018, abs=1e-4)  # matching_field.py's row
     assert row["metrics"]["flipped"] is None
+
+
+def test_self_target_matches_each_shape_to_a_copy_of_itself(tmp_path, monkeypatch):
+    from shape_toolkit.bench import peers
+
+    def by_position(source, target):
+        d, j = cKDTree(target.vertices).query(source.vertices)
+        return np.where(d < 1e-12, j, -1)
+
+    monkeypatch.setitem(peers.PEERS, "exact", (by_position, "numpy", "numpy"))
+    shape = icosphere(2)
+    folder = _pair_folder(tmp_path / "pair", shape, {})
+    save_shape(shape.with_vertices(2.0 * np.asarray(shape.vertices)), folder / "B.off")  # B is not A
+    rows = {}
+    for target in ("pair", "self"):
+        cfg = _config(folder, '[[tasks.methods]]\npeer = "exact"\n',
+                      options=f'geodesic_method = "dijkstra", truth_sample = 100000, target = "{target}"')
+        run_benchmark(parse_config(cfg), tmp_path / f"run-{target}", progress=False)
+        (rows[target],) = read_rows(tmp_path / f"run-{target}")
+    assert rows["self"]["metrics"]["mean_geodesic_error"] == 0.0
+    assert rows["self"]["metrics"]["matched_fraction"] == 1.0
+    assert rows["pair"]["metrics"]["matched_fraction"] < 0.1  # the scaled B: no vertex where A's are
