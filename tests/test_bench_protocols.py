@@ -102,6 +102,7 @@ def test_maps_peer_reproduces_a_hand_computation(tmp_path):
     assert m["matched_fraction"] == pytest.approx((n - 1) / n)
     assert m["mean_geodesic_error_sym"] is None and m["flipped"] is None  # no symmetric file: n/a, not 0
     assert row["method_label"] == "perm" and row["family"] == "peers"
+    assert row["seconds"] is None and row["cpu_seconds"] is None  # a published method's cost is not known here
 
 
 def test_markdown_report_names_the_command_and_says_na(tmp_path):

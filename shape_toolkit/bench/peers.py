@@ -15,8 +15,8 @@ vertex of A, as the BIM and BCICP maps of ``tosca_noniso``). Each file is valida
 an integer or an id outside ``0..n_B`` raise :class:`~shape_toolkit.errors.ShapeFileError` naming
 the file; ``0`` is the files' "no vertex" (a few BIM maps hold it on 1-3 vertices) and becomes an
 unmatched vertex (-1), left out of the mean error and counted by ``matched_fraction``. Nothing in
-a file is executed or unpickled: it is read as text integers. Its row's time is reading the file
-(the published method's own time is not known here).
+a file is executed or unpickled: it is read as text integers. Its row has no time or memory (null:
+the published method's own cost is not known here; reading the file is not it).
 """
 
 from __future__ import annotations

@@ -635,7 +635,7 @@ class MatchingTask(TaskAdapter):
         src, tgt = prepared.source, prepared.target
         if hasattr(method, "match_item"):  # published maps: read for the item, onto its clean target
             corr = method.match_item(prepared)
-            return {"target_of": np.asarray(corr.target_of, dtype=np.int64), "sparse": False}
+            return {"target_of": np.asarray(corr.target_of, dtype=np.int64), "sparse": False, "published": True}
         if detector is not None:
             ds = detector_spectra or {}
             skp = np.asarray(detector.detect(src, spectrum=ds.get("source")), np.int64)

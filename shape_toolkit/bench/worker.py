@@ -420,6 +420,8 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
             row.seconds = time.perf_counter() - t0
             row.cpu_seconds = time.process_time() - c0  # the process's CPU (all its threads)
         row.peak_memory_mb = mon.peak_mb
+        if output.pop("published", False):  # a published map read from a file: its method's cost is unknown
+            row.seconds = row.cpu_seconds = row.peak_memory_mb = None
         t0 = time.perf_counter()
         row.metrics = adapter.evaluate(job.metrics, prep, output, job.options)
         row.metric_seconds = time.perf_counter() - t0
