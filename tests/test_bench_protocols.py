@@ -265,3 +265,17 @@ def test_self_target_matches_each_shape_to_a_copy_of_itself(tmp_path, monkeypatc
     assert rows["self"]["metrics"]["mean_geodesic_error"] == 0.0
     assert rows["self"]["metrics"]["matched_fraction"] == 1.0
     assert rows["pair"]["metrics"]["matched_fraction"] < 0.1  # the scaled B: no vertex where A's are
+
+
+def test_even_truth_points_are_evenly_spaced_in_the_ground_truth():
+    from shape_toolkit.bench.tasks import prepare
+    from shape_toolkit.data.datasets import DatasetItem
+
+    shape = icosphere(1)
+    n = shape.n_vertices
+    ident = np.stack([np.arange(n), np.arange(n)], axis=1)
+    item = DatasetItem("A-B", shape, target=shape, correspondence=ident)
+    kw = dict(pairwise=True, random_state=0, truth_sample=5, geodesic_method="dijkstra")
+    even = prepare(item, "none", {}, truth_points="even", **kw)
+    assert even.truth_eval[:, 0].tolist() == np.linspace(0, n - 1, 5).round().astype(int).tolist()
+    assert len(prepare(item, "none", {}, **kw).truth_eval) == 5  # a seeded random draw by default

@@ -53,6 +53,7 @@ class PrepareJob:
     specs: list[SpectrumSpec] = field(default_factory=list)
     score_on: str = "target"
     target: str = "pair"
+    truth_points: str = "random"
 
     @property
     def sides(self) -> tuple[str, ...]:
@@ -177,7 +178,8 @@ def plan(
                         "geodesic_method": task.options.get("geodesic_method") if geo else None,
                         "truth_sample": task.options.get("truth_sample") if geo else None,
                     }
-                    protocol = {k: task.options[k] for k, default in (("score_on", "target"), ("target", "pair"))
+                    protocol = {k: task.options[k] for k, default in (("score_on", "target"), ("target", "pair"),
+                                                                      ("truth_points", "random"))
                                 if geo and task.options.get(k, default) != default}
                     pident.update(protocol)  # only when set: the keys of earlier runs stay valid
                     pkey = row_key(pident)

@@ -87,18 +87,22 @@ def prepare(
     geodesic_method: str | None = None,
     score_on: str = "target",
     target: str = "pair",
+    truth_points: str = "random",
 ) -> Prepared:
     """Corrupt the analysed shape of ``item`` and carry its ground truth: for ``pairwise`` tasks
     the target is ``item.target`` (or, without one or with ``target="self"``, a copy of the shape
     with the identity as truth: thesis Table 5.2's clean shape against its corrupted instances),
     else the shape itself. With ``geodesic_method``, distance rows from (a sample of
     ``truth_sample``) ground-truth target vertices are computed once here for every method to
-    reuse. ``score_on="clean"`` keeps the ground truth and the rows on the uncorrupted target
+    reuse (``truth_points="even"``: evenly spaced in the ground truth's order instead of a seeded
+    random draw). ``score_on="clean"`` keeps the ground truth and the rows on the uncorrupted target
     (``Prepared.clean_target``) instead of carrying them onto the corrupted one."""
     if score_on not in SCORE_ON:
         raise ParameterError(f"score_on must be one of {', '.join(SCORE_ON)}, got {score_on!r}")
     if target not in TARGETS:
         raise ParameterError(f"target must be one of {', '.join(TARGETS)}, got {target!r}")
+    if truth_points not in TRUTH_POINTS:
+        raise ParameterError(f"truth_points must be one of {', '.join(TRUTH_POINTS)}, got {truth_points!r}")
     src = item.shape
     if pairwise and item.target is not None and target == "pair":
         tgt0, truth, sym = item.target, item.correspondence, item.symmetric_correspondence
@@ -130,7 +134,9 @@ def prepare(
         sel = np.arange(len(truth))
         if sym is not None and len(sym) != len(truth):  # rows dropped differently: no symmetric truth
             sym = None
-        if truth_sample and len(truth) > truth_sample:
+        if truth_sample and len(truth) > truth_sample and truth_points == "even":
+            sel = np.unique(np.linspace(0, len(truth) - 1, truth_sample).round().astype(np.int64))
+        elif truth_sample and len(truth) > truth_sample:
             sel = np.sort(rng.choice(len(truth), truth_sample, replace=False))
         t0 = time.perf_counter()
         p.truth_eval = truth[sel]
@@ -151,6 +157,8 @@ def prepare(
 SCORE_ON = ("target", "clean")
 #: what a pairwise item is matched to: the dataset's pair, or a copy of the source itself
 TARGETS = ("pair", "self")
+#: which ground-truth points ``truth_sample`` keeps: a seeded random draw, or evenly spaced ones
+TRUTH_POINTS = ("random", "even")
 
 
 def score_on_clean(prepared: Prepared, target_of: np.ndarray) -> tuple[Prepared, np.ndarray]:
@@ -575,6 +583,7 @@ class MatchingTask(TaskAdapter):
     needs_keypoints = ("sparse_matchers",)
     option_defaults = {
         "truth_sample": 500,
+        "truth_points": "random",  # or "even": evenly spaced in the ground truth's order
         "geodesic_method": "heat",
         # r_smoothness (Table 7.2): neighbourhood sizes in percent of the vertices, theta, evaluated
         # source vertices (None: all, as the thesis) drawn with r_smooth_random_state, geodesics
@@ -617,7 +626,7 @@ class MatchingTask(TaskAdapter):
         th = o["r_smooth_theta"]
         if isinstance(th, bool) or not isinstance(th, (int, float)) or not 0 < th <= 1:
             raise ParameterError(f"r_smooth_theta must be in (0, 1], got {th!r}")
-        for key, allowed in (("score_on", SCORE_ON), ("target", TARGETS)):
+        for key, allowed in (("score_on", SCORE_ON), ("target", TARGETS), ("truth_points", TRUTH_POINTS)):
             if o[key] not in allowed:
                 raise ParameterError(f"{key} must be one of {', '.join(map(repr, allowed))}, got {o[key]!r}")
         rsd = o["r_smooth_random_state"]

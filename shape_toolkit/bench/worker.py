@@ -249,6 +249,7 @@ def _prepare_item(pjob: PrepareJob, info: dict[str, Any]):
         geodesic_method=pjob.geodesic_method,
         score_on=pjob.score_on,
         target=pjob.target,
+        truth_points=pjob.truth_points,
     )
     save_prepared(path, prep, key=pjob.key, inputs=inputs)
     info["reused"] = False
