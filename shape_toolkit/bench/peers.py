@@ -114,7 +114,11 @@ class MapsPeer:
         meta = getattr(prepared, "meta", {}) or {}
         if "folder" not in meta or "pair" not in meta:
             raise ParameterError(f"item {prepared.name!r}: published maps need a pair dataset (kind = \"tosca\")")
-        target = prepared.clean_target if prepared.clean_target is not None else prepared.target
+        target = prepared.target
+        vmap = np.asarray(prepared.vertex_map)
+        if vmap.size != target.n_vertices or not np.array_equal(vmap, np.arange(vmap.size)):
+            raise ParameterError(f"item {prepared.name!r}: a published map is a map of the clean pair, "
+                                 "not of a corrupted target")
         path = map_file(meta["folder"], self.path, *meta["pair"])
         t = read_map_file(path, prepared.source.n_vertices, target.n_vertices)
         return Correspondence(t, target.n_vertices, info={"peer": "maps", "file": str(path)})
