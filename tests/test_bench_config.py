@@ -250,7 +250,7 @@ def test_peer_methods_run_side_by_side(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("method, key, problem", [
-    ('peer = "nope"', "peer", "unknown peer 'nope'; known: pyfm"),
+    ('peer = "nope"', "peer", "unknown peer 'nope'; known: maps, pyfm"),
     ('peer = "pyfm"\nparams = { k = 3 }', "params", "not allowed with peer"),
 ])
 def test_peer_errors_name_the_key(tmp_path, method, key, problem):

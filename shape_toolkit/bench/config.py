@@ -19,6 +19,7 @@ without groups or a half left empty is refused before any work, naming the key.
     kind = "psb"               # tosca | psb | folder | synthetic
     path = "psb"               # absolute, or relative to $TOOLKIT_DATA (else to the config's folder)
     limit = 4                  # optional: first N items
+    items = ["cat0-cat1"]      # optional: these items only, in this order (before limit)
     params = {}                # kind-specific (synthetic: n_poses, subdivisions, max_angle)
 
     [[corruptions]]
@@ -46,8 +47,9 @@ counted from the grid sizes before anything is expanded; with ``max_rows`` (the 
 ``--max-rows``, default :data:`MAX_ROWS`) a config planning more is refused naming the count.
 
 A matching method may instead be ``pipeline = "zoomout"`` (a preset, TOML file or inline table of
-:mod:`shape_toolkit.pipeline`) or ``peer = "pyfm"`` (a peer's published pipeline,
-:mod:`shape_toolkit.bench.peers`), each with an optional ``label``.
+:mod:`shape_toolkit.pipeline`), ``peer = "pyfm"`` (a peer's published pipeline,
+:mod:`shape_toolkit.bench.peers`) or ``peer = "maps"`` with ``path = "maps/BCICP"`` (published maps
+``A_B.map`` in that folder of a pair dataset, uncorrupted only), each with an optional ``label``.
 
 Spectra: methods receive the spectra they declare (``spectrum_spec()`` of a plugin and of its
 keypoint detector, ``spectrum_specs()`` of a pipeline), so a ``spectrum`` table belongs to the
@@ -504,18 +506,30 @@ def _spectrum_peer_method(m: dict, where: str, spectrum: dict) -> MethodSpec:
 
 def _peer_method(task: str, m: dict, where: str) -> MethodSpec:
     """A matching method run by a peer implementation (:mod:`shape_toolkit.bench.peers`, e.g.
-    ``peer = "pyfm"``), side by side with the toolkit's methods."""
+    ``peer = "pyfm"``, or published maps read from files, ``peer = "maps"``), side by side with the
+    toolkit's methods."""
     from shape_toolkit.bench.peers import create_peer
 
     if task != "matching":
         raise ConfigError(f"{where}.peer", 'peers are matching methods (task = "matching") or eigensolvers '
                                            '(task = "spectrum")')  # fmt: skip
-    extra = sorted(set(m) - {"peer", "label"})
+    name = m["peer"]
+    if not isinstance(name, str):
+        raise ConfigError(f"{where}.peer", f"must be a peer name, got {name!r}")
+    extra = sorted(set(m) - {"peer", "label", *(("path",) if name == "maps" else ())})
     if extra:
         raise ConfigError(f"{where}.{extra[0]}", "not allowed with peer (a peer runs its own published pipeline)")
-    name = _peer_name(m, where, create_peer)
-    label = _str(m["label"], f"{where}.label") if "label" in m else f"peer:{name}"
-    return MethodSpec(name, "peers", None, {}, label)
+    if name == "maps" and "path" not in m:
+        raise ConfigError(f"{where}.path", 'peer "maps" needs path = "FOLDER" (its A_B.map files, relative to the '
+                          "dataset's folder)")
+    params = {"path": m["path"]} if name == "maps" else {}
+    try:
+        create_peer(name, **params)
+    except ToolkitError as exc:
+        raise ConfigError(f"{where}.path" if params else f"{where}.peer", str(exc)) from None
+    default = f"maps:{Path(params['path']).name}" if params else f"peer:{name}"
+    label = _str(m["label"], f"{where}.label") if "label" in m else default
+    return MethodSpec(name, "peers", None, params, label)
 
 
 def _peer_name(m: dict, where: str, create: Any) -> str:
@@ -528,6 +542,28 @@ def _peer_name(m: dict, where: str, create: Any) -> str:
     except ToolkitError as exc:
         raise ConfigError(f"{where}.peer", str(exc)) from None
     return name
+
+
+
+def _check_map_files(m: dict, where: str, datasets: dict[str, DatasetSpec], dsel: list[str],
+                     csel: list[str], limit: int | None) -> None:
+    """A ``peer = "maps"`` method: on uncorrupted pair datasets only, and a map file for every item
+    it will read (missing: the file is named; its contents are checked when the row reads it)."""
+    from shape_toolkit.bench.peers import map_file
+
+    if any(c != "none" for c in csel):
+        raise ConfigError(f"{where}.peer", 'published maps are maps of the clean pairs: a task with peer = "maps" '
+                          'takes corruptions = ["none"] only')
+    for dn in dict.fromkeys(dsel):
+        ds = datasets[dn]
+        if ds.kind != "tosca":
+            raise ConfigError(f"{where}.peer", f'published maps need a pair dataset (kind = "tosca"); dataset {dn!r} '
+                              f"is {ds.kind!r}")
+        for ref in ds.refs[: _dataset_size(ds, limit)]:
+            a, b = (Path(ref.paths[k]).stem for k in ("source", "target"))
+            f = map_file(ds.path, m["path"], a, b)
+            if not f.is_file():
+                raise ConfigError(f"{where}.path", f"published map file not found: {f} (for the pair {a}, {b})")
 
 
 def _dataset_size(spec: DatasetSpec, limit: int | None) -> int:
@@ -627,6 +663,8 @@ def parse_config(
         methods = [_check_method(kind, adapter, spectrum, m, f"{w}.methods[{j}]") for j, m in enumerate(t["methods"])]
         for j, m in enumerate(t["methods"]):
             _check_task_method(adapter, options, m, f"{w}.methods[{j}]")
+            if m.get("peer") == "maps":
+                _check_map_files(m, f"{w}.methods[{j}]", datasets, dsel, csel, limit)
         if options.get("human_consistency"):
             human = MethodSpec("human", "humans", None, {}, "human")
             methods.append(((lambda human=human: [human]), 1))
@@ -757,7 +795,7 @@ def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dic
     datasets: dict[str, DatasetSpec] = {}
     for i, d in enumerate(raw):
         w = f"datasets[{i}]"
-        _check_keys(d, {"name", "kind", "path", "limit", "params"}, w, ("kind",))
+        _check_keys(d, {"name", "kind", "path", "limit", "params", "items"}, w, ("kind",))
         kind = _str(d["kind"], f"{w}.kind")
         if kind not in DATASET_KINDS:
             raise ConfigError(
@@ -796,6 +834,16 @@ def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dic
             raise ConfigError(f"{w}.params" if params else f"{w}.path", str(exc)) from None
         if not refs:
             raise ConfigError(f"{w}.path", f"no items found in {path}")
+        if "items" in d:  # a declared selection of items, in the given order
+            by_name = {r.name: r for r in refs}
+            chosen = _names(d["items"], f"{w}.items", "item names")
+            for j, it in enumerate(chosen):
+                if it not in by_name:
+                    raise ConfigError(f"{w}.items[{j}]",
+                                      f"no item {it!r} in the dataset; e.g. {', '.join(list(by_name)[:5])}")
+            if len(set(chosen)) != len(chosen):
+                raise ConfigError(f"{w}.items", "lists an item twice")
+            refs = [by_name[it] for it in chosen]
         datasets[dname] = DatasetSpec(dname, kind, path, limit, dict(params), tuple(refs))
     return datasets
 
@@ -833,7 +881,7 @@ def _check_task_method(adapter: Any, options: dict[str, Any], m: Any, mw: str) -
 def _check_method(kind: str, adapter: Any, spectrum: dict | None, m: Any, mw: str) -> tuple[Any, int]:
     """One ``[[tasks.methods]]`` entry checked without expanding its grid: ``(make, size)``, where
     ``make()`` expands and checks each grid point into :class:`MethodSpec` instances."""
-    _check_keys(m, {"plugin", "pipeline", "peer", "preset", "label", "params", "spectrum", "keypoints"}, mw)
+    _check_keys(m, {"plugin", "pipeline", "peer", "path", "preset", "label", "params", "spectrum", "keypoints"}, mw)
     if "pipeline" in m:
         spec = _pipeline_method(kind, m, mw)
         return (lambda: [spec]), 1
@@ -843,6 +891,8 @@ def _check_method(kind: str, adapter: Any, spectrum: dict | None, m: Any, mw: st
     if "peer" in m:
         spec = _peer_method(kind, m, mw)
         return (lambda: [spec]), 1
+    if "path" in m:
+        raise ConfigError(f"{mw}.path", 'only a published-maps peer (peer = "maps") takes a path')
     if "plugin" not in m:
         raise ConfigError(f"{mw}.plugin", "is required (or pipeline = ... / peer = ... for a matching method)")
     plugin = _str(m["plugin"], f"{mw}.plugin")

@@ -10,22 +10,35 @@ timed call (the toolkit's methods get theirs from the run's cache, timed separat
 
 ``scipy-eigsh`` (``peer = "scipy-eigsh"`` in a spectrum task): the spectrum of the same Laplacian and mass
 computed by SciPy's shift-invert ``eigsh`` instead of the toolkit's eigensolver (:class:`ScipyEigsh`).
+
+``maps``: published maps read from files (``peer = "maps"``, ``path = "maps/BCICP"``: a folder
+relative to the dataset's, holding ``A_B.map`` for the pair (A, B): one 1-based vertex id of B per
+vertex of A, as the BIM and BCICP maps of ``tosca_noniso``). Each file is validated strictly
+(:func:`read_map_file`): a missing file, a length other than A's vertex count, a token that is not
+an integer or an id outside ``0..n_B`` raise :class:`~shape_toolkit.errors.ShapeFileError` naming
+the file; ``0`` is the files' "no vertex" (a few BIM maps hold it on 1-3 vertices) and becomes an
+unmatched vertex (-1), left out of the mean error and counted by ``matched_fraction``. Nothing in
+a file is executed or unpickled: it is read as text integers. Its row has no time or memory (null:
+the published method's own cost is not known here; reading the file is not it).
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.errors import ParameterError
+from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.results.correspondence import Correspondence
 
-__all__ = ["PEERS", "SPECTRUM_PEERS", "Peer", "ScipyEigsh", "create_peer", "create_spectrum_peer", "pyfm_map"]
+__all__ = ["PEERS", "SPECTRUM_PEERS", "Peer", "MapsPeer", "ScipyEigsh", "create_peer", "create_spectrum_peer",
+           "pyfm_map", "read_map_file", "map_file"]
 
 
 def pyfm_map(source: Shape, target: Shape) -> np.ndarray:
@@ -65,18 +78,84 @@ class Peer:
         return f"Peer({self.name!r}, {self.package})"
 
 
+def read_map_file(path: str | os.PathLike, n_source: int, n_target: int) -> np.ndarray:
+    """A published map file: one 1-based target vertex id per source vertex (``0``: no vertex), as
+    int64 ``(n_source,)`` 0-based target ids (-1 where the file says 0). Any problem raises
+    :class:`ShapeFileError` naming the file: missing, not integers, ``n_source`` lines expected,
+    ids outside ``0..n_target``."""
+    from shape_toolkit.results.labels import read_int_file
+
+    p = Path(path)
+    if not p.is_file():
+        raise ShapeFileError(p, "published map file not found")
+    ids = read_int_file(p, "map")  # integers of a text file, nothing else is read
+    if ids.size != n_source:
+        raise ShapeFileError(p, f"has {ids.size} vertex ids, expected one per source vertex ({n_source})")
+    bad = np.flatnonzero((ids < 0) | (ids > n_target))
+    if bad.size:
+        raise ShapeFileError(p, f"line {int(bad[0]) + 1}: vertex id {int(ids[bad[0]])} is outside 1..{n_target} "
+                             "(1-based target ids; 0 for no vertex)")
+    return np.where(ids > 0, ids - 1, -1).astype(np.int64)
+
+
+def map_file(folder: str | os.PathLike, path: str, source_name: str, target_name: str) -> Path:
+    """Where the published map of the pair ``(source_name, target_name)`` lies: ``folder/path/A_B.map``."""
+    return Path(folder) / path / f"{source_name}_{target_name}.map"
+
+
+class MapsPeer:
+    """Published maps read from files as a peer (``peer = "maps"``): ``path`` is the folder of the
+    ``A_B.map`` files relative to the dataset's folder; see the module docstring."""
+
+    name = "maps"
+    package = "published maps"
+
+    def __init__(self, path: str):
+        if not isinstance(path, str) or not path or Path(path).is_absolute() or ".." in Path(path).parts:
+            raise ParameterError(f"maps: path must be a folder relative to the dataset's, got {path!r}")
+        self.path = path
+
+    def match_item(self, prepared: Any) -> Correspondence:
+        """The published map of a prepared pair (its ``meta`` names the dataset folder and the pair)."""
+        meta = getattr(prepared, "meta", {}) or {}
+        if "folder" not in meta or "pair" not in meta:
+            raise ParameterError(f"item {prepared.name!r}: published maps need a pair dataset (kind = \"tosca\")")
+        target = prepared.target
+        vmap = np.asarray(prepared.vertex_map)
+        if vmap.size != target.n_vertices or not np.array_equal(vmap, np.arange(vmap.size)):
+            raise ParameterError(f"item {prepared.name!r}: a published map is a map of the clean pair, "
+                                 "not of a corrupted target")
+        path = map_file(meta["folder"], self.path, *meta["pair"])
+        t = read_map_file(path, prepared.source.n_vertices, target.n_vertices)
+        return Correspondence(t, target.n_vertices, info={"peer": "maps", "file": str(path)})
+
+    def match(self, source: Shape, target: Shape, **_: Any) -> Correspondence:
+        """Refused: a published map belongs to a dataset pair, not to two shapes."""
+        raise ParameterError("the maps peer reads a dataset pair's published map; it cannot match two shapes")
+
+    def __repr__(self) -> str:
+        return f"MapsPeer({self.path!r})"
+
+
 #: peer name -> (function, distribution, import module)
 PEERS: dict[str, tuple[Callable[[Shape, Shape], np.ndarray], str, str]] = {
     "pyfm": (pyfm_map, "pyfmaps", "pyFM"),
 }
 
 
-def create_peer(name: str) -> Peer:
-    """The peer ``name`` of :data:`PEERS`; :class:`ParameterError` when unknown or not installed."""
+def create_peer(name: str, **params: Any) -> Peer | MapsPeer:
+    """The peer ``name`` of :data:`PEERS`, or ``maps`` (``path=`` the maps' folder);
+    :class:`ParameterError` when unknown, not installed, or given parameters it does not take."""
     import importlib.util
 
+    if name == "maps":
+        if set(params) != {"path"}:
+            raise ParameterError('peer "maps" needs path = "FOLDER" (the A_B.map files, relative to the dataset)')
+        return MapsPeer(params["path"])
     if name not in PEERS:
-        raise ParameterError(f"unknown peer {name!r}; known: {', '.join(sorted(PEERS))}")
+        raise ParameterError(f"unknown peer {name!r}; known: {', '.join(sorted([*PEERS, 'maps']))}")
+    if params:
+        raise ParameterError(f"peer {name!r} takes no parameters (it runs its own published pipeline)")
     fn, dist, module = PEERS[name]
     if importlib.util.find_spec(module) is None:
         raise ParameterError(

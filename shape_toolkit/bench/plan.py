@@ -52,6 +52,9 @@ class PrepareJob:
     geodesic_method: str | None
     truth_sample: int | None
     specs: list[SpectrumSpec] = field(default_factory=list)
+    score_on: str = "target"
+    target: str = "pair"
+    truth_points: str = "random"
 
     @property
     def sides(self) -> tuple[str, ...]:
@@ -118,7 +121,7 @@ def create_method(family: str, plugin: str, preset: str | None, params: dict, ra
     if family == "peers":
         from shape_toolkit.bench.peers import create_peer
 
-        return create_peer(plugin)
+        return create_peer(plugin, **params)
     if family == "humans":
         from shape_toolkit.bench.tasks import HumanSegmentations
 
@@ -212,12 +215,17 @@ def plan(
                         "geodesic_method": task.options.get("geodesic_method") if geo else None,
                         "truth_sample": task.options.get("truth_sample") if geo else None,
                     }
+                    protocol = {k: task.options[k] for k, default in (("score_on", "target"), ("target", "pair"),
+                                                                      ("truth_points", "random"))
+                                if geo and task.options.get(k, default) != default}
+                    pident.update(protocol)  # only when set: the keys of earlier runs stay valid
                     pkey = row_key(pident)
                     prep = preps.get(pkey)
                     if prep is None:
                         prep = preps[pkey] = PrepareJob(
                             pkey, run_dir, dname, ref.name, asdict(ref), corr.kind, dict(corr.params),
                             adapter.pairwise, seed, pident["geodesic_method"], pident["truth_sample"],
+                            **protocol,
                         )
                     for m_index, m in enumerate(task.methods):
                         subject = subject_spec(task, m) if task.task_kind == "spectrum" else None

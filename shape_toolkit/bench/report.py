@@ -54,10 +54,8 @@ __all__ = ["write_report", "check_report_output", "summarize", "method_id", "met
 #: metrics where a larger value is better (everything else with a direction: lower is better)
 _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
            "smooth")
-_LOWER = ("error", "discrepancy", "gce", "lce", "hamming", "seconds", "memory", "chance")
+_LOWER = ("error", "discrepancy", "gce", "lce", "hamming", "seconds", "memory", "chance", "flipped")
 #: units of known columns, shown in the headers
-#: the cost columns every row has (wall time, process CPU time of all threads, peak memory growth)
-_COST = ("seconds", "cpu_seconds", "peak_memory_mb")
 _UNITS = {"seconds": "s", "cpu_seconds": "s", "peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
           "median_geodesic_error": "sqrt(area)", "lambda2": "1/length^2", "mean_eigenvalue": "1/length^2"}
 
@@ -122,7 +120,7 @@ def method_id(row: dict) -> str:
     p = row.get("params") if isinstance(row.get("params"), dict) else {}
     label = str(row.get("method_label"))
     shown = {k: v for k, v in sorted(p.items()) if not isinstance(v, dict) and len(repr(v)) <= 24}
-    if row.get("family") == "pipelines" or not shown:
+    if row.get("family") in ("pipelines", "peers") or not shown:
         return label
     return f"{label}({', '.join(f'{k}={v}' for k, v in shown.items())})"
 
@@ -138,6 +136,10 @@ def _is_curve(v: Any) -> bool:
     )
 
 
+#: the cost columns of every row, shown after the metrics
+_COSTS = ("seconds", "cpu_seconds", "peak_memory_mb")
+
+
 def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str, tuple[float, float, int]]]]:
     """``{task_name: {(dataset, method_id, corruption): {column: (mean, std, count)}}}`` over ok
     rows, for every scalar metric plus ``seconds``, ``cpu_seconds`` and ``peak_memory_mb``; different datasets are
@@ -150,7 +152,7 @@ def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str
         for k, v in (r.get("metrics") or {}).items():
             if _is_num(v):
                 cell[k].append(float(v))
-        for k in _COST:
+        for k in _COSTS:
             if _is_num(r.get(k)):
                 cell[k].append(float(r[k]))
     out: dict = {}
@@ -255,7 +257,17 @@ _WHY_NO_VALUE = {
 }
 
 
+#: why a column has no value whatever the method: ``part of the column name -> reason``
+_WHY_NO_DATA = {
+    "_sym": "the dataset has no symmetric ground truth (corres/B.sym.vts)",
+    "flipped": "the dataset has no symmetric ground truth (corres/B.sym.vts) to tell a mirrored map by",
+}
+
+
 def _why_no_value(family: str, column: str) -> str:
+    for part, why in _WHY_NO_DATA.items():
+        if part in column:
+            return why
     for (fam, part), why in _WHY_NO_VALUE.items():
         if family == fam and part in column:
             return why
@@ -531,6 +543,40 @@ def _tex_text(g: _Grid) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _md_escape(text: Any) -> str:
+    return _printable(str(text).replace("\n", " ").replace("\r", " ")).replace("|", "\\|")
+
+
+def _md_text(g: _Grid) -> str:
+    """The table as GitHub markdown: the numbers as printed in the HTML (mean, std and n of a mean
+    table), best in bold, shared bests marked *tie*, n/a where a method gives no value; its notes under it."""
+    def cell(c: Any) -> str:
+        if c is None:
+            return "-"
+        if c is _NA:
+            return _NA
+        m, sd, n, mark = c
+        text = _num(m) if math.isfinite(m) else "-"
+        if g.stats and n > 1 and sd > 0:
+            text += f" \u00b1 {_spread(sd)}"
+        if g.stats and n > 1:
+            text += f" (n={n})"
+        return f"**{text}**" + (" *tie*" if mark == "tie" else "") if mark in ("best", "tie") else text
+
+    def head(c: str) -> str:
+        unit = _unit(c)
+        arrow = {"higher": " \u2191", "lower": " \u2193"}.get(metric_direction(c) or "", "")
+        dagger = " \u2020" if rewards_under_segmentation(c) else ""
+        return _md_escape(c) + (f" ({unit})" if unit else "") + arrow + dagger
+
+    cols = [_md_escape(k) for k in g.keys] + [head(c) for c in g.metrics]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for keys, cells in g.rows:
+        lines.append("| " + " | ".join([_md_escape(k) for k in keys] + [cell(c) for c in cells]) + " |")
+    lines += [""] + [_md_escape(n) + "\n" for n in g.notes]
+    return "\n".join(lines) + "\n"
+
+
 class _Tables:
     """The tables of one report, each written as CSV and LaTeX under fresh names in ``folder`` (a
     name held by a file the report did not write is never reused), each file recorded in ``files``."""
@@ -561,35 +607,6 @@ class _Tables:
             self.files.append(p)
             links.append(f"<a href='{html.escape('tables/' + p.name)}'>{what}</a>")
         return f"<p class='dl'>This table as {' and '.join(links)}.</p>"
-
-
-def _md_num(v: float) -> str:
-    """A number for a Markdown cell (3 decimals; integers as integers)."""
-    if not math.isfinite(v):
-        return "-"
-    if float(v).is_integer() and abs(v) < 1e12:
-        return str(int(v))
-    return f"{v:.3g}" if abs(v) >= 1000 or abs(v) < 1e-3 else f"{v:.3f}"
-
-
-def _md_text(g: _Grid) -> str:
-    """The table as GitHub Markdown: means (std and n are in the CSV), the best in bold, n/a, notes below."""
-    def cell(c: Any) -> str:
-        if c is None:
-            return "-"
-        if c is _NA:
-            return "n/a"
-        text = _md_num(c[0])
-        return f"**{text}**" if c[3] in ("best", "tie") else text
-
-    def esc(t: Any) -> str:
-        return _printable(str(t)).replace("|", "\\|")
-
-    lines = ["| " + " | ".join(esc(k) for k in g.keys + g.metrics) + " |",
-             "|" + "---|" * (len(g.keys) + len(g.metrics))]
-    for keys, cells in g.rows:
-        lines.append("| " + " | ".join([esc(k) for k in keys] + [cell(c) for c in cells]) + " |")
-    return "\n".join(lines + [""] + [esc(n) + "\n" for n in g.notes])
 
 
 #: the metric a per-category table shows, the first of these a task has
@@ -656,8 +673,15 @@ def markdown_summary(name: str, tables: list[_Grid], *, command: str | None = No
         lines += ["Regenerate with:", "", f"    {_printable(command)}", ""]
     if description:
         lines += [_printable(description.strip(), keep="\n"), ""]
-    lines.append(f"{n_rows} rows, {n_failed} failed. Means over items; each table is also written as CSV "
-                 "(with standard deviations and counts) and LaTeX in the report folder.")
+    from shape_toolkit.bench.worker import code_revision, machine_info, revision_label
+
+    mach = machine_info()
+    lines.append(f"{n_rows} rows, {n_failed} failed. Means over items (standard deviation and count where more "
+                 "than one); each table is also written as CSV and LaTeX in the report folder. Code when the "
+                 f"report was written: {revision_label(code_revision())}. Machine: {mach['cpu']}, {mach['cores']} "
+                 f"cores, BLAS {', '.join(mach['blas'])}. Seconds and CPU seconds are the method's own call (a "
+                 "published map's: reading its file); spectra come from the run's cache, timed separately, except "
+                 "in a spectrum task, where the spectrum is the method.")
     if split:
         lines += ["", split]
     for g in tables:
@@ -668,8 +692,8 @@ def markdown_summary(name: str, tables: list[_Grid], *, command: str | None = No
 def _mean_grid(task: str, cells: dict, gaps: dict) -> _Grid:
     """Mean and std per (dataset, method, corruption); the best of each column marked (see
     :func:`_ranks`); metrics without a value as n/a, and why, in notes under the table."""
-    valued = sorted({c for v in cells.values() for c in v} - set(_COST))
-    columns = valued + [c for c in _COST if any(c in v for v in cells.values())]
+    valued = sorted({c for v in cells.values() for c in v} - set(_COSTS))
+    columns = valued + [c for c in _COSTS if any(c in v for v in cells.values())]
     g = _Grid(f"Task {task}: mean and standard deviation per method", ["dataset", "method", "corruption"],
               columns, stats=True)
     ranks = {c: _ranks(cells, c) for c in columns}
@@ -764,7 +788,7 @@ def _item_grid(task: str, rows: list[dict], columns: list[str]) -> _Grid | None:
         m = r["metrics"]
         cells = []
         for c in columns:
-            v = r.get(c) if c in _COST else m.get(c)
+            v = r.get(c) if c in _COSTS else m.get(c)
             cells.append((float(v), 0.0, 1, "") if _is_num(v) else _NA if c in m and _no_value(v) else None)
         g.rows.append(([str(r.get("dataset", "-")), str(r.get("item")), method_id(r),
                         str(r.get("corruption", "none"))], cells))
@@ -801,7 +825,7 @@ def _summary_section(summ: dict, tasks: list[str], rows: list[dict], gaps: dict 
                         if not any(c in v for v in sub.values()):
                             none_have[c].add(k[1])
             methods = sorted({k[1] for k in sub})
-            cols = sorted({c for v in sub.values() for c in v if metric_direction(c)} - set(_COST))
+            cols = sorted({c for v in sub.values() for c in v if metric_direction(c)} - set(_COSTS))
             items = []
             for c in cols:
                 under = "; rewards under-segmentation" if rewards_under_segmentation(c) else ""

@@ -410,8 +410,10 @@ def save_prepared(path: Path, prep: Any, *, key: str = "", inputs: str = "") -> 
         "lists": {},
         "shapes": {},
     }
-    for side in ("source", "target"):
+    for side in ("source", "target", "clean_target"):
         shape = getattr(prep, side)
+        if shape is None:  # no clean target: scored on the target itself
+            continue
         arrays[f"{side}_vertices"] = np.asarray(shape.vertices, np.float64)
         if shape.faces is not None:
             arrays[f"{side}_faces"] = np.asarray(shape.faces, np.int64)
@@ -461,7 +463,10 @@ def load_prepared(path: Path, *, key: str | None = None, inputs: str | None = No
         if inputs is not None and header.get("inputs") != inputs:
             raise ValueError("its input files changed since it was prepared")
         shapes = {}
-        for side in ("source", "target"):
+        for side in ("source", "target", "clean_target"):
+            if side not in header["shapes"] and side == "clean_target":
+                shapes[side] = None
+                continue
             info = header["shapes"][side]
             faces = arrays.get(f"{side}_faces") if info["faces"] else None
             v = arrays[f"{side}_vertices"]
@@ -472,6 +477,10 @@ def load_prepared(path: Path, *, key: str | None = None, inputs: str | None = No
             shapes[side] = Shape(v, faces, name=str(info["name"]), colors=colors)
         n_s, n_t = shapes["source"].n_vertices, shapes["target"].n_vertices
         vmap = _int_array(arrays["vertex_map"], "vertex_map", lambda a: a.ndim == 1 and len(a) == n_t)
+        if shapes["clean_target"] is not None:  # the ground truth and rows are on the clean target
+            n_t = shapes["clean_target"].n_vertices
+            if len(vmap) and (vmap.min() < 0 or vmap.max() >= n_t):
+                raise ValueError("vertex_map: ids out of range of the clean target")
         opt: dict[str, Any] = {k: None for k in _OPTIONAL}
         for k in header["present"]:
             if k not in _OPTIONAL:
@@ -518,6 +527,7 @@ def load_prepared(path: Path, *, key: str | None = None, inputs: str | None = No
             geodesic_seconds=float(header["geodesic_seconds"]),
             meta=meta,
             target_face_labels=lists["target_face_labels"],
+            clean_target=shapes["clean_target"],
         )
     except Exception as exc:  # anything off in a planted or damaged file: not this item
         raise ValueError(f"invalid prepared item {path.name}: {exc}") from None

@@ -52,7 +52,12 @@ class Prepared:
     tasks the analysed shape), ground-truth pairs ``truth`` ``(q, 2)`` source -> target (and
     ``truth_sym``), per-vertex ground-truth labels of both, the corruption's vertex map
     (target -> uncorrupted target) and ``geodesic_rows`` (q_eval, n_target) of the evaluated
-    truth pairs ``truth_eval`` when a task needs them."""
+    truth pairs ``truth_eval`` when a task needs them.
+
+    Scored on the clean shape (``clean_target`` set: the matching option ``score_on = "clean"``),
+    ``target`` is still the corrupted shape a method matches, but the ground truth (``truth``,
+    ``truth_sym``, ``truth_eval``, ``target_labels``) and the geodesic rows refer to
+    ``clean_target``, and a map is scored through ``vertex_map`` (:func:`score_on_clean`)."""
 
     name: str
     source: Shape
@@ -70,6 +75,7 @@ class Prepared:
     geodesic_seconds: float = 0.0
     meta: dict[str, Any] = field(default_factory=dict)
     target_face_labels: list[np.ndarray] = field(default_factory=list)
+    clean_target: Shape | None = None
 
 
 def prepare(
@@ -81,13 +87,26 @@ def prepare(
     random_state: int,
     truth_sample: int | None = None,
     geodesic_method: str | None = None,
+    score_on: str = "target",
+    target: str = "pair",
+    truth_points: str = "random",
 ) -> Prepared:
     """Corrupt the analysed shape of ``item`` and carry its ground truth: for ``pairwise`` tasks
-    the target is ``item.target`` (or a copy of the shape, with the identity as truth), else
-    the shape itself. With ``geodesic_method``, distance rows from (a sample of ``truth_sample``)
-    ground-truth target vertices are computed once here for every method to reuse."""
+    the target is ``item.target`` (or, without one or with ``target="self"``, a copy of the shape
+    with the identity as truth: thesis Table 5.2's clean shape against its corrupted instances),
+    else the shape itself. With ``geodesic_method``, distance rows from (a sample of
+    ``truth_sample``) ground-truth target vertices are computed once here for every method to
+    reuse (``truth_points="even"``: evenly spaced in the ground truth's order instead of a seeded
+    random draw). ``score_on="clean"`` keeps the ground truth and the rows on the uncorrupted target
+    (``Prepared.clean_target``) instead of carrying them onto the corrupted one."""
+    if score_on not in SCORE_ON:
+        raise ParameterError(f"score_on must be one of {', '.join(SCORE_ON)}, got {score_on!r}")
+    if target not in TARGETS:
+        raise ParameterError(f"target must be one of {', '.join(TARGETS)}, got {target!r}")
+    if truth_points not in TRUTH_POINTS:
+        raise ParameterError(f"truth_points must be one of {', '.join(TRUTH_POINTS)}, got {truth_points!r}")
     src = item.shape
-    if pairwise and item.target is not None:
+    if pairwise and item.target is not None and target == "pair":
         tgt0, truth, sym = item.target, item.correspondence, item.symmetric_correspondence
         tlabels = item.target_labels
     else:
@@ -97,16 +116,19 @@ def prepare(
     t0 = time.perf_counter()
     tgt, vmap = apply_corruption(tgt0, corruption_kind, random_state=random_state, **corruption_params)
     secs = time.perf_counter() - t0
-    if corruption_kind != "none":
+    clean = tgt0 if score_on == "clean" else None
+    if corruption_kind != "none" and clean is None:
         rs = corruption_kind in RESAMPLING
         truth = carry_correspondence(truth, vmap, tgt0, resampled=rs) if truth is not None else None
         sym = carry_correspondence(sym, vmap, tgt0, resampled=rs) if sym is not None else None
         tlabels = [carry_labels(lab, vmap) for lab in tlabels]
     p = Prepared(
-        item.name, src, tgt, truth, sym, list(item.labels), list(tlabels), vmap, secs, meta=dict(item.meta)
+        item.name, src, tgt, truth, sym, list(item.labels), list(tlabels), vmap, secs, meta=dict(item.meta),
+        clean_target=clean,
     )
     if corruption_kind == "none" and tgt0 is src:
         p.target_face_labels = list(item.face_labels)
+    scored = clean if clean is not None else tgt
     if geodesic_method and truth is not None and len(truth):
         from shape_toolkit.features.geodesics import geodesic_distances
 
@@ -114,20 +136,48 @@ def prepare(
         sel = np.arange(len(truth))
         if sym is not None and len(sym) != len(truth):  # rows dropped differently: no symmetric truth
             sym = None
-        if truth_sample and len(truth) > truth_sample:
+        if truth_sample and len(truth) > truth_sample and truth_points == "even":
+            sel = np.unique(np.linspace(0, len(truth) - 1, truth_sample).round().astype(np.int64))
+        elif truth_sample and len(truth) > truth_sample:
             sel = np.sort(rng.choice(len(truth), truth_sample, replace=False))
         t0 = time.perf_counter()
         p.truth_eval = truth[sel]
         p.geodesic_rows = np.asarray(
-            geodesic_distances(tgt, truth[sel, 1], method=geodesic_method), np.float32
+            geodesic_distances(scored, truth[sel, 1], method=geodesic_method), np.float32
         )
         if sym is not None:
             p.truth_eval_sym = sym[sel]
             p.geodesic_rows_sym = np.asarray(
-                geodesic_distances(tgt, sym[sel, 1], method=geodesic_method), np.float32
+                geodesic_distances(scored, sym[sel, 1], method=geodesic_method), np.float32
             )
         p.geodesic_seconds = time.perf_counter() - t0
     return p
+
+
+#: where a matching task scores a map: on the (corrupted) target it matched, or on the clean target
+#: through the corruption's vertex back-map
+SCORE_ON = ("target", "clean")
+#: what a pairwise item is matched to: the dataset's pair, or a copy of the source itself
+TARGETS = ("pair", "self")
+#: which ground-truth points ``truth_sample`` keeps: a seeded random draw, or evenly spaced ones
+TRUTH_POINTS = ("random", "even")
+
+
+def score_on_clean(prepared: Prepared, target_of: np.ndarray) -> tuple[Prepared, np.ndarray]:
+    """The view of ``prepared`` a map is scored on, and the map there: unchanged without a clean
+    target; else the clean target in place of the corrupted one and the map composed with the
+    corruption's back-map (``vertex_map[target_of]``, -1 kept): int64 ``(n_source,)``."""
+    t = np.asarray(target_of, dtype=np.int64)
+    if prepared.clean_target is None:
+        return prepared, t
+    vmap = np.asarray(prepared.vertex_map, dtype=np.int64)
+    if t.size and t.max() >= vmap.size:
+        raise ParameterError(f"the map points past the corrupted target's {vmap.size} vertices")
+    composed = np.where(t >= 0, vmap[np.maximum(t, 0)], -1)
+    view = Prepared(**{**prepared.__dict__, "target": prepared.clean_target, "clean_target": None,
+                       "vertex_map": np.arange(prepared.clean_target.n_vertices, dtype=np.int64),
+                       "target_face_labels": []})
+    return view, composed
 
 
 def compute_spectrum_cached(
@@ -578,9 +628,11 @@ class SegmentationTask(TaskAdapter):
 
 
 # -- matching ---------------------------------------------------------------------------------
-def _errors(p: Prepared, target_of: np.ndarray) -> np.ndarray:
+def _errors(p: Prepared, target_of: np.ndarray, *, symmetric: bool = False) -> np.ndarray:
     """Normalised geodesic errors of the evaluated truth pairs from the prepared rows (the
-    protocol of :func:`shape_toolkit.metrics.geodesic_errors`, reusing rows computed once per item)."""
+    protocol of :func:`shape_toolkit.metrics.geodesic_errors`, reusing rows computed once per item):
+    against the ground truth alone, or with ``symmetric`` the smaller of the errors to the true and
+    to the symmetric vertex (the item must have symmetric rows); ``inf`` where unmatched."""
     if p.geodesic_rows is None:
         raise ParameterError(f"item {p.name!r} has no correspondence ground truth")
     ts = p.truth_eval[:, 0]
@@ -589,34 +641,48 @@ def _errors(p: Prepared, target_of: np.ndarray) -> np.ndarray:
     err = np.full(len(ts), np.inf)
     r = np.flatnonzero(ok)
     err[r] = p.geodesic_rows[r, pred[r]]
-    if p.geodesic_rows_sym is not None:
+    if symmetric:
         err[r] = np.minimum(err[r], p.geodesic_rows_sym[r, pred[r]])
     return err / np.sqrt(p.target.area)
 
 
 def _m_geodesic(p, o, opt):
-    report = lookup_metric("correspondence_report")
+    """The normalised geodesic error against the ground truth alone (mean, median, within 0.05,
+    matched fraction, curve); where the dataset has a symmetric ground truth also the
+    symmetry-aware error (``mean_geodesic_error_sym``, its curve) and ``flipped`` (1 when the map
+    swaps left and right: :func:`shape_toolkit.metrics.is_flipped`, else 0); without one those are
+    null (n/a in reports, never 0)."""
+    report, flipped = lookup_metric("correspondence_report"), lookup_metric("is_flipped")
     ts = p.truth_eval[:, 0]
     t = np.asarray(o["target_of"])
+    sym = p.geodesic_rows_sym is not None
     if o.get("sparse"):  # evaluate the matched truth points only
         keep = t[ts] >= 0
         if not keep.any():
-            return {"mean_geodesic_error": float("nan"), "matched_fraction": 0.0}
+            return {"mean_geodesic_error": float("nan"), "matched_fraction": 0.0,
+                    **({"mean_geodesic_error_sym": float("nan"), "flipped": None} if sym else {})}
         sub = Prepared(**{**p.__dict__})
         sub.truth_eval = p.truth_eval[keep]
         sub.geodesic_rows = p.geodesic_rows[keep]
-        sub.geodesic_rows_sym = p.geodesic_rows_sym[keep] if p.geodesic_rows_sym is not None else None
-        errs = _errors(sub, t)
-    else:
-        errs = _errors(p, t)
-    res = report(errs)
-    return {
+        sub.geodesic_rows_sym = p.geodesic_rows_sym[keep] if sym else None
+        p = sub
+    res = report(_errors(p, t))
+    out = {
         "mean_geodesic_error": res["mean_geodesic_error"],
         "median_geodesic_error": res["median_geodesic_error"],
         "within_0.05": res["within_0.05"],
         "matched_fraction": res["matched_fraction"],
         "geodesic_error_curve": res["curve"],
+        "mean_geodesic_error_sym": None,
+        "flipped": None,
     }
+    if sym:
+        rs = report(_errors(p, t, symmetric=True))
+        out["mean_geodesic_error_sym"] = rs["mean_geodesic_error"]
+        out["geodesic_error_sym_curve"] = rs["curve"]
+        both = np.isfinite([res["mean_geodesic_error"], rs["mean_geodesic_error"]]).all()
+        out["flipped"] = int(flipped(res["mean_geodesic_error"], rs["mean_geodesic_error"])) if both else None
+    return out
 
 
 def _m_coverage(p, o, opt):
@@ -665,7 +731,13 @@ def _m_r_smoothness(p, o, opt):
 
 class MatchingTask(TaskAdapter):
     """Dense matchers (and sparse matchers on detected keypoints) from the clean source to the
-    (corrupted) target, scored by the normalised geodesic error on ground-truth pairs."""
+    (corrupted) target, scored by the normalised geodesic error on ground-truth pairs.
+
+    Options of the protocol: ``score_on = "clean"`` scores every metric on the uncorrupted target,
+    the map composed with the corruption's vertex back-map (a corrupted shape is matched, the
+    error is measured where the ground truth was given); ``target = "self"`` matches each shape to
+    a (corrupted) copy of itself, thesis Table 5.2's label transfer from a clean shape to its
+    corrupted instances. A peer reading published maps (``peer = "maps"``) is given the item."""
 
     name = "matching"
     families = ("dense_matchers", "sparse_matchers")
@@ -673,6 +745,7 @@ class MatchingTask(TaskAdapter):
     needs_keypoints = ("sparse_matchers",)
     option_defaults = {
         "truth_sample": 500,
+        "truth_points": "random",  # or "even": evenly spaced in the ground truth's order
         "geodesic_method": "heat",
         # r_smoothness (Table 7.2): neighbourhood sizes in percent of the vertices, theta, evaluated
         # source vertices (None: all, as the thesis) drawn with r_smooth_random_state, geodesics
@@ -683,10 +756,14 @@ class MatchingTask(TaskAdapter):
         "r_smooth_geodesics": "dijkstra",
         # label_transfer (Table 7.3): None uses the dataset's segmentations; K derives K segments
         "label_segments": None,
+        # "target": scored on the corrupted target; "clean": on the clean one, through the back-map
+        "score_on": "target",
+        # "pair": the dataset's target; "self": a (corrupted) copy of the source (Table 5.2)
+        "target": "pair",
     }
     default_metrics = ("geodesic_error",)
     metrics = {
-        "geodesic_error": (_m_geodesic, ("correspondence_report",)),
+        "geodesic_error": (_m_geodesic, ("correspondence_report", "is_flipped")),
         "coverage": (_m_coverage, ("target_coverage",)),
         "label_transfer": (_m_label_transfer, ("map_label_scores", "truth_segments")),
         "r_smoothness": (_m_r_smoothness, ("r_smoothness_table",)),
@@ -711,13 +788,25 @@ class MatchingTask(TaskAdapter):
         th = o["r_smooth_theta"]
         if isinstance(th, bool) or not isinstance(th, (int, float)) or not 0 < th <= 1:
             raise ParameterError(f"r_smooth_theta must be in (0, 1], got {th!r}")
+        for key, allowed in (("score_on", SCORE_ON), ("target", TARGETS), ("truth_points", TRUTH_POINTS)):
+            if o[key] not in allowed:
+                raise ParameterError(f"{key} must be one of {', '.join(map(repr, allowed))}, got {o[key]!r}")
         rsd = o["r_smooth_random_state"]
         if isinstance(rsd, bool) or not isinstance(rsd, int) or rsd < 0:
             raise ParameterError(f"r_smooth_random_state must be a non-negative integer, got {rsd!r}")
         return o
 
+    def evaluate(self, names, prepared: Prepared, output: dict, options: dict) -> dict[str, Any]:
+        """Every requested metric, on the clean target through the back-map when the item was
+        prepared with ``score_on = "clean"`` (:func:`score_on_clean`)."""
+        view, t = score_on_clean(prepared, output["target_of"])
+        return super().evaluate(names, view, {**output, "target_of": t}, options)
+
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         src, tgt = prepared.source, prepared.target
+        if hasattr(method, "match_item"):  # published maps: read for the item, onto its clean target
+            corr = method.match_item(prepared)
+            return {"target_of": np.asarray(corr.target_of, dtype=np.int64), "sparse": False, "published": True}
         if detector is not None:
             ds = detector_spectra or {}
             skp = np.asarray(detector.detect(src, spectrum=ds.get("source")), np.int64)

@@ -247,6 +247,9 @@ def _prepare_item(pjob: PrepareJob, info: dict[str, Any]):
         random_state=pjob.seed,
         truth_sample=pjob.truth_sample,
         geodesic_method=pjob.geodesic_method,
+        score_on=pjob.score_on,
+        target=pjob.target,
+        truth_points=pjob.truth_points,
     )
     save_prepared(path, prep, key=pjob.key, inputs=inputs)
     info["reused"] = False
@@ -428,6 +431,8 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
             row.seconds = time.perf_counter() - t0
             row.cpu_seconds = time.process_time() - c0  # the process's CPU (all its threads)
         row.peak_memory_mb = mon.peak_mb
+        if output.pop("published", False):  # a published map read from a file: its method's cost is unknown
+            row.seconds = row.cpu_seconds = row.peak_memory_mb = None
         t0 = time.perf_counter()
         row.metrics = adapter.evaluate(job.metrics, prep, output, job.options)
         row.metric_seconds = time.perf_counter() - t0

@@ -113,7 +113,10 @@ def tosca_dataset(
     root: str | os.PathLike, *, pairs: str = "pairs.txt", classes: list[str] | None = None
 ) -> list[ItemRef]:
     """Pairs of a TOSCA-style folder: ``NAME.off`` meshes, ``corres/NAME.vts`` (1-based, row i of
-    every file of a class is the same point) and a tab/space separated ``pairs`` list (A B). With
+    every file of a class is the same point) and a tab/space separated ``pairs`` list (A B);
+    ``corres/B.sym.vts`` (the left-right symmetric ground truth) when the folder has it (tosca5k,
+    faust5k; not tosca_noniso, whose symmetric metrics are then n/a). A loaded item's ``meta``
+    names its ``folder`` and ``pair`` ``[A, B]`` (where published maps ``A_B.map`` are looked up). With
     ``classes`` (e.g. ``["dog", "wolf"]``: a split by animal), only pairs whose two shapes' classes (the
     letters before the digits) are listed."""
     root = _require_dir(root, "TOSCA-style")
@@ -278,7 +281,8 @@ def load_item(ref: ItemRef) -> DatasetItem:
         src, tgt = load_shape(p["source"], kind="mesh"), load_shape(p["target"], kind="mesh")
         a = read_vts(p["source_vts"], src.n_vertices)
         b = read_vts(p["target_vts"], tgt.n_vertices)
-        item = DatasetItem(ref.name, src, target=tgt, correspondence=_pairs(a, b))
+        item = DatasetItem(ref.name, src, target=tgt, correspondence=_pairs(a, b), meta={
+            "folder": str(Path(p["source"]).parent), "pair": [Path(p["source"]).stem, Path(p["target"]).stem]})
         if "target_sym_vts" in p:
             item.symmetric_correspondence = _pairs(a, read_vts(p["target_sym_vts"], tgt.n_vertices))
         return item

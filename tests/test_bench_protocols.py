@@ -1,0 +1,282 @@
+"""Matching protocols of the benchmark runner: published maps as a peer (``peer = "maps"``), the
+symmetry-aware error and flips, and corruptions scored on the clean shape through the back-map."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
+
+from shape_toolkit.bench.config import ConfigError, parse_config
+from shape_toolkit.bench.peers import read_map_file
+from shape_toolkit.bench.runner import read_rows, run_benchmark
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.data.generate import icosphere
+from shape_toolkit.errors import ShapeFileError
+from shape_toolkit.io.mesh import save_shape
+
+
+def _edge_distances(shape: Shape, sources: np.ndarray) -> np.ndarray:
+    """Dijkstra distances along the mesh edges from ``sources``: ``(len(sources), n)``."""
+    e, n = shape.edges, shape.n_vertices
+    G = sp.coo_matrix((shape.edge_lengths, (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    return dijkstra(G, directed=False, indices=sources)
+
+
+def _mirror(shape: Shape) -> np.ndarray:
+    """The vertex of ``shape`` at each vertex's mirror image through the plane x = 0."""
+    v = np.asarray(shape.vertices)
+    d, j = cKDTree(v).query(v * np.array([-1.0, 1.0, 1.0]))
+    assert d.max() < 1e-9  # the icosphere is symmetric under x -> -x
+    return j.astype(np.int64)
+
+
+def _pair_folder(root: Path, shape: Shape, maps: dict[str, np.ndarray], sym: np.ndarray | None = None) -> Path:
+    """A TOSCA-style folder with the pair (A, B) of ``shape`` to itself, the identity as ground truth,
+    ``sym`` as B's symmetric ground truth and each of ``maps`` as ``maps/NAME/A_B.map`` (0-based ids,
+    written 1-based; -1 written as 0, no vertex)."""
+    (root / "corres").mkdir(parents=True)
+    for name in ("A", "B"):
+        save_shape(shape, root / f"{name}.off")
+    ids = np.arange(1, shape.n_vertices + 1)
+    for name in ("A", "B"):
+        np.savetxt(root / "corres" / f"{name}.vts", ids, fmt="%d")
+    if sym is not None:
+        np.savetxt(root / "corres" / "B.sym.vts", sym + 1, fmt="%d")
+    (root / "pairs.txt").write_text("A\tB\n")
+    for name, t in maps.items():
+        (root / "maps" / name).mkdir(parents=True)
+        np.savetxt(root / "maps" / name / "A_B.map", np.where(t >= 0, t + 1, 0), fmt="%d")
+    return root
+
+
+def _config(folder: Path, methods: str, options: str = 'geodesic_method = "dijkstra", truth_sample = 100000',
+            corruptions: str = "", task_corruptions: str = "") -> dict:
+    import tomllib
+
+    text = f"""
+[[datasets]]
+name = "pair"
+kind = "tosca"
+path = "{folder}"
+{corruptions}
+[[tasks]]
+task = "matching"
+metrics = ["geodesic_error"]
+options = {{ {options} }}
+{task_corruptions}
+{methods}
+"""
+    return tomllib.loads(text)
+
+
+def _maps(*names: str) -> str:
+    return "".join(f'[[tasks.methods]]\npeer = "maps"\npath = "maps/{n}"\nlabel = "{n}"\n' for n in names)
+
+
+def _rows(cfg: dict, run: Path) -> dict[str, dict]:
+    run_benchmark(parse_config(cfg), run, progress=False)
+    rows = {r["method_label"]: r for r in read_rows(run)}
+    for r in rows.values():
+        assert r["status"] == "ok", r.get("error")
+    return rows
+
+
+def test_maps_peer_reproduces_a_hand_computation(tmp_path):
+    shape = icosphere(2)
+    n = shape.n_vertices
+    rng = np.random.default_rng(0)
+    t = rng.permutation(n)
+    t[7] = -1  # a published map's 0: no vertex for source vertex 7
+    folder = _pair_folder(tmp_path / "pair", shape, {"perm": t})
+    row = _rows(_config(folder, _maps("perm")), tmp_path / "run")["perm"]
+    # by hand: identity ground truth, Dijkstra along the edges of B, over sqrt(area(B))
+    ok = np.flatnonzero(t >= 0)
+    d = _edge_distances(shape, ok)[np.arange(ok.size), t[ok]] / np.sqrt(shape.area)
+    m = row["metrics"]
+    assert m["mean_geodesic_error"] == pytest.approx(d.mean(), rel=1e-5)
+    assert m["matched_fraction"] == pytest.approx((n - 1) / n)
+    assert m["mean_geodesic_error_sym"] is None and m["flipped"] is None  # no symmetric file: n/a, not 0
+    assert row["method_label"] == "perm" and row["family"] == "peers"
+    assert row["seconds"] is None and row["cpu_seconds"] is None  # a published method's cost is not known here
+
+
+def test_markdown_report_names_the_command_and_says_na(tmp_path):
+    from shape_toolkit.bench.report import write_report
+
+    shape = icosphere(1)
+    folder = _pair_folder(tmp_path / "pair", shape, {"ident": np.arange(shape.n_vertices)})
+    _rows(_config(folder, _maps("ident")), tmp_path / "run")
+    md = tmp_path / "x.md"
+    res = write_report(tmp_path / "run", renders=0, markdown=md, command="shape-toolkit bench run c.toml --report")
+    text = md.read_text()
+    assert res["markdown"] == md and text.splitlines()[2:5] == [
+        "Regenerate with:", "", "    shape-toolkit bench run c.toml --report"]
+    assert "| pair | ident | none |" in text and "no symmetric ground truth" in text
+
+
+def test_items_select_dataset_items_by_name(tmp_path):
+    folder = _pair_folder(tmp_path / "pair", icosphere(1), {})
+    cfg = _config(folder, '[[tasks.methods]]\npipeline = "zoomout"\n')
+    cfg["datasets"][0]["items"] = ["A-B"]
+    assert [r.name for r in parse_config(cfg).datasets["pair"].refs] == ["A-B"]
+    cfg["datasets"][0]["items"] = ["A-B", "B-A"]
+    with pytest.raises(ConfigError) as e:
+        parse_config(cfg)
+    assert e.value.key == "datasets[0].items[1]" and "no item 'B-A'" in str(e.value)
+
+
+def test_flips_are_counted_on_a_mirrored_map(tmp_path):
+    shape = icosphere(2)
+    mirror = _mirror(shape)
+    ident = np.arange(shape.n_vertices)
+    folder = _pair_folder(tmp_path / "pair", shape, {"mirror": mirror, "ident": ident}, sym=mirror)
+    rows = _rows(_config(folder, _maps("mirror", "ident")), tmp_path / "run")
+    flipped, right = rows["mirror"]["metrics"], rows["ident"]["metrics"]
+    assert flipped["flipped"] == 1 and right["flipped"] == 0
+    assert flipped["mean_geodesic_error_sym"] == 0.0 and flipped["mean_geodesic_error"] > 0.2
+    assert right["mean_geodesic_error"] == right["mean_geodesic_error_sym"] == 0.0
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("1\n2\n", "has 2 vertex ids, expected one per source vertex"),
+    ("x", "must be integers"),
+    ("1.5", "must be integers"),
+    ("-1", "outside 1.."),
+    ("99999", "outside 1.."),
+])
+def test_a_bad_map_file_is_refused_naming_it(tmp_path, text, problem):
+    path = tmp_path / "A_B.map"
+    lines = text if "\n" in text else "\n".join(["1"] * 9 + [text]) + "\n"
+    path.write_text(lines)
+    with pytest.raises(ShapeFileError) as e:
+        read_map_file(path, 10, 10)
+    assert problem in str(e.value) and "A_B.map" in str(e.value)
+
+
+def test_a_bad_map_file_fails_its_row_naming_it_and_a_missing_one_the_config(tmp_path):
+    shape = icosphere(1)
+    folder = _pair_folder(tmp_path / "pair", shape, {"short": np.arange(5)})
+    run_benchmark(parse_config(_config(folder, _maps("short"))), tmp_path / "run", progress=False)
+    (row,) = read_rows(tmp_path / "run")
+    assert row["status"] == "failed" and "A_B.map" in row["error"] and "expected one per source vertex" in row["error"]
+    with pytest.raises(ConfigError) as e:
+        parse_config(_config(folder, _maps("nothing")))
+    assert e.value.key == "tasks[0].methods[0].path" and "A_B.map" in str(e.value)
+    for bad, key in (('peer = "maps"\n', "path"), ('peer = "maps"\npath = "../x"\n', "path"),
+                     ('peer = "pyfm"\npath = "maps/short"\n', "path")):
+        with pytest.raises(ConfigError) as e:
+            parse_config(_config(folder, "[[tasks.methods]]\n" + bad))
+        assert e.value.key == f"tasks[0].methods[0].{key}"
+    corr = '[[corruptions]]\nname = "noise"\nkind = "gaussian-noise"\n'
+    with pytest.raises(ConfigError, match="clean pairs"):
+        parse_config(_config(folder, _maps("short"), corruptions=corr, task_corruptions='corruptions = ["noise"]'))
+
+
+def _shuffle_and_drop(shape: Shape, *, strength: float = 0.1, random_state: int = 0):
+    """A test corruption: drop a fraction ``strength`` of the vertices (and their faces), then
+    permute the rest; the back-map names each new vertex's original id."""
+    rng = np.random.default_rng(random_state)
+    keep = np.sort(rng.choice(shape.n_vertices, int(round((1 - strength) * shape.n_vertices)), replace=False))
+    sub, ids = shape.submesh(keep)
+    perm = rng.permutation(sub.n_vertices)
+    inv = np.empty_like(perm)
+    inv[perm] = np.arange(perm.size)
+    return Shape(sub.vertices[perm], inv[sub.faces], shape.name), np.asarray(ids)[perm].astype(np.int64)
+
+
+def test_clean_scoring_goes_through_the_back_map(tmp_path, monkeypatch):
+    from shape_toolkit.bench import peers
+    from shape_toolkit.data import corruptions
+
+    def by_position(source, target):  # the true map onto the corrupted target: -1 where a vertex is gone
+        d, j = cKDTree(target.vertices).query(source.vertices)
+        return np.where(d < 1e-12, j, -1)
+
+    monkeypatch.setitem(corruptions.CORRUPTIONS, "shuffle", _shuffle_and_drop)
+    monkeypatch.setitem(peers.PEERS, "exact", (by_position, "numpy", "numpy"))
+    shape = icosphere(2)
+    folder = _pair_folder(tmp_path / "pair", shape, {})
+    corr = '[[corruptions]]\nname = "shuffle"\nkind = "shuffle"\nparams = { strength = [0.1, 0.3] }\n'
+    cfg = _config(folder, '[[tasks.methods]]\npeer = "exact"\n',
+                  options='geodesic_method = "dijkstra", truth_sample = 100000, score_on = "clean"',
+                  corruptions=corr, task_corruptions='corruptions = ["shuffle"]')
+    run_benchmark(parse_config(cfg), tmp_path / "run", progress=False)
+    rows = read_rows(tmp_path / "run")
+    assert len(rows) == 2
+    for r in rows:
+        m = r["metrics"]
+        assert r["status"] == "ok", r.get("error")
+        assert m["mean_geodesic_error"] == 0.0  # every surviving vertex lands on its clean partner
+        assert m["matched_fraction"] == pytest.approx(1 - r["strength"], abs=0.01)  # scored on every clean vertex
+        assert r["n_vertices"] < shape.n_vertices  # the corrupted target was matched
+
+
+def test_clean_scoring_and_self_targets_are_validated(tmp_path):
+    folder = _pair_folder(tmp_path / "pair", icosphere(1), {})
+    for opt in ('score_on = "nowhere"', 'target = "other"'):
+        with pytest.raises(ConfigError) as e:
+            parse_config(_config(folder, '[[tasks.methods]]\npipeline = "zoomout"\n', options=opt))
+        assert e.value.key == f"tasks[0].options.{opt.split()[0]}"
+
+
+@pytest.mark.slow  # about 5-10 s: 900 Dijkstra rows twice on a 5,000-vertex mesh
+def test_maps_peer_on_a_real_noniso_pair(shared_data, tmp_path):
+    from shape_toolkit.data.datasets import read_vts
+    from shape_toolkit.io.mesh import load_shape
+
+    root = shared_data / "tosca_noniso"
+    if not (root / "maps" / "BCICP").is_dir():
+        pytest.skip("tosca_noniso with its published maps is not in the shared data")
+    cfg = _config(root, _maps("BCICP"))
+    cfg["datasets"][0]["limit"] = 1
+    row = _rows(cfg, tmp_path / "run")["BCICP"]
+    a, b = "8_gorilla_04", "8_man_05"  # the first pair of pairs.txt
+    assert row["item"] == f"{a}-{b}"
+    B = load_shape(root / f"{b}.off")
+    ta, tb = read_vts(root / "corres" / f"{a}.vts"), read_vts(root / "corres" / f"{b}.vts")
+    t = np.loadtxt(root / "maps" / "BCICP" / f"{a}_{b}.map", dtype=np.int64) - 1
+    d = _edge_distances(B, tb)[np.arange(tb.size), t[ta]] / np.sqrt(B.area)
+    assert row["metrics"]["mean_geodesic_error"] == pytest.approx(d.mean(), rel=1e-5)
+    assert row["metrics"]["mean_geodesic_error"] == pytest.approx(0.1018, abs=1e-4)  # matching_field.py's row
+    assert row["metrics"]["flipped"] is None
+
+
+def test_self_target_matches_each_shape_to_a_copy_of_itself(tmp_path, monkeypatch):
+    from shape_toolkit.bench import peers
+
+    def by_position(source, target):
+        d, j = cKDTree(target.vertices).query(source.vertices)
+        return np.where(d < 1e-12, j, -1)
+
+    monkeypatch.setitem(peers.PEERS, "exact", (by_position, "numpy", "numpy"))
+    shape = icosphere(2)
+    folder = _pair_folder(tmp_path / "pair", shape, {})
+    save_shape(shape.with_vertices(2.0 * np.asarray(shape.vertices)), folder / "B.off")  # B is not A
+    rows = {}
+    for target in ("pair", "self"):
+        cfg = _config(folder, '[[tasks.methods]]\npeer = "exact"\n',
+                      options=f'geodesic_method = "dijkstra", truth_sample = 100000, target = "{target}"')
+        run_benchmark(parse_config(cfg), tmp_path / f"run-{target}", progress=False)
+        (rows[target],) = read_rows(tmp_path / f"run-{target}")
+    assert rows["self"]["metrics"]["mean_geodesic_error"] == 0.0
+    assert rows["self"]["metrics"]["matched_fraction"] == 1.0
+    assert rows["pair"]["metrics"]["matched_fraction"] < 0.1  # the scaled B: no vertex where A's are
+
+
+def test_even_truth_points_are_evenly_spaced_in_the_ground_truth():
+    from shape_toolkit.bench.tasks import prepare
+    from shape_toolkit.data.datasets import DatasetItem
+
+    shape = icosphere(1)
+    n = shape.n_vertices
+    ident = np.stack([np.arange(n), np.arange(n)], axis=1)
+    item = DatasetItem("A-B", shape, target=shape, correspondence=ident)
+    kw = dict(pairwise=True, random_state=0, truth_sample=5, geodesic_method="dijkstra")
+    even = prepare(item, "none", {}, truth_points="even", **kw)
+    assert even.truth_eval[:, 0].tolist() == np.linspace(0, n - 1, 5).round().astype(int).tolist()
+    assert len(prepare(item, "none", {}, **kw).truth_eval) == 5  # a seeded random draw by default
