@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -257,3 +258,26 @@ def test_a_full_disk_while_cleaning_the_results_file_is_a_run_folder_error(confi
         run_benchmark(load_config(config_path), run, progress=False)
     assert (run / "results.jsonl").read_bytes() == before
     assert not [p.name for p in run.iterdir() if ".tmp" in p.name]
+
+
+def test_rows_a_changed_config_left_behind_are_not_reported_or_compared(config_path, tmp_path):
+    """Re-running a narrower config into the same folder: the report, the failure count and `bench compare`
+    see the rows the last config plans (planned.json), and the report says how many it left out."""
+    from shape_toolkit.bench import read_rows
+    from shape_toolkit.bench.compare import compare_runs
+    from shape_toolkit.bench.report import write_report
+    from shape_toolkit.bench.store import planned_keys
+
+    run = tmp_path / "run"
+    assert main(["bench", "run", str(config_path), "-o", str(run), "-q"]) == 0
+    narrow = tmp_path / "narrow.toml"
+    narrow.write_text(textwrap.dedent(CONFIG).split("[[tasks]]\ntask = \"segmentation\"")[0])
+    assert main(["bench", "run", str(narrow), "-o", str(run), "-q"]) == 0
+    assert len(read_rows(run)) == N_ROWS  # nothing is deleted
+    current = read_rows(run, planned_only=True)
+    assert len(current) == 3 * 2 * 2 and planned_keys(run) == {r["key"] for r in current}
+    assert {r["task_name"] for r in current} == {"spectrum"}
+    res = write_report(run, renders=0)
+    page = Path(res["html"]).read_text()
+    assert "6 rows in this folder come from an earlier config" in page and "Task seg" not in page
+    assert {c.task for c in compare_runs(run, run).changes} == {"spectrum"}

@@ -98,7 +98,7 @@ def _rows(run: str | os.PathLike) -> list[dict]:
     path = Path(run)
     if not (path / RESULTS).is_file():
         raise ParameterError(f"{run} is not a run folder: it has no {RESULTS} (run 'bench run' first)")
-    return read_rows(path)
+    return read_rows(path, planned_only=True)
 
 
 def _verdict(mean: float, se: float | None, direction: str | None) -> str:

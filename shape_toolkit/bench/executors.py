@@ -36,6 +36,7 @@ from shape_toolkit.bench.store import (
     clean_results,
     read_rows,
     run_lock,
+    write_planned,
 )
 from shape_toolkit.bench.worker import execute_job, lost_row, prepare_job
 from shape_toolkit.errors import ParameterError, ShapeFileError
@@ -130,6 +131,10 @@ def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_fail
         raise RunFolderError(f"cannot write to run folder {run}: {exc.problem}") from None
     done = {r["key"] for r in read_rows(run)}
     jobs, preps = plan(config, run, limit=limit)
+    try:  # what this config plans: a report shows these rows, not those an earlier config left in the folder
+        write_planned(run, [j.key for j in jobs])
+    except ShapeFileError as exc:
+        raise RunFolderError(f"cannot write to run folder {run}: {exc.problem}") from None
     todo = [j for j in jobs if j.key not in done]
     reused = len(jobs) - len(todo)
     needed = {j.prepare_key for j in todo}
@@ -166,7 +171,7 @@ def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_fail
         bar.close()
         out.close()
         plog.close()
-    n_failed_total = sum(r["status"] != "ok" for r in read_rows(run))
+    n_failed_total = sum(r["status"] != "ok" for r in read_rows(run, planned_only=True))
     return RunSummary(n_rows, n_failed_total, reused, len(jobs), time.perf_counter() - t0, str(run))
 
 

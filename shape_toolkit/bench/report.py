@@ -1359,7 +1359,10 @@ def write_report(
     (out / "figures").mkdir(parents=True, exist_ok=True)
     (out / "tables").mkdir(exist_ok=True)
     say(f"reading {run / RESULTS}")
-    rows = [_normalized(r) for r in read_rows(run)]
+    rows = [_normalized(r) for r in read_rows(run, planned_only=True)]
+    stale = len(read_rows(run)) - len(rows)
+    if stale:
+        say(f"{stale} rows of an earlier config of this folder are not shown (planned.json)")
     for rel in owned:  # the previous report's figures and tables (still as it wrote them)
         if rel.startswith(("figures/", "tables/")):
             (out / rel).unlink(missing_ok=True)
@@ -1417,6 +1420,8 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
         f"<p>{len(rows)} rows: {n_ok} ok, {len(failed)} failed. "
         f"Run folder: <code>{html.escape(str(run.resolve()))}</code>.</p>",
         *([f"<p class='split'>{html.escape(split)}</p>"] if (split := _split_note(run, rows)) else []),
+        *([f"<p class='note'>{stale} rows in this folder come from an earlier config (keys its last config does not "
+           "plan) and are not shown.</p>"] if (stale := len(read_rows(run)) - len(rows)) else []),
         _summary_section(summ, tasks, rows, gaps),
         "<p>Seconds are the method's own call (spectra come from the shared cache, timed separately); "
         "peak memory is the resident-set growth during that call (MB). Each dataset is reported on its "

@@ -16,7 +16,7 @@ import errno
 import json
 import os
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -31,11 +31,14 @@ __all__ = [
     "RESULTS",
     "PREPARED",
     "SPLIT",
+    "PLANNED",
     "LOCK",
     "BenchWarning",
     "RunFolderError",
     "Row",
     "read_rows",
+    "write_planned",
+    "planned_keys",
     "read_prepare_log",
     "clean_results",
     "Appender",
@@ -54,6 +57,7 @@ __all__ = [
 RESULTS = "results.jsonl"
 PREPARED = "prepare.jsonl"
 SPLIT = "split.json"  # which half of which tuning/reporting split the run's rows are (absent: no split)
+PLANNED = "planned.json"  # the row keys the folder's last config planned: reports show those rows only
 LOCK = ".lock"
 MARK = ".shape-toolkit-run"  # written in every run folder: 'bench run' writes only in folders it made
 INVALID_SUFFIX = ".invalid"
@@ -260,9 +264,11 @@ def _warn_bad(path: Path, bad: list[tuple[int, str, str]], action: str) -> None:
     warnings.warn(f"{path}: skipped {len(bad)} invalid line(s): {shown}; {action}", BenchWarning, stacklevel=3)
 
 
-def read_rows(run_dir: str | os.PathLike, name: str = RESULTS) -> list[dict]:
+def read_rows(run_dir: str | os.PathLike, name: str = RESULTS, *, planned_only: bool = False) -> list[dict]:
     """Every valid row of ``RUN_DIR/results.jsonl`` as dicts (one per key, the last written);
-    invalid lines (torn, not JSON, not a row object) are skipped with a :class:`BenchWarning`."""
+    invalid lines (torn, not JSON, not a row object) are skipped with a :class:`BenchWarning`.
+    ``planned_only``: only the rows the folder's last config planned (:func:`planned_keys`; all rows of a
+    folder written before that record existed), not those a changed config left behind."""
     path = Path(run_dir) / name
     if name != RESULTS:
         return read_prepare_log(run_dir, name)
@@ -272,7 +278,33 @@ def read_rows(run_dir: str | os.PathLike, name: str = RESULTS) -> list[dict]:
     for r in good:
         by_key.pop(r["key"], None)
         by_key[r["key"]] = r
-    return list(by_key.values())
+    rows = list(by_key.values())
+    if planned_only and (keys := planned_keys(run_dir)) is not None:
+        rows = [r for r in rows if r["key"] in keys]
+    return rows
+
+
+def write_planned(run_dir: str | os.PathLike, keys: Sequence[str]) -> None:
+    """Record the row keys the run's config plans (``RUN_DIR/planned.json``, sorted JSON strings)."""
+    with atomic_output(Path(run_dir) / PLANNED, "planned rows") as tmp:
+        tmp.write_text(dumps_json(sorted(keys)), encoding="utf-8")
+
+
+def planned_keys(run_dir: str | os.PathLike) -> set[str] | None:
+    """The row keys of ``RUN_DIR/planned.json`` (read as JSON strings, nothing else), or None when the
+    folder has none or it is not a list of strings (then with a :class:`BenchWarning`)."""
+    path = Path(run_dir) / PLANNED
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        warnings.warn(f"{path}: unreadable ({exc}); every row of the folder is shown", BenchWarning, stacklevel=2)
+        return None
+    if not isinstance(data, list) or not all(isinstance(k, str) for k in data):
+        warnings.warn(f"{path}: not a list of row keys; every row of the folder is shown", BenchWarning, stacklevel=2)
+        return None
+    return set(data)
 
 
 def read_prepare_log(run_dir: str | os.PathLike, name: str = PREPARED) -> list[dict]:
