@@ -56,8 +56,8 @@ Three departures from the literal text, all about *how* the constraints act, not
   groups, until ``k`` segments, so the groups behind the weakest boundaries stay together;
   ``"kmeans"`` seeds k-means with ``k`` of the groups chosen farthest-first and ignores the others
   (PSB human 7, tuning split, 15 clicked parts for k = 6: 0.180 against 0.136 with the cuts). Chosen
-  on the tuning half of the PSB meshes (``benchmarks/psb_segmentation.py``), with ``convex_factor`` 0.2
-  at the time.
+  on the tuning half of the PSB meshes of the former script (split by mesh; its record:
+  ``benchmarks/results/psb_segmentation_notes.md``), with ``convex_factor`` 0.2 at the time.
 
 The shape graph (``graph``, default ``"auto"``: ``"dual"`` on a mesh, ``"vertex"`` on a point cloud):
 ``"vertex"`` (thesis 5.2, the literal Algorithm 4) is the vertex graph with the ``weighting``
@@ -77,8 +77,9 @@ largest incident area). The L-embedding of the dual graph is
 computed by the algorithm (no shared spectrum is declared unless ``graph="vertex"``). The dual graph is
 the default because it won on the tuning half of the PSB benchmark (25 meshes, 19 categories, one
 must-link per segment: Rand index error 0.079 against 0.156 on the vertex graph, both with the first two
-changes above, before ``k_mismatch``; ``benchmarks/results/psb_segmentation.md``), chosen there only;
-the held-out half is reported in that file.
+changes above, before ``k_mismatch``; ``benchmarks/results/psb_segmentation_notes.md``), chosen there
+only; the report half of a split by category is in ``benchmarks/results/psb_segmentation.md``
+(``benchmarks/configs/psb_segmentation.toml``).
 
 Preset ``thesis``: Algorithm 4 as written, every choice above undone: the vertex graph with Gaussian
 weights (eq. 3.7) and its unnormalized ``D - W`` (no mass), the ``k`` first non-null eigenpairs of ``L_hat``

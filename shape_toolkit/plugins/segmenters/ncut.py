@@ -28,9 +28,10 @@ declared (``spectrum_spec()`` is None). The solver is deterministic, so the meth
 of the largest incident area.
 
 Defaults (``concavity_scale = 5``, ``n_vectors = 3``, ``min_weight = 1e-3``) were chosen on the tuning
-half of the shared PSB meshes only (``benchmarks/psb_segmentation.py``; the ``concavity_scale`` x
-``n_vectors`` grid is in its results file; without the floor, ``min_weight`` -> 0, the tuning-split
-error was 0.108 instead of 0.094: noise creases then cut a few faces off numerically);
+half of the shared PSB meshes only (the former script's split by mesh; the ``concavity_scale`` x
+``n_vectors`` grid is in ``benchmarks/results/psb_segmentation_notes.md``; without the floor,
+``min_weight`` -> 0, the tuning-split error was 0.108 instead of 0.094: noise creases then cut a few
+faces off numerically);
 ``convex_factor = 0.2`` is Katz and Tal's / Lai et al.'s value.
 """
 
