@@ -115,9 +115,11 @@ def test_bad_reference_refused_naming_the_key(value, key):
 def test_report_shows_published_rows_never_best(tmp_path):
     cfg = parse_config(_raw(["figure-3.13", "figure-3.14"]))
     run_benchmark(cfg, tmp_path / "run", progress=False)
-    res = write_report(tmp_path / "run", renders=0)
+    res = write_report(tmp_path / "run", renders=0, markdown=tmp_path / "r.md")
     page = res["html"].read_text(encoding="utf-8")
     assert page.count("class='published'") == 2  # one mean_degree cell per figure
+    md = (tmp_path / "r.md").read_text(encoding="utf-8")
+    assert "*5.96" in md and "**5.96" not in md and "*127.6" in md  # italic, never bold in Markdown either
     assert f"{PUBLISHED_LABEL}: gaussian" in page and "not measured here" in page
     mean_csv = next(p for p in res["tables"] if re.fullmatch(r"\d\d-eig\.csv", p.name))
     rows = list(csv.DictReader(mean_csv.open(encoding="utf-8")))

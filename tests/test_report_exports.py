@@ -242,6 +242,9 @@ def test_ranks_rules():
         return {("d", m, "none"): {column: (v, 0.0, 1)} for m, v in values.items()}
 
     assert _ranks(cells({"a": 0.3, "b": 0.3}), "recall") == {}  # constant
+    # no best memory below 1 MB, even 1.2 MB apart (allocator noise), one from 1 MB on
+    assert _ranks(cells({"a": 0.03, "b": 1.28}, "peak_memory_mb"), "peak_memory_mb") == {}
+    assert _ranks(cells({"a": 1.5, "b": 3.0}, "peak_memory_mb"), "peak_memory_mb") == {("d", "a", "none"): "best"}
     assert _ranks(cells({"a": 0.30001, "b": 0.30004}), "recall") == {}  # the same as printed: 0.3000
     assert _ranks(cells({"a": 0.3, "b": 0.3, "c": 0.1}), "recall") == {("d", "a", "none"): "tie",
                                                                        ("d", "b", "none"): "tie"}

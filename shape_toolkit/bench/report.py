@@ -301,7 +301,8 @@ def _gaps(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str, li
 
 def _ranks(cells: dict, column: str) -> dict[tuple[str, str, str], str]:
     """``{cell key: "best" or "tie"}`` for ``column``, per dataset and corruption: the one best mean,
-    or the means sharing the best within the printed precision (memory: within 1 MB), named a tie.
+    or the means sharing the best within the printed precision (memory: within 1 MB), named a tie; no
+    best memory below 1 MB.
     Nothing where only one method has a value, or where they all share the best (a constant column:
     nothing to choose). The reference rows (:data:`REFERENCE_METHODS`, the humans) are never ranked."""
     d = metric_direction(column)
@@ -319,6 +320,8 @@ def _ranks(cells: dict, column: str) -> dict[tuple[str, str, str], str]:
             continue  # one method: nothing to compare
         target = max(v for v, _ in items) if d == "higher" else min(v for v, _ in items)
         if "memory" in column:
+            if target < _MEMORY_TOLERANCE_MB:
+                continue  # a best below 1 MB is measurement noise, not a method's merit
             tied = {k for v, k in items if abs(v - target) < _MEMORY_TOLERANCE_MB}
         else:
             tied = {k for v, k in items if _num(v) == _num(target)}
@@ -549,7 +552,8 @@ def _md_escape(text: Any) -> str:
 
 def _md_text(g: _Grid) -> str:
     """The table as GitHub markdown: the numbers as printed in the HTML (mean, std and n of a mean
-    table), best in bold, shared bests marked *tie*, n/a where a method gives no value; its notes under it."""
+    table), best in bold, shared bests marked *tie*, published numbers in italics, n/a where a method gives no
+    value; its notes under it."""
     def cell(c: Any) -> str:
         if c is None:
             return "-"
@@ -561,6 +565,8 @@ def _md_text(g: _Grid) -> str:
             text += f" \u00b1 {_spread(sd)}"
         if g.stats and n > 1:
             text += f" (n={n})"
+        if mark == "published":  # printed in the thesis, not measured: italic, never best
+            return f"*{text}*"
         return f"**{text}**" + (" *tie*" if mark == "tie" else "") if mark in ("best", "tie") else text
 
     def head(c: str) -> str:
