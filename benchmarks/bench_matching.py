@@ -10,7 +10,7 @@ Regenerates ``benchmarks/results/bench_matching.md``. Cases:
   position). Error = mean normalized Dijkstra geodesic error at every 10th of the 5,000
   ground-truth points (all 5,000 on the 5k pair).
 - The full ``sharma2012`` pipeline and ``zoomout`` against pyFM's README pipeline on the 5k-vertex
-  pair cat0 -> cat1 (the same protocol as ``tosca_matching.py``).
+  pair cat0 -> cat1 (the protocol of ``configs/tosca_matching.toml``).
 
 Time: wall clock and CPU time of the matching call from loaded meshes (spectra included). Peak
 memory: ``VmHWM`` of the child minus that of a child that only loads the meshes. One BLAS thread.
@@ -94,9 +94,9 @@ def child(case: str, tosca: Path, s: int, out: Path) -> None:
         seeds = np.column_stack([ta, tb])[np.linspace(0, len(ta) - 1, 30).astype(int)]
         t0, c0 = time.perf_counter(), time.process_time()
         if case == "pyfm":
-            from tosca_matching import run_pyfm
+            from shape_toolkit.bench.peers import pyfm_map
 
-            t = run_pyfm(A, B)
+            t = pyfm_map(A, B)
         elif case in ("em-registration", "seed-growing"):
             from shape_toolkit.api.registry import create_plugin
 

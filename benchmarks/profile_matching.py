@@ -111,10 +111,10 @@ def child(method: str, data: Path, ds: str, a: str, b: str) -> dict:
         def run():
             return pipe.run(A, B).target_of
     else:
-        from tosca_matching import run_pyfm
+        from shape_toolkit.bench.peers import pyfm_map
 
         def run():
-            return run_pyfm(A, B)
+            return pyfm_map(A, B)
 
     prof = cProfile.Profile(time.process_time)
     c0, w0 = time.process_time(), time.perf_counter()

@@ -242,7 +242,7 @@ def test_maps_peer_on_a_real_noniso_pair(shared_data, tmp_path):
     t = np.loadtxt(root / "maps" / "BCICP" / f"{a}_{b}.map", dtype=np.int64) - 1
     d = _edge_distances(B, tb)[np.arange(tb.size), t[ta]] / np.sqrt(B.area)
     assert row["metrics"]["mean_geodesic_error"] == pytest.approx(d.mean(), rel=1e-5)
-    assert row["metrics"]["mean_geodesic_error"] == pytest.approx(0.1018, abs=1e-4)  # matching_field.py's row
+    assert row["metrics"]["mean_geodesic_error"] == pytest.approx(0.1018, abs=1e-4)  # matching_field.py's row (former)
     assert row["metrics"]["flipped"] is None
 
 
@@ -280,3 +280,7 @@ def test_even_truth_points_are_evenly_spaced_in_the_ground_truth():
     even = prepare(item, "none", {}, truth_points="even", **kw)
     assert even.truth_eval[:, 0].tolist() == np.linspace(0, n - 1, 5).round().astype(int).tolist()
     assert len(prepare(item, "none", {}, **kw).truth_eval) == 5  # a seeded random draw by default
+    step = n // 5  # the fixed stride of a script that took every step-th point from the first
+    stride = prepare(item, "none", {}, truth_points="stride", **kw)
+    assert stride.truth_eval[:, 0].tolist() == [0, step, 2 * step, 3 * step, 4 * step]
+    assert stride.truth_eval[:, 0].tolist() != even.truth_eval[:, 0].tolist()

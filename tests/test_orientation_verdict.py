@@ -1,9 +1,9 @@
 """Every pipeline says whether its map keeps orientation (issue 25): a mirror image is reported as
-``reversing``, never returned silently; the split rule of the field benchmark is by subject and animal."""
+``reversing``, never returned silently; the field benchmark's config runs the report half of its split by subject
+and animal."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -90,33 +90,38 @@ def test_cli_match_json_and_warning(poses, capsys, tmp_path):
     assert code == 0 and "warning: the map's orientation is reversing" in out
 
 
-def _field():
-    spec = importlib.util.spec_from_file_location("matching_field", REPO / "benchmarks" / "matching_field.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def test_field_config_runs_the_report_half_only(shared_data, monkeypatch):
+    """benchmarks/configs/matching_field.toml lists the report half of the split by animal and subject:
+    cats and wolves, FAUST people 2-4 (scans 020-049); no dog and no tuning person, and no pair across
+    the halves."""
+    from shape_toolkit.bench.config import load_config
+    from shape_toolkit.data.datasets import item_group
+
+    monkeypatch.setenv("TOOLKIT_DATA", str(shared_data))
+    cfg = load_config(REPO / "benchmarks" / "configs" / "matching_field.toml")
+    report = {"cat", "wolf", "subject-2", "subject-3", "subject-4"}
+    seen = set()
+    for ds in cfg.datasets.values():
+        assert ds.refs, ds.name
+        for ref in ds.refs:
+            groups = set(str(item_group(ref)).split("+"))
+            assert groups <= report, (ds.name, ref.name, groups)
+            seen |= groups
+    assert seen == report
+    # every glued pair is also a clean pair of the same report selection (the former script's every 3rd)
+    names = {n: {r.name for r in d.refs} for n, d in cfg.datasets.items()}
+    assert names["faust5k-glued"] == names["faust5k"]
 
 
-def test_field_benchmark_splits_by_subject_and_animal(shared_data):
-    field = _field()
-    for ds in ("tosca5k", "faust5k", "tosca_noniso"):
-        pairs = field.read_pairs(shared_data, ds)
-        halves = {"tune": set(), "report": set()}
-        for a, b in pairs:
-            s = field.split_of(ds, a, b)
-            if s is not None:  # noniso: both halves share the only two gorillas, the people differ
-                halves[s] |= {b} if ds == "tosca_noniso" else {a, b}
-        # no shape, and so no subject or animal, is in both halves
-        assert halves["tune"] and halves["report"] and not halves["tune"] & halves["report"], ds
-        if ds == "faust5k":
-            people = [{int(n[-3:]) // 10 for n in halves[h]} for h in ("tune", "report")]
-            assert not people[0] & people[1]
+def test_published_peer_maps_are_one_based(shared_data):
+    """The published BIM / BCICP maps of tosca_noniso (peer = "maps"): 1-based, one target vertex per
+    source vertex."""
     # the published peer maps are 1-based, one target vertex per source vertex
     from shape_toolkit.io.mesh import load_shape
 
     root = shared_data / "tosca_noniso"
-    a, b = field.read_pairs(shared_data, "tosca_noniso")[0]
+    a, b = (root / "pairs.txt").read_text().split()[:2]
     A, B = load_shape(root / f"{a}.off"), load_shape(root / f"{b}.off")
-    for peer in field.PUBLISHED:
+    for peer in ("BIM", "BCICP"):
         m = np.loadtxt(root / "maps" / peer / f"{a}_{b}.map", dtype=np.int64)
         assert len(m) == A.n_vertices and 1 <= m.min() and m.max() <= B.n_vertices

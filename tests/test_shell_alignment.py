@@ -64,7 +64,7 @@ def test_bad_parameters_are_refused(poses, bad):
 
 @pytest.mark.slow
 def test_gorilla_to_a_man_below_the_spectral_pipelines(shared_data):
-    """8_gorilla_05 -> 8_man_05, a tuning pair of benchmarks/matching_field.py: zoomout and pyFM are at
+    """8_gorilla_05 -> 8_man_05, a tuning pair of the field benchmark's split by subject: zoomout and pyFM are at
     0.54 and 0.63 there (the fit of WKS descriptors fails between a gorilla and a man); BCICP's published
     map 0.052."""
     from shape_toolkit.data.datasets import read_vts

@@ -64,7 +64,7 @@ def test_bad_hypotheses_are_refused(poses, bad):
 
 @pytest.mark.slow
 def test_hypotheses_undo_a_part_swap_on_faust(shared_data):
-    """FAUST tr_reg_002 -> tr_reg_007 (a tuning pair of benchmarks/matching_field.py): the single fit of
+    """FAUST tr_reg_002 -> tr_reg_007 (a tuning pair of the field benchmark's split by subject): the single fit of
     earlier versions swaps a part (mean error 0.073, 0.025 up to symmetry); the hypotheses do not."""
     from shape_toolkit.data.datasets import read_vts
     from shape_toolkit.features.geodesics import paired_geodesic_distances

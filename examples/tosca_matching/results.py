@@ -230,7 +230,7 @@ def _mean(xs: list[float]) -> float:
 
 def flipped(row: dict) -> bool:
     """A left-right swapped map: the error without the symmetric ground truth is more than twice
-    (+0.02) the symmetry-aware one (the rule of benchmarks/results/tosca_matching.md)."""
+    (+0.02) the symmetry-aware one (the rule of benchmarks/configs/tosca_matching.toml)."""
     from shape_toolkit.metrics.correspondence import is_flipped
 
     a, s = row.get("direct_error"), (row.get("metrics") or {}).get("mean_geodesic_error")

@@ -97,7 +97,8 @@ def prepare(
     else the shape itself. With ``geodesic_method``, distance rows from (a sample of
     ``truth_sample``) ground-truth target vertices are computed once here for every method to
     reuse (``truth_points="even"``: evenly spaced in the ground truth's order instead of a seeded
-    random draw). ``score_on="clean"`` keeps the ground truth and the rows on the uncorrupted target
+    random draw, ends included; ``"stride"``: every ``len(truth) // truth_sample``-th point from
+    the first). ``score_on="clean"`` keeps the ground truth and the rows on the uncorrupted target
     (``Prepared.clean_target``) instead of carrying them onto the corrupted one."""
     if score_on not in SCORE_ON:
         raise ParameterError(f"score_on must be one of {', '.join(SCORE_ON)}, got {score_on!r}")
@@ -138,6 +139,8 @@ def prepare(
             sym = None
         if truth_sample and len(truth) > truth_sample and truth_points == "even":
             sel = np.unique(np.linspace(0, len(truth) - 1, truth_sample).round().astype(np.int64))
+        elif truth_sample and len(truth) > truth_sample and truth_points == "stride":
+            sel = np.arange(0, len(truth), len(truth) // truth_sample)[:truth_sample]
         elif truth_sample and len(truth) > truth_sample:
             sel = np.sort(rng.choice(len(truth), truth_sample, replace=False))
         t0 = time.perf_counter()
@@ -159,8 +162,9 @@ def prepare(
 SCORE_ON = ("target", "clean")
 #: what a pairwise item is matched to: the dataset's pair, or a copy of the source itself
 TARGETS = ("pair", "self")
-#: which ground-truth points ``truth_sample`` keeps: a seeded random draw, or evenly spaced ones
-TRUTH_POINTS = ("random", "even")
+#: which ground-truth points ``truth_sample`` keeps: a seeded random draw, evenly spaced ones (ends included),
+#: or every ``len(truth) // truth_sample``-th from the first (a fixed stride, e.g. every 5th of 5,000)
+TRUTH_POINTS = ("random", "even", "stride")
 
 
 def score_on_clean(prepared: Prepared, target_of: np.ndarray) -> tuple[Prepared, np.ndarray]:
@@ -745,7 +749,8 @@ class MatchingTask(TaskAdapter):
     needs_keypoints = ("sparse_matchers",)
     option_defaults = {
         "truth_sample": 500,
-        "truth_points": "random",  # or "even": evenly spaced in the ground truth's order
+        # "even": evenly spaced in the ground truth's order; "stride": every (n // truth_sample)-th
+        "truth_points": "random",
         "geodesic_method": "heat",
         # r_smoothness (Table 7.2): neighbourhood sizes in percent of the vertices, theta, evaluated
         # source vertices (None: all, as the thesis) drawn with r_smooth_random_state, geodesics

@@ -7,7 +7,7 @@ fragile under a change of pose) and keeps what the pair calls for.
 Why the residual: the point map of a sound correspondence is, to a good approximation, the point map of a
 smooth functional map in the first eigenfunctions (it is what ZoomOut converges to); a part sent to the wrong
 place, or a map that folds a limb, leaves energy that no ``k x k`` functional map explains. On the tuning half
-of ``benchmarks/matching_field.py`` (FAUST people 0-1, dogs, gorillas to men; clean and with 6 glued
+of the former ``benchmarks/matching_field.py``'s split (FAUST people 0-1, dogs, gorillas to men; clean and with 6 glued
 contacts; 48 pairs) it kept the better of the two maps, or one within 0.005 of it, on 44; it missed on two
 glued FAUST pairs (0.156 kept against 0.039, 0.486 against 0.109) and by 0.012-0.015 on two clean ones.
 """
