@@ -915,10 +915,8 @@ class SequenceTask(TaskAdapter):
         return o
 
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
-        from threadpoolctl import threadpool_limits
-
         from shape_toolkit.data.synthetic import cached_pose_sequence
-        from shape_toolkit.pipeline import load_pipeline
+        from shape_toolkit.pipeline import run_pair_timed
         from shape_toolkit.results.trajectories import Trajectories, chain_maps
 
         if "sequence" not in prepared.meta:
@@ -927,13 +925,9 @@ class SequenceTask(TaskAdapter):
         T = seq.n_frames
         sizes = [f.n_vertices for f in seq.frames]
         pairs = [(t, t + 1) for t in range(T - 1)] if options["mode"] == "chain" else [(0, t) for t in range(1, T)]
-        spec, maps, cpu, wall = method.to_dict(), [], [], []
-        for i, j in pairs:  # as `shape-toolkit track`: a fresh pipeline per pair, one BLAS thread
-            t0, c0 = time.perf_counter(), time.process_time()
-            with threadpool_limits(limits=1):
-                maps.append(load_pipeline(spec).run(seq.frames[i], seq.frames[j]))
-            wall.append(time.perf_counter() - t0)
-            cpu.append(time.process_time() - c0)
+        spec = method.to_dict()
+        res = [run_pair_timed(spec, seq.frames[i], seq.frames[j]) for i, j in pairs]  # as `shape-toolkit track`
+        maps = [c for c, _ in res]
         if options["mode"] == "chain":
             ids = chain_maps(maps, n_vertices=sizes).ids
         else:
@@ -942,7 +936,8 @@ class SequenceTask(TaskAdapter):
             for t, m in enumerate(maps, start=1):
                 direct[:, t] = m.target_of
             ids = Trajectories(direct, tuple(sizes)).ids  # validates
-        return {"ids": ids, "pair_cpu": np.array(cpu), "pair_wall": np.array(wall)}
+        return {"ids": ids, "pair_cpu": np.array([t["cpu"] for _, t in res]),
+                "pair_wall": np.array([t["wall"] for _, t in res])}
 
 
 #: task name -> adapter
