@@ -48,7 +48,7 @@ from shape_toolkit.spectra import SpectrumSpec, compute_declared, merge_specs
 from shape_toolkit.validation import check_seeds
 
 __all__ = [
-    "STAGES", "PRESETS", "ORIENT_PLUGINS", "Pipeline", "load_pipeline", "run_pipeline", "read_seeds",
+    "STAGES", "PRESETS", "ORIENT_PLUGINS", "Pipeline", "load_pipeline", "run_pipeline", "run_pair_timed", "read_seeds",
     "paired_descriptors",
 ]
 
@@ -463,3 +463,20 @@ def run_pipeline(
 ) -> Correspondence:
     """Load a pipeline (preset name, TOML path, dict) and run it on ``source`` -> ``target``."""
     return load_pipeline(spec_or_name).run(source, target, seeds, progress=progress)
+
+
+def run_pair_timed(
+    spec_or_name: str | os.PathLike | dict[str, Any] | Pipeline,
+    source: Shape,
+    target: Shape,
+    seeds: np.ndarray | None = None,
+) -> tuple[Correspondence, dict[str, float]]:
+    """One frame pair as ``shape-toolkit track`` and the runner's sequence task match it: a fresh
+    pipeline loaded from ``spec_or_name`` run with one BLAS thread, so the map does not depend on
+    where it runs; returns the map and ``{"wall": s, "cpu": s}`` (process CPU seconds)."""
+    from threadpoolctl import threadpool_limits
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    with threadpool_limits(limits=1):
+        corr = load_pipeline(spec_or_name).run(source, target, seeds)
+    return corr, {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0}

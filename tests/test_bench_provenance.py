@@ -84,7 +84,7 @@ def test_exported_tree(tmp_path):
 
 
 def test_revision_label_reads_old_records():
-    assert revision_label({"commit": "cd60e47", "dirty": []}) == "cd60e47"  # trajectory_drift.json
+    assert revision_label({"commit": "cd60e47", "dirty": []}) == "cd60e47"  # the former trajectory_drift.json
     old_example = {"commit": "c1", "dirty": ["shape_toolkit/x.py"]}  # the TOSCA example's revisions.jsonl
     assert revision_label(old_example) == "c1 + uncommitted edits in shape_toolkit/x.py"
     assert revision_label({"commit": "c1", "dirty": True, "dirty_files": []}) == "c1 + uncommitted edits"
@@ -123,20 +123,3 @@ def test_tosca_example_reads_old_and_new_revision_records(tmp_path):
     assert "code a1e638a00000 + uncommitted edits in shape_toolkit/b.py." in md
     rev = res.git_revision()  # this checkout: a real commit, or "unknown" without git
     assert set(rev) >= {"commit", "dirty", "dirty_files"} and isinstance(rev["dirty"], bool)
-
-
-def test_trajectory_drift_code_line_old_and_new_meta():
-    """benchmarks/trajectory_drift.py: the committed JSON (``code.dirty`` a list) regenerates the
-    committed report's code line; a new record (``dirty`` bool + ``dirty_files``) renders too."""
-    td = _load_script("trajectory_drift", REPO / "benchmarks" / "trajectory_drift.py")
-    saved = json.loads((REPO / "benchmarks" / "results" / "trajectory_drift.json").read_text())
-    committed = (REPO / "benchmarks" / "results" / "trajectory_drift.md").read_text()
-    meta = dict(saved["meta"], findings=td.findings(saved["rows"]))
-    code_line = next(line for line in td.report(saved["rows"], meta).splitlines() if line.startswith("Code:"))
-    assert code_line in committed.splitlines()
-    meta["code"] = {"commit": "0123456789ab", "dirty": True, "dirty_files": ["shape_toolkit/pipeline.py"]}
-    assert ("Code: commit 0123456789ab + uncommitted edits in shape_toolkit/pipeline.py (recorded after the last row)."
-            in td.report(saved["rows"], meta))
-    assert isinstance(td.code_state()["dirty"], bool)
-
-

@@ -16,11 +16,12 @@ without groups or a half left empty is refused before any work, naming the key.
 
     [[datasets]]
     name = "psb"               # unique
-    kind = "psb"               # tosca | psb | folder | synthetic
+    kind = "psb"               # tosca | psb | folder | synthetic | sequence
     path = "psb"               # absolute, or relative to $TOOLKIT_DATA (else to the config's folder)
     limit = 4                  # optional: first N items
     items = ["cat0-cat1"]      # optional: these items only, in this order (before limit)
-    params = {}                # kind-specific (synthetic: n_poses, subdivisions, max_angle)
+    params = {}                # kind-specific (synthetic: n_poses, subdivisions, max_angle; sequence:
+                               # seeds, frames, subdivisions, remesh, merge_frames, max_angle, permute)
 
     [[corruptions]]
     name = "noise"
@@ -28,7 +29,7 @@ without groups or a half left empty is refused before any work, naming the key.
     params = { strength = [0.1, 0.3] }   # lists are grids (a literal list: wrap it, [[1, 2]])
 
     [[tasks]]
-    task = "segmentation"      # the task kind: spectrum | keypoints | segmentation | matching
+    task = "segmentation"      # the task kind: spectrum | keypoints | segmentation | matching | sequence
     name = "seg"               # optional task name, default = the task kind
     datasets = ["psb"]         # default: every dataset
     corruptions = ["none", "noise"]      # default: ["none"]
@@ -50,6 +51,12 @@ A matching method may instead be ``pipeline = "zoomout"`` (a preset, TOML file o
 :mod:`shape_toolkit.pipeline`), ``peer = "pyfm"`` (a peer's published pipeline,
 :mod:`shape_toolkit.bench.peers`) or ``peer = "maps"`` with ``path = "maps/BCICP"`` (published maps
 ``A_B.map`` in that folder of a pair dataset, uncorrupted only), each with an optional ``label``.
+
+Sequences (thesis 7.5.3): the ``sequence`` task takes ``pipeline = ...`` methods on ``sequence``
+datasets (generated pose sequences, one item per seed); it matches frame t -> t+1 and chains the
+maps (option ``mode = "chain"``) or matches frame 0 -> t (``"direct"``), and reports the drift per
+frame (:mod:`shape_toolkit.bench.tasks`, ``SequenceTask``). Merged frames are a dataset parameter
+(``merge_frames``); corruptions other than ``none`` are refused.
 
 Spectra: methods receive the spectra they declare (``spectrum_spec()`` of a plugin and of its
 keypoint detector, ``spectrum_specs()`` of a pipeline), so a ``spectrum`` table belongs to the
@@ -468,8 +475,8 @@ def _pipeline_method(task: str, m: dict, where: str) -> MethodSpec:
     :mod:`shape_toolkit.pipeline`; its spec becomes the method's ``pipeline`` parameter."""
     from shape_toolkit.pipeline import load_pipeline
 
-    if task != "matching":
-        raise ConfigError(f"{where}.pipeline", 'pipelines are matching methods (task = "matching")')
+    if task not in ("matching", "sequence"):
+        raise ConfigError(f"{where}.pipeline", 'pipelines are matching methods (task = "matching" or "sequence")')
     extra = sorted(set(m) - {"pipeline", "label"})
     if extra:
         raise ConfigError(f"{where}.{extra[0]}", "not allowed with pipeline (put it in the pipeline spec)")
@@ -642,6 +649,17 @@ def parse_config(
                 raise ConfigError(
                     f"{w}.corruptions[{j}]", f"unknown corruption {cn!r}; defined: {', '.join(corruptions)}"
                 )
+        if kind == "sequence":  # merged frames are the dataset's; each item is a whole sequence
+            for j, cn in enumerate(csel):
+                if cn != "none":
+                    raise ConfigError(f"{w}.corruptions[{j}]", "a sequence task takes corruptions = [\"none\"] only "
+                                      "(merged frames are the sequence dataset's merge_frames)")
+            for j, dn in enumerate(dsel):
+                if datasets[dn].kind != "sequence":
+                    raise ConfigError(f"{w}.datasets[{j}]", f"dataset {dn!r} is not a sequence dataset "
+                                      '(kind = "sequence")')
+        elif any(datasets[dn].kind == "sequence" for dn in dsel):
+            raise ConfigError(f"{w}.datasets", 'sequence datasets belong to the sequence task (task = "sequence")')
         if kind == "spectrum":
             if isinstance(t.get("spectrum"), dict) and "weighting" in t["spectrum"]:
                 raise ConfigError(
@@ -788,7 +806,7 @@ def split_line(split: dict[str, Any] | None) -> str | None:
 
 def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dict[str, DatasetSpec]:
     """Every ``[[datasets]]`` entry checked and its items listed."""
-    from shape_toolkit.data.datasets import DATASET_KINDS, open_dataset
+    from shape_toolkit.data.datasets import DATASET_KINDS, GENERATED_KINDS, open_dataset
 
     if not isinstance(raw, list) or not raw:
         raise ConfigError("datasets", "must be a non-empty array of tables ([[datasets]])")
@@ -813,7 +831,7 @@ def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dic
             raise ConfigError(f"{w}.params.n_poses", f"{n_poses:,} items are more than the cap of {max_rows:,} "
                               "rows; use fewer, or raise the cap with --max-rows N")
         path = None
-        if kind != "synthetic":
+        if kind not in GENERATED_KINDS:
             if "path" not in d:
                 raise ConfigError(f"{w}.path", f"a {kind} dataset needs a path")
             p = resolve_data_path(_str(d["path"], f"{w}.path"), base)
@@ -885,6 +903,9 @@ def _check_method(kind: str, adapter: Any, spectrum: dict | None, m: Any, mw: st
     if "pipeline" in m:
         spec = _pipeline_method(kind, m, mw)
         return (lambda: [spec]), 1
+    if kind == "sequence":
+        raise ConfigError(f"{mw}.pipeline", "a sequence task's methods are matching pipelines: pipeline = "
+                          "a preset name, TOML file or inline table")
     if "peer" in m and kind == "spectrum" and spectrum is not None:
         spec = _spectrum_peer_method(m, mw, spectrum)
         return (lambda: [spec]), 1

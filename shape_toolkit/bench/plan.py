@@ -201,7 +201,8 @@ def plan(
                 for m_index, m in enumerate(task.methods):
                     dkey = (task.task_name, m_index, dumps_json(extra[m_index], sort_keys=True))
                     if task.task_kind != "spectrum" and dkey not in declared:
-                        declared[dkey] = declared_specs(task, m, config.random_state, extra[m_index])
+                        declared[dkey] = (declared_specs(task, m, config.random_state, extra[m_index])
+                                          if adapter.uses_spectra else [])
                 for corr in task.corruptions:
                     seed = _seed(config.random_state, dname, ref.name, corr.name)
                     pident = {

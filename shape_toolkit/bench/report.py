@@ -54,7 +54,8 @@ __all__ = ["write_report", "check_report_output", "summarize", "method_id", "met
 #: metrics where a larger value is better (everything else with a direction: lower is better)
 _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
            "smooth")
-_LOWER = ("error", "discrepancy", "gce", "lce", "hamming", "seconds", "memory", "chance", "flipped")
+_LOWER = ("error", "discrepancy", "gce", "lce", "hamming", "seconds", "memory", "chance", "flipped", "drift",
+          "wrong_part", "lost")
 #: units of known columns, shown in the headers
 _UNITS = {"seconds": "s", "cpu_seconds": "s", "peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
           "median_geodesic_error": "sqrt(area)", "lambda2": "1/length^2", "mean_eigenvalue": "1/length^2"}
@@ -92,7 +93,8 @@ def rewards_under_segmentation(name: str) -> bool:
 
 
 def _unit(name: str) -> str | None:
-    return _UNITS.get(name) or ("%" if name.startswith("r_smooth@") else None)
+    return _UNITS.get(name) or ("%" if name.startswith("r_smooth@") else
+                                "sqrt(area)" if name.startswith("drift") else None)
 
 
 def _header(name: str) -> str:
@@ -941,6 +943,8 @@ _AXES = {  # curve metric -> (x label, y label, log x)
     "alpha_vs_K": ("K (% of computed eigenpairs)", "alpha(K, t)", False),
     "eigenvalues": ("eigenvalue index", "eigenvalue (1 / length^2)", False),
     "r_smoothness_curve": ("neighbourhood size r (% of the vertices)", "r-smooth source vertices (%)", False),
+    "drift_curve": ("frame", "mean drift (units of sqrt(area))", False),
+    "within_curve": ("frame", "fraction of trajectories within the radius", False),
 }
 
 

@@ -266,6 +266,8 @@ class TaskAdapter:
     pairwise = False
     needs_keypoints: tuple[str, ...] = ()
     option_defaults: dict[str, Any] = {}
+    #: whether the worker hands the method the spectra it declares (a sequence task's pipelines solve their own)
+    uses_spectra = True
     default_metrics: tuple[str, ...] = ()
     #: metric name -> (function(prepared, output, options) -> {column: value}, required shape_toolkit.metrics names)
     metrics: dict[str, tuple[Callable[..., dict[str, Any]], tuple[str, ...]]] = {}
@@ -842,7 +844,108 @@ class MatchingTask(TaskAdapter):
         return {"target_of": np.asarray(t, dtype=np.int64), "sparse": False}
 
 
+# -- sequences --------------------------------------------------------------------------------
+SEQUENCE_MODES = ("chain", "direct")
+
+
+def _none_if_nan(v: Any) -> float | None:
+    return None if v is None or not np.isfinite(v) else float(v)
+
+
+def _m_drift(p, o, opt):
+    """Thesis 7.5.3: the drift per frame of the tracked trajectories (``PoseSequence.drift``: Dijkstra
+    geodesic on the clean frame between tracked and true material point / sqrt(area), over
+    ``sample`` trajectories evenly spaced; points welded away in a merged frame left out): a column
+    ``drift@fT`` per frame T >= 1, ``drift_mean`` (mean over frames 1..T-1), ``drift_last``,
+    ``within_last`` (fraction within ``radius``), ``lost_last`` and the curves per frame."""
+    from shape_toolkit.data.synthetic import cached_pose_sequence
+
+    seq = cached_pose_sequence(p.meta["sequence"])
+    d = seq.drift(np.asarray(o["ids"]), radius=float(opt["radius"]), sample=opt["sample"])
+    mean = [_none_if_nan(m) for m in d["mean"]]
+    out: dict[str, Any] = {f"drift@f{t}": mean[t] for t in range(1, len(mean))}
+    later = [m for m in mean[1:] if m is not None]
+    out["drift_mean"] = float(np.mean(later)) if later else None
+    out["drift_last"] = mean[-1]
+    out["within_last"] = _none_if_nan(d["within"][-1])
+    out["lost_last"] = _none_if_nan(d["lost"][-1])
+    out["drift_curve"] = [[float(t), m] for t, m in enumerate(mean) if m is not None]
+    out["within_curve"] = [[float(t), float(w)] for t, w in enumerate(d["within"]) if w is not None]
+    return out
+
+
+def _m_wrong_part(p, o, opt):
+    """The fraction of the trajectories (alive, with a truth) on another body part (body, each limb)
+    than their true material point, averaged over frames 1..T-1 (limb swaps, whole-body turns)."""
+    from shape_toolkit.data.synthetic import cached_pose_sequence
+
+    seq = cached_pose_sequence(p.meta["sequence"])
+    ids = np.asarray(o["ids"])
+    true_part = seq.labels[seq.material[0]]
+    per = []
+    for t in range(1, seq.n_frames):
+        gone = seq.welded[t] if seq.welded else np.zeros(0, dtype=np.int64)
+        ok = (ids[:, t] >= 0) & ~np.isin(seq.material[0], gone)
+        if ok.any():
+            per.append(float(np.mean(seq.labels[seq.material[t][ids[ok, t]]] != true_part[ok])))
+    return {"wrong_part": float(np.mean(per)) if per else None}
+
+
+class SequenceTask(TaskAdapter):
+    """Trajectory drift on generated pose sequences (thesis 7.5.3; ``sequence`` datasets): each
+    method, a matching pipeline, maps frame t -> t+1 and the maps are chained
+    (``results.trajectories.chain_maps``, what ``shape-toolkit track`` does; option ``mode =
+    "chain"``), or maps frame 0 -> t directly (``"direct"``: no accumulation, but larger
+    deformations). Pairs run one after the other, each with a fresh pipeline and one BLAS thread (as
+    ``shape-toolkit track`` runs them); the row's time is the whole sequence's. Output: the
+    trajectories ``ids`` ``(n_0, T)``; metrics ``drift`` and ``wrong_part``."""
+
+    name = "sequence"
+    families = ()
+    option_defaults = {"mode": "chain", "sample": 500, "radius": 0.05}
+    default_metrics = ("drift", "wrong_part")
+    metrics = {"drift": (_m_drift, ()), "wrong_part": (_m_wrong_part, ())}
+    uses_spectra = False
+
+    def check_options(self, options):
+        o = super().check_options(options)
+        if o["mode"] not in SEQUENCE_MODES:
+            raise ParameterError(f"mode must be one of {', '.join(map(repr, SEQUENCE_MODES))}, got {o['mode']!r}")
+        v = o["sample"]
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+            raise ParameterError(f"sample must be a positive integer, got {v!r}")
+        r = o["radius"]
+        if isinstance(r, bool) or not isinstance(r, (int, float)) or not 0 < r < 1:
+            raise ParameterError(f"radius must be in (0, 1) (units of sqrt(area)), got {r!r}")
+        return o
+
+    def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
+        from shape_toolkit.data.synthetic import cached_pose_sequence
+        from shape_toolkit.pipeline import run_pair_timed
+        from shape_toolkit.results.trajectories import Trajectories, chain_maps
+
+        if "sequence" not in prepared.meta:
+            raise ParameterError(f"item {prepared.name!r} is not a pose sequence (dataset kind \"sequence\")")
+        seq = cached_pose_sequence(prepared.meta["sequence"])
+        T = seq.n_frames
+        sizes = [f.n_vertices for f in seq.frames]
+        pairs = [(t, t + 1) for t in range(T - 1)] if options["mode"] == "chain" else [(0, t) for t in range(1, T)]
+        spec = method.to_dict()
+        res = [run_pair_timed(spec, seq.frames[i], seq.frames[j]) for i, j in pairs]  # as `shape-toolkit track`
+        maps = [c for c, _ in res]
+        if options["mode"] == "chain":
+            ids = chain_maps(maps, n_vertices=sizes).ids
+        else:
+            direct = np.empty((sizes[0], T), dtype=np.int64)
+            direct[:, 0] = np.arange(sizes[0])
+            for t, m in enumerate(maps, start=1):
+                direct[:, t] = m.target_of
+            ids = Trajectories(direct, tuple(sizes)).ids  # validates
+        return {"ids": ids, "pair_cpu": np.array([t["cpu"] for _, t in res]),
+                "pair_wall": np.array([t["wall"] for _, t in res])}
+
+
 #: task name -> adapter
 TASKS: dict[str, TaskAdapter] = {
-    t.name: t for t in (SpectrumTask(), KeypointsTask(), SegmentationTask(), MatchingTask())
+    t.name: t for t in (SpectrumTask(), KeypointsTask(), SegmentationTask(), MatchingTask(), SequenceTask())
 }

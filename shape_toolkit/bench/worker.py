@@ -399,7 +399,7 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
             params = {**job.params, **job.item_params}
             method = create_method(job.family, job.plugin, job.preset, params, job.random_state)
             detector = create_detector(job.keypoints)
-            own, det_spec = method_specs(method, detector)
+            own, det_spec = method_specs(method, detector) if adapter.uses_spectra else ([], None)
             got = _Received(job, prep, sides)
             if job.family == "pipelines" or len(own) > 1:  # several kinds: each part picks its own
                 spectra = got.several(own)

@@ -29,6 +29,8 @@ __all__ = [
     "ItemRef",
     "DatasetItem",
     "DATASET_KINDS",
+    "GENERATED_KINDS",
+    "sequence_refs",
     "tosca_dataset",
     "psb_dataset",
     "folder_dataset",
@@ -201,12 +203,53 @@ def synthetic_refs(
     return [ItemRef("synthetic", f"pose{i}", {}, {**params, "index": i}) for i in range(n_poses)]
 
 
-#: dataset kind -> function listing its refs (first argument: the folder, except synthetic)
+def sequence_refs(
+    seeds: list[int] | tuple[int, ...] = (0,),
+    *,
+    frames: int = 7,
+    subdivisions: int = 3,
+    remesh: int | None = None,
+    merge_frames: list[int] | tuple[int, ...] = (),
+    max_angle: float = 0.8,
+    permute: bool = True,
+) -> list[ItemRef]:
+    """Refs of generated pose sequences (:func:`shape_toolkit.data.synthetic.pose_sequence`, thesis
+    7.5.3): one item ``seedS`` per random state in ``seeds``, ``frames`` frames each, feet glued in
+    ``merge_frames``, every frame remeshed to about ``remesh`` vertices (None: not) and its vertex
+    order shuffled when ``permute``. A loaded item is frame 0; the ``sequence`` task regenerates the
+    frames from ``meta["sequence"]``."""
+    if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool):
+        seeds = [int(seeds)]
+    if not isinstance(seeds, (list, tuple)) or not seeds or not all(
+        isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0 for s in seeds
+    ):
+        raise ParameterError(f"seeds must be a non-empty list of non-negative integers, got {seeds!r}")
+    if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 2:
+        raise ParameterError(f"frames must be an integer >= 2, got {frames!r}")
+    if not isinstance(merge_frames, (list, tuple)) or not all(
+        isinstance(m, (int, np.integer)) and not isinstance(m, bool) and 0 <= m < frames for m in merge_frames
+    ):
+        raise ParameterError(f"merge_frames must be frame indices in [0, {frames - 1}], got {merge_frames!r}")
+    if remesh is not None and (isinstance(remesh, bool) or not isinstance(remesh, (int, np.integer)) or remesh < 20):
+        raise ParameterError(f"remesh must be a vertex count >= 20, got {remesh!r}")
+    params = {"n_frames": int(frames), "subdivisions": int(subdivisions),
+              "merge_frames": [int(m) for m in merge_frames], "max_angle": float(max_angle),
+              "remesh": None if remesh is None else int(remesh),
+              "permute": bool(permute)}
+    return [ItemRef("sequence", f"seed{int(s)}", {}, {**params, "random_state": int(s)})
+            for s in dict.fromkeys(int(s) for s in seeds)]
+
+
+#: dataset kinds generated from parameters (no folder)
+GENERATED_KINDS = ("synthetic", "sequence")
+
+#: dataset kind -> function listing its refs (first argument: the folder, except generated kinds)
 DATASET_KINDS = {
     "tosca": tosca_dataset,
     "psb": psb_dataset,
     "folder": folder_dataset,
     "synthetic": synthetic_refs,
+    "sequence": sequence_refs,
 }
 
 
@@ -216,7 +259,7 @@ def open_dataset(kind: str, path: str | os.PathLike | None = None, **params: Any
         raise ParameterError(f"unknown dataset kind {kind!r}; known: {', '.join(DATASET_KINDS)}")
     fn = DATASET_KINDS[kind]
     try:
-        if kind == "synthetic":
+        if kind in GENERATED_KINDS:
             return fn(**params)
         if path is None:
             raise ParameterError(f"a {kind} dataset needs a path")
@@ -295,6 +338,12 @@ def load_item(ref: ItemRef) -> DatasetItem:
         shape = load_shape(p["shape"])
         labels = [read_labels(p["labels"], shape.n_vertices)] if "labels" in p else []
         return DatasetItem(ref.name, shape, labels=labels)
+    if ref.kind == "sequence":
+        from shape_toolkit.data.synthetic import cached_pose_sequence
+
+        seq = cached_pose_sequence(ref.params)
+        return DatasetItem(ref.name, seq.frames[0], labels=[seq.frame_labels(0)],
+                           meta={"sequence": dict(ref.params)})
     if ref.kind == "synthetic":
         from shape_toolkit.data.synthetic import synthetic_dataset
 

@@ -22,6 +22,7 @@ from shape_toolkit.data.generate import icosphere
 from shape_toolkit.errors import ParameterError
 
 __all__ = [
+    "cached_pose_sequence",
     "ArticulatedShape",
     "articulated_shape",
     "synthetic_dataset",
@@ -435,3 +436,21 @@ def _count_contacts(base: Shape, kept: np.ndarray) -> int:
     pos = np.full(base.n_vertices, -1)
     pos[gone] = np.arange(gone.size)
     return edge_components(gone.size, np.column_stack([pos[e[sel, 0]], pos[e[sel, 1]]]))[0]
+
+
+_SEQUENCES: dict[str, PoseSequence] = {}
+
+
+def cached_pose_sequence(params: dict[str, Any]) -> PoseSequence:
+    """:func:`pose_sequence` ``(**params)``, kept for the last two parameter sets of this process (a
+    benchmark's methods and its prepare step share one generation of the same sequence)."""
+    import json
+
+    key = json.dumps(params, sort_keys=True, default=str)
+    if key not in _SEQUENCES:
+        prm = dict(params)
+        seq = pose_sequence(prm.pop("n_frames"), **prm)
+        while len(_SEQUENCES) >= 2:
+            _SEQUENCES.pop(next(iter(_SEQUENCES)))
+        _SEQUENCES[key] = seq
+    return _SEQUENCES[key]

@@ -41,16 +41,10 @@ __all__ = ["match_pairs", "track_frames", "pullback_sequence_colors", "register"
 def _match_pair(spec: dict[str, Any], source: Shape, target: Shape, seeds: np.ndarray | None) -> dict[str, Any]:
     """One frame pair (runs in the caller or on a Dask worker): the pipeline with one BLAS thread,
     so that the result does not depend on where it runs; the map, wall and CPU seconds."""
-    from threadpoolctl import threadpool_limits
+    from shape_toolkit.pipeline import run_pair_timed
 
-    from shape_toolkit.pipeline import load_pipeline
-
-    t0, c0 = time.perf_counter(), time.process_time()
-    with threadpool_limits(limits=1):
-        corr = load_pipeline(spec).run(source, target, seeds)
-    return {"target_of": np.asarray(corr.target_of), "n_target": corr.n_target,
-            "wall": time.perf_counter() - t0, "cpu": time.process_time() - c0,
-            "n_matched": corr.n_matched}
+    corr, secs = run_pair_timed(spec, source, target, seeds)
+    return {"target_of": np.asarray(corr.target_of), "n_target": corr.n_target, **secs, "n_matched": corr.n_matched}
 
 
 def match_pairs(
