@@ -267,16 +267,23 @@ class TaskAdapter:
     metrics: dict[str, tuple[Callable[..., dict[str, Any]], tuple[str, ...]]] = {}
 
     def check_options(self, options: dict[str, Any]) -> dict[str, Any]:
-        """Options merged over the defaults; unknown keys raise :class:`ParameterError`."""
+        """Options merged over the defaults; unknown keys raise :class:`ParameterError`. Every task
+        also takes ``repeats`` (an integer >= 1): each row runs its method that often, one run after
+        the other, and keeps the timings of the fastest (best of N, for timing benchmarks); kept in
+        the options only when it is not 1, so rows planned without it keep their keys."""
         if not isinstance(options, dict):
             raise ParameterError("options must be a table")
-        bad = sorted(set(options) - set(self.option_defaults))
+        known = {**self.option_defaults, "repeats": 1}
+        bad = sorted(set(options) - set(known))
         if bad:
             raise ParameterError(
-                f"unknown {self.name} option {bad[0]!r}; "
-                f"known: {', '.join(sorted(self.option_defaults)) or 'none'}"
+                f"unknown {self.name} option {bad[0]!r}; known: {', '.join(sorted(known))}"
             )
-        return {**self.option_defaults, **options}
+        o = {**self.option_defaults, **options}
+        r = o.pop("repeats", 1)
+        if isinstance(r, bool) or not isinstance(r, int) or r < 1:
+            raise ParameterError(f"repeats must be an integer >= 1, got {r!r}")
+        return {**o, "repeats": r} if r != 1 else o
 
     def check_method(self, options: dict[str, Any], cls: type, params: dict[str, Any]) -> str | None:
         """None when a method (its plugin class and parameters) fits the task's ``options``, else the
