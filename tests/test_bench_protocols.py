@@ -280,3 +280,31 @@ def test_even_truth_points_are_evenly_spaced_in_the_ground_truth():
     even = prepare(item, "none", {}, truth_points="even", **kw)
     assert even.truth_eval[:, 0].tolist() == np.linspace(0, n - 1, 5).round().astype(int).tolist()
     assert len(prepare(item, "none", {}, **kw).truth_eval) == 5  # a seeded random draw by default
+
+
+def test_corrupt_both_subdivides_source_and_target_and_keeps_the_truth(tmp_path):
+    """``corrupt = "both"``: a size grid of pairs. Both shapes are split 2 x 2 (original ids kept), the
+    ground truth still holds (original vertices keep their ids), and the default changes the
+    target only; ``target = "self"`` with it is refused, naming the key."""
+    from shape_toolkit.bench.tasks import prepare
+    from shape_toolkit.data.datasets import load_item, open_dataset
+
+    shape = icosphere(1)
+    folder = _pair_folder(tmp_path / "pair", shape, {})
+    (ref,) = list(open_dataset("tosca", folder))
+    item = load_item(ref)
+    both = prepare(item, "subdivide", {"splits": 2}, pairwise=True, random_state=0, corrupt="both",
+                   geodesic_method="dijkstra", truth_sample=100000)
+    one = prepare(item, "subdivide", {"splits": 2}, pairwise=True, random_state=0)
+    n2 = both.target.n_vertices
+    assert n2 > shape.n_vertices and both.source.n_vertices == n2
+    assert one.source.n_vertices == shape.n_vertices and one.target.n_vertices == n2
+    np.testing.assert_array_equal(both.truth, np.stack([np.arange(shape.n_vertices)] * 2, axis=1))
+    methods = '[[tasks.methods]]\npipeline = "zoomout"\n'
+    cfg = _config(folder, methods, options='geodesic_method = "dijkstra", corrupt = "both"',
+                  corruptions='[[corruptions]]\nname = "split"\nkind = "subdivide"\nparams = { splits = 2 }\n',
+                  task_corruptions='corruptions = ["split"]')
+    cfg["tasks"][0]["options"]["target"] = "self"
+    with pytest.raises(ConfigError) as e:
+        parse_config(cfg)
+    assert e.value.key.startswith("tasks[0].options") and "corrupt" in str(e.value)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -90,6 +90,7 @@ def prepare(
     score_on: str = "target",
     target: str = "pair",
     truth_points: str = "random",
+    corrupt: str = "target",
 ) -> Prepared:
     """Corrupt the analysed shape of ``item`` and carry its ground truth: for ``pairwise`` tasks
     the target is ``item.target`` (or, without one or with ``target="self"``, a copy of the shape
@@ -98,17 +99,27 @@ def prepare(
     ``truth_sample``) ground-truth target vertices are computed once here for every method to
     reuse (``truth_points="even"``: evenly spaced in the ground truth's order instead of a seeded
     random draw). ``score_on="clean"`` keeps the ground truth and the rows on the uncorrupted target
-    (``Prepared.clean_target``) instead of carrying them onto the corrupted one."""
+    (``Prepared.clean_target``) instead of carrying them onto the corrupted one. ``corrupt="both"``
+    corrupts the source of a pair too (its own seed; the ground truth's source column and the source's
+    labels carried onto it), e.g. both shapes of a pair subdivided for a size grid."""
     if score_on not in SCORE_ON:
         raise ParameterError(f"score_on must be one of {', '.join(SCORE_ON)}, got {score_on!r}")
     if target not in TARGETS:
         raise ParameterError(f"target must be one of {', '.join(TARGETS)}, got {target!r}")
     if truth_points not in TRUTH_POINTS:
         raise ParameterError(f"truth_points must be one of {', '.join(TRUTH_POINTS)}, got {truth_points!r}")
+    if corrupt not in CORRUPT:
+        raise ParameterError(f"corrupt must be one of {', '.join(CORRUPT)}, got {corrupt!r}")
     src = item.shape
     if pairwise and item.target is not None and target == "pair":
         tgt0, truth, sym = item.target, item.correspondence, item.symmetric_correspondence
         tlabels = item.target_labels
+        if corrupt == "both" and corruption_kind != "none":
+            src0, rs = src, corruption_kind in RESAMPLING
+            src, svmap = apply_corruption(src0, corruption_kind, random_state=random_state + 1, **corruption_params)
+            truth = carry_correspondence(truth, svmap, src0, side=0, resampled=rs) if truth is not None else None
+            sym = carry_correspondence(sym, svmap, src0, side=0, resampled=rs) if sym is not None else None
+            item = replace(item, shape=src, labels=[carry_labels(lab, svmap) for lab in item.labels])
     else:
         tgt0, truth, sym, tlabels = src, None, None, item.labels
         ident = np.arange(src.n_vertices, dtype=np.int64)
@@ -159,6 +170,8 @@ def prepare(
 SCORE_ON = ("target", "clean")
 #: what a pairwise item is matched to: the dataset's pair, or a copy of the source itself
 TARGETS = ("pair", "self")
+#: which shapes of a pair a corruption changes: the target, or both (a size grid of pairs)
+CORRUPT = ("target", "both")
 #: which ground-truth points ``truth_sample`` keeps: a seeded random draw, or evenly spaced ones
 TRUTH_POINTS = ("random", "even")
 
@@ -767,6 +780,8 @@ class MatchingTask(TaskAdapter):
         "score_on": "target",
         # "pair": the dataset's target; "self": a (corrupted) copy of the source (Table 5.2)
         "target": "pair",
+        # "target": the corruption changes the target; "both": the source too (e.g. subdivided pairs)
+        "corrupt": "target",
     }
     default_metrics = ("geodesic_error",)
     metrics = {
@@ -795,9 +810,12 @@ class MatchingTask(TaskAdapter):
         th = o["r_smooth_theta"]
         if isinstance(th, bool) or not isinstance(th, (int, float)) or not 0 < th <= 1:
             raise ParameterError(f"r_smooth_theta must be in (0, 1], got {th!r}")
-        for key, allowed in (("score_on", SCORE_ON), ("target", TARGETS), ("truth_points", TRUTH_POINTS)):
+        for key, allowed in (("score_on", SCORE_ON), ("target", TARGETS), ("truth_points", TRUTH_POINTS),
+                             ("corrupt", CORRUPT)):
             if o[key] not in allowed:
                 raise ParameterError(f"{key} must be one of {', '.join(map(repr, allowed))}, got {o[key]!r}")
+        if o["corrupt"] == "both" and o["target"] == "self":
+            raise ParameterError('corrupt = "both" needs a pair: with target = "self" the source is the clean shape')
         rsd = o["r_smooth_random_state"]
         if isinstance(rsd, bool) or not isinstance(rsd, int) or rsd < 0:
             raise ParameterError(f"r_smooth_random_state must be a non-negative integer, got {rsd!r}")

@@ -262,6 +262,7 @@ def _prepare_item(pjob: PrepareJob, info: dict[str, Any]):
         score_on=pjob.score_on,
         target=pjob.target,
         truth_points=pjob.truth_points,
+        corrupt=pjob.corrupt,
     )
     save_prepared(path, prep, key=pjob.key, inputs=inputs)
     info["reused"] = False
