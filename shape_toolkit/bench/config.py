@@ -869,6 +869,9 @@ def _check_task_method(adapter: Any, options: dict[str, Any], m: Any, mw: str) -
     from shape_toolkit.api.registry import get_registry
 
     if "plugin" not in m:
+        if options.get("truth_seeds") is not None:
+            raise ConfigError(mw, "the task option truth_seeds gives ground-truth seeds to dense matcher plugins; "
+                                  "pipelines and peers find their own: put them in a task without that option")
         return
     fam = _family_for(adapter.name, m["plugin"], mw)
     problem = adapter.check_method(options, get_registry().get(fam, m["plugin"]), m.get("params") or {})

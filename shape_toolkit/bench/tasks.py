@@ -749,6 +749,20 @@ def _m_r_smoothness(p, o, opt):
     return out
 
 
+def truth_seeds(prepared: Prepared, n: int) -> np.ndarray:
+    """``n`` ground-truth pairs ``(n, 2)`` [source vertex, target vertex] spread over the source: farthest-point
+    samples (from the first) of the source positions of the item's truth pairs, each source vertex's first pair."""
+    from shape_toolkit.core.geometry import farthest_point_sampling
+
+    if prepared.truth is None or not len(prepared.truth):
+        raise ParameterError(f"item {prepared.name!r} has no ground truth to draw seeds from")
+    _, first = np.unique(prepared.truth[:, 0], return_index=True)
+    first = np.sort(first)
+    pts = np.asarray(prepared.source.vertices)[prepared.truth[first, 0]]
+    rows = first[np.asarray(farthest_point_sampling(pts, min(n, len(first))), np.int64)]
+    return np.asarray(prepared.truth[rows], np.int64)
+
+
 class MatchingTask(TaskAdapter):
     """Dense matchers (and sparse matchers on detected keypoints) from the clean source to the
     (corrupted) target, scored by the normalised geodesic error on ground-truth pairs.
@@ -757,7 +771,9 @@ class MatchingTask(TaskAdapter):
     the map composed with the corruption's vertex back-map (a corrupted shape is matched, the
     error is measured where the ground truth was given); ``target = "self"`` matches each shape to
     a (corrupted) copy of itself, thesis Table 5.2's label transfer from a clean shape to its
-    corrupted instances. A peer reading published maps (``peer = "maps"``) is given the item."""
+    corrupted instances. A peer reading published maps (``peer = "maps"``) is given the item.
+    ``corrupt = "both"`` corrupts the source too (a size grid of pairs with ``subdivide``);
+    ``truth_seeds = N`` gives dense matcher plugins N ground-truth seeds (:func:`truth_seeds`)."""
 
     name = "matching"
     families = ("dense_matchers", "sparse_matchers")
@@ -782,6 +798,8 @@ class MatchingTask(TaskAdapter):
         "target": "pair",
         # "target": the corruption changes the target; "both": the source too (e.g. subdivided pairs)
         "corrupt": "target",
+        # N: dense matchers get N ground-truth seeds (farthest-point samples on the source; those using seeds)
+        "truth_seeds": None,
     }
     default_metrics = ("geodesic_error",)
     metrics = {
@@ -798,7 +816,7 @@ class MatchingTask(TaskAdapter):
         for key in ("geodesic_method", "r_smooth_geodesics"):
             if o[key] not in GEODESIC_METHODS:
                 raise ParameterError(f"{key} must be one of {', '.join(GEODESIC_METHODS)}, got {o[key]!r}")
-        for key in ("truth_sample", "r_smooth_sample", "label_segments"):
+        for key in ("truth_sample", "r_smooth_sample", "label_segments", "truth_seeds"):
             v = o[key]
             if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
                 raise ParameterError(f"{key} must be a positive integer, got {v!r}")
@@ -820,6 +838,19 @@ class MatchingTask(TaskAdapter):
         if isinstance(rsd, bool) or not isinstance(rsd, int) or rsd < 0:
             raise ParameterError(f"r_smooth_random_state must be a non-negative integer, got {rsd!r}")
         return o
+
+    def check_method(self, options: dict[str, Any], cls: type, params: dict[str, Any]) -> str | None:
+        """None when a method fits the options, else the problem: ``truth_seeds`` needs matchers whose
+        ``match`` takes ``seeds`` (every dense matcher; not the sparse ones)."""
+        import inspect
+
+        if options.get("truth_seeds") is None:
+            return None
+        match = getattr(cls, "match", None)
+        if match is None or "seeds" not in inspect.signature(match).parameters:
+            return (f"the task option truth_seeds gives every method ground-truth seeds, but "
+                    f"{getattr(cls, '__name__', cls)} takes none: put it in a task without that option")
+        return None
 
     def evaluate(self, names, prepared: Prepared, output: dict, options: dict) -> dict[str, Any]:
         """Every requested metric, on the clean target through the back-map when the item was
@@ -855,8 +886,9 @@ class MatchingTask(TaskAdapter):
             corr = method.run(src, tgt, spectra=given) if any(given.values()) else method.run(src, tgt)
             t = np.asarray(corr.target_of, dtype=np.int64)
             return {"target_of": t, "sparse": False}
+        seeds = {} if options.get("truth_seeds") is None else {"seeds": truth_seeds(prepared, options["truth_seeds"])}
         corr = method.match(
-            src, tgt, source_spectrum=spectra.get("source"), target_spectrum=spectra.get("target")
+            src, tgt, source_spectrum=spectra.get("source"), target_spectrum=spectra.get("target"), **seeds
         )
         t = corr.target_of if hasattr(corr, "target_of") else np.asarray(corr, dtype=np.int64)
         return {"target_of": np.asarray(t, dtype=np.int64), "sparse": False}
