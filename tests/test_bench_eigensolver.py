@@ -168,3 +168,30 @@ def test_repeats_run_each_solver_n_times_and_rows_record_blas_threads(tmp_path, 
     with pytest.raises(ConfigError) as ei:
         load_config(_write(tmp_path, text.replace("repeats = 3", "repeats = 0")))
     assert ei.value.key == "tasks[0].options.repeats"
+
+
+def test_blas_threads_option_and_the_toolkit_solvers_as_peers(tmp_path):
+    """``blas_threads = 2`` runs (and records) two BLAS threads where the runner's default is one; the
+    toolkit's dense and Krylov solvers as peers (the crossover ``auto`` picks on) agree with ``auto``."""
+    import os
+
+    from shape_toolkit.bench.runner import run_benchmark
+
+    text = CONFIG.replace("splits = [1, 2]", "splits = [1]").replace(
+        'peer = "scipy-eigsh"', 'peer = "toolkit-dense"\n[[tasks.methods]]\npeer = "toolkit-krylov"')
+    two = text.replace('metrics = ["eigenvalue_error", "lambda2"]',
+                       'metrics = ["lambda2"]\noptions = { blas_threads = 2 }')
+    for name, cfg in (("one", text), ("two", two)):
+        run_benchmark(load_config(_write(tmp_path, cfg)), tmp_path / name, progress=False)
+    one = {r["method_label"]: r for r in map(json.loads, (tmp_path / "one" / "results.jsonl").read_text().splitlines())}
+    assert set(one) == {"toolkit", "peer:toolkit-dense", "peer:toolkit-krylov"}
+    assert all(r["status"] == "ok" and r["blas_threads"] == 1 for r in one.values())
+    lam = [r["metrics"]["lambda2"] for r in one.values()]
+    assert max(lam) == pytest.approx(min(lam), rel=1e-8)
+    assert all(r["metrics"]["eigenvalue_error"] < 1e-10 for r in one.values())
+    rows = [json.loads(x) for x in (tmp_path / "two" / "results.jsonl").read_text().splitlines()]
+    if (os.cpu_count() or 1) >= 2:
+        assert {r["blas_threads"] for r in rows} == {2}
+    with pytest.raises(ConfigError) as ei:
+        load_config(_write(tmp_path, two.replace("blas_threads = 2", "blas_threads = 0")))
+    assert ei.value.key == "tasks[0].options.blas_threads"

@@ -33,7 +33,7 @@ without groups or a half left empty is refused before any work, naming the key.
     datasets = ["psb"]         # default: every dataset
     corruptions = ["none", "noise"]      # default: ["none"]
     metrics = ["rand_index"]   # default: the task's default metrics
-    options = {}               # task options (see shape_toolkit.bench.tasks); every task: repeats = N (best of N)
+    options = {}               # task options (shape_toolkit.bench.tasks); every task: repeats, blas_threads
     published = ["table-5.1"]  # optional: the thesis's printed numbers shown beside the measured rows
                                # (shape_toolkit.bench.published; never measured, never best)
     [[tasks.methods]]
@@ -852,7 +852,9 @@ def _validate_options(adapter: Any, options: Any, where: str) -> dict[str, Any]:
     """A task's options merged over its defaults; an unknown or bad option names its key."""
     if not isinstance(options, dict):
         raise ConfigError(where, "must be a table")
-    known = sorted({*adapter.option_defaults, "repeats"})  # repeats: every task's (TaskAdapter.check_options)
+    from shape_toolkit.bench.tasks import COMMON_OPTIONS
+
+    known = sorted({*adapter.option_defaults, *COMMON_OPTIONS})  # COMMON_OPTIONS: every task's
     for k in options:
         if k not in known:
             raise ConfigError(f"{where}.{k}", f"unknown {adapter.name} option {k!r}; known: {', '.join(known)}")

@@ -267,6 +267,10 @@ def _curve(x: np.ndarray, y: np.ndarray) -> list[list[float]]:
 
 
 # --------------------------------------------------------------------------------------------
+#: options every task takes, with their defaults (None: the runner's one BLAS thread)
+COMMON_OPTIONS: dict[str, Any] = {"repeats": 1, "blas_threads": None}
+
+
 class TaskAdapter:
     """Base adapter: ``families`` of the compared plugins, metric table, option defaults."""
 
@@ -281,22 +285,26 @@ class TaskAdapter:
 
     def check_options(self, options: dict[str, Any]) -> dict[str, Any]:
         """Options merged over the defaults; unknown keys raise :class:`ParameterError`. Every task
-        also takes ``repeats`` (an integer >= 1): each row runs its method that often, one run after
-        the other, and keeps the timings of the fastest (best of N, for timing benchmarks); kept in
-        the options only when it is not 1, so rows planned without it keep their keys."""
+        also takes the :data:`COMMON_OPTIONS`: ``repeats`` (an integer >= 1): each row runs its method
+        that often, one run after the other, and keeps the timings of the fastest (best of N, for timing
+        benchmarks); ``blas_threads`` (an integer >= 1): the BLAS threads the method runs with (the runner's
+        default is one). Kept in the options only when set, so rows planned without them keep their keys."""
         if not isinstance(options, dict):
             raise ParameterError("options must be a table")
-        known = {**self.option_defaults, "repeats": 1}
+        known = {**self.option_defaults, **COMMON_OPTIONS}
         bad = sorted(set(options) - set(known))
         if bad:
             raise ParameterError(
                 f"unknown {self.name} option {bad[0]!r}; known: {', '.join(sorted(known))}"
             )
         o = {**self.option_defaults, **options}
-        r = o.pop("repeats", 1)
+        common = {k: o.pop(k, default) for k, default in COMMON_OPTIONS.items()}
+        r, b = common["repeats"], common["blas_threads"]
         if isinstance(r, bool) or not isinstance(r, int) or r < 1:
             raise ParameterError(f"repeats must be an integer >= 1, got {r!r}")
-        return {**o, "repeats": r} if r != 1 else o
+        if b is not None and (isinstance(b, bool) or not isinstance(b, int) or b < 1):
+            raise ParameterError(f"blas_threads must be an integer >= 1, got {b!r}")
+        return {**o, **{k: v for k, v in common.items() if v != COMMON_OPTIONS[k]}}
 
     def check_method(self, options: dict[str, Any], cls: type, params: dict[str, Any]) -> str | None:
         """None when a method (its plugin class and parameters) fits the task's ``options``, else the
