@@ -9,6 +9,10 @@
 3. Geodesic distances from 1,000 sources on the ~50k-vertex torus with fast marching
    (potpourri3d), the heat method (potpourri3d) and Dijkstra, side by side with libigl's exact
    geodesics (timed on a subset of sources, which also gives the mean relative error of the others).
+
+A tool, not a config (issue 28): the runner's tasks (spectrum, keypoints, segmentation, matching) have no
+descriptor or geodesic task, and these measurements (tracemalloc's peak of one call, extrapolated exact
+geodesics) are not rows of one.
 """
 
 from __future__ import annotations

@@ -7,6 +7,10 @@ the child's VmHWM minus its high-water mark just before the metrics (so the mesh
 
 Regenerate: ``python benchmarks/bench_segmentation_metrics.py`` (writes
 ``benchmarks/results/segmentation_metrics.md``).
+
+A tool, not a config (issue 28): the runner times a row's metrics (``metric_seconds``) but measures no memory
+of them, and its memory probe (a rise in one long-lived process) would under-count what this checks: the
+metrics' own peak against the face count, in a fresh child per size.
 """
 
 from __future__ import annotations

@@ -134,3 +134,64 @@ def test_eigenvalue_error_on_a_small_shape_uses_a_dense_reference(tmp_path):
     rows = [json.loads(line) for line in (run / "results.jsonl").read_text().splitlines()]
     assert len(rows) == 2 and all(r["n_vertices"] <= 400 for r in rows)
     assert all(r["metrics"]["eigenvalue_error"] < 1e-10 for r in rows)
+
+
+def test_repeats_run_each_solver_n_times_and_rows_record_blas_threads(tmp_path, monkeypatch):
+    """``options = { repeats = 3 }``: every row solves three times (the fastest run's times kept), says so,
+    and records the BLAS threads it ran with; the Markdown report states both. ``repeats = 0`` is refused."""
+    from threadpoolctl import threadpool_limits
+
+    import shape_toolkit.bench.tasks as tasks
+    from shape_toolkit.bench.report import write_report
+    from shape_toolkit.bench.runner import run_benchmark
+
+    solves = []
+    real = tasks.compute_spectrum_cached
+
+    def counted(*a, **k):
+        if k.get("cache") is False:  # the row's own, timed solve (preparing an item caches, untimed)
+            solves.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(tasks, "compute_spectrum_cached", counted)
+    text = CONFIG.replace("splits = [1, 2]", "splits = [1]").replace(
+        'metrics = ["eigenvalue_error", "lambda2"]', 'metrics = ["lambda2"]\noptions = { repeats = 3 }')
+    run = tmp_path / "run"
+    with threadpool_limits(limits=1, user_api="blas"):  # in process (the CLI may supervise a child)
+        run_benchmark(load_config(_write(tmp_path, text)), run, progress=False)
+    rows = [json.loads(line) for line in (run / "results.jsonl").read_text().splitlines()]
+    assert len(rows) == 2 and len(solves) == 6
+    assert all(r["repeats"] == 3 and r["blas_threads"] == 1 and r["cpu_seconds"] > 0 for r in rows)
+    md = tmp_path / "r.md"
+    write_report(run, renders=0, markdown=md)
+    assert "BLAS threads while the methods ran: 1 in every row; timings are the fastest of 3 runs" in md.read_text()
+    with pytest.raises(ConfigError) as ei:
+        load_config(_write(tmp_path, text.replace("repeats = 3", "repeats = 0")))
+    assert ei.value.key == "tasks[0].options.repeats"
+
+
+def test_blas_threads_option_and_the_toolkit_solvers_as_peers(tmp_path):
+    """``blas_threads = 2`` runs (and records) two BLAS threads where the runner's default is one; the
+    toolkit's dense and Krylov solvers as peers (the crossover ``auto`` picks on) agree with ``auto``."""
+    import os
+
+    from shape_toolkit.bench.runner import run_benchmark
+
+    text = CONFIG.replace("splits = [1, 2]", "splits = [1]").replace(
+        'peer = "scipy-eigsh"', 'peer = "toolkit-dense"\n[[tasks.methods]]\npeer = "toolkit-krylov"')
+    two = text.replace('metrics = ["eigenvalue_error", "lambda2"]',
+                       'metrics = ["lambda2"]\noptions = { blas_threads = 2 }')
+    for name, cfg in (("one", text), ("two", two)):
+        run_benchmark(load_config(_write(tmp_path, cfg)), tmp_path / name, progress=False)
+    one = {r["method_label"]: r for r in map(json.loads, (tmp_path / "one" / "results.jsonl").read_text().splitlines())}
+    assert set(one) == {"toolkit", "peer:toolkit-dense", "peer:toolkit-krylov"}
+    assert all(r["status"] == "ok" and r["blas_threads"] == 1 for r in one.values())
+    lam = [r["metrics"]["lambda2"] for r in one.values()]
+    assert max(lam) == pytest.approx(min(lam), rel=1e-8)
+    assert all(r["metrics"]["eigenvalue_error"] < 1e-10 for r in one.values())
+    rows = [json.loads(x) for x in (tmp_path / "two" / "results.jsonl").read_text().splitlines()]
+    if (os.cpu_count() or 1) >= 2:
+        assert {r["blas_threads"] for r in rows} == {2}
+    with pytest.raises(ConfigError) as ei:
+        load_config(_write(tmp_path, two.replace("blas_threads = 2", "blas_threads = 0")))
+    assert ei.value.key == "tasks[0].options.blas_threads"

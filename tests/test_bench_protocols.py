@@ -284,3 +284,52 @@ def test_even_truth_points_are_evenly_spaced_in_the_ground_truth():
     stride = prepare(item, "none", {}, truth_points="stride", **kw)
     assert stride.truth_eval[:, 0].tolist() == [0, step, 2 * step, 3 * step, 4 * step]
     assert stride.truth_eval[:, 0].tolist() != even.truth_eval[:, 0].tolist()
+
+
+def test_corrupt_both_subdivides_source_and_target_and_keeps_the_truth(tmp_path):
+    """``corrupt = "both"``: a size grid of pairs. Both shapes are split 2 x 2 (original ids kept), the
+    ground truth still holds (original vertices keep their ids), and the default changes the
+    target only; ``target = "self"`` with it is refused, naming the key."""
+    from shape_toolkit.bench.tasks import prepare
+    from shape_toolkit.data.datasets import load_item, open_dataset
+
+    shape = icosphere(1)
+    folder = _pair_folder(tmp_path / "pair", shape, {})
+    (ref,) = list(open_dataset("tosca", folder))
+    item = load_item(ref)
+    both = prepare(item, "subdivide", {"splits": 2}, pairwise=True, random_state=0, corrupt="both",
+                   geodesic_method="dijkstra", truth_sample=100000)
+    one = prepare(item, "subdivide", {"splits": 2}, pairwise=True, random_state=0)
+    n2 = both.target.n_vertices
+    assert n2 > shape.n_vertices and both.source.n_vertices == n2
+    assert one.source.n_vertices == shape.n_vertices and one.target.n_vertices == n2
+    np.testing.assert_array_equal(both.truth, np.stack([np.arange(shape.n_vertices)] * 2, axis=1))
+    methods = '[[tasks.methods]]\npipeline = "zoomout"\n'
+    cfg = _config(folder, methods, options='geodesic_method = "dijkstra", corrupt = "both"',
+                  corruptions='[[corruptions]]\nname = "split"\nkind = "subdivide"\nparams = { splits = 2 }\n',
+                  task_corruptions='corruptions = ["split"]')
+    cfg["tasks"][0]["options"]["target"] = "self"
+    with pytest.raises(ConfigError) as e:
+        parse_config(cfg)
+    assert e.value.key.startswith("tasks[0].options") and "corrupt" in str(e.value)
+
+
+def test_truth_seeds_reach_a_seeded_matcher_and_are_refused_elsewhere(tmp_path):
+    """``truth_seeds = N``: seed-growing (which refuses to run without seeds) gets N ground-truth pairs, spread
+    over the source by farthest-point sampling; a pipeline (it finds its own) in such a task is refused."""
+    from shape_toolkit.bench.tasks import prepare, truth_seeds
+    from shape_toolkit.data.datasets import load_item, open_dataset
+
+    shape = icosphere(2)
+    folder = _pair_folder(tmp_path / "pair", shape, {})
+    item = load_item(next(iter(open_dataset("tosca", folder))))
+    seeds = truth_seeds(prepare(item, "none", {}, pairwise=True, random_state=0), 12)
+    assert seeds.shape == (12, 2) and np.array_equal(seeds[:, 0], seeds[:, 1]) and seeds[0, 0] == 0
+    d = np.linalg.norm(shape.vertices[seeds[:, 0], None] - shape.vertices[None, seeds[:, 0]], axis=2)
+    assert d[~np.eye(12, dtype=bool)].min() > 0.3  # spread out, not 12 neighbours
+    opts = 'geodesic_method = "dijkstra", truth_sample = 100000, truth_seeds = 12'
+    row = _rows(_config(folder, '[[tasks.methods]]\nplugin = "seed-growing"\n', options=opts), tmp_path / "r")
+    assert row["seed-growing"]["metrics"]["mean_geodesic_error"] < 0.05  # the identity pair, seeded with truth
+    with pytest.raises(ConfigError) as e:
+        parse_config(_config(folder, '[[tasks.methods]]\npipeline = "zoomout"\n', options=opts))
+    assert e.value.key == "tasks[0].methods[0]" and "truth_seeds" in str(e.value)

@@ -2,8 +2,8 @@
 counts, and the sampled / chunked paths agree with the plain ones.
 
 The ~23k-vertex pair: two poses of the synthetic articulated shape (2,562 vertices, same vertex order,
-ground truth the identity) with every triangle split 3 x 3 (``benchmarks/bench_scale.py``'s
-``subdivide_keep_ids``): 23,042 vertices each. A dense ``n x n'`` block there would be 531 MB as bytes,
+ground truth the identity) with every triangle split 3 x 3 (``shape_toolkit.data.corruptions.split_triangles``,
+the ``subdivide`` corruption): 23,042 vertices each. A dense ``n x n'`` block there would be 531 MB as bytes,
 4.2 GB as float64. Each matcher runs in a fresh child process whose peak resident memory (VmHWM) is
 reset after the meshes and spectra are loaded, so the measured increase is the matcher's own.
 No wall-clock asserts.
@@ -11,12 +11,10 @@ No wall-clock asserts.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,7 +26,6 @@ from shape_toolkit.metrics import geodesic_errors
 from shape_toolkit.plugins.matching.dense import em_registration as em_mod
 from shape_toolkit.plugins.matching.dense.orientation_repair import ORIENTATION_K
 
-REPO = Path(__file__).resolve().parent.parent
 ANGLES_A = [0.4, 0.4, -0.3, -0.3, 0.2]
 ANGLES_B = [-0.4, 0.4, 0.3, -0.3, -0.2]
 
@@ -37,8 +34,7 @@ import json, sys
 from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
-sys.path.insert(0, sys.argv[2])
-from bench_scale import subdivide_keep_ids
+from shape_toolkit.data.corruptions import split_triangles
 from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.synthetic import articulated_shape
@@ -52,7 +48,7 @@ def status(key):
 
 def shape(angles):
     S = articulated_shape(angles, subdivisions=4).shape
-    V, F = subdivide_keep_ids(np.asarray(S.vertices), np.asarray(S.faces), 3)
+    V, F = split_triangles(np.asarray(S.vertices), np.asarray(S.faces), 3)
     return Shape(V, F)
 
 which = sys.argv[1]
@@ -88,7 +84,7 @@ print(json.dumps({"n": A.n_vertices, "m": B.n_vertices, "increase_mb": peak - be
 def _run_child(which: str) -> dict:
     if not os.access("/proc/self/clear_refs", os.W_OK):
         pytest.skip("needs Linux /proc/self/clear_refs to reset the peak resident memory")
-    r = subprocess.run([sys.executable, "-c", _CHILD, which, str(REPO / "benchmarks")],
+    r = subprocess.run([sys.executable, "-c", _CHILD, which],
                        capture_output=True, text=True, timeout=1800)
     assert r.returncode == 0, r.stderr[-2000:]
     return json.loads(r.stdout.strip().splitlines()[-1])
@@ -233,40 +229,19 @@ def test_sample_sizes_are_checked(pair, bad):
             create_plugin("dense_matchers", "em-registration", **{name: bad}).match(A, B, seeds=seeds)
 
 
-def test_bench_subdivision_keeps_original_ids():
-    spec = importlib.util.spec_from_file_location("bench_scale", REPO / "benchmarks" / "bench_scale.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    S = articulated_shape(ANGLES_A, subdivisions=2).shape
-    V0, F0 = np.asarray(S.vertices), np.asarray(S.faces)
-    for s in (1, 2, 3):
-        V, F = mod.subdivide_keep_ids(V0, F0, s)
-        np.testing.assert_array_equal(V[: len(V0)], V0)  # original vertices keep their ids
-        n_edges = len({tuple(sorted(e)) for f in F0 for e in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))})
-        assert len(F) == s * s * len(F0)
-        assert len(V) == len(V0) + (s - 1) * n_edges + (s - 1) * (s - 2) // 2 * len(F0)
-        assert _area(V, F) == pytest.approx(_area(V0, F0), rel=1e-12)  # the surface is unchanged
-
-
-def _area(V: np.ndarray, F: np.ndarray) -> float:
-    return 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
-
-
 # -- memory growth with the vertex count (tracemalloc, in process) ----------------------------------
 def _traced_peak_mb(which: str, s: int) -> tuple[int, float]:
     """Vertex count and tracemalloc peak (MB, numpy buffers included) of one ``match`` call of the
     matcher ``which`` on the synthetic pair split ``s x s``; spectra computed before tracing."""
     import tracemalloc
 
-    spec = importlib.util.spec_from_file_location("bench_scale", REPO / "benchmarks" / "bench_scale.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
     from shape_toolkit.core.shape import Shape
+    from shape_toolkit.data.corruptions import split_triangles
 
     shapes = []
     for angles in (ANGLES_A, ANGLES_B):
         S = articulated_shape(angles, subdivisions=4).shape
-        shapes.append(Shape(*mod.subdivide_keep_ids(np.asarray(S.vertices), np.asarray(S.faces), s)))
+        shapes.append(Shape(*split_triangles(np.asarray(S.vertices), np.asarray(S.faces), s)))
     A, B = shapes
     ids = np.random.default_rng(0).choice(2562, 30, replace=False)  # original vertices: same on every s
     m = create_plugin("dense_matchers", which)

@@ -34,7 +34,7 @@ without groups or a half left empty is refused before any work, naming the key.
     datasets = ["psb"]         # default: every dataset
     corruptions = ["none", "noise"]      # default: ["none"]
     metrics = ["rand_index"]   # default: the task's default metrics
-    options = {}               # task options (see shape_toolkit.bench.tasks)
+    options = {}               # task options (shape_toolkit.bench.tasks); every task: repeats, blas_threads
     published = ["table-5.1"]  # optional: the thesis's printed numbers shown beside the measured rows
                                # (shape_toolkit.bench.published; never measured, never best)
     [[tasks.methods]]
@@ -870,12 +870,12 @@ def _validate_options(adapter: Any, options: Any, where: str) -> dict[str, Any]:
     """A task's options merged over its defaults; an unknown or bad option names its key."""
     if not isinstance(options, dict):
         raise ConfigError(where, "must be a table")
+    from shape_toolkit.bench.tasks import COMMON_OPTIONS
+
+    known = sorted({*adapter.option_defaults, *COMMON_OPTIONS})  # COMMON_OPTIONS: every task's
     for k in options:
-        if k not in adapter.option_defaults:
-            raise ConfigError(
-                f"{where}.{k}",
-                f"unknown {adapter.name} option {k!r}; known: {', '.join(sorted(adapter.option_defaults)) or 'none'}",
-            )
+        if k not in known:
+            raise ConfigError(f"{where}.{k}", f"unknown {adapter.name} option {k!r}; known: {', '.join(known)}")
     try:
         return adapter.check_options(options)
     except ToolkitError as exc:
@@ -889,6 +889,9 @@ def _check_task_method(adapter: Any, options: dict[str, Any], m: Any, mw: str) -
     from shape_toolkit.api.registry import get_registry
 
     if "plugin" not in m:
+        if options.get("truth_seeds") is not None:
+            raise ConfigError(mw, "the task option truth_seeds gives ground-truth seeds to dense matcher plugins; "
+                                  "pipelines and peers find their own: put them in a task without that option")
         return
     fam = _family_for(adapter.name, m["plugin"], mw)
     problem = adapter.check_method(options, get_registry().get(fam, m["plugin"]), m.get("params") or {})

@@ -205,9 +205,25 @@ class ScipyEigsh:
         return vals[order], vecs[:, order]
 
 
-#: eigensolver peer name -> (solver factory, distribution)
+def _toolkit_solver(method: str) -> Callable[[], Any]:
+    """A factory of the toolkit's own eigensolver with ``method`` fixed (:class:`shape_toolkit.core.eigen.EigenSolver`):
+    the solvers ``auto`` chooses between, as rows of their own (e.g. the dense-vs-Krylov crossover)."""
+    def make() -> Any:
+        from shape_toolkit.core.eigen import EigenSolver
+
+        return EigenSolver(method=method)
+
+    return make
+
+
+#: eigensolver peer name -> (solver factory, distribution): SciPy's eigsh, and the toolkit's solver with its
+#: method fixed (``toolkit-dense``: LAPACK; ``toolkit-krylov``: block Krylov-Schur; ``toolkit-arpack``: ARPACK on
+#: the CHOLMOD factor), which ``auto`` (the plain ``plugin`` row) picks between
 SPECTRUM_PEERS: dict[str, tuple[Callable[[], Any], str]] = {
     "scipy-eigsh": (ScipyEigsh, "scipy"),
+    "toolkit-dense": (_toolkit_solver("dense"), "shape-toolkit"),
+    "toolkit-krylov": (_toolkit_solver("krylov"), "shape-toolkit"),
+    "toolkit-arpack": (_toolkit_solver("arpack"), "shape-toolkit"),
 }
 
 

@@ -55,6 +55,7 @@ class PrepareJob:
     score_on: str = "target"
     target: str = "pair"
     truth_points: str = "random"
+    corrupt: str = "target"
 
     @property
     def sides(self) -> tuple[str, ...]:
@@ -217,7 +218,7 @@ def plan(
                         "truth_sample": task.options.get("truth_sample") if geo else None,
                     }
                     protocol = {k: task.options[k] for k, default in (("score_on", "target"), ("target", "pair"),
-                                                                      ("truth_points", "random"))
+                                                                      ("truth_points", "random"), ("corrupt", "target"))
                                 if geo and task.options.get(k, default) != default}
                     pident.update(protocol)  # only when set: the keys of earlier runs stay valid
                     pkey = row_key(pident)

@@ -27,7 +27,7 @@ import math
 import os
 import re
 import warnings
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -673,9 +673,11 @@ def _description(run: Path) -> str | None:
 
 
 def markdown_summary(name: str, tables: list[_Grid], *, command: str | None = None, split: str | None = None,
-                     n_rows: int = 0, n_failed: int = 0, description: str | None = None) -> str:
+                     n_rows: int = 0, n_failed: int = 0, description: str | None = None,
+                     blas: str | None = None) -> str:
     """The report's tables as one Markdown document: the command that regenerates it first, the config's
-    description, the split line, then every table with its notes."""
+    description, the BLAS threads of the rows (``blas``, :func:`blas_summary`), the split line, then every
+    table with its notes."""
     lines = [f"# Benchmark report: {_printable(name)}", ""]
     if command:
         lines += ["Regenerate with:", "", f"    {_printable(command)}", ""]
@@ -690,11 +692,29 @@ def markdown_summary(name: str, tables: list[_Grid], *, command: str | None = No
                  f"cores, BLAS {', '.join(mach['blas'])}. Seconds and CPU seconds are the method's own call (a "
                  "published map's: reading its file); spectra come from the run's cache, timed separately, except "
                  "in a spectrum task, where the spectrum is the method.")
+    if blas:
+        lines.append(f"BLAS threads while the methods ran: {blas}.")
     if split:
         lines += ["", split]
     for g in tables:
         lines += ["", f"## {_printable(g.title)}", "", _md_text(g)]
     return "\n".join(lines).rstrip() + "\n"
+
+
+def blas_summary(rows: list[dict]) -> str | None:
+    """The BLAS threads the rows' methods ran with (``blas_threads`` per row) and how often each ran
+    (``repeats``): ``"1 in every row"``, ``"1 (40 rows), 2 (40 rows)"``, with ``"; best of 3 runs"``; None when
+    no row recorded it (rows of an older runner)."""
+    ok = [r for r in rows if r.get("status") == "ok"]
+    counts = Counter(r.get("blas_threads") for r in ok if r.get("blas_threads") is not None)
+    if not counts:
+        return None
+    text = (f"{next(iter(counts))} in every row" if len(counts) == 1 and sum(counts.values()) == len(ok) else
+            ", ".join(f"{k} ({v} rows)" for k, v in sorted(counts.items())))
+    reps = sorted({int(r.get("repeats") or 1) for r in ok})
+    if reps != [1]:
+        text += "; timings are the fastest of " + " / ".join(map(str, reps)) + " runs of each row"
+    return text
 
 
 def _mean_grid(task: str, cells: dict, gaps: dict) -> _Grid:
@@ -1392,7 +1412,8 @@ def write_report(
     if markdown is not None:
         text = markdown_summary(rows[0].get("run_name", run.name) if rows else run.name, tables.grids,
                                 command=command, split=_split_note(run, rows), n_rows=len(rows),
-                                n_failed=sum(r.get("status") != "ok" for r in rows), description=_description(run))
+                                n_failed=sum(r.get("status") != "ok" for r in rows), description=_description(run),
+                                blas=blas_summary(rows))
         with atomic_output(markdown, "Markdown report") as tmp:
             tmp.write_text(text, encoding="utf-8")
         say(f"wrote {markdown}")

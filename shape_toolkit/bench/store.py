@@ -157,6 +157,10 @@ class Row:
     traceback: str | None = None
     category: str | None = None
     item_params: dict[str, Any] = field(default_factory=dict)
+    #: the BLAS threads the worker's BLAS libraries had while the method ran (threadpoolctl; None unknown)
+    blas_threads: int | None = None
+    #: how often the method ran (task option ``repeats``): the timings are of the fastest run
+    repeats: int = 1
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON-ready row (NaN and infinities become null)."""
@@ -189,7 +193,7 @@ _ROW_OPTIONAL: dict[str, tuple[type, ...]] = {
     **dict.fromkeys(("params", "corruption_params", "versions"), (dict,)),
     **dict.fromkeys(("strength", "seconds", "cpu_seconds", "peak_memory_mb", "spectrum_seconds",
                      "metric_seconds", "total_seconds"), _NUMBER),
-    **dict.fromkeys(("random_state", "corruption_seed", "n_vertices"), (int, type(None))),
+    **dict.fromkeys(("random_state", "corruption_seed", "n_vertices", "blas_threads", "repeats"), (int, type(None))),
     "spectrum_cache_hit": (bool, type(None)),
     "spectra": (list,),
 }

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -90,6 +90,7 @@ def prepare(
     score_on: str = "target",
     target: str = "pair",
     truth_points: str = "random",
+    corrupt: str = "target",
 ) -> Prepared:
     """Corrupt the analysed shape of ``item`` and carry its ground truth: for ``pairwise`` tasks
     the target is ``item.target`` (or, without one or with ``target="self"``, a copy of the shape
@@ -99,17 +100,27 @@ def prepare(
     reuse (``truth_points="even"``: evenly spaced in the ground truth's order instead of a seeded
     random draw, ends included; ``"stride"``: every ``len(truth) // truth_sample``-th point from
     the first). ``score_on="clean"`` keeps the ground truth and the rows on the uncorrupted target
-    (``Prepared.clean_target``) instead of carrying them onto the corrupted one."""
+    (``Prepared.clean_target``) instead of carrying them onto the corrupted one. ``corrupt="both"``
+    corrupts the source of a pair too (its own seed; the ground truth's source column and the source's
+    labels carried onto it), e.g. both shapes of a pair subdivided for a size grid."""
     if score_on not in SCORE_ON:
         raise ParameterError(f"score_on must be one of {', '.join(SCORE_ON)}, got {score_on!r}")
     if target not in TARGETS:
         raise ParameterError(f"target must be one of {', '.join(TARGETS)}, got {target!r}")
     if truth_points not in TRUTH_POINTS:
         raise ParameterError(f"truth_points must be one of {', '.join(TRUTH_POINTS)}, got {truth_points!r}")
+    if corrupt not in CORRUPT:
+        raise ParameterError(f"corrupt must be one of {', '.join(CORRUPT)}, got {corrupt!r}")
     src = item.shape
     if pairwise and item.target is not None and target == "pair":
         tgt0, truth, sym = item.target, item.correspondence, item.symmetric_correspondence
         tlabels = item.target_labels
+        if corrupt == "both" and corruption_kind != "none":
+            src0, rs = src, corruption_kind in RESAMPLING
+            src, svmap = apply_corruption(src0, corruption_kind, random_state=random_state + 1, **corruption_params)
+            truth = carry_correspondence(truth, svmap, src0, side=0, resampled=rs) if truth is not None else None
+            sym = carry_correspondence(sym, svmap, src0, side=0, resampled=rs) if sym is not None else None
+            item = replace(item, shape=src, labels=[carry_labels(lab, svmap) for lab in item.labels])
     else:
         tgt0, truth, sym, tlabels = src, None, None, item.labels
         ident = np.arange(src.n_vertices, dtype=np.int64)
@@ -162,6 +173,8 @@ def prepare(
 SCORE_ON = ("target", "clean")
 #: what a pairwise item is matched to: the dataset's pair, or a copy of the source itself
 TARGETS = ("pair", "self")
+#: which shapes of a pair a corruption changes: the target, or both (a size grid of pairs)
+CORRUPT = ("target", "both")
 #: which ground-truth points ``truth_sample`` keeps: a seeded random draw, evenly spaced ones (ends included),
 #: or every ``len(truth) // truth_sample``-th from the first (a fixed stride, e.g. every 5th of 5,000)
 TRUTH_POINTS = ("random", "even", "stride")
@@ -258,6 +271,10 @@ def _curve(x: np.ndarray, y: np.ndarray) -> list[list[float]]:
 
 
 # --------------------------------------------------------------------------------------------
+#: options every task takes, with their defaults (None: the runner's one BLAS thread)
+COMMON_OPTIONS: dict[str, Any] = {"repeats": 1, "blas_threads": None}
+
+
 class TaskAdapter:
     """Base adapter: ``families`` of the compared plugins, metric table, option defaults."""
 
@@ -273,16 +290,27 @@ class TaskAdapter:
     metrics: dict[str, tuple[Callable[..., dict[str, Any]], tuple[str, ...]]] = {}
 
     def check_options(self, options: dict[str, Any]) -> dict[str, Any]:
-        """Options merged over the defaults; unknown keys raise :class:`ParameterError`."""
+        """Options merged over the defaults; unknown keys raise :class:`ParameterError`. Every task
+        also takes the :data:`COMMON_OPTIONS`: ``repeats`` (an integer >= 1): each row runs its method
+        that often, one run after the other, and keeps the timings of the fastest (best of N, for timing
+        benchmarks); ``blas_threads`` (an integer >= 1): the BLAS threads the method runs with (the runner's
+        default is one). Kept in the options only when set, so rows planned without them keep their keys."""
         if not isinstance(options, dict):
             raise ParameterError("options must be a table")
-        bad = sorted(set(options) - set(self.option_defaults))
+        known = {**self.option_defaults, **COMMON_OPTIONS}
+        bad = sorted(set(options) - set(known))
         if bad:
             raise ParameterError(
-                f"unknown {self.name} option {bad[0]!r}; "
-                f"known: {', '.join(sorted(self.option_defaults)) or 'none'}"
+                f"unknown {self.name} option {bad[0]!r}; known: {', '.join(sorted(known))}"
             )
-        return {**self.option_defaults, **options}
+        o = {**self.option_defaults, **options}
+        common = {k: o.pop(k, default) for k, default in COMMON_OPTIONS.items()}
+        r, b = common["repeats"], common["blas_threads"]
+        if isinstance(r, bool) or not isinstance(r, int) or r < 1:
+            raise ParameterError(f"repeats must be an integer >= 1, got {r!r}")
+        if b is not None and (isinstance(b, bool) or not isinstance(b, int) or b < 1):
+            raise ParameterError(f"blas_threads must be an integer >= 1, got {b!r}")
+        return {**o, **{k: v for k, v in common.items() if v != COMMON_OPTIONS[k]}}
 
     def check_method(self, options: dict[str, Any], cls: type, params: dict[str, Any]) -> str | None:
         """None when a method (its plugin class and parameters) fits the task's ``options``, else the
@@ -735,6 +763,20 @@ def _m_r_smoothness(p, o, opt):
     return out
 
 
+def truth_seeds(prepared: Prepared, n: int) -> np.ndarray:
+    """``n`` ground-truth pairs ``(n, 2)`` [source vertex, target vertex] spread over the source: farthest-point
+    samples (from the first) of the source positions of the item's truth pairs, each source vertex's first pair."""
+    from shape_toolkit.core.geometry import farthest_point_sampling
+
+    if prepared.truth is None or not len(prepared.truth):
+        raise ParameterError(f"item {prepared.name!r} has no ground truth to draw seeds from")
+    _, first = np.unique(prepared.truth[:, 0], return_index=True)
+    first = np.sort(first)
+    pts = np.asarray(prepared.source.vertices)[prepared.truth[first, 0]]
+    rows = first[np.asarray(farthest_point_sampling(pts, min(n, len(first))), np.int64)]
+    return np.asarray(prepared.truth[rows], np.int64)
+
+
 class MatchingTask(TaskAdapter):
     """Dense matchers (and sparse matchers on detected keypoints) from the clean source to the
     (corrupted) target, scored by the normalised geodesic error on ground-truth pairs.
@@ -743,7 +785,9 @@ class MatchingTask(TaskAdapter):
     the map composed with the corruption's vertex back-map (a corrupted shape is matched, the
     error is measured where the ground truth was given); ``target = "self"`` matches each shape to
     a (corrupted) copy of itself, thesis Table 5.2's label transfer from a clean shape to its
-    corrupted instances. A peer reading published maps (``peer = "maps"``) is given the item."""
+    corrupted instances. A peer reading published maps (``peer = "maps"``) is given the item.
+    ``corrupt = "both"`` corrupts the source too (a size grid of pairs with ``subdivide``);
+    ``truth_seeds = N`` gives dense matcher plugins N ground-truth seeds (:func:`truth_seeds`)."""
 
     name = "matching"
     families = ("dense_matchers", "sparse_matchers")
@@ -767,6 +811,10 @@ class MatchingTask(TaskAdapter):
         "score_on": "target",
         # "pair": the dataset's target; "self": a (corrupted) copy of the source (Table 5.2)
         "target": "pair",
+        # "target": the corruption changes the target; "both": the source too (e.g. subdivided pairs)
+        "corrupt": "target",
+        # N: dense matchers get N ground-truth seeds (farthest-point samples on the source; those using seeds)
+        "truth_seeds": None,
     }
     default_metrics = ("geodesic_error",)
     metrics = {
@@ -783,7 +831,7 @@ class MatchingTask(TaskAdapter):
         for key in ("geodesic_method", "r_smooth_geodesics"):
             if o[key] not in GEODESIC_METHODS:
                 raise ParameterError(f"{key} must be one of {', '.join(GEODESIC_METHODS)}, got {o[key]!r}")
-        for key in ("truth_sample", "r_smooth_sample", "label_segments"):
+        for key in ("truth_sample", "r_smooth_sample", "label_segments", "truth_seeds"):
             v = o[key]
             if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
                 raise ParameterError(f"{key} must be a positive integer, got {v!r}")
@@ -795,13 +843,29 @@ class MatchingTask(TaskAdapter):
         th = o["r_smooth_theta"]
         if isinstance(th, bool) or not isinstance(th, (int, float)) or not 0 < th <= 1:
             raise ParameterError(f"r_smooth_theta must be in (0, 1], got {th!r}")
-        for key, allowed in (("score_on", SCORE_ON), ("target", TARGETS), ("truth_points", TRUTH_POINTS)):
+        for key, allowed in (("score_on", SCORE_ON), ("target", TARGETS), ("truth_points", TRUTH_POINTS),
+                             ("corrupt", CORRUPT)):
             if o[key] not in allowed:
                 raise ParameterError(f"{key} must be one of {', '.join(map(repr, allowed))}, got {o[key]!r}")
+        if o["corrupt"] == "both" and o["target"] == "self":
+            raise ParameterError('corrupt = "both" needs a pair: with target = "self" the source is the clean shape')
         rsd = o["r_smooth_random_state"]
         if isinstance(rsd, bool) or not isinstance(rsd, int) or rsd < 0:
             raise ParameterError(f"r_smooth_random_state must be a non-negative integer, got {rsd!r}")
         return o
+
+    def check_method(self, options: dict[str, Any], cls: type, params: dict[str, Any]) -> str | None:
+        """None when a method fits the options, else the problem: ``truth_seeds`` needs matchers whose
+        ``match`` takes ``seeds`` (every dense matcher; not the sparse ones)."""
+        import inspect
+
+        if options.get("truth_seeds") is None:
+            return None
+        match = getattr(cls, "match", None)
+        if match is None or "seeds" not in inspect.signature(match).parameters:
+            return (f"the task option truth_seeds gives every method ground-truth seeds, but "
+                    f"{getattr(cls, '__name__', cls)} takes none: put it in a task without that option")
+        return None
 
     def evaluate(self, names, prepared: Prepared, output: dict, options: dict) -> dict[str, Any]:
         """Every requested metric, on the clean target through the back-map when the item was
@@ -837,8 +901,9 @@ class MatchingTask(TaskAdapter):
             corr = method.run(src, tgt, spectra=given) if any(given.values()) else method.run(src, tgt)
             t = np.asarray(corr.target_of, dtype=np.int64)
             return {"target_of": t, "sparse": False}
+        seeds = {} if options.get("truth_seeds") is None else {"seeds": truth_seeds(prepared, options["truth_seeds"])}
         corr = method.match(
-            src, tgt, source_spectrum=spectra.get("source"), target_spectrum=spectra.get("target")
+            src, tgt, source_spectrum=spectra.get("source"), target_spectrum=spectra.get("target"), **seeds
         )
         t = corr.target_of if hasattr(corr, "target_of") else np.asarray(corr, dtype=np.int64)
         return {"target_of": np.asarray(t, dtype=np.int64), "sparse": False}

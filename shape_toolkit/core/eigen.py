@@ -33,8 +33,8 @@ METHODS = ("auto", "dense", "krylov", "arpack", "arpack-splu")
 
 #: ``method="auto"`` uses the dense solver when ``n <= max(DENSE_MAX_N, DENSE_PER_K * k)`` (or ``3 k >= n``):
 #: dense LAPACK costs ~n^3 whatever k, the block Krylov solver grows with k. Measured crossover (one BLAS
-#: thread, CPU time, bumpy spheres n = 252 ... 1962, ``python benchmarks/bench_eigensolver.py
-#: --crossover``, table in ``benchmarks/results/eigensolver_crossover.md``).
+#: thread, CPU time, bumpy spheres n = 252 ... 1962, table in ``benchmarks/results/eigensolver_notes.md``;
+#: re-measured by ``benchmarks/configs/eigensolver_crossover.toml``, ``results/eigensolver_crossover.md``).
 DENSE_MAX_N = 400
 DENSE_PER_K = 8
 
