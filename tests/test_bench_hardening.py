@@ -83,7 +83,10 @@ def _rows(run: Path) -> list[dict]:
 
 
 def _put_rows(run: Path, rows: list[dict]) -> None:
+    """Replace the run's rows (and its plan: these rows are what the folder's config planned)."""
     (run / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    (run / "planned.json").write_text(json.dumps(sorted({r["key"] for r in rows if isinstance(r, dict)
+                                                         and isinstance(r.get("key"), str)})))
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:

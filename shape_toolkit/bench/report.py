@@ -40,6 +40,7 @@ from shape_toolkit.bench.store import (
     SPLIT,
     load_output,
     load_prepared,
+    planned_keys,
     prepared_path,
     read_prepare_log,
     read_rows,
@@ -1389,8 +1390,10 @@ def write_report(
     (out / "figures").mkdir(parents=True, exist_ok=True)
     (out / "tables").mkdir(exist_ok=True)
     say(f"reading {run / RESULTS}")
-    rows = [_normalized(r) for r in read_rows(run, planned_only=True)]
-    stale = len(read_rows(run)) - len(rows)
+    every = read_rows(run)
+    planned = planned_keys(run)  # the folder's last config: rows an earlier config left are not shown
+    rows = [_normalized(r) for r in every if planned is None or r["key"] in planned]
+    stale = len(every) - len(rows)
     if stale:
         say(f"{stale} rows of an earlier config of this folder are not shown (planned.json)")
     for rel in owned:  # the previous report's figures and tables (still as it wrote them)
@@ -1402,7 +1405,7 @@ def write_report(
     written: list[Path] = [path] if "index.html" in owned else []
     try:
         with _literal_figure_text():
-            page = _page(run, out, rows, figs, tables, renders, say, up)
+            page = _page(run, out, rows, figs, tables, renders, say, up, stale)
         tmp = out / ".index.html.tmp"
         tmp.write_text(page, encoding="utf-8", errors="replace")
         os.replace(tmp, path)
@@ -1434,7 +1437,7 @@ def _published_of(run: Path) -> dict[str, tuple[str, ...]]:
 
 
 def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, renders: int,
-          say: Callable[[str], None], up: str = "longest") -> str:
+          say: Callable[[str], None], up: str = "longest", stale: int = 0) -> str:
     """The HTML page of the report (its figures saved through ``figs``, its tables through ``tables``)."""
     summ = summarize(rows)
     gaps = _gaps(rows)
@@ -1452,7 +1455,7 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
         f"Run folder: <code>{html.escape(str(run.resolve()))}</code>.</p>",
         *([f"<p class='split'>{html.escape(split)}</p>"] if (split := _split_note(run, rows)) else []),
         *([f"<p class='note'>{stale} rows in this folder come from an earlier config (keys its last config does not "
-           "plan) and are not shown.</p>"] if (stale := len(read_rows(run)) - len(rows)) else []),
+           "plan) and are not shown.</p>"] if stale else []),
         _summary_section(summ, tasks, rows, gaps),
         "<p>Seconds are the method's own call (spectra come from the shared cache, timed separately); "
         "peak memory is the resident-set growth during that call (MB). Each dataset is reported on its "
