@@ -40,7 +40,7 @@ from shape_toolkit.bench.store import (
     SPLIT,
     load_output,
     load_prepared,
-    planned_keys,
+    only_planned,
     prepared_path,
     read_prepare_log,
     read_rows,
@@ -1390,9 +1390,8 @@ def write_report(
     (out / "figures").mkdir(parents=True, exist_ok=True)
     (out / "tables").mkdir(exist_ok=True)
     say(f"reading {run / RESULTS}")
-    every = read_rows(run)
-    planned = planned_keys(run)  # the folder's last config: rows an earlier config left are not shown
-    rows = [_normalized(r) for r in every if planned is None or r["key"] in planned]
+    every = read_rows(run)  # read once: the rows an earlier config left are counted, not shown
+    rows = [_normalized(r) for r in only_planned(every, run)]
     stale = len(every) - len(rows)
     if stale:
         say(f"{stale} rows of an earlier config of this folder are not shown (planned.json)")

@@ -39,6 +39,7 @@ __all__ = [
     "read_rows",
     "write_planned",
     "planned_keys",
+    "only_planned",
     "read_prepare_log",
     "clean_results",
     "Appender",
@@ -283,9 +284,14 @@ def read_rows(run_dir: str | os.PathLike, name: str = RESULTS, *, planned_only: 
         by_key.pop(r["key"], None)
         by_key[r["key"]] = r
     rows = list(by_key.values())
-    if planned_only and (keys := planned_keys(run_dir)) is not None:
-        rows = [r for r in rows if r["key"] in keys]
-    return rows
+    return only_planned(rows, run_dir) if planned_only else rows
+
+
+def only_planned(rows: list[dict], run_dir: str | os.PathLike) -> list[dict]:
+    """The ``rows`` whose key the folder's last config planned (:func:`planned_keys`; all of them when the
+    folder has no record of its plan)."""
+    keys = planned_keys(run_dir)
+    return rows if keys is None else [r for r in rows if r["key"] in keys]
 
 
 def write_planned(run_dir: str | os.PathLike, keys: Sequence[str]) -> None:
