@@ -21,7 +21,8 @@ A spec (dict, or a TOML file with the same layout)::
 
 Each stage takes ``plugin``, optional ``preset`` and ``params``. ``[orient]`` wraps the ``[refine]``
 registration (it restarts it from repaired maps), which then registers only; the orientation is set in
-``[orient]``. Seeds given by the caller replace the keypoint and sparse stages. The result is a
+``[orient]``. Seeds given by the caller replace the keypoint and sparse stages, and decide the sides in
+``[orient]`` (its ``landmarks``). The result is a
 :class:`Correspondence` whose ``info`` records the stages, their timings and the number of seeds.
 """
 
@@ -245,8 +246,11 @@ class Pipeline:
 
     def plugins(self) -> dict[str, Any]:
         """A fresh plugin instance per stage, ``{stage: plugin}``, in execution order; the [orient] plugin
-        wraps the [refine] one, which then registers only (``orientation="none"``)."""
+        wraps the [refine] one, which then registers only (``orientation="none"``); the [refine] registration
+        starts from the dense stage's map without taking it as right (``trust_seeds=False``)."""
         plugins = {stage: self._create(stage) for stage in self.stages}
+        if "refine" in plugins and "trust_seeds" in plugins["refine"].get_params(deep=False):
+            plugins["refine"].set_params(trust_seeds=False)  # its seeds are the dense stage's map
         if "orient" in plugins:
             refine = plugins["refine"]
             if "orientation" in refine.get_params(deep=False):
@@ -328,6 +332,8 @@ class Pipeline:
         if seeds is not None:
             seeds = check_seeds(seeds, source.n_vertices, target.n_vertices, allow_empty=False)
             info["seed_source"] = "given"
+            if "orient" in plugins:  # the caller's seeds are right: they decide the sides where they reach
+                plugins["orient"].set_params(landmarks=seeds)
         elif "sparse" in self.stages:
             det = plugins["keypoints"]
             kps = timed("keypoints", lambda: (det.detect(source, spectrum=src_spectra),

@@ -15,6 +15,7 @@ one (a pipeline run does; nothing is kept after the scope).
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import weakref
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
@@ -367,7 +368,7 @@ def _weighted_quantiles(v: np.ndarray, w: np.ndarray, qs: Sequence[float]) -> li
 def side_reference(
     source: Shape, target: Shape, source_spectrum: Spectrum | Sequence[Spectrum] | None = None,
     target_spectrum: Spectrum | Sequence[Spectrum] | None = None, orientation: str = "preserving",
-    cache: SideCache | None = None,
+    cache: SideCache | None = None, landmarks: np.ndarray | None = None,
 ) -> SideReference:
     """The :class:`SideReference` of :func:`side_matcher` (``orientation``) from ``source`` to
     ``target``, on the caller's spectra (lists as a pipeline hands them; None: the cache).
@@ -378,12 +379,17 @@ def side_reference(
     what local triple products of matched points (:func:`orientation_score`) cannot when a
     tubular limb is mapped onto its mirror twin with a twist.
 
-    With a :class:`SideCache`, computed once per pair of shapes and spectra used."""
+    ``landmarks`` int ``(q, 2)``: matches known to be right (a caller's seeds); they enter the
+    functional map as one heat-kernel descriptor per pair, so that where they reach they, not the
+    intrinsic descriptors, decide left and right.
+
+    With a :class:`SideCache`, computed once per pair of shapes, spectra and landmarks used."""
     m = side_matcher(orientation)
+    lm = None if landmarks is None or len(landmarks) == 0 else np.asarray(landmarks, dtype=np.int64).reshape(-1, 2)
     ss, st = m._spectrum(source, shared_spectra(source_spectrum)), m._spectrum(target, shared_spectra(target_spectrum))
 
     def compute() -> SideReference:
-        res = m.match(source, target, source_spectrum=[ss], target_spectrum=[st])
+        res = m.match(source, target, seeds=lm, source_spectrum=[ss], target_spectrum=[st])
         C = np.asarray(res.info["C"])
         k = C.shape[0]
         bs, bt = basis_of(ss, k), basis_of(st, k)
@@ -393,7 +399,8 @@ def side_reference(
         return SideReference(bs.evecs[:, :k], bt.evecs[:, : C.shape[1]] @ C.T, bs, int(min(m.k, k)), t, bt)
 
     cache = _scoped(cache)
-    return _cached(None if cache is None else cache.sides, (source, target, ss, st), orientation, compute)
+    key = orientation if lm is None else (orientation, hashlib.sha1(lm.tobytes()).hexdigest())
+    return _cached(None if cache is None else cache.sides, (source, target, ss, st), key, compute)
 
 
 def orient_pairs(

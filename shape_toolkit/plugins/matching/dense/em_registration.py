@@ -202,7 +202,10 @@ class EMRegistrationMatcher(DenseMatcher):
     EM is intrinsic: a map and its mirror image fit equally well. Unless ``orientation`` is ``"none"``,
     :meth:`match` runs the registration inside :class:`~shape_toolkit.plugins.matching.dense.
     orientation_repair.OrientationRepair` (the pipelines' ``[orient]`` stage), which restarts it from
-    repaired maps. Why each choice, with measurements: ``benchmarks/results/em_registration_notes.md``.
+    repaired maps. With ``trust_seeds`` (the default) the ``seeds`` are taken as right: they also enter the
+    side reference, so where they reach they, not the intrinsic descriptors, decide left and right (a pipeline
+    passes its dense map as seeds with ``trust_seeds=False``). Why each choice, with measurements:
+    ``benchmarks/results/em_registration_notes.md``.
     """
 
     presets = {"thesis": {"spectrum": "graph", "weighting": "gaussian", "scaling": "none", "dimension": "scree",
@@ -223,6 +226,8 @@ class EMRegistrationMatcher(DenseMatcher):
         "dimension": Param(Options("fixed", "scree"), doc="embedding dimension: k, or the scree rule"),
         "dimension_threshold": Param(Interval(float, 0, 1, closed="neither"), doc="level of the scree rule"),
         "orientation": ORIENTATION,
+        "trust_seeds": Param(bool, doc="the seeds are right (a user's): they decide the sides; False: they only "
+                             "start the registration (a pipeline's dense map)"),
         "k_final": Param(None, Interval(int, None, 200), doc="refine the map up to this many eigenvectors"),
         "refine_step": Param(POSITIVE_INT, doc="eigenvectors added per refinement step"),
         "max_samples": Param(None, POSITIVE_INT, doc="target points EM samples (None: all)"),
@@ -237,7 +242,7 @@ class EMRegistrationMatcher(DenseMatcher):
         weighting: str | None = None, scaling: str = "none", dimension: str = "fixed",
         dimension_threshold: float = 0.95, orientation: str = "preserving", k_final: int | None = None,
         refine_step: int = 4, max_samples: int | None = None, refine_samples: int | None = 5000,
-        polish_k: int | None = None, random_state: Any = 0,
+        polish_k: int | None = None, random_state: Any = 0, trust_seeds: bool = True,
     ):
         self.k = k
         self.outlier_weight = outlier_weight
@@ -259,6 +264,7 @@ class EMRegistrationMatcher(DenseMatcher):
         self.refine_samples = refine_samples
         self.polish_k = polish_k
         self.random_state = random_state
+        self.trust_seeds = trust_seeds
 
     def _check(self) -> None:
         self._validate_params()
@@ -444,7 +450,8 @@ class EMRegistrationMatcher(DenseMatcher):
         """Dense map source -> target with sparse posteriors (descriptors, ``n_times``, ``progress``: unused)."""
         self._check()
         if self.orientation != "none":
-            return OrientationRepair(self, self.orientation).match(
+            landmarks = seeds if self.trust_seeds else None
+            return OrientationRepair(self, self.orientation, landmarks).match(
                 source, target, seeds=seeds, source_spectrum=source_spectrum, target_spectrum=target_spectrum)
         emb, Q0, info = self.start(source, target, seeds, source_spectrum, target_spectrum)
         return self.finish(emb, self.solve(emb, Q0), source, target, info, None, source_spectrum, target_spectrum)

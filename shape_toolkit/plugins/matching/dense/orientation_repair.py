@@ -20,10 +20,12 @@ from typing import Any, Protocol
 import numpy as np
 
 from shape_toolkit.api.interfaces import DenseMatcher
+from shape_toolkit.api.params import InstanceOf, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins._params import ORIENTATION
+from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec
 
@@ -63,11 +65,16 @@ class OrientationRepair(DenseMatcher):
     ``"reversing"``; ``"none"``: the registration's map as it is). Only meshes are repaired (the side
     reference needs outward normals); ``info`` records every decision (``orientation_*``)."""
 
-    parameter_constraints = {"orientation": ORIENTATION}
+    parameter_constraints = {
+        "orientation": ORIENTATION,
+        "landmarks": Param(None, InstanceOf(np.ndarray, list, tuple), doc="matches known to be right, (q, 2): "
+                           "they decide the sides where they reach (a caller's seeds)"),
+    }
 
-    def __init__(self, matcher: Any = None, orientation: str = "preserving"):
+    def __init__(self, matcher: Any = None, orientation: str = "preserving", landmarks: np.ndarray | None = None):
         self.matcher = matcher
         self.orientation = orientation
+        self.landmarks = landmarks
 
     def registration(self) -> Registration:
         """The wrapped matcher, checked: a :class:`Registration`."""
@@ -111,17 +118,35 @@ class OrientationRepair(DenseMatcher):
         """The registration's dense map, its side repaired (descriptors, ``n_times``, ``progress``: unused)."""
         m = self.registration()
         on = self.orientation != "none"
+        lm = self.checked_landmarks(source, target)
         emb, Q0, info = m.start(source, target, seeds, source_spectrum, target_spectrum, ORIENTATION_K if on else 0)
+        info["orientation_landmarks"] = 0 if lm is None else int(len(lm))
         fit, k_done = m.solve(emb, Q0), emb.K
         if on and source.is_mesh and target.is_mesh:
             from shape_toolkit.plugins.matching.orientation import side_cache_scope
 
             with side_cache_scope():  # the side check and the rescue share one side reference (or the caller's)
-                fit = self.side_check(emb, fit, source, target, info, source_spectrum, target_spectrum)
+                fit = self.side_check(emb, fit, source, target, info, source_spectrum, target_spectrum, lm)
                 info["orientation_score"] = self.score(emb, source, target, fit.target_of)
                 if info["orientation_score"] < 0:
-                    fit, k_done = self.rescue(emb, fit, source, target, info, source_spectrum, target_spectrum)
+                    fit, k_done = self.rescue(emb, fit, source, target, info, source_spectrum, target_spectrum, lm)
         return m.finish(emb, fit, source, target, info, k_done, source_spectrum, target_spectrum)
+
+    def checked_landmarks(self, source: Shape, target: Shape) -> np.ndarray | None:
+        """``landmarks`` checked against the shapes, int64 ``(q, 2)``; at most ``ORIENTATION_K`` of them,
+        farthest-point samples of their source vertices (the side reference decides sides at a coarse
+        resolution: more add cost, not information); None when there are none."""
+        from shape_toolkit.core.geometry import farthest_point_sampling
+
+        try:
+            lm = check_seeds(self.landmarks, source.n_vertices, target.n_vertices)
+        except ParameterError as e:
+            raise ParameterError(f"orientation landmarks (the caller's seeds): {e}") from None
+        if lm is None or len(lm) == 0:
+            return None
+        if len(lm) > ORIENTATION_K:
+            lm = lm[farthest_point_sampling(np.asarray(source.vertices)[lm[:, 0]], ORIENTATION_K)]
+        return lm
 
     def score(self, emb: Any, source: Shape, target: Shape, t: np.ndarray, refined: bool = True) -> float:
         """Signed local triple-product score (``orientation_score``; about +1 for the wanted orientation) of
@@ -140,7 +165,8 @@ class OrientationRepair(DenseMatcher):
         return want * orientation_score(source, target, np.column_stack([rows, t[rows]]))
 
     def side_check(self, emb: Any, first: Any, source: Shape, target: Shape, info: dict,
-                   source_spectrum: Any = None, target_spectrum: Any = None) -> Any:
+                   source_spectrum: Any = None, target_spectrum: Any = None,
+                   landmarks: np.ndarray | None = None) -> Any:
         """Each region takes ``T(x)`` or its mirror image ``T(S(x))`` (``S`` the source's intrinsic symmetry),
         whichever is nearer the side reference ``R`` (an orientation-aware functional map); ``R(x)`` where
         ``S`` is no symmetry, or where neither is near ``R`` while ``T`` piles two parts onto one. When a
@@ -149,7 +175,8 @@ class OrientationRepair(DenseMatcher):
         from shape_toolkit.plugins.matching.orientation import side_reference, symmetry_map, symmetry_validity
 
         m = self.matcher
-        ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation)
+        ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation,
+                             landmarks=landmarks)
         t = first.target_of
         sym = symmetry_map(source, source_spectrum)
         valid = symmetry_validity(source, sym, ref.basis, ref.k_smooth)
@@ -185,7 +212,8 @@ class OrientationRepair(DenseMatcher):
         return cands[best]
 
     def rescue(self, emb: Any, first: Any, source: Shape, target: Shape, info: dict,
-               source_spectrum: Any = None, target_spectrum: Any = None) -> tuple[Any, int]:
+               source_spectrum: Any = None, target_spectrum: Any = None,
+               landmarks: np.ndarray | None = None) -> tuple[Any, int]:
         """For a map that still reverses orientation on the whole (:meth:`score` < 0): the first candidate
         that scores positive among the registration run again from the side reference's map, from the fine
         orientation-aware functional map, then those two maps themselves (``first`` when none does). Returns
@@ -202,13 +230,15 @@ class OrientationRepair(DenseMatcher):
         def start(name: str) -> tuple[np.ndarray, int]:
             if name not in starts:
                 if name == "reference_map":
-                    ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation)
+                    ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation,
+                                         landmarks=landmarks)
                     starts[name] = (np.asarray(ref.target_of), int(ref.source_points.shape[1]))
                 else:
                     fm = fine_matcher(self.orientation)
                     ss = fm._spectrum(source, _given(source_spectrum))
                     st = fm._spectrum(target, _given(target_spectrum))
-                    res = fm.match(source, target, source_spectrum=[ss], target_spectrum=[st])
+                    res = fm.match(source, target, seeds=landmarks, source_spectrum=[ss],
+                                   target_spectrum=[st])
                     starts[name] = (np.asarray(res.target_of), int(res.info["k_final"]))
             return starts[name]
 
