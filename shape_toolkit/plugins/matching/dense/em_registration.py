@@ -184,27 +184,20 @@ class Embedding:
 
 
 class EMRegistrationMatcher(DenseMatcher):
-    """Algorithm 7: EM registration of the ``k``-dimensional Laplacian embeddings, initialized by
-    orthogonal Procrustes on the ``seeds`` (e.g. the output of seed-growing; required).
+    """Algorithm 7: EM registration of the ``k``-dimensional Laplacian embeddings, started by orthogonal
+    Procrustes on the ``seeds`` (required; e.g. seed growing's map). Returns section 7.5's hard map (largest
+    posterior above ``threshold``, optionally ``one_to_one``; ``fill_unmatched``: the others get the target
+    nearest their transformed point, confidence 0) and sparse posteriors (``n_neighbors`` per target vertex).
+    Embedding (7.4.1): ``spectrum`` ``"lbo"`` or ``"graph"`` (``D - W``, ``weighting``, no mass: eq. 6.24),
+    ``scaling`` (commute-time: eq. 2.92), ``dimension`` fixed or by the scree rule (eq. 2.97-2.99). Preset
+    ``thesis`` is 7.4.1 as written (Gaussian graph, t = 0, scree ``k <= 10``, posterior > 0.5 or unmatched, no
+    orientation repair); ``topo-robust`` adds commute-time scaling. Extensions: ``k_final`` refines the map while
+    the embedding grows (7.5.2 blames small ``k``), ``polish_k`` on the Laplace-Beltrami basis; ``max_samples``
+    and ``refine_samples`` bound the work on large shapes.
 
-    Returns the hard map of section 7.5 (largest posterior above ``threshold``, optionally ``one_to_one``;
-    ``fill_unmatched`` gives the others the target nearest to their transformed point, confidence 0) and the
-    sparse posteriors (``n_neighbors`` per target vertex: memory linear in the vertex counts). The embedding
-    (7.4.1): ``spectrum`` ``"lbo"`` or ``"graph"`` (``D - W`` with ``weighting``, no mass: eq. 6.24),
-    ``scaling`` ``"none"`` or ``"commute-time"`` (eq. 2.92), ``dimension`` ``"fixed"`` or ``"scree"``
-    (eq. 2.97-2.99, ``dimension_threshold``). Preset ``thesis``, 7.4.1 as written: eq. 6.24 at ``t = 0`` (plain
-    eigenvectors of the Gaussian graph's ``D - W``, no mass), ``3 <= k <= 10`` by the scree rule, Algorithm 7's
-    assignment (posterior > 0.5, the rest unmatched), no orientation repair; ``topo-robust``: that graph with
-    commute-time scaling (eq. 2.92). Extensions: ``k_final`` refines the hard map while the embedding grows (7.5.2
-    blames the small ``k`` for local errors), ``polish_k`` once more on the Laplace-Beltrami basis;
-    ``max_samples`` and ``refine_samples`` bound the work on large shapes.
-
-    EM is intrinsic: a map and its mirror image fit equally well. Unless ``orientation`` is ``"none"``,
-    :meth:`match` runs the registration inside :class:`~shape_toolkit.plugins.matching.dense.
-    orientation_repair.OrientationRepair` (the pipelines' ``[orient]`` stage), which restarts it from
-    repaired maps. With ``trust_seeds`` (the default) the ``seeds`` are taken as right: they also enter the
-    side reference, so where they reach they, not the intrinsic descriptors, decide left and right (a pipeline
-    passes its dense map as seeds with ``trust_seeds=False``). Why each choice, with measurements:
+    EM cannot tell a map from its mirror image: unless ``orientation`` is ``"none"``, :meth:`match` runs inside
+    :class:`~shape_toolkit.plugins.matching.dense.orientation_repair.OrientationRepair` (the pipelines'
+    ``[orient]`` stage), with the seeds as its landmarks when ``trust_seeds``. Measurements behind each choice:
     ``benchmarks/results/em_registration_notes.md``.
     """
 
