@@ -50,7 +50,8 @@ class PluginError(ToolkitError):
 COMPONENT_OPTIONS = (
     "compute_spectrum(..., components='largest') analyses the largest component only; "
     "component_spectra(graph, k) gives one spectrum per component; "
-    "Shape cleanup (keep_largest_component) removes the small pieces"
+    "Shape cleanup (keep_largest_component) removes the small pieces, as does "
+    "'shape-toolkit clean --keep-largest FILE' from the command line"
 )
 
 
