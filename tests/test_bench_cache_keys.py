@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bench_helpers import SPECTRAL_CLUSTERING, bench_run, segmentation_config, write_config
+from helpers import SPECTRAL_CLUSTERING, bench_run, segmentation_config, write_config
 
 from shape_toolkit.bench import read_rows
 from shape_toolkit.bench.store import load_output, load_prepared, prepared_path

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
-from bench_helpers import bench_run, segmentation_config, write_config
+from helpers import bench_run, segmentation_config, write_config
 
 from shape_toolkit.bench.compare import compare_runs, format_text, write_comparison
 from shape_toolkit.cli import main

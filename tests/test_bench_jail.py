@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 
 import pytest
-from bench_helpers import bench_run, segmentation_config, write_config
+from helpers import bench_run, segmentation_config, write_config
 
 from shape_toolkit.bench import read_rows
 from shape_toolkit.bench.store import LOCK, MARK, run_lock

@@ -9,10 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bench_helpers import bench_run, segmentation_config, write_config
+from helpers import bench_run, registered, segmentation_config, write_config
 
 from shape_toolkit.api.interfaces import Segmenter
-from shape_toolkit.api.registry import get_registry
 from shape_toolkit.bench import load_config, read_rows, run_benchmark, write_report
 from shape_toolkit.bench.store import LOCK, BenchWarning
 from shape_toolkit.cli import main
@@ -191,11 +190,9 @@ class _Recorder(Segmenter):
 
 @pytest.fixture
 def recorder():
-    reg = get_registry()
-    reg.register("segmenters", "spectrum-recorder-test", _Recorder)
     RECEIVED.clear()
-    yield
-    reg.unregister("segmenters", "spectrum-recorder-test")
+    with registered("segmenters", "spectrum-recorder-test", _Recorder):
+        yield
 
 
 def test_row_records_the_spectrum_the_method_received(tmp_path, recorder):
@@ -241,10 +238,8 @@ class _TwoKinds(_Recorder):
 
 
 def test_a_method_declaring_two_kinds_receives_both(tmp_path):
-    reg = get_registry()
-    reg.register("segmenters", "two-kinds-test", _TwoKinds)
     RECEIVED.clear()
-    try:
+    with registered("segmenters", "two-kinds-test", _TwoKinds):
         text = CONFIG.replace(
             'plugin = "spectral-clustering"\npreset = "luxburg-unnormalized"\nparams = { n_segments = 3 }',
             'plugin = "two-kinds-test"\nparams = { k = 5 }',
@@ -256,8 +251,6 @@ def test_a_method_declaring_two_kinds_receives_both(tmp_path):
         (name, given), = RECEIVED
         assert isinstance(given, list) and {g.weighting for g in given} == {"gaussian", "binary"}
         assert sorted(r["weighting"] for r in rows[0]["spectra"]) == ["binary", "gaussian"]
-    finally:
-        reg.unregister("segmenters", "two-kinds-test")
 
 
 @pytest.mark.parametrize("address", ["notaurl", "tcp://127.0.0.1:abc", "tcp://127.0.0.1:99999", "http://x:1",

@@ -10,9 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bench_helpers import bench_run, segmentation_config, write_config
+from helpers import bench_run, registered, segmentation_config, write_config
 
-from shape_toolkit.api.registry import get_registry
 from shape_toolkit.bench import read_rows
 from shape_toolkit.results.segmentation import Segmentation
 
@@ -39,10 +38,8 @@ class _Flaky:
 
 @pytest.fixture
 def flaky():
-    reg = get_registry()
-    reg.register("segmenters", "flaky-write-test", _Flaky)
-    yield
-    reg.unregister("segmenters", "flaky-write-test")
+    with registered("segmenters", "flaky-write-test", _Flaky):
+        yield
     FAULT["on"] = False
 
 
