@@ -5,28 +5,16 @@ unexplained null. The cheap commands run on every file; every command runs on th
 
 from __future__ import annotations
 
-import importlib.util
 import io
-import sys
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 import pytest
+from helpers import REPO, load_script
 
 from shape_toolkit.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _corpus_module():
-    spec = importlib.util.spec_from_file_location("adversarial_corpus", ROOT / "benchmarks" / "adversarial_corpus.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["adversarial_corpus"] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-corpus = _corpus_module()
+corpus = load_script("adversarial_corpus", REPO / "benchmarks" / "adversarial_corpus.py")
 
 #: cheap subcommands only: the loaders and validation are shared by all of them
 FAST = ("info", "clean", "evaluate-segmentation", "geodesics", "constraints")

@@ -8,18 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
-from shape_toolkit.cli import main
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.io.mesh import save_shape
-
-
-def _cli(capsys, *args: str) -> tuple[int, str, str]:
-    code = main([str(a) for a in args])
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def _one_line_rejection(code: int, out: str, err: str, needle: str) -> None:
@@ -68,7 +62,7 @@ def test_evaluate_map_on_a_degenerate_mesh_is_a_one_line_rejection(tmp_path, cap
     n = len(v)
     m, t = _ints(tmp_path / "id.map", range(n)), _ints(tmp_path / "t.vts", range(1, n + 1))
     extra = ["--truth-dst-sym", t] if sym else []
-    code, out, err = _cli(capsys, "evaluate-map", p, p, m, "--truth-src", t, "--truth-dst", t,
+    code, out, err = run_cli(capsys, "evaluate-map", p, p, m, "--truth-src", t, "--truth-dst", t,
                           "--geodesics", "dijkstra", "--json", *extra)
     _one_line_rejection(code, out, err, "zero surface area")
     assert out == ""
@@ -82,7 +76,7 @@ def test_evaluate_map_refuses_when_no_truth_pair_is_matched(tmp_path, capsys):
     tmap[:10] = -1  # the truth points only
     m = _ints(tmp_path / "m.map", tmap)
     t = _ints(tmp_path / "t.vts", range(1, 11))
-    code, out, err = _cli(capsys, "evaluate-map", p, p, m, "--truth-src", t, "--truth-dst", t,
+    code, out, err = run_cli(capsys, "evaluate-map", p, p, m, "--truth-src", t, "--truth-dst", t,
                           "--geodesics", "dijkstra", "--json")
     _one_line_rejection(code, out, err, "mean geodesic error is undefined")
 
@@ -91,7 +85,7 @@ def test_evaluate_map_on_a_mesh_with_repeated_vertices_gives_numbers(tmp_path, c
     p = tmp_path / "rep.off"
     save_shape(Shape(np.array([[0, 0, 0], [1, 0, 0], [1, 0, 0], [0, 1, 0.0]]), np.array([[0, 1, 3], [1, 2, 3]])), p)
     m, t = _ints(tmp_path / "id.map", range(4)), _ints(tmp_path / "t.vts", range(1, 5))
-    code, out, err = _cli(capsys, "evaluate-map", p, p, m, "--truth-src", t, "--truth-dst", t,
+    code, out, err = run_cli(capsys, "evaluate-map", p, p, m, "--truth-src", t, "--truth-dst", t,
                           "--geodesics", "dijkstra", "--json")
     assert code == 0, err
     res = json.loads(out)
@@ -161,7 +155,7 @@ def test_transfer_labels_cli_on_tiny_meshes(tmp_path, capsys, a, b):
     save_shape(src, tmp_path / "a.off")
     save_shape(dst, tmp_path / "b.off")
     lab = _ints(tmp_path / "a.labels", np.arange(src.n_vertices) % 2)
-    code, out, err = _cli(capsys, "transfer-labels", tmp_path / "a.off", lab, tmp_path / "b.off",
+    code, out, err = run_cli(capsys, "transfer-labels", tmp_path / "a.off", lab, tmp_path / "b.off",
                           "-o", tmp_path / "out.txt", "--json")
     assert code == 0, err
     assert json.loads(out)["n_vertices"] == dst.n_vertices
@@ -204,7 +198,7 @@ def test_segment_cli_refuses_constraints_for_unsupervised_methods(tmp_path, caps
     save_shape(s, tmp_path / "s.off")
     cons = tmp_path / "c.json"
     cons.write_text(json.dumps({"must_link": [[0, 1]], "cannot_link": [[0, 100]]}))
-    code, out, err = _cli(capsys, "segment", tmp_path / "s.off", "--method", name, "-k", "3", "--constraints", cons,
+    code, out, err = run_cli(capsys, "segment", tmp_path / "s.off", "--method", name, "-k", "3", "--constraints", cons,
                           "-o", tmp_path / "s.txt", "--json")
     _one_line_rejection(code, out, err, "takes no constraints")
     assert "ccskl, csc, seeded-walk, spectral-learning" in err
@@ -216,7 +210,7 @@ def test_segment_cli_still_passes_constraints_to_csc(tmp_path, capsys):
     save_shape(s, tmp_path / "s.off")
     cons = tmp_path / "c.json"
     cons.write_text(json.dumps({"must_link": [[0, 1]], "cannot_link": [[0, 100]]}))
-    code, out, err = _cli(capsys, "segment", tmp_path / "s.off", "--method", "csc", "-k", "3", "--constraints", cons,
+    code, out, err = run_cli(capsys, "segment", tmp_path / "s.off", "--method", "csc", "-k", "3", "--constraints", cons,
                           "-o", tmp_path / "s.txt", "--json")
     assert code == 0, err
     assert json.loads(out)["n_constraints"] == {"must_link": 1, "cannot_link": 1}
@@ -263,7 +257,7 @@ def test_view_without_display_is_one_line(monkeypatch, capsys, mesh_file):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     monkeypatch.setattr(view.sys, "platform", "linux")
-    code, out, err = _cli(capsys, "view", mesh_file)
+    code, out, err = run_cli(capsys, "view", mesh_file)
     _one_line_rejection(code, out, err, "no display")
     assert "--png" in err and fake.inits == 0 and out == ""
 
@@ -275,7 +269,7 @@ def test_view_with_a_display_that_cannot_open_is_one_line(monkeypatch, capsys, m
     monkeypatch.setattr(view.atexit, "register", registered.append)
     monkeypatch.setattr(view, "_polyscope", lambda: _FakePolyscope(fail=True))
     monkeypatch.setenv("DISPLAY", ":99")
-    code, out, err = _cli(capsys, "view", mesh_file)
+    code, out, err = run_cli(capsys, "view", mesh_file)
     _one_line_rejection(code, out, err, "cannot open the viewer window (Automatic initialization")
     assert "--png" in err and registered == [view._quiet_exit]
 
@@ -288,13 +282,13 @@ def test_view_png_needs_no_display(monkeypatch, capsys, tmp_path, mesh_file):
     odd = tmp_path / "$\\frac{a}{b}$ <script>.off"  # a name matplotlib must not parse as a formula
     odd.write_bytes(mesh_file.read_bytes())
     labels = _ints(tmp_path / "l.txt", np.arange(icosphere(1).n_vertices) % 3)
-    code, out, err = _cli(capsys, "view", odd, "--labels", labels, "--png", tmp_path / "v.png", "--json")
+    code, out, err = run_cli(capsys, "view", odd, "--labels", labels, "--png", tmp_path / "v.png", "--json")
     assert code == 0, err
     assert json.loads(out)["panels"] == [odd.stem]
     assert (tmp_path / "v.png").read_bytes()[:4] == b"\x89PNG"
-    code, out, err = _cli(capsys, "view", mesh_file, "--png", mesh_file)
+    code, out, err = run_cli(capsys, "view", mesh_file, "--png", mesh_file)
     _one_line_rejection(code, out, err, "--png must end with .png")
-    code, out, err = _cli(capsys, "view", mesh_file, "--json")
+    code, out, err = run_cli(capsys, "view", mesh_file, "--json")
     _one_line_rejection(code, out, err, "--json applies to --png")
 
 
@@ -308,7 +302,7 @@ def test_param_table_is_a_one_line_rejection_naming_the_parameter(tmp_path, caps
     spectrum; an unhashable dict reached the registry on keypoints and segment)."""
     extra = {"segment": ["--method", "eigvec-gmm", "-o", tmp_path / "s.txt"],
              "describe": ["-o", tmp_path / "d.npz"]}.get(command, [])
-    code, out, err = _cli(capsys, command, mesh_file, *extra, "--param", f"weighting={value}", "--json")
+    code, out, err = run_cli(capsys, command, mesh_file, *extra, "--param", f"weighting={value}", "--json")
     _one_line_rejection(code, out, err, "weighting")
     assert "internal error" not in err
 
@@ -332,7 +326,7 @@ def test_spectral_clustering_variant_table_is_a_typed_error():
 
 
 def test_param_names_are_checked_before_any_work(capsys, mesh_file):
-    code, out, err = _cli(capsys, "spectrum", mesh_file, "--param", "connectivity=knn", "--json")
+    code, out, err = run_cli(capsys, "spectrum", mesh_file, "--param", "connectivity=knn", "--json")
     _one_line_rejection(code, out, err, "CotangentWeighting has no parameter 'connectivity'")
 
 
@@ -361,16 +355,16 @@ def test_info_explains_every_null(tmp_path, capsys):
     bowtie = tmp_path / "bowtie.off"
     save_shape(Shape(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [-1, 0, 0], [-1, -1, 0.0]]),
                      np.array([[0, 1, 2], [0, 3, 4]])), bowtie)
-    code, out, err = _cli(capsys, "info", bowtie, "--json")
+    code, out, err = run_cli(capsys, "info", bowtie, "--json")
     info = json.loads(out)
     assert code == 0 and info["genus"] is None and "closed, connected, manifold" in info["undefined"]["genus"]
     cloud = tmp_path / "c.xyz"
     cloud.write_text("0 0 0\n1 0 0\n0 1 0\n")
-    info = json.loads(_cli(capsys, "info", cloud, "--json")[1])
+    info = json.loads(run_cli(capsys, "info", cloud, "--json")[1])
     assert all(info["undefined"][k] == "a point cloud has no faces" for k, v in info.items() if v is None)
     sphere = tmp_path / "s.off"
     save_shape(icosphere(1), sphere)
-    assert "undefined" not in json.loads(_cli(capsys, "info", sphere, "--json")[1])
+    assert "undefined" not in json.loads(run_cli(capsys, "info", sphere, "--json")[1])
 
 
 def test_evaluate_segmentation_explains_an_undefined_cut_discrepancy(tmp_path, capsys):
@@ -378,10 +372,10 @@ def test_evaluate_segmentation_explains_an_undefined_cut_discrepancy(tmp_path, c
     save_shape(s, tmp_path / "s.off")
     one = _ints(tmp_path / "one.txt", np.zeros(s.n_vertices))  # one segment: no cut
     two = _ints(tmp_path / "two.seg", np.arange(s.n_faces) % 2)
-    code, out, err = _cli(capsys, "evaluate-segmentation", tmp_path / "s.off", one, "--truth", two, "--json")
+    code, out, err = run_cli(capsys, "evaluate-segmentation", tmp_path / "s.off", one, "--truth", two, "--json")
     res = json.loads(out)
     assert code == 0 and res["cut_discrepancy"] is None and "needs both" in res["undefined"]["cut_discrepancy"]
-    code, out, err = _cli(capsys, "evaluate-segmentation", tmp_path / "s.off", one, "--truth", one, "--json")
+    code, out, err = run_cli(capsys, "evaluate-segmentation", tmp_path / "s.off", one, "--truth", one, "--json")
     assert json.loads(out)["cut_discrepancy"] == 0.0 and "undefined" not in json.loads(out)
 
 
@@ -406,7 +400,7 @@ def test_control_characters_in_names_keep_errors_on_one_line(tmp_path, capsys, m
         (["keypoints", mesh_file, "--param", "<script>=1"], "a parameter name as KEY"),
     ]
     for args, needle in cases:
-        code, out, err = _cli(capsys, *args, "--json")
+        code, out, err = run_cli(capsys, *args, "--json")
         _one_line_rejection(code, out, err, needle)
 
 

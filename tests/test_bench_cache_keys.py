@@ -4,16 +4,15 @@ empty cache file is a miss (recomputed, reported once), never a wrong result (is
 from __future__ import annotations
 
 import shutil
-import textwrap
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import SPECTRAL_CLUSTERING, bench_run, segmentation_config, write_config
 
 from shape_toolkit.bench import read_rows
 from shape_toolkit.bench.store import load_output, load_prepared, prepared_path
-from shape_toolkit.cli import main
 from shape_toolkit.core import spectrum as spm
 from shape_toolkit.core.spectrum import CacheWarning, compute_spectrum
 from shape_toolkit.data.generate import icosphere
@@ -95,34 +94,16 @@ def test_a_corrupt_spectrum_file_is_a_miss_reported_once(disk_cache, damage):
 
 
 # -- run folders ------------------------------------------------------------------------------
-CONFIG = """
-[run]
-name = "keys"
-[[datasets]]
-name = "synth"
-kind = "synthetic"
-limit = 2
-params = { n_poses = 3, subdivisions = 2 }
-[[tasks]]
-task = "segmentation"
-name = "seg"
-metrics = ["n_segments", "segmentation"]
-[[tasks.methods]]
-plugin = "spectral-clustering"
-preset = "luxburg-unnormalized"
-params = { n_segments = 3 }
-[[tasks.methods]]
+CONFIG = segmentation_config("keys", limit=2, n_poses=3, methods=SPECTRAL_CLUSTERING + """[[tasks.methods]]
 plugin = "spectral-clustering"
 preset = "luxburg-unnormalized"
 label = "norm"
 params = { n_segments = 4, weighting = "cotangent" }
-"""
+""")
 
 
 def _run(tmp_path: Path, run: Path, *extra: str) -> int:
-    cfg = tmp_path / "bench.toml"
-    cfg.write_text(textwrap.dedent(CONFIG))
-    return main(["bench", "run", str(cfg), "-o", str(run), "--no-progress", *extra])
+    return bench_run(write_config(tmp_path, CONFIG), run, *extra)
 
 
 def _results(run: Path) -> dict[tuple, object]:

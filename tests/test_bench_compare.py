@@ -4,27 +4,18 @@ from __future__ import annotations
 
 import csv
 import json
-import textwrap
 from pathlib import Path
 
 import pytest
+from helpers import bench_run, segmentation_config, write_config
 
 from shape_toolkit.bench.compare import compare_runs, format_text, write_comparison
 from shape_toolkit.cli import main
 from shape_toolkit.errors import ParameterError
 
-CONFIG = """
-[run]
-name = "{name}"
-[[datasets]]
-name = "synth"
-kind = "synthetic"
-limit = 3
-params = {{ n_poses = 3, subdivisions = 2 }}
-[[tasks]]
-task = "segmentation"
-name = "seg"
-metrics = ["n_segments", "segmentation"]
+
+def _config(name: str, k: int) -> str:
+    return segmentation_config(name, limit=3, n_poses=3, methods=f"""
 [[tasks.methods]]
 plugin = "spectral-clustering"
 label = "<b>sc</b>"
@@ -33,14 +24,12 @@ params = {{ n_segments = {k} }}
 plugin = "ncut"
 label = "ncut"
 params = {{ n_segments = 4 }}
-"""
+""")
 
 
 def _run(tmp_path: Path, name: str, k: int) -> Path:
-    cfg = tmp_path / f"{name}.toml"
-    cfg.write_text(textwrap.dedent(CONFIG.format(name=name, k=k)))
     run = tmp_path / name
-    assert main(["bench", "run", str(cfg), "-o", str(run), "--no-progress", "--quiet"]) == 0
+    assert bench_run(write_config(tmp_path, _config(name, k), f"{name}.toml"), run, "--quiet") == 0
     return run
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import textwrap
 
 import pytest
+from helpers import spectrum_config
 
 from shape_toolkit.bench.config import ConfigError, expand_grid, load_config, parse_config
 from shape_toolkit.cli import main
@@ -114,17 +115,7 @@ def test_cli_bad_config_fails_before_work(tmp_path, capsys):
     assert "invalid TOML" in capsys.readouterr().err
 
 
-SPECTRUM_TASK = """
-[[datasets]]
-name = "synth"
-kind = "synthetic"
-params = { n_poses = 2, subdivisions = 2 }
-[[tasks]]
-task = "spectrum"
-spectrum = { k = 8 }
-[[tasks.methods]]
-plugin = "gaussian"
-"""
+SPECTRUM_TASK = spectrum_config("gaussian")
 
 
 def test_spectrum_table_is_the_subject_of_the_spectrum_task_only(tmp_path):

@@ -405,6 +405,12 @@ def test_the_report_survives_every_row_the_reader_accepts(rows, tmp_path_factory
     ],
 )
 def test_config_strings_and_options_are_checked_naming_the_key(tmp_path, capsys, old, new, key):
+    _refused_naming_the_key(tmp_path, capsys, old, new, key)
+
+
+def _refused_naming_the_key(tmp_path, capsys, old: str, new: str, key: str) -> None:
+    """CONFIG with ``old`` replaced by ``new``: load_config raises a ConfigError of ``key``, and ``bench run``
+    exits 2 with one line naming it, before any work."""
     from shape_toolkit.bench.config import ConfigError, load_config
 
     assert old in CONFIG
@@ -445,18 +451,7 @@ def test_config_strings_and_options_are_checked_naming_the_key(tmp_path, capsys,
     ],
 )
 def test_bad_nested_parameters_are_one_line_naming_the_key(tmp_path, capsys, old, new, key):
-    from shape_toolkit.bench.config import ConfigError, load_config
-
-    assert old in CONFIG
-    config = _write(tmp_path, CONFIG.replace(old, new, 1))
-    with pytest.raises(ConfigError) as ei:
-        load_config(config)
-    assert ei.value.key == key, str(ei.value)
-    run = tmp_path / "run"
-    assert main(["bench", "run", str(config), "-o", str(run), "--no-progress"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and key in err
-    assert not run.exists()
+    _refused_naming_the_key(tmp_path, capsys, old, new, key)
 
 
 # -- 6. grids are counted, and refused above the cap, before anything is expanded ------------

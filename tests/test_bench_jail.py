@@ -4,38 +4,19 @@ writes only in folders it made, and the lock survives a deleted ``.lock``."""
 from __future__ import annotations
 
 import os
-import textwrap
 from pathlib import Path
 
 import pytest
+from helpers import bench_run, segmentation_config, write_config
 
 from shape_toolkit.bench import read_rows
 from shape_toolkit.bench.store import LOCK, MARK, run_lock
-from shape_toolkit.cli import main
 
-CONFIG = """
-[run]
-name = "jail"
-[[datasets]]
-name = "synth"
-kind = "synthetic"
-limit = 1
-params = { n_poses = 2, subdivisions = 2 }
-[[tasks]]
-task = "segmentation"
-name = "seg"
-metrics = ["n_segments"]
-[[tasks.methods]]
-plugin = "spectral-clustering"
-preset = "luxburg-unnormalized"
-params = { n_segments = 3 }
-"""
+CONFIG = segmentation_config("jail", limit=1, metrics='"n_segments"')
 
 
 def _run(tmp_path: Path, run: Path) -> int:
-    cfg = tmp_path / "bench.toml"
-    cfg.write_text(textwrap.dedent(CONFIG))
-    return main(["bench", "run", str(cfg), "-o", str(run), "--no-progress"])
+    return bench_run(write_config(tmp_path, CONFIG), run)
 
 
 def _tree(folder: Path) -> dict[str, bytes]:

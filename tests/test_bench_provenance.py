@@ -4,13 +4,13 @@ run commands surviving a report-only regeneration."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
 import subprocess
 from pathlib import Path
 
 import pytest
+from helpers import load_script
 
 from shape_toolkit.bench import worker
 from shape_toolkit.bench.worker import code_revision, revision_label
@@ -91,17 +91,10 @@ def test_revision_label_reads_old_records():
     assert revision_label(None) == revision_label({}) == "not recorded"
 
 
-def _load_script(name: str, path: Path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_tosca_example_reads_old_and_new_revision_records(tmp_path):
     """examples/tosca_matching/results.py: a run log and revision log written before code_revision
     (``dirty`` a list of files) and after it (``dirty`` a bool, ``dirty_files``) both render."""
-    res = _load_script("tosca_results", REPO / "examples" / "tosca_matching" / "results.py")
+    res = load_script("tosca_results", REPO / "examples" / "tosca_matching" / "results.py")
     curve = [[0.0, 0.0], [0.1, 1.0]]
     metrics = {f"r_smooth@{r:g}": 10.0 for r in res.RS}
     metrics.update(label_recall=0.5, label_precision=0.5, mean_geodesic_error=0.1, geodesic_error_curve=curve)

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import registered
 
 from shape_toolkit.api.interfaces import Segmenter
-from shape_toolkit.api.registry import get_registry
 from shape_toolkit.bench import read_rows, run_benchmark
 from shape_toolkit.bench.config import load_config
 from shape_toolkit.bench.store import BenchWarning
@@ -131,10 +131,8 @@ class _Flaky(Segmenter):
 
 @pytest.fixture
 def flaky():
-    reg = get_registry()
-    reg.register("segmenters", "flaky-test", _Flaky)
-    yield
-    reg.unregister("segmenters", "flaky-test")
+    with registered("segmenters", "flaky-test", _Flaky):
+        yield
 
 
 def test_failed_rows_are_recorded_and_run_goes_on(config_path, tmp_path, flaky, capsys):

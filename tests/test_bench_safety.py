@@ -5,14 +5,13 @@ from __future__ import annotations
 import json
 import os
 import pickle
-import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import bench_run, registered, segmentation_config, write_config
 
 from shape_toolkit.api.interfaces import Segmenter
-from shape_toolkit.api.registry import get_registry
 from shape_toolkit.bench import load_config, read_rows, run_benchmark, write_report
 from shape_toolkit.bench.store import LOCK, BenchWarning
 from shape_toolkit.cli import main
@@ -20,34 +19,12 @@ from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.results.segmentation import Segmentation
 from shape_toolkit.spectra import SpectrumSpec
 
-CONFIG = """
-[run]
-name = "safety"
-[[datasets]]
-name = "synth"
-kind = "synthetic"
-limit = 1
-params = { n_poses = 2, subdivisions = 2 }
-[[tasks]]
-task = "segmentation"
-name = "seg"
-metrics = ["n_segments", "segmentation"]
-[[tasks.methods]]
-plugin = "spectral-clustering"
-preset = "luxburg-unnormalized"
-params = { n_segments = 3 }
-"""
+CONFIG = segmentation_config("safety", limit=1)
 N_ROWS = 1
 
 
 def _write(tmp_path: Path, text: str = CONFIG) -> Path:
-    p = tmp_path / "bench.toml"
-    p.write_text(textwrap.dedent(text))
-    return p
-
-
-def _run(config: Path, run: Path, *extra: str) -> int:
-    return main(["bench", "run", str(config), "-o", str(run), "--no-progress", *extra])
+    return write_config(tmp_path, text)
 
 
 # -- a run folder is data, never code ---------------------------------------------------------
@@ -70,7 +47,7 @@ def test_planted_pickles_are_never_loaded(tmp_path, capsys):
     payload = pickle.dumps(_Evil(marker))
     config = _write(tmp_path)
     run = tmp_path / "run"
-    assert _run(config, run) == 0
+    assert bench_run(config, run) == 0
     rows = read_rows(run)
     assert len(rows) == N_ROWS and rows[0]["output"]
     # every place the old runner and report unpickled (cache/prepared/KEY.pkl), and every file
@@ -90,7 +67,7 @@ def test_planted_pickles_are_never_loaded(tmp_path, capsys):
     assert not marker.exists()
     (run / "results.jsonl").unlink()  # every row again: prepared items and spectra are read back
     capsys.readouterr()
-    assert _run(config, run, "--json") == 0
+    assert bench_run(config, run, "--json") == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["rows"] == N_ROWS and summary["failed"] == 0
     assert not marker.exists()
@@ -109,18 +86,18 @@ def test_second_run_on_a_locked_folder_exits_2(tmp_path, capsys):
     run = tmp_path / "run"
     run.mkdir()
     with FileLock(str(run / LOCK), timeout=0):
-        assert _run(config, run) == 2
+        assert bench_run(config, run) == 2
         err = capsys.readouterr().err.strip()
         assert "in use by another 'bench run'" in err and len(err.splitlines()) == 1
         assert not (run / "results.jsonl").exists()
-    assert _run(config, run) == 0
+    assert bench_run(config, run) == 0
     assert len(read_rows(run)) == N_ROWS
 
 
 def test_garbage_lines_are_skipped_with_a_warning_and_recomputed(tmp_path, capsys):
     config = _write(tmp_path)
     run = tmp_path / "run"
-    assert _run(config, run) == 0
+    assert bench_run(config, run) == 0
     good = (run / "results.jsonl").read_text().splitlines()
     garbage = ["42", '{"broken"', "[1, 2, 3]", '{"key": 7, "status": "ok"}']
     (run / "results.jsonl").write_text("\n".join(garbage + ["[" + good[0] + "]"]) + "\n")
@@ -132,14 +109,14 @@ def test_garbage_lines_are_skipped_with_a_warning_and_recomputed(tmp_path, capsy
     assert main(["bench", "report", str(run)]) == 0
     err = capsys.readouterr().err
     assert "warning:" in err and "skipped 5 invalid line" in err and "Traceback" not in err
-    assert _run(config, run, "--json") == 0
+    assert bench_run(config, run, "--json") == 0
     captured = capsys.readouterr()
     assert json.loads(captured.out)["rows"] == N_ROWS  # the row hidden in garbage is recomputed
     assert "skipped 5 invalid line" in captured.err
     rows = read_rows(run)  # the garbage moved aside: no warning any more
     assert len(rows) == N_ROWS and rows[0]["status"] == "ok"
     assert (run / "results.jsonl.invalid").read_text().splitlines() == garbage + ["[" + good[0] + "]"]
-    assert _run(config, run, "--json") == 0
+    assert bench_run(config, run, "--json") == 0
     assert json.loads(capsys.readouterr().out)["reused"] == N_ROWS
 
 
@@ -147,7 +124,7 @@ def test_unwritable_run_folder_is_one_line(tmp_path, capsys):
     config = _write(tmp_path)
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    assert _run(config, blocker / "run") == 2
+    assert bench_run(config, blocker / "run") == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "cannot create run folder" in err and "Traceback" not in err
 
@@ -159,7 +136,7 @@ def test_read_only_run_folder_is_one_line(tmp_path, capsys):
     run.mkdir()
     run.chmod(0o555)
     try:
-        assert _run(config, run) == 2
+        assert bench_run(config, run) == 2
     finally:
         run.chmod(0o755)
     err = capsys.readouterr().err.strip()
@@ -169,7 +146,7 @@ def test_read_only_run_folder_is_one_line(tmp_path, capsys):
 def test_task_name_with_slash_does_not_break_the_report(tmp_path):
     config = _write(tmp_path, CONFIG.replace('name = "seg"', 'name = "../seg/a b"'))
     run = tmp_path / "run"
-    assert _run(config, run) == 0
+    assert bench_run(config, run) == 0
     res = write_report(run, renders=1)
     figures = run / "report" / "figures"
     assert res["figures"] and all(Path(f).parent == figures for f in res["figures"])
@@ -180,7 +157,7 @@ def test_text_read_from_the_rows_is_escaped_in_the_report(tmp_path):
     """A task kind read back from results.jsonl is data, never markup (issue 27: stored HTML injection)."""
     config = _write(tmp_path, CONFIG)
     run = tmp_path / "run"
-    assert _run(config, run) == 0
+    assert bench_run(config, run) == 0
     rows_file = next(run.glob("results*.jsonl"))
     rows = [json.loads(x) for x in rows_file.read_text().splitlines() if x.strip()]
     for r in rows:
@@ -213,11 +190,9 @@ class _Recorder(Segmenter):
 
 @pytest.fixture
 def recorder():
-    reg = get_registry()
-    reg.register("segmenters", "spectrum-recorder-test", _Recorder)
     RECEIVED.clear()
-    yield
-    reg.unregister("segmenters", "spectrum-recorder-test")
+    with registered("segmenters", "spectrum-recorder-test", _Recorder):
+        yield
 
 
 def test_row_records_the_spectrum_the_method_received(tmp_path, recorder):
@@ -263,10 +238,8 @@ class _TwoKinds(_Recorder):
 
 
 def test_a_method_declaring_two_kinds_receives_both(tmp_path):
-    reg = get_registry()
-    reg.register("segmenters", "two-kinds-test", _TwoKinds)
     RECEIVED.clear()
-    try:
+    with registered("segmenters", "two-kinds-test", _TwoKinds):
         text = CONFIG.replace(
             'plugin = "spectral-clustering"\npreset = "luxburg-unnormalized"\nparams = { n_segments = 3 }',
             'plugin = "two-kinds-test"\nparams = { k = 5 }',
@@ -278,8 +251,6 @@ def test_a_method_declaring_two_kinds_receives_both(tmp_path):
         (name, given), = RECEIVED
         assert isinstance(given, list) and {g.weighting for g in given} == {"gaussian", "binary"}
         assert sorted(r["weighting"] for r in rows[0]["spectra"]) == ["binary", "gaussian"]
-    finally:
-        reg.unregister("segmenters", "two-kinds-test")
 
 
 @pytest.mark.parametrize("address", ["notaurl", "tcp://127.0.0.1:abc", "tcp://127.0.0.1:99999", "http://x:1",

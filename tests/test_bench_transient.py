@@ -5,33 +5,18 @@ finish, and running the same command again resumes."""
 from __future__ import annotations
 
 import errno
-import textwrap
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import bench_run, registered, segmentation_config, write_config
 
-from shape_toolkit.api.registry import get_registry
 from shape_toolkit.bench import read_rows
-from shape_toolkit.cli import main
 from shape_toolkit.results.segmentation import Segmentation
 
-CONFIG = """
-[run]
-name = "transient"
-[[datasets]]
-name = "synth"
-kind = "synthetic"
-limit = 2
-params = { n_poses = 2, subdivisions = 1 }
-[[tasks]]
-task = "segmentation"
-name = "seg"
-metrics = ["n_segments"]
-[[tasks.methods]]
-plugin = "{plugin}"
-"""
+CONFIG = segmentation_config("transient", limit=2, subdivisions=1, metrics='"n_segments"',
+                             methods='[[tasks.methods]]\nplugin = "{plugin}"\n')
 
 FAULT = {"on": False, "path": ""}
 
@@ -53,17 +38,13 @@ class _Flaky:
 
 @pytest.fixture
 def flaky():
-    reg = get_registry()
-    reg.register("segmenters", "flaky-write-test", _Flaky)
-    yield
-    reg.unregister("segmenters", "flaky-write-test")
+    with registered("segmenters", "flaky-write-test", _Flaky):
+        yield
     FAULT["on"] = False
 
 
 def _run(tmp_path: Path, run: Path, plugin: str, *extra: str) -> int:
-    cfg = tmp_path / "bench.toml"
-    cfg.write_text(textwrap.dedent(CONFIG).replace("{plugin}", plugin))
-    return main(["bench", "run", str(cfg), "-o", str(run), "--no-progress", *extra])
+    return bench_run(write_config(tmp_path, CONFIG.replace("{plugin}", plugin)), run, *extra)
 
 
 def test_a_refused_write_stops_the_run_and_records_nothing(tmp_path, capsys, flaky):

@@ -10,9 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import articulated_pair_files, run_cli
 
-from shape_toolkit.cli import main
-from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.io.mesh import save_shape
 from shape_toolkit.results.labels import vertex_to_face_labels
 
@@ -20,20 +19,11 @@ from shape_toolkit.results.labels import vertex_to_face_labels
 @pytest.fixture(scope="module")
 def pose(tmp_path_factory):
     d = tmp_path_factory.mktemp("cli")
-    a = articulated_shape(subdivisions=2, random_state=1)
-    b = articulated_shape(subdivisions=2, random_state=2)
-    save_shape(a.shape, d / "a.off")
-    save_shape(b.shape, d / "b.off")
+    a, b = articulated_pair_files(d)
     np.savetxt(d / "a.labels.txt", a.labels, fmt="%d")
     np.savetxt(d / "a.seg", vertex_to_face_labels(a.shape.faces, a.labels), fmt="%d")
     np.savetxt(d / "b.seg", vertex_to_face_labels(b.shape.faces, b.labels), fmt="%d")
     return d, a, b
-
-
-def _run(capsys, *args: str) -> tuple[int, str, str]:
-    code = main([str(a) for a in args])
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def _ply_colors(path: Path, n: int) -> np.ndarray:
@@ -46,7 +36,7 @@ def _ply_colors(path: Path, n: int) -> np.ndarray:
 def test_segment_ply_and_default_output(pose, capsys, monkeypatch, tmp_path):
     d, a, _ = pose
     monkeypatch.chdir(tmp_path)
-    code, out, err = _run(capsys, "segment", d / "a.off", "--method", "eigvec-gmm", "-k", "6",
+    code, out, err = run_cli(capsys, "segment", d / "a.off", "--method", "eigvec-gmm", "-k", "6",
                           "--ply", tmp_path / "seg.ply", "--json")
     assert code == 0, err
     res = json.loads(out)
@@ -57,22 +47,24 @@ def test_segment_ply_and_default_output(pose, capsys, monkeypatch, tmp_path):
 
 def test_keypoints_spectrum_ply(pose, capsys, tmp_path):
     d, a, _ = pose
-    code, out, err = _run(capsys, "keypoints", d / "a.off", "--preset", "sparse", "--ply", tmp_path / "k.ply", "--json")
+    code, out, err = run_cli(capsys, "keypoints", d / "a.off", "--preset", "sparse", "--ply", tmp_path / "k.ply",
+                             "--json")
     assert code == 0, err
     ids = json.loads(out)["keypoints"]
     cols = _ply_colors(tmp_path / "k.ply", a.shape.n_vertices)
     assert np.allclose(cols[ids], [0.85, 0.1, 0.1], atol=0.01)
-    code, out, err = _run(capsys, "spectrum", d / "a.off", "-k", "6", "--ply", tmp_path / "e.ply",
+    code, out, err = run_cli(capsys, "spectrum", d / "a.off", "-k", "6", "--ply", tmp_path / "e.ply",
                           "--eigenvector", "2", "--json")
     assert code == 0, err
     cols = _ply_colors(tmp_path / "e.ply", a.shape.n_vertices)
     assert cols[:, 0].max() > 0.6 and cols[:, 2].max() > 0.6  # both signs: red and blue
-    assert _run(capsys, "spectrum", d / "a.off", "-k", "6", "--ply", tmp_path / "e.ply", "--eigenvector", "9")[0] == 2
+    code = run_cli(capsys, "spectrum", d / "a.off", "-k", "6", "--ply", tmp_path / "e.ply", "--eigenvector", "9")[0]
+    assert code == 2
 
 
 def test_match_ply_pullback_every_source_vertex_coloured(pose, capsys, tmp_path):
     d, a, _ = pose
-    code, out, err = _run(capsys, "match", d / "a.off", d / "b.off", "--pipeline", "zoomout-fast",
+    code, out, err = run_cli(capsys, "match", d / "a.off", d / "b.off", "--pipeline", "zoomout-fast",
                           "-o", tmp_path / "m.txt", "--ply", tmp_path / "m.ply", "--json", "--quiet")
     assert code == 0, err and not err
     res = json.loads(out)
@@ -86,28 +78,29 @@ def test_match_ply_pullback_every_source_vertex_coloured(pose, capsys, tmp_path)
 def test_match_default_output_name(pose, capsys, monkeypatch, tmp_path):
     d, _, _ = pose
     monkeypatch.chdir(tmp_path)
-    code, out, err = _run(capsys, "match", d / "a.off", d / "b.off", "--pipeline", "zoomout-fast", "--no-progress")
+    code, out, err = run_cli(capsys, "match", d / "a.off", d / "b.off", "--pipeline", "zoomout-fast", "--no-progress")
     assert code == 0, err
     assert (tmp_path / "a.to-b.map.txt").exists()
 
 
 def test_transfer_labels_accepts_psb_face_labels(pose, capsys, tmp_path):
     d, a, b = pose
-    code, out, err = _run(capsys, "transfer-labels", d / "a.off", d / "a.seg", d / "b.off", "--faces",
+    code, out, err = run_cli(capsys, "transfer-labels", d / "a.off", d / "a.seg", d / "b.off", "--faces",
                           "--truth", d / "b.seg", "-o", tmp_path / "b.out.seg", "--json")
     assert code == 0, err
     res = json.loads(out)
     assert res["per"] == "face" and len(np.loadtxt(tmp_path / "b.out.seg")) == b.shape.n_faces
     # without --faces: one line naming the flag
-    code, _, err = _run(capsys, "transfer-labels", d / "a.off", d / "a.seg", d / "b.off", "-o", tmp_path / "x.txt")
+    code, _, err = run_cli(capsys, "transfer-labels", d / "a.off", d / "a.seg", d / "b.off", "-o", tmp_path / "x.txt")
     assert code == 2 and "--faces" in err and len(err.strip().splitlines()) == 1
 
 
 def test_evaluate_segmentation_suggests_faces(pose, capsys):
     d, _, _ = pose
-    code, _, err = _run(capsys, "evaluate-segmentation", d / "a.off", d / "a.seg", "--truth", d / "a.seg")
+    code, _, err = run_cli(capsys, "evaluate-segmentation", d / "a.off", d / "a.seg", "--truth", d / "a.seg")
     assert code == 2 and "add --faces" in err and len(err.strip().splitlines()) == 1
-    code, out, err = _run(capsys, "evaluate-segmentation", d / "a.off", d / "a.seg", "--faces", "--truth", d / "a.seg")
+    code, out, err = run_cli(capsys, "evaluate-segmentation", d / "a.off", d / "a.seg", "--faces", "--truth",
+                             d / "a.seg")
     assert code == 0 and "lower is better" in out
 
 
@@ -117,7 +110,7 @@ def test_evaluate_map_prints_symmetric(pose, capsys, tmp_path):
     np.savetxt(tmp_path / "id.txt", np.arange(n), fmt="%d")
     ids = np.arange(1, n + 1, 7)
     np.savetxt(tmp_path / "t.vts", ids, fmt="%d")
-    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "a.off", tmp_path / "id.txt",
+    code, out, err = run_cli(capsys, "evaluate-map", d / "a.off", d / "a.off", tmp_path / "id.txt",
                           "--truth-src", tmp_path / "t.vts", "--truth-dst", tmp_path / "t.vts",
                           "--truth-dst-sym", tmp_path / "t.vts", "--geodesics", "dijkstra")
     assert code == 0, err
@@ -127,15 +120,15 @@ def test_evaluate_map_prints_symmetric(pose, capsys, tmp_path):
 def test_describe_and_geodesics(pose, capsys, tmp_path, monkeypatch):
     d, a, _ = pose
     monkeypatch.chdir(tmp_path)
-    code, out, err = _run(capsys, "describe", d / "a.off", "--descriptor", "hks", "--json")
+    code, out, err = run_cli(capsys, "describe", d / "a.off", "--descriptor", "hks", "--json")
     assert code == 0, err
     with np.load(tmp_path / "a.hks.npz") as z:
         assert z["descriptor"].shape[0] == a.shape.n_vertices and np.isfinite(z["descriptor"]).all()
-    code, out, err = _run(capsys, "geodesics", d / "a.off", "--sources", "0,5", "--method", "dijkstra", "--json")
+    code, out, err = run_cli(capsys, "geodesics", d / "a.off", "--sources", "0,5", "--method", "dijkstra", "--json")
     assert code == 0, err
     with np.load(tmp_path / "a.geodesics.npz") as z:
         assert z["distances"].shape == (2, a.shape.n_vertices) and z["distances"][0, 0] == 0
-    code, _, err = _run(capsys, "geodesics", d / "a.off", "--sources", "0,99999")
+    code, _, err = run_cli(capsys, "geodesics", d / "a.off", "--sources", "0,99999")
     assert code == 2 and "out of range" in err
 
 
@@ -148,17 +141,17 @@ def test_geodesics_time_limit_exits_2_with_one_line(pose, capsys, tmp_path, monk
     d, a, _ = pose
     monkeypatch.chdir(tmp_path)
     args = ["geodesics", d / "a.off", "--sources", "3,7,11", "--method", "exact"]
-    code, out, err = _run(capsys, *args, "--time-limit", "0.000001")
+    code, out, err = run_cli(capsys, *args, "--time-limit", "0.000001")
     assert code == 2 and not out
     assert len(err.strip().splitlines()) == 1
     assert "time limit of 1e-06 s exceeded after 1 of 3 sources" in err and "(--time-limit 1e-06)" in err
     assert not (tmp_path / "a.geodesics.npz").exists()
-    code, out, err = _run(capsys, *args, "--time-limit", "-3")
+    code, out, err = run_cli(capsys, *args, "--time-limit", "-3")
     assert code == 2 and "--time-limit" in err and len(err.strip().splitlines()) == 1
     seen = []
     monkeypatch.setattr(_common._Status, "count", lambda self, done, total=None: seen.append((done, total)))
     monkeypatch.setenv(_common.PROGRESS_ENV, "1")
-    code, out, err = _run(capsys, *args[:-2], "--method", "dijkstra", "--time-limit", "0")  # 0: no limit
+    code, out, err = run_cli(capsys, *args[:-2], "--method", "dijkstra", "--time-limit", "0")  # 0: no limit
     assert code == 0, err
     assert seen == [(3, 3)]
     with np.load(tmp_path / "a.geodesics.npz") as z:
@@ -166,22 +159,22 @@ def test_geodesics_time_limit_exits_2_with_one_line(pose, capsys, tmp_path, monk
 
 
 def test_plugins_show(capsys):
-    code, out, _ = _run(capsys, "plugins", "show", "hks", "--json")
+    code, out, _ = run_cli(capsys, "plugins", "show", "hks", "--json")
     info = json.loads(out)
     assert code == 0 and info["family"] == "descriptors"
     assert {p["name"] for p in info["parameters"]} >= {"n_times"} and info["spectra"][0]["k"] >= 1
-    code, out, _ = _run(capsys, "plugins", "show", "adf-maxima")
+    code, out, _ = run_cli(capsys, "plugins", "show", "adf-maxima")
     assert code == 0 and "preset sparse" in out and "spectrum:" in out
-    code, out, _ = _run(capsys, "plugins", "show", "zoomout")
+    code, out, _ = run_cli(capsys, "plugins", "show", "zoomout")
     assert code == 0 and "pipelines" in out
-    code, _, err = _run(capsys, "plugins", "show", "nope")
+    code, _, err = run_cli(capsys, "plugins", "show", "nope")
     assert code == 2 and len(err.strip().splitlines()) == 1
 
 
 def test_view_missing_extra_and_colours(pose, capsys, monkeypatch, tmp_path):
     d, a, _ = pose
     monkeypatch.setitem(sys.modules, "polyscope", None)  # as if the extra were not installed
-    code, _, err = _run(capsys, "view", d / "a.off", "--labels", d / "a.labels.txt")
+    code, _, err = run_cli(capsys, "view", d / "a.off", "--labels", d / "a.labels.txt")
     assert code == 2 and "viz" in err and "pip install" in err and len(err.strip().splitlines()) == 1
     from argparse import Namespace
 
@@ -202,10 +195,10 @@ def test_view_missing_extra_and_colours(pose, capsys, monkeypatch, tmp_path):
 
 
 def test_examples_copy(capsys, tmp_path):
-    code, out, err = _run(capsys, "examples", "copy", tmp_path / "ex")
+    code, out, err = run_cli(capsys, "examples", "copy", tmp_path / "ex")
     assert code == 0, err
     assert (tmp_path / "ex" / "README.md").exists() and (tmp_path / "ex" / "label_transfer" / "config.toml").exists()
-    assert _run(capsys, "examples", "copy", tmp_path / "ex")[0] == 2  # no silent overwrite
+    assert run_cli(capsys, "examples", "copy", tmp_path / "ex")[0] == 2  # no silent overwrite
 
 
 def test_quiet_is_the_one_flag(pose, capsys):
@@ -221,7 +214,7 @@ def test_quiet_is_the_one_flag(pose, capsys):
 
 def test_terminal_progress_is_silent_without_tty(pose, capsys):
     d, _, _ = pose
-    code, _, err = _run(capsys, "spectrum", d / "a.off", "-k", "5")
+    code, _, err = run_cli(capsys, "spectrum", d / "a.off", "-k", "5")
     assert code == 0 and err == ""
 
 
@@ -252,13 +245,13 @@ def test_evaluate_map_r_smoothness_equals_the_metric(pose, noisy_map, capsys):
 
     d, a, b = pose
     path, t = noisy_map
-    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--r-smoothness", "--json")
+    code, out, err = run_cli(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--r-smoothness", "--json")
     assert code == 0, err
     res = _strict_json(out)
     direct = r_smoothness_table(a.shape, b.shape, t, R_SMOOTH_RS, 0.9, sample=None)
     assert res["r_smoothness"]["table"] == [[r, v] for r, v in direct.items()]
     assert res["r_smoothness"]["n_evaluated"] == a.shape.n_vertices and "mean_geodesic_error" not in res
-    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--r-smoothness", "2", "5",
+    code, out, err = run_cli(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--r-smoothness", "2", "5",
                           "--r-theta", "0.8", "--r-sample", "100", "--random-state", "4")
     assert code == 0, err
     direct = r_smoothness_table(a.shape, b.shape, t, (2, 5), 0.8, sample=100, random_state=4)
@@ -274,7 +267,7 @@ def test_evaluate_map_labels_equal_the_metric(pose, noisy_map, capsys, tmp_path)
     np.savetxt(tmp_path / "b.labels.txt", b.labels, fmt="%d")
     ids = np.arange(1, a.shape.n_vertices + 1)
     np.savetxt(tmp_path / "t.vts", ids, fmt="%d")
-    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--labels",
+    code, out, err = run_cli(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--labels",
                           d / "a.labels.txt", tmp_path / "b.labels.txt", "--truth-src", tmp_path / "t.vts",
                           "--truth-dst", tmp_path / "t.vts", "--geodesics", "dijkstra", "--json")
     assert code == 0, err
@@ -282,7 +275,7 @@ def test_evaluate_map_labels_equal_the_metric(pose, noisy_map, capsys, tmp_path)
     direct = map_label_scores(t, a.labels, b.labels, b.shape)
     assert res["labels"]["recall"] == direct["recall"] and res["labels"]["precision"] == direct["precision"]
     assert res["labels"]["per"] == "vertex" and 0 < res["mean_geodesic_error"] < 1
-    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--labels",
+    code, out, err = run_cli(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--labels",
                           d / "a.seg", d / "b.seg", "--faces")
     assert code == 0, err
     fa = face_to_vertex_labels(a.shape.faces, np.loadtxt(d / "a.seg", dtype=int), a.shape.n_vertices,
@@ -292,7 +285,7 @@ def test_evaluate_map_labels_equal_the_metric(pose, noisy_map, capsys, tmp_path)
     direct = map_label_scores(t, fa, fb, b.shape)
     assert f"mean recall {direct['recall']:.4f}  mean precision {direct['precision']:.4f}" in out
     # per-face files without --faces: one line naming the flag
-    code, _, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--labels", d / "a.seg", d / "b.seg")
+    code, _, err = run_cli(capsys, "evaluate-map", d / "a.off", d / "b.off", path, "--labels", d / "a.seg", d / "b.seg")
     assert code == 2 and "--faces" in err and len(err.strip().splitlines()) == 1
 
 
@@ -305,12 +298,12 @@ def test_evaluate_map_json_has_no_nan(pose, capsys, tmp_path):
     np.savetxt(tmp_path / "t.vts", np.arange(1, 6), fmt="%d")
     args = ["evaluate-map", d / "a.off", d / "a.off", tmp_path / "m.txt", "--truth-src", tmp_path / "t.vts",
             "--truth-dst", tmp_path / "t.vts", "--geodesics", "dijkstra", "--json"]
-    code, out, err = _run(capsys, *args)  # no error to report: refused in one line, not a null (issue 27)
+    code, out, err = run_cli(capsys, *args)  # no error to report: refused in one line, not a null (issue 27)
     assert code == 2 and "unmatched" in err and len(err.strip().splitlines()) == 1 and not out
     t[:5] = np.arange(5)
     t[2] = -1  # one point unmatched: the mean is over the others, a number
     np.savetxt(tmp_path / "m.txt", t, fmt="%d")
-    code, out, err = _run(capsys, *args)
+    code, out, err = run_cli(capsys, *args)
     assert code == 0, err
     assert _strict_json(out)["mean_geodesic_error"] == 0.0
 
@@ -324,7 +317,7 @@ def test_evaluate_map_json_has_no_nan(pose, capsys, tmp_path):
 ])
 def test_evaluate_map_usage_errors_are_one_line(pose, noisy_map, capsys, extra, problem):
     d, _, _ = pose
-    code, out, err = _run(capsys, "evaluate-map", d / "a.off", d / "b.off", noisy_map[0], *extra)
+    code, out, err = run_cli(capsys, "evaluate-map", d / "a.off", d / "b.off", noisy_map[0], *extra)
     assert code == 2 and problem in err and len(err.strip().splitlines()) == 1 and not out
 
 
@@ -335,11 +328,11 @@ def test_evaluate_map_time_limit_exits_2_with_one_line(pose, capsys, tmp_path):
     np.savetxt(tmp_path / "t.vts", np.arange(1, n + 1, 5), fmt="%d")
     args = ["evaluate-map", d / "a.off", d / "a.off", tmp_path / "id.txt", "--truth-src", tmp_path / "t.vts",
             "--truth-dst", tmp_path / "t.vts", "--geodesics", "exact"]
-    code, out, err = _run(capsys, *args, "--time-limit", "0.000001")
+    code, out, err = run_cli(capsys, *args, "--time-limit", "0.000001")
     assert code == 2 and not out
     assert len(err.strip().splitlines()) == 1
     assert "time limit of 1e-06 s exceeded" in err and "(--time-limit 1e-06)" in err and "heat" in err
-    code, out, err = _run(capsys, *args, "--time-limit", "-3")
+    code, out, err = run_cli(capsys, *args, "--time-limit", "-3")
     assert code == 2 and "--time-limit" in err
 
 
@@ -373,7 +366,7 @@ def test_constraints_from_a_segmentation_feed_segment(pose, capsys, monkeypatch,
 
     d, a, _ = pose
     monkeypatch.chdir(tmp_path)
-    code, out, err = _run(capsys, "constraints", d / "a.off", d / "a.seg", "--faces", "--json")
+    code, out, err = run_cli(capsys, "constraints", d / "a.off", d / "a.seg", "--faces", "--json")
     assert code == 0, err
     res = json.loads(out)
     assert res["constraints_file"] == "a.constraints.json"
@@ -382,7 +375,7 @@ def test_constraints_from_a_segmentation_feed_segment(pose, capsys, monkeypatch,
     api = clicks_from_segmentation(a.shape, face_truth, faces=True)
     assert np.array_equal(cons.must_link, api.must_link) and np.array_equal(cons.cannot_link, api.cannot_link)
     assert (res["must_link"], res["cannot_link"]) == (cons.n_must, cons.n_cannot) and cons.n_must == 6
-    code, out, err = _run(capsys, "segment", d / "a.off", "--method", "csc", "-k", "6", "--constraints",
+    code, out, err = run_cli(capsys, "segment", d / "a.off", "--method", "csc", "-k", "6", "--constraints",
                           "a.constraints.json", "--faces", "-o", "a.csc.seg", "--json")
     assert code == 0, err
     written = np.loadtxt(tmp_path / "a.csc.seg", dtype=np.int64)
@@ -398,7 +391,7 @@ def test_constraints_from_a_segmentation_feed_segment(pose, capsys, monkeypatch,
                 ["constraints", d / "a.off", d / "a.seg", "--faces", "--min-segment-fraction", "1.5"],
                 ["constraints", d / "a.off", d / "a.seg", "--faces", "-o", "c.txt"],
                 ["constraints", d / "a.off", d / "a.seg", "--faces", "--cannot-offset", "-1"]):
-        code, out, err = _run(capsys, *bad)
+        code, out, err = run_cli(capsys, *bad)
         assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "c.txt").exists()
 
@@ -413,14 +406,14 @@ def test_segment_a_mesh_of_two_components(pose, capsys, tmp_path):
     two = Shape(np.vstack([a.shape.vertices, a.shape.vertices + [5.0, 0, 0]]),
                 np.vstack([a.shape.faces, a.shape.faces + n]))
     save_shape(two, tmp_path / "two.off")
-    code, out, err = _run(capsys, "segment", tmp_path / "two.off", "--method", "spectral-clustering", "-k", "12",
+    code, out, err = run_cli(capsys, "segment", tmp_path / "two.off", "--method", "spectral-clustering", "-k", "12",
                           "-o", tmp_path / "two.txt", "--json")
     assert code == 0, err
     labels = np.loadtxt(tmp_path / "two.txt", dtype=np.int64)
     assert json.loads(out)["n_segments"] == 12 and not set(labels[:n]) & set(labels[n:])
     # the same as a point cloud: its kNN graph has two components (the command said DisconnectedGraphError)
     save_shape(Shape(two.vertices, None), tmp_path / "two.xyz")
-    code, out, err = _run(capsys, "segment", tmp_path / "two.xyz", "--method", "eigvec-gmm", "-k", "4",
+    code, out, err = run_cli(capsys, "segment", tmp_path / "two.xyz", "--method", "eigvec-gmm", "-k", "4",
                           "-o", tmp_path / "cloud.txt", "--json")
     assert code == 0, err
     labels = np.loadtxt(tmp_path / "cloud.txt", dtype=np.int64)
@@ -435,7 +428,7 @@ def test_outputs_never_replace_an_input(pose, capsys, tmp_path):
     a = tmp_path / "a.off"
     shutil.copy(d / "a.off", a)
     before = a.read_bytes()
-    code, _, err = _run(capsys, "keypoints", a, "--detector", "adf-maxima", "-o", a, "--quiet")
+    code, _, err = run_cli(capsys, "keypoints", a, "--detector", "adf-maxima", "-o", a, "--quiet")
     assert code == 2 and "must differ from the input" in err and a.read_bytes() == before
     src, tgt = tmp_path / "m.source.ply", tmp_path / "m.target.ply"
     for name, p in (("a.off", src), ("b.off", tgt)):
@@ -443,6 +436,6 @@ def test_outputs_never_replace_an_input(pose, capsys, tmp_path):
 
         save_shape(load_shape(d / name), p)
     kept = src.read_bytes(), tgt.read_bytes()
-    code, _, err = _run(capsys, "match", src, tgt, "--pipeline", "zoomout-fast", "-o", tmp_path / "m.txt",
+    code, _, err = run_cli(capsys, "match", src, tgt, "--pipeline", "zoomout-fast", "-o", tmp_path / "m.txt",
                         "--ply", tmp_path / "m.ply", "--quiet")
     assert code == 2 and "must differ from the input" in err and (src.read_bytes(), tgt.read_bytes()) == kept

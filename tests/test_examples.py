@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import copy
 import csv
-import importlib.util
 import json
 import math
 import re
@@ -20,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import load_script
 
 from shape_toolkit.bench.config import load_config, parse_config
 from shape_toolkit.bench.report import method_id, write_report
@@ -114,10 +114,7 @@ def test_example_runs_on_a_subset(config, tmp_path, request, monkeypatch):
 
 
 def _tosca_results():
-    spec = importlib.util.spec_from_file_location("tosca_results", EXAMPLES / "tosca_matching" / "results.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("tosca_results", EXAMPLES / "tosca_matching" / "results.py")
 
 
 def _fake_row(key, method, item, smooth, recall, status="ok"):

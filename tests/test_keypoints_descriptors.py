@@ -7,13 +7,13 @@ import json
 
 import numpy as np
 import pytest
+from helpers import BUMP_DIRS, bumpy_sphere
 
 from shape_toolkit.api.registry import available_plugins, create_plugin, get_plugin
 from shape_toolkit.cli import main as cli_main
 from shape_toolkit.core.eigen import smallest_eigenpairs
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, laplacian_matrix
-from shape_toolkit.data.generate import icosphere
 from shape_toolkit.errors import InvalidShapeError, ParameterError, PluginError, SpectrumMismatchError
 from shape_toolkit.features import heat, scales
 from shape_toolkit.features.descriptor_score import descriptor_matching_score
@@ -26,22 +26,6 @@ from shape_toolkit.metrics.keypoints import (
     repeatability_report,
 )
 from shape_toolkit.spectra import build_graph
-
-DIRS = np.array([[0, 0, 1], [1, 0, 0], [0, -1, 0], [-0.6, 0.8, 0.0]], float)
-HEIGHTS = [1.2, 0.9, 0.7, 0.5]
-
-
-def bumpy(subdivisions: int = 3, seed: int = 0) -> tuple[Shape, list[int]]:
-    """A sphere with four protrusions of decreasing height (and tiny noise, so no symmetry);
-    returns the shape and the tip vertex of each protrusion."""
-    s = icosphere(subdivisions)
-    v = s.vertices.copy()
-    d = DIRS / np.linalg.norm(DIRS, axis=1, keepdims=True)
-    r = np.ones(len(v))
-    for di, h in zip(d, HEIGHTS):
-        r += h * np.clip(v @ di, 0, None) ** 12
-    r *= 1 + 0.002 * np.random.default_rng(seed).standard_normal(len(v))
-    return Shape(v * r[:, None], s.faces, "bumpy"), [int(np.argmax(v @ di)) for di in d]
 
 
 def gaussian_spectrum(shape: Shape, k: int) -> Spectrum:
@@ -66,7 +50,7 @@ def permuted(shape: Shape, seed: int = 2) -> tuple[Shape, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def bump():
-    shape, tips = bumpy(3)
+    shape, tips = bumpy_sphere(3)
     return shape, tips, gaussian_spectrum(shape, 31)
 
 
@@ -125,7 +109,7 @@ def test_adf_maxima_deterministic_and_invariant(bump):
 
 
 def test_adf_maxima_default_spectrum_small_shape():
-    shape, tips = bumpy(2)
+    shape, tips = bumpy_sphere(2)
     kp = create_plugin("keypoints", "adf-maxima", t=10.0, K=10, time_scale="absolute").detect(shape)
     assert len(kp) >= 1 and kp.min() >= 0 and kp.max() < shape.n_vertices
     assert kp[0] == tips[0]
@@ -143,7 +127,7 @@ def test_adf_maxima_errors(bump):
     with pytest.raises(ParameterError, match="time_scale"):
         create_plugin("keypoints", "adf-maxima", time_scale="seconds").detect(shape, spectrum=spec)
     with pytest.raises(ParameterError):
-        create_plugin("keypoints", "adf-maxima", K=10).detect(bumpy(2)[0], spectrum=spec)  # wrong n
+        create_plugin("keypoints", "adf-maxima", K=10).detect(bumpy_sphere(2)[0], spectrum=spec)  # wrong n
 
 
 # -- harris3d ---------------------------------------------------------------------------------
@@ -279,7 +263,7 @@ def test_heat_distance_descriptor_and_matching_score(bump):
 
 
 def test_keypoint_descriptors_default_spectrum_and_times():
-    shape, tips = bumpy(2)
+    shape, tips = bumpy_sphere(2)
     d = create_plugin("descriptors", "heat-distance").compute(shape, keypoints=tips)
     assert d.shape == (shape.n_vertices, len(tips) * 5) and np.all(np.isfinite(d))
     d = create_plugin("descriptors", "heat-diffusion", n_times=3).compute(shape, keypoints=tips[:2])
@@ -288,7 +272,7 @@ def test_keypoint_descriptors_default_spectrum_and_times():
 
 # -- CLI --------------------------------------------------------------------------------------
 def test_cli_keypoints_json(tmp_path, capsys):
-    shape, tips = bumpy(2)
+    shape, tips = bumpy_sphere(2)
     path = tmp_path / "bumpy.off"
     save_shape(shape, path)
     rc = cli_main(["keypoints", str(path), "--detector", "adf-maxima", "--param", "t=10",
@@ -310,7 +294,7 @@ def test_cli_keypoints_json(tmp_path, capsys):
     (["--detector", "adf-maxima", "--param", "K=500"], "K = 500"),
 ])
 def test_cli_keypoints_errors(tmp_path, capsys, args, msg):
-    shape, _ = bumpy(2)
+    shape, _ = bumpy_sphere(2)
     path = tmp_path / "bumpy.off"
     save_shape(shape, path)
     rc = cli_main(["keypoints", str(path), *args])
@@ -320,7 +304,7 @@ def test_cli_keypoints_errors(tmp_path, capsys, args, msg):
 
 def test_cli_harris_on_point_cloud(tmp_path, capsys):
     path = tmp_path / "cloud.xyz"
-    save_shape(Shape(bumpy(2)[0].vertices), path)
+    save_shape(Shape(bumpy_sphere(2)[0].vertices), path)
     assert cli_main(["keypoints", str(path), "--detector", "harris3d"]) == 2
     err = capsys.readouterr().err
     assert "harris3d" in err and err.count("\n") == 1
@@ -333,7 +317,7 @@ def test_repeatability_metric(bump):
     ident = np.arange(n)
     rep = keypoint_repeatability(shape, tips, tips, ident, [0.0, 0.05])
     np.testing.assert_allclose(rep, [1.0, 1.0])
-    far = [int(np.argmin(shape.vertices @ DIRS[0]))]  # the opposite pole of the largest bump
+    far = [int(np.argmin(shape.vertices @ BUMP_DIRS[0]))]  # the opposite pole of the largest bump
     rep = keypoint_repeatability(shape, [tips[0]], far, ident, [0.05, 10.0])
     np.testing.assert_allclose(rep, [0.0, 1.0])
     # half of A's keypoints repeat
@@ -392,7 +376,7 @@ def test_plugins_declare_and_check_their_spectrum(family, name, params):
 
     from shape_toolkit.spectra import default_spec
 
-    shape, tips = bumpy(2)
+    shape, tips = bumpy_sphere(2)
     plug = create_plugin(family, name, **params)
     assert "random_state" not in plug.get_params()  # deterministic
     spec = plug.spectrum_spec()
@@ -412,7 +396,7 @@ def test_plugins_declare_and_check_their_spectrum(family, name, params):
 def test_harris3d_declares_no_spectrum_and_clones():
     from sklearn.base import clone
 
-    shape, _ = bumpy(2)
+    shape, _ = bumpy_sphere(2)
     h = create_plugin("keypoints", "harris3d", preset="sparse")
     assert h.spectrum_spec() is None and "random_state" not in h.get_params()
     np.testing.assert_array_equal(clone(h).detect(shape), h.detect(shape))
@@ -420,7 +404,7 @@ def test_harris3d_declares_no_spectrum_and_clones():
 
 @pytest.mark.parametrize("name", ["heat-diffusion", "heat-distance"])
 def test_descriptor_times_are_the_times_compute_uses(name):
-    shape, tips = bumpy(2)
+    shape, tips = bumpy_sphere(2)
     plug = create_plugin("descriptors", name, K=8, n_times=3)
     times = plug.descriptor_times(shape)
     fixed = create_plugin("descriptors", name, K=8, times=times.tolist())

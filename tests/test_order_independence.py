@@ -11,24 +11,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import BUMP_DIRS, bumpy_sphere
 
 import shape_toolkit as st
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.data.generate import icosphere
-
-DIRS = np.array([[0, 0, 1], [1, 0, 0], [0, -1, 0], [-0.6, 0.8, 0.0]], float)
-HEIGHTS = [1.2, 0.9, 0.7, 0.5]
 
 
 def _bumpy(seed: int) -> Shape:
-    s = icosphere(3)
-    v = s.vertices.copy()
-    d = DIRS / np.linalg.norm(DIRS, axis=1, keepdims=True)
-    r = np.ones(len(v))
-    for di, h in zip(d, HEIGHTS):
-        r += h * np.clip(v @ di, 0, None) ** 8
-    r *= 1 + 0.003 * np.random.default_rng(seed).standard_normal(len(v))
-    return Shape(v * r[:, None], s.faces, f"bumpy{seed}")
+    return bumpy_sphere(3, seed, power=8, noise=0.003, name=f"bumpy{seed}")[0]
 
 
 def _permuted(shape: Shape, seed: int) -> tuple[Shape, np.ndarray, np.ndarray]:
@@ -118,7 +108,7 @@ def _tip_constraints(shape: Shape):
     from shape_toolkit.results.labels import Constraints
 
     v = shape.vertices
-    d = DIRS / np.linalg.norm(DIRS, axis=1, keepdims=True)
+    d = BUMP_DIRS / np.linalg.norm(BUMP_DIRS, axis=1, keepdims=True)
     must = [np.argsort(-(v @ di))[[0, 3]] for di in d]
     body = np.argsort(v @ (d[0] + d[1] + d[2] + d[3]))[[0, 3]]
     must.append(body)

@@ -11,19 +11,13 @@ import threading
 
 import numpy as np
 import pytest
-
-from shape_toolkit.cli import main
-from shape_toolkit.data.synthetic import articulated_shape
-from shape_toolkit.io.mesh import save_shape
+from helpers import articulated_pair_files, run_cli, spectrum_config
 
 
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory):
     d = tmp_path_factory.mktemp("progress")
-    a = articulated_shape(subdivisions=2, random_state=1)
-    b = articulated_shape(subdivisions=2, random_state=2)
-    save_shape(a.shape, d / "a.off")
-    save_shape(b.shape, d / "b.off")
+    a, b = articulated_pair_files(d)
     n = a.shape.n_vertices
     t = np.arange(n)
     t[::7] = np.random.default_rng(0).integers(0, n, t[::7].size)
@@ -37,23 +31,17 @@ def _evaluate_args(d):
             d / "t.vts", "--geodesics", "dijkstra", "--r-smoothness", "1", "--r-sample", "50"]
 
 
-def _run(capsys, *args) -> tuple[int, str, str]:
-    code = main([str(a) for a in args])
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
 def test_forced_progress_appears_and_json_or_quiet_silence_it(pair, capsys, monkeypatch):
     d, _, _ = pair
     monkeypatch.setenv("SHAPE_TOOLKIT_PROGRESS", "1")
-    code, out, err = _run(capsys, *_evaluate_args(d))
+    code, out, err = run_cli(capsys, *_evaluate_args(d))
     assert code == 0, err
     assert "evaluate-map: dijkstra geodesics" in err and "evaluate-map: r-smoothness" in err
     for flag in ("--json", "--quiet"):
-        code, out, err = _run(capsys, *_evaluate_args(d), flag)
+        code, out, err = run_cli(capsys, *_evaluate_args(d), flag)
         assert code == 0 and err == "", err
     monkeypatch.setenv("SHAPE_TOOLKIT_PROGRESS", "0")  # off, even where it would be drawn
-    code, out, err = _run(capsys, *_evaluate_args(d))
+    code, out, err = run_cli(capsys, *_evaluate_args(d))
     assert code == 0 and err == ""
 
 
@@ -123,10 +111,10 @@ def test_match_shows_pipeline_stages(pair, capsys, monkeypatch, tmp_path):
     spec = tmp_path / "small.toml"
     spec.write_text('[dense]\nplugin = "fmap-zoomout"\n[dense.params]\nk = 10\nzoomout_iters = 2\n')
     monkeypatch.setenv("SHAPE_TOOLKIT_PROGRESS", "1")
-    code, out, err = _run(capsys, "match", d / "a.off", d / "b.off", "--pipeline", spec, "-o", tmp_path / "m.txt")
+    code, out, err = run_cli(capsys, "match", d / "a.off", d / "b.off", "--pipeline", spec, "-o", tmp_path / "m.txt")
     assert code == 0, err
     assert "small: spectra" in err and "small: dense (fmap-zoomout)" in err
-    code, out, err = _run(capsys, "match", d / "a.off", d / "b.off", "--pipeline", spec, "-o", tmp_path / "m.txt",
+    code, out, err = run_cli(capsys, "match", d / "a.off", d / "b.off", "--pipeline", spec, "-o", tmp_path / "m.txt",
                           "--json")
     assert code == 0 and err == ""
 
@@ -134,36 +122,26 @@ def test_match_shows_pipeline_stages(pair, capsys, monkeypatch, tmp_path):
 def test_spectrum_shows_a_status(pair, capsys, monkeypatch):
     d, _, _ = pair
     monkeypatch.setenv("SHAPE_TOOLKIT_PROGRESS", "1")
-    code, out, err = _run(capsys, "spectrum", d / "a.off", "-k", "8")
+    code, out, err = run_cli(capsys, "spectrum", d / "a.off", "-k", "8")
     assert code == 0 and "spectrum: 8 eigenpairs" in err
-    code, out, err = _run(capsys, "spectrum", d / "a.off", "-k", "8", "--json")
+    code, out, err = run_cli(capsys, "spectrum", d / "a.off", "-k", "8", "--json")
     assert code == 0 and err == ""
 
 
-SPECTRUM_RUN = """
-[[datasets]]
-name = "synth"
-kind = "synthetic"
-params = { n_poses = 2, subdivisions = 2 }
-[[tasks]]
-task = "spectrum"
-spectrum = { k = 8 }
-[[tasks.methods]]
-plugin = "cotangent"
-"""
+SPECTRUM_RUN = spectrum_config("cotangent")
 
 
 def test_bench_report_says_each_figure(tmp_path, capsys):
     cfg = tmp_path / "c.toml"
     cfg.write_text(SPECTRUM_RUN)
-    code, out, err = _run(capsys, "bench", "run", cfg, "-o", tmp_path / "run", "--quiet")
+    code, out, err = run_cli(capsys, "bench", "run", cfg, "-o", tmp_path / "run", "--quiet")
     assert code == 0, err
-    code, out, err = _run(capsys, "bench", "report", tmp_path / "run", "--renders", "0")
+    code, out, err = run_cli(capsys, "bench", "report", tmp_path / "run", "--renders", "0")
     assert code == 0, err
     lines = err.splitlines()
     assert lines[0].startswith("report: reading ") and any(x.startswith("report: figure 1: ") for x in lines)
     for flag in ("--quiet", "--json"):
-        code, out, err = _run(capsys, "bench", "report", tmp_path / "run", "--renders", "0", flag)
+        code, out, err = run_cli(capsys, "bench", "report", tmp_path / "run", "--renders", "0", flag)
         assert code == 0 and err == ""
 
 

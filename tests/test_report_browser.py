@@ -25,11 +25,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_config
 
 from shape_toolkit.bench import report as report_module
-from shape_toolkit.bench.config import parse_config
 from shape_toolkit.bench.report import SPLIT_FIELD, _item_grids, method_id, write_report
-from shape_toolkit.bench.runner import run_benchmark
 from shape_toolkit.viz import PANELS_KEY
 
 CONFIG = {
@@ -80,9 +79,7 @@ def _record_colours(fig, name: str) -> None:
 @pytest.fixture(scope="module")
 def report(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("run")
-    cfg = parse_config(CONFIG, base=out)
-    s = run_benchmark(cfg, out / "run", progress=False)
-    assert s.failed == 0
+    run_config(CONFIG, out)
     save = report_module._Figs.save
 
     def spy(self, fig, name):

@@ -14,10 +14,9 @@ from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
+from helpers import run_config
 
-from shape_toolkit.bench.config import parse_config
 from shape_toolkit.bench.report import MANIFEST, _num, _ranks, _spread, latex_escape, write_report
-from shape_toolkit.bench.runner import run_benchmark
 
 CONFIG = {
     "run": {"name": "exports", "random_state": 0},
@@ -108,11 +107,7 @@ def _numbers(cell: str) -> list[str]:
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory) -> dict:
-    out = tmp_path_factory.mktemp("exports")
-    cfg = parse_config(CONFIG, base=out)
-    s = run_benchmark(cfg, out / "run", progress=False)
-    assert s.failed == 0
-    return write_report(out / "run", renders=1)
+    return write_report(run_config(CONFIG, tmp_path_factory.mktemp("exports")), renders=1)
 
 
 def test_every_table_has_csv_and_latex_linked_and_owned(report):

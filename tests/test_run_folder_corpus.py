@@ -4,24 +4,12 @@ truncation or planting of files in a run folder; 0 files written outside it)."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
+from helpers import REPO, load_script
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _corpus():
-    spec = importlib.util.spec_from_file_location("run_folder_corpus", ROOT / "benchmarks" / "run_folder_corpus.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["run_folder_corpus"] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-corpus = _corpus()
+corpus = load_script("run_folder_corpus", REPO / "benchmarks" / "run_folder_corpus.py")
 #: one file of each kind: the logs, the config, a prepared item, a spectrum, an output
 KINDS = ("results.jsonl", "prepare.jsonl", "config.json", "cache/prepared", "cache/spectra", "outputs")
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
-from shape_toolkit.cli import main
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.synthetic import SEQUENCE_LIMB_LENGTHS, articulated_shape, pose_sequence
 from shape_toolkit.errors import ParameterError, ShapeFileError
@@ -33,12 +33,6 @@ def seq_files(seq, tmp_path_factory) -> list[Path]:
     for t, (f, c) in enumerate(zip(seq.frames, seq.colors)):
         paths.append(save_colored_ply(f, d / f"f{t}.ply", c))
     return paths
-
-
-def _run(capsys, *args) -> tuple[int, str, str]:
-    code = main([str(a) for a in args])
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 # ------------------------------------------------------------------------------------------
@@ -209,7 +203,7 @@ def test_drift_checks_its_inputs():
 # ------------------------------------------------------------------------------------------
 def test_track_cli_end_to_end(seq, seq_files, tmp_path, capsys):
     out = tmp_path / "t.npz"
-    code, stdout, err = _run(capsys, "track", *seq_files, "--pipeline", "zoomout", "-o", out,
+    code, stdout, err = run_cli(capsys, "track", *seq_files, "--pipeline", "zoomout", "-o", out,
                              "--png", tmp_path / "t.png", "--gif", tmp_path / "t.gif", "--json")
     assert code == 0, err
     assert err == ""  # silent under --json
@@ -238,7 +232,7 @@ def test_track_cli_end_to_end(seq, seq_files, tmp_path, capsys):
 
 
 def test_track_ply_dir_pullback_colours(seq, seq_files, tmp_path, capsys):
-    code, stdout, err = _run(capsys, "track", *seq_files[:3], "--pipeline", "zoomout", "-o", tmp_path / "t.npz",
+    code, stdout, err = run_cli(capsys, "track", *seq_files[:3], "--pipeline", "zoomout", "-o", tmp_path / "t.npz",
                              "--ply-dir", tmp_path / "plys", "--quiet")
     assert code == 0, err
     files = sorted((tmp_path / "plys").glob("frame_*.ply"))
@@ -277,7 +271,7 @@ def test_track_bad_input_is_one_line_exit_2(seq_files, tmp_path, capsys):
     ]
     for args in cases:
         extra = [] if "-o" in args else ["-o", tmp_path / "x.npz"]
-        code, out, err = _run(capsys, "track", *args, *extra)
+        code, out, err = run_cli(capsys, "track", *args, *extra)
         assert code == 2, (args, err)
         assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
 
@@ -285,8 +279,8 @@ def test_track_bad_input_is_one_line_exit_2(seq_files, tmp_path, capsys):
 def test_track_on_dask_gives_the_sequential_trajectories(seq, seq_files, tmp_path, capsys):
     pytest.importorskip("distributed")
     a, b = tmp_path / "seq.npz", tmp_path / "dask.npz"
-    assert _run(capsys, "track", *seq_files, "--pipeline", "zoomout", "-o", a, "--quiet")[0] == 0
-    code, _, err = _run(capsys, "track", *seq_files, "--pipeline", "zoomout", "-o", b, "--quiet",
+    assert run_cli(capsys, "track", *seq_files, "--pipeline", "zoomout", "-o", a, "--quiet")[0] == 0
+    code, _, err = run_cli(capsys, "track", *seq_files, "--pipeline", "zoomout", "-o", b, "--quiet",
                         "--dask", "local", "--workers", "2")
     assert code == 0, err
     np.testing.assert_array_equal(Trajectories.load(a).ids, Trajectories.load(b).ids)
@@ -300,5 +294,5 @@ def test_ply_dir_never_overwrites_the_frames(seq_files, tmp_path, capsys):
     for src, dst in zip(seq_files, frames):
         shutil.copy(src, dst)
     before = [f.read_bytes() for f in frames]
-    code, _, err = _run(capsys, "track", *frames, "--ply-dir", tmp_path, "-o", tmp_path / "t.npz", "--quiet")
+    code, _, err = run_cli(capsys, "track", *frames, "--ply-dir", tmp_path, "-o", tmp_path / "t.npz", "--quiet")
     assert code == 2 and "must differ from the input" in err and [f.read_bytes() for f in frames] == before

@@ -14,6 +14,7 @@ measures it against the usual ``scipy.sparse.linalg.eigsh`` shift-invert approac
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -544,15 +545,24 @@ def smallest_eigenpairs(
         isinstance(blas_threads, (int, np.integer)) and not isinstance(blas_threads, bool) and blas_threads >= 1
     )):
         raise ParameterError(f"blas_threads must be 'auto', None or a positive integer, got {blas_threads!r}")
-    kwargs = dict(tol=tol, method=method, sigma=sigma, block_size=block_size, max_basis=max_basis,
-                  max_restarts=max_restarts, info=info)
-    if blas_threads != "auto":
-        info["blas_threads"] = blas_threads
-        with _blas_limit(blas_threads):
-            return _smallest_eigenpairs(A, k, M, **kwargs)
-    info["blas_threads"] = DEFAULT_BLAS_THREADS
-    with _blas_limit(DEFAULT_BLAS_THREADS):
-        return _smallest_eigenpairs(A, k, M, **kwargs)
+    threads = DEFAULT_BLAS_THREADS if blas_threads == "auto" else blas_threads
+    info["blas_threads"] = threads
+    with _blas_limit(threads):  # type: ignore[arg-type]
+        A, k, Ms, dM = _checked_problem(A, k, M, tol)
+        solve = functools.partial(_solve_checked, A, k, Ms, dM, tol=tol, sigma=sigma, block_size=block_size,
+                                  max_basis=max_basis, max_restarts=max_restarts, info=info)
+        if method == "auto":
+            if _prefer_dense(A.shape[0], k):
+                method = "dense"
+            else:
+                # the block solver is the fast path; single-vector ARPACK is the safety net
+                try:
+                    return solve(method="krylov")
+                except SolverError as exc:
+                    info.clear()
+                    info.update(blas_threads=threads, fallback_from=f"krylov: {exc}")
+                    return solve(method="arpack")
+        return solve(method=method)
 
 
 @dataclass(frozen=True)
@@ -576,20 +586,12 @@ class EigenSolver:
         return smallest_eigenpairs(A, k, M, method=self.method, tol=self.tol, blas_threads=self.blas_threads)
 
 
-def _smallest_eigenpairs(
-    A: sp.spmatrix,
-    k: int,
-    M: sp.spmatrix | np.ndarray | None,
-    *,
-    tol: float,
-    method: str,
-    sigma: float | None,
-    block_size: int | None,
-    max_basis: int | None,
-    max_restarts: int,
-    info: dict,
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`smallest_eigenpairs` inside its BLAS thread limit."""
+def _checked_problem(
+    A: sp.spmatrix, k: int, M: sp.spmatrix | np.ndarray | None, tol: float
+) -> tuple[sp.csr_matrix, int, sp.csr_matrix | None, np.ndarray | None]:
+    """``(A, k, Ms, dM)``: the input of :func:`smallest_eigenpairs` checked, ``A`` and ``M`` as CSR ``(n, n)``
+    (``Ms`` None without ``M``), ``dM`` the diagonal ``(n,)`` of the mass when it is diagonal (ones without
+    ``M``), else None."""
     A = _as_square_sparse(A, "A")
     n = A.shape[0]
     if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)):
@@ -620,21 +622,7 @@ def _smallest_eigenpairs(
         dM = Ms.diagonal()  # given as its diagonal: no need to look for off-diagonal entries
     else:
         dM = _diagonal_of(Ms)
-    kwargs = dict(tol=tol, sigma=sigma, block_size=block_size, max_basis=max_basis,
-                  max_restarts=max_restarts, info=info)
-    if method == "auto":
-        if _prefer_dense(n, k):
-            method = "dense"
-        else:
-            # the block solver is the fast path; single-vector ARPACK is the safety net
-            try:
-                return _solve_checked(A, k, Ms, dM, method="krylov", **kwargs)
-            except SolverError as exc:
-                threads = info.get("blas_threads")
-                info.clear()
-                info.update(blas_threads=threads, fallback_from=f"krylov: {exc}")
-                return _solve_checked(A, k, Ms, dM, method="arpack", **kwargs)
-    return _solve_checked(A, k, Ms, dM, method=method, **kwargs)
+    return A, k, Ms, dM
 
 
 def _solve_checked(

@@ -282,9 +282,13 @@ def _solve(W: sp.csr_matrix, mass: np.ndarray | None, k: int, laplacian: str, so
     return vals, v
 
 
-def _solver_part(solver: Any) -> tuple[Any, ...]:
-    """The cache key's part for ``solver``: nothing for the default one (keys of earlier versions hold)."""
-    return () if solver is None or solver == EigenSolver() else (solver,)
+def _spectrum_key(
+    graph: ShapeGraph, k: int, laplacian: str, use_mass: bool, sign_fix: bool, components: str, solver: Any
+) -> str:
+    """The cache key of :func:`compute_spectrum` (``use_mass`` resolved); the default ``solver`` adds nothing
+    to it, so keys of earlier versions hold."""
+    solver_part = () if solver is None or solver == EigenSolver() else (solver,)
+    return _cache_key(graph, int(k), laplacian, bool(use_mass), bool(sign_fix), components, *solver_part)
 
 
 def _resolve_use_mass(graph: ShapeGraph, laplacian: str, use_mass: bool | None) -> bool:
@@ -305,8 +309,7 @@ def is_cached(
 ) -> bool:
     """True when :func:`compute_spectrum` with these arguments would be served from the cache."""
     use_mass = _resolve_use_mass(graph, laplacian, use_mass)
-    key = _cache_key(graph, int(k), laplacian, use_mass, bool(sign_fix), components, *_solver_part(solver))
-    return _cache_get(key) is not None
+    return _cache_get(_spectrum_key(graph, k, laplacian, use_mass, sign_fix, components, solver)) is not None
 
 
 def compute_spectrum(
@@ -347,7 +350,7 @@ def compute_spectrum(
             f"{int(np.sum(graph.mass <= 0))} vertices have zero mass (unreferenced or degenerate): "
             "clean the shape first"
         )
-    key = _cache_key(graph, int(k), laplacian, bool(use_mass), bool(sign_fix), components, *_solver_part(solver))
+    key = _spectrum_key(graph, k, laplacian, use_mass, sign_fix, components, solver)
     if cache and (hit := _cache_get(key)) is not None:
         return hit
 

@@ -26,6 +26,16 @@ def print_json(obj: Any) -> None:
     sys.stdout.write("\n")
 
 
+def emit(args: argparse.Namespace, result: Any, *lines: str) -> int:
+    """Print ``result`` as JSON (:func:`print_json`) under ``--json``, else the text ``lines``; the exit code 0."""
+    if args.json:
+        print_json(result)
+    else:
+        for line in lines:
+            print(line)
+    return 0
+
+
 def to_json_text(obj: Any) -> str:
     """``obj`` as a JSON string (numpy values converted, NaN and infinities as null)."""
     return dumps_json(obj, indent=2)

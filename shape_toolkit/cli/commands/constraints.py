@@ -15,8 +15,8 @@ from shape_toolkit.cli.commands._common import (
     check_output_path,
     count_arg,
     default_output,
+    emit,
     positive_int_arg,
-    print_json,
     random_state_arg,
     read_labels_file,
 )
@@ -71,9 +71,5 @@ def run(args: argparse.Namespace) -> int:
     result = {"constraints_file": str(out), "must_link": cons.n_must, "cannot_link": cons.n_cannot,
               "n_segments_in_labels": n_segments, "per": "face" if args.faces else "vertex",
               "random_state": args.random_state}
-    if args.json:
-        print_json(result)
-    else:
-        print(f"{shape!r}: {cons.n_must} must-links, {cons.n_cannot} cannot-links from {n_segments} "
-              f"segments -> {out}")
-    return 0
+    return emit(args, result, f"{shape!r}: {cons.n_must} must-links, {cons.n_cannot} cannot-links from "
+                f"{n_segments} segments -> {out}")

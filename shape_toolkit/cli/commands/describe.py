@@ -16,9 +16,9 @@ from shape_toolkit.cli.commands._common import (
     check_output_path,
     declared_spectra,
     default_output,
+    emit,
     parse_params,
     plugin_class,
-    print_json,
     status,
 )
 from shape_toolkit.errors import ParameterError
@@ -70,8 +70,5 @@ def run(args: argparse.Namespace) -> int:
         "finite": bool(np.isfinite(D).all()),
         "seconds": round(seconds, 3),
     }
-    if args.json:
-        print_json(result)
-    else:
-        print(f"{shape!r}: {args.descriptor} descriptor {D.shape[0]} x {D.shape[1]} in {seconds:.2f} s -> {out}")
-    return 0
+    return emit(args, result, f"{shape!r}: {args.descriptor} descriptor {D.shape[0]} x {D.shape[1]} in "
+                f"{seconds:.2f} s -> {out}")

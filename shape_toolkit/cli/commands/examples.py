@@ -8,7 +8,7 @@ import argparse
 import shutil
 from pathlib import Path
 
-from shape_toolkit.cli.commands._common import print_json
+from shape_toolkit.cli.commands._common import emit
 from shape_toolkit.errors import ParameterError
 
 
@@ -45,14 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def list_cmd(args: argparse.Namespace) -> int:
     root = examples_dir()
     names = [str(p.relative_to(root)) for p in _files(root)]
-    if args.json:
-        print_json({"folder": str(root), "files": names})
-    else:
-        print(f"examples in {root}:")
-        for n in names:
-            print(f"  {n}")
-        print("copy them with: shape-toolkit examples copy DIR")
-    return 0
+    return emit(args, {"folder": str(root), "files": names}, f"examples in {root}:", *(f"  {n}" for n in names),
+                "copy them with: shape-toolkit examples copy DIR")
 
 
 def copy_cmd(args: argparse.Namespace) -> int:
@@ -72,8 +66,5 @@ def copy_cmd(args: argparse.Namespace) -> int:
         to.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(f, to)
         written.append(str(to))
-    if args.json:
-        print_json({"folder": str(dest), "files": written})
-    else:
-        print(f"copied {len(written)} files to {dest}; see {dest / 'README.md'}")
-    return 0
+    return emit(args, {"folder": str(dest), "files": written},
+                f"copied {len(written)} files to {dest}; see {dest / 'README.md'}")

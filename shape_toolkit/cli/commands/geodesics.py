@@ -19,7 +19,7 @@ from shape_toolkit.cli.commands._common import (
     check_output_path,
     check_ply,
     default_output,
-    print_json,
+    emit,
     status,
     time_limit_hint,
     write_ply,
@@ -96,8 +96,5 @@ def run(args: argparse.Namespace) -> int:
         "unreachable": int(np.sum(~np.isfinite(nearest))),
         "seconds": round(seconds, 3),
     }
-    if args.json:
-        print_json(result)
-    else:
-        print(f"{shape!r}: distances from {src.size} source(s) ({args.method}) in {seconds:.2f} s -> {out}")
-    return 0
+    return emit(args, result, f"{shape!r}: distances from {src.size} source(s) ({args.method}) in "
+                f"{seconds:.2f} s -> {out}")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from shape_toolkit.cli.commands._common import print_json
+from shape_toolkit.cli.commands._common import emit
 from shape_toolkit.core.inspect import mesh_info
 from shape_toolkit.io.mesh import load_shape
 
@@ -57,8 +57,4 @@ def run(args: argparse.Namespace) -> int:
     info["path"] = str(args.shape)
     if undefined := undefined_reasons(info):
         info["undefined"] = undefined
-    if args.json:
-        print_json(info)
-    else:
-        print(format_info(info))
-    return 0
+    return emit(args, info, format_info(info))

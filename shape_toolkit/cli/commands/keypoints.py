@@ -15,9 +15,9 @@ from shape_toolkit.cli.commands._common import (
     check_output_path,
     check_ply,
     declared_spectra,
+    emit,
     parse_params,
     plugin_class,
-    print_json,
     status,
     write_ply,
 )
@@ -82,10 +82,5 @@ def run(args: argparse.Namespace) -> int:
         "n_vertices": shape.n_vertices,
         "seconds": round(seconds, 4),
     }
-    if args.json:
-        print_json(result)
-    else:
-        print(f"{shape!r}: {ids.size} keypoints ({args.detector}"
-              f"{', preset ' + args.preset if args.preset else ''})")
-        print(" ".join(str(i) for i in ids))
-    return 0
+    return emit(args, result, f"{shape!r}: {ids.size} keypoints ({args.detector}"
+                f"{', preset ' + args.preset if args.preset else ''})", " ".join(str(i) for i in ids))

@@ -17,10 +17,10 @@ from shape_toolkit.cli.commands._common import (
     check_output_path,
     check_ply,
     declared_spectra,
+    emit,
     parse_params,
     plugin_class,
     positive_int_arg,
-    print_json,
     random_state_arg,
     status,
     write_ply,
@@ -123,9 +123,5 @@ def run(args: argparse.Namespace) -> int:
         "diagnostics": _diagnostics(seg),
         "seconds": round(elapsed, 3),
     }
-    if args.json:
-        print_json(result)
-    else:
-        print(f"{shape!r}: {result['n_segments']} segments by {args.method} -> {out} "
-              f"({result['per']} labels, {elapsed:.2f} s)")
-    return 0
+    return emit(args, result, f"{shape!r}: {result['n_segments']} segments by {args.method} -> {out} "
+                f"({result['per']} labels, {elapsed:.2f} s)")

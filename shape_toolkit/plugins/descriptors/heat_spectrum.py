@@ -1,5 +1,6 @@
-"""What the keypoint heat descriptors share (not a plugin itself: no entry point): the spectrum
-they declare and how they resolve ``K``, the times and the keypoints (thesis 6.6.3, 7.3.1)."""
+"""What the spectral descriptors share (not a plugin itself: no entry point): the spectrum they
+declare and how they resolve ``K``; for the keypoint heat descriptors also the times and the keypoints
+(thesis 6.6.3, 7.3.1)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,9 @@ from shape_toolkit.validation import check_vertex_ids
 
 #: ``K`` (non-null eigenpairs) of the keypoint descriptors when not given (section 7.3.1)
 DEFAULT_K = 25
+
+#: ``K`` of the per-vertex signatures (``hks``, ``wks``) when not given
+SIGNATURE_K = 100
 
 
 #: ``K`` of a spectral descriptor: None (the plugin's default) or a count of non-null eigenpairs
@@ -42,6 +46,17 @@ def keypoint_heat_spec(K: int | None, weighting: str, laplacian: str) -> Spectru
     no mass matrix: the default of the thesis for heat descriptors (sections 6.4.1, 6.6.1); the
     eigenpairs beyond ``K`` feed the scree rule of the default times."""
     return default_spec(2 * check_K(K, DEFAULT_K) + 1, "graph", weighting=weighting, laplacian=laplacian)
+
+
+class SignatureSpectrumMixin:
+    """Spectrum declaration of the per-vertex signatures ``hks`` and ``wks`` (parameters ``K``,
+    ``weighting``, ``laplacian``)."""
+
+    def spectrum_spec(self) -> SpectrumSpec:
+        """``K + 1`` eigenpairs (``K`` = :data:`SIGNATURE_K` when None) of the ``laplacian`` of the
+        ``weighting`` graph, no mass matrix."""
+        return default_spec(check_K(self.K, SIGNATURE_K) + 1, "graph",  # type: ignore[attr-defined]
+                            weighting=self.weighting, laplacian=self.laplacian)  # type: ignore[attr-defined]
 
 
 def keypoint_heat_inputs(

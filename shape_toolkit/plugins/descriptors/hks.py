@@ -11,14 +11,10 @@ from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.features.heat import heat_kernel_signature
 from shape_toolkit.features.scales import default_times
 from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE_INT, TIMES, WEIGHTING
-from shape_toolkit.plugins.descriptors.heat_spectrum import K_PARAM, check_K, own_spectrum
-from shape_toolkit.spectra import SpectrumSpec, default_spec
-
-#: ``K`` of the spectral descriptors when not given
-DEFAULT_K = 100
+from shape_toolkit.plugins.descriptors.heat_spectrum import K_PARAM, SignatureSpectrumMixin, own_spectrum
 
 
-class HKSDescriptor(Descriptor):
+class HKSDescriptor(SignatureSpectrumMixin, Descriptor):
     """Heat kernel signature at ``n_times`` log-spaced scales (or the given ``times``).
 
     Declared spectrum (:meth:`spectrum_spec`): ``K + 1`` eigenpairs (``K`` = 100 when None, capped
@@ -56,11 +52,6 @@ class HKSDescriptor(Descriptor):
         self.log = log
         self.weighting = weighting
         self.laplacian = laplacian
-
-    def spectrum_spec(self) -> SpectrumSpec:
-        """``K + 1`` eigenpairs of the ``laplacian`` of the ``weighting`` graph, no mass matrix."""
-        return default_spec(check_K(self.K, DEFAULT_K) + 1, "graph", weighting=self.weighting,
-                            laplacian=self.laplacian)
 
     def compute(
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None

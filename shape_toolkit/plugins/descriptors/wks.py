@@ -11,9 +11,7 @@ from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.basis import spectral_basis
 from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE, POSITIVE_INT, WEIGHTING
-from shape_toolkit.plugins.descriptors.heat_spectrum import K_PARAM, check_K, own_spectrum
-from shape_toolkit.plugins.descriptors.hks import DEFAULT_K
-from shape_toolkit.spectra import SpectrumSpec, default_spec
+from shape_toolkit.plugins.descriptors.heat_spectrum import K_PARAM, SignatureSpectrumMixin, own_spectrum
 
 __all__ = ["WKSDescriptor", "wave_kernel_signature"]
 
@@ -44,7 +42,7 @@ def wave_kernel_signature(
     return out / norm[None, :]
 
 
-class WKSDescriptor(Descriptor):
+class WKSDescriptor(SignatureSpectrumMixin, Descriptor):
     """WKS at ``n_energies`` log-energies ``e`` evenly spaced in
     ``[log lambda_2 + 2 sigma, log lambda_K - 2 sigma]`` with ``sigma = variance * (log lambda_K -
     log lambda_2) / n_energies``::
@@ -77,11 +75,6 @@ class WKSDescriptor(Descriptor):
         self.variance = variance
         self.weighting = weighting
         self.laplacian = laplacian
-
-    def spectrum_spec(self) -> SpectrumSpec:
-        """``K + 1`` eigenpairs of the ``laplacian`` of the ``weighting`` graph, no mass matrix."""
-        return default_spec(check_K(self.K, DEFAULT_K) + 1, "graph", weighting=self.weighting,
-                            laplacian=self.laplacian)
 
     def compute(
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None

@@ -40,6 +40,12 @@ class AssociationGraph:
     W: np.ndarray
     unary: np.ndarray
 
+    @property
+    def affinity(self) -> np.ndarray:
+        """``W`` with the unary similarities on its diagonal ``(N, N)``: the affinity matrix of spectral
+        matching and RRWM."""
+        return self.W + np.diag(self.unary)
+
 
 def association_graph(
     source: Shape,

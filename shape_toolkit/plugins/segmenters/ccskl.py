@@ -87,13 +87,9 @@ class CCSKL(BaseSegmenter):
         self.n_init = n_init
         self.random_state = random_state
 
-    def _check_m(self) -> int:
-        m = self.n_eigenvectors
-        return int(m)
-
     def spectrum_spec(self) -> SpectrumSpec:
         """``n_eigenvectors`` eigenpairs of the normalized Laplacian of the ``weighting`` graph."""
-        return segmenter_spec(self._check_m(), self.weighting, "normalized")
+        return segmenter_spec(int(self.n_eigenvectors), self.weighting, "normalized")
 
     def _segment(self, shape: Shape, *, spectrum: Spectrum | None, constraints: Any) -> Segmentation:
         """The segmentation of a shape of one piece (``constraints``: Constraints, dict or JSON path)."""

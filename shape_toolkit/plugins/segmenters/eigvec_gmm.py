@@ -137,18 +137,14 @@ class EigvecGMMSegmenter(BaseSegmenter):
         self.max_fit_samples = max_fit_samples
         self.random_state = random_state
 
-    def _check_p(self) -> int:
-        p = self.n_eigenvectors
-        return int(p)
-
     def spectrum_spec(self) -> SpectrumSpec:
         """``n_eigenvectors + 1`` eigenpairs (the null one and ``u_2 .. u_{p+1}``) of the chosen
         Laplacian of the ``weighting`` graph, no mass matrix."""
-        return segmenter_spec(self._check_p() + 1, self.weighting, self.laplacian)
+        return segmenter_spec(int(self.n_eigenvectors) + 1, self.weighting, self.laplacian)
 
     def _check(self, n: int) -> tuple[int | None, int]:
         k = check_n_segments(self.n_segments, n, allow_none=True)
-        p = self._check_p()
+        p = int(self.n_eigenvectors)  # an int, as declared
         if not 1 <= p <= n - 1:
             raise ParameterError(f"n_eigenvectors must be an integer in [1, {n - 1}], got {p!r}")
         if k is None:

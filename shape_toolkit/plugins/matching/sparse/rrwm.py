@@ -63,7 +63,7 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
         self.spectrum = spectrum
 
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
-        W = graph.W + np.diag(graph.unary)
+        W = graph.affinity
         P = W / max(float(W.sum(axis=1).max()), 1e-300)
         a, b = graph.nodes[:, 0], graph.nodes[:, 1]
         shape = (int(a.max()) + 1, int(b.max()) + 1)

@@ -40,7 +40,7 @@ class SpectralMatcher(AssociationMatcherBase, SparseMatcher):
         self.spectrum = spectrum
 
     def _solve(self, graph: AssociationGraph) -> np.ndarray:
-        M = graph.W + np.diag(graph.unary)
+        M = graph.affinity
         _, vecs = np.linalg.eigh(M)  # N is small (candidate matches of sparse keypoints)
         x = vecs[:, -1]
         return np.abs(x) if x.sum() >= 0 else np.abs(-x)
