@@ -483,9 +483,7 @@ def render_shape(
     ``labels`` ``(n,)`` or RGB ``colors`` ``(n, 3)`` (0..1 or 0..255), and ``points`` (vertex ids)
     drawn as red dots; upright by the ``up`` rule of :func:`upright_frame`, ``size`` inches high and
     cropped to the shape. Returns the path."""
-    pts = None if points is None else np.asarray(points, dtype=np.int64).ravel()
-    if pts is not None and pts.size and (pts.min() < 0 or pts.max() >= shape.n_vertices):
-        raise ParameterError(f"points must be vertex ids in [0, {shape.n_vertices - 1}]")
+    pts = _point_ids(shape, points)
     panel = {
         "shape": shape,
         "scalars": scalars,
@@ -517,6 +515,16 @@ def save_colored_ply(shape: Shape, path: str | os.PathLike, colors: np.ndarray) 
     p = Path(path)
     save_shape(coloured, p)
     return p
+
+
+def _point_ids(shape: Shape, points: np.ndarray | None) -> np.ndarray | None:
+    """``points`` as int64 vertex ids ``(q,)``, checked to lie in the shape (a negative id would wrap)."""
+    if points is None:
+        return None
+    pts = np.asarray(points, dtype=np.float64).ravel()
+    if pts.size and (not np.all(pts == np.round(pts)) or pts.min() < 0 or pts.max() >= shape.n_vertices):
+        raise ParameterError(f"points must be vertex ids in [0, {shape.n_vertices - 1}]")
+    return pts.astype(np.int64)
 
 
 def show(
@@ -555,8 +563,9 @@ def show(
     else:
         data.append(go.Scatter3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], mode="markers",
                                  marker={"size": 2, "color": rgb}, name="shape"))
-    if points is not None and len(points):
-        p = v[np.asarray(points, dtype=np.int64)]
+    pts = _point_ids(shape, points)
+    if pts is not None and len(pts):
+        p = v[pts]
         data.append(go.Scatter3d(x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="markers",
                                  marker={"size": 5, "color": "red"}, name="points"))
     fig = go.Figure(data=data)

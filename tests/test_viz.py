@@ -149,6 +149,9 @@ def test_plotly_show_figure(body):
     fig = show(s, labels=labels, points=[0, 1], title="parts")
     assert fig.data[0].type == "mesh3d" and len(fig.data[0].vertexcolor) == s.n_vertices
     assert fig.data[1].type == "scatter3d"
+    for bad in ([-1], [s.n_vertices], [0.5]):  # a negative id would wrap silently
+        with pytest.raises(ParameterError, match="vertex ids"):
+            show(s, points=bad)
 
 
 def test_colorbar_panel_and_long_title(body, tmp_path):
