@@ -305,8 +305,9 @@ class _View:
         self.v = v
         self.xy, self.depth = _project(v)
         lo, hi = self.xy.min(axis=0), self.xy.max(axis=0)
-        span = float((hi - lo).max())
-        pad = np.maximum(hi - lo, 1e-3 * max(span, 1e-300)) * 0.01 + 1e-3 * max(span, 1e-300)
+        # a scale that the coordinates can resolve, even when every point is the same one (span 0)
+        span = max(float((hi - lo).max()), 1e-6 * float(np.abs(np.concatenate([lo, hi])).max()), 1e-12)
+        pad = np.maximum(hi - lo, 1e-3 * span) * 0.01 + 1e-3 * span
         self.lo, self.hi = lo - pad, hi + pad
 
     @property

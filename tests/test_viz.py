@@ -199,3 +199,10 @@ def test_both_renderers_share_one_lambert_shading(body, tmp_path, monkeypatch):
     viz.render_trajectories([s, s], np.column_stack([np.arange(s.n_vertices)] * 2), tmp_path / "t.png",
                             n_tracks=5)
     assert len(calls) == 3  # one panel, two frames
+
+
+def test_a_cloud_of_one_repeated_point_renders(tmp_path):
+    """Every point the same (the bad-input corpus's all_same_point.xyz): the panel's box had zero extent
+    and its aspect ratio was NaN."""
+    s = Shape(np.ones((50, 3)))
+    assert render_shape(s, tmp_path / "same.png", title="all_same_point").stat().st_size > 0
