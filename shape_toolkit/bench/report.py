@@ -58,7 +58,8 @@ _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matche
 _LOWER = ("error", "discrepancy", "gce", "lce", "hamming", "seconds", "memory", "chance", "flipped", "drift",
           "wrong_part", "lost")
 #: units of known columns, shown in the headers
-_UNITS = {"seconds": "s", "cpu_seconds": "s", "peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
+_UNITS = {"seconds": "s", "cpu_seconds": "s", "peak_memory_mb": "MB", "metric_seconds": "s", "metric_cpu_seconds": "s",
+          "metric_peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
           "median_geodesic_error": "sqrt(area)", "lambda2": "1/length^2", "mean_eigenvalue": "1/length^2"}
 
 
@@ -141,6 +142,9 @@ def _is_curve(v: Any) -> bool:
 
 #: the cost columns of every row, shown after the metrics
 _COSTS = ("seconds", "cpu_seconds", "peak_memory_mb")
+#: the cost of a row's metrics, shown where the task measured it (task option ``metric_costs``)
+_METRIC_COSTS = ("metric_seconds", "metric_cpu_seconds", "metric_peak_memory_mb")
+_ALL_COSTS = _COSTS + _METRIC_COSTS
 
 
 def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str, tuple[float, float, int]]]]:
@@ -155,7 +159,7 @@ def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str
         for k, v in (r.get("metrics") or {}).items():
             if _is_num(v):
                 cell[k].append(float(v))
-        for k in _COSTS:
+        for k in _COSTS + (_METRIC_COSTS if _is_num(r.get("metric_peak_memory_mb")) else ()):
             if _is_num(r.get(k)):
                 cell[k].append(float(r[k]))
     out: dict = {}
@@ -721,8 +725,8 @@ def blas_summary(rows: list[dict]) -> str | None:
 def _mean_grid(task: str, cells: dict, gaps: dict) -> _Grid:
     """Mean and std per (dataset, method, corruption); the best of each column marked (see
     :func:`_ranks`); metrics without a value as n/a, and why, in notes under the table."""
-    valued = sorted({c for v in cells.values() for c in v} - set(_COSTS))
-    columns = valued + [c for c in _COSTS if any(c in v for v in cells.values())]
+    valued = sorted({c for v in cells.values() for c in v} - set(_ALL_COSTS))
+    columns = valued + [c for c in _ALL_COSTS if any(c in v for v in cells.values())]
     g = _Grid(f"Task {task}: mean and standard deviation per method", ["dataset", "method", "corruption"],
               columns, stats=True)
     ranks = {c: _ranks(cells, c) for c in columns}
@@ -817,7 +821,7 @@ def _item_grid(task: str, rows: list[dict], columns: list[str]) -> _Grid | None:
         m = r["metrics"]
         cells = []
         for c in columns:
-            v = r.get(c) if c in _COSTS else m.get(c)
+            v = r.get(c) if c in _ALL_COSTS else m.get(c)
             cells.append((float(v), 0.0, 1, "") if _is_num(v) else _NA if c in m and _no_value(v) else None)
         g.rows.append(([str(r.get("dataset", "-")), str(r.get("item")), method_id(r),
                         str(r.get("corruption", "none"))], cells))
@@ -854,7 +858,7 @@ def _summary_section(summ: dict, tasks: list[str], rows: list[dict], gaps: dict 
                         if not any(c in v for v in sub.values()):
                             none_have[c].add(k[1])
             methods = sorted({k[1] for k in sub})
-            cols = sorted({c for v in sub.values() for c in v if metric_direction(c)} - set(_COSTS))
+            cols = sorted({c for v in sub.values() for c in v if metric_direction(c)} - set(_ALL_COSTS))
             items = []
             for c in cols:
                 under = "; rewards under-segmentation" if rewards_under_segmentation(c) else ""
