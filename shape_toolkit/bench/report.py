@@ -50,7 +50,8 @@ from shape_toolkit.errors import ParameterError
 from shape_toolkit.validation import atomic_output
 
 __all__ = ["write_report", "check_report_output", "summarize", "method_id", "metric_direction", "latex_escape",
-           "rewards_under_segmentation", "report_colors", "MANIFEST", "SPLIT_FIELD", "markdown_summary"]
+           "rewards_under_segmentation", "report_colors", "MANIFEST", "SPLIT_FIELD", "markdown_summary",
+           "markdown_table"]
 
 #: metrics where a larger value is better (everything else with a direction: lower is better)
 _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
@@ -557,6 +558,15 @@ def _md_escape(text: Any) -> str:
     return _printable(str(text).replace("\n", " ").replace("\r", " ")).replace("|", "\\|")
 
 
+def markdown_table(columns: list[str], rows: list[list[Any]], *, escape: bool = True) -> list[str]:
+    """A GitHub markdown table as lines: the header, the rule and one line per row (each cell ``str()``-ed;
+    with ``escape`` the header and cells on one printable line with ``|`` escaped, for text from files,
+    errors and user input; without, for cells already formatted as markdown)."""
+    fix = _md_escape if escape else str
+    return ["| " + " | ".join(fix(c) for c in columns) + " |", "|" + "---|" * len(columns),
+            *("| " + " | ".join(fix(c) for c in row) + " |" for row in rows)]
+
+
 def _md_text(g: _Grid) -> str:
     """The table as GitHub markdown: the numbers as printed in the HTML (mean, std and n of a mean
     table), best in bold, shared bests marked *tie*, published numbers in italics, n/a where a method gives no
@@ -583,9 +593,8 @@ def _md_text(g: _Grid) -> str:
         return _md_escape(c) + (f" ({unit})" if unit else "") + arrow + dagger
 
     cols = [_md_escape(k) for k in g.keys] + [head(c) for c in g.metrics]
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for keys, cells in g.rows:
-        lines.append("| " + " | ".join([_md_escape(k) for k in keys] + [cell(c) for c in cells]) + " |")
+    lines = markdown_table(cols, [[_md_escape(k) for k in keys] + [cell(c) for c in cells] for keys, cells in g.rows],
+                           escape=False)
     lines += [""] + [_md_escape(n) + "\n" for n in g.notes]
     return "\n".join(lines) + "\n"
 
