@@ -1146,7 +1146,7 @@ def _cost_fig(task: str, cells: dict, figs: _Figs, colors: dict | None = None) -
     return [_img(figs.save(fig, f"{task}-cost"), f"{task}: runtime and memory per method")]
 
 
-def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int, up: str = "longest") -> list[str]:
+def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int, up: str = "auto") -> list[str]:
     """Up to ``n`` rendered results (one per method), each shape upright by the ``up`` rule of
     :func:`shape_toolkit.viz.upright_frame` and cropped tight."""
     from shape_toolkit.viz import align_labels, pullback_colors, render_shapes
@@ -1375,7 +1375,7 @@ def write_report(
     progress: Callable[[str], None] | None = None,
     markdown: str | os.PathLike | None = None,
     command: str | None = None,
-    up: str = "longest",
+    up: str = "auto",
 ) -> dict:
     """Write ``index.html`` (self-contained) with its figures (PNG, and PDF) and tables (CSV and
     LaTeX) for a run folder; ``progress`` receives one line per step (task, figure group); ``up``:
@@ -1449,7 +1449,7 @@ def _published_of(run: Path) -> dict[str, tuple[str, ...]]:
 
 
 def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, renders: int,
-          say: Callable[[str], None], up: str = "longest", stale: int = 0) -> str:
+          say: Callable[[str], None], up: str = "auto", stale: int = 0) -> str:
     """The HTML page of the report (its figures saved through ``figs``, its tables through ``tables``)."""
     summ = summarize(rows)
     gaps = _gaps(rows)
@@ -1473,8 +1473,11 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
         "peak memory is the resident-set growth during that call (MB). Each dataset is reported on its "
         "own rows; values are mean &plusmn; standard deviation over items. Every method has one colour in all "
         "the figures. Rendered shapes are upright: from their area-weighted principal axes, up is the "
-        + ("longest axis" if up == "longest" else "middle axis (the longest is horizontal)")
-        + ", the heavier end up, seen along the thinnest axis.</p>",
+        + {"longest": "longest axis, the heavier end up", "middle": "middle axis (the longest is horizontal), the "
+           "heavier end up"}.get(up, "longest axis, or the middle one when the shape stands on legs across the "
+                                     "longest (its end slabs differ by two or more separate pieces: four legs "
+                                     "against one torso), the end with more pieces down (else the heavier end up)")
+        + ", seen along the thinnest axis.</p>",
     ]
     for i, task in enumerate(tasks, 1):
         trows = [r for r in rows if r["task_name"] == task]
