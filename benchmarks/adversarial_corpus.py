@@ -635,6 +635,8 @@ def _md(text: str) -> str:
 
 def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS,
            retried: list[tuple[str, str]] = (), note: str = "") -> str:
+    from shape_toolkit.bench.report import markdown_table
+
     counts = Counter(r.verdict for r in runs)
     by_cmd: dict[str, Counter] = {}
     for r in runs:
@@ -655,12 +657,9 @@ def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS,
         f"stderr line): {counts['failure']}",
         f"- run a second time (each listed below with its first verdict; the second counts): {len(retried)}",
         "",
-        "| command | rejected | success | failure |",
-        "|---|---|---|---|",
+        *markdown_table(["command", "rejected", "success", "failure"],
+                        [[c, *(by_cmd[c][k] for k in ("rejected", "success", "failure"))] for c in sorted(by_cmd)]),
     ]
-    for cmd in sorted(by_cmd):
-        c = by_cmd[cmd]
-        lines.append(f"| {cmd} | {c['rejected']} | {c['success']} | {c['failure']} |")
     fails = [r for r in runs if r.verdict == "failure"]
     verdict = {r.case: r.verdict for r in runs}
     lines += ["", "## Failures", ""]

@@ -14,7 +14,6 @@ an upper bound that includes Dask start-up, serialisation and scheduling.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import tempfile
@@ -22,23 +21,18 @@ import time
 from pathlib import Path
 
 from shape_toolkit.bench.config import parse_config
+from shape_toolkit.bench.report import markdown_table
 from shape_toolkit.bench.runner import read_rows, run_benchmark
+from shape_toolkit.bench.store import read_prepare_log
 from shape_toolkit.cli.commands.demo import showcase_config
 
 OUT = Path(__file__).resolve().parent / "results" / "runner_scaling.md"
 
 
 def _prepare_seconds(run: Path) -> float:
-    total = 0.0
-    path = run / "prepare.jsonl"
-    if not path.exists():
-        return 0.0
-    for line in path.read_text().splitlines():
-        info = json.loads(line)
-        total += sum(float(v) for k, v in info.items() if k.endswith("_seconds") and v is not None)
-        for s in info.get("spectra", []) or []:
-            total += float(s.get("seconds", 0.0) or 0.0)
-    return total
+    """Seconds of the run's shared preparation (loading, corruption, geodesics, spectra), from its log."""
+    return sum(sum(float(v or 0.0) for k, v in p.items() if k.endswith("_seconds"))
+               + sum(float(sp.get("seconds") or 0.0) for sp in p.get("spectra") or []) for p in read_prepare_log(run))
 
 
 def main() -> None:
@@ -70,10 +64,9 @@ def main() -> None:
         f"load average at the end {os.getloadavg()[0]:.1f}. Workload: the demo's showcase config "
         f"with {args.poses} generated poses.\n"
     )
-    lines.append("| workers | rows | failed | wall s | sum of row s | prepare s | overhead per task s |")
-    lines.append("|---:|---:|---:|---:|---:|---:|---:|")
-    for w, (wall, n, failed, busy, prep, ov) in results.items():
-        lines.append(f"| {w} | {n} | {failed} | {wall:.1f} | {busy:.1f} | {prep:.1f} | {ov:.3f} |")
+    lines += markdown_table(["workers", "rows", "failed", "wall s", "sum of row s", "prepare s", "overhead per task s"],
+                            [[w, n, failed, f"{wall:.1f}", f"{busy:.1f}", f"{prep:.1f}", f"{ov:.3f}"]
+                             for w, (wall, n, failed, busy, prep, ov) in results.items()])
     lines.append(f"\nSpeedup with 2 workers: **{w1 / w2:.2f}x** (ideal 2x on 2 cores).")
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text("\n".join(lines) + "\n")

@@ -58,6 +58,8 @@ params = { n_segments = 4, weighting = "cotangent" }
 
 #: what each fault does to one file (``rel``) of a run folder
 FAULTS = ("swap", "truncate", "empty", "garbage", "pickle", "link-out", "delete", "plant")
+#: what a case can come to (the columns of the results table)
+OUTCOMES = ("ok", "refused", "mishandled")
 
 
 class _Payload:
@@ -212,6 +214,8 @@ def run_corpus(work: Path, select=None) -> list[Case]:
 
 def write_results(done: list[Case], seconds: float) -> None:
     """``benchmarks/results/run_folder_corpus.md``."""
+    from shape_toolkit.bench.report import markdown_table
+
     by = Counter(c.outcome for c in done)
     lines = [
         "# Run-folder fault corpus",
@@ -225,13 +229,10 @@ def write_results(done: list[Case], seconds: float) -> None:
         f"- **refused** (exit 2 or 3, one line, nothing outside changed): {by['refused']}",
         f"- **mishandled** (a wrong row, a traceback, a write outside, a loaded pickle): {by['mishandled']}",
         "",
-        "| fault | ok | refused | mishandled |",
-        "|---|---|---|---|",
+        *markdown_table(["fault", *OUTCOMES],
+                        [[f, *(Counter(c.outcome for c in done if c.fault == f)[o] for o in OUTCOMES)]
+                         for f in FAULTS]),
     ]
-    for f in FAULTS:
-        cs = [c for c in done if c.fault == f]
-        n = Counter(c.outcome for c in cs)
-        lines.append(f"| {f} | {n['ok']} | {n['refused']} | {n['mishandled']} |")
     lines += ["", "## Mishandled", ""]
     bad = [c for c in done if c.outcome == "mishandled"]
     lines += [f"- `{c.fault} {c.rel}`: {c.detail}" for c in bad] or ["none"]

@@ -59,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--limit", type=float, default=2.0, help="the --time-limit given (seconds)")
     args = ap.parse_args(argv)
+    from shape_toolkit.bench.report import markdown_table
     from shape_toolkit.data.generate import icosphere
     from shape_toolkit.io.mesh import save_shape
 
@@ -90,11 +91,9 @@ def main(argv: list[str] | None = None) -> int:
         f"{n:,}-vertex sphere with `--time-limit {args.limit:g}`; wall time from launch to exit, Python start-up",
         f"included. Target: every command stops within the limit + 5 s: **{'met' if ok else 'NOT met'}**.",
         "",
-        "| command | exit | wall (s) | stderr lines | last stderr line |",
-        "|---|---|---|---|---|",
+        *markdown_table(["command", "exit", "wall (s)", "stderr lines", "last stderr line"],
+                        [[name, code, f"{wall:.1f}", nerr, last[:150]] for name, code, wall, nerr, last in rows]),
     ]
-    for name, code, wall, nerr, last in rows:
-        lines.append(f"| {name} | {code} | {wall:.1f} | {nerr} | {last.replace('|', '/')[:150]} |")
     RESULTS.write_text("\n".join(lines) + "\n")
     print(f"-> {RESULTS}")
     return 0 if ok else 1

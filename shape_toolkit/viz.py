@@ -201,12 +201,19 @@ def match_colors(source: Shape, target: Shape, target_of: np.ndarray) -> tuple[n
 
 
 #: the rules :func:`upright_frame` knows for the up direction
-UP_RULES = ("longest", "middle")
+UP_RULES = ("auto", "longest", "middle")
+#: the automatic rule cuts this fraction of an axis's extent at each of its two ends
+_END_SLAB = 1.0 / 3.0
+#: a piece of an end slab counts when it holds at least this share of the slab's area (not a stray triangle)
+_MIN_PIECE = 0.02
+#: the middle axis is up when its two ends differ by at least this many more pieces than the longest axis's:
+#: one piece of difference is a head or a tail, two or more are legs
+_LEGS = 2
 
 
-def _moments(vertices: np.ndarray, faces: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """Area-weighted centroid ``(3,)`` and covariance ``(3, 3)`` of a surface (each vertex weighs a
-    third of the area of its faces; a point cloud or a mesh of zero area: every point alike)."""
+def _vertex_weights(vertices: np.ndarray, faces: np.ndarray | None) -> np.ndarray:
+    """Each vertex's share ``(n,)`` of the surface area (a third of its faces' areas), summing to 1; a point
+    cloud or a mesh of zero area: every point alike."""
     v = np.asarray(vertices, dtype=np.float64)
     w = np.ones(len(v))
     if faces is not None and len(faces):
@@ -214,10 +221,34 @@ def _moments(vertices: np.ndarray, faces: np.ndarray | None) -> tuple[np.ndarray
         area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
         if area.sum() > 0:
             w = np.bincount(f.ravel(), np.repeat(area / 3.0, 3), minlength=len(v))
-    w = w / w.sum()
+    return w / w.sum()
+
+
+def _moments(vertices: np.ndarray, faces: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Area-weighted centroid ``(3,)`` and covariance ``(3, 3)`` of a surface (each vertex weighs a
+    third of the area of its faces; a point cloud or a mesh of zero area: every point alike)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    w = _vertex_weights(v, faces)
     centre = w @ v
     c = v - centre
     return centre, (c * w[:, None]).T @ c
+
+
+def _end_pieces(h: np.ndarray, faces: np.ndarray, w: np.ndarray) -> int:
+    """How many more separate pieces the surface falls into at the low end of the heights ``h`` ``(n,)`` than
+    at the high end (negative: fewer): each end slab (:data:`_END_SLAB` of the extent) cut out of the mesh,
+    its connected pieces of at least :data:`_MIN_PIECE` of its area counted (a standing animal's four legs
+    against its torso)."""
+    from shape_toolkit.core.geometry import edge_components
+
+    t = (h - h.min()) / max(float(np.ptp(h)), 1e-300)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    counts = []
+    for inside in (t <= _END_SLAB, t >= 1.0 - _END_SLAB):
+        _, label = edge_components(len(h), edges[inside[edges[:, 0]] & inside[edges[:, 1]]])
+        area = np.bincount(label[inside], w[inside])
+        counts.append(int((area >= _MIN_PIECE * area.sum()).sum()))
+    return counts[0] - counts[1]
 
 
 def _heavier_end(axis: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -232,7 +263,7 @@ def _heavier_end(axis: np.ndarray, c: np.ndarray) -> np.ndarray:
 
 
 def upright_frame(
-    vertices: np.ndarray, faces: np.ndarray | None = None, *, up: str = "longest"
+    vertices: np.ndarray, faces: np.ndarray | None = None, *, up: str = "auto"
 ) -> tuple[np.ndarray, np.ndarray]:
     """The view of every render: ``(R, centre)`` with the rows of ``R`` ``(3, 3)`` the screen's
     right, depth (into the screen) and up directions in input coordinates and ``centre`` ``(3,)``
@@ -240,12 +271,18 @@ def upright_frame(
     z up). Depends on the shape alone: the same for any rigid motion of the input and any vertex order.
 
     The rule, from the area-weighted principal axes e1, e2, e3 (largest spread first):
-    - ``up="longest"`` (standing shapes: people, the default): up is e1, right is e2; ``"middle"``
-      (shapes that are longest lying down: quadrupeds, fish, planes): up is e2, right is e1;
+    - ``up="auto"`` (the default): the longest axis e1 is up (a standing person, a bottle, a bird at rest),
+      unless the shape stands on legs across the longest axis: cut a slab of a third of the extent off each
+      end of an axis and count the separate pieces of the surface in each (pieces of at least 2% of the
+      slab's area); when the two ends of e2 differ by at least two more pieces than those of e1 (a
+      quadruped: four legs below, one torso above; one piece more is a head or a tail), e2 is up. The sign:
+      when the two ends of the up axis differ by two or more pieces, the end with more is down (legs);
+      otherwise as below. A point cloud (no faces to cut) keeps e1 and the rule below;
+    - ``"longest"``: up is e1, right is e2; ``"middle"``: up is e2, right is e1;
     - the view is along e3, the thinnest direction, so the screen shows the broadest silhouette;
-    - the sign of up (and of right): the area centroid lies above the middle of the shape's extent,
-      i.e. the heavier end is up (a body stands on its legs); depth completes a proper rotation,
-      so a render is never a mirror image.
+    - the sign of up (unless the pieces decided it) and of right: the area centroid lies above the middle
+      of the shape's extent, i.e. the heavier end is up (a body stands on its legs); depth completes a
+      proper rotation, so a render is never a mirror image.
     Symmetric shapes (equal spreads, or a centroid exactly mid-extent) have no preferred frame; a
     deterministic one is taken."""
     if up not in UP_RULES:
@@ -254,15 +291,21 @@ def upright_frame(
     centre, cov = _moments(v, faces)
     _, vec = np.linalg.eigh(cov)
     e1, e2 = vec[:, 2], vec[:, 1]
-    upward, right = (e1, e2) if up == "longest" else (e2, e1)
     c = v - centre
-    upward = _heavier_end(upward, c)
+    legs = 0  # pieces more at the low end of the up axis than at its high end (auto; 0: not counted)
+    if up == "auto" and faces is not None and len(faces):
+        f, w = np.asarray(faces, dtype=np.int64), _vertex_weights(v, faces)
+        by_axis = [_end_pieces(c @ e1, f, w), _end_pieces(c @ e2, f, w)]
+        up = "middle" if abs(by_axis[1]) >= abs(by_axis[0]) + _LEGS else "longest"
+        legs = by_axis[up == "middle"]
+    upward, right = (e2, e1) if up == "middle" else (e1, e2)
+    upward = -upward if legs <= -_LEGS else upward if legs >= _LEGS else _heavier_end(upward, c)
     right = _heavier_end(right, c)
     depth = np.cross(upward, right)  # (right, depth, up) right-handed: det(R) = +1
     return np.stack([right, depth, upward]), centre
 
 
-def _frame(v: np.ndarray, faces: np.ndarray | None = None, up: str = "longest") -> np.ndarray:
+def _frame(v: np.ndarray, faces: np.ndarray | None = None, up: str = "auto") -> np.ndarray:
     """View coordinates ``(n, 3)`` (x right, y into the screen, z up) of :func:`upright_frame`."""
     r, centre = upright_frame(v, faces, up=up)
     return (np.asarray(v, dtype=np.float64) - centre) @ r.T
@@ -395,7 +438,7 @@ def render_shapes(
     panel_size: float = 3.2,
     dpi: int = 100,
     title: str | None = None,
-    up: str = "longest",
+    up: str = "auto",
     max_width: float | None = None,
 ) -> Path:
     """Render several shapes side by side into one PNG (or PDF, by the suffix of ``path``). Each
@@ -478,7 +521,7 @@ def render_shape(
     title: str | None = None,
     size: float = 4.0,
     dpi: int = 100,
-    up: str = "longest",
+    up: str = "auto",
 ) -> Path:
     """Render ``shape`` to a PNG at ``path`` (headless): per-vertex ``scalars`` ``(n,)``,
     ``labels`` ``(n,)`` or RGB ``colors`` ``(n, 3)`` (0..1 or 0..255), and ``points`` (vertex ids)
@@ -538,7 +581,7 @@ def show(
     cmap: str = "viridis",
     title: str | None = None,
     height: int = 480,
-    up: str = "longest",
+    up: str = "auto",
 ):
     """An interactive 3D view for notebooks: a plotly ``Figure`` (``Mesh3d`` with per-vertex
     colours, or a point cloud) showing ``scalars`` ``(n,)``, ``labels`` ``(n,)`` or RGB ``colors``
@@ -591,7 +634,7 @@ def render_trajectories(
     dpi: int = 100,
     fps: float = 3.0,
     title: str | None = None,
-    up: str = "longest",
+    up: str = "auto",
 ) -> Path:
     """Dense trajectories over a sequence, as in thesis Figs. 7.17-7.18: a PNG with the chosen
     ``frames`` side by side (default all, at most 9 evenly spaced), or an animated GIF (``path``

@@ -23,7 +23,9 @@ def test_photometric_seeds_config_plans_its_rows():
 
 
 @pytest.mark.parametrize(("name", "rows"), [("tosca_matching", 24 * 8), ("repeatability", 24 * 6),
-                                            ("matching_field", 235)])
+                                            ("matching_field", 235),
+                                            ("heat", 6),  # hks + spectrum at 2 sizes, heat-distance + spectrum at 1
+                                            ("segmentation_metrics", 4)])
 def test_shared_data_configs_plan_their_rows(name, rows, shared_data, monkeypatch):
     monkeypatch.setenv("TOOLKIT_DATA", str(shared_data))
     assert load_config(CONFIGS / f"{name}.toml").planned_rows == rows

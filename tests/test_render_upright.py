@@ -52,9 +52,18 @@ def _rigid(shape: Shape, seed: int) -> tuple[Shape, np.ndarray]:
     return Shape(v, inv[shape.faces][rng.permutation(shape.n_faces)]), perm
 
 
-@pytest.mark.parametrize("up", ["longest", "middle"])
+def _quadruped() -> tuple[Shape, np.ndarray]:
+    """A four-legged animal: an elongated torso (a sphere stretched to twice its length) on four legs, with a
+    neck and head and a tail; returns it and its part labels (0 torso, 1-4 legs, 5 neck and head, 6 tail)."""
+    limbs = np.array([[0.8, -1, 0.6], [0.8, -1, -0.6], [-0.8, -1, 0.6], [-0.8, -1, -0.6], [1, 0.8, 0], [-1, 0.4, 0]])
+    a = articulated_shape(subdivisions=4, limbs=limbs, limb_length=[1.6, 1.6, 1.6, 1.6, 1.2, 1.0], limb_radius=0.2,
+                          cap_angle=0.3)
+    return Shape(a.shape.vertices * np.array([2.0, 1.0, 0.8]), a.shape.faces), a.labels
+
+
+@pytest.mark.parametrize("up", ["auto", "longest", "middle"])
 def test_the_view_depends_on_the_shape_alone(up):
-    for shape in (_figure(), articulated_shape(subdivisions=2, random_state=3).shape):
+    for shape in (_figure(), articulated_shape(subdivisions=2, random_state=3).shape, _quadruped()[0]):
         view = _frame(shape.vertices, shape.faces, up)
         for seed in range(4):
             moved, perm = _rigid(shape, seed)
@@ -78,6 +87,22 @@ def test_a_standing_shape_is_drawn_upright_whatever_its_pose():
     assert np.ptp(v[:, 0]) > np.ptp(v[:, 2])
     with pytest.raises(ParameterError, match="up must be one of"):
         upright_frame(figure.vertices, figure.faces, up="sideways")
+
+
+def test_a_quadruped_stands_on_its_legs_whatever_its_pose():
+    """Longest across (its body), the automatic rule stands it on its four legs, head and tail up; the
+    longest-axis rule stood it on its tail."""
+    animal, labels = _quadruped()
+    legs, body = np.isin(labels, [1, 2, 3, 4]), labels == 0
+    for seed in range(6):
+        moved, perm = _rigid(animal, seed)
+        v = _frame(moved.vertices, moved.faces)
+        up = v[:, 2]
+        assert np.ptp(v[:, 0]) > np.ptp(up)  # its length across the screen
+        assert up[legs[perm]].min() == up.min()  # the feet are the lowest points
+        assert up[body[perm]].min() > up.min() + 0.25 * np.ptp(up)  # the torso is carried, not lying
+        old = _frame(moved.vertices, moved.faces, "longest")[:, 2]
+        assert old[body[perm]].min() < old.min() + 0.25 * np.ptp(old)  # the former default: not on its legs
 
 
 def _empty_fraction(img: np.ndarray, box: tuple[int, int, int, int] | None = None) -> float:

@@ -29,7 +29,7 @@ without groups or a half left empty is refused before any work, naming the key.
     params = { strength = [0.1, 0.3] }   # lists are grids (a literal list: wrap it, [[1, 2]])
 
     [[tasks]]
-    task = "segmentation"      # the task kind: spectrum | keypoints | segmentation | matching | sequence
+    task = "segmentation"      # the task kind: spectrum | keypoints | descriptors | segmentation | matching | sequence
     name = "seg"               # optional task name, default = the task kind
     datasets = ["psb"]         # default: every dataset
     corruptions = ["none", "noise"]      # default: ["none"]

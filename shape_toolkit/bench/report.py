@@ -50,7 +50,8 @@ from shape_toolkit.errors import ParameterError
 from shape_toolkit.validation import atomic_output
 
 __all__ = ["write_report", "check_report_output", "summarize", "method_id", "metric_direction", "latex_escape",
-           "rewards_under_segmentation", "report_colors", "MANIFEST", "SPLIT_FIELD", "markdown_summary"]
+           "rewards_under_segmentation", "report_colors", "MANIFEST", "SPLIT_FIELD", "markdown_summary",
+           "markdown_table"]
 
 #: metrics where a larger value is better (everything else with a direction: lower is better)
 _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matched_fraction", "accuracy", "auc",
@@ -58,7 +59,8 @@ _HIGHER = ("recall", "precision", "repeatability", "coverage", "within", "matche
 _LOWER = ("error", "discrepancy", "gce", "lce", "hamming", "seconds", "memory", "chance", "flipped", "drift",
           "wrong_part", "lost")
 #: units of known columns, shown in the headers
-_UNITS = {"seconds": "s", "cpu_seconds": "s", "peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
+_UNITS = {"seconds": "s", "cpu_seconds": "s", "peak_memory_mb": "MB", "metric_seconds": "s", "metric_cpu_seconds": "s",
+          "metric_peak_memory_mb": "MB", "mean_geodesic_error": "sqrt(area)",
           "median_geodesic_error": "sqrt(area)", "lambda2": "1/length^2", "mean_eigenvalue": "1/length^2"}
 
 
@@ -141,6 +143,9 @@ def _is_curve(v: Any) -> bool:
 
 #: the cost columns of every row, shown after the metrics
 _COSTS = ("seconds", "cpu_seconds", "peak_memory_mb")
+#: the cost of a row's metrics, shown where the task measured it (task option ``metric_costs``)
+_METRIC_COSTS = ("metric_seconds", "metric_cpu_seconds", "metric_peak_memory_mb")
+_ALL_COSTS = _COSTS + _METRIC_COSTS
 
 
 def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str, tuple[float, float, int]]]]:
@@ -155,7 +160,7 @@ def summarize(rows: list[dict]) -> dict[str, dict[tuple[str, str, str], dict[str
         for k, v in (r.get("metrics") or {}).items():
             if _is_num(v):
                 cell[k].append(float(v))
-        for k in _COSTS:
+        for k in _COSTS + (_METRIC_COSTS if _is_num(r.get("metric_peak_memory_mb")) else ()):
             if _is_num(r.get(k)):
                 cell[k].append(float(r[k]))
     out: dict = {}
@@ -553,6 +558,15 @@ def _md_escape(text: Any) -> str:
     return _printable(str(text).replace("\n", " ").replace("\r", " ")).replace("|", "\\|")
 
 
+def markdown_table(columns: list[str], rows: list[list[Any]], *, escape: bool = True) -> list[str]:
+    """A GitHub markdown table as lines: the header, the rule and one line per row (each cell ``str()``-ed;
+    with ``escape`` the header and cells on one printable line with ``|`` escaped, for text from files,
+    errors and user input; without, for cells already formatted as markdown)."""
+    fix = _md_escape if escape else str
+    return ["| " + " | ".join(fix(c) for c in columns) + " |", "|" + "---|" * len(columns),
+            *("| " + " | ".join(fix(c) for c in row) + " |" for row in rows)]
+
+
 def _md_text(g: _Grid) -> str:
     """The table as GitHub markdown: the numbers as printed in the HTML (mean, std and n of a mean
     table), best in bold, shared bests marked *tie*, published numbers in italics, n/a where a method gives no
@@ -579,9 +593,8 @@ def _md_text(g: _Grid) -> str:
         return _md_escape(c) + (f" ({unit})" if unit else "") + arrow + dagger
 
     cols = [_md_escape(k) for k in g.keys] + [head(c) for c in g.metrics]
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for keys, cells in g.rows:
-        lines.append("| " + " | ".join([_md_escape(k) for k in keys] + [cell(c) for c in cells]) + " |")
+    lines = markdown_table(cols, [[_md_escape(k) for k in keys] + [cell(c) for c in cells] for keys, cells in g.rows],
+                           escape=False)
     lines += [""] + [_md_escape(n) + "\n" for n in g.notes]
     return "\n".join(lines) + "\n"
 
@@ -721,8 +734,8 @@ def blas_summary(rows: list[dict]) -> str | None:
 def _mean_grid(task: str, cells: dict, gaps: dict) -> _Grid:
     """Mean and std per (dataset, method, corruption); the best of each column marked (see
     :func:`_ranks`); metrics without a value as n/a, and why, in notes under the table."""
-    valued = sorted({c for v in cells.values() for c in v} - set(_COSTS))
-    columns = valued + [c for c in _COSTS if any(c in v for v in cells.values())]
+    valued = sorted({c for v in cells.values() for c in v} - set(_ALL_COSTS))
+    columns = valued + [c for c in _ALL_COSTS if any(c in v for v in cells.values())]
     g = _Grid(f"Task {task}: mean and standard deviation per method", ["dataset", "method", "corruption"],
               columns, stats=True)
     ranks = {c: _ranks(cells, c) for c in columns}
@@ -817,7 +830,7 @@ def _item_grid(task: str, rows: list[dict], columns: list[str]) -> _Grid | None:
         m = r["metrics"]
         cells = []
         for c in columns:
-            v = r.get(c) if c in _COSTS else m.get(c)
+            v = r.get(c) if c in _ALL_COSTS else m.get(c)
             cells.append((float(v), 0.0, 1, "") if _is_num(v) else _NA if c in m and _no_value(v) else None)
         g.rows.append(([str(r.get("dataset", "-")), str(r.get("item")), method_id(r),
                         str(r.get("corruption", "none"))], cells))
@@ -854,7 +867,7 @@ def _summary_section(summ: dict, tasks: list[str], rows: list[dict], gaps: dict 
                         if not any(c in v for v in sub.values()):
                             none_have[c].add(k[1])
             methods = sorted({k[1] for k in sub})
-            cols = sorted({c for v in sub.values() for c in v if metric_direction(c)} - set(_COSTS))
+            cols = sorted({c for v in sub.values() for c in v if metric_direction(c)} - set(_ALL_COSTS))
             items = []
             for c in cols:
                 under = "; rewards under-segmentation" if rewards_under_segmentation(c) else ""
@@ -1133,7 +1146,7 @@ def _cost_fig(task: str, cells: dict, figs: _Figs, colors: dict | None = None) -
     return [_img(figs.save(fig, f"{task}-cost"), f"{task}: runtime and memory per method")]
 
 
-def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int, up: str = "longest") -> list[str]:
+def _render_rows(run: Path, task_rows: list[dict], figs: _Figs, n: int, up: str = "auto") -> list[str]:
     """Up to ``n`` rendered results (one per method), each shape upright by the ``up`` rule of
     :func:`shape_toolkit.viz.upright_frame` and cropped tight."""
     from shape_toolkit.viz import align_labels, pullback_colors, render_shapes
@@ -1362,7 +1375,7 @@ def write_report(
     progress: Callable[[str], None] | None = None,
     markdown: str | os.PathLike | None = None,
     command: str | None = None,
-    up: str = "longest",
+    up: str = "auto",
 ) -> dict:
     """Write ``index.html`` (self-contained) with its figures (PNG, and PDF) and tables (CSV and
     LaTeX) for a run folder; ``progress`` receives one line per step (task, figure group); ``up``:
@@ -1436,7 +1449,7 @@ def _published_of(run: Path) -> dict[str, tuple[str, ...]]:
 
 
 def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, renders: int,
-          say: Callable[[str], None], up: str = "longest", stale: int = 0) -> str:
+          say: Callable[[str], None], up: str = "auto", stale: int = 0) -> str:
     """The HTML page of the report (its figures saved through ``figs``, its tables through ``tables``)."""
     summ = summarize(rows)
     gaps = _gaps(rows)
@@ -1460,8 +1473,11 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
         "peak memory is the resident-set growth during that call (MB). Each dataset is reported on its "
         "own rows; values are mean &plusmn; standard deviation over items. Every method has one colour in all "
         "the figures. Rendered shapes are upright: from their area-weighted principal axes, up is the "
-        + ("longest axis" if up == "longest" else "middle axis (the longest is horizontal)")
-        + ", the heavier end up, seen along the thinnest axis.</p>",
+        + {"longest": "longest axis, the heavier end up", "middle": "middle axis (the longest is horizontal), the "
+           "heavier end up"}.get(up, "longest axis, or the middle one when the shape stands on legs across the "
+                                     "longest (its end slabs differ by two or more separate pieces: four legs "
+                                     "against one torso), the end with more pieces down (else the heavier end up)")
+        + ", seen along the thinnest axis.</p>",
     ]
     for i, task in enumerate(tasks, 1):
         trows = [r for r in rows if r["task_name"] == task]

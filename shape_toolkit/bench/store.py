@@ -150,6 +150,9 @@ class Row:
     spectrum_seconds: float | None = None
     spectrum_cache_hit: bool | None = None
     metric_seconds: float | None = None
+    #: set with the task option ``metric_costs``: the metrics' CPU seconds and peak memory (MB)
+    metric_cpu_seconds: float | None = None
+    metric_peak_memory_mb: float | None = None
     total_seconds: float | None = None
     n_vertices: int | None = None
     output: str | None = None
@@ -166,8 +169,9 @@ class Row:
     def to_dict(self) -> dict[str, Any]:
         """The JSON-ready row (NaN and infinities become null)."""
         d = asdict(self)
-        if d["traceback"] is None:
-            del d["traceback"]
+        for k in ("traceback", "metric_cpu_seconds", "metric_peak_memory_mb"):  # absent unless set
+            if d[k] is None:
+                del d[k]
         return jsonable(d)
 
 
@@ -193,7 +197,7 @@ _ROW_OPTIONAL: dict[str, tuple[type, ...]] = {
     **dict.fromkeys(("preset", "error", "output", "traceback"), (str, type(None))),
     **dict.fromkeys(("params", "corruption_params", "versions"), (dict,)),
     **dict.fromkeys(("strength", "seconds", "cpu_seconds", "peak_memory_mb", "spectrum_seconds",
-                     "metric_seconds", "total_seconds"), _NUMBER),
+                     "metric_seconds", "metric_cpu_seconds", "metric_peak_memory_mb", "total_seconds"), _NUMBER),
     **dict.fromkeys(("random_state", "corruption_seed", "n_vertices", "blas_threads", "repeats"), (int, type(None))),
     "spectrum_cache_hit": (bool, type(None)),
     "spectra": (list,),

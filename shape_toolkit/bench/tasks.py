@@ -34,6 +34,8 @@ from shape_toolkit.spectra import SpectrumSpec, merge_specs
 __all__ = [
     "Prepared",
     "TaskAdapter",
+    "COMMON_OPTIONS",
+    "MEMORY_PROBES",
     "TASKS",
     "prepare",
     "compute_spectrum_cached",
@@ -272,7 +274,10 @@ def _curve(x: np.ndarray, y: np.ndarray) -> list[list[float]]:
 
 # --------------------------------------------------------------------------------------------
 #: options every task takes, with their defaults (None: the runner's one BLAS thread)
-COMMON_OPTIONS: dict[str, Any] = {"repeats": 1, "blas_threads": None}
+COMMON_OPTIONS: dict[str, Any] = {"repeats": 1, "blas_threads": None, "memory": "rss", "metric_costs": False}
+#: what a row's ``peak_memory_mb`` measures (common option ``memory``): the rise of the worker's resident
+#: memory, or the peak of the Python and NumPy allocations traced by ``tracemalloc``
+MEMORY_PROBES = ("rss", "traced")
 
 
 class TaskAdapter:
@@ -294,7 +299,13 @@ class TaskAdapter:
         also takes the :data:`COMMON_OPTIONS`: ``repeats`` (an integer >= 1): each row runs its method
         that often, one run after the other, and keeps the timings of the fastest (best of N, for timing
         benchmarks); ``blas_threads`` (an integer >= 1): the BLAS threads the method runs with (the runner's
-        default is one). Kept in the options only when set, so rows planned without them keep their keys."""
+        default is one); ``memory`` (:data:`MEMORY_PROBES`): ``"rss"`` (default) measures a row's peak memory as
+        the rise of the worker's resident memory, which under-counts what a long-lived process allocates into
+        memory freed earlier, ``"traced"`` as the peak of the allocations ``tracemalloc`` traces during the
+        call (NumPy's arrays included; slower); ``metric_costs`` (bool): also time the row's metrics and
+        measure their peak memory the same way (``metric_seconds``, ``metric_peak_memory_mb``, shown in the
+        report), for benchmarks of the metrics themselves. Kept in the options only when set, so rows
+        planned without them keep their keys."""
         if not isinstance(options, dict):
             raise ParameterError("options must be a table")
         known = {**self.option_defaults, **COMMON_OPTIONS}
@@ -310,6 +321,11 @@ class TaskAdapter:
             raise ParameterError(f"repeats must be an integer >= 1, got {r!r}")
         if b is not None and (isinstance(b, bool) or not isinstance(b, int) or b < 1):
             raise ParameterError(f"blas_threads must be an integer >= 1, got {b!r}")
+        if common["memory"] not in MEMORY_PROBES:
+            known_probes = ", ".join(map(repr, MEMORY_PROBES))
+            raise ParameterError(f"memory must be one of {known_probes}, got {common['memory']!r}")
+        if not isinstance(common["metric_costs"], bool):
+            raise ParameterError(f"metric_costs must be true or false, got {common['metric_costs']!r}")
         return {**o, **{k: v for k, v in common.items() if v != COMMON_OPTIONS[k]}}
 
     def check_method(self, options: dict[str, Any], cls: type, params: dict[str, Any]) -> str | None:
@@ -485,6 +501,45 @@ class KeypointsTask(TaskAdapter):
             ),
             "keypoints": np.asarray(method.detect(prepared.target, spectrum=spectra.get("target")), np.int64),
         }
+
+
+# -- descriptors ------------------------------------------------------------------------------
+def _m_dimensions(p, o, opt):
+    return {"dimensions": int(o["shape"][1]), "finite": bool(o["finite"])}
+
+
+class DescriptorsTask(TaskAdapter):
+    """Per-vertex descriptors of each shape (the compared methods: ``descriptors`` plugins, with the
+    spectrum they declare from the run's cache, timed apart as ``spectrum_seconds``): the row's time and
+    peak memory are the descriptor's alone, against the spectrum it needs. A keypoint descriptor
+    (``heat-distance``, ``heat-diffusion``) gets the keypoints of the method's ``keypoints = { plugin =
+    ... }`` detector (detected inside the row), or with the option ``keypoints = N`` the ``N`` vertex ids
+    evenly spaced from 0 to ``n - 1`` (no detector: the descriptor timed alone). Output: the descriptor's
+    shape ``(n, d)`` and whether every value is finite (the matrix is not kept); metric ``dimensions``."""
+
+    name = "descriptors"
+    families = ("descriptors",)
+    option_defaults = {"keypoints": None}
+    default_metrics = ("dimensions",)
+    metrics = {"dimensions": (_m_dimensions, ())}
+
+    def check_options(self, options):
+        o = super().check_options(options)
+        v = o["keypoints"]
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+            raise ParameterError(f"keypoints must be a positive integer (evenly spaced vertices), got {v!r}")
+        return o
+
+    def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
+        shape = prepared.target
+        kp = None
+        if options["keypoints"] is not None:
+            kp = np.linspace(0, shape.n_vertices - 1, min(options["keypoints"], shape.n_vertices)).astype(np.int64)
+        elif detector is not None:
+            kp = np.asarray(detector.detect(shape, spectrum=(detector_spectra or {}).get("target")), np.int64)
+        d = np.asarray(method.compute(shape, spectrum=spectra.get("target"), keypoints=kp))
+        # the (n, d) matrix itself is not kept: at 10^5 vertices it would fill the run folder
+        return {"shape": np.array(d.shape, dtype=np.int64), "finite": np.array(bool(np.isfinite(d).all()))}
 
 
 # -- segmentation -----------------------------------------------------------------------------
@@ -1012,5 +1067,6 @@ class SequenceTask(TaskAdapter):
 
 #: task name -> adapter
 TASKS: dict[str, TaskAdapter] = {
-    t.name: t for t in (SpectrumTask(), KeypointsTask(), SegmentationTask(), MatchingTask(), SequenceTask())
+    t.name: t
+    for t in (SpectrumTask(), KeypointsTask(), DescriptorsTask(), SegmentationTask(), MatchingTask(), SequenceTask())
 }

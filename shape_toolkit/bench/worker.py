@@ -158,14 +158,29 @@ def _rss_mb() -> float:
 
 
 class MemoryMonitor:
-    """Peak resident memory (MB) above the RSS at entry: exact when the block raises the
-    process's high-water mark (``ru_maxrss``), otherwise the maximum of RSS samples every 5 ms."""
+    """Peak memory (MB) of a block. ``traced=False``: resident memory above the RSS at entry, exact
+    when the block raises the process's high-water mark (``ru_maxrss``), otherwise the maximum of RSS
+    samples every 5 ms (memory freed earlier and reused is not counted). ``traced=True``: the peak of
+    the allocations ``tracemalloc`` traces during the block (Python objects and NumPy arrays, native
+    libraries' own buffers not), whatever was freed before."""
+
+    def __init__(self, traced: bool = False):
+        self.traced = traced
 
     def __enter__(self) -> MemoryMonitor:
+        self.peak_mb = 0.0
+        if self.traced:
+            import tracemalloc
+
+            self._was_tracing = tracemalloc.is_tracing()
+            if not self._was_tracing:
+                tracemalloc.start()
+            tracemalloc.reset_peak()
+            self._base = tracemalloc.get_traced_memory()[0]
+            return self
         self.start = _rss_mb()
         self.max_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
         self.peak = self.start
-        self.peak_mb = 0.0
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._sample, daemon=True)
         self._t.start()
@@ -176,6 +191,14 @@ class MemoryMonitor:
             self.peak = max(self.peak, _rss_mb())
 
     def __exit__(self, *exc: Any) -> None:
+        if self.traced:
+            import tracemalloc
+
+            peak = tracemalloc.get_traced_memory()[1]
+            if not self._was_tracing:
+                tracemalloc.stop()
+            self.peak_mb = max(0.0, (peak - self._base) / 2**20)
+            return
         self._stop.set()
         self._t.join()
         self.peak = max(self.peak, _rss_mb())
@@ -428,8 +451,9 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
         row.repeats = int(job.options.get("repeats", 1))
         best = peak = None
         limit = job.options.get("blas_threads")  # None: as the runner set it (one thread)
+        traced = job.options.get("memory") == "traced"
         for _ in range(row.repeats):  # best of N: the fastest run's times, the largest peak
-            with threadpool_limits(limits=limit, user_api="blas"), MemoryMonitor() as mon:
+            with threadpool_limits(limits=limit, user_api="blas"), MemoryMonitor(traced) as mon:
                 row.blas_threads = blas_threads()
                 t0, c0 = time.perf_counter(), time.process_time()
                 if job.subject_spectrum is not None:  # the spectrum *is* the result: timed as the method
@@ -459,7 +483,13 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
         if output.pop("published", False):  # a published map read from a file: its method's cost is unknown
             row.seconds = row.cpu_seconds = row.peak_memory_mb = None
         t0 = time.perf_counter()
-        row.metrics = adapter.evaluate(job.metrics, prep, output, job.options)
+        if job.options.get("metric_costs"):  # the metrics are the subject: their peak memory too
+            c0 = time.process_time()
+            with MemoryMonitor(traced) as mon:
+                row.metrics = adapter.evaluate(job.metrics, prep, output, job.options)
+            row.metric_peak_memory_mb, row.metric_cpu_seconds = mon.peak_mb, time.process_time() - c0
+        else:
+            row.metrics = adapter.evaluate(job.metrics, prep, output, job.options)
         row.metric_seconds = time.perf_counter() - t0
         row.output = save_output(job.run_dir, job.key, output)
     except Exception as exc:

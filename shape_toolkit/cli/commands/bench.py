@@ -85,9 +85,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     rep.add_argument("-o", "--output", help="report folder (default RUN_DIR/report)")
     rep.add_argument("--renders", type=int, default=3, help="shapes rendered per task (default 3)")
     rep.add_argument("--markdown", metavar="FILE", help="also write the tables to FILE as Markdown")
-    rep.add_argument("--up", choices=("longest", "middle"), default="longest",
-                     help="up direction of rendered shapes: their longest principal axis (standing shapes, the "
-                     "default) or the middle one (shapes longest lying down, such as quadrupeds)")
+    rep.add_argument("--up", choices=("auto", "longest", "middle"), default="auto",
+                     help="up direction of rendered shapes: auto (the default: the longest principal axis, or the "
+                     "middle one for a shape standing on legs across its longest, such as a quadruped), or "
+                     "always the longest or the middle axis (viz.upright_frame)")
     rep.add_argument("--json", action="store_true", help="print the written files as JSON")
     add_quiet(rep)
     rep.set_defaults(func=report_cmd)
