@@ -15,7 +15,7 @@ around the cloud: a visible point's outward normal faces the viewer), and the po
 (between legs, inside folds) take their sign from their seen neighbours, most parallel normals first,
 along neighbour pairs that lie in each other's tangent plane, so the far side of a thin part never passes
 its sign across. Open3D's minimum-spanning-tree propagation (the former method) links both sides of a
-thin part and got the sign wrong on 5-27 % of the points of TOSCA dogs and FAUST people
+thin part and got the sign wrong on 5-28 % of the points of TOSCA dogs and FAUST people
 (`benchmarks/results/cloud_matching_notes.md`).
 """
 
