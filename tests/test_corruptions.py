@@ -198,3 +198,46 @@ def test_crop_refuses_a_cut_that_leaves_too_little_in_one_piece():
     with pytest.raises(InvalidShapeError, match="random_state"):
         crop(small, strength=0.3, random_state=centre_in_small[0])
     assert crop(two, strength=0.0)[0] is two
+
+
+def test_point_cloud_of_the_vertices_keeps_them_and_their_ids(body):
+    """``point-cloud`` with ``points = 0``: the distinct vertices, no faces, each point mapped to its own
+    vertex; the noise has the asked standard deviation in bounding-box diagonals."""
+    s, _ = body
+    c, vm = apply_corruption(s, "point-cloud", random_state=2)
+    assert not c.is_mesh and c.n_vertices == s.n_vertices
+    np.testing.assert_array_equal(c.vertices, s.vertices[vm])
+    n, vn = apply_corruption(s, "point-cloud", strength=0.005, random_state=2)
+    np.testing.assert_array_equal(vn, vm)
+    assert abs((n.vertices - s.vertices[vn]).std() / (0.005 * s.diagonal) - 1) < 0.1
+
+
+def test_point_cloud_samples_lie_on_the_surface_near_their_vertex(body):
+    """``points = N``: N points on the triangles (distance to the surface ~ 0), each mapped to the vertex
+    nearest to it, seeded; the ground truth carried onto the cloud keeps every vertex within an edge."""
+    import igl
+
+    s, _ = body
+    c, vm = apply_corruption(s, "point-cloud", points=3000, random_state=4)
+    assert c.n_vertices == 3000 and not c.is_mesh
+    d2 = igl.point_mesh_squared_distance(c.vertices, s.vertices, s.faces)[0]
+    assert np.sqrt(d2).max() < 1e-9 * s.diagonal
+    near = np.linalg.norm(c.vertices[:, None] - s.vertices[None], axis=-1).argmin(axis=1)
+    np.testing.assert_array_equal(vm, near)
+    again, _ = apply_corruption(s, "point-cloud", points=3000, random_state=4)
+    np.testing.assert_array_equal(again.vertices, c.vertices)
+    ident = np.arange(s.n_vertices)
+    truth = carry_correspondence(np.stack([ident, ident], 1), vm, s, resampled=True)
+    assert len(truth) == s.n_vertices
+    gap = np.linalg.norm(c.vertices[truth[:, 1]] - s.vertices[truth[:, 0]], axis=1)
+    assert gap.max() < 2.5 * s.mean_edge_length
+
+
+def test_point_cloud_refuses_bad_parameters(body):
+    s, _ = body
+    for bad in ({"points": 1}, {"points": -5}, {"points": 2.5}, {"strength": -0.1}):
+        with pytest.raises(ParameterError):
+            apply_corruption(s, "point-cloud", **bad)
+    cloud, _ = apply_corruption(s, "point-cloud")
+    with pytest.raises(InvalidShapeError):  # sampling needs triangles
+        apply_corruption(cloud, "point-cloud", points=100)

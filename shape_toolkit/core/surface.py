@@ -4,11 +4,19 @@ around every point, for the operators that need faces (gradients, orientation, n
 A cloud has no faces, so a functional map's orientation term (``n x grad f``) and the test of a
 map's orientation cannot be formed on it. Around each point, its nearest neighbours projected to
 the tangent plane and sorted by angle give a fan of triangles (its approximate one-ring), wound
-counter-clockwise about the point's normal; the normals are oriented consistently over the cloud
-(Open3D's minimum-spanning-tree propagation) and then outwards (positive signed volume). Each
+counter-clockwise about the point's normal. Each
 surface triangle appears in up to three fans: a uniform weight, which area-normalised operators do
 not see. This is the idea of the tufted cover of local Delaunay triangulations (Sharp and Crane
 2020) with a plain angular fan instead of the Delaunay one.
+
+Outward normals (:func:`outward_normals`): PCA normals of the nearest neighbours, each given its sign by
+the viewpoints that see it (hidden point removal, Katz et al. 2007, from directions spread over a sphere
+around the cloud: a visible point's outward normal faces the viewer), and the points no viewpoint sees
+(between legs, inside folds) take their sign from their seen neighbours, most parallel normals first,
+along neighbour pairs that lie in each other's tangent plane, so the far side of a thin part never passes
+its sign across. Open3D's minimum-spanning-tree propagation (the former method) links both sides of a
+thin part and got the sign wrong on 5-28 % of the points of TOSCA dogs and FAUST people
+(`benchmarks/results/cloud_matching_notes.md`).
 """
 
 from __future__ import annotations
@@ -19,20 +27,81 @@ from shape_toolkit.core.geometry import signed_volume
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError
 
-__all__ = ["cloud_surface", "FAN_NEIGHBORS"]
+__all__ = ["cloud_surface", "outward_normals", "FAN_NEIGHBORS"]
 
 #: neighbours of each point in its fan (a one-ring has about 6)
 FAN_NEIGHBORS = 8
 
 
-def _oriented_normals(points: np.ndarray, k: int) -> np.ndarray:
-    import open3d as o3d
+#: viewpoints of the visibility vote, their distance from the centroid (bounding-box diagonals) and the
+#: hidden-point-removal radius (x the viewpoint's distance; Open3D's documented choice is 100)
+VIEWS, VIEW_DISTANCE, HPR_RADIUS = 50, 3.0, 100.0
+#: a neighbour passes its sign on only when the offset between the two points is within 60 degrees of both
+#: tangent planes (|cos| to each normal below this)
+TANGENT_COS = 0.5
 
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(points, dtype=np.float64)))
-    pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=max(k, 10)))
-    pc.orient_normals_consistent_tangent_plane(max(k, 10))
-    n = np.asarray(pc.normals, dtype=np.float64)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+def _sphere_directions(m: int) -> np.ndarray:
+    """``m`` unit vectors ``(m, 3)`` spread evenly over the sphere (Fibonacci lattice)."""
+    i = np.arange(m) + 0.5
+    phi, theta = np.arccos(1 - 2 * i / m), np.pi * (1 + 5**0.5) * i
+    return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], axis=1)
+
+
+def outward_normals(points: np.ndarray, n_neighbors: int = 10) -> np.ndarray:
+    """Unit normals ``(n, 3)`` of a point cloud ``points`` ``(n, 3)``, oriented outwards (module docstring):
+    PCA of ``n_neighbors`` nearest neighbours, signs from visibility and propagated to the unseen points.
+    Deterministic and independent of the order of the points (up to ties in floating point)."""
+    import heapq
+
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    P = np.array(points, dtype=np.float64)
+    n_pts = len(P)
+    k = int(min(max(n_neighbors, 3), n_pts - 1))
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=k))
+    N = np.asarray(pc.normals, dtype=np.float64).copy()
+    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+    centre = P.mean(axis=0)
+    diag = float(np.linalg.norm(np.ptp(P, axis=0)))
+    vote = np.zeros(n_pts)
+    for d in _sphere_directions(VIEWS):
+        cam = centre + VIEW_DISTANCE * diag * d
+        try:
+            _, seen = pc.hidden_point_removal(cam, HPR_RADIUS * VIEW_DISTANCE * diag)
+        except RuntimeError:  # a degenerate hull (e.g. too few points): this viewpoint does not vote
+            continue
+        seen = np.asarray(seen, dtype=np.int64)
+        to_cam = cam - P[seen]
+        # grazing views count little: the cosine between the normal line and the line of sight
+        vote[seen] += np.einsum("ij,ij->i", N[seen], to_cam) / np.linalg.norm(to_cam, axis=1)
+    sign = np.sign(vote)
+    if not sign.any():  # nothing seen (a degenerate cloud): one sign for all, fixed by the caller
+        return N
+    _, nb = cKDTree(P).query(P, k + 1)
+    nb = nb[:, 1:]
+    off = P[nb] - P[:, None, :]
+    off /= np.maximum(np.linalg.norm(off, axis=2, keepdims=True), 1e-300)
+    tangent = (np.abs(np.einsum("ikc,ic->ik", off, N)) < TANGENT_COS) & (
+        np.abs(np.einsum("ikc,ikc->ik", off, N[nb])) < TANGENT_COS)
+    dots = np.einsum("ikc,ic->ik", N[nb], N)
+    heap: list[tuple[float, int, int, int]] = []
+
+    def reach(i: int) -> None:
+        for c in np.flatnonzero(tangent[i] & (sign[nb[i]] == 0)):
+            heapq.heappush(heap, (-abs(float(dots[i, c])), int(nb[i, c]), int(i), int(c)))
+
+    for i in np.flatnonzero(sign != 0):
+        reach(i)
+    while heap:  # the most parallel neighbour first (a maximum spanning forest rooted at the seen points)
+        _, j, i, c = heapq.heappop(heap)
+        if sign[j] == 0:
+            sign[j] = sign[i] if dots[i, c] >= 0 else -sign[i]
+            reach(j)
+    sign[sign == 0] = 1.0  # not reachable along tangent pairs: left to the caller's global sign
+    return N * sign[:, None]
 
 
 def cloud_surface(shape: Shape, n_neighbors: int = FAN_NEIGHBORS) -> Shape:
@@ -48,7 +117,7 @@ def cloud_surface(shape: Shape, n_neighbors: int = FAN_NEIGHBORS) -> Shape:
     k = int(min(n_neighbors, n - 1))
     if k < 3:
         raise InvalidShapeError(f"{shape!r}: a local surface needs at least 4 points")
-    normals = _oriented_normals(P, k)
+    normals = outward_normals(P, max(k, 10))
     _, nb = cKDTree(P).query(P, k + 1)
     nb = nb[:, 1:]  # (n, k), self excluded
     # tangent basis per point, neighbours' angles about the normal

@@ -36,6 +36,7 @@ __all__ = [
     "crop",
     "subdivide",
     "split_triangles",
+    "point_cloud",
     "apply_corruption",
     "RESAMPLING",
     "invert_vertex_map",
@@ -445,6 +446,39 @@ def subdivide(shape: Shape, *, splits: int = 2, random_state: int = 0) -> Corrup
     return Shape(v, nf, shape.name, _carried_colors(shape, vmap)), vmap
 
 
+def point_cloud(shape: Shape, *, strength: float = 0.0, points: int = 0, random_state: int = 0) -> Corruption:
+    """The shape as a point cloud (no faces): its distinct vertices (``points = 0``; coincident vertices are
+    one point) or ``points`` samples uniform in area on its triangles, each moved by isotropic Gaussian noise
+    of standard deviation ``strength`` bounding-box diagonals per coordinate (0.005: 0.5 % of the diagonal).
+    The vertex map names, for each point, its vertex (the first of coincident ones) or the vertex nearest to
+    where it was sampled (before the noise), so a map to the cloud is scored on the mesh it came from."""
+    s = _check_strength(strength, 0.0, 1.0)
+    if isinstance(points, bool) or not isinstance(points, (int, np.integer)) or points < 0 or points == 1:
+        raise ParameterError(f"point_cloud points must be 0 (the vertices) or an integer >= 2, got {points!r}")
+    rng = np.random.default_rng(random_state)
+    V = np.asarray(shape.vertices, dtype=np.float64)
+    if points == 0:
+        first = np.sort(np.unique(V, axis=0, return_index=True)[1]).astype(np.int64)
+        P, vmap = V[first], first
+    else:
+        f = shape.require_faces("point_cloud with points > 0")
+        area = np.asarray(shape.face_areas, dtype=np.float64)
+        if not area.sum() > 0:
+            raise InvalidShapeError(f"{shape!r}: no triangle has an area to sample points on")
+        tri = rng.choice(len(f), size=int(points), p=area / area.sum())
+        u = rng.random((int(points), 2))
+        out = u.sum(axis=1) > 1  # folded back into the triangle: uniform in its area
+        u[out] = 1.0 - u[out]
+        T = V[f[tri]]
+        P = T[:, 0] + u[:, :1] * (T[:, 1] - T[:, 0]) + u[:, 1:] * (T[:, 2] - T[:, 0])
+        vmap = cKDTree(V).query(P)[1].astype(np.int64)
+    if s > 0:
+        P = P + rng.normal(scale=s * shape.diagonal, size=P.shape)
+    if len(np.unique(P, axis=0)) < len(P):
+        raise InvalidShapeError(f"{shape!r}: the cloud has coincident points; use another random_state")
+    return Shape(P, None, shape.name, _carried_colors(shape, vmap)), vmap
+
+
 #: corruption name (as used in configs) -> function
 CORRUPTIONS: dict[str, Callable[..., Corruption]] = {
     "rigid": rigid_motion,
@@ -459,6 +493,7 @@ CORRUPTIONS: dict[str, Callable[..., Corruption]] = {
     "partial": partial,
     "crop": crop,
     "subdivide": subdivide,
+    "point-cloud": point_cloud,
 }
 
 
@@ -483,7 +518,7 @@ def apply_corruption(shape: Shape, name: str, *, random_state: int = 0, **params
 
 #: corruptions that resample the surface: their maps name the *nearest* original vertex, so an
 #: original vertex nobody maps to still exists (near its neighbours) rather than being removed
-RESAMPLING = frozenset({"remesh", "glue", "subdivide"})
+RESAMPLING = frozenset({"remesh", "glue", "subdivide", "point-cloud"})
 
 
 def invert_vertex_map(
