@@ -206,6 +206,10 @@ def synthetic_refs(
             lengths = [float(x) for x in limb_lengths]
         except (TypeError, ValueError):
             raise ParameterError(f"limb_lengths must be a list of numbers, got {limb_lengths!r}") from None
+        from shape_toolkit.data.synthetic import DEFAULT_LIMBS
+
+        if len(lengths) != len(DEFAULT_LIMBS) or not all(np.isfinite(x) and x > 0 for x in lengths):
+            raise ParameterError(f"limb_lengths must hold {len(DEFAULT_LIMBS)} positive lengths, got {limb_lengths!r}")
         params["limb_lengths"] = lengths
     return [ItemRef("synthetic", f"pose{i}", {}, {**params, "index": i}) for i in range(n_poses)]
 
