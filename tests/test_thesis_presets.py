@@ -24,7 +24,8 @@ from shape_toolkit.results.labels import Constraints
 THESIS = {
     ("dense_matchers", "em-registration"): {"spectrum": "graph", "weighting": "gaussian", "scaling": "none",
                                             "threshold": 0.5, "fill_unmatched": False, "orientation": "none"},
-    ("dense_matchers", "eigvec-alignment"): {"spectrum": "graph", "weighting": "gaussian", "scaling": "commute-time"},
+    ("dense_matchers", "eigvec-alignment"): {"spectrum": "graph", "weighting": "gaussian", "scaling": "commute-time",
+                                             "alignment": "histogram", "holes": "keep", "side": "none"},
     ("dense_matchers", "seed-growing"): {"ring": 2, "descriptor": {"plugin": "heat-diffusion", "preset": "thesis"}},
     ("sparse_matchers", "replicator"): {"spectrum": "graph", "orientation": "none"},
     ("sparse_matchers", "spectral"): {"spectrum": "graph", "orientation": "none"},
