@@ -51,6 +51,8 @@ def test_label_transfer_with_seeds_is_exact(shapes):
     assert sc["recall"] > 0.95 and sc["precision"] > 0.95  # measured 1.0 / 1.0
 
 
+@pytest.mark.slow  # the default alignment's search runs 21 sampled EM fits on 2.5k vertices; the tiny-mesh tests
+# of tests/test_bad_inputs.py and the generated pair of tests/test_matching.py keep it in the fast run
 def test_unsupervised_label_transfer(shapes):
     a, b = shapes
     labels, _ = probabilistic_label_transfer(a.shape, SYMMETRIC_CLASSES[a.labels], b.shape)
@@ -104,7 +106,7 @@ def test_thesis_preset_uses_the_l_embedding_of_algorithm_5(shapes):
     np.testing.assert_allclose(emb.Y, bt.evecs[:, 1 : K + 1] / np.sqrt(bt.evals[1 : K + 1]))
     Q, _ = histogram_alignment(bs.evecs[:, 1 : K + 1], bt.evecs[:, 1 : K + 1], bs.mass, bt.mass, m.bins)
     np.testing.assert_array_equal(Q0, Q)
-    d = create_plugin("dense_matchers", "eigvec-alignment")
+    d = create_plugin("dense_matchers", "eigvec-alignment", alignment="histogram")  # the embedding, not the search
     assert d.spectrum_spec().use_mass is not False or d.spectrum_spec().weighting != "gaussian"
     emb_d, _, _ = d.start(a.shape, b.shape, None)
     bd, _ = d._bases(a.shape, b.shape, None, None)

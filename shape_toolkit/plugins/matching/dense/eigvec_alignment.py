@@ -92,7 +92,7 @@ def _signed_permutation(cols: tuple[int, ...], signs: tuple[float, ...]) -> np.n
 
 
 def joint_alignment_candidates(
-    X: np.ndarray, Y: np.ndarray, *, window: int = 2, beam: int = 10, n_samples: int = SEARCH_SAMPLES,
+    X: np.ndarray, Y: np.ndarray, *, window: int = 3, beam: int = 20, n_samples: int = SEARCH_SAMPLES,
     random_state: Any = 0,
 ) -> list[np.ndarray]:
     """Signed permutations ``(k, k)`` (``Y ~ X Q^T``), best first, aligning embeddings ``X`` ``(n, k)`` and ``Y``
@@ -197,8 +197,8 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         weighting: str | None = None,
         scaling: str = "none",
         alignment: str = "search",
-        window: int = 2,
-        beam: int = 10,
+        window: int = 3,
+        beam: int = 20,
         side: str = "preserving",
         holes: str = "close",
         random_state: Any = 0,
