@@ -154,8 +154,8 @@ def map_distortion(
 
 class EigvecAlignmentMatcher(EMRegistrationMatcher):
     """Mateus et al. 2008 and Algorithm 5's soft assignments: the eigenvectors aligned (``alignment``), then EM
-    registration (parameters as ``em-registration``, plus ``bins``, ``alignment``, ``window``, ``beam`` and
-    ``side``). Seeds are ignored.
+    registration (parameters as ``em-registration``, plus ``bins``, ``alignment``, ``window``, ``beam``,
+    ``side`` and ``holes``). Seeds are ignored.
 
     Default: area-normalized Laplace-Beltrami eigenvectors, unscaled, the ``"search"`` alignment (module
     docstring) keeping orientation. Preset ``thesis`` (Algorithm 5, section 5.4): the histogram alignment of the
