@@ -12,6 +12,9 @@ Two alignments (``alignment``):
   histogram's among them; EM is run from each on a sample, and the candidate whose map distorts geodesic
   distances least (:func:`map_distortion`) is kept, among those that keep orientation (``side``) when any does.
 
+``holes="close"`` (default; ``"keep"`` in preset ``thesis``): the spectrum of a shape with holes is that of its
+copy with every hole closed by a fan (:func:`shape_toolkit.core.cleanup.close_holes`), read on its own vertices.
+
 Why: holes and shortcuts change the eigenfunctions (a new boundary, a bridge): the eigenvectors of a corrupted
 shape are those of the clean one up to swaps of neighbours in the spectrum and some mixing, and their marginal
 histograms then hardly tell a sign or a place; EM started from the true signed permutation recovers the map
