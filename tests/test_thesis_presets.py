@@ -175,7 +175,10 @@ def test_mateus2008_thesis_runs_em_on_the_plain_graph_eigenvectors(pair):
     pipe = load_pipeline("mateus2008-thesis")
     m = pipe.plugins()["dense"]
     assert (m.spectrum, m.weighting, m.scaling, m.fill_unmatched) == ("graph", "gaussian", "none", False)
+    assert (m.alignment, m.holes, m.side) == ("histogram", "keep", "none")  # Mateus 2008's alignment, not the search
     assert all(_is_gaussian_d_minus_w(s) for s in pipe.spectrum_specs())
+    improved = load_pipeline("mateus2008").plugins()["dense"]
+    assert (improved.alignment, improved.holes, improved.side) == ("histogram", "keep", "none")
     c = pipe.run(pair[0].shape, pair[1].shape)
     np.testing.assert_array_equal(c.target_of >= 0, c.confidence > 0.5)
 
