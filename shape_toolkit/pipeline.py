@@ -120,7 +120,8 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
     "mateus2008": {
         "description": "eigenvector histogram alignment + EM registration (unsupervised)",
-        "dense": {"plugin": "eigvec-alignment"},
+        # Mateus 2008's own alignment: eigvec-alignment's default search and hole closing are issue 30's PLT
+        "dense": {"plugin": "eigvec-alignment", "params": {"alignment": "histogram", "holes": "keep", "side": "none"}},
     },
     "ovsjanikov2010": {
         "description": "ADF keypoints, replicator matching, greedy heat-kernel-map matching (Ovsjanikov et al. "
@@ -148,7 +149,8 @@ PRESETS: dict[str, dict[str, Any]] = {
         "parameters used for our method'): eigenvector histogram alignment, then EM on the plain eigenvectors of "
         "the Gaussian graph's D - W (k = 10, the top of 7.4.1's range), posterior > 0.5 or unmatched",
         "dense": {"plugin": "eigvec-alignment", "params": {
-            "spectrum": "graph", "weighting": "gaussian", "scaling": "none", "k": 10, "fill_unmatched": False}},
+            "spectrum": "graph", "weighting": "gaussian", "scaling": "none", "k": 10, "fill_unmatched": False,
+            "alignment": "histogram", "holes": "keep", "side": "none"}},
     },
     "ovsjanikov2010-thesis": {
         "description": "the Table 7.2 baseline '[Ovsjanikov 2010]' as the thesis ran it (7.5): HKS "

@@ -391,3 +391,36 @@ def test_cleanup_keeps_colours(sphere):
 def test_mesh_info_says_whether_colours_were_read(sphere):
     assert mesh_info(sphere)["has_colors"] is False
     assert mesh_info(sphere.with_colors(np.full((sphere.n_vertices, 3), 0.5)))["has_colors"] is True
+
+
+def test_close_holes_closes_every_hole_and_keeps_the_vertices():
+    """Holes cut into a sphere: the closed copy has no boundary edge, Euler characteristic 2, the original
+    vertices first and unchanged, one new vertex per hole; a closed mesh comes back as it is."""
+    from shape_toolkit.core.cleanup import close_holes
+    from shape_toolkit.data.corruptions import holes
+    from shape_toolkit.data.generate import icosphere
+
+    sphere = icosphere(3)
+    same, n0 = close_holes(sphere)
+    assert same is sphere and n0 == 0
+    cut, _ = holes(sphere, strength=3, radius=0.05, random_state=0)
+    closed, n_loops = close_holes(cut)
+    assert n_loops == mesh_info(cut)["boundary_loops"] >= 2
+    assert closed.n_vertices == cut.n_vertices + n_loops
+    np.testing.assert_array_equal(closed.vertices[: cut.n_vertices], cut.vertices)
+    info = mesh_info(closed)
+    assert info["boundary_edges"] == 0 and info["euler_characteristic"] == 2
+    assert info["non_manifold_edges"] == 0
+
+
+def test_close_holes_leaves_open_chains():
+    """Free edges that form no loop (a bridge glued onto a surface, as the shortcut corruption makes) are not
+    holes: nothing is added."""
+    from shape_toolkit.core.cleanup import close_holes
+    from shape_toolkit.data.corruptions import shortcut
+    from shape_toolkit.data.synthetic import articulated_shape
+
+    a = articulated_shape([0.0] * 5, subdivisions=3).shape
+    bridged, _ = shortcut(a, strength=2, random_state=0)
+    closed, n_loops = close_holes(bridged)
+    assert n_loops == 0 and closed is bridged

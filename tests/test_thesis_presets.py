@@ -24,7 +24,8 @@ from shape_toolkit.results.labels import Constraints
 THESIS = {
     ("dense_matchers", "em-registration"): {"spectrum": "graph", "weighting": "gaussian", "scaling": "none",
                                             "threshold": 0.5, "fill_unmatched": False, "orientation": "none"},
-    ("dense_matchers", "eigvec-alignment"): {"spectrum": "graph", "weighting": "gaussian", "scaling": "commute-time"},
+    ("dense_matchers", "eigvec-alignment"): {"spectrum": "graph", "weighting": "gaussian", "scaling": "commute-time",
+                                             "alignment": "histogram", "holes": "keep", "side": "none"},
     ("dense_matchers", "seed-growing"): {"ring": 2, "descriptor": {"plugin": "heat-diffusion", "preset": "thesis"}},
     ("sparse_matchers", "replicator"): {"spectrum": "graph", "orientation": "none"},
     ("sparse_matchers", "spectral"): {"spectrum": "graph", "orientation": "none"},
@@ -174,7 +175,10 @@ def test_mateus2008_thesis_runs_em_on_the_plain_graph_eigenvectors(pair):
     pipe = load_pipeline("mateus2008-thesis")
     m = pipe.plugins()["dense"]
     assert (m.spectrum, m.weighting, m.scaling, m.fill_unmatched) == ("graph", "gaussian", "none", False)
+    assert (m.alignment, m.holes, m.side) == ("histogram", "keep", "none")  # Mateus 2008's alignment, not the search
     assert all(_is_gaussian_d_minus_w(s) for s in pipe.spectrum_specs())
+    improved = load_pipeline("mateus2008").plugins()["dense"]
+    assert (improved.alignment, improved.holes, improved.side) == ("histogram", "keep", "none")
     c = pipe.run(pair[0].shape, pair[1].shape)
     np.testing.assert_array_equal(c.target_of >= 0, c.confidence > 0.5)
 

@@ -28,7 +28,7 @@ from shape_toolkit.core.inspect import (
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 
-__all__ = ["CleanupReport", "clean_shape", "MAX_REMESH_VERTICES", "estimate_remesh_vertices"]
+__all__ = ["CleanupReport", "clean_shape", "close_holes", "MAX_REMESH_VERTICES", "estimate_remesh_vertices"]
 
 #: Remeshing targets whose estimated vertex count exceeds this are refused (memory: pymeshlab needs
 #: a few hundred bytes per vertex, so the budget keeps a remesh well under a few GB).
@@ -160,6 +160,56 @@ def clean_shape(
         v, f, vmap = _remesh(v, f, vmap, float(remesh_target_edge), int(remesh_iterations))
         rep.remeshed = True
     return _finish(shape, v, f, vmap, rep)
+
+
+def close_holes(shape: Shape) -> tuple[Shape, int]:
+    """The mesh with every hole closed by a fan: one new vertex at the mean of each boundary loop's vertices
+    (appended after the original ones, which keep their ids), joined to each boundary edge by a triangle oriented
+    as the face across that edge. Returns the closed shape and the number of loops closed (0: ``shape`` itself).
+    Meant for intrinsic computations that a hole changes (a Laplacian spectrum), not for display: the fans are
+    cones, not a smooth patch. Loops that share a vertex are closed by one fan; open chains of free edges (not
+    a loop) are left as they are."""
+    from shape_toolkit.core.geometry import edge_components
+
+    f = np.asarray(shape.require_faces("close_holes"), dtype=np.int64)
+    half = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    key = np.sort(half, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    bnd = half[counts[inv.ravel()] == 1]  # half edges (a, b) with no face across
+    if len(bnd) == 0:
+        return shape, 0
+    verts, local = np.unique(bnd, return_inverse=True)
+    local = local.reshape(-1, 2)
+    n_comp, lab = edge_components(len(verts), local)
+    # a hole is a closed loop of at least 3 boundary edges (every vertex of even degree); open chains (the
+    # free edges of a bridge glued onto a surface) are left alone
+    degree = np.bincount(local.ravel(), minlength=len(verts))
+    comp_edges = np.bincount(lab[local[:, 0]], minlength=n_comp)
+    odd = np.bincount(lab, weights=degree % 2, minlength=n_comp) > 0
+    loops = np.flatnonzero((comp_edges >= 3) & ~odd)
+    if loops.size == 0:
+        return shape, 0
+    new_id = -np.ones(n_comp, dtype=np.int64)
+    new_id[loops] = np.arange(loops.size)
+    n_loops = int(loops.size)
+    keep_e = new_id[lab[local[:, 0]]] >= 0
+    bnd, loop_of_edge = bnd[keep_e], new_id[lab[local[keep_e, 0]]]
+    on = new_id[lab] >= 0
+    verts, lab = verts[on], new_id[lab[on]]
+    v = np.asarray(shape.vertices, dtype=np.float64)
+    centres = np.zeros((n_loops, 3))
+    np.add.at(centres, lab, v[verts])
+    centres /= np.bincount(lab, minlength=n_loops)[:, None]
+    fans = np.column_stack([bnd[:, 1], bnd[:, 0], shape.n_vertices + loop_of_edge])
+    colors = None
+    if shape.colors is not None:
+        c = np.asarray(shape.colors)
+        extra = np.zeros((n_loops,) + c.shape[1:], dtype=np.float64)
+        np.add.at(extra, lab, c[verts])
+        colors = (extra / np.bincount(lab, minlength=n_loops).reshape((-1,) + (1,) * (c.ndim - 1))).astype(c.dtype)
+        colors = np.concatenate([c, colors])
+    closed = Shape(np.concatenate([v, centres]), np.concatenate([f, fans]), shape.name, colors)
+    return closed, int(n_loops)
 
 
 def estimate_remesh_vertices(shape: Shape, target_edge: float) -> float:

@@ -190,16 +190,27 @@ def folder_dataset(root: str | os.PathLike, *, pattern: str = "*") -> list[ItemR
 
 
 def synthetic_refs(
-    n_poses: int = 4, *, subdivisions: int = 3, random_state: int = 0, max_angle: float = 1.0
+    n_poses: int = 4, *, subdivisions: int = 3, random_state: int = 0, max_angle: float = 1.0,
+    limb_lengths: list[float] | None = None,
 ) -> list[ItemRef]:
     """Refs of :func:`shape_toolkit.data.synthetic.synthetic_dataset`: item i is pose i, matched to pose
-    i + 1 (cyclically) with the identity as exact ground truth."""
+    i + 1 (cyclically) with the identity as exact ground truth; ``limb_lengths``: one per limb (None: alike)."""
     if not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
         raise ParameterError(f"n_poses must be a positive integer, got {n_poses!r}")
     params = {
         "n_poses": int(n_poses), "subdivisions": int(subdivisions),
         "random_state": int(random_state), "max_angle": float(max_angle),
     }
+    if limb_lengths is not None:
+        try:
+            lengths = [float(x) for x in limb_lengths]
+        except (TypeError, ValueError):
+            raise ParameterError(f"limb_lengths must be a list of numbers, got {limb_lengths!r}") from None
+        from shape_toolkit.data.synthetic import DEFAULT_LIMBS
+
+        if len(lengths) != len(DEFAULT_LIMBS) or not all(np.isfinite(x) and x > 0 for x in lengths):
+            raise ParameterError(f"limb_lengths must hold {len(DEFAULT_LIMBS)} positive lengths, got {limb_lengths!r}")
+        params["limb_lengths"] = lengths
     return [ItemRef("synthetic", f"pose{i}", {}, {**params, "index": i}) for i in range(n_poses)]
 
 

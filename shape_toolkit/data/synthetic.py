@@ -194,13 +194,19 @@ def synthetic_dataset(
     subdivisions: int = 3,
     random_state: int = 0,
     max_angle: float = 1.0,
+    limb_lengths: list[float] | np.ndarray | None = None,
 ) -> list[ArticulatedShape]:
     """``n_poses`` poses of the same articulated shape (same vertices, faces and labels order):
     pose 0 is the rest pose, pose i > 0 bends every joint by an angle drawn uniformly in
     ``[-max_angle, max_angle]`` rad from ``random_state``. The ground-truth map between any two
-    poses is the identity; ``labels`` are the parts (0 body, 1..5 limbs)."""
+    poses is the identity; ``labels`` are the parts (0 body, 1..5 limbs). ``limb_lengths``: one length
+    per limb (5; e.g. :data:`SEQUENCE_LIMB_LENGTHS`, so that no two limbs are alike), or None: every limb 1.4
+    (five identical limbs, which an intrinsic matcher may permute)."""
     if not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
         raise ParameterError(f"n_poses must be a positive integer, got {n_poses!r}")
+    lengths = 1.4 if limb_lengths is None else np.asarray(limb_lengths, dtype=np.float64)
+    if limb_lengths is not None and lengths.shape != (len(DEFAULT_LIMBS),):
+        raise ParameterError(f"limb_lengths must hold {len(DEFAULT_LIMBS)} lengths, got shape {lengths.shape}")
     if not 0 <= max_angle <= 2.5:
         raise ParameterError(f"max_angle must be in [0, 2.5] rad, got {max_angle}")
     rng = np.random.default_rng(random_state)
@@ -208,7 +214,7 @@ def synthetic_dataset(
     for i in range(int(n_poses)):
         n_limbs = len(DEFAULT_LIMBS)
         angles = np.zeros(n_limbs) if i == 0 else rng.uniform(-max_angle, max_angle, n_limbs)
-        a = articulated_shape(angles, subdivisions=subdivisions)
+        a = articulated_shape(angles, subdivisions=subdivisions, limb_length=lengths)
         out.append(ArticulatedShape(Shape(a.shape.vertices, a.shape.faces, f"pose{i}"), a.labels, a.angles,
                                     a.colors))
     return out

@@ -4,7 +4,8 @@ The labels of a segmented training shape are carried to a test shape through a s
 assignment: with EM posteriors ``p_ij = P(z_i = j | x_i^test)`` of test vertex ``i`` to train
 vertex ``j`` and the training labels as hard assignments ``delta_jl`` (eq. 5.8), the test vertex
 takes ``argmax_l sum_j p_ij delta_jl`` (eq. 5.7, 5.9). The default matcher is the one of the
-thesis: eigenvector histogram alignment + EM registration (``eigvec-alignment``); with seeds,
+thesis: eigenvector alignment + EM registration (``eigvec-alignment``; its preset ``thesis`` aligns by
+histograms as the text, its default searches, see that module); with seeds,
 ``em-registration``. A matcher without posteriors is run test -> train and its hard map is used.
 """
 

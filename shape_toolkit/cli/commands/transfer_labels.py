@@ -41,7 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--faces", action="store_true",
                    help="label files hold one label per face (PSB .seg): TRAIN_LABELS, --truth and the output")
     p.add_argument("--matcher", default="eigvec-alignment",
-                   help="dense matcher (default eigvec-alignment: histogram alignment + EM)")
+                   help="dense matcher (default eigvec-alignment: eigenvector alignment + EM; its preset "
+                   "thesis is Algorithm 5 as written)")
     p.add_argument("--preset", default=None, help="preset of the matcher")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="matcher parameter")
     p.add_argument("--seeds", help="seed matches 'train test' (0-based) per line, e.g. for em-registration")

@@ -1,26 +1,53 @@
-"""Unsupervised dense matching of Mateus et al. 2008 (the baseline of thesis 7.5): the sign and
-order of the Laplacian eigenvectors of the two shapes are aligned by comparing their
-histograms (Hungarian assignment over eigenvector pairs, each with its better sign), and the
-aligned embeddings are registered by EM (Algorithm 7, :mod:`shape_toolkit.plugins.matching.dense.em_registration`).
+"""Unsupervised dense matching of Mateus et al. 2008 (the baseline of thesis 7.5) and the soft assignments of
+Algorithm 5 (PLT, section 5.4): the sign and order of the Laplacian eigenvectors of the two shapes are aligned,
+and the aligned embeddings are registered by EM (Algorithm 7,
+:mod:`shape_toolkit.plugins.matching.dense.em_registration`).
+
+Two alignments (``alignment``):
+
+- ``"histogram"`` (the text, preset ``thesis``): each eigenvector's histogram compared with each of the other
+  shape's, Hungarian assignment over eigenvector pairs, each with its better sign (:func:`histogram_alignment`).
+- ``"search"`` (default): candidate signed permutations from a beam search on the *joint* distribution of the
+  embedded points (:func:`joint_alignment_candidates`; eigenvectors matched only within ``window`` places), the
+  histogram's among them; EM is run from each on a sample, and the candidate whose map distorts geodesic
+  distances least (:func:`map_distortion`) is kept, among those that keep orientation (``side``) when any does.
+
+``holes="close"`` (default; ``"keep"`` in preset ``thesis``): the spectrum of a shape with holes is that of its
+copy with every hole closed by a fan (:func:`shape_toolkit.core.cleanup.close_holes`), read on its own vertices.
+
+Why: holes and shortcuts change the eigenfunctions (a new boundary, a bridge): the eigenvectors of a corrupted
+shape are those of the clean one up to swaps of neighbours in the spectrum and some mixing, and their marginal
+histograms then hardly tell a sign or a place; EM started from the true signed permutation recovers the map
+(measurements: ``benchmarks/results/plt_alignment_notes.md``).
 
 Histograms are mass-weighted (each vertex counts with its area) on area-normalized
 eigenvectors, so they do not depend on the sampling density. Like every purely intrinsic
 method it cannot tell left from right: a sign flip of an antisymmetric eigenvector is exactly
-as good as the original.
+as good as the original; ``side`` (meshes) uses the extrinsic orientation of the surface for that.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 
-from shape_toolkit.api.params import Param
+from shape_toolkit.api.params import Options, Param
+from shape_toolkit.core.geometry import farthest_point_sampling
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins._params import POSITIVE_INT
-from shape_toolkit.plugins.matching.dense.em_registration import Embedding, EMRegistrationMatcher
+from shape_toolkit.plugins.matching.dense.em_registration import Embedding, EMRegistrationMatcher, em_register
+from shape_toolkit.validation import check_random_state
 
-__all__ = ["EigvecAlignmentMatcher", "histogram_alignment"]
+__all__ = ["EigvecAlignmentMatcher", "histogram_alignment", "joint_alignment_candidates", "map_distortion"]
+
+#: target points the EM of each candidate alignment is fitted to (the final EM uses every point)
+SEARCH_SAMPLES = 1000
+#: source anchors and probe vertices of :func:`map_distortion`
+DISTORTION_ANCHORS, DISTORTION_PROBES = 24, 400
 
 
 def _histograms(U: np.ndarray, w: np.ndarray, edges: np.ndarray) -> np.ndarray:
@@ -54,22 +81,108 @@ def histogram_alignment(
     return Q, cost
 
 
+def _fit(A: np.ndarray, B: np.ndarray, trim: float = 0.9) -> float:
+    """Trimmed mean squared distance from each point of ``B`` ``(q, d)`` to its nearest in ``A`` ``(p, d)``."""
+    d = np.sort(np.asarray(cKDTree(A).query(B, k=1)[0]) ** 2)
+    return float(d[: max(1, int(trim * len(d)))].mean())
+
+
+def _signed_permutation(cols: tuple[int, ...], signs: tuple[float, ...]) -> np.ndarray:
+    Q = np.zeros((len(cols), len(cols)))
+    for i, (j, s) in enumerate(zip(cols, signs)):
+        Q[j, i] = s
+    return Q
+
+
+def joint_alignment_candidates(
+    X: np.ndarray, Y: np.ndarray, *, window: int = 3, beam: int = 20, n_samples: int = SEARCH_SAMPLES,
+    random_state: Any = 0,
+) -> list[np.ndarray]:
+    """Signed permutations ``(k, k)`` (``Y ~ X Q^T``), best first, aligning embeddings ``X`` ``(n, k)`` and ``Y``
+    ``(n', k)`` by their joint distribution: source coordinate ``i`` goes to target coordinate ``j`` with
+    ``|i - j| <= window`` and a sign; a beam of ``beam`` partial alignments grows one coordinate at a time, each
+    scored by the symmetric trimmed nearest-neighbour fit of the two point sets (``n_samples`` points of each,
+    drawn with ``random_state``) in the coordinates aligned so far. The histograms of
+    :func:`histogram_alignment` compare one coordinate at a time; this compares them together."""
+    if X.ndim != 2 or Y.ndim != 2 or X.shape[1] != Y.shape[1]:
+        raise ParameterError(f"X and Y must be (n, k) and (n', k) with one k, got {X.shape} and {Y.shape}")
+    rng = check_random_state(random_state)
+    k = X.shape[1]
+    Xs = X[np.sort(rng.choice(len(X), min(n_samples, len(X)), replace=False))]
+    Ys = Y[np.sort(rng.choice(len(Y), min(n_samples, len(Y)), replace=False))]
+    states: list[tuple[tuple[int, ...], tuple[float, ...], float]] = [((), (), 0.0)]
+    for i in range(k):
+        grown = []
+        for cols, signs, _ in states:
+            for j in range(max(0, i - window), min(k, i + window + 1)):
+                if j in cols:
+                    continue
+                for s in (1.0, -1.0):
+                    c2, s2 = cols + (j,), signs + (s,)
+                    A, B = Xs[:, : i + 1] * np.asarray(s2), Ys[:, list(c2)]
+                    grown.append((c2, s2, _fit(A, B) + _fit(B, A)))
+        if not grown:  # no free target coordinate within the window: keep the states as they are
+            break
+        grown.sort(key=lambda c: c[2])
+        states = grown[: int(beam)]
+    return [_signed_permutation(c, s) for c, s, _ in states if len(c) == k]
+
+
+def map_distortion(
+    source: Shape, target: Shape, target_of: np.ndarray, *, n_anchors: int = DISTORTION_ANCHORS,
+    n_probes: int = DISTORTION_PROBES, random_state: Any = 0, source_distances: np.ndarray | None = None,
+) -> tuple[float, np.ndarray]:
+    """How far a map ``target_of`` ``(n_source,)`` (every entry a target vertex) is from an isometry: the median,
+    over ``n_anchors`` farthest-point source anchors and ``n_probes`` random source probes (``random_state``), of
+    ``|d_S(a, p) - d_T(t(a), t(p))|``, graph geodesics along the edges in units of ``sqrt(area)`` of each shape
+    (pairs a shortcut or a hole disconnects do not count). A mirror image distorts as little as the map. Returns
+    the value and the source distances ``(n_anchors, n_probes)`` to pass back as ``source_distances``."""
+    from shape_toolkit.features.geodesics import geodesic_distances
+
+    t = np.asarray(target_of, dtype=np.int64)
+    if t.shape != (source.n_vertices,) or t.min() < 0:
+        raise ParameterError("map_distortion needs a complete map: one target vertex per source vertex")
+    anchors = farthest_point_sampling(np.asarray(source.vertices), min(int(n_anchors), source.n_vertices))
+    probes = np.sort(check_random_state(random_state).choice(
+        source.n_vertices, min(int(n_probes), source.n_vertices), replace=False))
+    if source_distances is None:
+        source_distances = geodesic_distances(source, anchors, probes, method="dijkstra", cache=False)
+        source_distances = source_distances / np.sqrt(source.area)
+    dt = geodesic_distances(target, t[anchors], t[probes], method="dijkstra", cache=False) / np.sqrt(target.area)
+    ok = np.isfinite(dt) & np.isfinite(source_distances)
+    if not ok.any():
+        return float("inf"), source_distances
+    return float(np.median(np.abs(dt - source_distances)[ok])), source_distances
+
+
 class EigvecAlignmentMatcher(EMRegistrationMatcher):
-    """Mateus et al. 2008: histogram alignment of eigenvector signs and order, then EM
-    registration (parameters as ``em-registration``, plus ``bins``). Seeds are ignored. The
-    baseline as published: its own embedding and no orientation cue (it matches up to symmetry).
+    """Mateus et al. 2008 and Algorithm 5's soft assignments: the eigenvectors aligned (``alignment``), then EM
+    registration (parameters as ``em-registration``, plus ``bins``, ``alignment``, ``window``, ``beam``,
+    ``side`` and ``holes``). Seeds are ignored.
 
-    Default: area-normalized Laplace-Beltrami eigenvectors, unscaled. Preset ``thesis`` (Algorithm 5,
-    section 5.4): the unnormalized Laplacian ``D - W`` of the Gaussian graph (eq. 3.7) and its L-embedding,
-    the commute-time scaling ``Lambda^{-1/2} U^T`` of eq. 5.1; the histograms are those of the eigenvectors
-    themselves (a scaling per column would only move them between bins)."""
+    Default: area-normalized Laplace-Beltrami eigenvectors, unscaled, the ``"search"`` alignment (module
+    docstring) keeping orientation. Preset ``thesis`` (Algorithm 5, section 5.4): the histogram alignment of the
+    text, the unnormalized Laplacian ``D - W`` of the Gaussian graph (eq. 3.7) and its L-embedding, the
+    commute-time scaling ``Lambda^{-1/2} U^T`` of eq. 5.1; the histograms are those of the eigenvectors
+    themselves (a scaling per column would only move them between bins), no orientation cue (it matches up to
+    symmetry)."""
 
-    presets: dict = {"thesis": {"spectrum": "graph", "weighting": "gaussian", "scaling": "commute-time"}}
+    presets: dict = {"thesis": {"spectrum": "graph", "weighting": "gaussian", "scaling": "commute-time",
+                                "alignment": "histogram", "side": "none", "holes": "keep"}}
     parameter_constraints = {
         **{p: c for p, c in EMRegistrationMatcher.parameter_constraints.items()
            if p in ("k", "outlier_weight", "n_neighbors", "max_iter", "tol", "threshold", "one_to_one",
-                    "fill_unmatched", "spectrum", "weighting", "scaling")},
+                    "fill_unmatched", "spectrum", "weighting", "scaling", "random_state")},
         "bins": Param(POSITIVE_INT, doc="histogram bins of the eigenvector alignment"),
+        "alignment": Param(Options("histogram", "search"), doc="eigenvector alignment: histograms (the text) or "
+                           "the search over joint-distribution candidates scored by their maps' distortion"),
+        "window": Param(POSITIVE_INT, doc="search: places an eigenvector may move in the spectrum"),
+        "beam": Param(POSITIVE_INT, doc="search: candidate alignments kept (each gets a sampled EM)"),
+        "holes": Param(Options("keep", "close"), doc="spectra of the shapes as they are, or with every hole "
+                       "closed by a fan (core.cleanup.close_holes) and the eigenvectors read on the original vertices"),
+        "side": Param(Options("preserving", "reversing", "none"),
+                      doc="search: orientation the kept candidate keeps, when one does (meshes; none: the least "
+                      "distorting)"),
     }
 
     def __init__(
@@ -86,21 +199,106 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         spectrum: str = "lbo",
         weighting: str | None = None,
         scaling: str = "none",
+        alignment: str = "search",
+        window: int = 3,
+        beam: int = 20,
+        side: str = "preserving",
+        holes: str = "close",
+        random_state: Any = 0,
     ):
         super().__init__(
             k=k, outlier_weight=outlier_weight, n_neighbors=n_neighbors, max_iter=max_iter,
             tol=tol, threshold=threshold, one_to_one=one_to_one, fill_unmatched=fill_unmatched,
-            spectrum=spectrum, weighting=weighting, scaling=scaling, orientation="none",
+            spectrum=spectrum, weighting=weighting, scaling=scaling, orientation="none", random_state=random_state,
         )
         self.bins = bins
+        self.alignment = alignment
+        self.window = window
+        self.beam = beam
+        self.side = side
+        self.holes = holes
+
+    def _bases(self, source, target, source_spectrum, target_spectrum, min_dim: int = 0):
+        """The embedding bases; with ``holes="close"`` a shape with a boundary gets the basis of its closed copy
+        (computed here through the spectrum cache, the given spectrum is not used), restricted to its own
+        vertices (mass renormalized)."""
+        if self.holes != "close":
+            return super()._bases(source, target, source_spectrum, target_spectrum, min_dim)
+        from shape_toolkit.core.cleanup import close_holes
+        from shape_toolkit.features.basis import Basis, basis_of
+
+        spec = self.embedding_spec(min_dim)
+        out = []
+        for shape, given in ((source, source_spectrum), (target, target_spectrum)):
+            closed, n_loops = close_holes(shape) if shape.is_mesh else (shape, 0)
+            if n_loops == 0:
+                out.append(basis_of(self._given(spec, shape, given), spec.k))
+                continue
+            n = shape.n_vertices
+            b = basis_of(spec.compute(closed), min(spec.k, n))  # no more eigenpairs than the shape has vertices
+            mass = b.mass[:n] / b.mass[:n].sum()
+            out.append(Basis(b.evals, b.evecs[:n], mass))
+        return out[0], out[1]
 
     def start(self, source: Shape, target: Shape, seeds: np.ndarray | None, source_spectrum=None,
               target_spectrum=None, min_dim: int = 0) -> tuple[Embedding, np.ndarray, dict]:
-        """The embeddings (``scaling``; no bases: no refinement) and ``Q0``, the histogram alignment of their
-        eigenvectors; ``seeds`` are ignored."""
+        """The embeddings (``scaling``; no bases: no refinement) and ``Q0``: the histogram alignment of their
+        eigenvectors, or (``alignment="search"``) the sampled EM fit of the chosen candidate; ``seeds`` are
+        ignored. ``info`` records the alignment (``Q0``; the search's ``alignment_*`` scores)."""
         self._check()
         bs, bt = self._bases(source, target, source_spectrum, target_spectrum, min_dim)
         K = self._shared_dimension(int(self.k), bs, bt)  # one size on both shapes, however small
         X, Y = bs.evecs[:, 1 : K + 1], bt.evecs[:, 1 : K + 1]
         Q0, _ = histogram_alignment(X, Y, bs.mass, bt.mass, int(self.bins))
-        return Embedding(self._embed(bs, K), self._embed(bt, K)), Q0, {"Q0": Q0}
+        emb = Embedding(self._embed(bs, K), self._embed(bt, K))
+        info: dict[str, Any] = {"alignment": self.alignment}
+        if self.alignment == "search":
+            Q0 = self._search(emb, Q0, source, target, info)
+        info["Q0"] = Q0
+        return emb, Q0, info
+
+    def _search(self, emb: Embedding, Q_hist: np.ndarray, source: Shape, target: Shape,
+                info: dict[str, Any]) -> np.ndarray:
+        """The search alignment: EM (on ``SEARCH_SAMPLES`` target points) from the histogram's and the joint
+        candidates; the kept fit's ``Q`` (least :func:`map_distortion`, among the candidates that keep ``side``
+        when any does; on point clouds, the best embedding fit)."""
+        cands = [Q_hist] + joint_alignment_candidates(emb.X, emb.Y, window=int(self.window), beam=int(self.beam),
+                                                      random_state=self.random_state)
+        seen: list[np.ndarray] = []
+        for Q in cands:
+            if not any(np.array_equal(Q, q) for q in seen):
+                seen.append(Q)
+        meshes = source.is_mesh and target.is_mesh
+        tree = cKDTree(emb.Y)
+        src_d = None
+        scores, sides, fits = [], [], []
+        for Qc in seen:
+            Q, _, _ = em_register(emb.X, emb.Y, Qc, outlier_weight=self.outlier_weight, n_neighbors=self.n_neighbors,
+                                  max_iter=self.max_iter, tol=self.tol, max_samples=SEARCH_SAMPLES,
+                                  random_state=self.random_state)
+            fits.append(Q)
+            if not meshes:
+                scores.append(_fit(emb.X @ Q.T, emb.Y))
+                sides.append(0.0)
+                continue
+            t = np.asarray(tree.query(emb.X @ Q.T, k=1)[1], dtype=np.int64)
+            d, src_d = map_distortion(source, target, t, random_state=self.random_state, source_distances=src_d)
+            scores.append(d)
+            sides.append(self._side_of(source, target, t))
+        order = np.argsort(scores, kind="stable")
+        want = {"preserving": 1.0, "reversing": -1.0}.get(self.side, 0.0)
+        keep = [i for i in order if want and sides[i] * want > 0]
+        best = int(keep[0] if keep else order[0])
+        info.update({"alignment_candidates": len(seen), "alignment_distortion": [float(x) for x in scores],
+                     "alignment_side": [float(x) for x in sides], "alignment_chosen": best})
+        return fits[best]
+
+    def _side_of(self, source: Shape, target: Shape, t: np.ndarray) -> float:
+        """Orientation score (:func:`~shape_toolkit.plugins.matching.orientation.orientation_score`) of the map
+        ``t`` on farthest-point samples of the source (0 when ``side`` is ``"none"``)."""
+        if self.side == "none":
+            return 0.0
+        from shape_toolkit.plugins.matching.orientation import orientation_score
+
+        rows = farthest_point_sampling(np.asarray(source.vertices), min(300, source.n_vertices))
+        return orientation_score(source, target, np.column_stack([rows, t[rows]]))
