@@ -60,23 +60,25 @@ def orientation_operators(
     total = float(fa.sum())
     phi = basis.evecs[:, :k]
     phi_face = (phi[F[:, 0]] + phi[F[:, 1]] + phi[F[:, 2]]) * (fa / (3.0 * total))[:, None]  # (m, k)
-    gphi = (G @ phi).reshape(3, m, k)
-    # <n x grad f, grad phi_j> = <grad f, grad phi_j x n>: rotate the k basis gradients once
-    Q = np.empty((3, m, k))  # filled row by row: np.stack of three temporaries would double the peak
-    for a in range(3):
-        b, c = (a + 1) % 3, (a + 2) % 3
-        Q[a] = gphi[b] * N[:, c, None]
-        Q[a] -= gphi[c] * N[:, b, None]
-    del gphi
-    gf = (G @ descriptors).reshape(3, m, -1)  # (3, m, d)
-    d = gf.shape[2]
+    # <n x grad f, grad phi_j> = <grad f, grad phi_j x n>: rotate the k basis gradients once,
+    # Q_a = g_b n_c - g_c n_b with (a, b, c) cyclic, one gradient component g_b (m, k) at a time
+    Q = np.zeros((3, m, k))
+    for b in range(3):
+        g = G[b * m : (b + 1) * m] @ phi
+        Q[(b - 1) % 3] += g * N[:, (b + 1) % 3, None]
+        Q[(b + 1) % 3] -= g * N[:, (b - 1) % 3, None]
+    del g
+    d = descriptors.shape[1]
     ops = np.empty((d, k, k))
-    step = max(1, 1_000_000 // max(1, m * k))  # descriptors per block: memory ~ 8 MB (x 2 temporaries)
+    # descriptors per block: the block's gradients (3, m, step) and Z (m, step, k), ~8 MB each (x 2
+    # temporaries); all gradients at once would be 3 m d values, 88 MB for d = 80 at 23k vertices
+    step = max(1, 1_000_000 // max(1, m * k))
     for s in range(0, d, step):
         e = min(d, s + step)
-        Z = gf[0][:, s:e, None] * Q[0][:, None, :]  # (m, e - s, k): sum_x grad_x f * Q_x
-        Z += gf[1][:, s:e, None] * Q[1][:, None, :]
-        Z += gf[2][:, s:e, None] * Q[2][:, None, :]
+        gf = (G @ descriptors[:, s:e]).reshape(3, m, e - s)
+        Z = gf[0][:, :, None] * Q[0][:, None, :]  # (m, e - s, k): sum_x grad_x f * Q_x
+        Z += gf[1][:, :, None] * Q[1][:, None, :]
+        Z += gf[2][:, :, None] * Q[2][:, None, :]
         ops[s:e] = (phi_face.T @ Z.reshape(m, -1)).reshape(k, e - s, k).transpose(1, 0, 2)
     # gradients carry 1/length: rescale to the unit-area normalization of the basis
     return ops * total
@@ -110,12 +112,16 @@ def compress_descriptors(
     whose squared singular value exceeds ``rtol`` times the largest. Every term of the functional
     map energy sums over descriptor columns and is linear in each operator, so it is unchanged by
     the full ``V`` and changes by about ``rtol`` relative when the weak directions are dropped."""
-    S = np.vstack([np.sqrt(mass_src)[:, None] * desc_src, np.sqrt(mass_tgt)[:, None] * desc_tgt])
+    same = desc_src is desc_tgt and mass_src is mass_tgt  # one shape: its Gram matrix alone has the same V
+    S = np.sqrt(mass_src)[:, None] * desc_src
+    if not same:
+        S = np.vstack([S, np.sqrt(mass_tgt)[:, None] * desc_tgt])
     _, sv, Vt = np.linalg.svd(S.T @ S if S.shape[0] > 4 * S.shape[1] else S, full_matrices=False)
     ev = sv if S.shape[0] > 4 * S.shape[1] else sv**2  # eigenvalues of the Gram matrix
     r = max(1, int(np.sum(ev > rtol * ev[0]))) if ev.size and ev[0] > 0 else desc_src.shape[1]
     V = Vt[:r].T
-    return desc_src @ V, desc_tgt @ V
+    out = desc_src @ V
+    return out, (out if same else desc_tgt @ V)
 
 
 def _commutativity_hessian(Xs: np.ndarray, Xt: np.ndarray) -> np.ndarray:
@@ -358,7 +364,10 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         k_final = int(min(self._k_final(), source.n_vertices - 1, target.n_vertices - 1))
         spec_s = self._spectrum(source, source_spectrum)
         spec_t = self._spectrum(target, target_spectrum)
-        bs, bt = basis_of(spec_s, k_final), basis_of(spec_t, k_final)
+        # a self-map (a shape's symmetry) on one spectrum: every per-shape array is computed once
+        same = source is target and spec_s is spec_t and source_descriptors is target_descriptors
+        bs = basis_of(spec_s, k_final)
+        bt = bs if same else basis_of(spec_t, k_final)
         hyps = self._hypotheses()
         descs: dict[float | None, tuple[np.ndarray, np.ndarray]] = {}  # band -> descriptors of both shapes
         if (source_descriptors is None or target_descriptors is None) and self.descriptor is None:
@@ -366,8 +375,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
             for h in hyps:
                 band = float(h.get("band", 1.0))
                 if band not in descs:
-                    descs[band] = (wave_kernel_signature(spec_s, **params, band=band),
-                                   wave_kernel_signature(spec_t, **params, band=band))
+                    ws = wave_kernel_signature(spec_s, **params, band=band)
+                    descs[band] = (ws, ws if same else wave_kernel_signature(spec_t, **params, band=band))
         elif source_descriptors is None or target_descriptors is None:
             desc = self._descriptor_plugin()
             # the descriptor picks its own declared spectrum among what the caller gave
@@ -397,14 +406,16 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 ds, dt = self._select(ds), self._select(dt)
                 if seed_cols is not None:
                     ds, dt = np.hstack([ds, seed_cols[0]]), np.hstack([dt, seed_cols[1]])
-                ds, dt = normalize_columns(ds, bs.mass), normalize_columns(dt, bt.mass)
+                ds = normalize_columns(ds, bs.mass)
+                dt = ds if same else normalize_columns(dt, bt.mass)
                 ds, dt = compress_descriptors(ds, dt, bs.mass, bt.mass)
                 Os = Ot = None
                 if self.orientation != "none" and any(float(h.get("w_orient", self.w_orient)) > 0 for h in hyps):
                     # the operators of the largest k of the band: fit_functional_map uses their leading blocks
                     k_max = max(int(min(h.get("k", self.k), k_final)) for h in hyps)
                     Os = orientation_operators(cloud_surface(source), bs, k_max, ds)
-                    Ot = orientation_operators(cloud_surface(target), bt, k_max, dt)
+                    # compress_descriptors mixes equal inputs into equal outputs
+                    Ot = Os if same else orientation_operators(cloud_surface(target), bt, k_max, dt)
                     if self.orientation == "reversing":
                         Ot = -Ot
                 prepared[band] = (ds, dt, Os, Ot)
