@@ -247,6 +247,9 @@ class DenseMatcher(BasePlugin, ABC):
 
     family = "dense_matchers"
     _validated_methods = ("match", "spectrum_spec")
+    #: True when the map depends on the shapes' coordinates and so on their frames (an extrinsic alignment),
+    #: not only on their intrinsic geometry: ``best-of`` then also runs it in a frame it estimates
+    extrinsic: bool = False
 
     @abstractmethod
     def match(

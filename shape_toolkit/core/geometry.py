@@ -1,4 +1,4 @@
-"""Geometry helpers every layer above uses: normals, connected components, the dual graph of a mesh,
+"""Geometry helpers every layer above uses: normals, rigid rotations, connected components, the dual graph of a mesh,
 farthest-point sampling and nearest neighbours. numpy and scipy only; no spectrum, no plugin."""
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ __all__ = [
     "vertex_normals",
     "outward_vertex_normals",
     "outward_face_normals",
+    "rigid_rotation",
     "edge_components",
     "dual_graph",
     "farthest_point_sampling",
@@ -59,6 +60,22 @@ def outward_face_normals(shape: Shape) -> np.ndarray:
 
 
 # -- graphs ------------------------------------------------------------------------------------------
+def rigid_rotation(points: np.ndarray, targets: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """The proper rotation ``R`` ``(3, 3)`` (``det R = +1``) that best carries ``points`` ``(q, 3)`` onto their
+    ``targets`` ``(q, 3)`` after both are centred (weighted least squares, Kabsch): ``targets - c_t ~ (points -
+    c_p) @ R.T``. ``weights`` ``(q,)`` (default uniform) are non-negative, with a positive sum."""
+    X, Y = np.asarray(points, dtype=np.float64), np.asarray(targets, dtype=np.float64)
+    if X.ndim != 2 or X.shape[1] != 3 or X.shape != Y.shape:
+        raise ParameterError(f"points {X.shape} and targets {Y.shape} must both be (q, 3)")
+    w = np.ones(len(X)) if weights is None else np.asarray(weights, dtype=np.float64)
+    if w.shape != (len(X),) or np.any(w < 0) or not w.sum() > 0:
+        raise ParameterError("weights must be (q,), non-negative, with a positive sum")
+    Xc, Yc = X - w @ X / w.sum(), Y - w @ Y / w.sum()
+    U, _, Vt = np.linalg.svd(Xc.T @ (w[:, None] * Yc))
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0  # a reflection is not a motion: flip the weakest axis
+    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+
+
 def edge_components(n: int, edges: np.ndarray) -> tuple[int, np.ndarray]:
     """Connected components of the graph of ``n`` nodes and ``edges`` ``(e, 2)``: the count and the int64
     label ``(n,)`` of every node (numbered in order of each component's lowest node; a node on no edge is

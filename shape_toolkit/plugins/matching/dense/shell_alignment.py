@@ -68,6 +68,7 @@ class ShellAlignmentMatcher(DenseMatcher):
     when given, are kept in the map and pull the deformation with the weight of the whole surface.
     """
 
+    extrinsic = True
     presets = {"fast": {"k_schedule": (6, 12, 24, 48), "iters": 3}}
     parameter_constraints = {
         "k_schedule": Param(ListOf(Interval(int, 2)), doc="increasing shell resolutions (eigenfunctions)"),
