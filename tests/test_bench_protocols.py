@@ -333,3 +333,120 @@ def test_truth_seeds_reach_a_seeded_matcher_and_are_refused_elsewhere(tmp_path):
     with pytest.raises(ConfigError) as e:
         parse_config(_config(folder, '[[tasks.methods]]\npipeline = "zoomout"\n', options=opts))
     assert e.value.key == "tasks[0].methods[0]" and "truth_seeds" in str(e.value)
+
+
+def _self_config(folder: Path, methods: str, *, seed: str = "seed = 0\n", score_on: str = "target") -> dict:
+    """Algorithm 5's protocol (the former ``plt_alignment.py``): each shape of ``folder`` matched to a copy of
+    itself with 2 holes, 6 geodesic Voronoi cells carried by the corruption's vertex map."""
+    import tomllib
+
+    return tomllib.loads(f"""
+[[datasets]]
+name = "shapes"
+kind = "folder"
+path = "{folder}"
+[[corruptions]]
+name = "holes"
+kind = "holes"
+params = {{ strength = 2 }}
+{seed}
+[[tasks]]
+task = "matching"
+corruptions = ["holes"]
+metrics = ["soft_label_transfer", "label_transfer"]
+options = {{ target = "self", label_segments = 6, truth_sample = 1, score_on = "{score_on}" }}
+{methods}
+""")
+
+
+def test_soft_label_transfer_in_the_runner_equals_algorithm_5_called_directly(tmp_path):
+    """A config reproduces the former script's protocol: the copy drawn with the corruption's fixed ``seed``,
+    the labels carried by its exact vertex map, the soft transfer of eq. 5.9 from the matcher's posteriors."""
+    from shape_toolkit.api.registry import create_plugin
+    from shape_toolkit.data.corruptions import apply_corruption
+    from shape_toolkit.metrics.correspondence import label_transfer_scores, map_label_scores, truth_segments
+    from shape_toolkit.results.correspondence import transfer_labels
+
+    shape = icosphere(3)
+    (tmp_path / "shapes").mkdir()
+    save_shape(shape, tmp_path / "shapes" / "ball.off")
+    rows = _rows(_self_config(tmp_path / "shapes", '[[tasks.methods]]\nplugin = "eigvec-alignment"\n'
+                                                    'preset = "thesis"\nlabel = "thesis"\n'), tmp_path / "run")
+    row = rows["thesis"]
+    assert row["corruption_seed"] == 0
+    ident = np.arange(shape.n_vertices)
+    labels, _ = truth_segments(shape, shape, ident, ident, 6)
+    copy, vmap = apply_corruption(shape, "holes", random_state=0, strength=2)
+    corr = create_plugin("dense_matchers", "eigvec-alignment", "thesis").match(shape, copy)
+    assert corr.posteriors is not None
+    soft = label_transfer_scores(transfer_labels(corr, labels, to="target", soft=True), labels[vmap])
+    hard = map_label_scores(corr.target_of, labels, labels[vmap], copy)
+    m = row["metrics"]
+    assert m["soft_label_recall"] == pytest.approx(soft["recall"], abs=1e-12)
+    assert m["soft_label_precision"] == pytest.approx(soft["precision"], abs=1e-12)
+    assert m["label_recall"] == pytest.approx(hard["recall"], abs=1e-12)
+
+
+def test_soft_label_transfer_scored_on_the_clean_shape_sums_posteriors_through_the_back_map():
+    """``score_on = "clean"``: the posteriors onto the holed copy are read on the clean shape, so its removed
+    vertices get no mass and count against the soft recall exactly; on the copy the exact map scores 1."""
+    from shape_toolkit.bench.tasks import TASKS, prepare
+    from shape_toolkit.data.corruptions import invert_vertex_map
+    from shape_toolkit.data.datasets import DatasetItem
+    from shape_toolkit.metrics import label_transfer_scores, truth_segments
+    from shape_toolkit.results.correspondence import Correspondence
+
+    shape = icosphere(3)
+    task = TASKS["matching"]
+    opts = task.check_options({"target": "self", "label_segments": 6})
+    scores = {}
+    for score_on in ("target", "clean"):
+        p = prepare(DatasetItem("ball", shape), "holes", {"strength": 2}, pairwise=True, random_state=0,
+                    target="self", score_on=score_on)
+        copy = p.target
+        t = invert_vertex_map(p.vertex_map, shape)  # the exact map: each kept vertex to its copy
+        ok = np.flatnonzero(t >= 0)
+        post = sp.csr_matrix((np.ones(ok.size), (ok, t[ok])), shape=(shape.n_vertices, copy.n_vertices))
+        out = {"target_of": t, "correspondence": Correspondence(t, copy.n_vertices, posteriors=post)}
+        scores[score_on] = task.evaluate(["soft_label_transfer", "label_transfer"], p, out, opts)
+        one = np.full_like(t, -1)
+        one[ok[0]] = t[ok[0]]  # a hard map of one vertex beside the exact posteriors: soft follows the posteriors
+        out = {"target_of": one, "correspondence": Correspondence(one, copy.n_vertices, posteriors=post)}
+        scores[score_on, "one"] = task.evaluate(["soft_label_transfer", "label_transfer"], p, out, opts)
+        assert scores[score_on, "one"]["soft_label_recall"] == scores[score_on]["soft_label_recall"]
+        assert scores[score_on, "one"]["label_recall"] < 0.5  # one label filled everywhere
+    assert 0 < ok.size < shape.n_vertices  # the holes removed vertices
+    assert scores["target"]["soft_label_recall"] == 1.0 and scores["target"]["label_recall"] == 1.0
+    ident = np.arange(shape.n_vertices)
+    labels, _ = truth_segments(shape, shape, ident, ident, 6)
+    kept = np.zeros(shape.n_vertices, bool)
+    kept[ok] = True
+    want = label_transfer_scores(np.where(kept, labels, -1), labels)
+    assert want["recall"] < 1.0
+    assert scores["clean"]["soft_label_recall"] == pytest.approx(want["recall"], abs=1e-12)
+    assert scores["clean"]["label_recall"] > scores["clean"]["soft_label_recall"]  # the hard map fills the holes
+
+
+def test_a_fixed_corruption_seed_draws_every_item_alike_and_is_validated(tmp_path):
+    """``seed = N`` on a corruption: every item's copy with random_state N (the default hashes one per item);
+    a bad seed is refused naming its key, before any work."""
+    from shape_toolkit.bench.plan import plan
+
+    (tmp_path / "shapes").mkdir()
+    for name in ("a", "b"):
+        save_shape(icosphere(2), tmp_path / "shapes" / f"{name}.off")
+    method = '[[tasks.methods]]\nplugin = "eigvec-alignment"\n'
+    _, fixed = plan(parse_config(_self_config(tmp_path / "shapes", method, seed="seed = 7\n")), tmp_path / "r1")
+    _, hashed = plan(parse_config(_self_config(tmp_path / "shapes", method, seed="")), tmp_path / "r2")
+    assert sorted(p.seed for p in fixed.values()) == [7, 7]
+    assert len({p.seed for p in hashed.values()}) == 2 and 7 not in {p.seed for p in hashed.values()}
+    for bad in ("seed = -1\n", 'seed = "0"\n', "seed = 2147483647\n"):
+        with pytest.raises(ConfigError) as e:
+            parse_config(_self_config(tmp_path / "shapes", method, seed=bad))
+        assert e.value.key == "corruptions[0].seed"
+    with pytest.raises(ConfigError) as e:  # the soft metric is a matching metric
+        cfg = _self_config(tmp_path / "shapes", method)
+        cfg["tasks"][0].update(task="segmentation", options={})
+        cfg["tasks"][0]["methods"] = [{"plugin": "spectral-clustering"}]
+        parse_config(cfg)
+    assert e.value.key.startswith("tasks[0].metrics") and "soft_label_transfer" in str(e.value)

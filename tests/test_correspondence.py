@@ -299,6 +299,29 @@ def test_map_label_scores_and_truth_segments(ico):
         truth_segments(ico, ico, ident, anti, n_segments=0)
 
 
+def test_soft_map_label_scores_follow_the_posteriors_of_eq_5_9():
+    """``soft=True``: each target vertex takes the label of largest posterior mass (eq. 5.9), not the
+    label of the source vertex the hard map sends there."""
+    from shape_toolkit.metrics.correspondence import map_label_scores
+
+    labels = np.array([0, 0, 1, 1])
+    ident = Correspondence(np.arange(4), 4, posteriors=sp.identity(4, format="csr"))
+    s = map_label_scores(ident, labels, labels, soft=True)
+    assert s["recall"] == 1.0 and s["precision"] == 1.0
+    # posteriors P(source i | target j): target 1 gets 0.3 from source 1 (label 0) and 0.7 from source 2
+    # (label 1); the hard map sends source 1 to target 1 (its row's largest entry), source 2 to target 2
+    P = sp.csr_matrix(np.array([[1.0, 0, 0, 0], [0, 0.3, 0, 0], [0, 0.7, 1.0, 0], [0, 0, 0, 1.0]]))
+    corr = Correspondence(np.arange(4), 4, posteriors=P)
+    soft = map_label_scores(corr, labels, labels, soft=True)  # predicted [0, 1, 1, 1]
+    assert soft["recall"] == pytest.approx((1 / 2 + 2 / 2) / 2)  # 0.75
+    assert soft["precision"] == pytest.approx((1 / 1 + 2 / 3) / 2)  # 0.8333
+    assert map_label_scores(corr, labels, labels)["recall"] == 1.0  # the hard map is right
+    # a target vertex without posterior mass stays unlabelled: it counts against recall
+    P0 = sp.csr_matrix(np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 0]]))
+    hole = map_label_scores(Correspondence(np.array([0, 1, 2, -1]), 4, posteriors=P0), labels, labels, soft=True)
+    assert hole["recall"] == pytest.approx(0.75) and hole["precision"] == 1.0
+
+
 def test_is_flipped_rule():
     """More than twice (+0.02) the symmetry-aware error: the matching benchmarks' flipped-pair rule."""
     from shape_toolkit.metrics.correspondence import is_flipped

@@ -50,3 +50,22 @@ def test_cloud_matching_config_matches_two_clouds_on_report_pairs(shared_data, m
     assert len(items) == 7 and not any("dog" in i for i in items)
     people = [int(s[-3:]) // 10 for i in items if i.startswith("tr_reg") for s in i.split("-")]
     assert people and min(people) >= 2
+
+
+def test_plt_alignment_config_is_the_former_scripts_protocol_on_the_report_shapes(shared_data, monkeypatch):
+    """The former plt_alignment.py: 13 report shapes (wolves, cats, FAUST subjects 1-4; no dog, no subject 0)
+    x holes 2/4 and shortcuts 1/3 drawn with random_state 0 x 3 variants, each to a copy of itself, 8 cells."""
+    from shape_toolkit.bench.plan import plan
+
+    monkeypatch.setenv("TOOLKIT_DATA", str(shared_data))
+    cfg = load_config(CONFIGS / "plt_alignment.toml")
+    assert cfg.planned_rows == 13 * 4 * 3
+    (task,) = cfg.tasks
+    assert task.options["target"] == "self" and task.options["label_segments"] == 8
+    assert set(task.metrics) == {"soft_label_transfer", "label_transfer"}
+    assert [(m.preset, m.params) for m in task.methods] == [
+        (None, {}), ("thesis", {}), (None, {"alignment": "histogram", "holes": "keep", "side": "none"})]
+    items = [r.name for d in cfg.datasets.values() for r in d.refs]
+    assert len(items) == 13 and not any(i.startswith("dog") or i.startswith("tr_reg_00") for i in items)
+    jobs, preps = plan(cfg, "unused-run-folder", limit=1)
+    assert {p.seed for p in preps.values()} == {0} and {j.corruption_seed for j in jobs} == {0}

@@ -27,6 +27,8 @@ without groups or a half left empty is refused before any work, naming the key.
     name = "noise"
     kind = "gaussian-noise"    # see shape_toolkit.data.corruptions.CORRUPTIONS
     params = { strength = [0.1, 0.3] }   # lists are grids (a literal list: wrap it, [[1, 2]])
+    seed = 0                   # optional: every item's copy drawn with this random_state (default: a
+                               # seed per item, hashed from run.random_state, dataset, item and name)
 
     [[tasks]]
     task = "segmentation"      # the task kind: spectrum | keypoints | descriptors | segmentation | matching | sequence
@@ -128,12 +130,15 @@ class DatasetSpec:
 
 @dataclass(frozen=True)
 class CorruptionSpec:
-    """One corruption instance (a grid point): name (unique per instance), kind and params."""
+    """One corruption instance (a grid point): name (unique per instance), kind and params; ``seed``
+    the ``random_state`` of every item's copy when the config fixes it (None: a seed per item, hashed
+    from ``run.random_state``, the dataset, the item and the corruption's name)."""
 
     name: str
     kind: str
     params: dict[str, Any]
     group: str = ""
+    seed: int | None = None
 
     @property
     def strength(self) -> float | None:
@@ -426,13 +431,15 @@ class _Corruption:
     kind: str
     params: dict[str, Any]
     size: int
+    seed: int | None = None
 
     def expand(self) -> list[CorruptionSpec]:
         """Its grid points, named ``NAME[key=value,...]`` by the parameters that vary."""
         insts = []
         for g in expand_grid(self.params):
             suffix = ",".join(f"{k}={g[k]}" for k in sorted(g) if isinstance(self.params[k], list))
-            insts.append(CorruptionSpec(f"{self.name}[{suffix}]" if suffix else self.name, self.kind, g, self.name))
+            insts.append(CorruptionSpec(f"{self.name}[{suffix}]" if suffix else self.name, self.kind, g, self.name,
+                                        self.seed))
         return insts
 
 
@@ -447,7 +454,7 @@ def _validate_corruptions(raw: Any) -> dict[str, _Corruption]:
         raise ConfigError("corruptions", "must be an array of tables ([[corruptions]])")
     for i, c in enumerate(raw):
         w = f"corruptions[{i}]"
-        _check_keys(c, {"name", "kind", "params"}, w, ("kind",))
+        _check_keys(c, {"name", "kind", "params", "seed"}, w, ("kind",))
         kind = _str(c["kind"], f"{w}.kind")
         if kind not in CORRUPTIONS:
             raise ConfigError(f"{w}.kind", f"unknown corruption {kind!r}; known: {', '.join(CORRUPTIONS)}")
@@ -466,7 +473,10 @@ def _validate_corruptions(raw: Any) -> dict[str, _Corruption]:
                     f"{w}.params.{k}", f"corruption {kind!r} has no such parameter; valid: {', '.join(valid)}"
                 )
         _check_kinds(prm, CORRUPTIONS[kind], f"{w}.params")
-        out[name] = _Corruption(name, kind, dict(prm), grid_size(prm))
+        seed = _int(c["seed"], f"{w}.seed") if "seed" in c else None
+        if seed is not None and seed > 2**31 - 2:  # the range of the per-item seeds
+            raise ConfigError(f"{w}.seed", f"must be at most 2**31 - 2, got {seed}")
+        out[name] = _Corruption(name, kind, dict(prm), grid_size(prm), seed)
     return out
 
 

@@ -205,7 +205,8 @@ def plan(
                         declared[dkey] = (declared_specs(task, m, config.random_state, extra[m_index])
                                           if adapter.uses_spectra else [])
                 for corr in task.corruptions:
-                    seed = _seed(config.random_state, dname, ref.name, corr.name)
+                    seed = corr.seed if corr.seed is not None else _seed(config.random_state, dname, ref.name,
+                                                                        corr.name)
                     pident = {
                         "dataset": dname,
                         "item": ref.name,
@@ -254,6 +255,8 @@ def plan(
                         }
                         if m.solver is not None:  # only then: the keys of earlier runs' rows hold
                             ident["solver"] = m.solver
+                        if corr.seed is not None:  # likewise: a fixed corruption seed
+                            ident["corruption_seed"] = corr.seed
                         key = row_key(ident)
                         if key in seen:
                             continue

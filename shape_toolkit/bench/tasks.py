@@ -805,6 +805,43 @@ def _m_label_transfer(p, o, opt):
     return {"label_recall": res["recall"], "label_precision": res["precision"]}
 
 
+def _m_soft_label_transfer(p, o, opt):
+    """Table 5.2 (Algorithm 5): mean recall and precision of the source's segmentation carried by the
+    probabilistic label transfer of eq. 5.9 (:func:`shape_toolkit.metrics.map_label_scores` with
+    ``soft=True``): each target vertex takes the label of largest posterior mass of the method's
+    :class:`~shape_toolkit.results.correspondence.Correspondence` (EM's posteriors; a map without
+    posteriors, or a sparse or published one: its 0/1 matrix); a target vertex without mass stays
+    unlabelled (no nearest-vertex filling, unlike ``label_transfer``) and counts against recall."""
+    from shape_toolkit.results.correspondence import Correspondence
+
+    src, tgt = _labels_for(p, opt)
+    corr = o.get("correspondence")
+    if corr is None:
+        corr = Correspondence(np.asarray(o["target_of"], dtype=np.int64), p.target.n_vertices)
+    res = lookup_metric("map_label_scores")(corr, src, tgt, soft=True)
+    return {"soft_label_recall": res["recall"], "soft_label_precision": res["precision"]}
+
+
+def _on_clean(prepared: Prepared, corr: Any, target_of: np.ndarray) -> Any:
+    """A method's :class:`~shape_toolkit.results.correspondence.Correspondence` onto the corrupted target, read
+    on the clean target of ``prepared`` (:func:`score_on_clean`): the map ``target_of`` (already composed) and
+    the posteriors summed through the corruption's vertex map ``(n_source, n_clean)``; None stays None."""
+    import scipy.sparse as sp
+
+    from shape_toolkit.results.correspondence import Correspondence
+
+    if corr is None or prepared.clean_target is None:
+        return corr
+    n = prepared.clean_target.n_vertices
+    post = None
+    if corr.posteriors is not None:
+        vmap = np.asarray(prepared.vertex_map, dtype=np.int64)
+        ok = np.flatnonzero(vmap >= 0)
+        back = sp.csr_matrix((np.ones(ok.size), (ok, vmap[ok])), shape=(vmap.size, n))
+        post = (corr.posteriors @ back).tocsr()
+    return Correspondence(target_of, n, corr.confidence, post, corr.info)
+
+
 def _m_r_smoothness(p, o, opt):
     """Table 7.2: percent of r-smooth source vertices (eq. 7.4-7.5) per neighbourhood size r
     (:func:`shape_toolkit.metrics.r_smoothness_table`): a column ``r_smooth@R`` per r and the curve."""
@@ -832,6 +869,15 @@ def truth_seeds(prepared: Prepared, n: int) -> np.ndarray:
     return np.asarray(prepared.truth[rows], np.int64)
 
 
+def _kept(corr: Any) -> dict[str, Any]:
+    """``{"correspondence": corr}`` when a method returned a
+    :class:`~shape_toolkit.results.correspondence.Correspondence` (its posteriors score
+    ``soft_label_transfer``; an object, so never saved with the row's arrays), else ``{}``."""
+    from shape_toolkit.results.correspondence import Correspondence
+
+    return {"correspondence": corr} if isinstance(corr, Correspondence) else {}
+
+
 class MatchingTask(TaskAdapter):
     """Dense matchers (and sparse matchers on detected keypoints) from the clean source to the
     (corrupted) target, scored by the normalised geodesic error on ground-truth pairs.
@@ -840,7 +886,10 @@ class MatchingTask(TaskAdapter):
     the map composed with the corruption's vertex back-map (a corrupted shape is matched, the
     error is measured where the ground truth was given); ``target = "self"`` matches each shape to
     a (corrupted) copy of itself, thesis Table 5.2's label transfer from a clean shape to its
-    corrupted instances. A peer reading published maps (``peer = "maps"``) is given the item.
+    corrupted instances (``label_transfer`` scores the hard map, ``soft_label_transfer`` Algorithm 5's soft
+    transfer of eq. 5.9 from the method's posteriors; ``label_segments = K``: K geodesic Voronoi cells as the
+    truth where the dataset has no segmentations). A peer reading published maps (``peer = "maps"``) is given
+    the item.
     ``corrupt = "both"`` corrupts the source too (a size grid of pairs with ``subdivide``);
     ``truth_seeds = N`` gives dense matcher plugins N ground-truth seeds (:func:`truth_seeds`)."""
 
@@ -876,6 +925,7 @@ class MatchingTask(TaskAdapter):
         "geodesic_error": (_m_geodesic, ("correspondence_report", "is_flipped")),
         "coverage": (_m_coverage, ("target_coverage",)),
         "label_transfer": (_m_label_transfer, ("map_label_scores", "truth_segments")),
+        "soft_label_transfer": (_m_soft_label_transfer, ("map_label_scores", "truth_segments")),
         "r_smoothness": (_m_r_smoothness, ("r_smoothness_table",)),
     }
 
@@ -926,7 +976,8 @@ class MatchingTask(TaskAdapter):
         """Every requested metric, on the clean target through the back-map when the item was
         prepared with ``score_on = "clean"`` (:func:`score_on_clean`)."""
         view, t = score_on_clean(prepared, output["target_of"])
-        return super().evaluate(names, view, {**output, "target_of": t}, options)
+        corr = _on_clean(prepared, output.get("correspondence"), t)
+        return super().evaluate(names, view, {**output, "target_of": t, "correspondence": corr}, options)
 
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         src, tgt = prepared.source, prepared.target
@@ -955,13 +1006,13 @@ class MatchingTask(TaskAdapter):
             given = {side: list(spectra.get(side) or []) for side in ("source", "target")}
             corr = method.run(src, tgt, spectra=given) if any(given.values()) else method.run(src, tgt)
             t = np.asarray(corr.target_of, dtype=np.int64)
-            return {"target_of": t, "sparse": False}
+            return {"target_of": t, "sparse": False, **_kept(corr)}
         seeds = {} if options.get("truth_seeds") is None else {"seeds": truth_seeds(prepared, options["truth_seeds"])}
         corr = method.match(
             src, tgt, source_spectrum=spectra.get("source"), target_spectrum=spectra.get("target"), **seeds
         )
         t = corr.target_of if hasattr(corr, "target_of") else np.asarray(corr, dtype=np.int64)
-        return {"target_of": np.asarray(t, dtype=np.int64), "sparse": False}
+        return {"target_of": np.asarray(t, dtype=np.int64), "sparse": False, **_kept(corr)}
 
 
 # -- sequences --------------------------------------------------------------------------------

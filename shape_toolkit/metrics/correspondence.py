@@ -314,6 +314,8 @@ def map_label_scores(
     source_labels: np.ndarray,
     target_labels: np.ndarray,
     target: Shape | None = None,
+    *,
+    soft: bool = False,
 ) -> dict[str, Any]:
     """Table 7.3: mean recall and precision (:func:`label_transfer_scores`) of a segmentation
     carried through a map. The source's labels ``(n_source,)`` go to the target as in the thesis
@@ -322,9 +324,12 @@ def map_label_scores(
     ``target``, a target vertex that no source vertex reaches takes the label of the nearest
     reached one along the mesh edges (a hard map covers only part of the target, while the
     thesis's probabilistic transfer labels every vertex); without it, such a vertex stays
-    unlabelled and counts against recall. Label ids must mean the same segment on both shapes;
-    negative labels are unlabelled. Adds ``filled``: the fraction of target vertices labelled by
-    that nearest-vertex rule."""
+    unlabelled and counts against recall. ``soft``: Algorithm 5's probabilistic label transfer
+    (eq. 5.9, :func:`~shape_toolkit.results.correspondence.transfer_labels` with ``soft=True``):
+    target vertex ``j`` takes the label of largest posterior mass ``sum_i p_ij`` over the map's
+    posteriors (a map without posteriors: its 0/1 matrix, a vote of the source vertices mapped onto
+    ``j``). Label ids must mean the same segment on both shapes; negative labels are unlabelled.
+    Adds ``filled``: the fraction of target vertices labelled by that nearest-vertex rule."""
     from shape_toolkit.results.correspondence import transfer_labels
 
     ls = np.asarray(source_labels)
@@ -335,7 +340,7 @@ def map_label_scores(
     corr = target_of if isinstance(target_of, Correspondence) else Correspondence(t, lt.size)
     if target is not None and target.n_vertices != lt.size:
         raise ParameterError(f"{lt.size} target labels for a target of {target.n_vertices} vertices")
-    pred = transfer_labels(corr, ls, to="target")
+    pred = transfer_labels(corr, ls, to="target", soft=bool(soft))
     filled = 0.0
     miss = np.flatnonzero(pred < 0)
     have = np.flatnonzero(pred >= 0)
