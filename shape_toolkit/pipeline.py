@@ -116,6 +116,12 @@ PRESETS: dict[str, dict[str, Any]] = {
         "spectral coordinates; the shapes must share a frame (upright the same way)",
         "dense": {"plugin": "shell-alignment"},
     },
+    "partial": {
+        "description": "a part (a scan seeing one side, a region cut away) to a whole shape in the same units: "
+        "zoomout with rectangular functional maps whose target basis spans the part's frequencies (the slanted "
+        "diagonal of Rodola et al. 2017; the area ratio from the two shapes' areas), WKS at shared energies",
+        "dense": {"plugin": "fmap-zoomout", "params": {"partial": True}},
+    },
     "zoomout-fast": {
         "description": "zoomout with 8 ZoomOut steps of 10 instead of 16 of 5 (same final basis)",
         "dense": {"plugin": "fmap-zoomout", "preset": "fast"},

@@ -314,6 +314,35 @@ def test_corrupt_both_subdivides_source_and_target_and_keeps_the_truth(tmp_path)
     assert e.value.key.startswith("tasks[0].options") and "corrupt" in str(e.value)
 
 
+def test_corrupt_source_crops_the_source_only_and_carries_the_truth(tmp_path):
+    """``corrupt = "source"`` (partial matching): the source is cropped with the seed ``corrupt = "both"`` gives
+    it, the target stays whole; the ground truth keeps the crop's points, each paired with its original vertex
+    (the crop's back-map); ``target = "self"`` with it is refused, naming the key."""
+    from shape_toolkit.bench.tasks import prepare
+    from shape_toolkit.data.corruptions import crop
+    from shape_toolkit.data.datasets import load_item, open_dataset
+
+    shape = icosphere(2)
+    folder = _pair_folder(tmp_path / "pair", shape, {})
+    item = load_item(next(iter(open_dataset("tosca", folder))))
+    p = prepare(item, "crop", {"strength": 0.3, "attempts": 20}, pairwise=True, random_state=0, corrupt="source",
+                score_on="clean", geodesic_method="dijkstra", truth_sample=100000)
+    part, back = crop(shape, strength=0.3, random_state=1, attempts=20)
+    assert p.target is item.target and p.source.n_vertices == part.n_vertices < shape.n_vertices
+    np.testing.assert_array_equal(p.vertex_map, np.arange(shape.n_vertices))
+    np.testing.assert_array_equal(p.truth, np.stack([np.arange(part.n_vertices), back], axis=1))
+    assert p.geodesic_rows.shape == (part.n_vertices, shape.n_vertices)
+    methods = '[[tasks.methods]]\npipeline = "partial"\n'
+    cfg = _config(folder, methods, options='geodesic_method = "dijkstra", corrupt = "source"',
+                  corruptions='[[corruptions]]\nname = "cut"\nkind = "crop"\nparams = { strength = 0.3 }\n',
+                  task_corruptions='corruptions = ["cut"]')
+    parse_config(cfg)
+    cfg["tasks"][0]["options"]["target"] = "self"
+    with pytest.raises(ConfigError) as e:
+        parse_config(cfg)
+    assert e.value.key.startswith("tasks[0].options") and "corrupt" in str(e.value)
+
+
 def test_truth_seeds_reach_a_seeded_matcher_and_are_refused_elsewhere(tmp_path):
     """``truth_seeds = N``: seed-growing (which refuses to run without seeds) gets N ground-truth pairs, spread
     over the source by farthest-point sampling; a pipeline (it finds its own) in such a task is refused."""

@@ -69,3 +69,19 @@ def test_plt_alignment_config_is_the_former_scripts_protocol_on_the_report_shape
     assert len(items) == 13 and not any(i.startswith("dog") or i.startswith("tr_reg_00") for i in items)
     jobs, preps = plan(cfg, "unused-run-folder", limit=1)
     assert {p.seed for p in preps.values()} == {0} and {j.corruption_seed for j in jobs} == {0}
+
+
+def test_partial_matching_config_crops_the_source_of_report_pairs(shared_data, monkeypatch):
+    """Issue 29's partial benchmark: the source cropped at 10/30/50% (and whole), matched to the whole target and
+    scored on it; only report-half pairs (cats and wolves, FAUST people 2-4: `partial` was developed on dogs and
+    people 0-1); 15 pairs x 4 settings x (partial, zoomout, pyFM) = 180 rows."""
+    monkeypatch.setenv("TOOLKIT_DATA", str(shared_data))
+    cfg = load_config(CONFIGS / "partial_matching.toml")
+    assert cfg.planned_rows == 180
+    (task,) = cfg.tasks
+    assert task.options["corrupt"] == "source" and task.options["score_on"] == "clean"
+    assert {m.method_label for m in task.methods} == {"pipeline:partial", "pipeline:zoomout", "peer:pyfm"}
+    items = [r.name for d in cfg.datasets.values() for r in d.refs]
+    assert len(items) == 15 and not any("dog" in i for i in items)
+    people = [int(s[-3:]) // 10 for i in items if i.startswith("tr_reg") for s in i.split("-")]
+    assert people and min(people) >= 2

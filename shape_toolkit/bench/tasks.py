@@ -104,7 +104,8 @@ def prepare(
     the first). ``score_on="clean"`` keeps the ground truth and the rows on the uncorrupted target
     (``Prepared.clean_target``) instead of carrying them onto the corrupted one. ``corrupt="both"``
     corrupts the source of a pair too (its own seed; the ground truth's source column and the source's
-    labels carried onto it), e.g. both shapes of a pair subdivided for a size grid."""
+    labels carried onto it), e.g. both shapes of a pair subdivided for a size grid; ``corrupt="source"`` the
+    source only (the same seed as with ``"both"``), e.g. a crop of the source matched to the whole target."""
     if score_on not in SCORE_ON:
         raise ParameterError(f"score_on must be one of {', '.join(SCORE_ON)}, got {score_on!r}")
     if target not in TARGETS:
@@ -117,7 +118,7 @@ def prepare(
     if pairwise and item.target is not None and target == "pair":
         tgt0, truth, sym = item.target, item.correspondence, item.symmetric_correspondence
         tlabels = item.target_labels
-        if corrupt == "both" and corruption_kind != "none":
+        if corrupt in ("both", "source") and corruption_kind != "none":
             src0, rs = src, corruption_kind in RESAMPLING
             src, svmap = apply_corruption(src0, corruption_kind, random_state=random_state + 1, **corruption_params)
             truth = carry_correspondence(truth, svmap, src0, side=0, resampled=rs) if truth is not None else None
@@ -128,7 +129,10 @@ def prepare(
         ident = np.arange(src.n_vertices, dtype=np.int64)
         truth = np.stack([ident, ident], axis=1)
     t0 = time.perf_counter()
-    tgt, vmap = apply_corruption(tgt0, corruption_kind, random_state=random_state, **corruption_params)
+    if corrupt == "source" and tgt0 is not src:  # a part of the source against the clean target
+        tgt, vmap = apply_corruption(tgt0, "none")
+    else:
+        tgt, vmap = apply_corruption(tgt0, corruption_kind, random_state=random_state, **corruption_params)
     secs = time.perf_counter() - t0
     clean = tgt0 if score_on == "clean" else None
     if corruption_kind != "none" and clean is None:
@@ -175,8 +179,9 @@ def prepare(
 SCORE_ON = ("target", "clean")
 #: what a pairwise item is matched to: the dataset's pair, or a copy of the source itself
 TARGETS = ("pair", "self")
-#: which shapes of a pair a corruption changes: the target, or both (a size grid of pairs)
-CORRUPT = ("target", "both")
+#: which shapes of a pair a corruption changes: the target, both (a size grid of pairs), or the source only (a
+#: part matched to a whole shape)
+CORRUPT = ("target", "both", "source")
 #: which ground-truth points ``truth_sample`` keeps: a seeded random draw, evenly spaced ones (ends included),
 #: or every ``len(truth) // truth_sample``-th from the first (a fixed stride, e.g. every 5th of 5,000)
 TRUTH_POINTS = ("random", "even", "stride")
@@ -890,7 +895,8 @@ class MatchingTask(TaskAdapter):
     transfer of eq. 5.9 from the method's posteriors; ``label_segments = K``: K geodesic Voronoi cells as the
     truth where the dataset has no segmentations). A peer reading published maps (``peer = "maps"``) is given
     the item.
-    ``corrupt = "both"`` corrupts the source too (a size grid of pairs with ``subdivide``);
+    ``corrupt = "both"`` corrupts the source too (a size grid of pairs with ``subdivide``), ``corrupt =
+    "source"`` the source only (a crop of the source against the whole target: partial matching);
     ``truth_seeds = N`` gives dense matcher plugins N ground-truth seeds (:func:`truth_seeds`)."""
 
     name = "matching"
@@ -915,7 +921,8 @@ class MatchingTask(TaskAdapter):
         "score_on": "target",
         # "pair": the dataset's target; "self": a (corrupted) copy of the source (Table 5.2)
         "target": "pair",
-        # "target": the corruption changes the target; "both": the source too (e.g. subdivided pairs)
+        # "target": the corruption changes the target; "both": the source too (e.g. subdivided pairs); "source":
+        # the source only (a part against a whole shape)
         "corrupt": "target",
         # N: dense matchers get N ground-truth seeds (farthest-point samples on the source; those using seeds)
         "truth_seeds": None,
@@ -952,8 +959,9 @@ class MatchingTask(TaskAdapter):
                              ("corrupt", CORRUPT)):
             if o[key] not in allowed:
                 raise ParameterError(f"{key} must be one of {', '.join(map(repr, allowed))}, got {o[key]!r}")
-        if o["corrupt"] == "both" and o["target"] == "self":
-            raise ParameterError('corrupt = "both" needs a pair: with target = "self" the source is the clean shape')
+        if o["corrupt"] in ("both", "source") and o["target"] == "self":
+            raise ParameterError(f'corrupt = "{o["corrupt"]}" needs a pair: with target = "self" the source is the '
+                                 'clean shape')
         rsd = o["r_smooth_random_state"]
         if isinstance(rsd, bool) or not isinstance(rsd, int) or rsd < 0:
             raise ParameterError(f"r_smooth_random_state must be a non-negative integer, got {rsd!r}")

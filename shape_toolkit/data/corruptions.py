@@ -355,35 +355,40 @@ def partial(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Co
     return _keep(shape, keep)
 
 
-def crop(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Corruption:
+def crop(shape: Shape, *, strength: float = 0.3, random_state: int = 0, attempts: int = 1) -> Corruption:
     """A partial shape: cut away one connected region holding the fraction ``strength`` of the surface area, a
     geodesic ball (along the mesh edges) around a random centre vertex; every vertex keeps its back-map, so the
     ground truth survives. When the cut splits the rest (a limb cut at its root), the largest piece is kept;
     when what is kept is not ``1 - strength`` of the area to within 0.05 (a split, or a centre on a piece smaller
-    than the cut), :class:`InvalidShapeError` asks for another ``random_state``."""
+    than the cut), the next of ``attempts`` centres (drawn in turn from ``random_state``) is tried, and after the
+    last :class:`InvalidShapeError` asks for another ``random_state`` (or more ``attempts``)."""
     shape.require_faces("crop")
     s = _check_strength(strength, 0.0, 0.9)
+    if isinstance(attempts, bool) or not isinstance(attempts, (int, np.integer)) or attempts < 1:
+        raise ParameterError(f"crop: attempts must be a positive integer, got {attempts!r}")
     if s == 0:
         return shape, _identity(shape)
     n, e = shape.n_vertices, shape.edges
     rng = np.random.default_rng(random_state)
-    centre = int(rng.integers(n))
     G = sp.coo_matrix((shape.edge_lengths, (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
-    dist = dijkstra(G, directed=False, indices=centre)
     area = shape.vertex_areas
-    order = np.argsort(dist, kind="stable")
-    reach = np.isfinite(dist[order])
-    removed = reach & (np.cumsum(np.where(reach, area[order], 0.0)) <= s * area.sum())  # never another piece
-    keep = np.ones(n, dtype=bool)
-    keep[order[removed]] = False
-    out, vmap = _keep(shape, keep)
-    kept = float(area[vmap].sum() / area.sum())
-    if abs(kept - (1.0 - s)) > 0.05:  # the cut split the rest, or the centre's piece is smaller than the cut
-        raise InvalidShapeError(
-            f"crop: cutting {s:.0%} of the area around vertex {centre} keeps one piece with {kept:.0%} of the "
-            f"area (asked: {1 - s:.0%}); try another random_state"
-        )
-    return out, vmap
+    for _ in range(int(attempts)):
+        centre = int(rng.integers(n))
+        dist = dijkstra(G, directed=False, indices=centre)
+        order = np.argsort(dist, kind="stable")
+        reach = np.isfinite(dist[order])
+        removed = reach & (np.cumsum(np.where(reach, area[order], 0.0)) <= s * area.sum())  # never another piece
+        keep = np.ones(n, dtype=bool)
+        keep[order[removed]] = False
+        out, vmap = _keep(shape, keep)
+        kept = float(area[vmap].sum() / area.sum())
+        if abs(kept - (1.0 - s)) <= 0.05:
+            return out, vmap
+    # the cut split the rest, or the centre's piece is smaller than the cut
+    raise InvalidShapeError(
+        f"crop: cutting {s:.0%} of the area around vertex {centre} keeps one piece with {kept:.0%} of the "
+        f"area (asked: {1 - s:.0%}); try another random_state" + (" or more attempts" if attempts > 1 else "")
+    )
 
 
 def split_triangles(vertices: np.ndarray, faces: np.ndarray, s: int) -> tuple[np.ndarray, np.ndarray]:

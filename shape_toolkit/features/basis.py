@@ -21,7 +21,7 @@ from shape_toolkit.errors import ParameterError
 
 __all__ = [
     "spectral_basis", "shifted_weights", "Basis", "basis_of", "normalized_spectrum", "fmap_from_p2p",
-    "p2p_from_fmap", "zoomout", "zoomout_residual", "zoomout_select",
+    "p2p_from_fmap", "slanted_size", "zoomout", "zoomout_residual", "zoomout_select",
 ]
 
 
@@ -142,21 +142,38 @@ def _point_map(C: np.ndarray, emb_s: np.ndarray, emb_t: np.ndarray) -> np.ndarra
     return nearest_neighbors(points, emb_s[:, :ks], dtype=np.float32)[1]
 
 
+def slanted_size(src: Basis, tgt: Basis, k: int, scale: float | None) -> int:
+    """How many target basis functions span the frequencies of the first ``k`` source ones: ``k`` when
+    ``scale`` is None (two whole shapes), else the count of target eigenvalues at most the source's ``k``-th
+    in the same units (``scale = area_t / area_s`` of the shapes in their common units: a part of a shape
+    has fewer eigenvalues below a frequency, Weyl's law ``lambda_i ~ 4 pi i / area``, so the functional map
+    of a part is rectangular with a slanted diagonal; Rodola et al. 2017). Between 1 and ``tgt.k``."""
+    if scale is None:
+        return min(int(k), tgt.k)
+    top = float(src.evals[min(int(k), src.k) - 1]) * float(scale)
+    return int(np.clip(np.searchsorted(tgt.evals, top * (1 + 1e-9), side="right"), 1, tgt.k))
+
+
 def zoomout(
     C: np.ndarray, src: Basis, tgt: Basis, k_final: int, step: int = 1,
     rows: np.ndarray | None = None, cols: np.ndarray | None = None,
-    progress: Callable[[str], None] | None = None, final: bool = True,
+    progress: Callable[[str], None] | None = None, final: bool = True, scale: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """ZoomOut (Melzi et al. 2019): alternate point map and functional map while the basis grows
-    from ``C.shape`` to ``k_final`` by ``step``; returns the final ``C_ts`` and the point map of
-    every source vertex. ``rows``/``cols`` (source/target vertex samples) speed up the inner
-    iterations (the final point map always covers every source vertex). Point maps are nearest
-    neighbours in single precision (:func:`~shape_toolkit.core.geometry.nearest_neighbors`);
-    ``progress`` receives one message per iteration. ``final=False`` skips the point map of every
-    source vertex: the returned map then covers ``rows`` only (``-1`` elsewhere)."""
+    """ZoomOut (Melzi et al. 2019): alternate point map and functional map while the source basis grows
+    from ``C.shape[0]`` to ``k_final`` by ``step``; returns the final ``C_ts`` and the point map of
+    every source vertex. ``rows``/``cols`` (source/target vertex samples) speed up the inner iterations
+    (the final point map always covers every source vertex). Point maps are nearest neighbours in single
+    precision (:func:`~shape_toolkit.core.geometry.nearest_neighbors`); ``progress`` receives one
+    message per iteration. ``final=False`` skips the point map of every source vertex: the returned map
+    then covers ``rows`` only (``-1`` elsewhere).
+
+    ``scale`` (None: two whole shapes) makes the source a part of the target with ``area_t / area_s =
+    scale`` in common units: each functional map is rectangular, ``(k, slanted_size(k))``, the target basis
+    spanning the frequencies of the source's (:func:`slanted_size`; ZoomOut's partial variant, Melzi et al.
+    2019 after Rodola et al. 2017)."""
     k = C.shape[0]
     e_s = np.asarray(src.evecs[:, :k_final], dtype=np.float32)
-    e_t = np.asarray(tgt.evecs[:, :k_final], dtype=np.float32)
+    e_t = np.asarray(tgt.evecs[:, :slanted_size(src, tgt, k_final, scale)], dtype=np.float32)
     q_s = e_s if rows is None else e_s[rows]
     q_t = e_t if cols is None else e_t[cols]
     n_iter = max(0, -(-(k_final - k) // step))
@@ -166,7 +183,7 @@ def zoomout(
         if cols is not None:
             T = cols[T]
         k = min(k + step, k_final)
-        C = fmap_from_p2p(src, tgt, T, k, k, rows=rows)
+        C = fmap_from_p2p(src, tgt, T, k, slanted_size(src, tgt, k, scale), rows=rows)
         it += 1
         if progress is not None:
             progress(f"zoomout: iteration {it}/{n_iter} (k = {k})")
@@ -193,7 +210,7 @@ def zoomout_residual(C: np.ndarray, src: Basis, tgt: Basis, target_of: np.ndarra
 
 def zoomout_select(
     fits: list[np.ndarray], src: Basis, tgt: Basis, k_final: int, step: int, rows: np.ndarray,
-    cols: np.ndarray | None = None,
+    cols: np.ndarray | None = None, scale: float | None = None,
 ) -> tuple[int, list[float], np.ndarray]:
     """Which of several functional maps ``fits`` (each ``(k, k)``) ZoomOut refines best: each refined to
     ``k_final`` by ``step`` on the source vertices ``rows`` (:func:`zoomout`), the one of smallest
@@ -202,9 +219,9 @@ def zoomout_select(
     costly large-k ones then see every vertex)."""
     residuals, refined = [], []
     for C0 in fits:
-        Cz, Tz = zoomout(C0, src, tgt, k_final, step, rows, cols, final=False)
+        Cz, Tz = zoomout(C0, src, tgt, k_final, step, rows, cols, final=False, scale=scale)
         residuals.append(zoomout_residual(Cz, src, tgt, Tz, rows))
         refined.append(Cz)
     chosen = int(np.argmin(residuals))
     k_mid = (fits[chosen].shape[0] + k_final) // 2
-    return chosen, residuals, refined[chosen][:k_mid, :k_mid]
+    return chosen, residuals, refined[chosen][:k_mid, :slanted_size(src, tgt, k_mid, scale)]

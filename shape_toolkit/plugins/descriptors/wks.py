@@ -17,19 +17,23 @@ __all__ = ["WKSDescriptor", "wave_kernel_signature"]
 
 
 def wave_kernel_signature(
-    vals: np.ndarray, U: np.ndarray, n_energies: int = 100, variance: float = 7.0
+    vals: np.ndarray, U: np.ndarray, n_energies: int = 100, variance: float = 7.0,
+    log_range: tuple[float, float] | None = None,
 ) -> np.ndarray:
     """WKS ``(n, n_energies)`` of the non-null eigenpairs ``vals`` ``(K,)``, ``U`` ``(n, K)``
     (ascending, orthonormal in the spectrum's inner product): log-energies ``e`` evenly spaced in
     ``[log vals[0] + 2 sigma, log vals[-1] - 2 sigma]``, ``sigma = variance * (log vals[-1] -
     log vals[0]) / n_energies``, each column normalized by its sum of Gaussian weights (Aubry et
-    al. 2011). The one place of the WKS formula: the ``wks`` plugin and ``fmap-zoomout`` call it."""
+    al. 2011). ``log_range`` replaces ``(log vals[0], log vals[-1])`` there: two shapes given the same range
+    (their eigenvalues in common units) get the same energies. The one place of the WKS formula: the
+    ``wks`` plugin and ``fmap-zoomout`` call it."""
     vals = np.asarray(vals, dtype=np.float64)
     if vals.size < 2 or not vals[0] > 0:
         raise ParameterError("the WKS needs at least two positive eigenvalues")
     loge = np.log(vals)
-    sigma = variance * (loge[-1] - loge[0]) / n_energies
-    e = np.linspace(loge[0] + 2 * sigma, loge[-1] - 2 * sigma, int(n_energies))
+    lo, hi = (loge[0], loge[-1]) if log_range is None else (float(log_range[0]), float(log_range[1]))
+    sigma = variance * (hi - lo) / n_energies
+    e = np.linspace(lo + 2 * sigma, hi - 2 * sigma, int(n_energies))
     if sigma == 0:
         sigma = 1.0
     G = np.exp(-((e[None, :] - loge[:, None]) ** 2) / (2 * sigma**2))  # (K, E)

@@ -24,7 +24,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.core.surface import cloud_surface
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.features.basis import Basis, basis_of, spectral_basis, zoomout, zoomout_select
+from shape_toolkit.features.basis import Basis, basis_of, slanted_size, spectral_basis, zoomout, zoomout_select
 from shape_toolkit.plugins._params import (
     DESCRIPTOR,
     DESCRIPTOR_PARAMS,
@@ -125,15 +125,17 @@ def compress_descriptors(
 
 
 def _commutativity_hessian(Xs: np.ndarray, Xt: np.ndarray) -> np.ndarray:
-    """Hessian ``(k^2, k^2)`` of ``sum_f ||C X_t(f) - X_s(f) C||^2 / 2`` in column-major
-    ``vec(C)``: ``sum_f (X_t X_t^T kron I + I kron X_s^T X_s - X_t kron X_s^T - X_t^T kron X_s)``."""
-    d, k, _ = Xs.shape
-    kk = k * k
-    eye = np.eye(k)
+    """Hessian ``(ks kt, ks kt)`` of ``sum_f ||C X_t(f) - X_s(f) C||^2 / 2`` in column-major ``vec(C)`` of a
+    ``(ks, kt)`` map, for operators ``Xs`` ``(d, ks, ks)`` and ``Xt`` ``(d, kt, kt)``:
+    ``sum_f (X_t X_t^T kron I + I kron X_s^T X_s - X_t kron X_s - X_t^T kron X_s^T)``."""
+    d, ks, _ = Xs.shape
+    kt = Xt.shape[1]
+    kk = ks * kt
     XtXt = np.tensordot(Xt, Xt, axes=([0, 2], [0, 2]))
     XsXs = np.tensordot(Xs, Xs, axes=([0, 1], [0, 1]))
-    cross = (Xt.reshape(d, kk).T @ Xs.reshape(d, kk)).reshape(k, k, k, k).transpose(0, 2, 1, 3).reshape(kk, kk)
-    return np.kron(XtXt, eye) + np.kron(eye, XsXs) - cross - cross.T
+    cross = (Xt.reshape(d, kt * kt).T @ Xs.reshape(d, ks * ks)).reshape(kt, kt, ks, ks)
+    cross = cross.transpose(0, 2, 1, 3).reshape(kk, kk)
+    return np.kron(XtXt, np.eye(ks)) + np.kron(np.eye(kt), XsXs) - cross - cross.T
 
 
 def fit_functional_map(
@@ -149,22 +151,27 @@ def fit_functional_map(
     w_orient: float = 1.0,
     orient_src: np.ndarray | None = None,
     orient_tgt: np.ndarray | None = None,
+    k_target: int | None = None,
+    eval_scale: float = 1.0,
 ) -> np.ndarray:
-    """The ``(k, k)`` functional map ``C_ts`` (target functions -> source functions) minimizing
-    ``w_descr ||C A_t - A_s||^2 + w_lap ||C L_t - L_s C||^2 + w_dcomm sum_f ||C X_t(f) - X_s(f) C||^2
-    + w_orient sum_f ||C O_t(f) - O_s(f) C||^2``, each term divided by its size at ``C = 0`` or
-    ``C = I`` so the weights are relative; solved exactly through its normal equations."""
+    """The ``(k, kt)`` functional map ``C_ts`` (target functions -> source functions; ``kt = k_target``,
+    default ``k``) minimizing ``w_descr ||C A_t - A_s||^2 + w_lap ||C L_t - L_s C||^2 + w_dcomm sum_f
+    ||C X_t(f) - X_s(f) C||^2 + w_orient sum_f ||C O_t(f) - O_s(f) C||^2``, each term divided by its size at
+    ``C = 0`` or ``C = I`` so the weights are relative; solved exactly through its normal equations.
+    ``eval_scale`` multiplies the source eigenvalues into the target's units (a part of the target:
+    ``area_t / area_s``, see :func:`~shape_toolkit.features.basis.slanted_size`)."""
+    kt = k if k_target is None else int(k_target)
     A_s = src.project(desc_src, k)
-    A_t = tgt.project(desc_tgt, k)
-    kk = k * k
+    A_t = tgt.project(desc_tgt, kt)
+    kk = k * kt
     H = np.zeros((kk, kk))
     # descriptor preservation: vec(C A_t) = (A_t^T kron I) vec(C)   (column-major vec)
     sd = max(float((A_s**2).sum()), 1e-300)
     H += w_descr / sd * np.kron(A_t @ A_t.T, np.eye(k))
     rhs = w_descr / sd * (A_s @ A_t.T).ravel(order="F")
     # Laplacian commutativity: diagonal (lambda_s,i - lambda_t,j)^2 on C_ij
-    ls, lt = src.evals[:k], tgt.evals[:k]
-    D = (ls[:, None] - lt[None, :]) ** 2  # (k, k) indexed [i, j]
+    ls, lt = src.evals[:k] * float(eval_scale), tgt.evals[:kt]
+    D = (ls[:, None] - lt[None, :]) ** 2  # (k, kt) indexed [i, j]
     sl = max(float((ls**2).sum()), 1e-300)
     H[np.diag_indices(kk)] += w_lap / sl * D.ravel(order="F")
 
@@ -175,13 +182,13 @@ def fit_functional_map(
         H[:] += w / scale * _commutativity_hessian(Xs, Xt)
 
     if w_dcomm > 0:
-        Xs, Xt = multiplication_operators(src, k, desc_src), multiplication_operators(tgt, k, desc_tgt)
+        Xs, Xt = multiplication_operators(src, k, desc_src), multiplication_operators(tgt, kt, desc_tgt)
         add_commutativity(Xs, Xt, w_dcomm)
     if w_orient > 0 and orient_src is not None and orient_tgt is not None:
-        add_commutativity(orient_src[:, :k, :k], orient_tgt[:, :k, :k], w_orient)
+        add_commutativity(orient_src[:, :k, :k], orient_tgt[:, :kt, :kt], w_orient)
     H[np.diag_indices(kk)] += 1e-9 * np.trace(H) / kk
     c = np.linalg.solve(H, rhs)
-    return c.reshape(k, k, order="F")
+    return c.reshape(k, kt, order="F")
 
 
 def wave_kernel_signature(
@@ -197,6 +204,41 @@ def wave_kernel_signature(
         vals, U = vals[:K], U[:, :K]
     return _wks(vals, U, n_energies, variance)
 
+
+def part_wave_kernel_signatures(
+    part: Spectrum, whole: Spectrum, scale: float, n_energies: int = 100, variance: float = 7.0, band: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """WKS of a part ``(n_part, n_energies)`` and of the whole shape ``(n_whole, n_energies)`` at the same
+    energies. A part has fewer eigenvalues below a frequency, so per-shape energy ranges would not line up: the
+    eigenvalues are taken in common units (each area-normalized, the part's times ``scale = area_whole /
+    area_part``); the part keeps its first ``round(band * K)`` non-null eigenpairs (at least
+    ``PART_WKS_LOWEST + 2``) and the whole its eigenpairs up to the same frequency. The energies start at the
+    part's ``PART_WKS_LOWEST``-th non-null eigenvalue: the cut changes the lowest eigenfunctions over the whole
+    part, the higher ones mostly near the cut."""
+    vp, Up = spectral_basis(part)
+    vw, Uw = spectral_basis(whole)
+    vp = vp * float(np.sum(part.mass) if part.mass is not None else part.n_vertices) * float(scale)
+    vw = vw * float(np.sum(whole.mass) if whole.mass is not None else whole.n_vertices)
+    low = min(PART_WKS_LOWEST, vp.size - 2)
+    if band < 1.0:
+        K = max(low + 2, int(round(band * vp.size)))
+        vp, Up = vp[:K], Up[:, :K]
+    keep = vw <= vp[-1] * (1 + 1e-9)
+    if keep.sum() >= 2:
+        vw, Uw = vw[keep], Uw[:, keep]
+    rng = (float(np.log(max(vp[low], vw[0]))), float(np.log(min(vp[-1], vw[-1]))))
+    return _wks(vp, Up, n_energies, variance, rng), _wks(vw, Uw, n_energies, variance, rng)
+
+
+#: the part's WKS energies start at its non-null eigenvalue of this index (0: the first). Chosen on the tuning
+#: half only (TOSCA dogs, FAUST people 0-1; 6 pairs with 30% cut away, true area ratio): mean error 0.24 with 0,
+#: 0.19 with 10, 0.22 with 20 (benchmarks/results/partial_matching_notes.md)
+PART_WKS_LOWEST = 10
+
+
+#: a part whose area exceeds the whole's by more than this factor is refused (the units differ): two poses of
+#: one body differ in area by a few percent, two people by some 10 to 20 percent
+MAX_PART_AREA_RATIO = 1.5
 
 #: the keys a hypothesis of :class:`FmapZoomOutMatcher` may override
 HYPOTHESIS_KEYS = frozenset({"k", "band", "w_descr", "w_lap", "w_dcomm", "w_orient"})
@@ -229,6 +271,17 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     :data:`DEFAULT_HYPOTHESES`; ``[{}]``: a single fit. Why: which pairs come out with a part swapped
     depends on the fit's basis size, orientation weight and band, while the refined map's residual tells
     a swapped map from a sound one. ``band`` applies to the default WKS only.
+
+    ``partial``: the source is a part of the target (a scan seeing one side, a region cut away). The functional
+    maps are then rectangular: the target basis spans the frequencies of the source's
+    (:func:`~shape_toolkit.features.basis.slanted_size`; Rodola et al. 2017's slanted diagonal, ZoomOut's partial
+    variant), the WKS of both shapes share their energies (:func:`part_wave_kernel_signatures`) and the
+    Laplacian term compares eigenvalues in common units. The part's share of the whole's area is
+    ``area_ratio``, or, by default, the ratio of the two shapes' areas (their spectra's mass: the shapes must be
+    in the same units; a part more than :data:`MAX_PART_AREA_RATIO` times the whole's area is refused, a ratio
+    above 1 is taken as 1). The declared spectrum is twice as large, so a part down to half the target's area
+    is covered; a smaller part is matched on a target basis truncated there (``info["target_basis_truncated"]``).
+    A part in several pieces is refused by its spectrum (``DisconnectedGraphError``, naming the ways out).
     """
 
     presets = {
@@ -254,6 +307,9 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         "seed_time": Param(POSITIVE, doc="time of the heat-kernel descriptor of each seed pair"),
         "hypotheses": Param(None, ListOf(InstanceOf(dict, name="mapping")), doc="fits tried (None: the default set)"),
         "selection_samples": Param(Interval(int, 10), doc="samples of the residual choosing a hypothesis"),
+        "partial": Param(bool, doc="the source is a part of the target, in the same units (rectangular maps)"),
+        "area_ratio": Param(None, Interval(float, 0, 1, closed="right"),
+                            doc="area of the part over the whole's (None: from the shapes' areas; partial only)"),
     }
 
     def __init__(
@@ -273,6 +329,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         seed_time: float = 0.01,
         hypotheses: tuple[dict, ...] | list[dict] | None = None,
         selection_samples: int = 500,
+        partial: bool = False,
+        area_ratio: float | None = None,
     ):
         self.k = k
         self.descriptor = descriptor
@@ -289,6 +347,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         self.seed_time = seed_time
         self.hypotheses = hypotheses
         self.selection_samples = selection_samples
+        self.partial = partial
+        self.area_ratio = area_ratio
 
     def _check(self) -> None:
         self._validate_params()
@@ -311,6 +371,26 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 f"descriptor_params of the built-in WKS take n_energies and variance, got {sorted(dp)}"
             )
 
+        if self.area_ratio is not None and not self.partial:
+            raise ParameterError("area_ratio is the part's share of the whole's area: it needs partial = True")
+
+    def _area_scale(self, spec_s: Spectrum, spec_t: Spectrum) -> float:
+        """``area_t / area_s``: the whole's area over the part's (at least 1), from ``area_ratio`` or from the
+        two spectra's total mass (the shapes' areas, in their common units)."""
+        if self.area_ratio is not None:
+            return 1.0 / float(self.area_ratio)
+        if spec_s.mass is None or spec_t.mass is None:
+            raise ParameterError("partial matching estimates the part's share of the area from the spectra's "
+                                 "mass; these have none: pass area_ratio")
+        ratio = float(np.sum(spec_s.mass)) / float(np.sum(spec_t.mass))
+        if not np.isfinite(ratio) or ratio <= 0:
+            raise ParameterError(f"partial: the part's area over the whole's is {ratio!r}")
+        if ratio > MAX_PART_AREA_RATIO:
+            raise ParameterError(
+                f"partial: the part's area is {ratio:.2f}x the whole's; the shapes are not in the same units (or "
+                f"the source is not a part of the target): pass area_ratio (the part's share of the whole's area)")
+        return 1.0 / min(ratio, 1.0)
+
     def _hypotheses(self) -> list[dict]:
         if self.hypotheses is None:  # the coarser fits at two thirds of this matcher's k (20 for 30)
             coarse = max(2, int(round(2 * self.k / 3))) if isinstance(self.k, (int, np.integer)) else self.k
@@ -323,8 +403,9 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         return int(self.k + self.zoomout_iters * self.zoomout_step)
 
     def spectrum_spec(self) -> SpectrumSpec:
-        """The Laplace-Beltrami spectrum with ``k + zoomout_iters * zoomout_step + 1`` eigenpairs."""
-        return default_spec(self._k_final() + 1)
+        """The Laplace-Beltrami spectrum with ``k + zoomout_iters * zoomout_step + 1`` eigenpairs (twice
+        as many when ``partial``)."""
+        return default_spec((2 if self.partial else 1) * self._k_final() + 1)
 
     def _descriptor_plugin(self):
         if self.descriptor is None:  # computed by wave_kernel_signature on this matcher's own spectrum
@@ -366,15 +447,21 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         spec_t = self._spectrum(target, target_spectrum)
         # a self-map (a shape's symmetry) on one spectrum: every per-shape array is computed once
         same = source is target and spec_s is spec_t and source_descriptors is target_descriptors
+        scale = None  # target basis size = source basis size (two whole shapes)
+        if self.partial:
+            same = False
+            scale = self._area_scale(spec_s, spec_t)
         bs = basis_of(spec_s, k_final)
-        bt = bs if same else basis_of(spec_t, k_final)
+        bt = bs if same else basis_of(spec_t, None if self.partial else k_final)
         hyps = self._hypotheses()
         descs: dict[float | None, tuple[np.ndarray, np.ndarray]] = {}  # band -> descriptors of both shapes
         if (source_descriptors is None or target_descriptors is None) and self.descriptor is None:
             params = {"n_energies": 100, "variance": 7.0, **(self.descriptor_params or {})}
             for h in hyps:
                 band = float(h.get("band", 1.0))
-                if band not in descs:
+                if band not in descs and self.partial:
+                    descs[band] = part_wave_kernel_signatures(spec_s, spec_t, scale, **params, band=band)
+                elif band not in descs:
                     ws = wave_kernel_signature(spec_s, **params, band=band)
                     descs[band] = (ws, ws if same else wave_kernel_signature(spec_t, **params, band=band))
         elif source_descriptors is None or target_descriptors is None:
@@ -415,7 +502,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                     k_max = max(int(min(h.get("k", self.k), k_final)) for h in hyps)
                     Os = orientation_operators(cloud_surface(source), bs, k_max, ds)
                     # compress_descriptors mixes equal inputs into equal outputs
-                    Ot = Os if same else orientation_operators(cloud_surface(target), bt, k_max, dt)
+                    Ot = Os if same else orientation_operators(cloud_surface(target), bt,
+                                                               slanted_size(bs, bt, k_max, scale), dt)
                     if self.orientation == "reversing":
                         Ot = -Ot
                 prepared[band] = (ds, dt, Os, Ot)
@@ -429,7 +517,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 w["w_orient"] = 0.0
             if progress is not None:
                 progress(f"fmap-zoomout: functional map fit (k = {k0}, {ds.shape[1]} descriptor directions)")
-            return fit_functional_map(bs, bt, ds, dt, k0, **w, orient_src=Os, orient_tgt=Ot)
+            return fit_functional_map(bs, bt, ds, dt, k0, **w, orient_src=Os, orient_tgt=Ot,
+                                      k_target=slanted_size(bs, bt, k0, scale), eval_scale=scale or 1.0)
 
         # every source vertex queries, so each functional map is the exact projection of the point map;
         # the default samples no target either, as pyFM's README pipeline (notes: fmap_zoomout_notes.md)
@@ -438,19 +527,27 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
             cols = farthest_point_sampling(np.asarray(target.vertices), int(self.zoomout_samples))
         fits = [fit(h) for h in hyps]
         info: dict = {"k_final": k_final}
+        if scale is not None:
+            kt_final = slanted_size(bs, bt, k_final, scale)
+            info["partial"] = {"area_ratio": 1.0 / scale, "k_target_final": kt_final}
+            if kt_final == bt.k and bt.k < k_final * scale:
+                info["target_basis_truncated"] = (
+                    f"the target's {bt.k} eigenpairs span fewer frequencies than the source's {k_final}")
         if not meshes:
             info["orientation_term"] = "on the local surface of the point cloud(s) (core.surface.cloud_surface)"
         chosen = 0
         if len(fits) > 1:  # each refined on farthest-point source samples in steps twice as large
             rows = farthest_point_sampling(np.asarray(source.vertices), min(int(self.selection_samples),
                                                                             source.n_vertices))
-            chosen, residuals, start = zoomout_select(fits, bs, bt, k_final, 2 * self.zoomout_step, rows, cols)
+            chosen, residuals, start = zoomout_select(fits, bs, bt, k_final, 2 * self.zoomout_step, rows, cols,
+                                                      scale=scale)
             fits[chosen] = start
             info["hypotheses"] = {"tried": [dict(h) for h in hyps], "residuals": residuals, "chosen": chosen}
             if progress is not None:
                 progress(f"fmap-zoomout: hypothesis {chosen} {hyps[chosen]} chosen (residuals "
                          + ", ".join(f"{r:.3g}" for r in residuals) + ")")
-        C, T = zoomout(fits[chosen], bs, bt, k_final, self.zoomout_step, None, cols, progress=progress)
+        C, T = zoomout(fits[chosen], bs, bt, k_final, self.zoomout_step, None, cols, progress=progress,
+                       scale=scale)
         info["C"] = C
         return Correspondence(T, target.n_vertices, info=info)
 

@@ -1,0 +1,124 @@
+"""Partial shapes (issue 29, item 3): the slanted functional-map size against Weyl's law on a sphere and a
+hemisphere, a crop of a shape matched to the shape itself (the crop's back-map is the ground truth), and the bad
+inputs of the ``partial`` pipeline."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.data.corruptions import crop
+from shape_toolkit.data.generate import icosphere
+from shape_toolkit.errors import DisconnectedGraphError, InvalidShapeError, ParameterError
+from shape_toolkit.features.basis import Basis, basis_of, slanted_size
+from shape_toolkit.plugins.matching.dense.fmap_zoomout import FmapZoomOutMatcher
+from shape_toolkit.spectra import default_spec
+
+
+def _hemisphere(sphere: Shape) -> Shape:
+    """The faces of ``sphere`` with every vertex at z >= 0, unreferenced vertices dropped."""
+    keep = sphere.vertices[:, 2] >= -1e-9
+    f = sphere.faces[keep[sphere.faces].all(axis=1)]
+    used = np.unique(f)
+    remap = np.full(sphere.n_vertices, -1, dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    return Shape(sphere.vertices[used], remap[f])
+
+
+@pytest.fixture(scope="module")
+def sphere_and_hemisphere() -> tuple[Basis, Basis, float]:
+    s = icosphere(4)  # 2,562 vertices
+    h = _hemisphere(s)
+    return basis_of(default_spec(200).compute(s)), basis_of(default_spec(200).compute(h)), s.area / h.area
+
+
+@pytest.mark.parametrize("k, L", [(36, 7), (64, 10), (100, 13)])
+def test_slanted_size_counts_the_spheres_eigenvalues_below_the_hemispheres(sphere_and_hemisphere, k, L):
+    """Analytic spectra: the unit sphere's eigenvalues are l(l+1) with multiplicity 2l+1, the hemisphere's
+    (free boundary) l(l+1) with multiplicity l+1 (the modes even across the equator). The hemisphere's k-th
+    eigenvalue is l = L, so the sphere has (L+1)^2 eigenvalues up to it: about twice k (Weyl's law, area ratio
+    2, less a boundary term). ``slanted_size`` with the mesh areas' ratio finds that count on the meshes."""
+    whole, part, scale = sphere_and_hemisphere
+    assert abs(scale - 2.0) < 0.05
+    assert sum(l + 1 for l in range(L)) < k <= sum(l + 1 for l in range(L + 1))  # the part's k-th is l = L
+    kt = slanted_size(part, whole, k, scale)
+    assert abs(kt - (L + 1) ** 2) <= 2  # the discrete clusters spread a little
+    assert 1.7 * k < kt <= 2 * k
+
+
+def test_slanted_size_of_two_whole_shapes_is_k_and_stays_in_the_target_basis(sphere_and_hemisphere):
+    whole, part, _ = sphere_and_hemisphere
+    assert slanted_size(part, whole, 40, None) == 40
+    assert slanted_size(part, whole, 150, 2.0) == whole.k  # beyond the computed spectrum: truncated, not past it
+    # the same shape: at least k, at most the end of the k-th eigenvalue's cluster (l = 7: eigenvalues 50-64)
+    assert 50 <= slanted_size(whole, whole, 50, 1.0) <= 64
+
+
+@pytest.mark.slow
+def test_a_crop_matched_to_its_whole_shape_recovers_the_back_map(shared_data):
+    """TOSCA dog0 with 30% of its area cut away, matched to dog0 itself: the crop's back-map is the exact
+    answer. ``partial`` finds it to within about one edge on average; the whole-shape ``zoomout`` cannot (the
+    part's spectrum is not the whole's)."""
+    from shape_toolkit.io.mesh import load_shape
+    from shape_toolkit.metrics.correspondence import geodesic_errors
+
+    whole = load_shape(shared_data / "tosca5k" / "dog0.off")
+    part, back = crop(whole, strength=0.3, random_state=1, attempts=20)
+    assert 0.65 < part.area / whole.area < 0.75
+    sel = np.arange(0, part.n_vertices, 10)
+    err = {}
+    for partial in (False, True):
+        c = FmapZoomOutMatcher(partial=partial).match(part, whole)
+        err[partial] = float(geodesic_errors(whole, c.target_of, sel, back[sel], method="dijkstra").mean())
+        if partial:
+            assert abs(c.info["partial"]["area_ratio"] - part.area / whole.area) < 1e-9
+            assert c.info["partial"]["k_target_final"] > c.info["k_final"]
+    assert err[True] < 0.03  # measured 0.011 (sqrt(area) units)
+    assert err[False] > 5 * err[True]  # measured 0.46
+
+
+def test_partial_parameters_are_refused_in_one_line(sphere_and_hemisphere):
+    s = icosphere(2)
+    h = _hemisphere(s)
+    with pytest.raises(ParameterError, match="needs partial"):
+        FmapZoomOutMatcher(area_ratio=0.5).match(h, s)
+    for bad in (0.0, 1.5, -0.2):
+        with pytest.raises(ParameterError, match="area_ratio"):
+            FmapZoomOutMatcher(partial=True, area_ratio=bad).match(h, s)
+    # a "part" with 4x the whole's area: the units differ, and the message names the way out
+    big = Shape(h.vertices * 3.0, h.faces)
+    with pytest.raises(ParameterError, match="same units.*area_ratio"):
+        FmapZoomOutMatcher(partial=True, k=10, zoomout_iters=1).match(big, s)
+
+
+def test_a_part_in_two_pieces_is_refused_naming_the_ways_out():
+    """Two hemispheres far apart as one part: its spectrum mixes the pieces, so the pipeline refuses it with
+    the ways out (keep the largest piece) instead of matching nonsense."""
+    from shape_toolkit.pipeline import run_pipeline
+
+    s = icosphere(2)
+    h = _hemisphere(s)
+    two = Shape(np.vstack([h.vertices, h.vertices + [5.0, 0, 0]]), np.vstack([h.faces, h.faces + h.n_vertices]))
+    with pytest.raises(DisconnectedGraphError, match="keep-largest"):
+        run_pipeline("partial", two, s)
+
+
+def test_crop_attempts_retry_other_centres_deterministically():
+    """``attempts``: a seed whose first centre falls on a piece smaller than the cut gets the next centre of the
+    same draw; a seed whose first centre works gives the same crop whatever ``attempts``; attempts < 1 is
+    refused."""
+    a, b = icosphere(1), icosphere(2)  # a small sphere (42 vertices, 1% of the area) and a large one
+    shape = Shape(np.vstack([a.vertices, 10 * b.vertices + [30.0, 0, 0]]), np.vstack([a.faces, b.faces + a.n_vertices]))
+    first = [int(np.random.default_rng(rs).integers(shape.n_vertices)) for rs in range(40)]
+    failing = next(rs for rs in range(40) if first[rs] < a.n_vertices)  # a centre on the small sphere
+    working = next(rs for rs in range(40) if first[rs] >= a.n_vertices)
+    with pytest.raises(InvalidShapeError, match="random_state"):
+        crop(shape, strength=0.3, random_state=failing)
+    part, back = crop(shape, strength=0.3, random_state=failing, attempts=40)
+    assert back.min() >= a.n_vertices  # cut from the large sphere, kept in one piece
+    assert abs(shape.vertex_areas[back].sum() / shape.area - 0.7) <= 0.05  # the kept vertices hold 70% of it
+    np.testing.assert_array_equal(crop(shape, strength=0.3, random_state=working, attempts=40)[1],
+                                  crop(shape, strength=0.3, random_state=working)[1])
+    with pytest.raises(ParameterError, match="attempts"):
+        crop(shape, strength=0.3, attempts=0)
