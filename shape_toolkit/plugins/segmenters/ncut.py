@@ -8,9 +8,9 @@ graph's affinities drop across them.
    affinities of :func:`shape_toolkit.features.smoothing.concavity_weights`: about 1 across smooth
    parts, down to ``min_weight`` across sharp concave creases, ``sigma = concavity_scale`` times the
    mean angular distance (a multiple of the shape's own average, so the weights adapt to the
-   triangulation density and do not depend on the scale). Convex creases leave the affinity at 1
-   (``convex_factor = 0``, the default: Hoffman and Richards' minima rule, part boundaries lie along
-   concavities only, as in CSC's dual graph); Lai et al.'s ``0.2`` lets convex creases cost too.
+   triangulation density and do not depend on the scale). Convex creases cost ``convex_factor`` times
+   as much as concave ones (Lai et al.'s 0.2, the default); ``convex_factor = 0`` is Hoffman and
+   Richards' minima rule (boundaries along concavities only, as in CSC's dual graph).
 2. Recursive two-way normalized cuts (Shi and Malik 2000): for every current segment, the
    ``n_vectors`` first non-trivial generalized eigenvectors of its ``(D - W) v = lambda D v`` are
    swept (every threshold of each vector is a candidate cut; the best one is found exactly in one
@@ -34,11 +34,12 @@ half of the shared PSB meshes only (the former script's split by mesh; the ``con
 ``n_vectors`` grid is in ``benchmarks/results/psb_segmentation_notes.md``; without the floor,
 ``min_weight`` -> 0, the tuning-split error was 0.108 instead of 0.094: noise creases then cut a few
 faces off numerically);
-``convex_factor`` was Katz and Tal's / Lai et al.'s 0.2 until 2026-12-03; it is now 0, the minima rule
-itself (no constant fitted): on the tuning half of the runner's split by category (9 PSB categories, 24
-meshes) the mean over categories of the Rand index error went from 0.143 to 0.129, and on a stretched
-ellipsoid with one smooth bump (``tests/test_segmentation_parts.py``) 0.2 halves the body where 0 cuts
-the bump off (``benchmarks/results/psb_segmentation_notes.md``, "ncut and the minima rule").
+``convex_factor = 0.2`` is Katz and Tal's / Lai et al.'s value. The minima rule (0) was measured against it
+on 2026-12-03 (runner's split by category; ``benchmarks/results/psb_segmentation_notes.md``, "ncut and the
+minima rule") and not adopted: Rand index error 0.143 -> 0.129 on the tune half (-0.014 +- 0.009 per
+category), but 0.072 -> 0.077 on the report half (+0.005 +- 0.007), i.e. no gain shown on held-out
+categories. On a long ellipsoid with one smooth bump, 0.2 halves the body where 0 cuts the bump off
+(``tests/test_segmentation_parts.py``).
 """
 
 from __future__ import annotations
@@ -87,7 +88,7 @@ class NormalizedCutSegmenter(BaseSegmenter):
         n_segments: int | None = None,
         *,
         concavity_scale: float = 5.0,
-        convex_factor: float = 0.0,
+        convex_factor: float = 0.2,
         min_weight: float = 1e-3,
         n_vectors: int = 3,
         min_fraction: float = 1e-3,
