@@ -8,7 +8,9 @@ graph's affinities drop across them.
    affinities of :func:`shape_toolkit.features.smoothing.concavity_weights`: about 1 across smooth
    parts, down to ``min_weight`` across sharp concave creases, ``sigma = concavity_scale`` times the
    mean angular distance (a multiple of the shape's own average, so the weights adapt to the
-   triangulation density and do not depend on the scale).
+   triangulation density and do not depend on the scale). Convex creases cost ``convex_factor`` times
+   as much as concave ones (Lai et al.'s 0.2, the default); ``convex_factor = 0`` is Hoffman and
+   Richards' minima rule (boundaries along concavities only, as in CSC's dual graph).
 2. Recursive two-way normalized cuts (Shi and Malik 2000): for every current segment, the
    ``n_vectors`` first non-trivial generalized eigenvectors of its ``(D - W) v = lambda D v`` are
    swept (every threshold of each vector is a candidate cut; the best one is found exactly in one
@@ -32,7 +34,12 @@ half of the shared PSB meshes only (the former script's split by mesh; the ``con
 ``n_vectors`` grid is in ``benchmarks/results/psb_segmentation_notes.md``; without the floor,
 ``min_weight`` -> 0, the tuning-split error was 0.108 instead of 0.094: noise creases then cut a few
 faces off numerically);
-``convex_factor = 0.2`` is Katz and Tal's / Lai et al.'s value.
+``convex_factor = 0.2`` is Katz and Tal's / Lai et al.'s value. The minima rule (0) was measured against it
+on 2026-12-03 (runner's split by category; ``benchmarks/results/psb_segmentation_notes.md``, "ncut and the
+minima rule") and not adopted: Rand index error 0.143 -> 0.129 on the tune half (-0.014 +- 0.009 per
+category), but 0.072 -> 0.077 on the report half (+0.005 +- 0.007), i.e. no gain shown on held-out
+categories. On a long ellipsoid with one smooth bump, 0.2 halves the body where 0 cuts the bump off
+(``tests/test_segmentation_parts.py``).
 """
 
 from __future__ import annotations
