@@ -279,3 +279,40 @@ def test_rows_a_changed_config_left_behind_are_not_reported_or_compared(config_p
     page = Path(res["html"]).read_text()
     assert "6 rows in this folder come from an earlier config" in page and "Task seg" not in page
     assert {c.task for c in compare_runs(run, run).changes} == {"spectrum"}
+
+
+#: a run folder written by an earlier version (commit 00bddc7): results.jsonl of tests/data/resume_run/bench.toml
+#: (spectrum rows with an eigensolver peer and a corruption, a segmentation row with item parameters, a
+#: matching row)
+RESUME_RUN = Path(__file__).parent / "data" / "resume_run"
+#: what a row measures (timings, memory, versions, scores): the rest of a row is its identity and format
+MEASURED = ("seconds", "cpu_seconds", "peak_memory_mb", "metrics", "spectrum_seconds", "spectrum_cache_hit",
+            "metric_seconds", "total_seconds", "versions", "worker", "blas_threads")
+
+
+def test_a_run_folder_of_an_earlier_version_resumes_with_no_recomputation(tmp_path):
+    """The row keys and the row format hold across versions: an earlier run folder is resumed with
+    every row reused and its results file untouched, and a row written now is byte-identical to the
+    stored one but for what it measures."""
+    import shutil
+
+    from shape_toolkit.validation import dumps_json
+
+    cfg = load_config(RESUME_RUN / "bench.toml")
+    stored = (RESUME_RUN / "results.jsonl").read_bytes()
+    run = tmp_path / "old"
+    run.mkdir()
+    shutil.copyfile(RESUME_RUN / "results.jsonl", run / "results.jsonl")
+    s = run_benchmark(cfg, run, progress=False)
+    assert (s.rows, s.reused, s.planned, s.failed) == (0, 6, 6, 0)
+    assert (run / "results.jsonl").read_bytes() == stored
+
+    new = tmp_path / "new"
+    assert run_benchmark(cfg, new, progress=False).failed == 0
+    old_lines = {json.loads(line)["key"]: line for line in stored.decode().splitlines()}
+    rows = read_rows(new)
+    assert sorted(r["key"] for r in rows) == sorted(old_lines)
+    for r in rows:
+        old = json.loads(old_lines[r["key"]])
+        assert list(r) == list(old)
+        assert dumps_json({k: old[k] if k in MEASURED else v for k, v in r.items()}) == old_lines[r["key"]]

@@ -104,6 +104,32 @@ def test_evaluate_segmentation_suggests_faces(pose, capsys):
     assert code == 0 and "lower is better" in out
 
 
+#: every command reading a labels file, as ``argv(folder, labels file, out folder)``
+LABEL_READERS = {
+    "evaluate-segmentation": lambda d, lab, o: ["evaluate-segmentation", d / "a.off", lab, "--truth", d / "a.seg"],
+    "constraints": lambda d, lab, o: ["constraints", d / "a.off", lab, "-o", o / "c.json"],
+    "transfer-labels": lambda d, lab, o: ["transfer-labels", d / "a.off", lab, d / "b.off", "-o", o / "t.txt"],
+    "view": lambda d, lab, o: ["view", d / "a.off", "--labels", lab, "--png", o / "v.png"],
+}
+
+
+@pytest.mark.parametrize("command", sorted(LABEL_READERS))
+def test_a_label_count_of_the_other_kind_names_the_flag_the_same_way_everywhere(pose, capsys, tmp_path, command):
+    """One rule checks a labels file's count (cli.commands._common.read_labels_as_given): per-face labels
+    without --faces, or per-vertex labels with it, are one line and exit 2 naming the flag, worded alike in
+    every command."""
+    d, a, _ = pose
+    n, f = a.shape.n_vertices, a.shape.n_faces
+    argv = LABEL_READERS[command]
+    code, out, err = run_cli(capsys, *argv(d, d / "a.seg", tmp_path))
+    assert (code, out, len(err.strip().splitlines())) == (2, "", 1), err
+    assert f"has {f} labels, expected one per vertex ({n}) (one per face, PSB .seg: add --faces)" in err
+    code, out, err = run_cli(capsys, *argv(d, d / "a.labels.txt", tmp_path), "--faces")
+    assert (code, out, len(err.strip().splitlines())) == (2, "", 1), err
+    assert f"has {n} labels, expected one per face ({f}) (one per vertex: drop --faces)" in err
+    assert not any(tmp_path.iterdir())
+
+
 def test_evaluate_map_prints_symmetric(pose, capsys, tmp_path):
     d, a, _ = pose
     n = a.shape.n_vertices

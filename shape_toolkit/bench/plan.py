@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from shape_toolkit.bench.config import BenchConfig, MethodSpec, TaskSpec
+from shape_toolkit.bench.store import RowIdentity
 from shape_toolkit.data.datasets import item_group
 from shape_toolkit.spectra import SpectrumSpec, merge_specs
 from shape_toolkit.validation import dumps_json
@@ -64,35 +65,17 @@ class PrepareJob:
 
 
 @dataclass
-class Job:
-    """One row to compute. ``plugin`` is the registry name (a pipeline's name for pipelines),
-    ``method_label`` the display name, ``task_kind`` the adapter and ``task_name`` the config's
-    task; ``subject_spectrum`` is set for the spectrum task only (the spectrum *is* the result);
+class Job(RowIdentity):
+    """One row to compute: the identity its row will carry (:class:`RowIdentity`: ``plugin`` the
+    registry name, a pipeline's name for pipelines, ``method_label`` the display name,
+    ``task_kind`` the adapter and ``task_name`` the config's task) and what computing it needs:
+    ``subject_spectrum`` is set for the spectrum task only (the spectrum *is* the result);
     ``item_specs`` are the merged spectra the prepare stage computed for the item; ``item_params``
     the parameters set per item (``n_segments = "human-mode"``: the humans' count), given to the method
     on top of ``params``; ``category`` the item's group (:func:`shape_toolkit.data.datasets.item_group`)."""
 
-    key: str
-    prepare_key: str
     run_dir: str
-    run_name: str
-    task_name: str
-    task_kind: str
-    dataset: str
-    item: str
-    plugin: str
-    family: str
-    preset: str | None
-    params: dict[str, Any]
-    method_label: str
     keypoints: dict[str, Any] | None
-    corruption: str
-    corruption_kind: str
-    corruption_group: str
-    corruption_params: dict[str, Any]
-    strength: float | None
-    random_state: int
-    corruption_seed: int
     metrics: tuple[str, ...]
     options: dict[str, Any]
     subject_spectrum: SpectrumSpec | None = None

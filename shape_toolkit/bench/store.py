@@ -18,7 +18,7 @@ import os
 import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,7 @@ __all__ = [
     "LOCK",
     "BenchWarning",
     "RunFolderError",
+    "RowIdentity",
     "Row",
     "read_rows",
     "write_planned",
@@ -112,14 +113,13 @@ def safe_name(name: str, limit: int = 80) -> str:
 # rows
 # --------------------------------------------------------------------------------------------
 @dataclass
-class Row:
-    """One result row: the identity of the run (task, dataset item, method, corruption) and what
-    the method did. Field names have one meaning each: ``task_kind`` is the adapter (spectrum,
-    keypoints, segmentation, matching), ``task_name`` the config's name for the task; ``plugin``
-    the registry name (or pipeline name), ``method_label`` the display name; ``spectra`` lists the
-    spectra the method received (:meth:`SpectrumSpec.to_dict`), nothing else; ``category`` is the
-    item's group (PSB category, animal, subject; None when the dataset has none) and ``item_params``
-    the parameters set for this item on top of ``params`` (e.g. ``n_segments`` from the humans)."""
+class RowIdentity:
+    """What a result row and the job that computes it share: the row's identity (run, task, dataset
+    item, method, corruption, seeds) and the key hashed from it. Field names have one meaning each:
+    ``task_kind`` is the adapter (spectrum, keypoints, segmentation, matching), ``task_name`` the
+    config's name for the task; ``plugin`` the registry name (or pipeline name), ``method_label`` the
+    display name; ``prepare_key`` the key of the (item, corruption)'s shared prepare job. The field
+    order is the order of a stored row's first keys (the row format): append, never reorder."""
 
     key: str
     run_name: str
@@ -140,6 +140,20 @@ class Row:
     random_state: int
     corruption_seed: int
     prepare_key: str
+
+    def identity(self) -> dict[str, Any]:
+        """The :class:`RowIdentity` fields of this object (a job's or a row's), by name."""
+        return {f.name: getattr(self, f.name) for f in fields(RowIdentity)}
+
+
+@dataclass
+class Row(RowIdentity):
+    """One result row: its identity (:class:`RowIdentity`) and what the method did. ``spectra``
+    lists the spectra the method received (:meth:`SpectrumSpec.to_dict`), nothing else;
+    ``category`` is the item's group (PSB category, animal, subject; None when the dataset has
+    none) and ``item_params`` the parameters set for this item on top of ``params`` (e.g.
+    ``n_segments`` from the humans)."""
+
     status: str = "ok"
     error: str | None = None
     seconds: float | None = None

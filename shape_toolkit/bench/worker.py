@@ -348,29 +348,7 @@ def _load_prepared(job: Job, pinfo: dict | None):
 
 
 def _new_row(job: Job) -> Row:
-    return Row(
-        key=job.key,
-        run_name=job.run_name,
-        task_name=job.task_name,
-        task_kind=job.task_kind,
-        dataset=job.dataset,
-        item=job.item,
-        plugin=job.plugin,
-        family=job.family,
-        method_label=job.method_label,
-        preset=job.preset,
-        params=job.params,
-        corruption=job.corruption,
-        corruption_kind=job.corruption_kind,
-        corruption_group=job.corruption_group,
-        corruption_params=job.corruption_params,
-        strength=job.strength,
-        random_state=job.random_state,
-        corruption_seed=job.corruption_seed,
-        prepare_key=job.prepare_key,
-        category=job.category,
-        item_params=dict(job.item_params),
-    )
+    return Row(**job.identity(), category=job.category, item_params=dict(job.item_params))
 
 
 def lost_row(job: Job, exc: BaseException) -> dict[str, Any]:

@@ -410,14 +410,11 @@ def status(args: argparse.Namespace, message: str) -> _Status:
     return _Status(message, progress_enabled(args))
 
 
-def read_labels_arg(
+def read_labels_as_given(
     path: str | os.PathLike, shape: Any, faces: bool, option: str = "labels"
 ) -> np.ndarray:
-    """Per-vertex labels ``(n_vertices,)`` int64 from a file of one label per vertex, or per face
-    with ``faces`` (PSB ``.seg``; converted by face-area majority). A count that fits the other
-    kind is reported with the flag to use."""
-    from shape_toolkit.results.labels import face_to_vertex_labels
-
+    """Labels int64 as the file holds them: ``(n_faces,)`` with ``faces`` (PSB ``.seg``), else
+    ``(n_vertices,)``. A count that fits the other kind is reported with the flag to use."""
     labels = read_labels_file(path)
     n_f = shape.n_faces if shape.is_mesh else 0
     if faces:
@@ -425,10 +422,23 @@ def read_labels_arg(
         if len(labels) != n_f:
             hint = " (one per vertex: drop --faces)" if len(labels) == shape.n_vertices else ""
             raise ShapeFileError(path, f"has {len(labels)} labels, expected one per face ({n_f}){hint}")
-        return face_to_vertex_labels(shape.faces, labels, shape.n_vertices, shape.face_areas)
-    if len(labels) != shape.n_vertices:
+    elif len(labels) != shape.n_vertices:
         hint = " (one per face, PSB .seg: add --faces)" if n_f and len(labels) == n_f else ""
         raise ShapeFileError(path, f"has {len(labels)} labels, expected one per vertex ({shape.n_vertices}){hint}")
+    return labels
+
+
+def read_labels_arg(
+    path: str | os.PathLike, shape: Any, faces: bool, option: str = "labels"
+) -> np.ndarray:
+    """Per-vertex labels ``(n_vertices,)`` int64 from a file of one label per vertex, or per face
+    with ``faces`` (PSB ``.seg``; converted by face-area majority), checked by
+    :func:`read_labels_as_given`."""
+    from shape_toolkit.results.labels import face_to_vertex_labels
+
+    labels = read_labels_as_given(path, shape, faces, option)
+    if faces:
+        return face_to_vertex_labels(shape.faces, labels, shape.n_vertices, shape.face_areas)
     return labels
 
 

@@ -18,9 +18,9 @@ from shape_toolkit.cli.commands._common import (
     emit,
     positive_int_arg,
     random_state_arg,
-    read_labels_file,
+    read_labels_as_given,
 )
-from shape_toolkit.errors import ParameterError, ShapeFileError
+from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.results.labels import clicks_from_segmentation, save_constraints
 
@@ -51,14 +51,7 @@ def run(args: argparse.Namespace) -> int:
     check_distinct(out, args.shape, args.labels)
     shape = load_shape(args.shape)
     shape.require_faces("constraints")
-    labels = read_labels_file(args.labels)
-    expected = shape.n_faces if args.faces else shape.n_vertices
-    if len(labels) != expected:
-        other = shape.n_vertices if args.faces else shape.n_faces
-        hint = (" (one per vertex: drop --faces)" if args.faces else " (one per face: add --faces)") \
-            if len(labels) == other else ""
-        raise ShapeFileError(args.labels, f"has {len(labels)} labels, expected one per "
-                                          f"{'face' if args.faces else 'vertex'} ({expected}){hint}")
+    labels = read_labels_as_given(args.labels, shape, args.faces, "LABELS")
     try:
         cons = clicks_from_segmentation(
             shape, labels, n_must_per_segment=args.must_per_segment, n_cannot_per_boundary=args.cannot_per_boundary,

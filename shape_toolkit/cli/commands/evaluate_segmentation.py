@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shape_toolkit.cli.commands._common import print_json, read_labels_file
+from shape_toolkit.cli.commands._common import print_json, read_labels_as_given, read_labels_file
 from shape_toolkit.errors import ShapeFileError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.metrics.segmentation import SEGMENTATION_METRICS, segmentation_scores
@@ -62,18 +62,7 @@ def _face_labels(path: Path, shape, what: str) -> np.ndarray:
 def run(args: argparse.Namespace) -> int:
     shape = load_shape(args.shape)
     shape.require_faces("evaluate-segmentation")
-    pred = read_labels_file(args.prediction)
-    expected = shape.n_faces if args.faces else shape.n_vertices
-    if len(pred) != expected:
-        hint = ""
-        if not args.faces and len(pred) == shape.n_faces:
-            hint = " (it has one label per face: add --faces)"
-        elif args.faces and len(pred) == shape.n_vertices:
-            hint = " (it has one label per vertex: drop --faces)"
-        raise ShapeFileError(
-            args.prediction,
-            f"has {len(pred)} labels, expected one per {'face' if args.faces else 'vertex'} ({expected}){hint}",
-        )
+    pred = read_labels_as_given(args.prediction, shape, args.faces, "PRED")
     pred_faces = pred if args.faces else vertex_to_face_labels(shape.faces, pred)
     files = _truth_files(Path(args.truth))
     truths = [_face_labels(f, shape, "ground truth") for f in files]
