@@ -132,6 +132,7 @@ def test_extrinsic_matchers_also_run_in_the_frame_of_the_intrinsic_map(unequal_l
     cand = {c["matcher"]: c["residual"] for c in corr.info["candidates"]}
     assert cand["shell-alignment@frame"] < cand["shell-alignment"]
     assert _error(bt, corr.target_of) < 0.01
+    assert corr.info["chosen"].startswith("shell-alignment@frame") and corr.info["frame"].startswith("estimated")
     # the frame is a rotation of the source, whatever the target's: the same map up to the turn
     off = create_plugin("dense_matchers", "best-of", reframe=False, polish=0).match(a, bt)
     assert {c["matcher"] for c in off.info["candidates"]} == {"fmap-zoomout", "shell-alignment"}

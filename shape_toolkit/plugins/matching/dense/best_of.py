@@ -172,6 +172,9 @@ class BestOfMatcher(DenseMatcher):
                 corr = run(label, m, src)
                 if corr is None:
                     continue
+                if src is turned:  # its own info would say "given"
+                    corr = Correspondence(corr.target_of, corr.n_target, corr.confidence, corr.posteriors,
+                                          {**corr.info, "frame": "estimated (info['estimated_frame'])"})
                 consider(label, corr)
                 if bps is not None and np.all(np.asarray(corr.target_of) >= 0):
                     consider(f"{label}+zoomout", self._polished(corr, bps, bpt, seeds))
