@@ -479,3 +479,16 @@ def test_a_fixed_corruption_seed_draws_every_item_alike_and_is_validated(tmp_pat
         cfg["tasks"][0]["methods"] = [{"plugin": "spectral-clustering"}]
         parse_config(cfg)
     assert e.value.key.startswith("tasks[0].metrics") and "soft_label_transfer" in str(e.value)
+
+
+def test_the_soft_transfer_alone_gets_a_per_category_table():
+    """A run scoring only Algorithm 5's soft transfer (soft_label_transfer) still gets its per-category table."""
+    from shape_toolkit.bench.report import _category_grid
+
+    rows = [{"status": "ok", "category": c, "dataset": "d", "plugin": "eigvec-alignment", "method_label": "m",
+             "corruption": "none", "metrics": {"soft_label_recall": v, "soft_label_precision": 1.0}}
+            for c, v in [("cat", 0.5), ("cat", 1.0), ("wolf", 0.25)]]
+    g = _category_grid("t", rows)
+    assert g is not None and "soft_label_recall" in g.title
+    (_, cells), = g.rows
+    assert cells[0][0] == 0.75 and cells[1][0] == 0.25 and cells[2][0] == 0.5  # cat, wolf, mean of categories

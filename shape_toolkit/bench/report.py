@@ -632,7 +632,8 @@ class _Tables:
 
 
 #: the metric a per-category table shows, the first of these a task has
-_CATEGORY_METRICS = ("rand_index_error", "mean_geodesic_error", "label_recall", "repeatability@0.05")
+_CATEGORY_METRICS = ("rand_index_error", "mean_geodesic_error", "label_recall", "soft_label_recall",
+                     "repeatability@0.05")
 
 
 def _category_grid(task: str, rows: list[dict]) -> _Grid | None:
