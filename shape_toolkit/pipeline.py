@@ -22,7 +22,8 @@ A spec (dict, or a TOML file with the same layout)::
 Each stage takes ``plugin``, optional ``preset`` and ``params``. ``[orient]`` wraps the ``[refine]``
 registration (it restarts it from repaired maps), which then registers only; the orientation is set in
 ``[orient]``. Seeds given by the caller replace the keypoint and sparse stages, and decide the sides in
-``[orient]`` (its ``landmarks``). The result is a
+``[orient]`` (its ``landmarks``; without ``[orient]``, in the ``[refine]`` registration's own side check). The
+result is a
 :class:`Correspondence` whose ``info`` records the stages, their timings and the number of seeds.
 """
 
@@ -344,6 +345,8 @@ class Pipeline:
             info["seed_source"] = "given"
             if "orient" in plugins:  # the caller's seeds are right: they decide the sides where they reach
                 plugins["orient"].set_params(landmarks=seeds)
+            elif "refine" in plugins and "landmarks" in plugins["refine"].get_params(deep=False):
+                plugins["refine"].set_params(landmarks=seeds)  # its own side check, when it has one
         elif "sparse" in self.stages:
             det = plugins["keypoints"]
             kps = timed("keypoints", lambda: (det.detect(source, spectrum=src_spectra),

@@ -85,6 +85,10 @@ def test_caller_seeds_decide_the_sides_in_a_pipeline():
     ids = np.arange(0, A.n_vertices, 97)
     given = pipe.run(A, B, np.column_stack([ids, ids]), proxy=None)
     assert given.info["orientation_landmarks"] == len(ids)
+    # without an [orient] stage, the caller's seeds reach the [refine] registration's own side check
+    alone = Pipeline({"dense": "seed-growing", "refine": "em-registration"})
+    assert alone.run(A, B, np.column_stack([ids, ids]), proxy=None).info["orientation_landmarks"] == len(ids)
+    assert alone.plugins()["refine"].landmarks is None  # a fresh plugin per run: nothing carried over
     with pytest.raises(ParameterError, match="landmarks|seeds"):
         OrientationRepair(create_plugin("dense_matchers", "em-registration", orientation="none"),
                           landmarks=np.array([[0, B.n_vertices]])).match(A, B, seeds=np.column_stack([ids, ids]))

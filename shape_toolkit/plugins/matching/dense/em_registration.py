@@ -19,7 +19,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from shape_toolkit.api.interfaces import DenseMatcher, merge_specs
-from shape_toolkit.api.params import RANDOM_STATE, Interval, Options, Param
+from shape_toolkit.api.params import RANDOM_STATE, InstanceOf, Interval, Options, Param
 from shape_toolkit.core.geometry import nearest_neighbors
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
@@ -197,9 +197,8 @@ class EMRegistrationMatcher(DenseMatcher):
 
     EM cannot tell a map from its mirror image: unless ``orientation`` is ``"none"``, :meth:`match` runs inside
     :class:`~shape_toolkit.plugins.matching.dense.orientation_repair.OrientationRepair` (the pipelines'
-    ``[orient]`` stage), with the seeds as its landmarks when ``trust_seeds``. Measurements behind each choice:
-    ``benchmarks/results/em_registration_notes.md``.
-    """
+    ``[orient]`` stage) with ``landmarks`` (None: the seeds when ``trust_seeds``). Measurements: ``benchmarks/
+    results/em_registration_notes.md``."""
 
     presets = {"thesis": {"spectrum": "graph", "weighting": "gaussian", "scaling": "none", "dimension": "scree",
                           "k": 10, "threshold": 0.5, "fill_unmatched": False, "orientation": "none"},
@@ -221,6 +220,7 @@ class EMRegistrationMatcher(DenseMatcher):
         "orientation": ORIENTATION,
         "trust_seeds": Param(bool, doc="the seeds are right (a user's): they decide the sides; False: they only "
                              "start the registration (a pipeline's dense map)"),
+        "landmarks": Param(None, InstanceOf(np.ndarray, list, tuple), doc="right matches (q, 2) deciding the sides"),
         "k_final": Param(None, Interval(int, None, 200), doc="refine the map up to this many eigenvectors"),
         "refine_step": Param(POSITIVE_INT, doc="eigenvectors added per refinement step"),
         "max_samples": Param(None, POSITIVE_INT, doc="target points EM samples (None: all)"),
@@ -235,7 +235,7 @@ class EMRegistrationMatcher(DenseMatcher):
         weighting: str | None = None, scaling: str = "none", dimension: str = "fixed",
         dimension_threshold: float = 0.95, orientation: str = "preserving", k_final: int | None = None,
         refine_step: int = 4, max_samples: int | None = None, refine_samples: int | None = 5000,
-        polish_k: int | None = None, random_state: Any = 0, trust_seeds: bool = True,
+        polish_k: int | None = None, random_state: Any = 0, trust_seeds: bool = True, landmarks: Any = None,
     ):
         self.k = k
         self.outlier_weight = outlier_weight
@@ -257,7 +257,7 @@ class EMRegistrationMatcher(DenseMatcher):
         self.refine_samples = refine_samples
         self.polish_k = polish_k
         self.random_state = random_state
-        self.trust_seeds = trust_seeds
+        self.trust_seeds, self.landmarks = trust_seeds, landmarks
 
     def _check(self) -> None:
         self._validate_params()
@@ -443,7 +443,7 @@ class EMRegistrationMatcher(DenseMatcher):
         """Dense map source -> target with sparse posteriors (descriptors, ``n_times``, ``progress``: unused)."""
         self._check()
         if self.orientation != "none":
-            landmarks = seeds if self.trust_seeds else None
+            landmarks = self.landmarks if self.landmarks is not None else seeds if self.trust_seeds else None
             return OrientationRepair(self, self.orientation, landmarks).match(
                 source, target, seeds=seeds, source_spectrum=source_spectrum, target_spectrum=target_spectrum)
         emb, Q0, info = self.start(source, target, seeds, source_spectrum, target_spectrum)
