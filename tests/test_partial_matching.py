@@ -92,6 +92,22 @@ def test_partial_parameters_are_refused_in_one_line(sphere_and_hemisphere):
         FmapZoomOutMatcher(partial=True, k=10, zoomout_iters=1).match(big, s)
 
 
+def test_the_whole_given_as_the_part_is_matched_with_a_warning():
+    """Whole -> part within the unit tolerance (here the sphere -> its hemisphere scaled to the sphere's area) is
+    in range, but no part: it runs as two whole shapes and says the part must be the source."""
+    s = icosphere(2)
+    h = _hemisphere(s)
+    h_as_big = Shape(h.vertices * np.sqrt(s.area / h.area / 1.2), h.faces)  # the sphere is 1.2x its area
+    with pytest.warns(UserWarning, match="not smaller than the target.*part must be the source"):
+        corr = FmapZoomOutMatcher(partial=True, k=10, zoomout_iters=1).match(s, h_as_big)
+    assert corr.info["partial"]["area_ratio"] == 1.0
+    import warnings
+
+    with warnings.catch_warnings():  # the right way round: no warning
+        warnings.simplefilter("error")
+        FmapZoomOutMatcher(partial=True, k=10, zoomout_iters=1).match(h, s)
+
+
 def test_a_part_in_two_pieces_is_refused_naming_the_ways_out():
     """Two hemispheres far apart as one part: its spectrum mixes the pieces, so the pipeline refuses it with
     the ways out (keep the largest piece) instead of matching nonsense."""

@@ -13,6 +13,7 @@ ones dropped (:func:`compress_descriptors`).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 
 import numpy as np
@@ -389,6 +390,10 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
             raise ParameterError(
                 f"partial: the part's area is {ratio:.2f}x the whole's; the shapes are not in the same units (or "
                 f"the source is not a part of the target): pass area_ratio (the part's share of the whole's area)")
+        if ratio >= 1.0:  # in range, but no part: a whole given as the source, or shapes in other units
+            warnings.warn(f"partial: the source is not smaller than the target (area ratio {ratio:.2f}): matched as "
+                          "a part covering the whole target; the part must be the source (pass area_ratio if the "
+                          "shapes are in different units)", UserWarning, stacklevel=3)
         return 1.0 / min(ratio, 1.0)
 
     def _hypotheses(self) -> list[dict]:
