@@ -23,12 +23,14 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.data.corruptions import RESAMPLING, apply_corruption, carry_correspondence, carry_labels
 from shape_toolkit.data.datasets import DatasetItem
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec, merge_specs
 
 __all__ = [
@@ -817,8 +819,6 @@ def _m_soft_label_transfer(p, o, opt):
     :class:`~shape_toolkit.results.correspondence.Correspondence` (EM's posteriors; a map without
     posteriors, or a sparse or published one: its 0/1 matrix); a target vertex without mass stays
     unlabelled (no nearest-vertex filling, unlike ``label_transfer``) and counts against recall."""
-    from shape_toolkit.results.correspondence import Correspondence
-
     src, tgt = _labels_for(p, opt)
     corr = o.get("correspondence")
     if corr is None:
@@ -831,10 +831,6 @@ def _on_clean(prepared: Prepared, corr: Any, target_of: np.ndarray) -> Any:
     """A method's :class:`~shape_toolkit.results.correspondence.Correspondence` onto the corrupted target, read
     on the clean target of ``prepared`` (:func:`score_on_clean`): the map ``target_of`` (already composed) and
     the posteriors summed through the corruption's vertex map ``(n_source, n_clean)``; None stays None."""
-    import scipy.sparse as sp
-
-    from shape_toolkit.results.correspondence import Correspondence
-
     if corr is None or prepared.clean_target is None:
         return corr
     n = prepared.clean_target.n_vertices
@@ -878,8 +874,6 @@ def _kept(corr: Any) -> dict[str, Any]:
     """``{"correspondence": corr}`` when a method returned a
     :class:`~shape_toolkit.results.correspondence.Correspondence` (its posteriors score
     ``soft_label_transfer``; an object, so never saved with the row's arrays), else ``{}``."""
-    from shape_toolkit.results.correspondence import Correspondence
-
     return {"correspondence": corr} if isinstance(corr, Correspondence) else {}
 
 
