@@ -172,6 +172,18 @@ def test_farthest_point_sampling_matches_the_definition():
     assert len(set(got.tolist())) == 40
 
 
+def test_sample_weights_are_the_voronoi_cells_masses():
+    from shape_toolkit.core.geometry import sample_weights
+
+    rng = np.random.default_rng(4)
+    P, w = rng.standard_normal((500, 3)), rng.random(500)
+    samples = np.array([3, 77, 150, 420])
+    got = sample_weights(P, samples, w)
+    owner = np.argmin(((P[:, None, :] - P[samples][None]) ** 2).sum(axis=2), axis=1)  # brute force
+    np.testing.assert_allclose(got, [w[owner == j].sum() for j in range(len(samples))])
+    assert got.sum() == pytest.approx(w.sum())
+
+
 def test_fmap_zoomout_progress_messages(small_pair):
     A, B, _ = small_pair
     msgs: list[str] = []

@@ -159,6 +159,15 @@ def farthest_point_sampling(points: np.ndarray, n: int, start: int = 0) -> np.nd
     return idx
 
 
+def sample_weights(points: np.ndarray, samples: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Weight of each sample ``(m,)``: the sum of ``weights`` ``(N,)`` (e.g. vertex areas) over the points
+    ``(N, 3)`` nearest to it (its Euclidean Voronoi cell), so that sums over the samples approximate sums
+    over every point (the total is kept exactly)."""
+    P = np.asarray(points, dtype=np.float64)
+    owner = cKDTree(P[samples]).query(P)[1]
+    return np.bincount(owner, weights=np.asarray(weights, dtype=np.float64), minlength=len(samples))
+
+
 def nearest_neighbors(
     points: np.ndarray, queries: np.ndarray, k: int = 1, *, chunk: int | None = None,
     dtype: type = np.float64,

@@ -18,6 +18,13 @@ field in the same ``K`` eigenfunctions, ``P = X_K + Phi_K tau`` (``tau`` ``(K, 3
 
 The last map is taken between the full-resolution source deformed by ``tau`` and the target.
 
+The alternation sees ``samples`` farthest points of each shape (2,000 by default; every vertex below that),
+each weighted by the area of its Voronoi cell, so that the sums of the least squares and of ``C`` stay
+integrals over the surface. The nearest-neighbour searches, most of the cost, shrink by ``(n / samples)^2``:
+at 5k vertices 1.6-2.0 s -> 0.33-0.38 s CPU, with errors within +-0.008 of the every-vertex run on nine
+tuning pairs (gorillas to men, a dog pair, two FAUST pairs); the samples resolve eigenfunctions far beyond
+the 64 used.
+
 Frames. Extrinsic alignment needs the two shapes in a common frame (upright the same way, as scans of
 one capture set-up and the public datasets are): the method does not search rotations. A search scored
 by the alignment's own residual picked wrong rotations on the tuning pairs (the deformation fits any
@@ -32,7 +39,7 @@ import numpy as np
 
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.api.params import Interval, ListOf, Param
-from shape_toolkit.core.geometry import nearest_neighbors, vertex_normals
+from shape_toolkit.core.geometry import farthest_point_sampling, nearest_neighbors, sample_weights, vertex_normals
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
@@ -64,7 +71,8 @@ class ShellAlignmentMatcher(DenseMatcher):
     ``sqrt(area)``, eigenfunctions of a unit-area basis); ``beta``: weight of the shells' unit normals
     (they tell the front of a limb from its back; on the tuning pairs 0.05 to 0.3 all gave 0.213-0.219,
     none 0.246); ``mu``: damping of the displacement of
-    eigenfunction ``k`` by ``mu lambda_k^2``; ``iters``: alignment steps per resolution. Seeds ``(q, 2)``,
+    eigenfunction ``k`` by ``mu lambda_k^2``; ``iters``: alignment steps per resolution; ``samples``:
+    farthest points per shape the alignment sees (None: every vertex; module docstring). Seeds ``(q, 2)``,
     when given, are kept in the map and pull the deformation with the weight of the whole surface.
     """
 
@@ -76,6 +84,8 @@ class ShellAlignmentMatcher(DenseMatcher):
         "beta": Param(NON_NEGATIVE, doc="weight of the shells' unit normals"),
         "mu": Param(NON_NEGATIVE, doc="damping of eigenfunction k's displacement by mu lambda_k^2"),
         "iters": Param(POSITIVE_INT, doc="alignment steps per resolution"),
+        "samples": Param(None, POSITIVE_INT, doc="farthest-point samples per shape inside the alignment "
+                         "(None: every vertex)"),
     }
 
     def __init__(
@@ -85,12 +95,14 @@ class ShellAlignmentMatcher(DenseMatcher):
         beta: float = 0.15,
         mu: float = 1e-3,
         iters: int = 4,
+        samples: int | None = 2000,
     ):
         self.k_schedule = k_schedule
         self.alpha = alpha
         self.beta = beta
         self.mu = mu
         self.iters = iters
+        self.samples = samples
 
     def _check(self) -> tuple[int, ...]:
         ks = self.k_schedule
@@ -99,6 +111,16 @@ class ShellAlignmentMatcher(DenseMatcher):
                 or list(ks) != sorted(set(ks))):
             raise ParameterError(f"k_schedule must be increasing integers >= 2, got {ks!r}")
         return tuple(int(k) for k in ks)
+
+    def _sampled(self, shape: Shape, keep: np.ndarray | None) -> np.ndarray:
+        """Sorted vertex ids the alignment sees: ``samples`` farthest points and ``keep``, or every vertex."""
+        n = shape.n_vertices
+        if not self.samples or self.samples >= n:
+            return np.arange(n)
+        X = np.asarray(shape.vertices, dtype=np.float64)
+        start = int(np.argmax(((X - X.mean(axis=0)) ** 2).sum(axis=1)))  # whatever the vertex order
+        idx = farthest_point_sampling(X, int(self.samples), start=start)
+        return np.unique(idx if keep is None else np.concatenate([idx, keep]))
 
     def spectrum_spec(self) -> SpectrumSpec:
         """The Laplace-Beltrami spectrum with ``max(k_schedule) + 1`` eigenpairs."""
@@ -129,6 +151,12 @@ class ShellAlignmentMatcher(DenseMatcher):
         area_s = float(np.sum(spec_s.mass)) if spec_s.mass is not None else float(source.n_vertices)
         area_t = float(np.sum(spec_t.mass)) if spec_t.mass is not None else float(target.n_vertices)
         ms, mt = bs.mass, bt.mass
+        # the alignment sees farthest-point samples weighted by their Voronoi cells (seeds always among them)
+        rows = self._sampled(source, None if seeds is None else seeds[:, 0])
+        cols = self._sampled(target, None if seeds is None else seeds[:, 1])
+        wr = ms if len(rows) == source.n_vertices else sample_weights(source.vertices, rows, ms)
+        wc = mt if len(cols) == target.n_vertices else sample_weights(target.vertices, cols, mt)
+        seed_rows = None if seeds is None else np.searchsorted(rows, seeds[:, 0])
         tau = np.zeros((0, 3))
         C = None
         ws = 1.0 / len(seeds) if seeds is not None and len(seeds) else 0.0
@@ -138,28 +166,33 @@ class ShellAlignmentMatcher(DenseMatcher):
 
         for K in ks:
             Ps, Pt = bs.evecs[:, :K], bt.evecs[:, :K]
+            Psr, Ptc = Ps[rows], Pt[cols]
             Xs, Xt = shell_coordinates(source, bs, K, area_s), shell_coordinates(target, bt, K, area_t)
+            Xsr, Xtc = Xs[rows], Xt[cols]
             grown = np.zeros((K, 3))
             grown[: len(tau)] = tau[:K]
             tau = grown
             damp = self.mu * np.diag(bs.evals[:K] ** 2)
             use_normals = self.beta > 0 and source.is_mesh and target.is_mesh  # the shells' normals (front, back)
-            Nt = self.beta * vertex_normals(Xt, target.faces) if use_normals else None  # fixed at this K
+            Nt = self.beta * vertex_normals(Xt, target.faces)[cols] if use_normals else None  # fixed at this K
             for _ in range(int(self.iters)):
-                P = Xs + Ps @ tau
+                if use_normals:  # the normals need the whole deformed shell
+                    P = Xs + Ps @ tau
+                    Ns, P = self.beta * vertex_normals(P, source.faces)[rows], P[rows]
+                else:
+                    P = Xsr + Psr @ tau
                 if self.alpha > 0 and C is not None:
                     kc = min(K, C.shape[0])
-                    qs = np.hstack([P, self.alpha * Ps[:, :kc]])
-                    qt = np.hstack([Xt, self.alpha * Pt[:, :kc] @ C[:kc, :kc].T])
+                    qs = np.hstack([P, self.alpha * Psr[:, :kc]])
+                    qt = np.hstack([Xtc, self.alpha * Ptc[:, :kc] @ C[:kc, :kc].T])
                 else:
-                    qs, qt = P, Xt
+                    qs, qt = P, Xtc
                 if use_normals:
-                    qs = np.hstack([qs, self.beta * vertex_normals(P, source.faces)])
-                    qt = np.hstack([qt, Nt])
-                T, Tr = nn(qt, qs), nn(qs, qt)
+                    qs, qt = np.hstack([qs, Ns]), np.hstack([qt, Nt])
+                T, Tr = cols[nn(qt, qs)], rows[nn(qs, qt)]  # target vertex of each row, source vertex of each col
                 # least squares on both maps: source x -> T(x), and T'(y) -> target y
-                H = Ps.T @ (ms[:, None] * Ps) + Ps[Tr].T @ (mt[:, None] * Ps[Tr]) + damp
-                g = Ps.T @ (ms[:, None] * (Xt[T] - Xs)) + Ps[Tr].T @ (mt[:, None] * (Xt - Xs[Tr]))
+                H = Psr.T @ (wr[:, None] * Psr) + Ps[Tr].T @ (wc[:, None] * Ps[Tr]) + damp
+                g = Psr.T @ (wr[:, None] * (Xt[T] - Xsr)) + Ps[Tr].T @ (wc[:, None] * (Xtc - Xs[Tr]))
                 if ws:
                     a, b = seeds[:, 0], seeds[:, 1]
                     H += ws * Ps[a].T @ Ps[a]
@@ -167,8 +200,8 @@ class ShellAlignmentMatcher(DenseMatcher):
                 H[np.diag_indices(K)] += 1e-12 * np.trace(H) / K  # mu = 0 with too few distinct matches
                 tau = np.linalg.solve(H, g)
                 if seeds is not None:
-                    T[seeds[:, 0]] = seeds[:, 1]
-                C = Ps.T @ (ms[:, None] * Pt[T])
+                    T[seed_rows] = seeds[:, 1]
+                C = Psr.T @ (wr[:, None] * Pt[T])
             if progress is not None:
                 progress(f"shell-alignment: resolution {K} of {ks[-1]}")
         # the last map: the full-resolution source deformed by tau against the full-resolution target
