@@ -45,9 +45,9 @@ STAGES = {
     "zoomout": [
         ("spectra (both shapes)", "core/spectrum.py", "compute_spectrum"),
         ("WKS descriptors (both)", "plugins/descriptors/wks.py", "wave_kernel_signature"),
-        ("descriptor compression", "fmap_zoomout.py", "compress_descriptors"),
-        ("orientation operators (both)", "fmap_zoomout.py", "orientation_operators"),
-        ("functional map fit (incl. multiplication operators)", "fmap_zoomout.py", "fit_functional_map"),
+        ("descriptor compression", "features/basis.py", "compress_descriptors"),
+        ("orientation operators (both)", "features/basis.py", "orientation_operators"),
+        ("functional map fit (incl. multiplication operators)", "features/basis.py", "fit_functional_map"),
         ("farthest point samples (both)", "core/geometry.py", "farthest_point_sampling"),
         ("ZoomOut: point maps (nearest neighbours)", "features/basis.py", "_point_map"),
         ("ZoomOut: functional maps from point maps", "features/basis.py", "fmap_from_p2p"),

@@ -137,6 +137,14 @@ def test_no_import_cycle_counting_function_local_imports():
     assert not real, "import cycles:\n" + "\n".join(" -> ".join(c) for c in real)
 
 
+def test_no_plugin_module_exceeds_450_lines():
+    """Issue 26: a plugin module holds one plugin and what only it uses; shared concepts live in modules named
+    after them (features.basis holds the functional-map energy, for example)."""
+    long = {str(p.relative_to(PKG)): n for p in (PKG / "plugins").rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > 450}
+    assert not long, long
+
+
 def test_layers_only_import_downwards():
     graph = _graph()
     bad = []

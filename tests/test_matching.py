@@ -102,7 +102,7 @@ def test_fmap_operators_match_their_definitions(small_basis):
     import igl
 
     from shape_toolkit.core.geometry import outward_face_normals
-    from shape_toolkit.plugins.matching.dense import fmap_zoomout as fz
+    from shape_toolkit.features import basis as fz
 
     A, b, desc = small_basis
     k = 6
@@ -137,7 +137,7 @@ def test_fmap_operators_match_their_definitions(small_basis):
 def test_fmap_descriptor_compression_leaves_the_fit_unchanged(small_basis):
     """The energy sums over descriptor columns: one orthogonal mixing of the columns on both shapes
     changes nothing, and dropping the directions with a negligible share changes (almost) nothing."""
-    from shape_toolkit.plugins.matching.dense import fmap_zoomout as fz
+    from shape_toolkit.features import basis as fz
     from shape_toolkit.plugins.matching.descriptors import normalize_columns
 
     A, b, _ = small_basis

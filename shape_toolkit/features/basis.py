@@ -6,6 +6,14 @@
   with its projection and its low-pass filter.
 - functional maps ``C`` between two bases and point maps: :func:`fmap_from_p2p`, :func:`p2p_from_fmap`,
   ZoomOut's refinement (:func:`zoomout`, Melzi et al. 2019) and its residual (:func:`zoomout_residual`).
+- the functional-map energy (:func:`fit_functional_map`): descriptor preservation, Laplacian and descriptor
+  commutativity (:func:`multiplication_operators`) and the orientation term of Ren et al. 2018
+  (:func:`orientation_operators`: ``sum_f ||C O_t(f) - O_s(f) C||^2``, ``O(f) g = <n x grad f, grad g>`` with
+  outward normals, which changes sign under a reflection and so favours orientation-preserving maps). The
+  energy is quadratic in ``vec(C)``: its normal equations (Kronecker identities) are solved exactly as one
+  small dense SPD system. It is invariant under one orthogonal mixing of the descriptor columns of both
+  shapes, so the columns are first rotated onto their principal directions and the weak ones dropped
+  (:func:`compress_descriptors`).
 """
 
 from __future__ import annotations
@@ -15,13 +23,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shape_toolkit.core.geometry import nearest_neighbors
+from shape_toolkit.core.geometry import nearest_neighbors, outward_face_normals
+from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, null_count
 from shape_toolkit.errors import ParameterError
 
 __all__ = [
     "spectral_basis", "shifted_weights", "Basis", "basis_of", "normalized_spectrum", "fmap_from_p2p",
-    "p2p_from_fmap", "slanted_size", "zoomout", "zoomout_residual", "zoomout_select",
+    "p2p_from_fmap", "slanted_size", "zoomout", "zoomout_residual", "zoomout_select", "fit_functional_map",
+    "orientation_operators", "multiplication_operators", "compress_descriptors",
 ]
 
 
@@ -225,3 +235,151 @@ def zoomout_select(
     chosen = int(np.argmin(residuals))
     k_mid = (fits[chosen].shape[0] + k_final) // 2
     return chosen, residuals, refined[chosen][:k_mid, :slanted_size(src, tgt, k_mid, scale)]
+
+
+# -- the functional-map energy ------------------------------------------------------------------------
+def orientation_operators(
+    shape: Shape, basis: Basis, k: int, descriptors: np.ndarray
+) -> np.ndarray:
+    """Orientation operators ``(d, k, k)``: ``O(f)_ij = <phi_i, <n x grad f, grad phi_j>>_M`` for
+    each descriptor column ``f`` (Ren et al. 2018), with outward face normals."""
+    import igl
+
+    F = np.asarray(shape.faces)
+    m = F.shape[0]
+    G = igl.grad(np.asarray(shape.vertices, dtype=np.float64), F).tocsr()
+    N = outward_face_normals(shape)
+    # per-face area weights redistributed to the three corners (lumped, mass-normalized)
+    fa = np.asarray(shape.face_areas, dtype=np.float64)
+    total = float(fa.sum())
+    phi = basis.evecs[:, :k]
+    phi_face = (phi[F[:, 0]] + phi[F[:, 1]] + phi[F[:, 2]]) * (fa / (3.0 * total))[:, None]  # (m, k)
+    # <n x grad f, grad phi_j> = <grad f, grad phi_j x n>: rotate the k basis gradients once,
+    # Q_a = g_b n_c - g_c n_b with (a, b, c) cyclic, one gradient component g_b (m, k) at a time
+    Q = np.zeros((3, m, k))
+    for b in range(3):
+        g = G[b * m : (b + 1) * m] @ phi
+        Q[(b - 1) % 3] += g * N[:, (b + 1) % 3, None]
+        Q[(b + 1) % 3] -= g * N[:, (b - 1) % 3, None]
+    del g
+    d = descriptors.shape[1]
+    ops = np.empty((d, k, k))
+    # descriptors per block: the block's gradients (3, m, step) and Z (m, step, k), ~8 MB each (x 2
+    # temporaries); all gradients at once would be 3 m d values, 88 MB for d = 80 at 23k vertices
+    step = max(1, 1_000_000 // max(1, m * k))
+    for s in range(0, d, step):
+        e = min(d, s + step)
+        gf = (G @ descriptors[:, s:e]).reshape(3, m, e - s)
+        Z = gf[0][:, :, None] * Q[0][:, None, :]  # (m, e - s, k): sum_x grad_x f * Q_x
+        Z += gf[1][:, :, None] * Q[1][:, None, :]
+        Z += gf[2][:, :, None] * Q[2][:, None, :]
+        ops[s:e] = (phi_face.T @ Z.reshape(m, -1)).reshape(k, e - s, k).transpose(1, 0, 2)
+    # gradients carry 1/length: rescale to the unit-area normalization of the basis
+    return ops * total
+
+
+def multiplication_operators(basis: Basis, k: int, descriptors: np.ndarray) -> np.ndarray:
+    """Multiplication operators ``(d, k, k)``: ``X(f)_ij = <phi_i, f phi_j>_M`` for each descriptor
+    column ``f`` ``(n,)`` of ``descriptors`` ``(n, d)``: BLAS products over the upper triangle, in vertex blocks."""
+    phi = basis.evecs[:, :k]
+    iu, ju = np.triu_indices(k)
+    W = basis.mass[:, None] * descriptors
+    # the products phi_i phi_j are formed for a block of vertices at a time (<= 2**21 values, 16 MB):
+    # all at once they are n x k(k+1)/2, 86 MB for k = 30 at 23k vertices
+    step = max(1, 2**21 // len(iu))
+    vals = np.zeros((len(iu), descriptors.shape[1]))  # (k(k+1)/2, d)
+    for a in range(0, len(phi), step):
+        p = phi[a : a + step]
+        vals += (p[:, iu] * p[:, ju]).T @ W[a : a + step]
+    ops = np.empty((descriptors.shape[1], k, k))
+    ops[:, iu, ju] = vals.T
+    ops[:, ju, iu] = vals.T
+    return ops
+
+
+def compress_descriptors(
+    desc_src: np.ndarray, desc_tgt: np.ndarray, mass_src: np.ndarray, mass_tgt: np.ndarray,
+    rtol: float = 1e-10,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Both shapes' descriptors ``(n_s, d)``, ``(n_t, d)`` mixed by one orthogonal ``V`` ``(d, r)``:
+    the principal directions of the mass-weighted columns of both shapes together, keeping those
+    whose squared singular value exceeds ``rtol`` times the largest. Every term of the functional
+    map energy sums over descriptor columns and is linear in each operator, so it is unchanged by
+    the full ``V`` and changes by about ``rtol`` relative when the weak directions are dropped."""
+    same = desc_src is desc_tgt and mass_src is mass_tgt  # one shape: its Gram matrix alone has the same V
+    S = np.sqrt(mass_src)[:, None] * desc_src
+    if not same:
+        S = np.vstack([S, np.sqrt(mass_tgt)[:, None] * desc_tgt])
+    _, sv, Vt = np.linalg.svd(S.T @ S if S.shape[0] > 4 * S.shape[1] else S, full_matrices=False)
+    ev = sv if S.shape[0] > 4 * S.shape[1] else sv**2  # eigenvalues of the Gram matrix
+    r = max(1, int(np.sum(ev > rtol * ev[0]))) if ev.size and ev[0] > 0 else desc_src.shape[1]
+    V = Vt[:r].T
+    out = desc_src @ V
+    return out, (out if same else desc_tgt @ V)
+
+
+def _commutativity_hessian(Xs: np.ndarray, Xt: np.ndarray) -> np.ndarray:
+    """Hessian ``(ks kt, ks kt)`` of ``sum_f ||C X_t(f) - X_s(f) C||^2 / 2`` in column-major ``vec(C)`` of a
+    ``(ks, kt)`` map, for operators ``Xs`` ``(d, ks, ks)`` and ``Xt`` ``(d, kt, kt)``:
+    ``sum_f (X_t X_t^T kron I + I kron X_s^T X_s - X_t kron X_s - X_t^T kron X_s^T)``."""
+    d, ks, _ = Xs.shape
+    kt = Xt.shape[1]
+    kk = ks * kt
+    XtXt = np.tensordot(Xt, Xt, axes=([0, 2], [0, 2]))
+    XsXs = np.tensordot(Xs, Xs, axes=([0, 1], [0, 1]))
+    cross = (Xt.reshape(d, kt * kt).T @ Xs.reshape(d, ks * ks)).reshape(kt, kt, ks, ks)
+    cross = cross.transpose(0, 2, 1, 3).reshape(kk, kk)
+    return np.kron(XtXt, np.eye(ks)) + np.kron(np.eye(kt), XsXs) - cross - cross.T
+
+
+def fit_functional_map(
+    src: Basis,
+    tgt: Basis,
+    desc_src: np.ndarray,
+    desc_tgt: np.ndarray,
+    k: int,
+    *,
+    w_descr: float = 1.0,
+    w_lap: float = 0.1,
+    w_dcomm: float = 1.0,
+    w_orient: float = 1.0,
+    orient_src: np.ndarray | None = None,
+    orient_tgt: np.ndarray | None = None,
+    k_target: int | None = None,
+    eval_scale: float = 1.0,
+) -> np.ndarray:
+    """The ``(k, kt)`` functional map ``C_ts`` (target functions -> source functions; ``kt = k_target``,
+    default ``k``) minimizing ``w_descr ||C A_t - A_s||^2 + w_lap ||C L_t - L_s C||^2 + w_dcomm sum_f
+    ||C X_t(f) - X_s(f) C||^2 + w_orient sum_f ||C O_t(f) - O_s(f) C||^2``, each term divided by its size at
+    ``C = 0`` or ``C = I`` so the weights are relative; solved exactly through its normal equations.
+    ``eval_scale`` multiplies the source eigenvalues into the target's units (a part of the target:
+    ``area_t / area_s``, see :func:`~shape_toolkit.features.basis.slanted_size`)."""
+    kt = k if k_target is None else int(k_target)
+    A_s = src.project(desc_src, k)
+    A_t = tgt.project(desc_tgt, kt)
+    kk = k * kt
+    H = np.zeros((kk, kk))
+    # descriptor preservation: vec(C A_t) = (A_t^T kron I) vec(C)   (column-major vec)
+    sd = max(float((A_s**2).sum()), 1e-300)
+    H += w_descr / sd * np.kron(A_t @ A_t.T, np.eye(k))
+    rhs = w_descr / sd * (A_s @ A_t.T).ravel(order="F")
+    # Laplacian commutativity: diagonal (lambda_s,i - lambda_t,j)^2 on C_ij
+    ls, lt = src.evals[:k] * float(eval_scale), tgt.evals[:kt]
+    D = (ls[:, None] - lt[None, :]) ** 2  # (k, kt) indexed [i, j]
+    sl = max(float((ls**2).sum()), 1e-300)
+    H[np.diag_indices(kk)] += w_lap / sl * D.ravel(order="F")
+
+    def add_commutativity(Xs: np.ndarray, Xt: np.ndarray, w: float) -> None:
+        if w <= 0 or len(Xs) == 0:
+            return
+        scale = max(float((Xs**2).sum()), 1e-300)
+        H[:] += w / scale * _commutativity_hessian(Xs, Xt)
+
+    if w_dcomm > 0:
+        Xs, Xt = multiplication_operators(src, k, desc_src), multiplication_operators(tgt, kt, desc_tgt)
+        add_commutativity(Xs, Xt, w_dcomm)
+    if w_orient > 0 and orient_src is not None and orient_tgt is not None:
+        add_commutativity(orient_src[:, :k, :k], orient_tgt[:, :kt, :kt], w_orient)
+    H[np.diag_indices(kk)] += 1e-9 * np.trace(H) / kk
+    c = np.linalg.solve(H, rhs)
+    return c.reshape(k, kt, order="F")
