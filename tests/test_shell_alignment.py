@@ -70,6 +70,9 @@ def test_alignment_on_samples_agrees_with_every_vertex_keeps_seeds_and_vertex_or
     pa = Shape(np.asarray(a.vertices)[perm], np.argsort(perm)[np.asarray(a.faces)])
     cp = create_plugin("dense_matchers", "shell-alignment", samples=200).match(pa, b)
     assert np.mean(cp.target_of == sampled.target_of[perm]) > 0.95
+    # a cloud (no normals) goes through the same sampled alternation
+    cc = create_plugin("dense_matchers", "shell-alignment", samples=200).match(a, Shape(np.asarray(b.vertices)))
+    assert cc.n_matched == a.n_vertices and _error(b, cc.target_of) < 0.03
 
 
 @pytest.mark.parametrize("bad", [{"k_schedule": []}, {"k_schedule": [10, 6]}, {"k_schedule": [1, 6]},
