@@ -241,3 +241,70 @@ def test_point_cloud_refuses_bad_parameters(body):
     cloud, _ = apply_corruption(s, "point-cloud")
     with pytest.raises(InvalidShapeError):  # sampling needs triangles
         apply_corruption(cloud, "point-cloud", points=100)
+
+
+@pytest.fixture(scope="module")
+def thin_limbs():
+    """Five limbs thinner than a hole (limb radius 0.12 body radii; a hole's radius is 0.32)."""
+    return articulated_shape(subdivisions=3, limb_radius=0.12).shape
+
+
+def test_holes_never_cut_a_part_off(thin_limbs):
+    """Holes are punched, as SHREC'10's (the thesis's Table 5.2): on a shape whose limbs are thinner than a
+    hole, whole balls around random vertices (the former corruption, which kept the largest piece) cut limbs
+    off, so removed vertices lie far from any kept one; the holes never do: every removed vertex is within a
+    hole's diameter (plus an edge) of a kept one, the number of connected components does not change, and
+    every kept vertex is where its map says."""
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.data.corruptions import _keep
+
+    s = thin_limbs
+    r = 0.05 * s.diagonal
+    tree = cKDTree(s.vertices)
+
+    def farthest_removed(vm):
+        removed = np.setdiff1d(np.arange(s.n_vertices), vm)
+        return cKDTree(s.vertices[vm]).query(s.vertices[removed])[0].max()
+
+    amputated = 0
+    for seed in range(12):
+        keep = np.ones(s.n_vertices, dtype=bool)
+        for c in np.random.default_rng(seed).choice(s.n_vertices, 4, replace=False):
+            keep[tree.query_ball_point(s.vertices[c], r)] = False
+        amputated += farthest_removed(_keep(s, keep)[1]) > 2 * r + s.mean_edge_length
+        cut, vm = holes(s, strength=4, radius=0.05, random_state=seed)
+        assert farthest_removed(vm) <= 2 * r + s.mean_edge_length
+        assert connected_components(cut)[0] == connected_components(s)[0] == 1
+        assert s.n_vertices - cut.n_vertices >= 4
+        np.testing.assert_array_equal(cut.vertices, s.vertices[vm])
+    assert amputated >= 6  # the test can tell an amputation from a hole
+
+
+def test_holes_keep_every_component_and_are_deterministic(thin_limbs):
+    """Two disjoint copies stay two components; same seed, same copy; another seed, another copy."""
+    from shape_toolkit.core.shape import Shape
+
+    s = thin_limbs
+    two = Shape(np.concatenate([s.vertices, s.vertices + [20.0, 0, 0]]),
+                np.concatenate([s.faces, s.faces + s.n_vertices]))
+    a, va = holes(two, strength=6, random_state=3)
+    b, vb = holes(two, strength=6, random_state=3)
+    c, vc = holes(two, strength=6, random_state=4)
+    assert connected_components(a)[0] == 2
+    assert np.array_equal(va, vb) and np.array_equal(a.faces, b.faces)
+    assert not np.array_equal(va, vc)
+    # more holes of the same seed add to the fewer: the first two of four are the two
+    _, v2 = holes(s, strength=2, random_state=5)
+    _, v4 = holes(s, strength=4, random_state=5)
+    assert set(v4) < set(v2)
+
+
+def test_holes_that_cannot_fit_raise(thin_limbs):
+    """A hole that would remove the whole shape wherever it is put: a typed error after the allowed attempts."""
+    with pytest.raises(InvalidShapeError, match="no place for hole 1 of 1"):
+        holes(thin_limbs, strength=1, radius=1.0, attempts=5, random_state=0)
+    with pytest.raises(ParameterError, match="attempts"):
+        holes(thin_limbs, strength=1, attempts=0)
+    with pytest.raises(ParameterError, match="radius"):
+        holes(thin_limbs, strength=1, radius=0)

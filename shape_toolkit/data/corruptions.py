@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from shape_toolkit.core.geometry import edge_components
@@ -190,19 +190,78 @@ def _keep(shape: Shape, keep: np.ndarray, largest: bool = True) -> Corruption:
 
 
 def holes(
-    shape: Shape, *, strength: float = 3, radius: float = 0.05, random_state: int = 0
+    shape: Shape,
+    *,
+    strength: float = 3,
+    radius: float = 0.05,
+    attempts: int = 50,
+    sliver: float = 0.002,
+    random_state: int = 0,
 ) -> Corruption:
-    """Cut ``strength`` (rounded) holes: remove the vertices within ``radius`` bounding-box
-    diagonals of random centre vertices; the largest remaining component is kept."""
-    shape.require_faces("holes")
+    """Punch ``strength`` (rounded) holes in the surface, as SHREC'10's holes transform (thesis Table 5.2):
+    each hole removes one patch, the vertices within ``radius`` bounding-box diagonals of a random centre
+    vertex that are connected to it inside that ball.
+
+    A hole stays a hole: one whose removal would cut a piece of more than ``sliver`` of the vertices (a paw, a
+    tail, a hand) off its connected component, or remove a component, is redrawn around the next centre drawn
+    from ``random_state`` (:func:`crop` is the corruption that amputates). Smaller pieces cut loose at a hole's
+    rim are dropped with it, so the number of connected components never changes. After ``attempts`` centres
+    for one hole without a fit, :class:`InvalidShapeError` asks for a smaller ``radius`` or fewer holes. The
+    map lists the kept original ids (vertices on no triangle are dropped)."""
+    f = shape.require_faces("holes")
     k = int(round(_check_strength(strength, 0, 1000)))
-    rng = np.random.default_rng(random_state)
-    centres = rng.choice(shape.n_vertices, size=min(k, shape.n_vertices), replace=False)
+    if not radius > 0:
+        raise ParameterError(f"holes: radius must be positive, got {radius!r}")
+    if isinstance(attempts, bool) or not isinstance(attempts, (int, np.integer)) or attempts < 1:
+        raise ParameterError(f"holes: attempts must be a positive integer, got {attempts!r}")
+    max_piece = int(np.floor(_check_strength(sliver, 0.0, 0.5, "holes: sliver") * shape.n_vertices))
+    if k == 0:
+        return shape, _identity(shape)
+    n = shape.n_vertices
+    alive = np.zeros(n, dtype=bool)
+    alive[f.ravel()] = True
+    e = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    n0, comp0 = edge_components(n, e)
+    adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    adj = (adj + adj.T).tocsr()
     tree = cKDTree(shape.vertices)
-    keep = np.ones(shape.n_vertices, dtype=bool)
-    for c in centres:
-        keep[tree.query_ball_point(shape.vertices[c], radius * shape.diagonal)] = False
-    return _keep(shape, keep)
+    rng = np.random.default_rng(random_state)
+    for h in range(k):
+        for _ in range(int(attempts)):
+            live = np.flatnonzero(alive)
+            centre = int(live[rng.integers(live.size)])
+            ball = np.asarray(tree.query_ball_point(shape.vertices[centre], radius * shape.diagonal))
+            ball = ball[alive[ball]]
+            _, lab = connected_components(adj[ball][:, ball], directed=False)
+            trial = alive.copy()
+            trial[ball[lab == lab[np.flatnonzero(ball == centre)[0]]]] = False
+            ok_face = trial[f].all(axis=1)
+            used = np.zeros(n, dtype=bool)
+            used[f[ok_face].ravel()] = True
+            if np.unique(comp0[used]).size < np.unique(comp0[alive]).size:
+                continue  # a whole component removed
+            _, piece = edge_components(n, e[np.repeat(ok_face, 3)])
+            sizes = np.bincount(piece[used], minlength=n)
+            pid = np.flatnonzero(sizes)
+            owner = np.zeros(n, dtype=np.int64)
+            owner[piece[used]] = comp0[used]
+            porig, psize = owner[pid], sizes[pid]
+            order = np.lexsort((-psize, porig))  # per original component, its largest piece first
+            first = np.ones(order.size, dtype=bool)
+            first[1:] = porig[order][1:] != porig[order][:-1]
+            cut_off = np.bincount(porig[order][~first], psize[order][~first], minlength=n0)
+            if cut_off.max() > max_piece:
+                continue  # the hole would detach a part
+            kept = np.zeros(n, dtype=bool)
+            kept[pid[order][first]] = True
+            alive = used & kept[piece]
+            break
+        else:
+            raise InvalidShapeError(
+                f"holes: no place for hole {h + 1} of {k} (radius {radius} diagonals) that keeps every part "
+                f"attached, after {attempts} centres; try a smaller radius, fewer holes or another random_state"
+            )
+    return _keep(shape, alive, largest=False)
 
 
 def micro_holes(shape: Shape, *, strength: float = 0.02, random_state: int = 0) -> Corruption:
