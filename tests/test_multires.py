@@ -6,11 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from shape_toolkit.core.inspect import connected_components
 from shape_toolkit.core.shape import Shape
+from shape_toolkit.data.corruptions import subdivide
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.pipeline import load_pipeline
-from shape_toolkit.plugins.matching.multires import make_proxy
+from shape_toolkit.plugins.matching.multires import CLUSTER_FIRST, lift_map, make_proxy
 
 LENGTHS = np.array([1.0, 1.3, 1.6, 1.9, 2.2])  # limbs told apart
 
@@ -39,6 +41,19 @@ def test_a_proxy_is_made_of_input_vertices(poses):
         make_proxy(a, 10)
 
 
+def test_a_clustered_proxy_reaches_its_size():
+    # far above the proxy size, vertex clustering runs first; the edge collapse after it once stopped at
+    # ~4x the size (around the non-manifold edges clustering leaves: 780 vertices for 200 here, 22k for 5k
+    # at 10^6 vertices)
+    big, _ = subdivide(articulated_shape(random_state=1).shape, splits=3)
+    assert big.n_vertices > 4 * CLUSTER_FIRST * 200
+    proxy, ids = make_proxy(big, 200)
+    assert proxy.is_mesh and 150 <= proxy.n_vertices <= 300
+    np.testing.assert_array_equal(proxy.vertices, big.vertices[ids])
+    # in one piece, as the input: the repairs' debris (loose triangles here, 46 pieces at 10^6) is dropped
+    assert connected_components(proxy)[0] == 1
+
+
 def test_a_large_pair_is_matched_through_proxies_and_lifted(poses):
     a, b = poses
     assert a.n_vertices > 1.5 * 2000
@@ -54,3 +69,18 @@ def test_seeds_are_carried_to_the_proxies(poses):
     seeds = np.array([[i, i] for i in range(0, a.n_vertices, a.n_vertices // 6)])
     corr = load_pipeline("zoomout").run(a, b, seeds, proxy=2000)
     assert _error(b, np.asarray(corr.target_of)) < 0.02
+
+
+def test_the_lift_descends_to_full_resolution_from_any_first_guess(poses):
+    # a shape onto itself through its own proxy (identity proxy map): from a first guess of one vertex (the
+    # image of the nearest proxy vertex, up to ~n/p vertices off) the descent along the edges must reach
+    # each vertex itself; the search around the first guess no longer grows with n / p
+    a, _ = poses
+    _, ids = make_proxy(a, 1000)
+    out, info = lift_map(a, a, ids, ids, np.arange(len(ids)), candidates=1)
+    assert info["walk_steps"] >= 1
+    assert np.mean(out == np.arange(a.n_vertices)) > 0.95
+    assert _error(a, out) < 0.002
+    cloud = Shape(a.vertices, None, "cloud")
+    out, _ = lift_map(cloud, cloud, ids, ids, np.arange(len(ids)), candidates=1)
+    assert np.mean(out == np.arange(a.n_vertices)) > 0.95

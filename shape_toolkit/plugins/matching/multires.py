@@ -10,10 +10,13 @@ matched through proxies of :data:`PROXY_VERTICES` vertices:
 3. **Lift.** The proxy point map gives ``q`` correspondences between full-resolution vertices. On
    ``LIFT_K`` Laplace-Beltrami eigenfunctions of the full shapes, the functional map they imply is
    fitted (least squares), refined by ZoomOut iterations on the proxy vertices, and turned into the
-   full point map by a *local* search: each source vertex is mapped to the target vertex, among the
+   full point map by a *local* search: each source vertex starts at the target vertex, among the
    ``candidates`` nearest (in space) to the image of its nearest proxy vertex, whose spectral
-   coordinates best match its own through the functional map. No all-pairs search: cost
-   ``O(n (candidates + log n))`` after the spectra.
+   coordinates best match its own through the functional map, and then descends along the target's
+   edges (its kNN graph for a cloud) while a neighbour matches better. No all-pairs search, and no
+   search whose size grows with the input (a fixed ball of ``4 n / p`` vertices made the lift
+   ``O(n^2 / p)``: 60 s CPU of a 10^6 pair): cost ``O(n (candidates + log n + walk))`` after the
+   spectra, the walk a few edges (about the proxy spacing in edges, ``sqrt(n / p)``, at most).
 
 The proxy size is a vertex count, so the result does not depend on units or on the input's
 resolution; ``PROXY_VERTICES`` is the resolution the pipelines were built and measured at (the
@@ -24,20 +27,27 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.core.geometry import farthest_point_sampling, nearest_neighbors
+from shape_toolkit.core.geometry import edge_components, farthest_point_sampling, nearest_neighbors
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.features.basis import basis_of, fmap_from_p2p
 from shape_toolkit.plugins.weightings.cotangent import flat_faces
 
-__all__ = ["PROXY_VERTICES", "LIFT_K", "make_proxy", "lift_map"]
+__all__ = ["PROXY_VERTICES", "LIFT_K", "LIFT_CANDIDATES", "make_proxy", "lift_map", "descend"]
 
 #: vertices of each proxy; shapes up to 1.5x this are matched directly
 PROXY_VERTICES = 5000
 #: eigenfunctions of the full shapes the lift uses
 LIFT_K = 40
+#: target vertices of the first guess of the lift's local search (then a descent along edges)
+LIFT_CANDIDATES = 32
+#: neighbours of a cloud's point in the graph the descent walks (a mesh: its edges)
+WALK_NEIGHBOURS = 8
 #: a mesh above 4x this many times the proxy size is first clustered to this many times it
 CLUSTER_FIRST = 20
+#: pieces of a proxy holding less than this fraction of its vertices are dropped (their input vertices
+#: are lifted through the nearest kept proxy vertex)
+DEBRIS = 0.05
 
 
 def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, np.ndarray]:
@@ -60,6 +70,14 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
         # to their nearest input vertex below
         cell = float(np.sqrt(shape.area / (CLUSTER_FIRST * n_vertices)))
         ms.meshing_decimation_clustering(threshold=pymeshlab.PureValue(cell))
+        # clustering leaves duplicate faces and non-manifold edges and vertices, around which a
+        # topology-preserving edge collapse refuses to work: a 10^6-vertex scan then stopped at 4-5x the
+        # proxy size (22k-26k vertices, and the proxy pipeline took 10x longer). Repaired, it reaches it.
+        ms.meshing_remove_duplicate_faces()
+        ms.meshing_remove_null_faces()
+        ms.meshing_repair_non_manifold_edges()
+        ms.meshing_repair_non_manifold_vertices()
+        ms.meshing_remove_unreferenced_vertices()
     ms.meshing_decimation_quadric_edge_collapse(
         targetfacenum=int(2 * n_vertices), optimalplacement=False, preservetopology=True, preservenormal=True,
         qualitythr=0.3, autoclean=True,
@@ -76,6 +94,10 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
     uniq, inv = np.unique(ids, return_inverse=True)
     pf = inv.ravel()[pf]
     pf = pf[(pf[:, 0] != pf[:, 1]) & (pf[:, 1] != pf[:, 2]) & (pf[:, 0] != pf[:, 2])]
+    if len(pf):  # debris: pieces of under DEBRIS of the proxy, cut off by the repairs (a whole part is kept)
+        _, comp = edge_components(len(uniq), np.concatenate([pf[:, [0, 1]], pf[:, [1, 2]]]))
+        size = np.bincount(comp[np.unique(pf)], minlength=comp.max() + 1)
+        pf = pf[size[comp[pf[:, 0]]] >= DEBRIS * size.sum()]
     used = np.unique(pf)
     remap = np.full(len(uniq), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
@@ -97,8 +119,9 @@ def lift_map(
 ) -> tuple[np.ndarray, dict]:
     """Full point map ``(n_source,)`` from the proxy map ``proxy_map`` (proxy source vertex -> proxy
     target vertex; ``src_ids`` / ``tgt_ids``: the full vertex of each proxy vertex); see the module
-    docstring. ``candidates``: target vertices searched per source vertex (default: 4x the full
-    target's vertices per proxy vertex, at least 16). Returns the map and an info dict."""
+    docstring. ``candidates``: target vertices of each source vertex's first guess (default
+    :data:`LIFT_CANDIDATES`, whatever the sizes), refined by the descent of :func:`descend`. Returns the
+    map and an info dict."""
     from scipy.spatial import cKDTree
 
     from shape_toolkit.spectra import shape_spectrum
@@ -121,9 +144,9 @@ def lift_map(
         C = fmap_from_p2p(bs, bt, T_rows, k, k, rows=rows)
     # local search: the image of each source vertex's nearest proxy vertex, and its spatial neighbours
     n_s, n_t = source.n_vertices, target.n_vertices
-    if candidates is None:
-        candidates = max(16, int(np.ceil(4 * n_t / max(len(cols), 1))))
-    candidates = int(min(candidates, n_t))
+    candidates = int(min(LIFT_CANDIDATES if candidates is None else candidates, n_t))
+    if candidates < 1:
+        raise ParameterError(f"candidates must be >= 1, got {candidates}")
     _, near = cKDTree(np.asarray(source.vertices)[rows]).query(np.asarray(source.vertices))
     centre = T_rows[near]  # (n_s,) full target vertex
     tree_t = cKDTree(np.asarray(target.vertices))
@@ -137,6 +160,49 @@ def lift_map(
                        dtype=np.int64).reshape(-1, candidates)
         d = ((pts[c] - q[a : a + step, None, :]) ** 2).sum(axis=2)
         out[a : a + step] = c[np.arange(len(c)), np.argmin(d, axis=1)]
+    out, steps = descend(target, pts, q, out)
     info = {"proxy_vertices": [int(len(src_ids)), int(len(tgt_ids))], "lift_k": k, "candidates": candidates,
-            "lift_iterations": int(iterations)}
+            "lift_iterations": int(iterations), "walk_steps": steps}
     return out, info
+
+
+def descend(target: Shape, pts: np.ndarray, q: np.ndarray, start: np.ndarray) -> tuple[np.ndarray, int]:
+    """Greedy descent on ``target``'s graph (mesh edges; a cloud's symmetrised kNN graph): each query
+    ``q[i]`` ``(m, d)`` moves from target vertex ``start[i]`` ``(m,)`` to the neighbour whose ``pts`` row
+    ``(n_target, d)`` is nearest to it, while that is nearer than where it stands. Returns the final
+    vertices ``(m,)`` and the number of sweeps (each query moves at most one edge per sweep)."""
+    import scipy.sparse as sp
+
+    from shape_toolkit.core.graph import knn_edges
+
+    n = target.n_vertices
+    if target.is_mesh:
+        e = target.edges
+    else:
+        e = knn_edges(np.asarray(target.vertices), min(WALK_NEIGHBOURS, n - 1))
+    adj = sp.coo_matrix((np.ones(2 * len(e), dtype=np.int8), (np.concatenate([e[:, 0], e[:, 1]]),
+                                                              np.concatenate([e[:, 1], e[:, 0]]))),
+                        shape=(n, n)).tocsr()
+    ptr, nbr = adj.indptr, adj.indices
+    cur = np.asarray(start, dtype=np.int64).copy()
+    best = ((pts[cur] - q) ** 2).sum(axis=1)
+    active = np.arange(len(cur))
+    sweeps = 0
+    block = max(1, 2**20 // max(1, q.shape[1]))  # queries per block: memory ~ block x degree x d
+    while active.size:
+        sweeps += 1
+        moved_all = []
+        for a in range(0, active.size, block):
+            act = active[a : a + block]
+            deg = ptr[cur[act] + 1] - ptr[cur[act]]
+            owner = np.repeat(np.arange(act.size), deg)  # row of ``act`` each neighbour belongs to
+            cand = nbr[np.repeat(ptr[cur[act]] - np.cumsum(deg) + deg, deg) + np.arange(owner.size)].astype(np.int64)
+            d = ((pts[cand] - q[act[owner]]) ** 2).sum(axis=1)
+            order = np.lexsort((d, owner))  # per owner, the nearest neighbour first
+            head = order[np.r_[True, owner[order][1:] != owner[order][:-1]]] if order.size else order
+            moved = d[head] < best[act[owner[head]]]
+            idx = act[owner[head][moved]]
+            cur[idx], best[idx] = cand[head[moved]], d[head][moved]
+            moved_all.append(idx)
+        active = np.concatenate(moved_all)
+    return cur, sweeps
