@@ -50,6 +50,19 @@ CLUSTER_FIRST = 20
 DEBRIS = 0.05
 
 
+def _canonical(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh ``V`` ``(n, 3)``, ``F`` ``(m, 3)`` with its vertices in lexicographic order of their coordinates,
+    each face rotated to start at its least vertex (orientation kept) and the faces sorted: one order
+    whatever order the mesh came in."""
+    order = np.lexsort(np.asarray(V).T[::-1])
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    G = rank[np.asarray(F, dtype=np.int64)]
+    first = np.argmin(G, axis=1)
+    G = np.stack([G[np.arange(len(G)), (first + j) % 3] for j in range(3)], axis=1)
+    return np.asarray(V, dtype=np.float64)[order], G[np.lexsort(G.T[::-1])].astype(np.int32)
+
+
 def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, np.ndarray]:
     """A proxy of about ``n_vertices`` vertices and the input vertex ``(p,)`` of each of its vertices
     (decimation moves no vertex; clouds: farthest-point samples)."""
@@ -70,6 +83,11 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
         # to their nearest input vertex below
         cell = float(np.sqrt(shape.area / (CLUSTER_FIRST * n_vertices)))
         ms.meshing_decimation_clustering(threshold=pymeshlab.PureValue(cell))
+        # its output comes in an order that changes from run to run (the same mesh otherwise), and the repairs
+        # and the collapse below depend on the order: put it in a canonical one, so the proxy is reproducible
+        cv, cf = _canonical(ms.current_mesh().vertex_matrix(), ms.current_mesh().face_matrix())
+        ms = pymeshlab.MeshSet()  # (the former set, and its meshes, are freed here)
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=cv, face_matrix=cf))
         # clustering leaves duplicate faces and non-manifold edges and vertices, around which a
         # topology-preserving edge collapse refuses to work: a 10^6-vertex scan then stopped at 4-5x the
         # proxy size (22k-26k vertices, and the proxy pipeline took 10x longer). Repaired, it reaches it.
