@@ -406,6 +406,21 @@ def test_a_cloud_laplacian_does_not_depend_on_the_order_or_the_pose_of_the_point
     q *= np.sign(np.linalg.det(q))
     np.testing.assert_allclose(spectrum(pts @ q.T + np.array([3.0, -1.0, 7.0])), base, rtol=2e-2)
 
+
+@pytest.mark.slow
+def test_a_cloud_laplacian_does_not_link_the_two_faces_of_a_thin_part():
+    """A thin ellipsoid (1 : 1 : 0.07, 5,000 points; its faces about three point spacings apart, closer than the
+    30th neighbour): the default point-cloud Laplacian triangulates each point's own sheet, so away from the
+    rim (almost) no weight joins the upper face to the lower one; all 30 neighbours (robust_laplacian) join
+    them by thousands (measured: 1 against 3,093)."""
+    pts = _sphere_cloud(5000, 1.0, 3) * np.array([1.0, 1.0, 0.07])
+    inner = np.hypot(pts[:, 0], pts[:, 1]) < 0.8
+    up, down = np.flatnonzero(inner & (pts[:, 2] > 0)), np.flatnonzero(inner & (pts[:, 2] < 0))
+    sheet = build_graph(Shape(pts), "intrinsic-delaunay")
+    joined = build_graph(Shape(pts), "intrinsic-delaunay", cloud_neighbors="all")
+    assert sheet.components[0] == 1 and joined.W[up][:, down].nnz > 1000
+    assert sheet.W[up][:, down].nnz <= 0.01 * joined.W[up][:, down].nnz
+
 def test_cache_in_memory_and_on_disk(sphere, tmp_path):
     set_cache_dir(None)
     clear_cache()
