@@ -407,7 +407,6 @@ def test_a_cloud_laplacian_does_not_depend_on_the_order_or_the_pose_of_the_point
     np.testing.assert_allclose(spectrum(pts @ q.T + np.array([3.0, -1.0, 7.0])), base, rtol=2e-2)
 
 
-@pytest.mark.slow
 def test_a_cloud_laplacian_does_not_link_the_two_faces_of_a_thin_part():
     """A thin ellipsoid (1 : 1 : 0.07, 5,000 points; its faces about three point spacings apart, closer than the
     30th neighbour): the default point-cloud Laplacian triangulates each point's own sheet, so away from the
