@@ -9,6 +9,11 @@ surface triangle appears in up to three fans: a uniform weight, which area-norma
 not see. This is the idea of the tufted cover of local Delaunay triangulations (Sharp and Crane
 2020) with a plain angular fan instead of the Delaunay one.
 
+The point-cloud Laplacian's triangles (:func:`local_delaunay_triangles`): the local Delaunay triangulations
+of Sharp and Crane 2020, but each point triangulates only the neighbours on its own sheet of the surface
+(same side by the outward normals, within 30 degrees of its tangent plane, allowing for noise), so that legs
+touching, the two faces of a thin part or of a crease are not linked.
+
 Outward normals (:func:`outward_normals`): PCA normals of the nearest neighbours, each given its sign by
 the viewpoints that see it (hidden point removal, Katz et al. 2007, from directions spread over a sphere
 around the cloud: a visible point's outward normal faces the viewer), and the points no viewpoint sees
@@ -27,7 +32,7 @@ from shape_toolkit.core.geometry import signed_volume
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError
 
-__all__ = ["cloud_surface", "outward_normals", "FAN_NEIGHBORS"]
+__all__ = ["cloud_surface", "outward_normals", "local_delaunay_triangles", "FAN_NEIGHBORS"]
 
 #: neighbours of each point in its fan (a one-ring has about 6)
 FAN_NEIGHBORS = 8
@@ -39,6 +44,9 @@ VIEWS, VIEW_DISTANCE, HPR_RADIUS = 50, 3.0, 100.0
 #: a neighbour passes its sign on only when the offset between the two points is within 60 degrees of both
 #: tangent planes (|cos| to each normal below this)
 TANGENT_COS = 0.5
+#: a neighbour's height above a point's tangent plane allowed for noise: this many standard deviations of the
+#: point's 10 nearest neighbours about their plane
+NOISE_SIGMAS = 2.0
 
 
 def _sphere_directions(m: int) -> np.ndarray:
@@ -144,3 +152,68 @@ def cloud_surface(shape: Shape, n_neighbors: int = FAN_NEIGHBORS) -> Shape:
     if signed_volume(P, F) < 0:
         F = F[:, [0, 2, 1]]
     return Shape(P, F, name=shape.name)
+
+
+def _delaunay_fans(P: np.ndarray, N: np.ndarray, nb: np.ndarray, keep: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Triangles ``(m, 3)`` incident to each point ``i`` in ``rows`` of the 2-D Delaunay triangulation, in
+    its tangent plane (normal ``N[i]``), of ``i`` and its neighbours ``nb[i]`` where ``keep[i]``."""
+    from scipy.spatial import Delaunay, QhullError
+
+    out = []
+    for i in rows:
+        idx = np.concatenate([[i], nb[i][keep[i]]])
+        if len(idx) < 3:
+            continue
+        n = N[i]
+        a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        a /= np.linalg.norm(a)
+        d = P[idx] - P[i]
+        try:
+            tri = Delaunay(np.stack([d @ a, d @ np.cross(n, a)], axis=1)).simplices
+        except QhullError:  # all neighbours on a line in the plane: no triangle around this point
+            continue
+        out.append(idx[tri[(tri == 0).any(axis=1)]])
+    return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
+
+
+def local_delaunay_triangles(points: np.ndarray, normals: np.ndarray, n_neighbors: int = 30) -> np.ndarray:
+    """Triangles ``(m, 3)`` (indices into ``points`` ``(n, 3)``) of every point's local Delaunay triangulation
+    (Sharp and Crane 2020): its ``n_neighbors`` nearest neighbours projected to its tangent plane (normal
+    ``normals[i]``, ``(n, 3)``, oriented outwards), the triangles around the point. A triangle is in up to three
+    of them (divide the Laplacian and the mass built on them by 3).
+
+    Only the neighbours on the point's own sheet of the surface are triangulated: those whose normal is on the
+    same side (positive dot product) and whose height above the point's tangent plane is at most half their
+    distance (within 30 degrees of the plane, ``TANGENT_COS`` as :func:`outward_normals`) plus two standard
+    deviations of the point's 10 nearest neighbours about their plane (``NOISE_SIGMAS``: the sheet's own
+    thickness under noise; on a clean surface about zero). Points cut off by that from the largest connected part (a
+    patch whose normals' signs came out wrong) are triangulated again without the side test, then, if still
+    cut off, with all their neighbours (robust_laplacian's construction). Units: none (scale-free)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    P = np.asarray(points, dtype=np.float64)
+    N = np.asarray(normals, dtype=np.float64)
+    n = len(P)
+    k = int(min(n_neighbors, n - 1))
+    _, nb = cKDTree(P).query(P, k + 1)
+    nb = nb[:, 1:]
+    off = P[nb] - P[:, None, :]
+    height = np.abs(np.einsum("ikc,ic->ik", off, N))
+    # the sheet's own thickness (noise): the spread of the 10 nearest about their plane, two standard deviations
+    near = off[:, : min(10, k)]
+    spread = np.einsum("ikc,ic->ik", near - near.mean(axis=1, keepdims=True), N).std(axis=1)
+    in_plane = height <= TANGENT_COS * np.linalg.norm(off, axis=2) + NOISE_SIGMAS * spread[:, None]
+    same_side = np.einsum("ikc,ic->ik", N[nb], N) > 0
+    F = _delaunay_fans(P, N, nb, in_plane & same_side, np.arange(n))
+    for keep in (in_plane, np.ones_like(in_plane)):
+        e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+        graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+        _, labels = connected_components(graph, directed=False)
+        cut = np.flatnonzero(labels != np.argmax(np.bincount(labels)))
+        if not len(cut):
+            break
+        G = _delaunay_fans(P, N, nb, keep, cut)
+        F = np.concatenate([F, G])
+    return F.astype(np.int64)

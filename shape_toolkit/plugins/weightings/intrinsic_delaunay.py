@@ -7,10 +7,22 @@ import robust_laplacian
 import scipy.sparse as sp
 
 from shape_toolkit.api.interfaces import Weighting, Weights
-from shape_toolkit.api.params import Interval, Param
+from shape_toolkit.api.params import Interval, Options, Param
 from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.surface import local_delaunay_triangles, outward_normals
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins._params import NON_NEGATIVE
+
+
+def centred(points: np.ndarray) -> np.ndarray:
+    """``points`` ``(n, 3)`` moved so that their centroid is the origin (same units), C-contiguous.
+
+    robust_laplacian's point-cloud Laplacian is not invariant to a translation of the cloud: moving a
+    642-point shape by 1.6 times its size changed its eigenvalues by 22 % and its area by 11 % (rotations
+    about the origin: under 1 %). A cloud's Laplacian is built on its centred copy, so it no longer
+    depends on where the cloud sits (``tests/test_graph_spectrum.py``)."""
+    v = np.asarray(points, dtype=np.float64)
+    return np.ascontiguousarray(v - v.mean(axis=0))
 
 
 class IntrinsicDelaunayWeighting(Weighting):
@@ -19,7 +31,15 @@ class IntrinsicDelaunayWeighting(Weighting):
 
     Weights are non-negative even on poor, non-manifold triangulations. ``mollify_factor``
     (relative to the mean edge length) guards against degenerate triangles; ``n_neighbors``
-    is used for point clouds only. The graph's edges are ignored: the scheme builds its own.
+    is used for point clouds only. The graph's edges are ignored: the scheme builds its own. A cloud is
+    centred at its centroid first (:func:`centred`: the library's cloud Laplacian depends on the position).
+
+    ``cloud_neighbors`` (point clouds): ``'sheet'`` (default) triangulates around each point only the
+    neighbours on its own sheet of the surface (:func:`shape_toolkit.core.surface.local_delaunay_triangles`,
+    with the outward normals of :func:`~shape_toolkit.core.surface.outward_normals`), so that parts touching
+    in space are not linked; ``'all'`` takes all ``n_neighbors`` (robust_laplacian's point-cloud Laplacian, the
+    former default). On the tune half of the cloud benchmark (``benchmarks/results/cloud_matching_notes.md``)
+    the sheets brought the spectra of TOSCA dogs and FAUST people closer to their meshes'.
     """
 
     #: builds its own edges (intrinsic or local Delaunay triangulations); build_graph honours
@@ -29,11 +49,16 @@ class IntrinsicDelaunayWeighting(Weighting):
     parameter_constraints = {
         "mollify_factor": Param(NON_NEGATIVE, doc="mollification against degenerate triangles, x mean edge length"),
         "n_neighbors": Param(Interval(int, 3), doc="neighbours of the local triangulations (point clouds only)"),
+        "cloud_neighbors": Param(
+            Options("sheet", "all"),
+            doc="point clouds: triangulate the neighbours on the point's own sheet of the surface, or all",
+        ),
     }
 
-    def __init__(self, mollify_factor: float = 1e-5, n_neighbors: int = 30):
+    def __init__(self, mollify_factor: float = 1e-5, n_neighbors: int = 30, cloud_neighbors: str = "sheet"):
         self.mollify_factor = mollify_factor
         self.n_neighbors = n_neighbors
+        self.cloud_neighbors = cloud_neighbors
 
     def weigh(self, shape: Shape, edges: np.ndarray) -> Weights:
         """Intrinsic-Delaunay cotangent weights and lumped vertex areas."""
@@ -53,9 +78,16 @@ class IntrinsicDelaunayWeighting(Weighting):
                     f"{shape!r}: {shape.n_vertices - n_distinct} points coincide with others, which a local "
                     "Delaunay triangulation cannot take: merge them first (shape-toolkit clean)"
                 )
-            L, M = robust_laplacian.point_cloud_laplacian(
-                v, mollify_factor=self.mollify_factor, n_neighbors=self.n_neighbors
-            )
+            if self.cloud_neighbors == "all":
+                L, M = robust_laplacian.point_cloud_laplacian(
+                    centred(v), mollify_factor=self.mollify_factor, n_neighbors=self.n_neighbors
+                )
+            else:
+                triangles = local_delaunay_triangles(v, outward_normals(v), self.n_neighbors)
+                L, M = robust_laplacian.mesh_laplacian(
+                    centred(v), np.ascontiguousarray(triangles), mollify_factor=self.mollify_factor
+                )
+                L, M = L / 3.0, M / 3.0  # each triangle is in up to three points' triangulations
         L = sp.csr_matrix(L)
         W = -(L - sp.diags(L.diagonal()))
         W = sp.csr_matrix((W + W.T) * 0.5)
