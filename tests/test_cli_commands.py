@@ -45,6 +45,17 @@ def test_segment_ply_and_default_output(pose, capsys, monkeypatch, tmp_path):
     assert len(np.unique(cols.round(3), axis=0)) == res["n_segments"]
 
 
+def test_segment_defaults_to_ncut_which_needs_k(pose, capsys, monkeypatch, tmp_path):
+    d, a, _ = pose
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_cli(capsys, "segment", d / "a.off", "-k", "5", "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["method"] == "ncut" and res["n_segments"] == 5 and (tmp_path / "a.ncut.labels.txt").exists()
+    code, out, err = run_cli(capsys, "segment", d / "a.off")
+    assert code == 2 and err.count("\n") == 1 and "-k N" in err
+
+
 def test_keypoints_spectrum_ply(pose, capsys, tmp_path):
     d, a, _ = pose
     code, out, err = run_cli(capsys, "keypoints", d / "a.off", "--preset", "sparse", "--ply", tmp_path / "k.ply",

@@ -1,4 +1,4 @@
-"""``shape-toolkit segment MESH --method NAME``: one label per vertex (or per face, PSB ``.seg``)."""
+"""``shape-toolkit segment MESH [--method NAME]``: one label per vertex (or per face, PSB ``.seg``)."""
 
 from __future__ import annotations
 
@@ -30,11 +30,17 @@ from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnected
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.results.labels import load_constraints
 
+#: the segmenter of ``segment`` without ``--method``: the least Rand index error of the unsupervised methods
+#: on the held-out PSB categories (README, benchmarks/results/psb_segmentation.md)
+DEFAULT_METHOD = "ncut"
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("segment", help="segment a shape with a segmenter plugin")
     p.add_argument("shape", help="mesh or point-cloud file")
-    p.add_argument("--method", required=True, help="segmenter plugin (eigvec-gmm, csc, ...)")
+    p.add_argument("--method", default=DEFAULT_METHOD,
+                   help=f"segmenter plugin (default {DEFAULT_METHOD}, the best unsupervised one on PSB; it needs -k; "
+                   "eigvec-gmm, csc, ...)")
     p.add_argument("-k", "--n-segments", type=positive_int_arg, default=None,
                    help="number of segments (default: the method chooses, where it can)")
     p.add_argument("--constraints", help='JSON file {"must_link": [[i, j], ...], "cannot_link": [...]}')

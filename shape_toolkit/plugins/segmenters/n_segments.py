@@ -14,7 +14,7 @@ def check_n_segments(k: Any, n: int, *, allow_none: bool) -> int | None:
     if k is None:
         if allow_none:
             return None
-        raise ParameterError("n_segments is required for this method (an integer >= 2)")
+        raise ParameterError("n_segments is required for this method (an integer >= 2; -k N on the command line)")
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
         raise ParameterError(f"n_segments must be an integer >= 2, got {k!r}")
     if k < 2:
