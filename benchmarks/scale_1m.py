@@ -6,10 +6,10 @@ vertices, CPU and peak memory of the CLI as a user runs it, CPU per stage of the
 
 The pair: TOSCA cat0 -> cat1 (``$TOOLKIT_DATA/tosca5k``), both split s x s (``subdivide``: the original
 vertices keep their ids, so the ground truth holds; s = 14: 979,610 vertices), written to ``DIR`` as binary
-PLY. Each size runs three fresh child processes, one after the other: ``shape-toolkit match A B`` (no flags:
-pipeline ``auto``, proxies of 5,000 vertices above 7,500), the same pipeline in process with every stage timed
-in CPU seconds (``time.process_time`` around ``make_proxy``, ``lift_map`` and, inside the lift, the full
-shapes' spectra and the descent), and ``shape-toolkit segment A --method ncut -k 6``. CPU seconds (user +
+PLY. Each size runs two fresh child processes, one after the other: ``shape-toolkit match A B --json`` (no
+flags: pipeline ``auto``, proxies of 5,000 vertices above 7,500), whose JSON gives each stage's CPU seconds
+(``stages_cpu``; the lift's own split between the full shapes' spectra and the descent in ``proxy``), and
+``shape-toolkit segment A --method ncut -k 6``; reading the pair is timed in this process. CPU seconds (user +
 system) and peak RSS of a CLI run come from ``wait4`` (the command and its supervised child). Error: mean
 normalised geodesic error of the 5,000 ground-truth points, each predicted vertex mapped to its nearest
 original vertex, Dijkstra on the clean 5k cat1 / sqrt(area) (``matching_scale.toml``'s ``score_on = "clean"``).
@@ -81,50 +81,16 @@ def score(map_file: Path, vmap_t: Path) -> float:
     return float(e[np.isfinite(e)].mean())
 
 
-def stages_child(work: Path, s: int) -> None:
-    """Print the CPU seconds of each stage of the default pipeline on the pair of size ``s`` (one JSON line)."""
-    import shape_toolkit.plugins.matching.multires as mr
-    import shape_toolkit.spectra as sps
-    from shape_toolkit.io.mesh import load_shape
-    from shape_toolkit.pipeline import load_pipeline
-
-    cpu: dict[str, float] = {}
-    in_lift = [False]
-
-    def timed(name, fn, only_in_lift=False):
-        def wrapper(*a, **k):
-            if only_in_lift and not in_lift[0]:
-                return fn(*a, **k)
-            t = time.process_time()
-            try:
-                return fn(*a, **k)
-            finally:
-                cpu[name] = cpu.get(name, 0.0) + time.process_time() - t
-        return wrapper
-
-    lift = mr.lift_map
-
-    def lift_map(*a, **k):
-        in_lift[0] = True
-        try:
-            return lift(*a, **k)
-        finally:
-            in_lift[0] = False
-
-    mr.make_proxy = timed("proxies", mr.make_proxy)
-    mr.lift_map = timed("lift", lift_map)
-    mr.descend = timed("lift descent", mr.descend)
-    sps.shape_spectrum = timed("lift spectra", sps.shape_spectrum, only_in_lift=True)
-    t = time.process_time()
-    a, b = load_shape(work / f"cat0_s{s}.ply"), load_shape(work / f"cat1_s{s}.ply")
-    cpu["read"] = time.process_time() - t
-    t = time.process_time()
-    corr = load_pipeline("auto").run(a, b)
-    run = time.process_time() - t
-    cpu["proxy pipeline"] = run - cpu.get("proxies", 0.0) - cpu.get("lift", 0.0)
-    cpu["lift other"] = cpu.get("lift", 0.0) - cpu.get("lift spectra", 0.0) - cpu.get("lift descent", 0.0)
-    cpu["total"] = run + cpu["read"]
-    print(json.dumps({"n": a.n_vertices, "proxy": (corr.info.get("proxy") or {}).get("proxy_vertices"), "cpu": cpu}))
+def stages(match: dict, read: float) -> dict:
+    """CPU seconds per stage of one ``match --json`` run (``stages_cpu``, the lift's own split) and of reading."""
+    cpu = match["stages_cpu"]
+    lift = (match.get("proxy") or {}).get("cpu_seconds", {})
+    out = {"read": read, "proxies": cpu.get("proxies", 0.0),
+           "proxy pipeline": sum(v for k, v in cpu.items() if k.startswith("proxy ")),
+           "lift spectra": lift.get("spectra", 0.0), "lift descent": lift.get("descent", 0.0)}
+    out["lift other"] = cpu.get("lift", 0.0) - out["lift spectra"] - out["lift descent"]
+    out["total"] = read + sum(cpu.values())
+    return {"proxy": (match.get("proxy") or {}).get("proxy_vertices"), "cpu": out}
 
 
 def exponent(x0: float, x1: float, n0: int, n1: int) -> float:
@@ -141,25 +107,24 @@ def main() -> None:
     ap.add_argument("--workdir", required=True, help="folder for the split meshes and maps (not the repository)")
     ap.add_argument("--splits", type=int, nargs="+", default=[1, 2, 3, 5, 7, 14])
     ap.add_argument("--output", default="benchmarks/results/scale_1m.md")
-    ap.add_argument("--stages-child", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     work = Path(args.workdir)
-    if args.stages_child is not None:
-        return stages_child(work, args.stages_child)
     work.mkdir(parents=True, exist_ok=True)
+    from shape_toolkit.io.mesh import load_shape
+
     rows = []
     for s in args.splits:
         make_meshes(work, s)
         a, b, m = work / f"cat0_s{s}.ply", work / f"cat1_s{s}.ply", work / f"match_s{s}.map.txt"
         match = run_cli(["match", str(a), str(b), "-o", str(m), "--json", "-q"])
         err = score(m, work / f"cat1_s{s}.vmap.npy")
-        st = subprocess.run([sys.executable, __file__, "--workdir", str(work), "--stages-child", str(s)],
-                            check=True, capture_output=True, text=True)
-        stages = json.loads(st.stdout.strip().splitlines()[-1])
+        t = time.process_time()
+        load_shape(a), load_shape(b)
+        st = stages(match["json"], time.process_time() - t)
         seg = run_cli(["segment", str(a), "--method", "ncut", "-k", "6", "-o", str(work / f"seg_s{s}.labels.txt"),
                        "--json", "-q"])
         n = match["json"]["n_source"]
-        rows.append({"s": s, "n": n, "match": match, "error": err, "stages": stages, "seg": seg})
+        rows.append({"s": s, "n": n, "match": match, "error": err, "stages": st, "seg": seg})
         print(f"s={s}: n={rows[-1]['n']} match cpu {match['cpu']:.1f} s, {match['peak_mb']:.0f} MB, error {err:.4f}; "
               f"segment cpu {seg['cpu']:.1f} s", flush=True)
     write(rows, Path(args.output), args.splits)
@@ -184,7 +149,7 @@ def write(rows: list[dict], out: Path, splits: list[int]) -> None:
         L.append(f"| {r['s']} | {r['n']:,} | {m['cpu']:.1f} | {m['wall']:.1f} | {m['peak_mb']:,.0f} | {blas} | "
                  f"{r['stages']['proxy'] or 'none (direct)'} | {r['error']:.4f} | {ratio} | {ok} |")
     big = [r for r in rows if r["s"] > 1]
-    L += ["", "## Match: CPU seconds per stage (in process) and growth exponents", "",
+    L += ["", "## Match: CPU seconds per stage and growth exponents", "",
           "| stage | " + " | ".join(f"{r['n']:,}" for r in big) + " | exponent first-last | exponent last step | "
           "n log n allows (first-last / last step) |", "|---" * (len(big) + 4) + "|"]
     if len(big) >= 2:
@@ -193,9 +158,8 @@ def write(rows: list[dict], out: Path, splits: list[int]) -> None:
             v = [r["stages"]["cpu"].get(st, 0.0) for r in big]
             L.append(f"| {st} | " + " | ".join(f"{x:.2f}" for x in v) + f" | {exponent(v[0], v[-1], n0, n1):.2f} | "
                      f"{exponent(v[-2], v[-1], n2, n1):.2f} | {nlogn(n0, n1):.2f} / {nlogn(n2, n1):.2f} |")
-    L += ["", "## `shape-toolkit segment A --method ncut -k 6` (segment has no default method: ncut is the "
-          "README's best unsupervised one)", "", "| s | n | CPU s | wall s | peak MB | segment sizes (vertices) |",
-          "|---:|---:|---:|---:|---:|---|"]
+    L += ["", "## `shape-toolkit segment A --method ncut -k 6` (ncut: the default method)", "",
+          "| s | n | CPU s | wall s | peak MB | segment sizes (vertices) |", "|---:|---:|---:|---:|---:|---|"]
     for r in rows:
         g = r["seg"]
         L.append(f"| {r['s']} | {r['n']:,} | {g['cpu']:.1f} | {g['wall']:.1f} | {g['peak_mb']:,.0f} | "

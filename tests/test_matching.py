@@ -304,6 +304,7 @@ def test_pipeline_with_given_seeds(pair, seeds):
     spec = {"descriptors": "heat-distance", "dense": "seed-growing", "refine": "em-registration"}
     c = run_pipeline(spec, A, B, seeds=seeds)
     assert c.info["n_seeds"] == len(seeds) and set(c.info["timings"]) == {"spectra", "descriptors", "dense", "refine"}
+    assert set(c.info["cpu_timings"]) == set(c.info["timings"]) and min(c.info["cpu_timings"].values()) >= 0
     assert _err(B, c).mean() < 0.02
 
 

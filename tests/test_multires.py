@@ -86,6 +86,12 @@ def test_a_large_pair_is_matched_through_proxies_and_lifted(poses):
     assert corr.n_source == a.n_vertices and corr.n_matched == a.n_vertices
     assert _error(b, np.asarray(corr.target_of)) < 0.02
     assert corr.info["orientation"]["verdict"] == "preserving"
+    # wall and CPU seconds of every stage, the lift's own split (full shapes' spectra, descent) included
+    cpu = corr.info["cpu_timings"]
+    assert set(cpu) == set(corr.info["timings"]) >= {"proxies", "proxy spectra", "proxy dense", "lift"}
+    assert all(v >= 0 for v in cpu.values())
+    assert set(corr.info["proxy"]["cpu_seconds"]) == {"spectra", "descent"}
+    assert sum(corr.info["proxy"]["cpu_seconds"].values()) <= cpu["lift"] + 1e-3
 
 
 def test_seeds_are_carried_to_the_proxies(poses):

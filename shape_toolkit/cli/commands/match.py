@@ -88,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
         "pipeline": pipe.name,
         "seconds": round(seconds, 3),
         "stages": {k: round(v, 3) for k, v in corr.info.get("timings", {}).items()},
+        "stages_cpu": {k: round(v, 3) for k, v in corr.info.get("cpu_timings", {}).items()},
         "n_seeds": corr.info.get("n_seeds", 0),
         "orientation": corr.info.get("orientation"),
         "proxy": corr.info.get("proxy"),

@@ -25,6 +25,8 @@ resolution; ``PROXY_VERTICES`` is the resolution the pipelines were built and me
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from shape_toolkit.core.geometry import edge_components, farthest_point_sampling, nearest_neighbors
@@ -139,7 +141,7 @@ def lift_map(
     target vertex; ``src_ids`` / ``tgt_ids``: the full vertex of each proxy vertex); see the module
     docstring. ``candidates``: target vertices of each source vertex's first guess (default
     :data:`LIFT_CANDIDATES`, whatever the sizes), refined by the descent of :func:`descend`. Returns the
-    map and an info dict."""
+    map and an info dict (``cpu_seconds``: of the full shapes' spectra and of the descent)."""
     from scipy.spatial import cKDTree
 
     from shape_toolkit.spectra import shape_spectrum
@@ -149,8 +151,10 @@ def lift_map(
     if ok.sum() < 3 * k:
         raise ParameterError(f"the proxy map matched {int(ok.sum())} vertices: too few to lift (need {3 * k})")
     k = int(min(k, source.n_vertices - 2, target.n_vertices - 2))
+    c0 = time.process_time()
     bs = basis_of(shape_spectrum(source, k + 1), k)
     bt = basis_of(shape_spectrum(target, k + 1), k)
+    cpu = {"spectra": time.process_time() - c0}
     rows = np.asarray(src_ids, dtype=np.int64)[ok]
     cols = np.asarray(tgt_ids, dtype=np.int64)
     T_rows = cols[proxy_map[ok]]
@@ -178,9 +182,11 @@ def lift_map(
                        dtype=np.int64).reshape(-1, candidates)
         d = ((pts[c] - q[a : a + step, None, :]) ** 2).sum(axis=2)
         out[a : a + step] = c[np.arange(len(c)), np.argmin(d, axis=1)]
+    c0 = time.process_time()
     out, steps = descend(target, pts, q, out)
+    cpu["descent"] = time.process_time() - c0
     info = {"proxy_vertices": [int(len(src_ids)), int(len(tgt_ids))], "lift_k": k, "candidates": candidates,
-            "lift_iterations": int(iterations), "walk_steps": steps}
+            "lift_iterations": int(iterations), "walk_steps": steps, "cpu_seconds": cpu}
     return out, info
 
 
