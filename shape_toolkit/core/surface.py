@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from shape_toolkit.core.geometry import signed_volume
+from shape_toolkit.core.geometry import edge_components, signed_volume
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError
 
@@ -128,11 +128,7 @@ def cloud_surface(shape: Shape, n_neighbors: int = FAN_NEIGHBORS) -> Shape:
     normals = outward_normals(P, max(k, 10))
     _, nb = cKDTree(P).query(P, k + 1)
     nb = nb[:, 1:]  # (n, k), self excluded
-    # tangent basis per point, neighbours' angles about the normal
-    a = np.where(np.abs(normals[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
-    e1 = np.cross(normals, a)
-    e1 /= np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
-    e2 = np.cross(normals, e1)
+    e1, e2 = _tangent_frames(normals)  # neighbours' angles about the normal
     d = P[nb] - P[:, None, :]  # (n, k, 3)
     ang = np.arctan2(np.einsum("nkc,nc->nk", d, e2), np.einsum("nkc,nc->nk", d, e1))
     order = np.argsort(ang, axis=1)
@@ -154,22 +150,29 @@ def cloud_surface(shape: Shape, n_neighbors: int = FAN_NEIGHBORS) -> Shape:
     return Shape(P, F, name=shape.name)
 
 
+def _tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangent vectors ``(n, 3)`` each, ``e1`` and ``e2 = n x e1``, of every unit normal ``(n, 3)``."""
+    a = np.where(np.abs(normals[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    e1 = np.cross(normals, a)
+    e1 /= np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
+    return e1, np.cross(normals, e1)
+
+
 def _delaunay_fans(P: np.ndarray, N: np.ndarray, nb: np.ndarray, keep: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """Triangles ``(m, 3)`` incident to each point ``i`` in ``rows`` of the 2-D Delaunay triangulation, in
     its tangent plane (normal ``N[i]``), of ``i`` and its neighbours ``nb[i]`` where ``keep[i]``."""
     from scipy.spatial import Delaunay, QhullError
 
+    rows = np.asarray(rows)
+    e1, e2 = _tangent_frames(N[rows])
     out = []
-    for i in rows:
+    for i, a, b in zip(rows, e1, e2):
         idx = np.concatenate([[i], nb[i][keep[i]]])
         if len(idx) < 3:
             continue
-        n = N[i]
-        a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-        a /= np.linalg.norm(a)
         d = P[idx] - P[i]
         try:
-            tri = Delaunay(np.stack([d @ a, d @ np.cross(n, a)], axis=1)).simplices
+            tri = Delaunay(np.stack([d @ a, d @ b], axis=1)).simplices
         except QhullError:  # all neighbours on a line in the plane: no triangle around this point
             continue
         out.append(idx[tri[(tri == 0).any(axis=1)]])
@@ -189,8 +192,6 @@ def local_delaunay_triangles(points: np.ndarray, normals: np.ndarray, n_neighbor
     thickness under noise; on a clean surface about zero). Points cut off by that from the largest connected part (a
     patch whose normals' signs came out wrong) are triangulated again without the side test, then, if still
     cut off, with all their neighbours (robust_laplacian's construction). Units: none (scale-free)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
     P = np.asarray(points, dtype=np.float64)
@@ -208,9 +209,7 @@ def local_delaunay_triangles(points: np.ndarray, normals: np.ndarray, n_neighbor
     same_side = np.einsum("ikc,ic->ik", N[nb], N) > 0
     F = _delaunay_fans(P, N, nb, in_plane & same_side, np.arange(n))
     for keep in (in_plane, np.ones_like(in_plane)):
-        e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-        graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-        _, labels = connected_components(graph, directed=False)
+        _, labels = edge_components(n, np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]))
         cut = np.flatnonzero(labels != np.argmax(np.bincount(labels)))
         if not len(cut):
             break
