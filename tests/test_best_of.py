@@ -134,7 +134,7 @@ def test_extrinsic_matchers_also_run_in_the_frame_of_the_intrinsic_map(unequal_l
     assert _error(bt, corr.target_of) < 0.01
     assert corr.info["chosen"].startswith("shell-alignment@frame") and corr.info["frame"].startswith("estimated")
     # the frame is a rotation of the source, whatever the target's: the same map up to the turn
-    off = create_plugin("dense_matchers", "best-of", reframe=False, polish=0).match(a, bt)
+    off = create_plugin("dense_matchers", "best-of", reframe=False, polish=0, canonical=False).match(a, bt)
     assert {c["matcher"] for c in off.info["candidates"]} == {"fmap-zoomout", "shell-alignment"}
     assert "estimated_frame" not in off.info
 
@@ -162,3 +162,24 @@ def test_a_person_turned_between_scans_is_not_swapped(shared_data):
     assert corr.info["estimated_frame"]["rotation_degrees"] > 90.0
     err = paired_geodesic_distances(b, np.asarray(corr.target_of)[ta], tb, method="dijkstra") / np.sqrt(b.area)
     assert float(err.mean()) < 0.04
+
+
+def test_canonical_forms_remove_the_pose_and_the_turn(unequal_limbs):
+    """The shells on the two canonical forms (geodesic MDS), the source's turned by the best map so far: the turn
+    and the change of pose are gone, and the shells align the pair; the candidate competes like the others."""
+    from shape_toolkit.plugins.matching.dense.best_of import BestOfMatcher
+
+    a, b = unequal_limbs
+    bt = _turned(b, 120.0)
+    ids = np.arange(a.n_vertices)
+    (ca, cb), info = BestOfMatcher._canonical(a, bt, ids, np.ones(a.n_vertices), "truth")
+    assert info["from"] == "truth"
+    corr = create_plugin("dense_matchers", "shell-alignment").match(ca, cb)
+    assert _error(bt, corr.target_of) < 0.03
+    full = create_plugin("dense_matchers", "best-of").match(a, bt)
+    names = [c["matcher"] for c in full.info["candidates"]]
+    assert names[-2:] == ["shell-alignment@canonical", "shell-alignment@canonical+zoomout"]
+    assert full.info["canonical_frame"]["from"] in names[:-2]
+    off = create_plugin("dense_matchers", "best-of", canonical=False).match(a, bt)
+    assert "canonical_frame" not in off.info and not any("canonical" in n for n in
+                                                         (c["matcher"] for c in off.info["candidates"]))

@@ -548,11 +548,14 @@ def nearest_source(shape: Shape, sources: Sequence[int] | np.ndarray) -> np.ndar
     return owner
 
 
-def geodesic_farthest_points(shape: Shape, n_points: int, start: int | None = None) -> np.ndarray:
+def geodesic_farthest_points(
+    shape: Shape, n_points: int, start: int | None = None, *, return_distances: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """``n_points`` vertex ids (int64) spread by farthest point sampling along the mesh edges
     (Dijkstra): the first is ``start`` (default the vertex farthest from vertex 0), each next one
     the vertex farthest from those chosen (a vertex of a component not reached yet comes first, so
-    every component gets a point while points last). Deterministic."""
+    every component gets a point while points last). Deterministic. ``return_distances``: also the
+    Dijkstra distances ``(n_points, n)`` from each chosen vertex (length units), computed on the way."""
     n = shape.n_vertices
     if isinstance(n_points, bool) or not isinstance(n_points, (int, np.integer)) or not 1 <= n_points <= n:
         raise ParameterError(f"n_points must be an integer in [1, {n}], got {n_points!r}")
@@ -562,11 +565,16 @@ def geodesic_farthest_points(shape: Shape, n_points: int, start: int | None = No
         start = int(np.argmax(np.where(np.isfinite(d0), d0, -1.0)))
     first = int(check_vertex_ids([start], n, "start")[0])
     chosen = [first]
-    d = np.asarray(_csgraph_dijkstra(G, directed=False, indices=first), dtype=np.float64)
+    rows = [np.asarray(_csgraph_dijkstra(G, directed=False, indices=first), dtype=np.float64)]
+    d = rows[0].copy()
     for _ in range(int(n_points) - 1):
         score = np.where(np.isfinite(d), d, np.finfo(np.float64).max)
         score[chosen] = -1.0
         nxt = int(np.argmax(score))
         chosen.append(nxt)
-        d = np.minimum(d, _csgraph_dijkstra(G, directed=False, indices=nxt))
-    return np.asarray(chosen, dtype=np.int64)
+        row = np.asarray(_csgraph_dijkstra(G, directed=False, indices=nxt), dtype=np.float64)
+        d = np.minimum(d, row)
+        if return_distances:
+            rows.append(row)
+    ids = np.asarray(chosen, dtype=np.int64)
+    return (ids, np.vstack(rows)) if return_distances else ids
