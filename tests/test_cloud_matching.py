@@ -177,3 +177,24 @@ def test_a_grid_point_fans_its_four_axis_neighbours():
     F = _delaunay_fans(P, np.tile([0.0, 0.0, 1.0], (len(P), 1)), nb[:, 1:], np.ones((len(P), 30), bool), inner)
     assert len(F) == 4 * len(inner)
     np.testing.assert_allclose(np.linalg.norm(P[F[:, 1:]] - P[F[:, :1]], axis=2), 1.0)
+
+
+def test_a_clouds_normals_are_computed_once_for_its_laplacian_and_its_local_surface(monkeypatch):
+    """The point-cloud Laplacian (sheets by the outward normals) and the matcher's orientation term (the local
+    surface, oriented by the same normals) share one computation of a cloud's normals; a caller that changes the
+    array it got does not change them for the next."""
+    from shape_toolkit.core import surface
+    from shape_toolkit.core.graph import build_graph
+
+    calls = []
+    compute = surface._outward_normals
+    monkeypatch.setattr(surface, "_outward_normals", lambda *a: calls.append(1) or compute(*a))
+    cloud = Shape(articulated_shape(subdivisions=3, random_state=3).shape.vertices + 1e-3, None, "cloud")
+    build_graph(cloud, create_plugin("weightings", "intrinsic-delaunay"))
+    cloud_surface(cloud)
+    first = outward_normals(cloud.vertices)
+    expected = first.copy()
+    first[:] = 0.0
+    np.testing.assert_array_equal(outward_normals(cloud.vertices), expected)
+    assert len(calls) == 1
+    np.testing.assert_array_equal(expected, compute(cloud.vertices, 10))
