@@ -90,7 +90,7 @@ def outward_normals(points: np.ndarray, n_neighbors: int = 10) -> np.ndarray:
 
 
 def _outward_normals(points: np.ndarray, n_neighbors: int) -> np.ndarray:
-    """:func:`outward_normals` computed."""
+    """What :func:`outward_normals` returns, computed (not kept)."""
     import heapq
 
     import open3d as o3d
@@ -265,7 +265,8 @@ def _delaunay_fans(P: np.ndarray, N: np.ndarray, nb: np.ndarray, keep: np.ndarra
     Without a triangulation per point: a triangle ``(i, j, k)`` is Delaunay when the circle through the three
     holds no other neighbour, so the fan is what is left of the neighbours sorted by angle once every one inside
     (or on) the circle through ``i`` and its two remaining neighbours is dropped (by inversion about ``i``: the
-    convex hull of the inverted neighbours, whose vertices are ``i``'s Delaunay neighbours). All rows at once,
+    convex hull of the inverted neighbours, whose vertices are ``i``'s Delaunay neighbours); a point on the hull
+    of its neighbourhood (an angular gap of a half turn or more) has an open fan whose two ends stay. All rows at once,
     ``chunk`` at a time. Ties (four points on a circle) go to the fewer triangles: a neighbour on the circle is
     dropped; scipy's Delaunay (Qhull) breaks them its own way, and gave the same triangles otherwise."""
     rows = np.asarray(rows, dtype=np.int64)
