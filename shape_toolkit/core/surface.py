@@ -235,13 +235,14 @@ def _fan_chunk(P: np.ndarray, N: np.ndarray, nb: np.ndarray, keep: np.ndarray, r
     ends = chain[:, None] & ((slot == 0) | (slot == (m - 1)[:, None]))
     active = inside.copy()
     live = np.flatnonzero(m >= 3)
-    while len(live):  # drop, in every row at once, each neighbour inside or on the circle through the centre
+    while len(live):  # drop, in every row at once, each neighbour outside or on the circle through the centre
         a = active[live]  # and its two active neighbours in the fan, until none is left to drop
         prv, nxt = _previous_active(a), _next_active(a)
         xs, ys, ls = x[live], y[live], lift[live]
         xp, yp, lp = (np.take_along_axis(v, prv, 1) for v in (xs, ys, ls))
         xn, yn, ln = (np.take_along_axis(v, nxt, 1) for v in (xs, ys, ls))
-        # in-circle determinant of (centre, previous, this, next): > 0 when this is outside the circle
+        # in-circle determinant of (centre, previous, this, next): > 0 when this is inside the circle through the
+        # other three (their triangle is not Delaunay; this one stays)
         det = lp * (xs * yn - ys * xn) - ls * (xp * yn - yp * xn) + ln * (xp * ys - yp * xs)
         drop = a & ~ends[live] & (det <= 0)
         hit = drop.any(axis=1)
@@ -263,10 +264,11 @@ def _delaunay_fans(P: np.ndarray, N: np.ndarray, nb: np.ndarray, keep: np.ndarra
     each ``(i, j, k)``, counter-clockwise about ``N[i]``, ``rows`` in order and each fan by angle.
 
     Without a triangulation per point: a triangle ``(i, j, k)`` is Delaunay when the circle through the three
-    holds no other neighbour, so the fan is what is left of the neighbours sorted by angle once every one inside
-    (or on) the circle through ``i`` and its two remaining neighbours is dropped (by inversion about ``i``: the
-    convex hull of the inverted neighbours, whose vertices are ``i``'s Delaunay neighbours); a point on the hull
-    of its neighbourhood (an angular gap of a half turn or more) has an open fan whose two ends stay. All rows at once,
+    holds no other neighbour. The neighbours sorted by angle, every one outside (or on) the circle through ``i``
+    and its two remaining neighbours is dropped until none is: consecutive neighbours left then have empty
+    circles (by inversion about ``i``, circles through ``i`` become lines: what is left are the vertices of the
+    convex hull of the inverted neighbours, ``i``'s Delaunay neighbours). A point on the hull of its
+    neighbourhood (an angular gap of a half turn or more) has an open fan whose two ends stay. All rows at once,
     ``chunk`` at a time. Ties (four points on a circle) go to the fewer triangles: a neighbour on the circle is
     dropped; scipy's Delaunay (Qhull) breaks them its own way, and gave the same triangles otherwise."""
     rows = np.asarray(rows, dtype=np.int64)
