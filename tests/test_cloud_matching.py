@@ -109,3 +109,92 @@ def test_two_clouds_match_better_on_each_points_sheet():
 
     sheet, everything = mean_error("sheet"), mean_error("all")
     assert sheet < 0.015 and sheet < everything
+
+
+def _scipy_fans(P: np.ndarray, N: np.ndarray, nb: np.ndarray, keep: np.ndarray) -> set:
+    """The reference: each point's 2-D Delaunay triangulation (Qhull) of itself and its kept neighbours in its
+    tangent plane, the triangles around it, as (centre, triangle rotated to its lowest index) pairs."""
+    from scipy.spatial import Delaunay, QhullError
+
+    from shape_toolkit.core.surface import _tangent_frames
+
+    e1, e2 = _tangent_frames(N)
+    out = set()
+    for i in range(len(P)):
+        idx = np.concatenate([[i], nb[i][keep[i]]])
+        if len(idx) < 3:
+            continue
+        d = P[idx] - P[i]
+        try:
+            tri = Delaunay(np.stack([d @ e1[i], d @ e2[i]], axis=1)).simplices
+        except QhullError:
+            continue
+        out |= {(i, _rotated(t)) for t in idx[tri[(tri == 0).any(axis=1)]]}
+    return out
+
+
+def _rotated(t: np.ndarray) -> tuple:
+    r = int(np.argmin(t))
+    return tuple(int(t[(r + s) % 3]) for s in range(3))
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.01])
+def test_the_local_triangulations_are_the_delaunay_fans_of_each_point(noise):
+    """The fans computed for all points at once (empty circles, no triangulation per point) are the triangles
+    around each point of its own 2-D Delaunay triangulation (scipy), with the same orientation: on an articulated
+    shape's cloud, clean and noisy, with all neighbours and with a random third of them left (many points then on
+    the hull of their neighbourhood), and on a flat random patch (its rim); in chunks or not."""
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.core.surface import _delaunay_fans
+
+    rng = np.random.default_rng(0)
+    shape = articulated_shape(subdivisions=3, random_state=1).shape
+    P = shape.vertices + rng.normal(scale=noise * shape.diagonal, size=shape.vertices.shape)
+    flat = rng.random((800, 3)) * np.array([1.0, 1.0, 0.01])
+    for points, normals in ((P, outward_normals(P)), (flat, np.tile([0.0, 0.0, 1.0], (len(flat), 1)))):
+        _, nb = cKDTree(points).query(points, 31)
+        nb = nb[:, 1:]
+        for keep in (np.ones(nb.shape, dtype=bool), rng.random(nb.shape) < 0.3):
+            F = _delaunay_fans(points, normals, nb, keep, np.arange(len(points)))
+            assert np.all(F[:, 0][1:] >= F[:, 0][:-1])  # point by point, each fan's triangles around its point
+            got = [(int(t[0]), _rotated(t)) for t in F]
+            assert len(set(got)) == len(got) and set(got) == _scipy_fans(points, normals, nb, keep)
+            np.testing.assert_array_equal(_delaunay_fans(points, normals, nb, keep, np.arange(len(points)), 97), F)
+
+
+def test_a_grid_point_fans_its_four_axis_neighbours():
+    """Ties (a grid: the four corners of every square on one circle) go to the fewer triangles: each inner
+    point's fan is the four triangles with its axis neighbours, never a diagonal."""
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.core.surface import _delaunay_fans
+
+    g = np.stack(np.meshgrid(np.arange(12.0), np.arange(12.0)), -1).reshape(-1, 2)
+    P = np.c_[g, np.zeros(len(g))]
+    _, nb = cKDTree(P).query(P, 31)
+    inner = np.flatnonzero((g.min(axis=1) > 0) & (g.max(axis=1) < 11))
+    F = _delaunay_fans(P, np.tile([0.0, 0.0, 1.0], (len(P), 1)), nb[:, 1:], np.ones((len(P), 30), bool), inner)
+    assert len(F) == 4 * len(inner)
+    np.testing.assert_allclose(np.linalg.norm(P[F[:, 1:]] - P[F[:, :1]], axis=2), 1.0)
+
+
+def test_a_clouds_normals_are_computed_once_for_its_laplacian_and_its_local_surface(monkeypatch):
+    """The point-cloud Laplacian (sheets by the outward normals) and the matcher's orientation term (the local
+    surface, oriented by the same normals) share one computation of a cloud's normals; a caller that changes the
+    array it got does not change them for the next."""
+    from shape_toolkit.core import surface
+    from shape_toolkit.core.graph import build_graph
+
+    calls = []
+    compute = surface._outward_normals
+    monkeypatch.setattr(surface, "_outward_normals", lambda *a: calls.append(1) or compute(*a))
+    cloud = Shape(articulated_shape(subdivisions=3, random_state=3).shape.vertices + 1e-3, None, "cloud")
+    build_graph(cloud, create_plugin("weightings", "intrinsic-delaunay"))
+    cloud_surface(cloud)
+    first = outward_normals(cloud.vertices)
+    expected = first.copy()
+    first[:] = 0.0
+    np.testing.assert_array_equal(outward_normals(cloud.vertices), expected)
+    assert len(calls) == 1
+    np.testing.assert_array_equal(expected, compute(cloud.vertices, 10))

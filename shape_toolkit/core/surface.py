@@ -26,6 +26,10 @@ thin part and got the sign wrong on 5-28 % of the points of TOSCA dogs and FAUST
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
+
 import numpy as np
 
 from shape_toolkit.core.geometry import edge_components, signed_volume
@@ -47,6 +51,12 @@ TANGENT_COS = 0.5
 #: a neighbour's height above a point's tangent plane allowed for noise: this many standard deviations of the
 #: point's 10 nearest neighbours about their plane
 NOISE_SIGMAS = 2.0
+#: points of the local triangulations handled at once: bounds the ``(points, n_neighbors, 3)`` work arrays
+FAN_CHUNK = 1 << 15
+#: clouds whose outward normals are kept (:func:`outward_normals`)
+NORMALS_KEPT = 4
+_NORMALS: OrderedDict[tuple, np.ndarray] = OrderedDict()
+_NORMALS_LOCK = threading.Lock()
 
 
 def _sphere_directions(m: int) -> np.ndarray:
@@ -59,7 +69,28 @@ def _sphere_directions(m: int) -> np.ndarray:
 def outward_normals(points: np.ndarray, n_neighbors: int = 10) -> np.ndarray:
     """Unit normals ``(n, 3)`` of a point cloud ``points`` ``(n, 3)``, oriented outwards (module docstring):
     PCA of ``n_neighbors`` nearest neighbours, signs from visibility and propagated to the unseen points.
-    Deterministic and independent of the order of the points (up to ties in floating point)."""
+    Deterministic and independent of the order of the points (up to ties in floating point).
+
+    Computed once per cloud: the normals of the last ``NORMALS_KEPT`` clouds are kept, keyed by the points'
+    bytes, so the point-cloud Laplacian's weighting and the matcher's orientation term (:func:`cloud_surface`)
+    share them (a copy is returned)."""
+    P = np.ascontiguousarray(points, dtype=np.float64)
+    key = (hashlib.sha1(P.tobytes()).hexdigest(), P.shape, int(n_neighbors))
+    with _NORMALS_LOCK:
+        N = _NORMALS.get(key)
+        if N is not None:
+            _NORMALS.move_to_end(key)
+            return N.copy()
+    N = _outward_normals(P, n_neighbors)
+    with _NORMALS_LOCK:
+        _NORMALS[key] = N.copy()
+        while len(_NORMALS) > NORMALS_KEPT:
+            _NORMALS.popitem(last=False)
+    return N
+
+
+def _outward_normals(points: np.ndarray, n_neighbors: int) -> np.ndarray:
+    """What :func:`outward_normals` returns, computed (not kept)."""
     import heapq
 
     import open3d as o3d
@@ -158,24 +189,90 @@ def _tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(normals, e1)
 
 
-def _delaunay_fans(P: np.ndarray, N: np.ndarray, nb: np.ndarray, keep: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """Triangles ``(m, 3)`` incident to each point ``i`` in ``rows`` of the 2-D Delaunay triangulation, in
-    its tangent plane (normal ``N[i]``), of ``i`` and its neighbours ``nb[i]`` where ``keep[i]``."""
-    from scipy.spatial import Delaunay, QhullError
+def _next_active(active: np.ndarray) -> np.ndarray:
+    """For every slot of each row of ``active`` ``(r, k)`` (bool), the next active slot of that row, circularly
+    (the first active one after the last); ``k`` where the row has none."""
+    k = active.shape[1]
+    t = np.where(active, np.arange(k), k)
+    suffix = np.minimum.accumulate(t[:, ::-1], axis=1)[:, ::-1]  # the first active slot at or after each slot
+    nxt = np.concatenate([suffix[:, 1:], np.full((len(t), 1), k)], axis=1)
+    return np.where(nxt == k, suffix[:, :1], nxt)
 
-    rows = np.asarray(rows)
+
+def _previous_active(active: np.ndarray) -> np.ndarray:
+    """For every slot of each row of ``active`` ``(r, k)`` (bool), the previous active slot of that row,
+    circularly (the last active one before the first); -1 where the row has none."""
+    t = np.where(active, np.arange(active.shape[1]), -1)
+    prefix = np.maximum.accumulate(t, axis=1)  # the last active slot at or before each slot
+    prv = np.concatenate([np.full((len(t), 1), -1), prefix[:, :-1]], axis=1)
+    return np.where(prv == -1, prefix[:, -1:], prv)
+
+
+def _fan_chunk(P: np.ndarray, N: np.ndarray, nb: np.ndarray, keep: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """:func:`_delaunay_fans` for the points ``rows`` at once (arrays ``(len(rows), k)``)."""
+    k = nb.shape[1]
     e1, e2 = _tangent_frames(N[rows])
-    out = []
-    for i, a, b in zip(rows, e1, e2):
-        idx = np.concatenate([[i], nb[i][keep[i]]])
-        if len(idx) < 3:
-            continue
-        d = P[idx] - P[i]
-        try:
-            tri = Delaunay(np.stack([d @ a, d @ b], axis=1)).simplices
-        except QhullError:  # all neighbours on a line in the plane: no triangle around this point
-            continue
-        out.append(idx[tri[(tri == 0).any(axis=1)]])
+    d = P[nb[rows]] - P[rows][:, None, :]
+    x, y = np.einsum("ikc,ic->ik", d, e1), np.einsum("ikc,ic->ik", d, e2)
+    lift = x * x + y * y
+    valid = keep[rows] & (lift > 0)  # a neighbour projected onto the centre spans no triangle with it
+    # the neighbours by angle about the normal, counter-clockwise; left-out ones last (atan2 <= pi < 4)
+    order = np.argsort(np.where(valid, np.arctan2(y, x), 4.0), axis=1, kind="stable")
+    x, y, lift, ids = (np.take_along_axis(a, order, 1) for a in (x, y, lift, nb[rows]))
+    m = valid.sum(axis=1)
+    slot = np.arange(k)
+    inside = slot < m[:, None]
+    ang = np.where(inside, np.arctan2(y, x), 0.0)
+    # the angular gap after each neighbour (the last one's wraps round to the first)
+    gap = np.where(slot < (m - 1)[:, None], np.roll(ang, -1, axis=1), ang[:, :1] + 2 * np.pi) - ang
+    widest = np.argmax(np.where(inside, gap, -1.0), axis=1)
+    # a gap of a half turn or more: the centre is on the hull of its neighbourhood, the fan is an open chain
+    # from the neighbour after that gap to the one before it; rolled so that it runs from slot 0 to slot m - 1
+    chain = np.take_along_axis(gap, widest[:, None], 1)[:, 0] >= np.pi
+    mm = np.maximum(m, 1)[:, None]
+    roll = np.where(inside, (slot + np.where(chain, widest + 1, 0)[:, None]) % mm, slot)
+    x, y, lift, ids = (np.take_along_axis(a, roll, 1) for a in (x, y, lift, ids))
+    ends = chain[:, None] & ((slot == 0) | (slot == (m - 1)[:, None]))
+    active = inside.copy()
+    live = np.flatnonzero(m >= 3)
+    while len(live):  # drop, in every row at once, each neighbour outside or on the circle through the centre
+        a = active[live]  # and its two active neighbours in the fan, until none is left to drop
+        prv, nxt = _previous_active(a), _next_active(a)
+        xs, ys, ls = x[live], y[live], lift[live]
+        xp, yp, lp = (np.take_along_axis(v, prv, 1) for v in (xs, ys, ls))
+        xn, yn, ln = (np.take_along_axis(v, nxt, 1) for v in (xs, ys, ls))
+        # in-circle determinant of (centre, previous, this, next): > 0 when this is inside the circle through the
+        # other three (their triangle is not Delaunay; this one stays)
+        det = lp * (xs * yn - ys * xn) - ls * (xp * yn - yp * xn) + ln * (xp * ys - yp * xs)
+        drop = a & ~ends[live] & (det <= 0)
+        hit = drop.any(axis=1)
+        active[live] = a & ~drop
+        live = live[hit]
+    nxt = np.minimum(_next_active(active), k - 1)
+    xn, yn = np.take_along_axis(x, nxt, 1), np.take_along_axis(y, nxt, 1)
+    # each active neighbour and the next one make a triangle with the centre, but across the chain's gap and
+    # where the two are collinear with the centre (fewer than two neighbours; a straight angle)
+    tri = active & ~(chain[:, None] & (slot == (m - 1)[:, None])) & (x * yn - y * xn > 0)
+    i, s = np.nonzero(tri)
+    return np.stack([rows[i], ids[i, s], np.take_along_axis(ids, nxt, 1)[i, s]], axis=1)
+
+
+def _delaunay_fans(P: np.ndarray, N: np.ndarray, nb: np.ndarray, keep: np.ndarray, rows: np.ndarray,
+                   chunk: int = FAN_CHUNK) -> np.ndarray:
+    """Triangles ``(m, 3)`` incident to each point ``i`` in ``rows`` of the 2-D Delaunay triangulation, in
+    its tangent plane (normal ``N[i]``), of ``i`` and its neighbours ``nb[i]`` (``(n, k)``) where ``keep[i]``;
+    each ``(i, j, k)``, counter-clockwise about ``N[i]``, ``rows`` in order and each fan by angle.
+
+    Without a triangulation per point: a triangle ``(i, j, k)`` is Delaunay when the circle through the three
+    holds no other neighbour. The neighbours sorted by angle, every one outside (or on) the circle through ``i``
+    and its two remaining neighbours is dropped until none is: consecutive neighbours left then have empty
+    circles (by inversion about ``i``, circles through ``i`` become lines: what is left are the vertices of the
+    convex hull of the inverted neighbours, ``i``'s Delaunay neighbours). A point on the hull of its
+    neighbourhood (an angular gap of a half turn or more) has an open fan whose two ends stay. All rows at once,
+    ``chunk`` at a time. Ties (four points on a circle) go to the fewer triangles: a neighbour on the circle is
+    dropped; scipy's Delaunay (Qhull) breaks them its own way, and gave the same triangles otherwise."""
+    rows = np.asarray(rows, dtype=np.int64)
+    out = [_fan_chunk(P, N, nb, keep, rows[s : s + chunk]) for s in range(0, len(rows), chunk)]
     return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
 
 
@@ -200,13 +297,17 @@ def local_delaunay_triangles(points: np.ndarray, normals: np.ndarray, n_neighbor
     k = int(min(n_neighbors, n - 1))
     _, nb = cKDTree(P).query(P, k + 1)
     nb = nb[:, 1:]
-    off = P[nb] - P[:, None, :]
-    height = np.abs(np.einsum("ikc,ic->ik", off, N))
-    # the sheet's own thickness (noise): the spread of the 10 nearest about their plane, two standard deviations
-    near = off[:, : min(10, k)]
-    spread = np.einsum("ikc,ic->ik", near - near.mean(axis=1, keepdims=True), N).std(axis=1)
-    in_plane = height <= TANGENT_COS * np.linalg.norm(off, axis=2) + NOISE_SIGMAS * spread[:, None]
-    same_side = np.einsum("ikc,ic->ik", N[nb], N) > 0
+    in_plane = np.empty(nb.shape, dtype=bool)
+    same_side = np.empty(nb.shape, dtype=bool)
+    for s in range(0, n, FAN_CHUNK):  # (points, k, 3) arrays a chunk at a time
+        c = slice(s, s + FAN_CHUNK)
+        off = P[nb[c]] - P[c, None, :]
+        height = np.abs(np.einsum("ikc,ic->ik", off, N[c]))
+        # the sheet's own thickness (noise): the spread of the 10 nearest about their plane, two standard deviations
+        near = off[:, : min(10, k)]
+        spread = np.einsum("ikc,ic->ik", near - near.mean(axis=1, keepdims=True), N[c]).std(axis=1)
+        in_plane[c] = height <= TANGENT_COS * np.linalg.norm(off, axis=2) + NOISE_SIGMAS * spread[:, None]
+        same_side[c] = np.einsum("ikc,ic->ik", N[nb[c]], N[c]) > 0
     F = _delaunay_fans(P, N, nb, in_plane & same_side, np.arange(n))
     for keep in (in_plane, np.ones_like(in_plane)):
         _, labels = edge_components(n, np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]))
