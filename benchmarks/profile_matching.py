@@ -65,12 +65,6 @@ STAGES = {
 }
 
 
-def _data(arg: str | None) -> Path:
-    if arg:
-        return Path(arg)
-    return Path(os.environ.get("TOOLKIT_DATA", REPO.parent / "shared" / "data"))
-
-
 def _cumulative(stats: pstats.Stats, fragment: str, name: str) -> tuple[float, int]:
     """Cumulative CPU seconds and primitive call count of the functions ``name`` whose file path
     contains ``fragment`` (outermost calls only: recursion is not double counted by cProfile)."""
@@ -250,14 +244,15 @@ def write_results(profiles: list[dict], nn: list[dict], output: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", help="shared data directory (default $TOOLKIT_DATA or ../shared/data)")
+    ap.add_argument("--data", default=os.environ.get("TOOLKIT_DATA", str(REPO.parent / "shared" / "data")),
+                    help="shared data directory (default $TOOLKIT_DATA or ../shared/data)")
     ap.add_argument("--pairs", default=DEFAULT_PAIRS, help="comma-separated dataset:A:B")
     ap.add_argument("--methods", default="zoomout,pyfm")
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--no-nn", action="store_true", help="skip the nearest-neighbour table")
     ap.add_argument("--output", default=str(RESULTS / "matching_profile.md"))
     args = ap.parse_args(argv)
-    data = _data(args.data)
+    data = Path(args.data)
     pairs = [tuple(p.split(":")) for p in args.pairs.split(",") if p.strip()]
     if not all((data / ds / f"{a}.off").exists() for ds, a, _ in pairs):
         print(f"data not found under {data}: pass --data or set TOOLKIT_DATA", file=sys.stderr)
