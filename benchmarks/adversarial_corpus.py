@@ -23,7 +23,7 @@ names, plugin names, presets and parameters, ``--param`` tables; and the command
 
 Writes ``benchmarks/results/adversarial.md`` (corpus size, counts, every failure).
 
-    python benchmarks/adversarial_corpus.py [--out DIR] [--jobs 2] [--timeout 120] [--quick]
+    python benchmarks/adversarial_corpus.py [--out DIR] [--jobs 2] [--timeout 180] [--commands info,clean]
 
 ``tests/test_adversarial.py`` runs a fast subset in-process through ``shape_toolkit.cli.main``.
 """
@@ -63,9 +63,7 @@ NULLABLE = frozenset({
     "bic_curve_", "bic_monotone_",  # eigvec-gmm's BIC scan: None when k is given (no scan)
 })
 
-# ------------------------------------------------------------------------------------------------
-# corpus
-# ------------------------------------------------------------------------------------------------
+# -- corpus
 _PLY_HEAD = "ply\nformat {fmt} 1.0\nelement vertex {nv}\nproperty float x\nproperty float y\nproperty float z\n"
 
 
@@ -82,13 +80,17 @@ def _off(v, f) -> str:
     )
 
 
-def _ply_binary(v, f, *, nf=None, count_type="uchar", index_type="int", index_dtype="<i4", count_dtype="u1") -> bytes:
+def _ply_binary(v, f, *, nf=None, count=None, count_type="uchar", index_type="int", index_dtype="<i4",
+                count_dtype="u1") -> bytes:
+    """A binary PLY of vertices ``v`` and faces ``f``; ``nf`` a face count to declare instead of ``len(f)``,
+    ``count`` a list length to write before every face instead of its own."""
     head = _PLY_HEAD.format(fmt="binary_little_endian", nv=len(v))
     head += f"element face {len(f) if nf is None else nf}\n"
     head += f"property list {count_type} {index_type} vertex_indices\nend_header\n"
     body = np.asarray(v, dtype="<f4").tobytes()
     for r in f:
-        body += np.array([len(r)], dtype=count_dtype).tobytes() + np.asarray(r, dtype=index_dtype).tobytes()
+        n = len(r) if count is None else count
+        body += np.array([n], dtype=count_dtype).tobytes() + np.asarray(r, dtype=index_dtype).tobytes()
     return head.encode() + body
 
 
@@ -105,10 +107,7 @@ def mesh_corpus(folder: Path) -> dict[str, Path]:
     # -- controls (must succeed)
     files["good.off"] = good_off
     # -- emptiness, truncation, garbage
-    files["empty.off"] = ""
-    files["empty.ply"] = ""
-    files["empty.stl"] = ""
-    files["empty.pcd"] = ""
+    files.update({f"empty.{ext}": "" for ext in ("off", "ply", "stl", "pcd")})
     files["whitespace.obj"] = "\n\n   \n"
     files["only_header.off"] = "OFF\n"
     files["truncated_half.off"] = good_off[: len(good_off) // 2]
@@ -156,9 +155,7 @@ def mesh_corpus(folder: Path) -> dict[str, Path]:
                                       "0 0 0\n1 0 0\n0 1 0\n3 0.5 1 2\n")
     files["index_float_binary.ply"] = _ply_binary(tri_v, [[0.5, 1, 2]], index_type="float", index_dtype="<f4")
     files["index_nan_binary.ply"] = _ply_binary(tri_v, [[np.nan, 1, 2]], index_type="float", index_dtype="<f4")
-    files["list_count_negative.ply"] = _ply_binary(tri_v, [[0, 1, 2]], count_type="char", count_dtype="i1") \
-        .replace(b"end_header\n" + np.asarray(tri_v, "<f4").tobytes() + b"\x03",
-                 b"end_header\n" + np.asarray(tri_v, "<f4").tobytes() + b"\xff")
+    files["list_count_negative.ply"] = _ply_binary(tri_v, [[0, 1, 2]], count=-1, count_type="char", count_dtype="i1")
     files["list_count_negative_ascii.ply"] = (_PLY_HEAD.format(fmt="ascii", nv=3) + "element face 1\n"
                                               "property list char int vertex_indices\nend_header\n"
                                               "0 0 0\n1 0 0\n0 1 0\n-1 0 1 2\n")
@@ -179,8 +176,7 @@ def mesh_corpus(folder: Path) -> dict[str, Path]:
     files["ply_dup_property.ply"] = (b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n"
                                      b"property float x\nproperty float z\nend_header\n") + b"\x00" * 12
     # -- topology and geometry defects
-    dup = np.concatenate([f, f[:40]])
-    files["duplicate_faces.off"] = _off(v, dup)
+    files["duplicate_faces.off"] = _off(v, np.concatenate([f, f[:40]]))
     files["flipped_duplicate_faces.off"] = _off(v, np.concatenate([f, f[:40, ::-1]]))
     files["degenerate_faces.off"] = _off(np.r_[v, [[0.5, 0.5, 0.5]]], np.r_[f, [[0, 0, 1], [2, 2, 2]]])
     files["zero_area.off"] = "OFF\n3 1 0\n0 0 0\n1 0 0\n2 0 0\n3 0 1 2\n"
@@ -189,10 +185,8 @@ def mesh_corpus(folder: Path) -> dict[str, Path]:
     files["two_points.pcd"] = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\n"
                                "HEIGHT 1\nPOINTS 2\nDATA ascii\n0 0 0\n1 0 0\n")
     files["single_triangle.off"] = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
-    nm = np.r_[f, [[f[0, 0], f[0, 1], len(v)]]]
-    files["non_manifold_edge.off"] = _off(np.r_[v, [[3.0, 3.0, 3.0]]], nm)
-    bow = np.array([[0, 1, 2], [0, 3, 4]])
-    files["bowtie.off"] = _off([[0, 0, 0], [1, 0, 0], [1, 1, 0], [-1, 0, 0], [-1, -1, 0]], bow)
+    files["non_manifold_edge.off"] = _off(np.r_[v, [[3.0, 3.0, 3.0]]], np.r_[f, [[f[0, 0], f[0, 1], len(v)]]])
+    files["bowtie.off"] = _off([[0, 0, 0], [1, 0, 0], [1, 1, 0], [-1, 0, 0], [-1, -1, 0]], [[0, 1, 2], [0, 3, 4]])
     files["disconnected.off"] = _off(np.r_[v, v + 5.0], np.r_[f, f + len(v)])
     files["unreferenced_vertices.off"] = _off(np.r_[v, [[9.0, 9.0, 9.0]] * 5], f)
     files["polygons.obj"] = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nf 1 2 3 4\nf 1 2 5\n"
@@ -233,12 +227,9 @@ def mesh_corpus(folder: Path) -> dict[str, Path]:
     for name in NASTY_NAMES:
         files[f"{name}.off"] = good_off
     for name, content in files.items():
-        p = folder / name
-        p.write_bytes(content.encode() if isinstance(content, str) else content)
-    save_shape(s, folder / "good_binary.ply", binary=True)
-    save_shape(s, folder / "good_binary.stl", binary=True)
-    save_shape(s, folder / "good.obj")
-    save_shape(s, folder / "good.pcd")
+        (folder / name).write_bytes(content.encode() if isinstance(content, str) else content)
+    for name in ("good_binary.ply", "good_binary.stl", "good.obj", "good.pcd"):
+        save_shape(s, folder / name, binary="binary" in name)
     (folder / "directory.off").mkdir(exist_ok=True)
     out = {p.name: p for p in sorted(folder.iterdir())}
     out["missing.off"] = folder / "missing.off"
@@ -251,9 +242,15 @@ def side_corpus(folder: Path, n_vertices: int, n_faces: int) -> dict[str, dict[s
     """Adversarial labels / map / seeds / vts / constraints files and the good ones."""
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(0)
+    n = n_vertices
+    out: dict[str, dict[str, Path]] = {"good": {}, "labels": {}, "map": {}, "vts": {}, "seeds": {}, "constraints": {}}
 
     def ints(a) -> str:
         return "".join(f"{int(x)}\n" for x in a)
+
+    def put(kind: str, case: str, name: str, content: bytes | str) -> None:
+        out[kind][case] = folder / name
+        out[kind][case].write_bytes(content if isinstance(content, bytes) else content.encode())
 
     bad_int_files: dict[str, bytes | str] = {
         "empty": "",
@@ -269,59 +266,35 @@ def side_corpus(folder: Path, n_vertices: int, n_faces: int) -> dict[str, dict[s
         "nan": "nan\n1\n",
     }
     good = {
-        "labels": ints(rng.integers(0, 4, n_vertices)),
+        "labels": ints(rng.integers(0, 4, n)),
         "seg": ints(rng.integers(0, 4, n_faces)),
-        "map": ints(np.arange(n_vertices)),
-        "vts": ints(np.arange(1, n_vertices + 1, 5)),
+        "map": ints(np.arange(n)),
+        "vts": ints(np.arange(1, n + 1, 5)),
         "seeds": "0 0\n5 5\n10 10\n",
         "constraints.json": json.dumps({"must_link": [[0, 1]], "cannot_link": [[0, 100]]}),
     }
-    out: dict[str, dict[str, Path]] = {"good": {}, "labels": {}, "map": {}, "vts": {}, "seeds": {}, "constraints": {}}
     for kind, text in good.items():
-        p = folder / f"good.{kind}"
-        p.write_text(text)
-        out["good"][kind.split(".")[0]] = p
-    for kind in ("labels", "map", "vts", "seeds"):
-        for name, content in bad_int_files.items():
-            if kind == "seeds" and name not in ("empty", "binary", "utf16", "latin1"):
-                content = content if isinstance(content, bytes) else "".join(
-                    f"{t} {t}\n" for t in content.split()) or content
-            p = folder / f"{name}.{kind}"
-            p.write_bytes(content if isinstance(content, bytes) else content.encode("utf-8"))
-            out[kind][name] = p
-        d = folder / f"dir.{kind}"
-        d.mkdir(exist_ok=True)
-        out[kind]["directory"] = d
-        out[kind]["missing"] = folder / f"missing.{kind}"
-    out["labels"]["wrong_length"] = folder / "short.labels"
-    out["labels"]["wrong_length"].write_text(ints([0, 1, 2]))
-    out["labels"]["negative"] = folder / "negative.labels"
-    out["labels"]["negative"].write_text(ints(-rng.integers(1, 5, n_vertices)))
-    out["labels"]["all_unique"] = folder / "unique.labels"
-    out["labels"]["all_unique"].write_text(ints(np.arange(n_vertices) * 7919))
-    out["labels"]["extreme"] = folder / "extreme.labels"
-    out["labels"]["extreme"].write_text(ints(rng.choice([-(2**62), 2**62, 0], n_vertices)))
-    out["map"]["out_of_range"] = folder / "range.map"
-    out["map"]["out_of_range"].write_text(ints(np.full(n_vertices, n_vertices + 3)))
-    out["map"]["all_unmatched"] = folder / "unmatched.map"
-    out["map"]["all_unmatched"].write_text(ints(np.full(n_vertices, -1)))
-    out["map"]["below_minus_one"] = folder / "minus.map"
-    out["map"]["below_minus_one"].write_text(ints(np.full(n_vertices, -7)))
-    out["vts"]["zero_based"] = folder / "zero.vts"
-    out["vts"]["zero_based"].write_text(ints(np.arange(0, n_vertices, 5)))
-    out["vts"]["out_of_range"] = folder / "range.vts"
-    out["vts"]["out_of_range"].write_text(ints([1, n_vertices + 10]))
-    seeds_extra = {"three_columns": "0 1 2\n", "out_of_range": f"0 {n_vertices + 4}\n", "negative": "-1 3\n",
-                   "comma": "0,0\n1,1\n", "comment_only": "# nothing\n"}
-    for name, text in seeds_extra.items():
-        p = folder / f"{name}.seeds"
-        p.write_text(text)
-        out["seeds"][name] = p
+        put("good", kind.split(".")[0], f"good.{kind}", text)
+    #: (kind, case): (file name, content), the bad files of one kind only
+    own_kind = {
+        ("labels", "wrong_length"): ("short.labels", ints([0, 1, 2])),
+        ("labels", "negative"): ("negative.labels", ints(-rng.integers(1, 5, n))),
+        ("labels", "all_unique"): ("unique.labels", ints(np.arange(n) * 7919)),
+        ("labels", "extreme"): ("extreme.labels", ints(rng.choice([-(2**62), 2**62, 0], n))),
+        ("map", "out_of_range"): ("range.map", ints(np.full(n, n + 3))),
+        ("map", "all_unmatched"): ("unmatched.map", ints(np.full(n, -1))),
+        ("map", "below_minus_one"): ("minus.map", ints(np.full(n, -7))),
+        ("vts", "zero_based"): ("zero.vts", ints(np.arange(0, n, 5))),
+        ("vts", "out_of_range"): ("range.vts", ints([1, n + 10])),
+    }
+    seeds = {"three_columns": "0 1 2\n", "out_of_range": f"0 {n + 4}\n", "negative": "-1 3\n",
+             "comma": "0,0\n1,1\n", "comment_only": "# nothing\n"}
+    own_kind.update({("seeds", case): (f"{case}.seeds", text) for case, text in seeds.items()})
     cons = {
         "not_json": "{must_link: [[0, 1]]}",
         "list": "[[0, 1]]",
         "unknown_key": '{"must": [[0, 1]]}',
-        "out_of_range": json.dumps({"must_link": [[0, n_vertices + 5]]}),
+        "out_of_range": json.dumps({"must_link": [[0, n + 5]]}),
         "self_pair": '{"must_link": [[3, 3]]}',
         "contradiction": '{"must_link": [[0, 1], [1, 2]], "cannot_link": [[0, 2]]}',
         "float_ids": '{"must_link": [[0.5, 1]]}',
@@ -335,18 +308,25 @@ def side_corpus(folder: Path, n_vertices: int, n_faces: int) -> dict[str, dict[s
         "utf16": '{"must_link": [[0, 1]]}'.encode("utf-16"),
         "empty": "",
     }
-    for name, content in cons.items():
-        p = folder / f"{name}.constraints.json"
-        p.write_bytes(content if isinstance(content, bytes) else content.encode())
-        out["constraints"][name] = p
+    for kind in ("labels", "map", "vts", "seeds"):
+        for name, content in bad_int_files.items():
+            if kind == "seeds" and name not in ("empty", "binary", "utf16", "latin1"):
+                content = content if isinstance(content, bytes) else "".join(
+                    f"{t} {t}\n" for t in content.split()) or content
+            put(kind, name, f"{name}.{kind}", content)
+        out[kind]["directory"] = folder / f"dir.{kind}"
+        out[kind]["directory"].mkdir(exist_ok=True)
+        out[kind]["missing"] = folder / f"missing.{kind}"
+    for (kind, case), (name, content) in own_kind.items():
+        put(kind, case, name, content)
+    for case, content in cons.items():
+        put("constraints", case, f"{case}.constraints.json", content)
     out["constraints"]["directory"] = folder / "dir.constraints"
     out["constraints"]["directory"].mkdir(exist_ok=True)
     return out
 
 
-# ------------------------------------------------------------------------------------------------
-# runs
-# ------------------------------------------------------------------------------------------------
+# -- runs
 @dataclass
 class Run:
     case: str
@@ -354,7 +334,6 @@ class Run:
     code: int | None = None
     stdout: str = ""
     stderr: str = ""
-    seconds: float = 0.0
     verdict: str = ""
     why: str = ""
 
@@ -384,29 +363,26 @@ def mesh_runs(mesh: Path, name: str, side: dict, out: Path, *, commands: tuple[s
               own: dict[str, Path] | None = None) -> list[Run]:
     """Every mesh-reading subcommand with ``mesh`` in the position of the shape under test; ``own``: side
     files sized to the mesh (:func:`own_side_files`), else the good mesh's."""
-    g = side["good"]
-    good = side["good_mesh"]
+    g, good = side["good"], str(side["good_mesh"])
     o = out / f"{abs(hash(name)) % 10**8:08d}"  # output names free of the mesh's odd characters
     m = str(mesh)
-    mine = own or {"labels": g["labels"], "seg": g["seg"], "map": g["map"], "vts": g["vts"]}
+    mine = {kind: str(path) for kind, path in (own or g).items()}
     runs = {
         "info": ["info", m, "--json"],
         "clean": ["clean", m, "-o", f"{o}.clean.off", "--json"],
         "spectrum": ["spectrum", m, "-k", "6", "--json"],
         "keypoints": ["keypoints", m, "--json"],
         "segment": ["segment", m, "--method", "eigvec-gmm", "-k", "3", "-o", f"{o}.seg.txt", "--json"],
-        "match": ["match", m, str(good), "--pipeline", "seed-growing", "-o", f"{o}.map", "--json", "--quiet"],
-        "evaluate-map": ["evaluate-map", m, m, str(mine["map"]), "--truth-src", str(mine["vts"]),
-                         "--truth-dst", str(mine["vts"]), "--geodesics", "dijkstra", "--json"],
-        "evaluate-segmentation": ["evaluate-segmentation", m, str(mine["labels"]), "--truth", str(mine["seg"]),
-                                  "--json"],
-        "transfer-labels": ["transfer-labels", str(good), str(g["labels"]), m, "-o", f"{o}.transfer.txt", "--json"],
-        "transfer-labels from": ["transfer-labels", m, str(mine["labels"]), str(good), "-o", f"{o}.from.txt",
-                                 "--json"],
+        "match": ["match", m, good, "--pipeline", "seed-growing", "-o", f"{o}.map", "--json", "--quiet"],
+        "evaluate-map": ["evaluate-map", m, m, mine["map"], "--truth-src", mine["vts"], "--truth-dst", mine["vts"],
+                         "--geodesics", "dijkstra", "--json"],
+        "evaluate-segmentation": ["evaluate-segmentation", m, mine["labels"], "--truth", mine["seg"], "--json"],
+        "transfer-labels": ["transfer-labels", good, str(g["labels"]), m, "-o", f"{o}.transfer.txt", "--json"],
+        "transfer-labels from": ["transfer-labels", m, mine["labels"], good, "-o", f"{o}.from.txt", "--json"],
         "geodesics": ["geodesics", m, "--sources", "0", "--method", "dijkstra", "-o", f"{o}.geo.npz", "--json"],
         "describe": ["describe", m, "-o", f"{o}.hks.npz", "--json"],
-        "constraints": ["constraints", m, str(mine["labels"]), "-o", f"{o}.constraints.json", "--json"],
-        "track": ["track", m, str(good), "--pipeline", "seed-growing", "-o", f"{o}.traj.npz", "--json", "--quiet"],
+        "constraints": ["constraints", m, mine["labels"], "-o", f"{o}.constraints.json", "--json"],
+        "track": ["track", m, good, "--pipeline", "seed-growing", "-o", f"{o}.traj.npz", "--json", "--quiet"],
         "view": ["view", m, "--png", f"{o}.view.png", "--json"],
     }
     return [Run(f"{name} | {cmd}", argv) for cmd, argv in runs.items()
@@ -416,95 +392,89 @@ def mesh_runs(mesh: Path, name: str, side: dict, out: Path, *, commands: tuple[s
 def side_runs(side: dict, out: Path) -> list[Run]:
     """The side files (labels, maps, seeds, vts, constraints) and odd arguments on a good mesh."""
     g, good = side["good"], str(side["good_mesh"])
-    runs: list[Run] = []
-    for name, p in side["labels"].items():
-        runs.append(Run(f"labels:{name} | evaluate-segmentation pred",
-                        ["evaluate-segmentation", good, str(p), "--truth", str(g["seg"]), "--json"]))
-        runs.append(Run(f"labels:{name} | evaluate-segmentation truth",
-                        ["evaluate-segmentation", good, str(g["labels"]), "--truth", str(p), "--json"]))
-        runs.append(Run(f"labels:{name} | transfer-labels",
-                        ["transfer-labels", good, str(p), good, "-o", str(out / "t.txt"), "--json"]))
-    for name, p in side["map"].items():
-        runs.append(Run(f"map:{name} | evaluate-map", ["evaluate-map", good, good, str(p), "--truth-src",
-                        str(g["vts"]), "--truth-dst", str(g["vts"]), "--geodesics", "dijkstra", "--json"]))
-    for name, p in side["vts"].items():
-        runs.append(Run(f"vts:{name} | evaluate-map", ["evaluate-map", good, good, str(g["map"]), "--truth-src",
-                        str(p), "--truth-dst", str(g["vts"]), "--geodesics", "dijkstra", "--json"]))
-    for name, p in side["seeds"].items():
-        runs.append(Run(f"seeds:{name} | match", ["match", good, good, "--pipeline", "seed-growing", "--seeds",
-                        str(p), "-o", str(out / "m.map"), "--json", "--quiet"]))
-    for name, p in side["constraints"].items():
-        runs.append(Run(f"constraints:{name} | segment", ["segment", good, "--method", "csc", "-k", "3",
-                        "--constraints", str(p), "-o", str(out / "c.txt"), "--json"]))
+    labels, seg, vts, cons = str(g["labels"]), str(g["seg"]), str(g["vts"]), str(g["constraints"])
+    gmm, kp = ["segment", good, "--method", "eigvec-gmm"], ["keypoints", good]
+    s_out, dijkstra = ["-o", str(out / "s.txt"), "--json"], ["--geodesics", "dijkstra", "--json"]
+    #: side-file kind -> [(what the case runs, its arguments with None where the side file goes)]
+    uses = {
+        "labels": [("evaluate-segmentation pred", ["evaluate-segmentation", good, None, "--truth", seg, "--json"]),
+                   ("evaluate-segmentation truth", ["evaluate-segmentation", good, labels, "--truth", None, "--json"]),
+                   ("transfer-labels", ["transfer-labels", good, None, good, "-o", str(out / "t.txt"), "--json"])],
+        "map": [("evaluate-map", ["evaluate-map", good, good, None, "--truth-src", vts, "--truth-dst", vts,
+                                  *dijkstra])],
+        "vts": [("evaluate-map", ["evaluate-map", good, good, str(g["map"]), "--truth-src", None, "--truth-dst", vts,
+                                  *dijkstra])],
+        "seeds": [("match", ["match", good, good, "--pipeline", "seed-growing", "--seeds", None,
+                             "-o", str(out / "m.map"), "--json", "--quiet"])],
+        "constraints": [("segment", ["segment", good, "--method", "csc", "-k", "3", "--constraints", None,
+                                     "-o", str(out / "c.txt"), "--json"])],
+    }
+    runs = [Run(f"{kind}:{name} | {what}", [str(p) if a is None else a for a in argv])
+            for kind, cases in uses.items() for name, p in side[kind].items() for what, argv in cases]
     args = {
         "output missing folder": ["spectrum", good, "-k", "4", "-o", str(out / "no" / "such" / "x.npz"), "--json"],
         "output onto folder": ["clean", good, "-o", str(out), "--json"],
-        "output onto folder (segment)": ["segment", good, "--method", "eigvec-gmm", "-o", str(out), "--json"],
+        "output onto folder (segment)": [*gmm, "-o", str(out), "--json"],
         "output onto folder (match)": ["match", good, good, "--pipeline", "seed-growing", "-o", str(out), "--quiet"],
-        "output onto folder (keypoints)": ["keypoints", good, "-o", str(out), "--json"],
-        "output onto folder (transfer)": ["transfer-labels", good, str(g["labels"]), good, "-o", str(out)],
+        "output onto folder (keypoints)": [*kp, "-o", str(out), "--json"],
+        "output onto folder (transfer)": ["transfer-labels", good, labels, good, "-o", str(out)],
         "output is the input": ["clean", good, "-o", good, "--json"],
         "param not a number": ["spectrum", good, "--weighting", "gaussian", "--param", "bandwidth=abc", "--json"],
-        "param not a number (keypoints)": ["keypoints", good, "--param", "t=abc", "--json"],
-        "param not a number (segment)": ["segment", good, "--method", "eigvec-gmm", "--param", "n_init=many",
-                                         "-o", str(out / "s.txt"), "--json"],
-        "param NaN": ["keypoints", good, "--param", "t=NaN", "--json"],
-        "param without =": ["keypoints", good, "--param", "t", "--json"],
-        "param unknown": ["keypoints", good, "--param", "nope=1", "--json"],
-        "random state negative": ["segment", good, "--method", "eigvec-gmm", "--random-state", "-1",
-                                  "-o", str(out / "s.txt"), "--json"],
-        "random state huge": ["segment", good, "--method", "eigvec-gmm", "--random-state", "99999999999",
-                              "-o", str(out / "s.txt"), "--json"],
+        "param not a number (keypoints)": [*kp, "--param", "t=abc", "--json"],
+        "param not a number (segment)": [*gmm, "--param", "n_init=many", *s_out],
+        "param NaN": [*kp, "--param", "t=NaN", "--json"],
+        "param without =": [*kp, "--param", "t", "--json"],
+        "param unknown": [*kp, "--param", "nope=1", "--json"],
+        "random state negative": [*gmm, "--random-state", "-1", *s_out],
+        "random state huge": [*gmm, "--random-state", "99999999999", *s_out],
         "k zero": ["spectrum", good, "-k", "0", "--json"],
         "k huge": ["spectrum", good, "-k", "100000", "--json"],
-        "n segments zero": ["segment", good, "--method", "eigvec-gmm", "-k", "0", "-o", str(out / "s.txt")],
+        "n segments zero": [*gmm, "-k", "0", "-o", str(out / "s.txt")],
         "remesh tiny edge": ["clean", good, "-o", str(out / "r.off"), "--remesh", "1e-9", "--json"],
         "remesh negative edge": ["clean", good, "-o", str(out / "r.off"), "--remesh", "-1", "--json"],
         "remesh nan edge": ["clean", good, "-o", str(out / "r.off"), "--remesh", "nan", "--json"],
-        "unknown plugin": ["keypoints", good, "--detector", "nope", "--json"],
-        "unknown preset": ["keypoints", good, "--preset", "nope", "--json"],
+        "unknown plugin": [*kp, "--detector", "nope", "--json"],
+        "unknown preset": [*kp, "--preset", "nope", "--json"],
         "unknown pipeline": ["match", good, good, "--pipeline", "nope", "-o", str(out / "m.map")],
         "pipeline is a folder": ["match", good, good, "--pipeline", str(out), "-o", str(out / "m.map")],
-        "truth folder empty": ["evaluate-segmentation", good, str(g["labels"]), "--truth", str(side["empty_dir"])],
-        "map for the wrong shape": ["evaluate-map", good, str(side["other_mesh"]), str(g["map"]), "--truth-src",
-                                    str(g["vts"]), "--truth-dst", str(g["vts"]), "--json"],
+        "truth folder empty": ["evaluate-segmentation", good, labels, "--truth", str(side["empty_dir"])],
+        "map for the wrong shape": ["evaluate-map", good, str(side["other_mesh"]), str(g["map"]), "--truth-src", vts,
+                                    "--truth-dst", vts, "--json"],
     }
     # issue 27: constraints given to segmenters that take none
     for method in ("eigvec-gmm", "spectral-clustering", "ncut", "sdf", "smoothed"):
-        args[f"constraints to {method}"] = ["segment", good, "--method", method, "-k", "3", "--constraints",
-                                            str(g["constraints"]), "-o", str(out / "u.txt"), "--json"]
+        args[f"constraints to {method}"] = ["segment", good, "--method", method, "-k", "3", "--constraints", cons,
+                                            "-o", str(out / "u.txt"), "--json"]
     args["constraints to smoothed csc"] = ["segment", good, "--method", "smoothed", "--param", "base=csc", "-k", "3",
-                                           "--constraints", str(g["constraints"]), "-o", str(out / "u.txt"), "--json"]
+                                           "--constraints", cons, "-o", str(out / "u.txt"), "--json"]
     # --param tables and lists where a name or number is expected
     for value in ('{"a":1}', "[1,2]"):
         args[f"param weighting={value} (spectrum)"] = ["spectrum", good, "--param", f"weighting={value}", "--json"]
-        args[f"param weighting={value} (keypoints)"] = ["keypoints", good, "--param", f"weighting={value}", "--json"]
-        args[f"param weighting={value} (segment)"] = ["segment", good, "--method", "eigvec-gmm", "--param",
-                                                      f"weighting={value}", "-o", str(out / "s.txt"), "--json"]
+        args[f"param weighting={value} (keypoints)"] = [*kp, "--param", f"weighting={value}", "--json"]
+        args[f"param weighting={value} (segment)"] = [*gmm, "--param", f"weighting={value}", *s_out]
         args[f"param variant={value} (segment)"] = ["segment", good, "--method", "spectral-clustering", "-k", "3",
-                                                    "--param", f"variant={value}", "-o", str(out / "s.txt"), "--json"]
+                                                    "--param", f"variant={value}", *s_out]
         args[f"param times={value} (describe)"] = ["describe", good, "--param", f"times={value}",
                                                    "-o", str(out / "d.npz"), "--json"]
-        args[f"param t={value} (keypoints)"] = ["keypoints", good, "--param", f"t={value}", "--json"]
+        args[f"param t={value} (keypoints)"] = [*kp, "--param", f"t={value}", "--json"]
         args[f"param descriptor_params={value} (transfer-labels)"] = [
-            "transfer-labels", good, str(g["labels"]), good, "--matcher", "fmap-zoomout", "--param",
+            "transfer-labels", good, labels, good, "--matcher", "fmap-zoomout", "--param",
             f"descriptor_params={value}", "-o", str(out / "t.txt"), "--json"]
     # HTML, LaTeX and control characters in every string argument that ends up in an output
     for i, text in enumerate(NASTY_STRINGS):
-        args[f"nasty {i} segment --method"] = ["segment", good, "--method", text, "-o", str(out / "s.txt"), "--json"]
-        args[f"nasty {i} keypoints --detector"] = ["keypoints", good, "--detector", text, "--json"]
-        args[f"nasty {i} keypoints --preset"] = ["keypoints", good, "--preset", text, "--json"]
+        args[f"nasty {i} segment --method"] = ["segment", good, "--method", text, *s_out]
+        args[f"nasty {i} keypoints --detector"] = [*kp, "--detector", text, "--json"]
+        args[f"nasty {i} keypoints --preset"] = [*kp, "--preset", text, "--json"]
         args[f"nasty {i} spectrum --weighting"] = ["spectrum", good, "--weighting", text, "-k", "4", "--json"]
         args[f"nasty {i} describe --descriptor"] = ["describe", good, "--descriptor", text, "-o", str(out / "d.npz")]
         args[f"nasty {i} match --pipeline"] = ["match", good, good, "--pipeline", text, "-o", str(out / "m.map")]
-        args[f"nasty {i} transfer-labels --matcher"] = ["transfer-labels", good, str(g["labels"]), good, "--matcher",
-                                                        text, "-o", str(out / "t.txt")]
-        args[f"nasty {i} --param key"] = ["keypoints", good, "--param", f"{text}=1", "--json"]
-        args[f"nasty {i} --param value"] = ["keypoints", good, "--param", f"t={text}", "--json"]
-        args[f"nasty {i} --param laplacian"] = ["keypoints", good, "--param", f"laplacian={text}", "--json"]
+        args[f"nasty {i} transfer-labels --matcher"] = ["transfer-labels", good, labels, good, "--matcher", text,
+                                                        "-o", str(out / "t.txt")]
+        args[f"nasty {i} --param key"] = [*kp, "--param", f"{text}=1", "--json"]
+        args[f"nasty {i} --param value"] = [*kp, "--param", f"t={text}", "--json"]
+        args[f"nasty {i} --param laplacian"] = [*kp, "--param", f"laplacian={text}", "--json"]
         args[f"nasty {i} missing file"] = ["info", str(out / f"{text}.off"), "--json"]
-        args[f"nasty {i} output name"] = ["segment", good, "--method", "eigvec-gmm", "-k", "3", "-o",
-                                          str(out / f"{text}.txt"), "--json"]
+        args[f"nasty {i} output name"] = [*gmm, "-k", "3", "-o", str(out / f"{text}.txt"), "--json"]
         args[f"nasty {i} track frames --png"] = ["track", str(side["nasty_meshes"][i % len(side["nasty_meshes"])]),
                                                  good, "--pipeline", "seed-growing", "-o", str(out / "tr.npz"),
                                                  "--png", str(out / "tr.png"), "--json", "--quiet"]
@@ -572,14 +542,12 @@ def execute(run: Run, timeout: float, cwd: Path) -> Run:
     """Run ``python -m shape_toolkit ARGV`` in a subprocess and classify it."""
     env = dict(os.environ, PYTHONWARNINGS="ignore::DeprecationWarning", OMP_NUM_THREADS="1",
                OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    t0 = time.perf_counter()
     try:
         r = subprocess.run([sys.executable, "-m", "shape_toolkit", *run.argv], capture_output=True, text=True,
                            timeout=timeout, cwd=cwd, env=env, errors="replace")
         run.code, run.stdout, run.stderr = r.returncode, r.stdout, r.stderr
     except subprocess.TimeoutExpired:
         run.code = None
-    run.seconds = time.perf_counter() - t0
     return classify(run)
 
 
@@ -594,13 +562,10 @@ def build(folder: Path, *, commands: tuple[str, ...] | None = None) -> list[Run]
     side["good_mesh"] = meshes["good.off"]
     side["other_mesh"] = folder / "side" / "other.off"
     save_shape(icosphere(1), side["other_mesh"])
-    side["empty_dir"] = folder / "side" / "empty_dir"
-    side["empty_dir"].mkdir(exist_ok=True)
-    out = folder / "out"
-    out.mkdir(exist_ok=True)
+    side["empty_dir"], out, own_dir = folder / "side" / "empty_dir", folder / "out", folder / "own"
+    for d in (side["empty_dir"], out, own_dir):
+        d.mkdir(exist_ok=True)
     side["nasty_meshes"] = [meshes[f"{n}.off"] for n in NASTY_NAMES]
-    own_dir = folder / "own"
-    own_dir.mkdir(exist_ok=True)
     runs: list[Run] = []
     for name, path in meshes.items():
         own = own_side_files(path, own_dir) if path.is_file() else None
@@ -634,13 +599,12 @@ def _md(text: str) -> str:
 
 
 def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS,
-           retried: list[tuple[str, str]] = (), note: str = "") -> str:
+           retried: list[tuple[str, str]] = ()) -> str:
+    """Write the markdown report of ``runs`` (counts per verdict and command, every failure) to ``path``."""
     from shape_toolkit.bench.report import markdown_table
 
     counts = Counter(r.verdict for r in runs)
-    by_cmd: dict[str, Counter] = {}
-    for r in runs:
-        by_cmd.setdefault(r.argv[0], Counter())[r.verdict] += 1
+    by_cmd = Counter((r.argv[0], r.verdict) for r in runs)
     lines = [
         "# Adversarial input corpus",
         "",
@@ -658,14 +622,15 @@ def report(runs: list[Run], n_files: int, seconds: float, path: Path = RESULTS,
         f"- run a second time (each listed below with its first verdict; the second counts): {len(retried)}",
         "",
         *markdown_table(["command", "rejected", "success", "failure"],
-                        [[c, *(by_cmd[c][k] for k in ("rejected", "success", "failure"))] for c in sorted(by_cmd)]),
+                        [[c, *(by_cmd[c, k] for k in ("rejected", "success", "failure"))]
+                         for c in sorted({r.argv[0] for r in runs})]),
     ]
     fails = [r for r in runs if r.verdict == "failure"]
     verdict = {r.case: r.verdict for r in runs}
     lines += ["", "## Failures", ""]
     lines += [f"- `{_md(r.case)}`: {_md(r.why)}" for r in fails] or ["none"]
     if retried:
-        lines += ["", "## Run a second time", ""] + ([note, ""] if note else [])
+        lines += ["", "## Run a second time", ""]
         lines += [f"- `{_md(case)}` (first pass: {_md(why)}): now {verdict[case]}" for case, why in retried]
     lines += ["", "## Successes (accepted inputs)", ""]
     lines += [f"- `{_md(r.case)}`" for r in runs if r.verdict == "success"]
@@ -686,18 +651,11 @@ def main(argv: list[str] | None = None) -> int:
     folder = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="adversarial-"))
     commands = tuple(args.commands.split(",")) if args.commands else None
     runs = build(folder, commands=commands)
-    n_files = sum(1 for _ in (folder / "meshes").iterdir()) + 1 + sum(1 for _ in (folder / "side").iterdir()) \
-        + sum(1 for _ in (folder / "own").iterdir())
+    n_files = 1 + sum(len(list((folder / d).iterdir())) for d in ("meshes", "side", "own"))
     print(f"{len(runs)} runs on a corpus of {n_files} files in {folder}", flush=True)
     t0 = time.perf_counter()
-    done = 0
-
-    def one(r: Run) -> Run:
-        return execute(r, args.timeout, folder / "out")
-
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        for r in pool.map(one, runs):
-            done += 1
+        for done, r in enumerate(pool.map(lambda r: execute(r, args.timeout, folder / "out"), runs), 1):
             if r.verdict == "failure":
                 print(f"[{done}/{len(runs)}] FAILURE {r.case}: {r.why}", flush=True)
             elif done % 50 == 0:

@@ -26,17 +26,17 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import cProfile  # noqa: E402
 import json  # noqa: E402
+import multiprocessing  # noqa: E402
 import pstats  # noqa: E402
-import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
 RESULTS = REPO / "benchmarks" / "results"
 DEFAULT_PAIRS = "faust5k:tr_reg_000:tr_reg_001,tosca5k:cat0:cat1"
 
@@ -63,12 +63,6 @@ STAGES = {
         ("final point map", "pyFM/functional.py", "get_p2p"),
     ],
 }
-
-
-def _data(arg: str | None) -> Path:
-    if arg:
-        return Path(arg)
-    return Path(os.environ.get("TOOLKIT_DATA", REPO.parent / "shared" / "data"))
 
 
 def _cumulative(stats: pstats.Stats, fragment: str, name: str) -> tuple[float, int]:
@@ -141,6 +135,7 @@ def nn_table(data: Path, ds: str, a: str, b: str) -> list[dict]:
 
     warnings.filterwarnings("ignore")
     from scipy.spatial import cKDTree
+    from sklearn.neighbors import NearestNeighbors
 
     from shape_toolkit.core.geometry import nearest_neighbors
     from shape_toolkit.features.basis import basis_of
@@ -176,13 +171,8 @@ def nn_table(data: Path, ds: str, a: str, b: str) -> list[dict]:
         searches["faiss IndexFlatL2 (float32)"] = faiss_flat
     except ImportError:
         pass
-    try:
-        from sklearn.neighbors import NearestNeighbors
-
-        searches["scikit-learn NearestNeighbors (auto)"] = (
-            lambda X, Q: NearestNeighbors(n_neighbors=1).fit(X).kneighbors(Q, return_distance=False)[:, 0])
-    except ImportError:
-        pass
+    searches["scikit-learn NearestNeighbors (auto)"] = (  # a dependency of the toolkit
+        lambda X, Q: NearestNeighbors(n_neighbors=1).fit(X).kneighbors(Q, return_distance=False)[:, 0])
     rows = []
     for k in (30, 70, kf):
         X = bt.evecs[:, :k] @ C[:k, :k].T
@@ -196,17 +186,19 @@ def nn_table(data: Path, ds: str, a: str, b: str) -> list[dict]:
     return rows
 
 
-def _run_child(args: list[str]) -> dict:
-    out = Path(f"/tmp/profile_matching_{os.getpid()}_{time.time_ns()}.json")
-    r = subprocess.run([sys.executable, __file__, *args, "--child-out", str(out)])
-    if r.returncode != 0 or not out.exists():
-        return {"error": f"exit code {r.returncode}"}
-    res = json.loads(out.read_text())
-    out.unlink()
-    return res
+def _in_child(fn, *args) -> dict | list:
+    """``fn(*args)`` in a fresh (spawned) process, or ``{"error": ...}`` when it fails."""
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        try:
+            return pool.submit(fn, *args).result()
+        except Exception as exc:  # noqa: BLE001 - a failed run is reported, the others go on
+            return {"error": f"{type(exc).__name__}: {exc}"}
 
 
 def write_results(profiles: list[dict], nn: list[dict], output: Path) -> None:
+    """The markdown report at ``output`` and its data beside it (``.json``)."""
+    from shape_toolkit.bench.report import markdown_table
+
     output.parent.mkdir(parents=True, exist_ok=True)
     output.with_suffix(".json").write_text(json.dumps({"profiles": profiles, "nearest_neighbours": nn}, indent=1))
     blas = next((p["blas"] for p in profiles if "blas" in p), [])
@@ -228,14 +220,11 @@ def write_results(profiles: list[dict], nn: list[dict], output: Path) -> None:
             "",
             f"Total: **{p['cpu_seconds']:.2f} s CPU** ({p['wall_seconds']:.2f} s wall).",
             "",
-            "| stage | function | calls | CPU s | share |",
-            "|---|---|---|---|---|",
         ]
-        for r in p["stages"]:
-            share = r["cpu_seconds"] / p["cpu_seconds"] if p["cpu_seconds"] > 0 else float("nan")
-            lines.append(f"| {r['stage']} | `{r['function']}` | {r['calls']} | {r['cpu_seconds']:.3f} "
-                         f"| {100 * share:.0f}% |")
-        lines.append("")
+        total = p["cpu_seconds"] if p["cpu_seconds"] > 0 else float("nan")
+        lines += markdown_table(["stage", "function", "calls", "CPU s", "share"], [
+            [r["stage"], f"`{r['function']}`", r["calls"], f"{r['cpu_seconds']:.3f}",
+             f"{100 * r['cpu_seconds'] / total:.0f}%"] for r in p["stages"]], escape=False) + [""]
     if nn:
         lines += [
             "## Nearest-neighbour search on real ZoomOut embeddings (one call, CPU seconds)",
@@ -244,34 +233,26 @@ def write_results(profiles: list[dict], nn: list[dict], output: Path) -> None:
             "fraction of queries with the same answer as the float64 brute force (single precision differs "
             "only on near-ties).",
             "",
-            "| k | search | points x queries | CPU s | agree |",
-            "|---|---|---|---|---|",
+            *markdown_table(["k", "search", "points x queries", "CPU s", "agree"], [
+                [r["k"], r["search"], f"{r['n'][0]} x {r['n'][1]}", f"{r['cpu_seconds']:.3f}",
+                 f"{100 * r['agree_with_float64']:.2f}%"] for r in nn], escape=False),
+            "",
         ]
-        for r in nn:
-            lines.append(f"| {r['k']} | {r['search']} | {r['n'][0]} x {r['n'][1]} | {r['cpu_seconds']:.3f} "
-                         f"| {100 * r['agree_with_float64']:.2f}% |")
-        lines.append("")
     output.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", help="shared data directory (default $TOOLKIT_DATA or ../shared/data)")
+    ap.add_argument("--data", default=os.environ.get("TOOLKIT_DATA", str(REPO.parent / "shared" / "data")),
+                    help="shared data directory (default $TOOLKIT_DATA or ../shared/data)")
     ap.add_argument("--pairs", default=DEFAULT_PAIRS, help="comma-separated dataset:A:B")
     ap.add_argument("--methods", default="zoomout,pyfm")
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--no-nn", action="store_true", help="skip the nearest-neighbour table")
     ap.add_argument("--output", default=str(RESULTS / "matching_profile.md"))
-    ap.add_argument("--child", help=argparse.SUPPRESS)
-    ap.add_argument("--child-out", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    data = _data(args.data)
-    if args.child:
-        kind, ds, a, b = args.child.split(":")
-        res = nn_table(data, ds, a, b) if kind == "nn" else child(kind, data, ds, a, b)
-        Path(args.child_out).write_text(json.dumps(res))
-        return 0
+    data = Path(args.data)
     pairs = [tuple(p.split(":")) for p in args.pairs.split(",") if p.strip()]
     if not all((data / ds / f"{a}.off").exists() for ds, a, _ in pairs):
         print(f"data not found under {data}: pass --data or set TOOLKIT_DATA", file=sys.stderr)
@@ -279,13 +260,12 @@ def main(argv: list[str] | None = None) -> int:
     profiles = []
     for ds, a, b in pairs:
         for method in [m.strip() for m in args.methods.split(",") if m.strip()]:
-            runs = [_run_child(["--child", f"{method}:{ds}:{a}:{b}", "--data", str(data)])
-                    for _ in range(max(1, args.repeat))]
+            runs = [_in_child(child, method, data, ds, a, b) for _ in range(max(1, args.repeat))]
             ok = [r for r in runs if "error" not in r]
             best = min(ok, key=lambda r: r["cpu_seconds"]) if ok else {**runs[0], "method": method, "pair": f"{a}-{b}"}
             profiles.append(best)
             print(f"[{method} {a}-{b}] {best.get('cpu_seconds', float('nan')):.2f} s CPU", file=sys.stderr, flush=True)
-    nn = [] if args.no_nn else _run_child(["--child", "nn:{}:{}:{}".format(*pairs[0]), "--data", str(data)])
+    nn = [] if args.no_nn else _in_child(nn_table, data, *pairs[0])
     write_results(profiles, nn if isinstance(nn, list) else [], Path(args.output))
     return 0
 

@@ -33,11 +33,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 STAGES = ["read", "proxies", "proxy pipeline", "lift spectra", "lift descent", "lift other", "total"]
-
-
-def data_dir() -> Path:
-    root = Path(os.environ.get("TOOLKIT_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
-    return root / "tosca5k"
+#: the TOSCA meshes of 5,000 vertices and their ground truth (``corres/*.vts``)
+TOSCA = Path(os.environ.get("TOOLKIT_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")) / "tosca5k"
 
 
 def make_meshes(work: Path, s: int) -> None:
@@ -47,7 +44,7 @@ def make_meshes(work: Path, s: int) -> None:
     for name in ("cat0", "cat1"):
         out = work / f"{name}_s{s}.ply"
         if not out.exists():
-            sub, vmap = subdivide(load_shape(data_dir() / f"{name}.off"), splits=s)
+            sub, vmap = subdivide(load_shape(TOSCA / f"{name}.off"), splits=s)
             save_shape(sub, out, binary=True)
             np.save(work / f"{name}_s{s}.vmap.npy", vmap)
 
@@ -71,9 +68,8 @@ def score(map_file: Path, vmap_t: Path) -> float:
     from shape_toolkit.io.mesh import load_shape
     from shape_toolkit.metrics.correspondence import geodesic_errors
 
-    d = data_dir()
-    b = load_shape(d / "cat1.off")
-    ta, tb = read_vts(d / "corres" / "cat0.vts", b.n_vertices), read_vts(d / "corres" / "cat1.vts", b.n_vertices)
+    b = load_shape(TOSCA / "cat1.off")
+    ta, tb = (read_vts(TOSCA / "corres" / f"{name}.vts", b.n_vertices) for name in ("cat0", "cat1"))
     m = np.loadtxt(map_file, dtype=np.int64)[: b.n_vertices]  # the original vertices keep their ids
     vm = np.load(vmap_t)
     pred = np.where(m >= 0, vm[np.maximum(m, 0)], -1)
