@@ -1,5 +1,5 @@
 """Where the CPU time of a 5k-vertex match goes: the `zoomout` preset and pyFM's README pipeline,
-stage by stage, plus the nearest-neighbour searches ZoomOut could use, on real spectral embeddings.
+stage by stage.
 
     python benchmarks/profile_matching.py [--data DIR] [--pairs faust5k:tr_reg_000:tr_reg_001,...]
                                           [--repeat R] [--output FILE]
@@ -12,8 +12,7 @@ clock, so the stage times are CPU seconds and robust to other load on the machin
 cumulative time of the functions listed in ``STAGES`` (a function called inside another stage
 counts in both only where said). The ZoomOut final point map (every source vertex against every
 target vertex, the last call) is timed apart by a wrapper around ``features.basis._point_map``.
-The best of ``--repeat`` runs (by total) is kept. The nearest-neighbour table times each search
-on the embeddings ``Phi_t C^T`` / ``Phi_s`` of a real match at three basis sizes.
+The best of ``--repeat`` runs (by total) is kept.
 """
 
 from __future__ import annotations
@@ -32,8 +31,6 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from pathlib import Path  # noqa: E402
-
-import numpy as np  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
@@ -129,64 +126,7 @@ def child(method: str, data: Path, ds: str, a: str, b: str) -> dict:
             "cpu_seconds": cpu, "wall_seconds": wall, "stages": rows, "blas": blas}
 
 
-def nn_table(data: Path, ds: str, a: str, b: str) -> list[dict]:
-    """Time the candidate nearest-neighbour searches on the embeddings of a real match."""
-    import warnings
-
-    warnings.filterwarnings("ignore")
-    from scipy.spatial import cKDTree
-    from sklearn.neighbors import NearestNeighbors
-
-    from shape_toolkit.core.geometry import nearest_neighbors
-    from shape_toolkit.features.basis import basis_of
-    from shape_toolkit.io.mesh import load_shape
-    from shape_toolkit.plugins.matching.dense.fmap_zoomout import FmapZoomOutMatcher
-
-    A, B = load_shape(data / ds / f"{a}.off"), load_shape(data / ds / f"{b}.off")
-    m = FmapZoomOutMatcher()
-    C = m.match(A, B).info["C"]
-    kf = C.shape[0]
-    bs = basis_of(m._spectrum(A, None), kf)
-    bt = basis_of(m._spectrum(B, None), kf)
-    searches = {
-        "toolkit brute force, float64": lambda X, Q: nearest_neighbors(X, Q)[1],
-        "toolkit brute force, float32 (used)": lambda X, Q: nearest_neighbors(X, Q, dtype=np.float32)[1],
-        "scipy cKDTree": lambda X, Q: cKDTree(X).query(Q, k=1)[1],
-    }
-    try:
-        from pykdtree.kdtree import KDTree
-
-        searches["pykdtree"] = lambda X, Q: KDTree(X).query(Q, k=1)[1]
-    except ImportError:
-        pass
-    try:
-        import faiss
-
-        def faiss_flat(X, Q):
-            faiss.omp_set_num_threads(1)
-            index = faiss.IndexFlatL2(X.shape[1])
-            index.add(np.ascontiguousarray(X, dtype=np.float32))
-            return index.search(np.ascontiguousarray(Q, dtype=np.float32), 1)[1][:, 0]
-
-        searches["faiss IndexFlatL2 (float32)"] = faiss_flat
-    except ImportError:
-        pass
-    searches["scikit-learn NearestNeighbors (auto)"] = (  # a dependency of the toolkit
-        lambda X, Q: NearestNeighbors(n_neighbors=1).fit(X).kneighbors(Q, return_distance=False)[:, 0])
-    rows = []
-    for k in (30, 70, kf):
-        X = bt.evecs[:, :k] @ C[:k, :k].T
-        Q = bs.evecs[:, :k]
-        ref = nearest_neighbors(X, Q)[1]
-        for name, fn in searches.items():
-            c0 = time.process_time()
-            got = np.asarray(fn(X, Q)).astype(np.int64).ravel()
-            rows.append({"k": k, "search": name, "n": [len(X), len(Q)], "cpu_seconds": time.process_time() - c0,
-                         "agree_with_float64": float(np.mean(got == ref))})
-    return rows
-
-
-def _in_child(fn, *args) -> dict | list:
+def _in_child(fn, *args) -> dict:
     """``fn(*args)`` in a fresh (spawned) process, or ``{"error": ...}`` when it fails."""
     with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
         try:
@@ -195,12 +135,12 @@ def _in_child(fn, *args) -> dict | list:
             return {"error": f"{type(exc).__name__}: {exc}"}
 
 
-def write_results(profiles: list[dict], nn: list[dict], output: Path) -> None:
+def write_results(profiles: list[dict], output: Path) -> None:
     """The markdown report at ``output`` and its data beside it (``.json``)."""
     from shape_toolkit.bench.report import markdown_table
 
     output.parent.mkdir(parents=True, exist_ok=True)
-    output.with_suffix(".json").write_text(json.dumps({"profiles": profiles, "nearest_neighbours": nn}, indent=1))
+    output.with_suffix(".json").write_text(json.dumps({"profiles": profiles}, indent=1))
     blas = next((p["blas"] for p in profiles if "blas" in p), [])
     lines = [
         "# Where a 5k-vertex match spends its CPU time (`zoomout` preset and pyFM's README pipeline)",
@@ -225,19 +165,6 @@ def write_results(profiles: list[dict], nn: list[dict], output: Path) -> None:
         lines += markdown_table(["stage", "function", "calls", "CPU s", "share"], [
             [r["stage"], f"`{r['function']}`", r["calls"], f"{r['cpu_seconds']:.3f}",
              f"{100 * r['cpu_seconds'] / total:.0f}%"] for r in p["stages"]], escape=False) + [""]
-    if nn:
-        lines += [
-            "## Nearest-neighbour search on real ZoomOut embeddings (one call, CPU seconds)",
-            "",
-            "Points `Phi_t[:, :k] C^T`, queries `Phi_s[:, :k]` of the first pair's final map; `agree` is the "
-            "fraction of queries with the same answer as the float64 brute force (single precision differs "
-            "only on near-ties).",
-            "",
-            *markdown_table(["k", "search", "points x queries", "CPU s", "agree"], [
-                [r["k"], r["search"], f"{r['n'][0]} x {r['n'][1]}", f"{r['cpu_seconds']:.3f}",
-                 f"{100 * r['agree_with_float64']:.2f}%"] for r in nn], escape=False),
-            "",
-        ]
     output.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
@@ -249,7 +176,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pairs", default=DEFAULT_PAIRS, help="comma-separated dataset:A:B")
     ap.add_argument("--methods", default="zoomout,pyfm")
     ap.add_argument("--repeat", type=int, default=2)
-    ap.add_argument("--no-nn", action="store_true", help="skip the nearest-neighbour table")
     ap.add_argument("--output", default=str(RESULTS / "matching_profile.md"))
     args = ap.parse_args(argv)
     data = Path(args.data)
@@ -265,8 +191,7 @@ def main(argv: list[str] | None = None) -> int:
             best = min(ok, key=lambda r: r["cpu_seconds"]) if ok else {**runs[0], "method": method, "pair": f"{a}-{b}"}
             profiles.append(best)
             print(f"[{method} {a}-{b}] {best.get('cpu_seconds', float('nan')):.2f} s CPU", file=sys.stderr, flush=True)
-    nn = [] if args.no_nn else _in_child(nn_table, data, *pairs[0])
-    write_results(profiles, nn if isinstance(nn, list) else [], Path(args.output))
+    write_results(profiles, Path(args.output))
     return 0
 
 
