@@ -7,7 +7,8 @@ file; then ``bench run`` (resume) and ``bench report`` on it. Each case is class
 - ``refused``: exit 2 or 3 with exactly one stderr line, nothing outside changed;
 - ``mishandled``: anything else (a wrong row, a traceback, an internal error, a write outside).
 
-Writes ``benchmarks/results/run_folder_corpus.md``.
+The clean run is ``benchmarks/fixtures/run_folder_corpus.toml``. Writes
+``benchmarks/results/run_folder_corpus.md``.
 
     python benchmarks/run_folder_corpus.py [--quick]
 
@@ -33,27 +34,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results" / "run_folder_corpus.md"
 
-CONFIG = """
-[run]
-name = "corpus"
-[[datasets]]
-name = "synth"
-kind = "synthetic"
-limit = 2
-params = { n_poses = 3, subdivisions = 2 }
-[[tasks]]
-task = "segmentation"
-name = "seg"
-metrics = ["n_segments", "segmentation"]
-[[tasks.methods]]
-plugin = "spectral-clustering"
-preset = "luxburg-unnormalized"
-params = { n_segments = 3 }
-[[tasks.methods]]
-plugin = "spectral-clustering"
-label = "cot"
-params = { n_segments = 4, weighting = "cotangent" }
-"""
+#: the clean run the faults are planted in (2 synthetic items x 2 segmenters)
+CONFIG = HERE / "fixtures" / "run_folder_corpus.toml"
 
 #: what each fault does to one file (``rel``) of a run folder
 FAULTS = ("swap", "truncate", "empty", "garbage", "pickle", "link-out", "delete", "plant")
@@ -120,7 +102,7 @@ def _tree(folder: Path) -> dict[str, bytes]:
 def reference(work: Path) -> tuple[Path, Path]:
     """A finished clean run folder and its config, under ``work``."""
     cfg = work / "bench.toml"
-    cfg.write_text(CONFIG)
+    cfg.write_text(CONFIG.read_text())
     run = work / "reference"
     code, _, err = _main(["bench", "run", str(cfg), "-o", str(run), "--no-progress"])
     if code != 0:

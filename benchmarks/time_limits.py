@@ -2,7 +2,8 @@
 
 Runs each command as a user would (a subprocess) on a 164k-vertex sphere with ``--time-limit 2``
 and records the exit code, the wall time from launch to exit (Python start-up included) and the
-one stderr line. Writes ``benchmarks/results/time_limits.md``.
+one stderr line; ``bench run`` gets ``benchmarks/fixtures/time_limits.toml``. Writes
+``benchmarks/results/time_limits.md``.
 
     python benchmarks/time_limits.py [--limit 2]
 """
@@ -42,17 +43,8 @@ def commands(d: Path) -> dict[str, list[str]]:
     }
 
 
-BENCH = """
-[[datasets]]
-name = "synth"
-kind = "synthetic"
-params = { n_poses = 4, subdivisions = 7 }
-[[tasks]]
-task = "segmentation"
-metrics = ["n_segments"]
-[[tasks.methods]]
-plugin = "ncut"
-"""
+#: the config given to `bench run`
+BENCH = HERE / "fixtures" / "time_limits.toml"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -72,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         np.savetxt(d / "big.labels.txt", (shape.vertices[:, 2] > 0).astype(int), fmt="%d")
         np.savetxt(d / "map.txt", np.arange(n), fmt="%d")
         np.savetxt(d / "t.vts", np.arange(1, n + 1, 997), fmt="%d")
-        (d / "bench.toml").write_text(BENCH)
+        (d / "bench.toml").write_text(BENCH.read_text())
         for name, cmd in commands(d).items():
             t0 = time.perf_counter()
             proc = subprocess.run(
