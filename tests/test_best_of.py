@@ -150,7 +150,8 @@ def test_bad_reframe_and_polish_are_refused(unequal_limbs, bad):
 def test_a_person_turned_between_scans_is_not_swapped(shared_data):
     """FAUST tr_reg_008 -> tr_reg_011 (tuning subjects 0 and 1; the second scan turned by about 110 degrees):
     the shells in the scans' own frames swap left and right (0.505 before the frame estimate), the functional
-    map is sound enough (0.08) to give the frame, and the shells in that frame are kept."""
+    map is sound enough (0.08) to give the frame, and the shells in that frame (or on the canonical forms turned by
+    that map, which do as well: 0.022) are kept."""
     from shape_toolkit.io.mesh import load_shape
 
     d = shared_data / "faust5k"
@@ -158,7 +159,7 @@ def test_a_person_turned_between_scans_is_not_swapped(shared_data):
     ta = np.loadtxt(d / "corres" / "tr_reg_008.vts", dtype=np.int64)[::5] - 1
     tb = np.loadtxt(d / "corres" / "tr_reg_011.vts", dtype=np.int64)[::5] - 1
     corr = run_pipeline("auto", a, b)
-    assert corr.info["chosen"].startswith("shell-alignment@frame")
+    assert corr.info["chosen"].split("+")[0] in ("shell-alignment@frame", "shell-alignment@canonical")
     assert corr.info["estimated_frame"]["rotation_degrees"] > 90.0
     err = paired_geodesic_distances(b, np.asarray(corr.target_of)[ta], tb, method="dijkstra") / np.sqrt(b.area)
     assert float(err.mean()) < 0.04
