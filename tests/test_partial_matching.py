@@ -58,8 +58,8 @@ def test_slanted_size_of_two_whole_shapes_is_k_and_stays_in_the_target_basis(sph
 @pytest.mark.slow
 def test_a_crop_matched_to_its_whole_shape_recovers_the_back_map(shared_data):
     """TOSCA dog0 with 30% of its area cut away, matched to dog0 itself: the crop's back-map is the exact
-    answer. ``partial`` finds it to within about one edge on average; the whole-shape ``zoomout`` cannot (the
-    part's spectrum is not the whole's)."""
+    answer. ``partial`` finds it to within about one edge on average, its support on the whole being the kept region;
+    the whole-shape ``zoomout`` cannot (the part's spectrum is not the whole's)."""
     from shape_toolkit.io.mesh import load_shape
     from shape_toolkit.metrics.correspondence import geodesic_errors
 
@@ -74,6 +74,11 @@ def test_a_crop_matched_to_its_whole_shape_recovers_the_back_map(shared_data):
         if partial:
             assert abs(c.info["partial"]["area_ratio"] - part.area / whole.area) < 1e-9
             assert c.info["partial"]["k_target_final"] > c.info["k_final"]
+            # the recovered support is the kept region (up to its rim) and the map stays inside it
+            support, kept = c.info["partial"]["support"], np.zeros(whole.n_vertices, dtype=bool)
+            kept[back] = True
+            assert support[c.target_of].all()
+            assert _iou(support, kept) > 0.85
     assert err[True] < 0.03  # measured 0.011 (sqrt(area) units)
     assert err[False] > 5 * err[True]  # measured 0.46
 
@@ -138,3 +143,31 @@ def test_crop_attempts_retry_other_centres_deterministically():
                                   crop(shape, strength=0.3, random_state=working)[1])
     with pytest.raises(ParameterError, match="attempts"):
         crop(shape, strength=0.3, attempts=0)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max((a | b).sum(), 1))
+
+
+def test_part_support_recovers_the_cut_region_from_a_scattered_map():
+    """A crop of an icosphere mapped by its exact back-map, a tenth of its vertices sent to random vertices of the
+    whole: the support holds the crop's share of the area where the image is dense, so it is the kept region up
+    to its rim (the scattered tenth does not move it); fed a map onto the wrong half, it finds that half."""
+    from shape_toolkit.features.basis import part_support
+
+    whole = icosphere(4)
+    part, back = crop(whole, strength=0.3, random_state=3)
+    bs, bw = basis_of(default_spec(40).compute(part)), basis_of(default_spec(40).compute(whole))
+    truth = np.zeros(whole.n_vertices, dtype=bool)
+    truth[back] = True
+    T = back.copy()
+    rng = np.random.default_rng(0)
+    noisy = rng.choice(part.n_vertices, part.n_vertices // 10, replace=False)
+    T[noisy] = rng.integers(whole.n_vertices, size=noisy.size)
+    ratio = part.area / whole.area
+    support = part_support(T, bs, bw, ratio)
+    assert abs(float(bw.mass[support].sum()) - ratio) < 0.01  # the part's share of the area, to one vertex
+    assert _iou(support, truth) > 0.9
+    mirrored = np.flatnonzero(~truth)[rng.integers((~truth).sum(), size=part.n_vertices)]  # all onto the cut ball
+    assert _iou(part_support(mirrored, bs, bw, 0.3), ~truth) > 0.7
+

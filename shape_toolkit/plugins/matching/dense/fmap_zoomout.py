@@ -29,6 +29,8 @@ from shape_toolkit.features.basis import (
     compress_descriptors,
     fit_functional_map,
     orientation_operators,
+    part_support,
+    point_map_within,
     slanted_size,
     spectral_basis,
     zoomout,
@@ -95,6 +97,11 @@ def part_wave_kernel_signatures(
 PART_WKS_LOWEST = 10
 
 
+#: target functions low-passing the part's image into its support on the whole (:func:`part_support`), where the
+#: final point map of ``partial`` looks; chosen a priori (about the fitted map's size), kept on the tuning half
+#: (benchmarks/results/partial_matching_notes.md)
+SUPPORT_SMOOTHING = 30
+
 #: a part whose area exceeds the whole's by more than this factor is refused (the units differ): two poses of
 #: one body differ in area by a few percent, two people by some 10 to 20 percent
 MAX_PART_AREA_RATIO = 1.5
@@ -140,7 +147,9 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     in the same units; a part more than :data:`MAX_PART_AREA_RATIO` times the whole's area is refused, a ratio
     above 1 is taken as 1). The declared spectrum is twice as large, so a part down to half the target's area
     is covered; a smaller part is matched on a target basis truncated there (``info["target_basis_truncated"]``).
-    A part in several pieces is refused by its spectrum (``DisconnectedGraphError``, naming the ways out).
+    A part in several pieces is refused by its spectrum (``DisconnectedGraphError``, naming the ways out). The
+    final point map looks only inside the part's support on the whole, recovered from the refined map
+    (:func:`~shape_toolkit.features.basis.part_support`, ``info["partial"]["support"]``).
     """
 
     presets = {
@@ -411,6 +420,10 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                          + ", ".join(f"{r:.3g}" for r in residuals) + ")")
         C, T = zoomout(fits[chosen], bs, bt, k_final, self.zoomout_step, None, cols, progress=progress,
                        scale=scale)
+        if scale is not None:  # each part vertex to its nearest within the part's support on the whole
+            support = part_support(T, bs, bt, 1.0 / scale, SUPPORT_SMOOTHING)
+            T = point_map_within(C, bs, bt, support)
+            info["partial"]["support"] = support
         info["C"] = C
         return Correspondence(T, target.n_vertices, info=info)
 
