@@ -149,7 +149,9 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     is covered; a smaller part is matched on a target basis truncated there (``info["target_basis_truncated"]``).
     A part in several pieces is refused by its spectrum (``DisconnectedGraphError``, naming the ways out). The
     final point map looks only inside the part's support on the whole, recovered from the refined map
-    (:func:`~shape_toolkit.features.basis.part_support`, ``info["partial"]["support"]``).
+    (:func:`~shape_toolkit.features.basis.part_support`, ``info["partial"]["support"]``). ``area_ratios``: candidate
+    ratios (with the areas' one), the map of least geodesic distortion kept and refined on its support
+    (:func:`~shape_toolkit.plugins.matching.dense.partial_search.match_over_area_ratios`; shapes in any units).
     """
 
     presets = {
@@ -178,6 +180,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         "partial": Param(bool, doc="the source is a part of the target, in the same units (rectangular maps)"),
         "area_ratio": Param(None, Interval(float, 0, 1, closed="right"),
                             doc="area of the part over the whole's (None: from the shapes' areas; partial only)"),
+        "area_ratios": Param(None, ListOf(Interval(float, 0, 1, closed="right")),
+                             doc="candidate area ratios, the map of least geodesic distortion kept (partial only)"),
     }
 
     def __init__(
@@ -199,6 +203,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         selection_samples: int = 500,
         partial: bool = False,
         area_ratio: float | None = None,
+        area_ratios: list[float] | None = None,
     ):
         self.k = k
         self.descriptor = descriptor
@@ -217,6 +222,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         self.selection_samples = selection_samples
         self.partial = partial
         self.area_ratio = area_ratio
+        self.area_ratios = area_ratios
 
     def _check(self) -> None:
         self._validate_params()
@@ -239,8 +245,9 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 f"descriptor_params of the built-in WKS take n_energies and variance, got {sorted(dp)}"
             )
 
-        if self.area_ratio is not None and not self.partial:
-            raise ParameterError("area_ratio is the part's share of the whole's area: it needs partial = True")
+        for name in ("area_ratio", "area_ratios"):
+            if getattr(self, name) is not None and not self.partial:
+                raise ParameterError(f"{name}: the part's share of the whole's area, needs partial = True")
 
     def _area_scale(self, spec_s: Spectrum, spec_t: Spectrum) -> float:
         """``area_t / area_s``: the whole's area over the part's (at least 1), from ``area_ratio`` or from the
@@ -320,6 +327,11 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         # a self-map (a shape's symmetry) on one spectrum: every per-shape array is computed once
         same = source is target and spec_s is spec_t and source_descriptors is target_descriptors
         scale = None  # target basis size = source basis size (two whole shapes)
+        if self.partial and self.area_ratios is not None and self.area_ratio is None:
+            from shape_toolkit.plugins.matching.dense.partial_search import match_over_area_ratios
+
+            return match_over_area_ratios(self, source, target, spec_s, spec_t, progress, seeds=seeds,
+                                          source_descriptors=source_descriptors, target_descriptors=target_descriptors)
         if self.partial:
             same = False
             scale = self._area_scale(spec_s, spec_t)
