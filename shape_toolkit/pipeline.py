@@ -69,6 +69,11 @@ STAGES: dict[str, str] = {
 ORIENT_PLUGINS: dict[str, type] = {"orientation-repair": OrientationRepair}
 
 #: built-in pipelines
+#: the candidate shares of the whole's area of the ``partial`` preset besides the shapes' areas' ratio (the one
+#: whose map is closest to an isometry is kept): steps of 0.1, the pipeline's maps change that much with the ratio
+#: (benchmarks/results/partial_matching_notes.md); below 0.4 the declared spectrum truncates the target basis
+PARTIAL_AREA_RATIOS = [0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0]
+
 PRESETS: dict[str, dict[str, Any]] = {
     "sharma2012": {
         "description": "thesis ch. 7: ADF keypoints, replicator matching, heat-distance "
@@ -120,10 +125,12 @@ PRESETS: dict[str, dict[str, Any]] = {
         "dense": {"plugin": "shell-alignment"},
     },
     "partial": {
-        "description": "a part (a scan seeing one side, a region cut away) to a whole shape in the same units: "
+        "description": "a part (a scan seeing one side, a region cut away) to a whole shape: "
         "zoomout with rectangular functional maps whose target basis spans the part's frequencies (the slanted "
-        "diagonal of Rodola et al. 2017; the area ratio from the two shapes' areas), WKS at shared energies",
-        "dense": {"plugin": "fmap-zoomout", "params": {"partial": True}},
+        "diagonal of Rodola et al. 2017), WKS at shared energies; the area ratio (the diagonal's slope) that of the "
+        "shapes' areas or one of 0.4-1.0, whichever map is closest to an isometry up to scale (shapes in any units), "
+        "refined on the eigenbasis of its support on the whole",
+        "dense": {"plugin": "fmap-zoomout", "params": {"partial": True, "area_ratios": PARTIAL_AREA_RATIOS}},
     },
     "zoomout-fast": {
         "description": "zoomout with 8 ZoomOut steps of 10 instead of 16 of 5 (same final basis)",

@@ -58,8 +58,8 @@ def test_slanted_size_of_two_whole_shapes_is_k_and_stays_in_the_target_basis(sph
 @pytest.mark.slow
 def test_a_crop_matched_to_its_whole_shape_recovers_the_back_map(shared_data):
     """TOSCA dog0 with 30% of its area cut away, matched to dog0 itself: the crop's back-map is the exact
-    answer. ``partial`` finds it to within about one edge on average; the whole-shape ``zoomout`` cannot (the
-    part's spectrum is not the whole's)."""
+    answer. ``partial`` finds it to within about one edge on average, its support on the whole being the kept region;
+    the whole-shape ``zoomout`` cannot (the part's spectrum is not the whole's)."""
     from shape_toolkit.io.mesh import load_shape
     from shape_toolkit.metrics.correspondence import geodesic_errors
 
@@ -74,6 +74,11 @@ def test_a_crop_matched_to_its_whole_shape_recovers_the_back_map(shared_data):
         if partial:
             assert abs(c.info["partial"]["area_ratio"] - part.area / whole.area) < 1e-9
             assert c.info["partial"]["k_target_final"] > c.info["k_final"]
+            # the recovered support is the kept region (up to its rim) and the map stays inside it
+            support, kept = c.info["partial"]["support"], np.zeros(whole.n_vertices, dtype=bool)
+            kept[back] = True
+            assert support[c.target_of].all()
+            assert _iou(support, kept) > 0.85
     assert err[True] < 0.03  # measured 0.011 (sqrt(area) units)
     assert err[False] > 5 * err[True]  # measured 0.46
 
@@ -138,3 +143,80 @@ def test_crop_attempts_retry_other_centres_deterministically():
                                   crop(shape, strength=0.3, random_state=working)[1])
     with pytest.raises(ParameterError, match="attempts"):
         crop(shape, strength=0.3, attempts=0)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max((a | b).sum(), 1))
+
+
+def test_part_support_recovers_the_cut_region_from_a_scattered_map():
+    """A crop of an icosphere mapped by its exact back-map, a tenth of its vertices sent to random vertices of the
+    whole: the support holds the crop's share of the area where the image is dense, so it is the kept region up
+    to its rim (the scattered tenth does not move it); fed a map onto the wrong half, it finds that half."""
+    from shape_toolkit.features.basis import part_support
+
+    whole = icosphere(4)
+    part, back = crop(whole, strength=0.3, random_state=3)
+    bs, bw = basis_of(default_spec(40).compute(part)), basis_of(default_spec(40).compute(whole))
+    truth = np.zeros(whole.n_vertices, dtype=bool)
+    truth[back] = True
+    T = back.copy()
+    rng = np.random.default_rng(0)
+    noisy = rng.choice(part.n_vertices, part.n_vertices // 10, replace=False)
+    T[noisy] = rng.integers(whole.n_vertices, size=noisy.size)
+    ratio = part.area / whole.area
+    support = part_support(T, bs, bw, ratio)
+    assert abs(float(bw.mass[support].sum()) - ratio) < 0.01  # the part's share of the area, to one vertex
+    assert _iou(support, truth) > 0.9
+    mirrored = np.flatnonzero(~truth)[rng.integers((~truth).sum(), size=part.n_vertices)]  # all onto the cut ball
+    assert _iou(part_support(mirrored, bs, bw, 0.3), ~truth) > 0.7
+
+
+
+def test_geodesic_distortion_is_nil_for_an_isometry_in_other_units_and_large_for_a_shuffle():
+    """The identity of a sphere onto the same sphere twice as large: no distortion, and the scale is 2 (the units
+    do not matter); the samples' images shuffled: far from an isometry."""
+    from shape_toolkit.features.geodesics import geodesic_distances
+    from shape_toolkit.plugins.matching.dense.partial_search import geodesic_distortion
+
+    s = icosphere(3)
+    big = Shape(2.0 * s.vertices, s.faces)
+    ids = np.arange(0, s.n_vertices, 23)
+    dp = geodesic_distances(s, ids, ids, method="dijkstra", cache=False)
+    d, scale = geodesic_distortion(dp, big, ids)
+    assert d < 1e-9 and abs(scale - 2.0) < 1e-9
+    d_shuffled, _ = geodesic_distortion(dp, big, np.random.default_rng(0).permutation(ids))
+    assert d_shuffled > 0.3
+
+
+def test_area_ratios_need_partial():
+    s = icosphere(2)
+    with pytest.raises(ParameterError, match="area_ratios.*needs partial"):
+        FmapZoomOutMatcher(area_ratios=[0.5, 1.0]).match(_hemisphere(s), s)
+
+
+@pytest.mark.slow
+def test_the_partial_pipeline_finds_the_area_ratio_of_a_part_in_other_units(shared_data):
+    """dog0 with 30% cut away (0.686 of its area), scaled by 1.3, against dog0: the areas' ratio is then 1.16 (a part
+    larger than the whole, taken as 1) and the areas-only match fails; the ``partial`` preset keeps the candidate
+    ratio of least geodesic distortion, finds the scale, and maps most of the part to its own vertices."""
+    from shape_toolkit.io.mesh import load_shape
+    from shape_toolkit.metrics.correspondence import geodesic_errors
+    from shape_toolkit.pipeline import run_pipeline
+
+    whole = load_shape(shared_data / "tosca5k" / "dog0.off")
+    part, back = crop(whole, strength=0.3, random_state=1, attempts=20)
+    ratio = part.area / whole.area
+    part = Shape(1.3 * part.vertices, part.faces)
+    sel = np.arange(0, part.n_vertices, 10)
+    corr = run_pipeline("partial", part, whole)
+    found = corr.info["partial"]
+    assert abs(found["area_ratio"] - ratio) < 0.05  # the candidate nearest the truth (0.7)
+    assert abs(found["scale"] - 1 / 1.3) < 0.05
+    search = found["search"]
+    assert search["distortion"] == min(c["distortion"] for c in search["candidates"] + search["refined"])
+    err = geodesic_errors(whole, corr.target_of, sel, back[sel], method="dijkstra")
+    with pytest.warns(UserWarning, match="not smaller than the target"):
+        areas_only = FmapZoomOutMatcher(partial=True).match(part, whole)
+    err_areas = geodesic_errors(whole, areas_only.target_of, sel, back[sel], method="dijkstra")
+    assert np.median(err) < 0.01 and err.mean() < 0.5 * err_areas.mean()  # measured 0 and 0.15 against 0.54

@@ -204,6 +204,32 @@ def zoomout(
     return C, _point_map(C, e_s, e_t)
 
 
+def part_support(target_of: np.ndarray, src: Basis, tgt: Basis, area_ratio: float, k_smooth: int = 30) -> np.ndarray:
+    """Where on the whole shape ``tgt`` a part ``src`` lies, from a point map ``target_of`` ``(n_s,)`` of the part
+    into it: the target vertices ``(n_t,)`` boolean where the image's density (the part's vertex areas landing on
+    each target vertex over its area) low-passed on the first ``k_smooth`` target functions is largest, holding
+    ``area_ratio`` of the target's area. The membership function of Rodola et al. 2017's partial functional maps,
+    hardened to the part's area; a map scattered by a few points keeps its bulk."""
+    T = np.asarray(target_of, dtype=np.int64)
+    density = np.bincount(T, weights=src.mass, minlength=tgt.mass.size) / np.maximum(tgt.mass, 1e-300)
+    smooth = tgt.low_pass(density, min(int(k_smooth), tgt.k))
+    order = np.argsort(-smooth, kind="stable")
+    filled = np.cumsum(tgt.mass[order]) / float(tgt.mass.sum())
+    keep = np.zeros(tgt.mass.size, dtype=bool)
+    keep[order[: int(np.searchsorted(filled, float(area_ratio))) + 1]] = True
+    return keep
+
+
+def point_map_within(C: np.ndarray, src: Basis, tgt: Basis, support: np.ndarray) -> np.ndarray:
+    """The point map ``(n_s,)`` of the functional map ``C`` ``(ks, kt)``, each source vertex sent to its nearest
+    target vertex in the spectral embedding among those of ``support`` (target boolean ``(n_t,)``) only."""
+    ids = np.flatnonzero(support)
+    ks, kt = C.shape
+    e_s = np.asarray(src.evecs[:, :ks], dtype=np.float32)
+    e_t = np.asarray(tgt.evecs[ids, :kt], dtype=np.float32)
+    return ids[_point_map(C, e_s, e_t)]
+
+
 def zoomout_residual(C: np.ndarray, src: Basis, tgt: Basis, target_of: np.ndarray,
                      rows: np.ndarray | None = None) -> float:
     """ZoomOut's own energy at a fixed point: the mass-weighted mean over the source vertices ``rows``

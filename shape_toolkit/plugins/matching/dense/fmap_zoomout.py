@@ -29,6 +29,8 @@ from shape_toolkit.features.basis import (
     compress_descriptors,
     fit_functional_map,
     orientation_operators,
+    part_support,
+    point_map_within,
     slanted_size,
     spectral_basis,
     zoomout,
@@ -95,6 +97,11 @@ def part_wave_kernel_signatures(
 PART_WKS_LOWEST = 10
 
 
+#: target functions low-passing the part's image into its support on the whole (:func:`part_support`), where the
+#: final point map of ``partial`` looks; chosen a priori (about the fitted map's size), kept on the tuning half
+#: (benchmarks/results/partial_matching_notes.md)
+SUPPORT_SMOOTHING = 30
+
 #: a part whose area exceeds the whole's by more than this factor is refused (the units differ): two poses of
 #: one body differ in area by a few percent, two people by some 10 to 20 percent
 MAX_PART_AREA_RATIO = 1.5
@@ -140,7 +147,11 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     in the same units; a part more than :data:`MAX_PART_AREA_RATIO` times the whole's area is refused, a ratio
     above 1 is taken as 1). The declared spectrum is twice as large, so a part down to half the target's area
     is covered; a smaller part is matched on a target basis truncated there (``info["target_basis_truncated"]``).
-    A part in several pieces is refused by its spectrum (``DisconnectedGraphError``, naming the ways out).
+    A part in several pieces is refused by its spectrum (``DisconnectedGraphError``, naming the ways out). The
+    final point map looks only inside the part's support on the whole, recovered from the refined map
+    (:func:`~shape_toolkit.features.basis.part_support`, ``info["partial"]["support"]``). ``area_ratios``: candidate
+    ratios (with the areas' one), the map of least geodesic distortion kept and refined on its support
+    (:func:`~shape_toolkit.plugins.matching.dense.partial_search.match_over_area_ratios`; shapes in any units).
     """
 
     presets = {
@@ -169,6 +180,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         "partial": Param(bool, doc="the source is a part of the target, in the same units (rectangular maps)"),
         "area_ratio": Param(None, Interval(float, 0, 1, closed="right"),
                             doc="area of the part over the whole's (None: from the shapes' areas; partial only)"),
+        "area_ratios": Param(None, ListOf(Interval(float, 0, 1, closed="right")),
+                             doc="candidate area ratios, the map of least geodesic distortion kept (partial only)"),
     }
 
     def __init__(
@@ -190,6 +203,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         selection_samples: int = 500,
         partial: bool = False,
         area_ratio: float | None = None,
+        area_ratios: list[float] | None = None,
     ):
         self.k = k
         self.descriptor = descriptor
@@ -208,6 +222,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         self.selection_samples = selection_samples
         self.partial = partial
         self.area_ratio = area_ratio
+        self.area_ratios = area_ratios
 
     def _check(self) -> None:
         self._validate_params()
@@ -230,8 +245,9 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 f"descriptor_params of the built-in WKS take n_energies and variance, got {sorted(dp)}"
             )
 
-        if self.area_ratio is not None and not self.partial:
-            raise ParameterError("area_ratio is the part's share of the whole's area: it needs partial = True")
+        for name in ("area_ratio", "area_ratios"):
+            if getattr(self, name) is not None and not self.partial:
+                raise ParameterError(f"{name}: the part's share of the whole's area, needs partial = True")
 
     def _area_scale(self, spec_s: Spectrum, spec_t: Spectrum) -> float:
         """``area_t / area_s``: the whole's area over the part's (at least 1), from ``area_ratio`` or from the
@@ -311,6 +327,11 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         # a self-map (a shape's symmetry) on one spectrum: every per-shape array is computed once
         same = source is target and spec_s is spec_t and source_descriptors is target_descriptors
         scale = None  # target basis size = source basis size (two whole shapes)
+        if self.partial and self.area_ratios is not None and self.area_ratio is None:
+            from shape_toolkit.plugins.matching.dense.partial_search import match_over_area_ratios
+
+            return match_over_area_ratios(self, source, target, spec_s, spec_t, progress, seeds=seeds,
+                                          source_descriptors=source_descriptors, target_descriptors=target_descriptors)
         if self.partial:
             same = False
             scale = self._area_scale(spec_s, spec_t)
@@ -411,6 +432,10 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                          + ", ".join(f"{r:.3g}" for r in residuals) + ")")
         C, T = zoomout(fits[chosen], bs, bt, k_final, self.zoomout_step, None, cols, progress=progress,
                        scale=scale)
+        if scale is not None:  # each part vertex to its nearest within the part's support on the whole
+            support = part_support(T, bs, bt, 1.0 / scale, SUPPORT_SMOOTHING)
+            T = point_map_within(C, bs, bt, support)
+            info["partial"]["support"] = support
         info["C"] = C
         return Correspondence(T, target.n_vertices, info=info)
 

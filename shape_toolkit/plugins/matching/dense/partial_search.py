@@ -1,0 +1,127 @@
+"""A part matched to a whole shape when the part's share of the whole's area is not known (issue 29, item 3).
+
+The slanted diagonal of a partial functional map (Rodola et al. 2017) has the area ratio as its slope, and
+``fmap-zoomout``'s partial maps depend on it sharply (on the tuning half, 10% off the ratio turns a 0.03 map into a
+0.5 one). The ratio of the two shapes' areas is exact only when they are in the same units. Here each candidate
+ratio gives a map, and the map kept is the one of least geodesic distortion: the isometry every functional map
+assumes, tested on distances between farthest-point samples of the part, up to one global scale (so the shapes'
+units do not matter). The kept map is then refined by ZoomOut on the Laplacian eigenbasis of its own support on
+the whole (a submesh slightly larger than the part's image), whose functions are localized on the region the part
+covers (the idea of localized manifold harmonics); the refinement is kept only when it lowers the distortion.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from shape_toolkit.core.geometry import edge_components, farthest_point_sampling
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.features.basis import basis_of, fmap_from_p2p, part_support, slanted_size, zoomout
+from shape_toolkit.features.geodesics import geodesic_distances
+from shape_toolkit.results.correspondence import Correspondence
+
+__all__ = ["geodesic_distortion", "support_submesh", "match_over_area_ratios"]
+
+#: farthest-point samples of the part whose pairwise geodesic distances measure a map's distortion
+DISTORTION_SAMPLES = 40
+
+#: the supports tried for the refinement, as multiples of the part's share of the whole's area (a support a
+#: little larger than the part: one smaller than it cuts the part's own boundary off and misleads ZoomOut);
+#: chosen on the tuning half only (benchmarks/results/partial_matching_notes.md)
+SUPPORT_GROWTH = (1.15, 1.3)
+
+
+def geodesic_distortion(part_distances: np.ndarray, whole: Shape, images: np.ndarray) -> tuple[float, float]:
+    """How far a map is from an isometry up to scale: ``part_distances`` ``(q, q)`` geodesic distances between
+    ``q`` samples of the part and ``images`` ``(q,)`` their vertices on ``whole``. Returns the mean absolute
+    difference of the distances, the whole's divided by their median ratio to the part's, over the mean part
+    distance (unitless, 0 for an isometry), and that median ratio (whole's length units per part's)."""
+    dw = geodesic_distances(whole, images, images, method="dijkstra", cache=False)
+    iu = np.triu_indices(len(images), 1)
+    a, b = part_distances[iu], dw[iu]
+    ok = np.isfinite(b) & (a > 0)
+    if not ok.any():
+        return float("inf"), float("nan")
+    scale = float(np.median(b[ok] / a[ok]))
+    if not scale > 0:
+        return float("inf"), scale
+    return float(np.mean(np.abs(b[ok] / scale - a[ok])) / np.mean(a[ok])), scale
+
+
+def support_submesh(whole: Shape, keep: np.ndarray) -> tuple[Shape, np.ndarray]:
+    """The faces of ``whole`` with their three vertices in ``keep`` (boolean ``(n,)``), its largest edge-connected
+    piece: the submesh and its vertices' ids on ``whole``."""
+    sub, ids = whole.submesh(np.flatnonzero(keep))
+    used = np.unique(sub.faces)
+    _, label = edge_components(sub.n_vertices, sub.edges)
+    big = np.bincount(label[used]).argmax()
+    sub2, ids2 = sub.submesh(used[label[used] == big])
+    return sub2, ids[ids2]
+
+
+def _refined_on_support(matcher, part: Shape, whole: Shape, spec_s: Spectrum, spec_t: Spectrum,
+                        target_of: np.ndarray, ratio: float, growth: float) -> tuple[np.ndarray, np.ndarray]:
+    """``target_of`` refined by partial ZoomOut from the part to the support of ``growth`` times its area: the
+    refined map ``(n_s,)`` and the support (target boolean ``(n_t,)``)."""
+    bs, bt = basis_of(spec_s), basis_of(spec_t)
+    keep = part_support(target_of, bs, bt, min(1.0, ratio * growth))
+    keep[target_of] = True
+    sub, ids = support_submesh(whole, keep)
+    inv = np.full(whole.n_vertices, -1, dtype=np.int64)
+    inv[ids] = np.arange(ids.size)
+    start = np.maximum(inv[target_of], 0)  # a vertex cut off with a sliver of the support: any, refined away
+    bsub = basis_of(matcher.spectrum_spec().compute(sub))
+    scale = max(1.0, float(bt.mass[ids].sum()) / ratio)  # the support's area over the part's, common units
+    k_final = min(matcher._k_final(), part.n_vertices - 1, sub.n_vertices - 1)
+    C0 = fmap_from_p2p(bs, bsub, start, matcher.k, slanted_size(bs, bsub, matcher.k, scale))
+    _, T = zoomout(C0, bs, bsub, k_final, matcher.zoomout_step, scale=scale)
+    support = np.zeros(whole.n_vertices, dtype=bool)
+    support[ids] = True
+    return ids[T], support
+
+
+def match_over_area_ratios(
+    matcher, source: Shape, target: Shape, spec_s: Spectrum, spec_t: Spectrum,
+    progress: Callable[[str], None] | None = None, **kwargs,
+) -> Correspondence:
+    """``matcher`` (a partial ``fmap-zoomout`` with ``area_ratios``) run at each of its candidate area ratios and
+    at the shapes' areas' ratio, the map of least :func:`geodesic_distortion` kept and refined on its support
+    (:data:`SUPPORT_GROWTH`) when that lowers the distortion. ``info["partial"]["search"]`` records every
+    candidate's ratio and distortion, the refinements' and the choice; ``info["partial"]["area_ratio"]`` is the
+    chosen ratio and ``info["partial"]["scale"]`` the whole's length units per the part's."""
+    areas = float(np.sum(spec_s.mass)) / float(np.sum(spec_t.mass)) if spec_s.mass is not None else None
+    ratios = [min(areas, 1.0)] if areas is not None and 0 < areas <= 1.5 else []
+    ratios += [float(r) for r in matcher.area_ratios if not any(abs(float(r) - q) < 1e-9 for q in ratios)]
+    samples = farthest_point_sampling(np.asarray(source.vertices), min(DISTORTION_SAMPLES, source.n_vertices))
+    dp = geodesic_distances(source, samples, samples, method="dijkstra", cache=False)
+    params = {**matcher.get_params(deep=False), "area_ratios": None}
+    best, rows = None, []
+
+    def attempt(r: float) -> None:
+        nonlocal best
+        corr = type(matcher)(**{**params, "area_ratio": r}).match(
+            source, target, source_spectrum=spec_s, target_spectrum=spec_t, **kwargs)
+        d, scale = geodesic_distortion(dp, target, corr.target_of[samples])
+        rows.append({"area_ratio": r, "distortion": d})
+        if progress is not None:
+            progress(f"partial: area ratio {r:.3g}, geodesic distortion {d:.3g}")
+        if best is None or d < best[0]:
+            best = (d, r, scale, corr)
+
+    for r in ratios:
+        attempt(r)
+    d, r, scale, corr = best
+    T, support, refined = corr.target_of, corr.info["partial"]["support"], []
+    for growth in SUPPORT_GROWTH:
+        T2, keep = _refined_on_support(matcher, source, target, spec_s, spec_t, corr.target_of, r, growth)
+        d2, s2 = geodesic_distortion(dp, target, T2[samples])
+        refined.append({"growth": growth, "distortion": d2})
+        if d2 < d:
+            d, T, scale, support = d2, T2, s2, keep
+    info = dict(corr.info)
+    info["partial"] = {**info["partial"], "area_ratio": r, "scale": scale, "support": support, "search": {
+        "candidates": rows, "refined": refined, "distortion": d}}
+    return Correspondence(T, target.n_vertices, info=info)
