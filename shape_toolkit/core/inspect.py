@@ -18,6 +18,7 @@ __all__ = [
     "duplicate_vertex_map",
     "edge_face_counts",
     "face_fans",
+    "largest_face_piece",
     "mesh_info",
 ]
 
@@ -56,6 +57,14 @@ def connected_components(shape: Shape) -> tuple[int, np.ndarray]:
     vertex is a component of its own. Needs a triangle mesh.
     """
     return edge_components(shape.n_vertices, _all_edges(shape.require_faces("connected components")))
+
+
+def largest_face_piece(shape: Shape) -> np.ndarray:
+    """Sorted int64 vertex ids of the largest edge-connected piece of a mesh, counting only the vertices on a
+    face (an unreferenced vertex belongs to no piece); of pieces of equal size, the one of the lowest vertex."""
+    used = np.unique(shape.require_faces("its largest piece"))
+    _, labels = connected_components(shape)
+    return used[labels[used] == np.argmax(np.bincount(labels[used]))]
 
 
 def duplicate_vertex_map(vertices: np.ndarray) -> np.ndarray:

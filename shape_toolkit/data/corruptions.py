@@ -18,6 +18,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from shape_toolkit.core.geometry import edge_components
+from shape_toolkit.core.inspect import largest_face_piece
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 
@@ -176,16 +177,7 @@ def _keep(shape: Shape, keep: np.ndarray, largest: bool = True) -> Corruption:
     sub, ids = shape.submesh(np.flatnonzero(keep))
     if sub.faces is None:
         raise InvalidShapeError("the corruption removed every face")
-    used = np.zeros(sub.n_vertices, dtype=bool)
-    used[sub.faces.ravel()] = True
-    if largest:
-        n = sub.n_vertices
-        e = sub.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-        _, lab = edge_components(n, e)
-        sizes = np.bincount(lab[used])
-        big = int(np.argmax(sizes))
-        used &= lab == big
-    sub2, ids2 = sub.submesh(np.flatnonzero(used))
+    sub2, ids2 = sub.submesh(largest_face_piece(sub) if largest else np.unique(sub.faces))
     return Shape(sub2.vertices, sub2.faces, shape.name, sub2.colors), ids[ids2]
 
 

@@ -16,7 +16,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from shape_toolkit.core.geometry import edge_components, farthest_point_sampling
+from shape_toolkit.core.geometry import farthest_point_sampling
+from shape_toolkit.core.inspect import largest_face_piece
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.features.basis import basis_of, fmap_from_p2p, part_support, slanted_size, zoomout
@@ -55,10 +56,7 @@ def support_submesh(whole: Shape, keep: np.ndarray) -> tuple[Shape, np.ndarray]:
     """The faces of ``whole`` with their three vertices in ``keep`` (boolean ``(n,)``), its largest edge-connected
     piece: the submesh and its vertices' ids on ``whole``."""
     sub, ids = whole.submesh(np.flatnonzero(keep))
-    used = np.unique(sub.faces)
-    _, label = edge_components(sub.n_vertices, sub.edges)
-    big = np.bincount(label[used]).argmax()
-    sub2, ids2 = sub.submesh(used[label[used] == big])
+    sub2, ids2 = sub.submesh(largest_face_piece(sub))
     return sub2, ids[ids2]
 
 
