@@ -283,7 +283,7 @@ def test_every_whole_file_writer_survives_an_interrupted_write(sphere, tmp_path,
         g = build_graph(sphere, "binary")
         spec = spm.compute_spectrum(g, 4)
         (cached,) = (tmp_path / "cache").glob("*.npz")
-        key = next(reversed(spm._MEMORY))  # the key text (the file is named by its hash)
+        key = spm.SPECTRUM_CACHE.keys()[-1]  # the key text (the file is named by its hash)
         assert spm._cache_file(tmp_path / "cache", key) == cached
         cases = [  # (file, write it, the function to break, how to break it)
             (tmp_path / "l.txt", lambda: write_labels(tmp_path / "l.txt", [1, 2]), (np, "savetxt"),

@@ -9,7 +9,6 @@ import hashlib
 import json
 import os
 import warnings
-from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.eigen import EigenSolver, fix_signs
 from shape_toolkit.core.graph import ShapeGraph
 from shape_toolkit.errors import DisconnectedGraphError, ParameterError
@@ -176,8 +176,8 @@ def laplacian_matrix(W: sp.spmatrix, kind: str = "combinatorial") -> sp.csr_matr
 
 
 # -- cache ------------------------------------------------------------------------------------
-_MEMORY: OrderedDict[str, Spectrum] = OrderedDict()
-_MEMORY_MAX = 32
+#: spectra computed in this process (the last 32), keyed by the key text of :func:`_spectrum_key`
+SPECTRUM_CACHE = LRUCache(32, name="spectra")
 _CACHE_DIR: Path | None = None
 
 
@@ -198,8 +198,8 @@ def _cache_dir() -> Path | None:
 
 
 def clear_cache() -> None:
-    """Forget every spectrum cached in memory (disk files are left alone)."""
-    _MEMORY.clear()
+    """Forget every spectrum cached in memory (:data:`SPECTRUM_CACHE`; disk files are left alone)."""
+    SPECTRUM_CACHE.clear()
 
 
 def _cache_key(graph: ShapeGraph, *parts: object) -> str:
@@ -242,11 +242,11 @@ def _read_cache_file(path: Path, key: str) -> Spectrum | None:
 
 def _cache_get(key: str) -> Spectrum | None:
     d = _cache_dir()
-    if key in _MEMORY:
-        _MEMORY.move_to_end(key)
+    spec = SPECTRUM_CACHE.get(key)
+    if spec is not None:
         if d is not None and not _cache_file(d, key).exists():  # a new cache folder gets it too
-            _cache_put(key, _MEMORY[key])
-        return _MEMORY[key]
+            _cache_put(key, spec)
+        return spec
     if d is not None and (path := _cache_file(d, key)).exists():
         spec = _read_cache_file(path, key)
         if spec is not None:
@@ -256,10 +256,7 @@ def _cache_get(key: str) -> Spectrum | None:
 
 
 def _cache_put(key: str, spec: Spectrum, disk: bool = True) -> None:
-    _MEMORY[key] = spec
-    _MEMORY.move_to_end(key)
-    while len(_MEMORY) > _MEMORY_MAX:
-        _MEMORY.popitem(last=False)
+    SPECTRUM_CACHE.put(key, spec)
     d = _cache_dir()
     if disk and d is not None:
         with atomic_output(_cache_file(d, key), "spectrum cache file", suffix=".npz", make_parents=True) as tmp:

@@ -27,11 +27,10 @@ thin part and got the sign wrong on 5-28 % of the points of TOSCA dogs and FAUST
 from __future__ import annotations
 
 import hashlib
-import threading
-from collections import OrderedDict
 
 import numpy as np
 
+from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.geometry import edge_components, signed_volume
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError
@@ -53,10 +52,8 @@ TANGENT_COS = 0.5
 NOISE_SIGMAS = 2.0
 #: points of the local triangulations handled at once: bounds the ``(points, n_neighbors, 3)`` work arrays
 FAN_CHUNK = 1 << 15
-#: clouds whose outward normals are kept (:func:`outward_normals`)
-NORMALS_KEPT = 4
-_NORMALS: OrderedDict[tuple, np.ndarray] = OrderedDict()
-_NORMALS_LOCK = threading.Lock()
+#: outward normals of the last 4 clouds (:func:`outward_normals`), keyed by the points' SHA-1, shape and neighbours
+NORMALS_CACHE = LRUCache(4, name="outward normals")
 
 
 def _sphere_directions(m: int) -> np.ndarray:
@@ -71,22 +68,12 @@ def outward_normals(points: np.ndarray, n_neighbors: int = 10) -> np.ndarray:
     PCA of ``n_neighbors`` nearest neighbours, signs from visibility and propagated to the unseen points.
     Deterministic and independent of the order of the points (up to ties in floating point).
 
-    Computed once per cloud: the normals of the last ``NORMALS_KEPT`` clouds are kept, keyed by the points'
-    bytes, so the point-cloud Laplacian's weighting and the matcher's orientation term (:func:`cloud_surface`)
+    Computed once per cloud: the normals of the last clouds are kept in :data:`NORMALS_CACHE`, keyed by the
+    points' bytes, so the point-cloud Laplacian's weighting and the matcher's orientation term (:func:`cloud_surface`)
     share them (a copy is returned)."""
     P = np.ascontiguousarray(points, dtype=np.float64)
     key = (hashlib.sha1(P.tobytes()).hexdigest(), P.shape, int(n_neighbors))
-    with _NORMALS_LOCK:
-        N = _NORMALS.get(key)
-        if N is not None:
-            _NORMALS.move_to_end(key)
-            return N.copy()
-    N = _outward_normals(P, n_neighbors)
-    with _NORMALS_LOCK:
-        _NORMALS[key] = N.copy()
-        while len(_NORMALS) > NORMALS_KEPT:
-            _NORMALS.popitem(last=False)
-    return N
+    return NORMALS_CACHE.get_or_compute(key, lambda: _outward_normals(P, n_neighbors)).copy()
 
 
 def _outward_normals(points: np.ndarray, n_neighbors: int) -> np.ndarray:

@@ -13,7 +13,7 @@ Methods of :func:`geodesic_distances`:
   without faces).
 
 Distances are in the shape's length units. Rows (one per source vertex) are cached by shape
-content and method, so a benchmark that asks twice computes once.
+content and method (:data:`GEODESIC_ROWS_CACHE`), so a benchmark that asks twice computes once.
 
 Long solves (exact geodesics take about a second per source on a 5,000-vertex mesh) take a
 :class:`GeodesicBudget`: a time limit, checked after every source, that raises
@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -34,6 +33,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.csgraph import dijkstra as _csgraph_dijkstra
 
+from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.graph import edge_length_graph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError, SolverError, TimeLimitError
@@ -60,13 +60,10 @@ __all__ = [
 
 GEODESIC_METHODS = ("exact", "fmm", "heat", "dijkstra")
 
-#: Budget of the row cache in float64 entries (about 400 MB).
-CACHE_MAX_ENTRIES = 50_000_000
-
-_ROWS: OrderedDict[tuple[str, str, int], np.ndarray] = OrderedDict()
-_ROW_ENTRIES = 0
-_SOLVERS: OrderedDict[tuple[str, str], Any] = OrderedDict()
-_SOLVERS_MAX = 8
+#: distance rows (read-only, keyed by shape content, method and source), bounded by float64 entries (400 MB)
+GEODESIC_ROWS_CACHE = LRUCache(None, max_cost=50_000_000, cost=lambda row: row.size, name="geodesic rows")
+#: prepared solvers, edge graphs' components and adjacencies of the last shapes, keyed by content and kind
+GEODESIC_SOLVERS_CACHE = LRUCache(8, name="geodesic solvers")
 _KNN_NEIGHBORS = 8
 
 
@@ -143,18 +140,18 @@ class GeodesicBudget:
 
 
 def clear_geodesic_cache() -> None:
-    """Forget every cached distance row and prepared solver."""
-    global _ROW_ENTRIES
-    _ROWS.clear()
-    _SOLVERS.clear()
-    _ROW_ENTRIES = 0
+    """Forget every cached distance row and prepared solver (:data:`GEODESIC_ROWS_CACHE`,
+    :data:`GEODESIC_SOLVERS_CACHE`)."""
+    GEODESIC_ROWS_CACHE.clear()
+    GEODESIC_SOLVERS_CACHE.clear()
 
 
 def _solver(shape: Shape, method: str) -> Any:
-    key = (shape.content_hash, method)
-    if key in _SOLVERS:
-        _SOLVERS.move_to_end(key)
-        return _SOLVERS[key]
+    """The prepared solver of ``method`` on ``shape`` (cached)."""
+    return GEODESIC_SOLVERS_CACHE.get_or_compute((shape.content_hash, method), lambda: _make_solver(shape, method))
+
+
+def _make_solver(shape: Shape, method: str) -> Any:
     V = np.ascontiguousarray(shape.vertices, dtype=np.float64)
     if method == "dijkstra":
         solver = _edge_graph(shape)
@@ -171,9 +168,6 @@ def _solver(shape: Shape, method: str) -> Any:
                 solver = (V, F)
         except (RuntimeError, ValueError) as exc:
             raise SolverError(f"{method} geodesic solver failed on {shape!r}: {exc}") from None
-    _SOLVERS[key] = solver
-    while len(_SOLVERS) > _SOLVERS_MAX:
-        _SOLVERS.popitem(last=False)
     return solver
 
 
@@ -183,10 +177,9 @@ def _edge_graph(shape: Shape) -> sp.csr_matrix:
 
 def _components(shape: Shape) -> np.ndarray:
     """Connected-component label ``(n,)`` of every vertex (mesh edges / kNN graph), cached."""
-    key = (shape.content_hash, "components")
-    if key not in _SOLVERS:
-        _SOLVERS[key] = connected_components(_edge_graph(shape), directed=False)[1]
-    return _SOLVERS[key]
+    return GEODESIC_SOLVERS_CACHE.get_or_compute(
+        (shape.content_hash, "components"), lambda: connected_components(_edge_graph(shape), directed=False)[1]
+    )
 
 
 def _compute_rows(
@@ -254,7 +247,6 @@ def geodesic_distances(
     Unreachable vertices (other components) get ``inf``. ``time_limit`` (seconds) and
     ``progress(done, total)`` make a :class:`GeodesicBudget` for this call (``budget`` shares one
     across calls); past the limit :class:`~shape_toolkit.errors.TimeLimitError` is raised."""
-    global _ROW_ENTRIES
     _check_method(shape, method)
     n = shape.n_vertices
     src = check_vertex_ids(sources, n, "sources")
@@ -263,9 +255,8 @@ def geodesic_distances(
     key0 = shape.content_hash
     todo = []
     for r, s in enumerate(src):
-        hit = _ROWS.get((key0, method, int(s))) if cache else None
+        hit = GEODESIC_ROWS_CACHE.get((key0, method, int(s))) if cache else None
         if hit is not None:
-            _ROWS.move_to_end((key0, method, int(s)))
             rows[r] = hit
         else:
             todo.append(r)
@@ -277,15 +268,11 @@ def geodesic_distances(
         uniq, inv = np.unique(src[todo], return_inverse=True)
         new = _compute_rows(shape, uniq, method, budget)
         rows[todo] = new[inv]
-        if cache and n <= CACHE_MAX_ENTRIES:
+        if cache:  # a row larger than the budget on its own is not kept
             for s, row in zip(uniq, new):
                 row = row.copy()
                 row.setflags(write=False)
-                _ROWS[(key0, method, int(s))] = row
-                _ROW_ENTRIES += n
-            while _ROW_ENTRIES > CACHE_MAX_ENTRIES and _ROWS:
-                _, old = _ROWS.popitem(last=False)
-                _ROW_ENTRIES -= old.size
+                GEODESIC_ROWS_CACHE.put((key0, method, int(s)), row)
     if method == "fmm" or method == "heat":
         rows[np.arange(src.size), src] = 0.0
     return rows if tgt is None else rows[:, tgt]
@@ -372,14 +359,15 @@ def geodesic_distance_to_set(
 def adjacency(shape: Shape) -> sp.csr_matrix:
     """Boolean-valued ``(n, n)`` CSR adjacency of the mesh edges (kNN graph for point clouds),
     no self loops; cached per shape."""
-    key = (shape.content_hash, "adjacency")
-    if key not in _SOLVERS:
-        G = _edge_graph(shape)
-        A = sp.csr_matrix((np.ones(G.nnz), G.indices, G.indptr), shape=G.shape)
-        A.setdiag(0)
-        A.eliminate_zeros()
-        _SOLVERS[key] = A
-    return _SOLVERS[key]
+    return GEODESIC_SOLVERS_CACHE.get_or_compute((shape.content_hash, "adjacency"), lambda: _adjacency(shape))
+
+
+def _adjacency(shape: Shape) -> sp.csr_matrix:
+    G = _edge_graph(shape)
+    A = sp.csr_matrix((np.ones(G.nnz), G.indices, G.indptr), shape=G.shape)
+    A.setdiag(0)
+    A.eliminate_zeros()
+    return A
 
 
 def _ring_matrix(A: sp.csr_matrix) -> sp.csr_matrix:
