@@ -91,3 +91,27 @@ def test_smoothed_wraps_a_name_or_an_instance_and_clones(body):
     by_name.segment(body, spectrum=[spec])
     with pytest.raises(ParameterError):
         st.create_plugin("segmenters", "smoothed", base=3).segment(body)
+
+
+def test_the_sdf_cache_stays_bounded_over_more_meshes_than_its_size():
+    """``SDF_CACHE`` keeps the SDFs of the last few meshes only (it once grew with every mesh of a run), and
+    hands out copies."""
+    from shape_toolkit.data.generate import icosphere
+    from shape_toolkit.plugins.segmenters.sdf import SDF_CACHE, normalized_sdf
+
+    SDF_CACHE.clear()
+    size = SDF_CACHE.max_entries
+    assert size is not None and size >= 2
+    meshes = [icosphere(1, radius=1.0 + 0.1 * i) for i in range(size + 3)]
+    first = normalized_sdf(meshes[0])
+    for m in meshes:
+        st.create_plugin("segmenters", "sdf", n_segments=2, random_state=0).segment(m)
+        assert len(SDF_CACHE) <= size
+    assert len(SDF_CACHE) == size
+    kept = {k[0] for k in SDF_CACHE.keys()}
+    assert kept == {m.content_hash for m in meshes[-size:]}  # the most recent meshes
+    again = normalized_sdf(meshes[0])  # recomputed, the same values
+    np.testing.assert_array_equal(again, first)
+    again[:] = -1.0  # a copy: the cached value is untouched
+    assert (normalized_sdf(meshes[0]) >= 0).all()
+    SDF_CACHE.clear()

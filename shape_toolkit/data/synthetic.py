@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.generate import icosphere
@@ -444,19 +445,18 @@ def _count_contacts(base: Shape, kept: np.ndarray) -> int:
     return edge_components(gone.size, np.column_stack([pos[e[sel, 0]], pos[e[sel, 1]]]))[0]
 
 
-_SEQUENCES: dict[str, PoseSequence] = {}
+#: pose sequences of the last two parameter sets (:func:`cached_pose_sequence`), keyed by the parameters' JSON
+POSE_SEQUENCE_CACHE = LRUCache(2, name="pose sequences")
 
 
 def cached_pose_sequence(params: dict[str, Any]) -> PoseSequence:
-    """:func:`pose_sequence` ``(**params)``, kept for the last two parameter sets of this process (a
-    benchmark's methods and its prepare step share one generation of the same sequence)."""
+    """:func:`pose_sequence` ``(**params)``, kept for the last two parameter sets of this process in
+    :data:`POSE_SEQUENCE_CACHE` (a benchmark's methods and its prepare step share one generation of the same
+    sequence; the same object is returned)."""
     import json
 
-    key = json.dumps(params, sort_keys=True, default=str)
-    if key not in _SEQUENCES:
+    def generate() -> PoseSequence:
         prm = dict(params)
-        seq = pose_sequence(prm.pop("n_frames"), **prm)
-        while len(_SEQUENCES) >= 2:
-            _SEQUENCES.pop(next(iter(_SEQUENCES)))
-        _SEQUENCES[key] = seq
-    return _SEQUENCES[key]
+        return pose_sequence(prm.pop("n_frames"), **prm)
+
+    return POSE_SEQUENCE_CACHE.get_or_compute(json.dumps(params, sort_keys=True, default=str), generate)

@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import weakref
-from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from contextvars import ContextVar
 from dataclasses import dataclass
@@ -25,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.geometry import farthest_point_sampling, outward_vertex_normals
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
@@ -168,27 +168,25 @@ class _IdentityCache:
     """A small LRU of computed values keyed on the *identity* of objects (shapes, spectra) plus a
     hashable ``extra``: entries hold weak references, and a key only hits while every object is
     alive and is the very object it was computed for (an ``id`` reused by a new object misses).
-    Shapes and spectra are frozen, so identity stands for content."""
+    Shapes and spectra are frozen, so identity stands for content. The entries live in an
+    :class:`~shape_toolkit.core.cache.LRUCache` (``entries``); a key function alone could not replace this
+    class, since a hit must also be checked against the live objects."""
 
     def __init__(self, size: int = 2):
-        self.size = size
-        self._d: OrderedDict = OrderedDict()
+        self.entries = LRUCache(size, name="identity")
 
     def get(self, objs: tuple, extra: Any, compute: Callable[[], Any]) -> Any:
         key = (tuple(id(o) for o in objs), extra)
-        hit = self._d.get(key)
+        hit = self.entries.get(key)
         if hit is not None and all(r() is o for r, o in zip(hit[0], objs)):
-            self._d.move_to_end(key)
             return hit[1]
         value = compute()
-        self._d[key] = (tuple(weakref.ref(o) for o in objs), value)
-        while len(self._d) > self.size:
-            self._d.popitem(last=False)
+        self.entries.put(key, (tuple(weakref.ref(o) for o in objs), value))
         return value
 
     def clear(self) -> None:
         """Forget every entry."""
-        self._d.clear()
+        self.entries.clear()
 
 
 class SideCache:

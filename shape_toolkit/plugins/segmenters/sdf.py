@@ -38,6 +38,7 @@ import scipy.sparse as sp
 
 from shape_toolkit.api.interfaces import BasePlugin, Segmenter
 from shape_toolkit.api.params import RANDOM_STATE, Interval, Param, PluginRef
+from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, dual_adjacency, dual_graph, smooth_labels
@@ -142,7 +143,8 @@ def _fill_and_filter(x: np.ndarray, A: sp.csr_matrix, areas: np.ndarray, iterati
     return x
 
 
-_SDF_CACHE: dict[tuple, np.ndarray] = {}
+#: normalised SDFs of the last 4 meshes and parameter sets (:func:`normalized_sdf`; sweeps reuse the rays)
+SDF_CACHE = LRUCache(4, name="sdf")
 
 
 def normalized_sdf(
@@ -156,8 +158,9 @@ def normalized_sdf(
     clipped) and log-normalised as in CGAL: ``log(alpha x + 1) / log(alpha + 1)``."""
     faces = shape.require_faces("the shape diameter function")
     key = (shape.content_hash, int(n_rays), float(cone_angle), int(filter_iterations), float(log_alpha))
-    if key in _SDF_CACHE:
-        return _SDF_CACHE[key].copy()
+    hit = SDF_CACHE.get(key)
+    if hit is not None:
+        return hit.copy()
     raw = face_sdf(shape, n_rays, cone_angle)
     pairs, _, _ = dual_graph(faces)
     A = dual_adjacency(len(faces), pairs, np.ones(len(pairs)))
@@ -167,9 +170,7 @@ def normalized_sdf(
     x = np.clip((x - lo) / (hi - lo), 0.0, 1.0) if hi > lo else np.zeros_like(x)
     if log_alpha > 0:
         x = np.log1p(log_alpha * x) / np.log1p(log_alpha)
-    if len(_SDF_CACHE) >= 4:  # a few recent shapes: parameter sweeps reuse the rays
-        _SDF_CACHE.pop(next(iter(_SDF_CACHE)))
-    _SDF_CACHE[key] = x
+    SDF_CACHE.put(key, x)
     return x.copy()
 
 
