@@ -94,7 +94,7 @@ def test_smoothed_wraps_a_name_or_an_instance_and_clones(body):
 
 
 def test_the_sdf_cache_stays_bounded_over_more_meshes_than_its_size():
-    """``SDF_CACHE`` keeps the SDFs of the last few meshes only (it once grew with every mesh of a run), and
+    """``SDF_CACHE`` keeps the SDFs of the last few meshes only (most recently used), and
     hands out copies."""
     from shape_toolkit.data.generate import icosphere
     from shape_toolkit.plugins.segmenters.sdf import SDF_CACHE, normalized_sdf
