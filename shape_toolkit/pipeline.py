@@ -428,7 +428,7 @@ class Pipeline:
         inner = self.run(ps, pt, pseeds, progress=say, proxy=None)
         say(f"{self.name}: lifting the proxy map to {source.n_vertices} and {target.n_vertices} vertices")
         t1, c1 = time.perf_counter(), time.process_time()
-        full, lift = lift_map(source, target, ids_s, ids_t, inner.target_of)
+        full, lift = lift_map(source, target, ids_s, ids_t, inner.target_of, proxies=(ps, pt))
         t_lift, c_lift = time.perf_counter() - t1, time.process_time() - c1
         info = {k: v for k, v in inner.info.items() if k not in ("orientation", "timings", "cpu_timings", "seconds")}
         info["proxy"] = {**lift, "proxy_orientation": inner.info.get("orientation")}

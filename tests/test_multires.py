@@ -91,6 +91,7 @@ def test_a_large_pair_is_matched_through_proxies_and_lifted(poses):
     assert set(cpu) == set(corr.info["timings"]) >= {"proxies", "proxy spectra", "proxy dense", "lift"}
     assert all(v >= 0 for v in cpu.values())
     assert set(corr.info["proxy"]["cpu_seconds"]) == {"spectra", "descent"}
+    assert corr.info["proxy"]["lift_basis"] == "upsampled from the proxies"
     assert sum(corr.info["proxy"]["cpu_seconds"].values()) <= cpu["lift"] + 1e-3
 
 
@@ -114,3 +115,43 @@ def test_the_lift_descends_to_full_resolution_from_any_first_guess(poses):
     cloud = Shape(a.vertices, None, "cloud")
     out, _ = lift_map(cloud, cloud, ids, ids, np.arange(len(ids)), candidates=1)
     assert np.mean(out == np.arange(a.n_vertices)) > 0.95
+
+
+def test_upsampled_eigenfunctions_of_a_shape_onto_itself_are_its_own():
+    from shape_toolkit.features.basis import basis_of
+    from shape_toolkit.plugins.matching.multires import upsampled_basis
+    from shape_toolkit.spectra import shape_spectrum
+
+    a = articulated_shape(random_state=1).shape
+    up, own = upsampled_basis(a, a, 12), basis_of(shape_spectrum(a, 13), 12)
+    np.testing.assert_allclose(up.evecs, own.evecs, atol=1e-9)
+    np.testing.assert_allclose(up.mass, a.vertex_areas / a.area, rtol=1e-12)
+
+
+def test_upsampled_eigenfunctions_span_the_fine_sphere_harmonics():
+    # a coarse sphere's first 9 eigenfunctions (degrees 0-2, a gap before degree 3), interpolated onto a finer
+    # sphere, span the fine sphere's own first 9 (mass-weighted principal cosines near 1)
+    from shape_toolkit.data.generate import icosphere
+    from shape_toolkit.features.basis import basis_of
+    from shape_toolkit.plugins.matching.multires import upsampled_basis
+    from shape_toolkit.spectra import shape_spectrum
+
+    fine, coarse = icosphere(4), icosphere(2)
+    up = upsampled_basis(fine, coarse, 9)
+    own = basis_of(shape_spectrum(fine, 10), 9)
+    gram = up.evecs.T @ (own.mass[:, None] * up.evecs)  # in the fine sphere's inner product
+    w, Q = np.linalg.eigh(gram)
+    cosines = np.linalg.svd(own.evecs.T @ (own.mass[:, None] * up.evecs) @ (Q / np.sqrt(w)), compute_uv=False)
+    assert cosines.min() > 0.999
+    # and not by accident: degrees 0-2 against degree 3's functions are orthogonal
+    far = basis_of(shape_spectrum(fine, 17), 16).evecs[:, 9:16]
+    assert np.abs(far.T @ (own.mass[:, None] * up.evecs) @ (Q / np.sqrt(w))).max() < 0.05
+
+
+def test_the_lift_on_upsampled_eigenfunctions_reaches_full_resolution(poses):
+    a, _ = poses
+    proxy, ids = make_proxy(a, 1000)
+    out, info = lift_map(a, a, ids, ids, np.arange(len(ids)), candidates=1, proxies=(proxy, proxy))
+    assert info["lift_basis"] == "upsampled from the proxies"
+    assert np.mean(out == np.arange(a.n_vertices)) > 0.95
+    assert _error(a, out) < 0.002
