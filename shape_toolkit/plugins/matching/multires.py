@@ -7,23 +7,25 @@ matched through proxies of :data:`PROXY_VERTICES` vertices:
 1. **Proxy.** A mesh is decimated by quadric edge collapse (pymeshlab) *without* moving vertices, so
    every proxy vertex is a vertex of the input; a point cloud is subsampled by farthest points.
 2. **Solve** the pipeline on the two proxies (its own spectra, hypotheses and checks, as at 5k).
-3. **Lift.** The proxy point map gives ``q`` correspondences between full-resolution vertices. On
-   ``LIFT_K`` Laplace-Beltrami eigenfunctions of the full shapes (for meshes, the proxies' eigenfunctions
-   upsampled: interpolated linearly on the proxy's triangles at each vertex's closest point, so no
-   eigenproblem of the full size is solved; :func:`upsampled_basis`), the functional map they imply is
-   fitted (least squares), refined by ZoomOut iterations on the proxy vertices, and turned into the
-   full point map by a *local* search: each source vertex starts at the target vertex, among the
-   ``candidates`` nearest (in space) to the image of its nearest proxy vertex, whose spectral
-   coordinates best match its own through the functional map, and then descends along the target's
-   edges (its kNN graph for a cloud) while a neighbour matches better. No all-pairs search, and no
-   search whose size grows with the input (a fixed ball of ``4 n / p`` vertices made the lift
-   ``O(n^2 / p)``: 60 s CPU of a 10^6 pair): cost ``O(n (candidates + log n + walk))`` after the
-   spectra, the walk a few edges (about the proxy spacing in edges, ``sqrt(n / p)``, at most).
+3. **Lift.** A mesh's proxy map is interpolated on the proxies' triangles (:func:`interpolated_map`):
+   each vertex's closest point on the source proxy, the images of its triangle's corners averaged with its
+   barycentric weights, and the target vertex whose closest point on the target proxy is nearest that point
+   (the nearest corner's image where the corners' images are far apart: a seam of the map). Linear-time after
+   libigl's AABB trees and a k-d tree; no eigenproblem of the full size.
 
-   Upsampled against solved eigenfunctions, on tuning pairs (dogs, FAUST people 0-1) remeshed independently to
-   58k vertices: the same error (0.0257-0.0306 against 0.0254-0.0289; +0.0017 at worst) for 0.9-1.0 s of lift
-   CPU instead of 3.0-3.8 s (the full shapes' spectra were 2.3-2.9 s of it, 65 s at 10^6 vertices). A cloud
-   (proxy without triangles) keeps the solved spectra.
+   On tuning pairs (dogs, FAUST people 0-1; 7 pairs) remeshed independently to 58k vertices it gave 0.0143-0.0259
+   where the spectral lift below gave 0.0204-0.0289 (better on all 7, by 0.007-0.011 on FAUST), for 0.55-0.71 s
+   of CPU against 2.6-4.8 s, and slightly better than each vertex through its nearest proxy vertex (0.0146-0.0274):
+   40 eigenfunctions localise a vertex more coarsely than the proxy map does.
+
+   A cloud's proxy has no triangles: its map is lifted spectrally. On ``LIFT_K`` Laplace-Beltrami eigenfunctions
+   of the full shapes, the functional map the ``q`` proxy correspondences imply is fitted (least squares), refined
+   by ZoomOut iterations on the proxy vertices, and turned into the full point map by a *local* search: each
+   source vertex starts at the target vertex, among the ``candidates`` nearest (in space) to the image of its
+   nearest proxy vertex, whose spectral coordinates best match its own through the functional map, and then
+   descends along the target's edges (a cloud: its kNN graph) while a neighbour matches better. No all-pairs
+   search, and no search whose size grows with the input: cost ``O(n (candidates + log n + walk))`` after the
+   spectra.
 
 The proxy size is a vertex count, so the result does not depend on units or on the input's
 resolution; ``PROXY_VERTICES`` is the resolution the pipelines were built and measured at (the
@@ -39,10 +41,10 @@ import numpy as np
 from shape_toolkit.core.geometry import edge_components, farthest_point_sampling, nearest_neighbors
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.features.basis import Basis, basis_of, fmap_from_p2p
+from shape_toolkit.features.basis import basis_of, fmap_from_p2p
 from shape_toolkit.plugins.weightings.cotangent import flat_faces
 
-__all__ = ["PROXY_VERTICES", "LIFT_K", "LIFT_CANDIDATES", "make_proxy", "lift_map", "descend", "upsampled_basis"]
+__all__ = ["PROXY_VERTICES", "LIFT_K", "LIFT_CANDIDATES", "make_proxy", "lift_map", "descend", "interpolated_map"]
 
 #: vertices of each proxy; shapes up to 1.5x this are matched directly
 PROXY_VERTICES = 5000
@@ -50,6 +52,9 @@ PROXY_VERTICES = 5000
 LIFT_K = 40
 #: target vertices of the first guess of the lift's local search (then a descent along edges)
 LIFT_CANDIDATES = 32
+#: a proxy triangle whose corners' images are this many times further apart than its corners (in units of the
+#: proxies' spacings) straddles a seam of the map: a continuous map of a near-isometry stretches it about 1x
+SEAM_STRETCH = 3.0
 #: neighbours of a cloud's point in the graph the descent walks (a mesh: its edges)
 WALK_NEIGHBOURS = 8
 #: a mesh above 4x this many times the proxy size is first clustered to this many times it
@@ -133,25 +138,53 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
     return Shape(V[uniq[used]], remap[pf], name=f"{shape.name}-proxy"), uniq[used]
 
 
-def upsampled_basis(shape: Shape, proxy: Shape, k: int) -> Basis:
-    """The first ``k`` Laplace-Beltrami eigenfunctions of the mesh ``proxy``, carried to every vertex of ``shape``
-    (which it approximates) by linear interpolation on the proxy's triangles at the vertex's closest point on the
-    proxy surface (libigl's AABB tree): evecs ``(n, k)``, mass ``shape``'s vertex areas over its area."""
+def _on_surface(points: np.ndarray, mesh: Shape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest points ``(n, 3)`` of ``points`` on the triangles of ``mesh`` (libigl's AABB tree), the corners
+    ``(n, 3)`` of the triangle each lies on and their barycentric weights ``(n, 3)``."""
     import igl
 
-    from shape_toolkit.spectra import shape_spectrum
+    V, F = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
+    _, face, closest = igl.point_mesh_squared_distance(np.asarray(points, dtype=np.float64), V, F)
+    tri = F[face]
+    w = igl.barycentric_coordinates(closest, *(np.ascontiguousarray(V[tri[:, j]]) for j in range(3)))
+    w = np.clip(np.nan_to_num(w, nan=1.0 / 3.0), 0.0, None)  # the closest point lies on its triangle
+    return closest, tri, w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
 
-    bp = basis_of(shape_spectrum(proxy, k + 1), k)
-    V = np.asarray(shape.vertices, dtype=np.float64)
-    Vp, Fp = np.asarray(proxy.vertices, dtype=np.float64), np.asarray(proxy.faces, dtype=np.int64)
-    _, face, closest = igl.point_mesh_squared_distance(V, Vp, Fp)
-    tri = Fp[face]
-    w = igl.barycentric_coordinates(closest, *(np.ascontiguousarray(Vp[tri[:, j]]) for j in range(3)))
-    w = np.clip(np.nan_to_num(w, nan=1.0 / 3.0), 0.0, None)  # closest points lie on their triangle
-    w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
-    evecs = sum(w[:, j, None] * bp.evecs[tri[:, j]] for j in range(3))
-    mass = np.asarray(shape.vertex_areas, dtype=np.float64)
-    return Basis(bp.evals, evecs, mass / mass.sum())
+
+def _spread(P: np.ndarray) -> np.ndarray:
+    """Longest side ``(n,)`` of each triangle of corner positions ``P`` ``(n, 3, 3)``."""
+    return np.linalg.norm(P - P[:, [1, 2, 0]], axis=2).max(axis=1)
+
+
+def interpolated_map(source: Shape, target: Shape, source_proxy: Shape, target_proxy: Shape,
+                     proxy_map: np.ndarray) -> np.ndarray:
+    """Full point map ``(n_source,)`` from the map ``proxy_map`` between the mesh proxies (source proxy vertex ->
+    target proxy vertex, ``-1``: unmatched), interpolated on the proxies' surfaces: each source vertex's closest
+    point on the source proxy has barycentric weights on its triangle's corners; the corners' images, averaged
+    with those weights, give a point on the target proxy; the image is the target vertex whose own closest point
+    on the target proxy is nearest it (so a shape onto itself through one proxy is the identity). Where the
+    corners' images are more than :data:`SEAM_STRETCH` times further apart than the corners (scaled by the two
+    proxies' spacings: shapes in any units), the triangle straddles a seam of the map and the nearest corner's
+    image is taken instead of a point between. Unmatched proxy vertices take the image of their nearest matched
+    one."""
+    from scipy.spatial import cKDTree
+
+    pm = np.asarray(proxy_map, dtype=np.int64)
+    ok = np.flatnonzero(pm >= 0)
+    if len(ok) < 3:
+        raise ParameterError(f"the proxy map matched {len(ok)} vertices: too few to lift (need 3)")
+    Ps, Pt = np.asarray(source_proxy.vertices, dtype=np.float64), np.asarray(target_proxy.vertices, dtype=np.float64)
+    if len(ok) < len(pm):
+        pm = pm.copy()
+        bad = np.flatnonzero(pm < 0)
+        pm[bad] = pm[ok[cKDTree(Ps[ok]).query(Ps[bad])[1]]]
+    _, tri, w = _on_surface(source.vertices, source_proxy)
+    img = Pt[pm[tri]]  # (n, 3 corners, 3)
+    point = np.einsum("nc,ncd->nd", w, img)
+    scale = np.median(cKDTree(Pt).query(Pt, k=2)[0][:, 1]) / np.median(cKDTree(Ps).query(Ps, k=2)[0][:, 1])
+    seam = _spread(img) > SEAM_STRETCH * scale * _spread(Ps[tri])
+    point[seam] = img[seam, np.argmax(w[seam], axis=1)]
+    return np.asarray(cKDTree(_on_surface(target.vertices, target_proxy)[0]).query(point)[1], dtype=np.int64)
 
 
 def lift_map(
@@ -168,26 +201,33 @@ def lift_map(
 ) -> tuple[np.ndarray, dict]:
     """Full point map ``(n_source,)`` from the proxy map ``proxy_map`` (proxy source vertex -> proxy
     target vertex; ``src_ids`` / ``tgt_ids``: the full vertex of each proxy vertex); see the module
-    docstring. ``candidates``: target vertices of each source vertex's first guess (default
-    :data:`LIFT_CANDIDATES`, whatever the sizes), refined by the descent of :func:`descend`. Returns the
-    map and an info dict (``cpu_seconds``: of the full shapes' spectra and of the descent)."""
+    docstring. With two mesh ``proxies`` (of the vertices ``src_ids`` and ``tgt_ids``), the map is interpolated on
+    their triangles (:func:`interpolated_map`); else (clouds) lifted spectrally: ``k`` eigenfunctions of the full
+    shapes, ``candidates`` target vertices for each source vertex's first guess (default
+    :data:`LIFT_CANDIDATES`, whatever the sizes), refined by the descent of :func:`descend`. Returns the map and
+    an info dict (``lift``: which; ``cpu_seconds``: of the interpolation, or of the full shapes' spectra and of
+    the descent)."""
     from scipy.spatial import cKDTree
 
     from shape_toolkit.spectra import shape_spectrum
 
     proxy_map = np.asarray(proxy_map, dtype=np.int64)
+    if proxies is not None and proxies[0].is_mesh and proxies[1].is_mesh:
+        if proxies[0].n_vertices != len(proxy_map) or len(src_ids) != len(proxy_map):
+            raise ParameterError(f"the source proxy has {proxies[0].n_vertices} vertices, the proxy map "
+                                 f"{len(proxy_map)} and src_ids {len(src_ids)}: they must agree")
+        c0 = time.process_time()
+        out = interpolated_map(source, target, proxies[0], proxies[1], proxy_map)
+        return out, {"proxy_vertices": [int(len(src_ids)), int(len(tgt_ids))],
+                     "lift": "interpolated on the proxies' triangles",
+                     "cpu_seconds": {"interpolation": time.process_time() - c0}}
     ok = proxy_map >= 0
     if ok.sum() < 3 * k:
         raise ParameterError(f"the proxy map matched {int(ok.sum())} vertices: too few to lift (need {3 * k})")
     k = int(min(k, source.n_vertices - 2, target.n_vertices - 2))
     c0 = time.process_time()
-    if proxies is not None and all(s.is_mesh for s in (source, target, *proxies)):
-        bs, bt = upsampled_basis(source, proxies[0], k), upsampled_basis(target, proxies[1], k)
-        how = "upsampled from the proxies"
-    else:
-        bs = basis_of(shape_spectrum(source, k + 1), k)
-        bt = basis_of(shape_spectrum(target, k + 1), k)
-        how = "full shapes"
+    bs = basis_of(shape_spectrum(source, k + 1), k)
+    bt = basis_of(shape_spectrum(target, k + 1), k)
     cpu = {"spectra": time.process_time() - c0}
     rows = np.asarray(src_ids, dtype=np.int64)[ok]
     cols = np.asarray(tgt_ids, dtype=np.int64)
@@ -219,8 +259,8 @@ def lift_map(
     c0 = time.process_time()
     out, steps = descend(target, pts, q, out)
     cpu["descent"] = time.process_time() - c0
-    info = {"proxy_vertices": [int(len(src_ids)), int(len(tgt_ids))], "lift_k": k, "candidates": candidates,
-            "lift_iterations": int(iterations), "lift_basis": how, "walk_steps": steps, "cpu_seconds": cpu}
+    info = {"proxy_vertices": [int(len(src_ids)), int(len(tgt_ids))], "lift": "spectral", "lift_k": k,
+            "candidates": candidates, "lift_iterations": int(iterations), "walk_steps": steps, "cpu_seconds": cpu}
     return out, info
 
 
