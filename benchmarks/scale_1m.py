@@ -8,7 +8,7 @@ The pair: TOSCA cat0 -> cat1 (``$TOOLKIT_DATA/tosca5k``), both split s x s (``su
 vertices keep their ids, so the ground truth holds; s = 14: 979,610 vertices), written to ``DIR`` as binary
 PLY. Each size runs two fresh child processes, one after the other: ``shape-toolkit match A B --json`` (no
 flags: pipeline ``auto``, proxies of 5,000 vertices above 7,500), whose JSON gives each stage's CPU seconds
-(``stages_cpu``; the lift's own split between the full shapes' spectra and the descent in ``proxy``), and
+(``stages_cpu``; the lift: the map interpolated on the proxies' triangles), and
 ``shape-toolkit segment A --method ncut -k 6``; reading the pair is timed in this process. CPU seconds (user +
 system) and peak RSS of a CLI run come from ``wait4`` (the command and its supervised child). Error: mean
 normalised geodesic error of the 5,000 ground-truth points, each predicted vertex mapped to its nearest
@@ -32,7 +32,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-STAGES = ["read", "proxies", "proxy pipeline", "lift spectra", "lift descent", "lift other", "total"]
+STAGES = ["read", "proxies", "proxy pipeline", "lift", "total"]
 #: the TOSCA meshes of 5,000 vertices and their ground truth (``corres/*.vts``)
 TOSCA = Path(os.environ.get("TOOLKIT_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")) / "tosca5k"
 
@@ -78,13 +78,10 @@ def score(map_file: Path, vmap_t: Path) -> float:
 
 
 def stages(match: dict, read: float) -> dict:
-    """CPU seconds per stage of one ``match --json`` run (``stages_cpu``, the lift's own split) and of reading."""
+    """CPU seconds per stage of one ``match --json`` run (``stages_cpu``) and of reading."""
     cpu = match["stages_cpu"]
-    lift = (match.get("proxy") or {}).get("cpu_seconds", {})
     out = {"read": read, "proxies": cpu.get("proxies", 0.0),
-           "proxy pipeline": sum(v for k, v in cpu.items() if k.startswith("proxy ")),
-           "lift spectra": lift.get("spectra", 0.0), "lift descent": lift.get("descent", 0.0)}
-    out["lift other"] = cpu.get("lift", 0.0) - out["lift spectra"] - out["lift descent"]
+           "proxy pipeline": sum(v for k, v in cpu.items() if k.startswith("proxy ")), "lift": cpu.get("lift", 0.0)}
     out["total"] = read + sum(cpu.values())
     return {"proxy": (match.get("proxy") or {}).get("proxy_vertices"), "cpu": out}
 
