@@ -1,7 +1,9 @@
 """A fast subset of the adversarial corpus (benchmarks/adversarial_corpus.py) through the CLI,
 in-process: every run is a clean one-line rejection (exit 2) or a success with valid JSON and no
 unexplained null. The cheap commands run on every file; every command runs on the issue-27 cases
-(extreme and degenerate coordinates, tiny meshes, markup in names, constraints and --param tables)."""
+(extreme and degenerate coordinates, tiny meshes, markup in names, constraints and --param tables);
+of the five copies of the good mesh named with markup, the default run gives every command to the first
+and the cheap ones to the others, a slow test the computing commands on those four."""
 
 from __future__ import annotations
 
@@ -41,6 +43,14 @@ def runs(tmp_path_factory):
     return folder, keep
 
 
+def _repeated_nasty_name(run) -> bool:
+    """A computing command on the 2nd to 5th copy of the good mesh under a name with markup: the first
+    name runs every command in the default run, the others the cheap ones (the rest is a slow test)."""
+    mesh = run.case.split(" | ")[0]
+    return (" | " in run.case and mesh.endswith(".off") and mesh[: -len(".off")] in corpus.NASTY_NAMES[1:]
+            and run.argv[0] not in FAST + ("view",))
+
+
 def _run_inprocess(run, cwd: Path):
     out, err = io.StringIO(), io.StringIO()
     with redirect_stdout(out), redirect_stderr(err):
@@ -52,14 +62,35 @@ def _run_inprocess(run, cwd: Path):
     return corpus.classify(run)
 
 
+def _no_failure(runs, folder: Path) -> dict[str, str]:
+    """Every run in-process from ``folder / "out"``: no failure; the verdict of each case."""
+    done = [_run_inprocess(r, folder / "out") for r in runs]
+    failures = [f"{r.case}: {r.why} | {r.stderr.strip()[-300:]}" for r in done if r.verdict == "failure"]
+    assert not failures, "\n".join(failures)
+    return {r.case: r.verdict for r in done}
+
+
+@pytest.mark.slow  # about 10 s: transfer-labels, segment, match... on four more copies of the good mesh
+def test_every_command_on_every_name_with_markup_has_no_failure(runs, monkeypatch):
+    folder, selected = runs
+    monkeypatch.chdir(folder / "out")
+    repeated = [r for r in selected if _repeated_nasty_name(r)]
+    assert len(repeated) > 30
+    verdicts = _no_failure(repeated, folder)
+    for name in corpus.NASTY_NAMES[1:]:
+        assert verdicts[f"{name}.off | transfer-labels"] == "success", name
+
+
 def test_fast_adversarial_subset_has_no_failure(runs, monkeypatch):
     folder, selected = runs
     monkeypatch.chdir(folder / "out")
+    selected = [r for r in selected if not _repeated_nasty_name(r)]
     assert len(selected) > 700
-    done = [_run_inprocess(r, folder / "out") for r in selected]
-    failures = [f"{r.case}: {r.why} | {r.stderr.strip()[-300:]}" for r in done if r.verdict == "failure"]
-    assert not failures, "\n".join(failures)
-    verdicts = {r.case: r.verdict for r in done}
+    verdicts = _no_failure(selected, folder)
+    first_nasty = f"{corpus.NASTY_NAMES[0]}.off"  # every command runs on it
+    assert {case.split(" | ")[1] for case in verdicts if case.startswith(first_nasty + " | ")} >= {
+        "info", "clean", "spectrum", "keypoints", "segment", "evaluate-map", "geodesics", "describe", "view",
+        "transfer-labels", "transfer-labels from"}
     # controls succeed, the issue-11 cases are refused or handled
     assert verdicts["good.off | info"] == "success"
     # issue 27: squared lengths that overflow or underflow float64 are refused by every command
