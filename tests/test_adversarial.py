@@ -1,7 +1,10 @@
 """A fast subset of the adversarial corpus (benchmarks/adversarial_corpus.py) through the CLI,
 in-process: every run is a clean one-line rejection (exit 2) or a success with valid JSON and no
 unexplained null. The cheap commands run on every file; every command runs on the issue-27 cases
-(extreme and degenerate coordinates, tiny meshes, markup in names, constraints and --param tables)."""
+(extreme and degenerate coordinates, tiny meshes, markup in names, constraints and --param tables);
+of the five copies of the good mesh named with markup, the default run gives every command to the first
+and the cheap ones to the others, a slow test the computing commands on those four, and transfer-labels
+both ways on each tiny mesh (tests/test_bad_inputs.py transfers labels between tiny meshes by default)."""
 
 from __future__ import annotations
 
@@ -41,6 +44,25 @@ def runs(tmp_path_factory):
     return folder, keep
 
 
+#: the tiny and degenerate meshes of issue 27 (not the extreme coordinates, refused before any work)
+TINY_27 = ("all_identical", "repeated_vertices", "collinear_fan", "zero_area", "repeated_index_faces",
+           "two_triangles", "polygon_fan", "polygon_hexagon", "non_manifold_fan", "tetrahedron", "single_triangle",
+           "polygons.obj", "bowtie")
+
+
+def _slow_part(run) -> bool:
+    """The runs of the slow test: a computing command on the 2nd to 5th copy of the good mesh under a name
+    with markup (the first name runs every command by default, the others the cheap ones), and
+    transfer-labels both ways between the good mesh and each tiny mesh of issue 27 (an eigvec-alignment
+    search each, ~0.35 s; tests/test_bad_inputs.py runs the same command on tiny meshes by default)."""
+    if " | " not in run.case:
+        return False
+    mesh = run.case.split(" | ")[0]
+    nasty = mesh.endswith(".off") and mesh[: -len(".off")] in corpus.NASTY_NAMES[1:]
+    return (nasty and run.argv[0] not in FAST + ("view",)
+            or run.argv[0] == "transfer-labels" and mesh.startswith(TINY_27))
+
+
 def _run_inprocess(run, cwd: Path):
     out, err = io.StringIO(), io.StringIO()
     with redirect_stdout(out), redirect_stderr(err):
@@ -52,14 +74,42 @@ def _run_inprocess(run, cwd: Path):
     return corpus.classify(run)
 
 
+def _no_failure(runs, folder: Path) -> dict[str, str]:
+    """Every run in-process from ``folder / "out"``: no failure; the verdict of each case."""
+    done = [_run_inprocess(r, folder / "out") for r in runs]
+    failures = [f"{r.case}: {r.why} | {r.stderr.strip()[-300:]}" for r in done if r.verdict == "failure"]
+    assert not failures, "\n".join(failures)
+    return {r.case: r.verdict for r in done}
+
+
+# about 15 s: transfer-labels, segment, match... on four more copies of the good mesh, and transfer-labels
+# between the good mesh and each tiny mesh
+@pytest.mark.slow
+def test_every_command_on_every_name_with_markup_and_tiny_mesh_has_no_failure(runs, monkeypatch):
+    folder, selected = runs
+    monkeypatch.chdir(folder / "out")
+    slow = [r for r in selected if _slow_part(r)]
+    assert len(slow) > 50
+    verdicts = _no_failure(slow, folder)
+    for name in corpus.NASTY_NAMES[1:]:
+        assert verdicts[f"{name}.off | transfer-labels"] == "success", name
+    # tiny meshes transfer labels both ways
+    for name in ("single_triangle.off", "two_triangles.off", "polygon_fan.off", "non_manifold_fan.off",
+                 "tetrahedron.off", "polygons.obj"):
+        assert verdicts[f"{name} | transfer-labels"] == "success", name
+        assert verdicts[f"{name} | transfer-labels from"] == "success", name
+
+
 def test_fast_adversarial_subset_has_no_failure(runs, monkeypatch):
     folder, selected = runs
     monkeypatch.chdir(folder / "out")
+    selected = [r for r in selected if not _slow_part(r)]
     assert len(selected) > 700
-    done = [_run_inprocess(r, folder / "out") for r in selected]
-    failures = [f"{r.case}: {r.why} | {r.stderr.strip()[-300:]}" for r in done if r.verdict == "failure"]
-    assert not failures, "\n".join(failures)
-    verdicts = {r.case: r.verdict for r in done}
+    verdicts = _no_failure(selected, folder)
+    first_nasty = f"{corpus.NASTY_NAMES[0]}.off"  # every command runs on it
+    assert {case.split(" | ")[1] for case in verdicts if case.startswith(first_nasty + " | ")} >= {
+        "info", "clean", "spectrum", "keypoints", "segment", "evaluate-map", "geodesics", "describe", "view",
+        "transfer-labels", "transfer-labels from"}
     # controls succeed, the issue-11 cases are refused or handled
     assert verdicts["good.off | info"] == "success"
     # issue 27: squared lengths that overflow or underflow float64 are refused by every command
@@ -68,14 +118,10 @@ def test_fast_adversarial_subset_has_no_failure(runs, monkeypatch):
         for cmd in ("info", "clean", "spectrum", "keypoints", "segment", "evaluate-map", "geodesics", "describe",
                     "view"):
             assert verdicts[f"{name} | {cmd}"] == "rejected", (name, cmd)
-    # degenerate meshes: evaluate-map refuses (no null error); tiny meshes transfer labels both ways
+    # degenerate meshes: evaluate-map refuses (no null error); tiny meshes transferring labels: the slow test
     for name in ("zero_area.off", "all_identical.off", "collinear_fan.off", "repeated_index_faces.off"):
         assert verdicts[f"{name} | evaluate-map"] == "rejected", name
     assert verdicts["repeated_vertices.off | evaluate-map"] == "success"
-    for name in ("single_triangle.off", "two_triangles.off", "polygon_fan.off", "non_manifold_fan.off",
-                 "tetrahedron.off", "polygons.obj"):
-        assert verdicts[f"{name} | transfer-labels"] == "success", name
-        assert verdicts[f"{name} | transfer-labels from"] == "success", name
     for method in ("eigvec-gmm", "spectral-clustering", "ncut", "sdf", "smoothed"):
         assert verdicts[f"args:constraints to {method}"] == "rejected", method
     assert verdicts["args:constraints to smoothed csc"] == "success"

@@ -57,8 +57,12 @@ def seeds(pair):
 
 
 def _err(B, corr, mirror=None):
-    ids = np.arange(B.n_vertices)
-    e = geodesic_errors(B, corr, ids, ids, truth_dst_sym=mirror, method="dijkstra")
+    """Geodesic error of ``corr`` at every third vertex (the truth is the identity): each error is a
+    Dijkstra row of the 2,562-vertex target, ~1 s for all of them; a third gives the same means to the
+    second digit (the closest asserted bound: the flipped map's 0.163 against > 0.1; 0.166 on all)."""
+    ids = np.arange(0, B.n_vertices, 3)
+    e = geodesic_errors(B, corr, ids, ids, truth_dst_sym=None if mirror is None else mirror[ids],
+                        method="dijkstra")
     return e
 
 

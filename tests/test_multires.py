@@ -102,12 +102,14 @@ def test_seeds_are_carried_to_the_proxies(poses):
     assert _error(b, np.asarray(corr.target_of)) < 0.02
 
 
-def test_the_spectral_lift_descends_to_full_resolution_from_any_first_guess(poses):
+def test_the_spectral_lift_descends_to_full_resolution_from_any_first_guess():
     # a shape onto itself through its own proxy (identity proxy map): from a first guess of one vertex (the
     # image of the nearest proxy vertex, up to ~n/p vertices off) the descent along the edges must reach
-    # each vertex itself; the search around the first guess no longer grows with n / p
-    a, _ = poses
-    _, ids = make_proxy(a, 1000)
+    # each vertex itself; the search around the first guess no longer grows with n / p. The ratio n / p ~ 10
+    # is what matters, not n: 2,562 vertices through 250 (10,242 through 1,000, a 6 s test, gave 0.971 exact,
+    # 0.0003 error, 0.998 on the cloud; this gives 0.982, 0.0004, 0.999)
+    a = articulated_shape(subdivisions=4, random_state=1, limb_length=LENGTHS).shape
+    _, ids = make_proxy(a, 250)
     out, info = lift_map(a, a, ids, ids, np.arange(len(ids)), candidates=1)
     assert info["walk_steps"] >= 1
     assert np.mean(out == np.arange(a.n_vertices)) > 0.95
@@ -115,7 +117,6 @@ def test_the_spectral_lift_descends_to_full_resolution_from_any_first_guess(pose
     cloud = Shape(a.vertices, None, "cloud")
     out, _ = lift_map(cloud, cloud, ids, ids, np.arange(len(ids)), candidates=1)
     assert np.mean(out == np.arange(a.n_vertices)) > 0.95
-
 
 
 def test_the_interpolated_lift_of_a_shape_onto_itself_is_the_identity(poses):

@@ -6,11 +6,12 @@ the figures' artists as they are saved), numbers never wrap (CSS) and long per-i
 ``category``. In a real headless Chromium: every image loads, no nan/undefined shows, no table box
 is wider than 1,400 px and no number cell wraps onto a second line.
 
-The browser test needs Playwright (in the test extra) and a Chromium: the system's (Debian/Ubuntu:
-``apt-get install chromium``, which .ci/run does; set ``$CHROMIUM`` to another executable) or
-Playwright's own download (not reachable from CI, which has network only to package registries). It
-skips, saying so, when there is none. Screenshots go next to the report (``report.png`` and one per
-viewport), and also to ``$REPORT_SCREENSHOTS`` when that names a folder.
+The browser test is marked slow (``python -m pytest -m slow``). It needs Playwright (in the test
+extra) and a Chromium: the system's (Debian/Ubuntu: ``apt-get install chromium``, which .ci/run does;
+set ``$CHROMIUM`` to another executable) or Playwright's own download (not reachable from CI, which has
+network only to package registries). It skips, saying so, when there is none. Screenshots go next to
+the report (``report.png`` and one per viewport), and also to ``$REPORT_SCREENSHOTS`` when that names
+a folder.
 """
 
 from __future__ import annotations
@@ -179,6 +180,7 @@ def test_long_per_item_tables_split_per_category():
     assert [v for v, _ in _item_grids("seg", [dict(r, category=None) for r in rows], ["seconds"])] == [None]
 
 
+@pytest.mark.slow  # end to end in a real Chromium (~8 s); the checks above run on the same report by default
 def test_report_in_headless_browser(report):
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install '.[test]')")
     exe = _chromium()

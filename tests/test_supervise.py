@@ -17,7 +17,8 @@ from shape_toolkit.cli import build_parser, supervise
 pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="supervision needs POSIX fork")
 
 
-def test_a_time_limit_stops_one_blocking_call_and_its_workers(tmp_path, capsys):
+def test_a_time_limit_stops_one_blocking_call_and_its_workers(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(supervise, "GRACE", 0.2)  # the grace a cooperative limit gets (2 s) is not tested here
     pidfile = tmp_path / "grandchild"
 
     def work() -> int:
