@@ -16,6 +16,7 @@ from shape_toolkit.cli.commands._common import (
     check_distinct,
     check_output_path,
     check_ply,
+    count_arg,
     declared_spectra,
     emit,
     parse_params,
@@ -28,6 +29,7 @@ from shape_toolkit.cli.commands._common import (
 from shape_toolkit.data.datasets import write_labels
 from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError, ParameterError
 from shape_toolkit.io.mesh import load_shape
+from shape_toolkit.plugins.matching.multires import PROXY_VERTICES
 from shape_toolkit.results.labels import load_constraints
 
 #: the segmenter of ``segment`` without ``--method``: the least Rand index error of the unsupervised methods
@@ -47,6 +49,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--random-state", type=random_state_arg, default=None, help="seed of k-means / GMM (default 0)")
     p.add_argument("--preset", default=None, help="named parameter preset of the method")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="method parameter")
+    p.add_argument("--proxy", type=count_arg, default=PROXY_VERTICES, metavar="N",
+                   help=f"meshes above 1.5 N vertices are segmented through a proxy of N vertices and the labels "
+                        f"carried to every vertex (default {PROXY_VERTICES}, as match; 0: always at full resolution)")
     p.add_argument("-o", "--output", help="labels file (default: SHAPE_STEM.METHOD.labels.txt, "
                    "or .seg with --faces)")
     p.add_argument("--faces", action="store_true",
@@ -94,17 +99,25 @@ def run(args: argparse.Namespace) -> int:
     if args.constraints:
         constraints = load_constraints(args.constraints, shape.n_vertices)
     t0 = time.perf_counter()
+    through_proxy = bool(args.proxy) and shape.is_mesh and shape.n_vertices > 1.5 * args.proxy
     with status(args, f"segment: {args.method} on {shape.n_vertices} vertices") as st:
-        try:
-            spectra, used = declared_spectra(seg, shape)
-        except DisconnectedGraphError as exc:
-            if isinstance(exc, NumericallyDisconnectedGraphError):  # one piece: splitting would not help
-                raise
-            # a shape in several pieces: no spectrum of the whole (it would mix them); the segmenter either
-            # segments it piece by piece with their own spectra, or raises this error itself
-            spectra, used = None, []
-        st.update(f"segment: {args.method}")
-        result = seg.segment(shape, spectrum=spectra, constraints=constraints)
+        if through_proxy:
+            from shape_toolkit.plugins.segmenters.multires import segment_through_proxy
+
+            st.update(f"segment: {args.method} through a proxy of {args.proxy} vertices")
+            result = segment_through_proxy(seg, shape, proxy=args.proxy, constraints=constraints)
+            used = []
+        else:
+            try:
+                spectra, used = declared_spectra(seg, shape)
+            except DisconnectedGraphError as exc:
+                if isinstance(exc, NumericallyDisconnectedGraphError):  # one piece: splitting would not help
+                    raise
+                # a shape in several pieces: no spectrum of the whole (it would mix them); the segmenter either
+                # segments it piece by piece with their own spectra, or raises this error itself
+                spectra, used = None, []
+            st.update(f"segment: {args.method}")
+            result = seg.segment(shape, spectrum=spectra, constraints=constraints)
     elapsed = time.perf_counter() - t0
     labels = result.labels
     written = result.face_labels if args.faces else labels  # a segmenter of faces: its own face labels
@@ -119,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
         "method": args.method,
         "params": seg.get_params(deep=False),
         "spectra": used,
+        "proxy": result.info.get("proxy"),
         "per": "face" if args.faces else "vertex",
         "n_vertices": shape.n_vertices,
         "n_faces": shape.n_faces,

@@ -44,7 +44,8 @@ from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.features.basis import basis_of, fmap_from_p2p
 from shape_toolkit.plugins.weightings.cotangent import flat_faces
 
-__all__ = ["PROXY_VERTICES", "LIFT_K", "LIFT_CANDIDATES", "make_proxy", "lift_map", "descend", "interpolated_map"]
+__all__ = ["PROXY_VERTICES", "LIFT_K", "LIFT_CANDIDATES", "make_proxy", "lift_map", "descend", "interpolated_map",
+           "on_surface"]
 
 #: vertices of each proxy; shapes up to 1.5x this are matched directly
 PROXY_VERTICES = 5000
@@ -138,7 +139,7 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
     return Shape(V[uniq[used]], remap[pf], name=f"{shape.name}-proxy"), uniq[used]
 
 
-def _on_surface(points: np.ndarray, mesh: Shape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def on_surface(points: np.ndarray, mesh: Shape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closest points ``(n, 3)`` of ``points`` on the triangles of ``mesh`` (libigl's AABB tree), the corners
     ``(n, 3)`` of the triangle each lies on and their barycentric weights ``(n, 3)``."""
     import igl
@@ -178,13 +179,13 @@ def interpolated_map(source: Shape, target: Shape, source_proxy: Shape, target_p
         pm = pm.copy()
         bad = np.flatnonzero(pm < 0)
         pm[bad] = pm[ok[cKDTree(Ps[ok]).query(Ps[bad])[1]]]
-    _, tri, w = _on_surface(source.vertices, source_proxy)
+    _, tri, w = on_surface(source.vertices, source_proxy)
     img = Pt[pm[tri]]  # (n, 3 corners, 3)
     point = np.einsum("nc,ncd->nd", w, img)
     scale = np.median(cKDTree(Pt).query(Pt, k=2)[0][:, 1]) / np.median(cKDTree(Ps).query(Ps, k=2)[0][:, 1])
     seam = _spread(img) > SEAM_STRETCH * scale * _spread(Ps[tri])
     point[seam] = img[seam, np.argmax(w[seam], axis=1)]
-    return np.asarray(cKDTree(_on_surface(target.vertices, target_proxy)[0]).query(point)[1], dtype=np.int64)
+    return np.asarray(cKDTree(on_surface(target.vertices, target_proxy)[0]).query(point)[1], dtype=np.int64)
 
 
 def lift_map(

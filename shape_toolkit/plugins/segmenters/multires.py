@@ -1,0 +1,81 @@
+"""Segmenting large meshes through a proxy: segment a decimated copy, carry its labels to every vertex.
+
+A segmenter's eigenproblems and graphs grow faster than the vertex count (``ncut`` on a 10^6-vertex mesh: 103 s
+CPU, and its segments change with the resolution), so a mesh of more than 1.5 ``proxy`` vertices is segmented
+through the proxy the matching pipelines use (:func:`~shape_toolkit.plugins.matching.multires.make_proxy`:
+quadric edge collapse that moves no vertex) and the labels are carried back on the proxy's triangles: a vertex
+takes the label of the nearest corner of its closest point on the proxy, a face (for a segmenter of faces) the
+label of the proxy face its centroid is closest to. Constraint vertices move to their nearest proxy vertex, and
+keep that vertex's label exactly, so a must-link kept on the proxy is kept on the mesh.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError
+from shape_toolkit.plugins.matching.multires import PROXY_VERTICES, make_proxy, on_surface
+from shape_toolkit.results.labels import ConstraintError, Constraints, constraint_report
+from shape_toolkit.results.segmentation import Segmentation
+
+__all__ = ["segment_through_proxy"]
+
+
+def _proxy_constraints(constraints: Constraints, nearest: np.ndarray) -> Constraints:
+    """``constraints`` moved to the proxy: each vertex to its nearest proxy vertex ``nearest`` ``(n,)``."""
+    ml, cl = nearest[constraints.must_link], nearest[constraints.cannot_link]
+    same = cl[:, 0] == cl[:, 1] if len(cl) else np.zeros(0, dtype=bool)
+    if same.any():
+        i = int(np.flatnonzero(same)[0])
+        raise ConstraintError(
+            f"cannot-link {constraints.cannot_link[i].tolist()} joins two vertices closer than the proxy's spacing "
+            "(one proxy vertex); segment without a proxy (proxy 0) or click further apart")
+    return Constraints(ml[ml[:, 0] != ml[:, 1]] if len(ml) else ml, cl)
+
+
+def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VERTICES,
+                          constraints: Constraints | None = None) -> Segmentation:
+    """:class:`~shape_toolkit.results.segmentation.Segmentation` of the mesh ``shape`` by ``segmenter`` run on a
+    proxy of about ``proxy`` vertices (module docstring), with the spectra it declares computed on the proxy;
+    ``info["proxy"]`` gives the proxy's size."""
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.spectra import compute_declared, declared_specs
+
+    shape.require_faces("segmenting through a proxy")
+    ps, ids = make_proxy(shape, proxy)
+    nearest = np.asarray(cKDTree(np.asarray(shape.vertices)[ids]).query(np.asarray(shape.vertices))[1], dtype=np.int64)
+    pc = _proxy_constraints(constraints, nearest) if constraints is not None else None
+    specs = declared_specs(segmenter)
+    try:
+        spectra = compute_declared(ps, specs) if specs else None
+    except DisconnectedGraphError as exc:
+        if isinstance(exc, NumericallyDisconnectedGraphError):
+            raise
+        spectra = None  # a proxy in pieces: the segmenter segments it piece by piece, or raises this itself
+    inner = segmenter.segment(ps, spectrum=spectra, constraints=pc)
+    info = {k: v for k, v in inner.info.items() if k != "constraints"}
+    info["proxy"] = {"proxy_vertices": int(ps.n_vertices), "vertices": int(shape.n_vertices)}
+    if "constraints" in inner.info:  # what the segmenter kept on the proxy: the lift keeps the same
+        info["proxy"]["constraints"] = inner.info["constraints"]
+    if inner.info.get("per") == "face" and inner.face_labels is not None:
+        faces = np.asarray(shape.faces)
+        centroids = np.asarray(shape.vertices)[faces].mean(axis=1)
+        import igl
+
+        _, face, _ = igl.point_mesh_squared_distance(centroids, np.asarray(ps.vertices, dtype=np.float64),
+                                                     np.asarray(ps.faces, dtype=np.int64))
+        out = Segmentation.of_faces(shape, inner.face_labels[face], **{k: v for k, v in info.items() if k != "per"})
+    else:
+        _, tri, w = on_surface(shape.vertices, ps)
+        labels = inner.labels[tri[np.arange(len(tri)), np.argmax(w, axis=1)]]
+        if constraints is not None and len(constraints):
+            ends = np.unique(np.concatenate([constraints.must_link.ravel(), constraints.cannot_link.ravel()]))
+            labels[ends] = inner.labels[nearest[ends]]
+        out = Segmentation.of_vertices(shape, labels, **{k: v for k, v in info.items() if k != "per"})
+    if constraints is not None:
+        out = out.with_info(constraints=constraint_report(out.labels, constraints))
+    return out

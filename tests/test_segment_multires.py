@@ -1,0 +1,97 @@
+"""Segmenting large meshes through a proxy (issue 29, item 1: every pipeline at 10^5-10^6 vertices): the labels of
+a proxy's segmentation carried to every vertex, faces for segmenters of faces, constraints kept exactly."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from helpers import run_cli
+from sklearn.metrics import adjusted_rand_score
+
+from shape_toolkit.api.registry import create_seeded
+from shape_toolkit.data.corruptions import subdivide
+from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.io.mesh import save_shape
+from shape_toolkit.plugins.segmenters.multires import segment_through_proxy
+from shape_toolkit.results.labels import ConstraintError, Constraints
+from shape_toolkit.spectra import compute_declared, declared_specs
+
+
+@pytest.fixture(scope="module")
+def shapes():
+    small = articulated_shape(subdivisions=3, random_state=1).shape  # 642 vertices
+    big, vmap = subdivide(small, splits=3)  # the same surface, 5,762 vertices; the first 642 are small's
+    assert np.array_equal(vmap[: small.n_vertices], np.arange(small.n_vertices))
+    return small, big
+
+
+def _direct(seg, shape):
+    specs = declared_specs(seg)
+    return seg.segment(shape, spectrum=compute_declared(shape, specs) if specs else None)
+
+
+def test_a_proxy_segmentation_carried_to_every_vertex_is_the_small_shapes(shapes):
+    # the proxy of the subdivided shape is about the small shape itself: ncut's labels (it segments faces) carried
+    # back must agree with segmenting the small shape directly, on its vertices
+    small, big = shapes
+    seg = create_seeded("segmenters", "ncut", None, 0, n_segments=6)
+    out = segment_through_proxy(seg, big, proxy=600)
+    assert out.labels.shape == (big.n_vertices,) and out.face_labels.shape == (big.n_faces,)
+    assert out.n_segments == 6 and out.info["proxy"]["vertices"] == big.n_vertices
+    assert out.info["proxy"]["proxy_vertices"] < big.n_vertices / 4
+    assert adjusted_rand_score(_direct(seg, small).labels, out.labels[: small.n_vertices]) > 0.9
+
+
+def test_vertex_labels_are_the_proxys_at_its_vertices_and_its_nearest_elsewhere(shapes):
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.plugins.matching.multires import make_proxy
+
+    _, big = shapes
+    seg = create_seeded("segmenters", "spectral-clustering", None, 0, n_segments=6)
+    out = segment_through_proxy(seg, big, proxy=600)
+    ps, ids = make_proxy(big, 600)  # the same proxy (deterministic)
+    inner = _direct(seg, ps)
+    assert out.info["per"] == "vertex"
+    np.testing.assert_array_equal(out.labels[ids], inner.labels)
+    nearest = inner.labels[cKDTree(big.vertices[ids]).query(big.vertices)[1]]
+    assert np.mean(out.labels == nearest) > 0.9
+
+
+def test_constraints_are_kept_on_the_full_mesh(shapes):
+    small, big = shapes
+    rng = np.random.default_rng(0)
+    ends = rng.choice(big.n_vertices, size=8, replace=False)
+    c = Constraints(must_link=[[ends[0], ends[1]], [ends[2], ends[3]]], cannot_link=[[ends[0], ends[2]],
+                                                                                       [ends[4], ends[5]]])
+    seg = create_seeded("segmenters", "csc", None, 0, n_segments=6)
+    out = segment_through_proxy(seg, big, proxy=600, constraints=c)
+    # what the segmenter kept on the proxy (csc shapes its clustering by the constraints, without enforcing
+    # them) is kept on the full mesh: the constraint vertices take their proxy vertex's label exactly
+    report, on_proxy = out.info["constraints"], out.info["proxy"]["constraints"]
+    assert report["must_link"] == 2 and report["cannot_link"] == 2
+    for key in ("must_link_broken", "cannot_link_broken"):
+        assert report[key] == on_proxy[key], (report, on_proxy)
+    # two cannot-link ends on one proxy vertex cannot be kept apart there: said, not silently broken
+    v = int(ends[6])
+    twin = int(np.argsort(np.linalg.norm(big.vertices - big.vertices[v], axis=1))[1])
+    with pytest.raises(ConstraintError, match="proxy"):
+        segment_through_proxy(seg, big, proxy=600, constraints=Constraints(cannot_link=[[v, twin]]))
+
+
+def test_cli_segments_a_large_mesh_through_a_proxy(shapes, capsys, tmp_path, monkeypatch):
+    _, big = shapes
+    save_shape(big, tmp_path / "big.off")
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_cli(capsys, "segment", tmp_path / "big.off", "-k", "5", "--proxy", "600", "--faces",
+                             "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["proxy"]["vertices"] == big.n_vertices and res["n_segments"] == 5
+    assert len(np.loadtxt(tmp_path / "big.ncut.seg")) == big.n_faces
+    code, out, err = run_cli(capsys, "segment", tmp_path / "big.off", "-k", "5", "--proxy", "0", "--json")
+    assert code == 0, err and json.loads(out)["proxy"] is None
+    code, out, err = run_cli(capsys, "segment", tmp_path / "big.off", "-k", "5", "--proxy", "10")
+    assert code == 2 and err.count("\n") == 1 and "proxy" in err
