@@ -149,10 +149,9 @@ def test_python_m_toolkit_and_help():
     assert r.returncode == 0 and "spectrum" in r.stdout and "plugins" in r.stdout
 
 
-@pytest.mark.slow  # the README's first command end to end: its showcase benchmark and report take ~25 s
-def test_demo_writes_results(tmp_path):
-    out = tmp_path / "demo"
-    r = run_cli("demo", "-o", str(out))
+def _demo(out: Path, *flags: str) -> dict:
+    """Run ``demo -o out`` with ``flags``; check its figures and summary; return the summary."""
+    r = run_cli("demo", "-o", str(out), *flags)
     assert r.returncode == 0, r.stderr
     assert str(out) in r.stdout
     for name in ("eigenvectors.png", "spectrum.png", "match.png"):
@@ -160,6 +159,12 @@ def test_demo_writes_results(tmp_path):
     assert summary_ok(out)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["eigenvalues"][0] == pytest.approx(0, abs=1e-8)
+    return summary
+
+
+@pytest.mark.slow  # the README's first command end to end: its showcase benchmark and report take ~25 s
+def test_demo_writes_results(tmp_path):
+    summary = _demo(tmp_path / "demo")
     assert summary["benchmark"]["failed"] == 0 and Path(summary["benchmark"]["report"]).is_file()
 
 
@@ -167,14 +172,7 @@ def test_demo_without_its_benchmark_writes_the_figures_and_the_match(tmp_path):
     """The demo's own part (spectrum, figures, the zoomout match); the whole demo is the slow test above,
     its showcase benchmark the config checked below, run by the bench runner and report tests."""
     out = tmp_path / "demo"
-    r = run_cli("demo", "-o", str(out), "--no-bench")
-    assert r.returncode == 0, r.stderr
-    assert str(out) in r.stdout
-    for name in ("eigenvectors.png", "spectrum.png", "match.png"):
-        assert (out / name).stat().st_size > 10_000
-    assert summary_ok(out)
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["eigenvalues"][0] == pytest.approx(0, abs=1e-8)
+    summary = _demo(out, "--no-bench")
     assert "benchmark" not in summary and not (out / "bench").exists()
 
 
