@@ -220,3 +220,39 @@ def test_the_partial_pipeline_finds_the_area_ratio_of_a_part_in_other_units(shar
         areas_only = FmapZoomOutMatcher(partial=True).match(part, whole)
     err_areas = geodesic_errors(whole, areas_only.target_of, sel, back[sel], method="dijkstra")
     assert np.median(err) < 0.01 and err.mean() < 0.5 * err_areas.mean()  # measured 0 and 0.15 against 0.54
+
+
+def test_a_candidate_ratio_with_the_shared_work_is_the_map_of_that_ratio_alone():
+    """``match_at_area_ratio`` with a :class:`SharedPairWork` already filled by another candidate (its bases,
+    surfaces, gradient frames and samples, the frames grown to a larger target basis) gives, bit for bit, the map
+    and functional map of a fresh partial matcher given that ``area_ratio``; without ``partial`` it is refused."""
+    from shape_toolkit.features.basis import SharedPairWork
+
+    whole = icosphere(3)
+    part, _ = crop(whole, strength=0.3, random_state=2)
+    kw = {"k": 12, "zoomout_iters": 4, "zoomout_step": 4, "selection_samples": 100}
+    m = FmapZoomOutMatcher(partial=True, **kw)
+    spec_s, spec_t = m.spectrum_spec().compute(part), m.spectrum_spec().compute(whole)
+    shared = SharedPairWork()
+    for r in (0.4, 0.7):  # 0.4 first: the target's gradient frame is then larger than 0.7 needs
+        got = m.match_at_area_ratio(part, whole, r, source_spectrum=spec_s, target_spectrum=spec_t, shared=shared)
+    alone = FmapZoomOutMatcher(partial=True, area_ratio=0.7, **kw).match(
+        part, whole, source_spectrum=spec_s, target_spectrum=spec_t)
+    assert got.target_of.tobytes() == alone.target_of.tobytes()
+    assert got.info["C"].tobytes() == alone.info["C"].tobytes()
+    assert got.info["partial"]["area_ratio"] == alone.info["partial"]["area_ratio"] == 0.7
+    assert any(key[0] == "frame" for key in shared._items)  # the orientation term used the kept frames
+    with pytest.raises(ParameterError, match="needs partial"):
+        FmapZoomOutMatcher(**kw).match_at_area_ratio(part, whole, 0.7)
+
+
+def test_orientation_operators_from_a_larger_gradient_frame_are_the_same_bits():
+    from shape_toolkit.features.basis import gradient_frame, orientation_operators
+
+    s = icosphere(3)
+    b = basis_of(default_spec(40).compute(s))
+    desc = np.random.default_rng(0).normal(size=(s.n_vertices, 7))
+    frame = gradient_frame(s, b, 35)
+    assert frame.k == 35
+    kept = orientation_operators(s, b, 20, desc, frame=frame)
+    assert kept.tobytes() == orientation_operators(s, b, 20, desc).tobytes()
