@@ -5,9 +5,10 @@ The slanted diagonal of a partial functional map (Rodola et al. 2017) has the ar
 0.5 one). The ratio of the two shapes' areas is exact only when they are in the same units. Here each candidate
 ratio gives a map, and the map kept is the one of least geodesic distortion: the isometry every functional map
 assumes, tested on distances between farthest-point samples of the part, up to one global scale (so the shapes'
-units do not matter). The kept map is then refined by ZoomOut on the Laplacian eigenbasis of its own support on
-the whole (a submesh slightly larger than the part's image), whose functions are localized on the region the part
-covers (the idea of localized manifold harmonics); the refinement is kept only when it lowers the distortion.
+units do not matter). Each candidate's map is also refined by ZoomOut on the Laplacian eigenbasis of its own
+support on the whole (a submesh slightly larger than the part's image), whose functions are localized on the region
+the part covers (the idea of localized manifold harmonics), and the map of least distortion among the candidates
+and their refinements is kept.
 
 The WKS of a part and of the whole at shared energies (:func:`part_wave_kernel_signatures`), which every partial
 ``fmap-zoomout`` map is fitted on, lives here too.
@@ -77,7 +78,14 @@ DISTORTION_SAMPLES = 40
 #: the supports tried for the refinement, as multiples of the part's share of the whole's area (a support a
 #: little larger than the part: one smaller than it cuts the part's own boundary off and misleads ZoomOut);
 #: chosen on the tuning half only (benchmarks/results/partial_matching_notes.md)
-SUPPORT_GROWTH = (1.15, 1.3)
+SUPPORT_GROWTH = (1.3,)
+
+#: how many candidates, the least distorted first, are refined on their support (None: every one); the map of
+#: least distortion among the candidates and every refinement is kept. Every one: with half the area cut away
+#: the unrefined maps are all far from an isometry and their distortions do not tell them apart, the refined
+#: ones do (tuning half only: 50% cut TOSCA 0.486 -> 0.274 against the least distorted candidate alone;
+#: benchmarks/results/partial_matching_notes.md)
+REFINED_CANDIDATES: int | None = None
 
 
 def geodesic_distortion(part_distances: np.ndarray, whole: Shape, images: np.ndarray) -> tuple[float, float]:
@@ -131,42 +139,40 @@ def match_over_area_ratios(
     progress: Callable[[str], None] | None = None, **kwargs,
 ) -> Correspondence:
     """``matcher`` (a partial ``fmap-zoomout`` with ``area_ratios``) run at each of its candidate area ratios and
-    at the shapes' areas' ratio, the map of least :func:`geodesic_distortion` kept and refined on its support
-    (:data:`SUPPORT_GROWTH`) when that lowers the distortion. ``info["partial"]["search"]`` records every
-    candidate's ratio and distortion, the refinements' and the choice; ``info["partial"]["area_ratio"]`` is the
-    chosen ratio and ``info["partial"]["scale"]`` the whole's length units per the part's. What does not depend on
-    the ratio (the bases, the orientation term's gradient frames, the samples) is computed once for every
-    candidate (:class:`~shape_toolkit.features.basis.SharedPairWork`)."""
+    at the shapes' areas' ratio, each map (:data:`REFINED_CANDIDATES`) refined on its support
+    (:data:`SUPPORT_GROWTH`), the map of least :func:`geodesic_distortion` among them all kept.
+    ``info["partial"]["search"]`` records every candidate's ratio and distortion, the refinements' and the choice;
+    ``info["partial"]["area_ratio"]`` is the chosen ratio and ``info["partial"]["scale"]`` the whole's length
+    units per the part's. What does not depend on the ratio (the bases, the orientation term's gradient frames,
+    the samples) is computed once for every candidate (:class:`~shape_toolkit.features.basis.SharedPairWork`)."""
     areas = float(np.sum(spec_s.mass)) / float(np.sum(spec_t.mass)) if spec_s.mass is not None else None
     ratios = [min(areas, 1.0)] if areas is not None and 0 < areas <= 1.5 else []
     ratios += [float(r) for r in matcher.area_ratios if not any(abs(float(r) - q) < 1e-9 for q in ratios)]
     samples = farthest_point_sampling(np.asarray(source.vertices), min(DISTORTION_SAMPLES, source.n_vertices))
     dp = geodesic_distances(source, samples, samples, method="dijkstra", cache=False)
     shared = SharedPairWork()
-    best, rows = None, []
+    found, rows = [], []  # (distortion, ratio, scale, correspondence) of each candidate
 
-    def attempt(r: float) -> None:
-        nonlocal best
+    for r in ratios:
         corr = matcher.match_at_area_ratio(source, target, r, source_spectrum=spec_s, target_spectrum=spec_t,
                                            shared=shared, **kwargs)
         d, scale = geodesic_distortion(dp, target, corr.target_of[samples])
         rows.append({"area_ratio": r, "distortion": d})
         if progress is not None:
             progress(f"partial: area ratio {r:.3g}, geodesic distortion {d:.3g}")
-        if best is None or d < best[0]:
-            best = (d, r, scale, corr)
-
-    for r in ratios:
-        attempt(r)
-    d, r, scale, corr = best
+        found.append((d, r, scale, corr))
+    order = sorted(range(len(found)), key=lambda i: found[i][0])  # stable: the first of equal distortions
+    d, r, scale, corr = found[order[0]]
     T, support, refined = corr.target_of, corr.info["partial"]["support"], []
     bs, bt = shared.basis(spec_s, None), shared.basis(spec_t, None)
-    for growth in SUPPORT_GROWTH:
-        T2, keep = _refined_on_support(matcher, source, target, bs, bt, corr.target_of, r, growth)
-        d2, s2 = geodesic_distortion(dp, target, T2[samples])
-        refined.append({"growth": growth, "distortion": d2})
-        if d2 < d:
-            d, T, scale, support = d2, T2, s2, keep
+    for i in order[:REFINED_CANDIDATES]:
+        _, ri, _, ci = found[i]
+        for growth in SUPPORT_GROWTH:
+            T2, keep = _refined_on_support(matcher, source, target, bs, bt, ci.target_of, ri, growth)
+            d2, s2 = geodesic_distortion(dp, target, T2[samples])
+            refined.append({"area_ratio": ri, "growth": growth, "distortion": d2})
+            if d2 < d:
+                d, r, corr, T, scale, support = d2, ri, ci, T2, s2, keep
     info = dict(corr.info)
     info["partial"] = {**info["partial"], "area_ratio": r, "scale": scale, "support": support, "search": {
         "candidates": rows, "refined": refined, "distortion": d}}
