@@ -127,9 +127,9 @@ PRESETS: dict[str, dict[str, Any]] = {
     "partial": {
         "description": "a part (a scan seeing one side, a region cut away) to a whole shape: "
         "zoomout with rectangular functional maps whose target basis spans the part's frequencies (the slanted "
-        "diagonal of Rodola et al. 2017), WKS at shared energies; the area ratio (the diagonal's slope) that of the "
-        "shapes' areas or one of 0.4-1.0, whichever map is closest to an isometry up to scale (shapes in any units), "
-        "refined on the eigenbasis of its support on the whole",
+        "diagonal of Rodola et al. 2017), WKS at shared energies; a map for each area ratio (the diagonal's slope: "
+        "the shapes' areas' one and 0.4-1.0), each also refined on the eigenbasis of its support on the whole, the "
+        "one closest to an isometry up to scale kept (shapes in any units)",
         "dense": {"plugin": "fmap-zoomout", "params": {"partial": True, "area_ratios": PARTIAL_AREA_RATIOS}},
     },
     "zoomout-fast": {

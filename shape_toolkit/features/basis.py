@@ -20,18 +20,21 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from shape_toolkit.core.geometry import nearest_neighbors, outward_face_normals
+from shape_toolkit.core.geometry import farthest_point_sampling, nearest_neighbors, outward_face_normals
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, null_count
+from shape_toolkit.core.surface import cloud_surface
 from shape_toolkit.errors import ParameterError
 
 __all__ = [
     "spectral_basis", "shifted_weights", "Basis", "basis_of", "normalized_spectrum", "fmap_from_p2p",
     "p2p_from_fmap", "slanted_size", "zoomout", "zoomout_residual", "zoomout_select", "fit_functional_map",
-    "orientation_operators", "multiplication_operators", "compress_descriptors",
+    "GradientFrame", "gradient_frame", "SharedPairWork", "orientation_operators", "multiplication_operators",
+    "compress_descriptors",
 ]
 
 
@@ -264,11 +267,27 @@ def zoomout_select(
 
 
 # -- the functional-map energy ------------------------------------------------------------------------
-def orientation_operators(
-    shape: Shape, basis: Basis, k: int, descriptors: np.ndarray
-) -> np.ndarray:
-    """Orientation operators ``(d, k, k)``: ``O(f)_ij = <phi_i, <n x grad f, grad phi_j>>_M`` for
-    each descriptor column ``f`` (Ren et al. 2018), with outward face normals."""
+@dataclass(frozen=True)
+class GradientFrame:
+    """The part of :func:`orientation_operators` that does not depend on the descriptors, for one shape and one
+    basis: the gradient operator ``G`` (sparse ``(3m, n)``, per face, 1/length units), the first ``k`` basis
+    gradients turned by the outward face normals ``Q`` ``(3, m, k)`` (``grad phi_j x n``), the basis averaged on
+    the faces with area weights ``phi_face`` ``(m, k)`` (unit total area) and the total area ``total``."""
+
+    G: Any
+    Q: np.ndarray
+    phi_face: np.ndarray
+    total: float
+
+    @property
+    def k(self) -> int:
+        """Number of basis functions covered (any first ``k`` of them are slices)."""
+        return int(self.Q.shape[2])
+
+
+def gradient_frame(shape: Shape, basis: Basis, k: int) -> GradientFrame:
+    """The :class:`GradientFrame` of the first ``k`` functions of ``basis`` on the mesh ``shape``: computed once, it
+    serves every :func:`orientation_operators` call on this shape and basis with at most ``k`` functions."""
     import igl
 
     F = np.asarray(shape.faces)
@@ -282,12 +301,27 @@ def orientation_operators(
     phi_face = (phi[F[:, 0]] + phi[F[:, 1]] + phi[F[:, 2]]) * (fa / (3.0 * total))[:, None]  # (m, k)
     # <n x grad f, grad phi_j> = <grad f, grad phi_j x n>: rotate the k basis gradients once,
     # Q_a = g_b n_c - g_c n_b with (a, b, c) cyclic, one gradient component g_b (m, k) at a time
-    Q = np.zeros((3, m, k))
+    Q = np.zeros((3, m, phi.shape[1]))
     for b in range(3):
         g = G[b * m : (b + 1) * m] @ phi
         Q[(b - 1) % 3] += g * N[:, (b + 1) % 3, None]
         Q[(b + 1) % 3] -= g * N[:, (b - 1) % 3, None]
-    del g
+    return GradientFrame(G, Q, phi_face, total)
+
+
+def orientation_operators(
+    shape: Shape, basis: Basis, k: int, descriptors: np.ndarray, *, frame: GradientFrame | None = None,
+) -> np.ndarray:
+    """Orientation operators ``(d, k, k)``: ``O(f)_ij = <phi_i, <n x grad f, grad phi_j>>_M`` for
+    each descriptor column ``f`` (Ren et al. 2018), with outward face normals. ``frame``: the
+    :func:`gradient_frame` of this ``shape`` and ``basis`` (at least ``k`` functions) when the caller keeps it
+    for several calls (the operators are the same, bit for bit); None: computed here."""
+    if frame is None or frame.k < k:
+        frame = gradient_frame(shape, basis, k)
+    G, total = frame.G, frame.total
+    Q = frame.Q if frame.k == k else frame.Q[:, :, :k]
+    phi_face = frame.phi_face if frame.k == k else np.ascontiguousarray(frame.phi_face[:, :k])
+    m = phi_face.shape[0]
     d = descriptors.shape[1]
     ops = np.empty((d, k, k))
     # descriptors per block: the block's gradients (3, m, step) and Z (m, step, k), ~8 MB each (x 2
@@ -409,3 +443,44 @@ def fit_functional_map(
     H[np.diag_indices(kk)] += 1e-9 * np.trace(H) / kk
     c = np.linalg.solve(H, rhs)
     return c.reshape(k, kt, order="F")
+
+
+class SharedPairWork:
+    """The work of the ``fmap-zoomout`` matcher on one pair of shapes that does not depend on the part's area
+    ratio, done once and reused by every candidate ratio of
+    :func:`~shape_toolkit.plugins.matching.dense.partial_search.match_over_area_ratios`
+    (``fmap-zoomout``'s ``match_at_area_ratio``): the area-normalized bases of the two spectra, the shapes'
+    local surfaces, their :func:`gradient_frame` for the orientation term and the
+    farthest-point samples. Each value is what a fresh match computes, so the maps are the same bit for bit.
+    Items are keyed by the objects' identity: use one instance for one pair and its spectra only."""
+
+    def __init__(self) -> None:
+        self._items: dict[tuple, tuple] = {}  # key -> (the objects keyed on, kept alive; the value)
+
+    def _get(self, key: tuple, owners: tuple, make: Callable[[], object]):
+        hit = self._items.get(key)
+        if hit is None:
+            hit = self._items[key] = (owners, make())
+        return hit[1]
+
+    def basis(self, spectrum: Spectrum, k: int | None) -> Basis:
+        """:func:`~shape_toolkit.features.basis.basis_of` ``(spectrum, k)``."""
+        return self._get(("basis", id(spectrum), k), (spectrum,), lambda: basis_of(spectrum, k))
+
+    def surface(self, shape: Shape) -> Shape:
+        """:func:`~shape_toolkit.core.surface.cloud_surface` of ``shape`` (the mesh itself for a mesh)."""
+        return self._get(("surface", id(shape)), (shape,), lambda: cloud_surface(shape))
+
+    def samples(self, shape: Shape, n: int) -> np.ndarray:
+        """``n`` farthest-point samples of ``shape``'s vertices (int64 ``(n,)``)."""
+        return self._get(("samples", id(shape), int(n)), (shape,),
+                         lambda: farthest_point_sampling(np.asarray(shape.vertices), int(n)))
+
+    def frame(self, surface: Shape, basis: Basis, k: int) -> GradientFrame:
+        """The gradient frame of ``surface`` and ``basis`` covering at least ``k`` functions: the one kept when it
+        does, else computed for ``k`` and kept in its place."""
+        key = ("frame", id(surface), id(basis))
+        hit = self._items.get(key)
+        if hit is None or hit[1].k < k:
+            hit = self._items[key] = ((surface, basis), gradient_frame(surface, basis, k))
+        return hit[1]

@@ -19,13 +19,11 @@ import numpy as np
 
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.api.params import InstanceOf, Interval, ListOf, Param
-from shape_toolkit.core.geometry import farthest_point_sampling
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.core.surface import cloud_surface
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.basis import (
-    basis_of,
+    SharedPairWork,
     compress_descriptors,
     fit_functional_map,
     orientation_operators,
@@ -45,6 +43,7 @@ from shape_toolkit.plugins._params import (
     POSITIVE_INT,
 )
 from shape_toolkit.plugins.descriptors.wks import wave_kernel_signature as _wks
+from shape_toolkit.plugins.matching.dense.partial_search import part_wave_kernel_signatures
 from shape_toolkit.plugins.matching.descriptors import UsesDescriptor, normalize_columns, shared_spectra
 from shape_toolkit.plugins.matching.validation import check_descriptors, check_seeds
 from shape_toolkit.results.correspondence import Correspondence
@@ -64,37 +63,6 @@ def wave_kernel_signature(
         K = max(2, int(round(band * vals.size)))
         vals, U = vals[:K], U[:, :K]
     return _wks(vals, U, n_energies, variance)
-
-
-def part_wave_kernel_signatures(
-    part: Spectrum, whole: Spectrum, scale: float, n_energies: int = 100, variance: float = 7.0, band: float = 1.0,
-) -> tuple[np.ndarray, np.ndarray]:
-    """WKS of a part ``(n_part, n_energies)`` and of the whole shape ``(n_whole, n_energies)`` at the same
-    energies. A part has fewer eigenvalues below a frequency, so per-shape energy ranges would not line up: the
-    eigenvalues are taken in common units (each area-normalized, the part's times ``scale = area_whole /
-    area_part``); the part keeps its first ``round(band * K)`` non-null eigenpairs (at least
-    ``PART_WKS_LOWEST + 2``) and the whole its eigenpairs up to the same frequency. The energies start at the
-    part's ``PART_WKS_LOWEST``-th non-null eigenvalue: the cut changes the lowest eigenfunctions over the whole
-    part, the higher ones mostly near the cut."""
-    vp, Up = spectral_basis(part)
-    vw, Uw = spectral_basis(whole)
-    vp = vp * float(np.sum(part.mass) if part.mass is not None else part.n_vertices) * float(scale)
-    vw = vw * float(np.sum(whole.mass) if whole.mass is not None else whole.n_vertices)
-    low = min(PART_WKS_LOWEST, vp.size - 2)
-    if band < 1.0:
-        K = max(low + 2, int(round(band * vp.size)))
-        vp, Up = vp[:K], Up[:, :K]
-    keep = vw <= vp[-1] * (1 + 1e-9)
-    if keep.sum() >= 2:
-        vw, Uw = vw[keep], Uw[:, keep]
-    rng = (float(np.log(max(vp[low], vw[0]))), float(np.log(min(vp[-1], vw[-1]))))
-    return _wks(vp, Up, n_energies, variance, rng), _wks(vw, Uw, n_energies, variance, rng)
-
-
-#: the part's WKS energies start at its non-null eigenvalue of this index (0: the first). Chosen on the tuning
-#: half only (TOSCA dogs, FAUST people 0-1; 6 pairs with 30% cut away, true area ratio): mean error 0.24 with 0,
-#: 0.19 with 10, 0.22 with 20 (benchmarks/results/partial_matching_notes.md)
-PART_WKS_LOWEST = 10
 
 
 #: target functions low-passing the part's image into its support on the whole (:func:`part_support`), where the
@@ -278,13 +246,15 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
             raise ParameterError(f"hypotheses must be a non-empty list of mappings, got {self.hypotheses!r}")
         return list(self.hypotheses)
 
-    def _k_final(self) -> int:
+    def final_basis_size(self) -> int:
+        """Size of the source basis ZoomOut ends at, ``k + zoomout_iters * zoomout_step`` (the final
+        functional map's rows, before any cap at the shapes' vertex counts)."""
         return int(self.k + self.zoomout_iters * self.zoomout_step)
 
     def spectrum_spec(self) -> SpectrumSpec:
         """The Laplace-Beltrami spectrum with ``k + zoomout_iters * zoomout_step + 1`` eigenpairs (twice
         as many when ``partial``)."""
-        return default_spec((2 if self.partial else 1) * self._k_final() + 1)
+        return default_spec((2 if self.partial else 1) * self.final_basis_size() + 1)
 
     def _descriptor_plugin(self):
         if self.descriptor is None:  # computed by wave_kernel_signature on this matcher's own spectrum
@@ -317,33 +287,65 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         final functional map ``(k, k)`` pulling target functions back to the source.
         ``progress`` (optional) receives one message per stage and per ZoomOut iteration."""
         self._check()
-        # point clouds: the spectrum is the point-cloud Laplacian (SpectrumSpec.for_shape), and the
-        # orientation term is formed on the cloud's local surface (core.surface.cloud_surface)
-        meshes = source.is_mesh and target.is_mesh
         seeds = check_seeds(seeds, source.n_vertices, target.n_vertices)
-        k_final = int(min(self._k_final(), source.n_vertices - 1, target.n_vertices - 1))
         spec_s = self._spectrum(source, source_spectrum)
         spec_t = self._spectrum(target, target_spectrum)
-        # a self-map (a shape's symmetry) on one spectrum: every per-shape array is computed once
-        same = source is target and spec_s is spec_t and source_descriptors is target_descriptors
-        scale = None  # target basis size = source basis size (two whole shapes)
         if self.partial and self.area_ratios is not None and self.area_ratio is None:
             from shape_toolkit.plugins.matching.dense.partial_search import match_over_area_ratios
 
             return match_over_area_ratios(self, source, target, spec_s, spec_t, progress, seeds=seeds,
                                           source_descriptors=source_descriptors, target_descriptors=target_descriptors)
-        if self.partial:
-            same = False
-            scale = self._area_scale(spec_s, spec_t)
-        bs = basis_of(spec_s, k_final)
-        bt = bs if same else basis_of(spec_t, None if self.partial else k_final)
+        scale = self._area_scale(spec_s, spec_t) if self.partial else None
+        return self._match_at_scale(source, target, spec_s, spec_t, scale, seeds, source_descriptors,
+                                    target_descriptors, progress, None, (source_spectrum, target_spectrum))
+
+    def match_at_area_ratio(
+        self, source: Shape, target: Shape, area_ratio: float, *, source_spectrum: Spectrum | None = None,
+        target_spectrum: Spectrum | None = None, seeds: np.ndarray | None = None,
+        source_descriptors: np.ndarray | None = None, target_descriptors: np.ndarray | None = None,
+        progress: Callable[[str], None] | None = None, shared: SharedPairWork | None = None,
+    ) -> Correspondence:
+        """The partial map of the part ``source`` into the whole ``target`` with the part's share of the whole's
+        area set to ``area_ratio`` (in (0, 1]) whatever this (``partial``) matcher's ``area_ratio`` and
+        ``area_ratios``: what :meth:`match` returns with that ``area_ratio``, bit for bit. One candidate of an
+        area-ratio search (:func:`~shape_toolkit.plugins.matching.dense.partial_search.match_over_area_ratios`):
+        ``shared`` (a :class:`SharedPairWork` used with this pair and these spectra only) keeps the work that
+        does not depend on the ratio for the next candidate."""
+        self._check()
+        if not self.partial:
+            raise ParameterError("match_at_area_ratio: the part's share of the whole's area needs partial = True")
+        r = float(area_ratio)
+        if not 0 < r <= 1:
+            raise ParameterError(f"area_ratio: the part's share of the whole's area must be in (0, 1], got {r!r}")
+        seeds = check_seeds(seeds, source.n_vertices, target.n_vertices)
+        spec_s = self._spectrum(source, source_spectrum)
+        spec_t = self._spectrum(target, target_spectrum)
+        return self._match_at_scale(source, target, spec_s, spec_t, 1.0 / r, seeds, source_descriptors,
+                                    target_descriptors, progress, shared, (source_spectrum, target_spectrum))
+
+    def _match_at_scale(
+        self, source: Shape, target: Shape, spec_s: Spectrum, spec_t: Spectrum, scale: float | None,
+        seeds: np.ndarray | None, source_descriptors: np.ndarray | None, target_descriptors: np.ndarray | None,
+        progress: Callable[[str], None] | None, shared: SharedPairWork | None, given: tuple,
+    ) -> Correspondence:
+        """The map with the target basis slanted by ``scale`` (``area_t / area_s``; None: two whole shapes);
+        ``given``: the spectra the caller passed (a descriptor plugin picks its own among them)."""
+        shared = SharedPairWork() if shared is None else shared
+        # point clouds: the spectrum is the point-cloud Laplacian (SpectrumSpec.for_shape), and the
+        # orientation term is formed on the cloud's local surface (core.surface.cloud_surface)
+        meshes = source.is_mesh and target.is_mesh
+        k_final = int(min(self.final_basis_size(), source.n_vertices - 1, target.n_vertices - 1))
+        # a self-map (a shape's symmetry) on one spectrum: every per-shape array is computed once
+        same = scale is None and source is target and spec_s is spec_t and source_descriptors is target_descriptors
+        bs = shared.basis(spec_s, k_final)
+        bt = bs if same else shared.basis(spec_t, None if scale is not None else k_final)
         hyps = self._hypotheses()
         descs: dict[float | None, tuple[np.ndarray, np.ndarray]] = {}  # band -> descriptors of both shapes
         if (source_descriptors is None or target_descriptors is None) and self.descriptor is None:
             params = {"n_energies": 100, "variance": 7.0, **(self.descriptor_params or {})}
             for h in hyps:
                 band = float(h.get("band", 1.0))
-                if band not in descs and self.partial:
+                if band not in descs and scale is not None:
                     descs[band] = part_wave_kernel_signatures(spec_s, spec_t, scale, **params, band=band)
                 elif band not in descs:
                     ws = wave_kernel_signature(spec_s, **params, band=band)
@@ -351,8 +353,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         elif source_descriptors is None or target_descriptors is None:
             desc = self._descriptor_plugin()
             # the descriptor picks its own declared spectrum among what the caller gave
-            descs[None] = (desc.compute(source, spectrum=shared_spectra(source_spectrum)),
-                           desc.compute(target, spectrum=shared_spectra(target_spectrum)))
+            descs[None] = (desc.compute(source, spectrum=shared_spectra(given[0])),
+                           desc.compute(target, spectrum=shared_spectra(given[1])))
         else:
             descs[None] = (source_descriptors, target_descriptors)
         seed_cols = None
@@ -384,10 +386,13 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 if self.orientation != "none" and any(float(h.get("w_orient", self.w_orient)) > 0 for h in hyps):
                     # the operators of the largest k of the band: fit_functional_map uses their leading blocks
                     k_max = max(int(min(h.get("k", self.k), k_final)) for h in hyps)
-                    Os = orientation_operators(cloud_surface(source), bs, k_max, ds)
+                    surf_s = shared.surface(source)
+                    Os = orientation_operators(surf_s, bs, k_max, ds, frame=shared.frame(surf_s, bs, k_max))
                     # compress_descriptors mixes equal inputs into equal outputs
-                    Ot = Os if same else orientation_operators(cloud_surface(target), bt,
-                                                               slanted_size(bs, bt, k_max, scale), dt)
+                    kt_max = slanted_size(bs, bt, k_max, scale)
+                    surf_t = shared.surface(target)
+                    Ot = Os if same else orientation_operators(surf_t, bt, kt_max, dt,
+                                                               frame=shared.frame(surf_t, bt, kt_max))
                     if self.orientation == "reversing":
                         Ot = -Ot
                 prepared[band] = (ds, dt, Os, Ot)
@@ -408,7 +413,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         # the default samples no target either, as pyFM's README pipeline (notes: fmap_zoomout_notes.md)
         cols = None
         if self.zoomout_samples and self.zoomout_samples < target.n_vertices:
-            cols = farthest_point_sampling(np.asarray(target.vertices), int(self.zoomout_samples))
+            cols = shared.samples(target, int(self.zoomout_samples))
         fits = [fit(h) for h in hyps]
         info: dict = {"k_final": k_final}
         if scale is not None:
@@ -421,8 +426,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
             info["orientation_term"] = "on the local surface of the point cloud(s) (core.surface.cloud_surface)"
         chosen = 0
         if len(fits) > 1:  # each refined on farthest-point source samples in steps twice as large
-            rows = farthest_point_sampling(np.asarray(source.vertices), min(int(self.selection_samples),
-                                                                            source.n_vertices))
+            rows = shared.samples(source, min(int(self.selection_samples), source.n_vertices))
             chosen, residuals, start = zoomout_select(fits, bs, bt, k_final, 2 * self.zoomout_step, rows, cols,
                                                       scale=scale)
             fits[chosen] = start

@@ -5,9 +5,13 @@ The slanted diagonal of a partial functional map (Rodola et al. 2017) has the ar
 0.5 one). The ratio of the two shapes' areas is exact only when they are in the same units. Here each candidate
 ratio gives a map, and the map kept is the one of least geodesic distortion: the isometry every functional map
 assumes, tested on distances between farthest-point samples of the part, up to one global scale (so the shapes'
-units do not matter). The kept map is then refined by ZoomOut on the Laplacian eigenbasis of its own support on
-the whole (a submesh slightly larger than the part's image), whose functions are localized on the region the part
-covers (the idea of localized manifold harmonics); the refinement is kept only when it lowers the distortion.
+units do not matter). Each candidate's map is also refined by ZoomOut on the Laplacian eigenbasis of its own
+support on the whole (a submesh slightly larger than the part's image), whose functions are localized on the region
+the part covers (the idea of localized manifold harmonics), and the map of least distortion among the candidates
+and their refinements is kept.
+
+The WKS of a part and of the whole at shared energies (:func:`part_wave_kernel_signatures`), which every partial
+``fmap-zoomout`` map is fitted on, lives here too.
 """
 
 from __future__ import annotations
@@ -20,11 +24,53 @@ from shape_toolkit.core.geometry import farthest_point_sampling
 from shape_toolkit.core.inspect import largest_face_piece
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.features.basis import basis_of, fmap_from_p2p, part_support, slanted_size, zoomout
+from shape_toolkit.features.basis import (
+    Basis,
+    SharedPairWork,
+    basis_of,
+    fmap_from_p2p,
+    part_support,
+    slanted_size,
+    spectral_basis,
+    zoomout,
+)
 from shape_toolkit.features.geodesics import geodesic_distances
+from shape_toolkit.plugins.descriptors.wks import wave_kernel_signature as _wks
 from shape_toolkit.results.correspondence import Correspondence
 
-__all__ = ["geodesic_distortion", "support_submesh", "match_over_area_ratios"]
+__all__ = ["part_wave_kernel_signatures", "geodesic_distortion", "support_submesh", "match_over_area_ratios"]
+
+
+def part_wave_kernel_signatures(
+    part: Spectrum, whole: Spectrum, scale: float, n_energies: int = 100, variance: float = 7.0, band: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """WKS of a part ``(n_part, n_energies)`` and of the whole shape ``(n_whole, n_energies)`` at the same
+    energies. A part has fewer eigenvalues below a frequency, so per-shape energy ranges would not line up: the
+    eigenvalues are taken in common units (each area-normalized, the part's times ``scale = area_whole /
+    area_part``); the part keeps its first ``round(band * K)`` non-null eigenpairs (at least
+    ``PART_WKS_LOWEST + 2``) and the whole its eigenpairs up to the same frequency. The energies start at the
+    part's ``PART_WKS_LOWEST``-th non-null eigenvalue: the cut changes the lowest eigenfunctions over the whole
+    part, the higher ones mostly near the cut."""
+    vp, Up = spectral_basis(part)
+    vw, Uw = spectral_basis(whole)
+    vp = vp * float(np.sum(part.mass) if part.mass is not None else part.n_vertices) * float(scale)
+    vw = vw * float(np.sum(whole.mass) if whole.mass is not None else whole.n_vertices)
+    low = min(PART_WKS_LOWEST, vp.size - 2)
+    if band < 1.0:
+        K = max(low + 2, int(round(band * vp.size)))
+        vp, Up = vp[:K], Up[:, :K]
+    keep = vw <= vp[-1] * (1 + 1e-9)
+    if keep.sum() >= 2:
+        vw, Uw = vw[keep], Uw[:, keep]
+    rng = (float(np.log(max(vp[low], vw[0]))), float(np.log(min(vp[-1], vw[-1]))))
+    return _wks(vp, Up, n_energies, variance, rng), _wks(vw, Uw, n_energies, variance, rng)
+
+
+#: the part's WKS energies start at its non-null eigenvalue of this index (0: the first). Chosen on the tuning
+#: half only (TOSCA dogs, FAUST people 0-1; 6 pairs with 30% cut away, true area ratio): mean error 0.24 with 0,
+#: 0.19 with 10, 0.22 with 20 (benchmarks/results/partial_matching_notes.md)
+PART_WKS_LOWEST = 10
+
 
 #: farthest-point samples of the part whose pairwise geodesic distances measure a map's distortion
 DISTORTION_SAMPLES = 40
@@ -32,7 +78,14 @@ DISTORTION_SAMPLES = 40
 #: the supports tried for the refinement, as multiples of the part's share of the whole's area (a support a
 #: little larger than the part: one smaller than it cuts the part's own boundary off and misleads ZoomOut);
 #: chosen on the tuning half only (benchmarks/results/partial_matching_notes.md)
-SUPPORT_GROWTH = (1.15, 1.3)
+SUPPORT_GROWTH = (1.3,)
+
+#: how many candidates, the least distorted first, are refined on their support (None: every one); the map of
+#: least distortion among the candidates and every refinement is kept. Every one: with half the area cut away
+#: the unrefined maps are all far from an isometry and their distortions do not tell them apart, the refined
+#: ones do (tuning half only: 50% cut TOSCA 0.486 -> 0.274 against the least distorted candidate alone;
+#: benchmarks/results/partial_matching_notes.md)
+REFINED_CANDIDATES: int | None = None
 
 
 def geodesic_distortion(part_distances: np.ndarray, whole: Shape, images: np.ndarray) -> tuple[float, float]:
@@ -60,11 +113,11 @@ def support_submesh(whole: Shape, keep: np.ndarray) -> tuple[Shape, np.ndarray]:
     return sub2, ids[ids2]
 
 
-def _refined_on_support(matcher, part: Shape, whole: Shape, spec_s: Spectrum, spec_t: Spectrum,
+def _refined_on_support(matcher, part: Shape, whole: Shape, bs: Basis, bt: Basis,
                         target_of: np.ndarray, ratio: float, growth: float) -> tuple[np.ndarray, np.ndarray]:
     """``target_of`` refined by partial ZoomOut from the part to the support of ``growth`` times its area: the
-    refined map ``(n_s,)`` and the support (target boolean ``(n_t,)``)."""
-    bs, bt = basis_of(spec_s), basis_of(spec_t)
+    refined map ``(n_s,)`` and the support (target boolean ``(n_t,)``); ``bs``, ``bt``: the full bases of the
+    part's and the whole's spectra."""
     keep = part_support(target_of, bs, bt, min(1.0, ratio * growth))
     keep[target_of] = True
     sub, ids = support_submesh(whole, keep)
@@ -73,7 +126,7 @@ def _refined_on_support(matcher, part: Shape, whole: Shape, spec_s: Spectrum, sp
     start = np.maximum(inv[target_of], 0)  # a vertex cut off with a sliver of the support: any, refined away
     bsub = basis_of(matcher.spectrum_spec().compute(sub))
     scale = max(1.0, float(bt.mass[ids].sum()) / ratio)  # the support's area over the part's, common units
-    k_final = min(matcher._k_final(), part.n_vertices - 1, sub.n_vertices - 1)
+    k_final = min(matcher.final_basis_size(), part.n_vertices - 1, sub.n_vertices - 1)
     C0 = fmap_from_p2p(bs, bsub, start, matcher.k, slanted_size(bs, bsub, matcher.k, scale))
     _, T = zoomout(C0, bs, bsub, k_final, matcher.zoomout_step, scale=scale)
     support = np.zeros(whole.n_vertices, dtype=bool)
@@ -86,39 +139,40 @@ def match_over_area_ratios(
     progress: Callable[[str], None] | None = None, **kwargs,
 ) -> Correspondence:
     """``matcher`` (a partial ``fmap-zoomout`` with ``area_ratios``) run at each of its candidate area ratios and
-    at the shapes' areas' ratio, the map of least :func:`geodesic_distortion` kept and refined on its support
-    (:data:`SUPPORT_GROWTH`) when that lowers the distortion. ``info["partial"]["search"]`` records every
-    candidate's ratio and distortion, the refinements' and the choice; ``info["partial"]["area_ratio"]`` is the
-    chosen ratio and ``info["partial"]["scale"]`` the whole's length units per the part's."""
+    at the shapes' areas' ratio, each map (:data:`REFINED_CANDIDATES`) refined on its support
+    (:data:`SUPPORT_GROWTH`), the map of least :func:`geodesic_distortion` among them all kept.
+    ``info["partial"]["search"]`` records every candidate's ratio and distortion, the refinements' and the choice;
+    ``info["partial"]["area_ratio"]`` is the chosen ratio and ``info["partial"]["scale"]`` the whole's length
+    units per the part's. What does not depend on the ratio (the bases, the orientation term's gradient frames,
+    the samples) is computed once for every candidate (:class:`~shape_toolkit.features.basis.SharedPairWork`)."""
     areas = float(np.sum(spec_s.mass)) / float(np.sum(spec_t.mass)) if spec_s.mass is not None else None
     ratios = [min(areas, 1.0)] if areas is not None and 0 < areas <= 1.5 else []
     ratios += [float(r) for r in matcher.area_ratios if not any(abs(float(r) - q) < 1e-9 for q in ratios)]
     samples = farthest_point_sampling(np.asarray(source.vertices), min(DISTORTION_SAMPLES, source.n_vertices))
     dp = geodesic_distances(source, samples, samples, method="dijkstra", cache=False)
-    params = {**matcher.get_params(deep=False), "area_ratios": None}
-    best, rows = None, []
+    shared = SharedPairWork()
+    found, rows = [], []  # (distortion, ratio, scale, correspondence) of each candidate
 
-    def attempt(r: float) -> None:
-        nonlocal best
-        corr = type(matcher)(**{**params, "area_ratio": r}).match(
-            source, target, source_spectrum=spec_s, target_spectrum=spec_t, **kwargs)
+    for r in ratios:
+        corr = matcher.match_at_area_ratio(source, target, r, source_spectrum=spec_s, target_spectrum=spec_t,
+                                           shared=shared, **kwargs)
         d, scale = geodesic_distortion(dp, target, corr.target_of[samples])
         rows.append({"area_ratio": r, "distortion": d})
         if progress is not None:
             progress(f"partial: area ratio {r:.3g}, geodesic distortion {d:.3g}")
-        if best is None or d < best[0]:
-            best = (d, r, scale, corr)
-
-    for r in ratios:
-        attempt(r)
-    d, r, scale, corr = best
+        found.append((d, r, scale, corr))
+    order = sorted(range(len(found)), key=lambda i: found[i][0])  # stable: the first of equal distortions
+    d, r, scale, corr = found[order[0]]
     T, support, refined = corr.target_of, corr.info["partial"]["support"], []
-    for growth in SUPPORT_GROWTH:
-        T2, keep = _refined_on_support(matcher, source, target, spec_s, spec_t, corr.target_of, r, growth)
-        d2, s2 = geodesic_distortion(dp, target, T2[samples])
-        refined.append({"growth": growth, "distortion": d2})
-        if d2 < d:
-            d, T, scale, support = d2, T2, s2, keep
+    bs, bt = shared.basis(spec_s, None), shared.basis(spec_t, None)
+    for i in order[:REFINED_CANDIDATES]:
+        _, ri, _, ci = found[i]
+        for growth in SUPPORT_GROWTH:
+            T2, keep = _refined_on_support(matcher, source, target, bs, bt, ci.target_of, ri, growth)
+            d2, s2 = geodesic_distortion(dp, target, T2[samples])
+            refined.append({"area_ratio": ri, "growth": growth, "distortion": d2})
+            if d2 < d:
+                d, r, corr, T, scale, support = d2, ri, ci, T2, s2, keep
     info = dict(corr.info)
     info["partial"] = {**info["partial"], "area_ratio": r, "scale": scale, "support": support, "search": {
         "candidates": rows, "refined": refined, "distortion": d}}
