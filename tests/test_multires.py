@@ -148,6 +148,8 @@ def test_the_interpolated_lift_is_finer_than_the_proxy_map(poses):
     assert out2.min() >= 0 and _error(b, out2) < 1.5 * _error(b, out)
     with pytest.raises(ParameterError):
         lift_map(a, b, ia[:-1], ib, pmap, proxies=(pa, pb))
+    with pytest.raises(ParameterError, match="one target proxy vertex"):
+        lift_map(a, b, ia, ib, pmap + pb.n_vertices, proxies=(pa, pb))
 
 
 def test_the_interpolated_lift_does_not_average_across_a_seam(poses):
