@@ -62,11 +62,21 @@ def test_vertex_labels_are_the_proxys_at_its_vertices_and_its_nearest_elsewhere(
 
 def test_constraints_are_kept_on_the_full_mesh(shapes):
     small, big = shapes
-    rng = np.random.default_rng(0)
-    ends = rng.choice(big.n_vertices, size=8, replace=False)
+    # ends where the label carried on the triangles differs from the nearest proxy vertex's (segment borders), so
+    # that the constraint vertices' own rule is what keeps them
+    seg = create_seeded("segmenters", "csc", None, 0, n_segments=6)
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.plugins.matching.multires import make_proxy
+    from shape_toolkit.plugins.segmenters.multires import _proxy_constraints
+
+    ps, ids = make_proxy(big, 600)  # the same proxy as inside (deterministic)
+    nearest = cKDTree(big.vertices[ids]).query(big.vertices)[1]
+    free = segment_through_proxy(seg, big, proxy=600).labels
+    border = np.flatnonzero(free != _direct(seg, ps).labels[nearest])
+    ends = border[np.linspace(0, len(border) - 1, 8).astype(int)]
     c = Constraints(must_link=[[ends[0], ends[1]], [ends[2], ends[3]]], cannot_link=[[ends[0], ends[2]],
                                                                                        [ends[4], ends[5]]])
-    seg = create_seeded("segmenters", "csc", None, 0, n_segments=6)
     out = segment_through_proxy(seg, big, proxy=600, constraints=c)
     # what the segmenter kept on the proxy (csc shapes its clustering by the constraints, without enforcing
     # them) is kept on the full mesh: the constraint vertices take their proxy vertex's label exactly
@@ -74,6 +84,9 @@ def test_constraints_are_kept_on_the_full_mesh(shapes):
     assert report["must_link"] == 2 and report["cannot_link"] == 2
     for key in ("must_link_broken", "cannot_link_broken"):
         assert report[key] == on_proxy[key], (report, on_proxy)
+    inner = seg.segment(ps, spectrum=compute_declared(ps, declared_specs(seg)),
+                        constraints=_proxy_constraints(c, nearest))
+    np.testing.assert_array_equal(out.labels[ends[:6]], inner.labels[nearest[ends[:6]]])
     # two cannot-link ends on one proxy vertex cannot be kept apart there: said, not silently broken
     v = int(ends[6])
     twin = int(np.argsort(np.linalg.norm(big.vertices - big.vertices[v], axis=1))[1])

@@ -72,10 +72,10 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
     else:
         _, tri, w = on_surface(shape.vertices, ps)
         labels = inner.labels[tri[np.arange(len(tri)), np.argmax(w, axis=1)]]
-        if constraints is not None and len(constraints):
-            ends = np.unique(np.concatenate([constraints.must_link.ravel(), constraints.cannot_link.ravel()]))
-            labels[ends] = inner.labels[nearest[ends]]
         out = Segmentation.of_vertices(shape, labels, **{k: v for k, v in info.items() if k != "per"})
     if constraints is not None:
-        out = out.with_info(constraints=constraint_report(out.labels, constraints))
+        labels = out.labels.copy()  # each constraint vertex: its proxy vertex's label, as the segmenter gave it
+        ends = np.unique(np.concatenate([constraints.must_link.ravel(), constraints.cannot_link.ravel()]))
+        labels[ends] = inner.labels[nearest[ends]]
+        out = Segmentation(labels, out.face_labels, {**out.info, "constraints": constraint_report(labels, constraints)})
     return out
