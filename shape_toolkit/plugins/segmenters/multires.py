@@ -32,7 +32,8 @@ def _proxy_constraints(constraints: Constraints, nearest: np.ndarray) -> Constra
         i = int(np.flatnonzero(same)[0])
         raise ConstraintError(
             f"cannot-link {constraints.cannot_link[i].tolist()} joins two vertices closer than the proxy's spacing "
-            "(one proxy vertex); segment without a proxy (proxy 0) or click further apart")
+            "(one proxy vertex); segment at full resolution (`segment --proxy 0`, or the segmenter's own "
+            "segment()) or click further apart")
     return Constraints(ml[ml[:, 0] != ml[:, 1]] if len(ml) else ml, cl)
 
 
