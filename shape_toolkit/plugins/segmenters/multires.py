@@ -48,8 +48,13 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
 
     shape.require_faces("segmenting through a proxy")
     ps, ids = make_proxy(shape, proxy)
-    nearest = np.asarray(cKDTree(np.asarray(shape.vertices)[ids]).query(np.asarray(shape.vertices))[1], dtype=np.int64)
-    pc = _proxy_constraints(constraints, nearest) if constraints is not None else None
+    pc = None
+    if constraints is not None:  # only the constraint vertices need their nearest proxy vertex
+        ends = np.unique(np.concatenate([constraints.must_link.ravel(), constraints.cannot_link.ravel()]))
+        V = np.asarray(shape.vertices)
+        nearest = np.full(shape.n_vertices, -1, dtype=np.int64)
+        nearest[ends] = cKDTree(V[ids]).query(V[ends])[1]
+        pc = _proxy_constraints(constraints, nearest)
     specs = declared_specs(segmenter)
     try:
         spectra = compute_declared(ps, specs) if specs else None
@@ -58,7 +63,7 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
             raise
         spectra = None  # a proxy in pieces: the segmenter segments it piece by piece, or raises this itself
     inner = segmenter.segment(ps, spectrum=spectra, constraints=pc)
-    info = {k: v for k, v in inner.info.items() if k != "constraints"}
+    info = {k: v for k, v in inner.info.items() if k not in ("constraints", "per")}  # "per": set below
     info["proxy"] = {"proxy_vertices": int(ps.n_vertices), "vertices": int(shape.n_vertices)}
     if "constraints" in inner.info:  # what the segmenter kept on the proxy: the lift keeps the same
         info["proxy"]["constraints"] = inner.info["constraints"]
@@ -69,14 +74,13 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
 
         _, face, _ = igl.point_mesh_squared_distance(centroids, np.asarray(ps.vertices, dtype=np.float64),
                                                      np.asarray(ps.faces, dtype=np.int64))
-        out = Segmentation.of_faces(shape, inner.face_labels[face], **{k: v for k, v in info.items() if k != "per"})
+        out = Segmentation.of_faces(shape, inner.face_labels[face], **info)
     else:
         _, tri, w = on_surface(shape.vertices, ps)
         labels = inner.labels[tri[np.arange(len(tri)), np.argmax(w, axis=1)]]
-        out = Segmentation.of_vertices(shape, labels, **{k: v for k, v in info.items() if k != "per"})
+        out = Segmentation.of_vertices(shape, labels, **info)
     if constraints is not None:
         labels = out.labels.copy()  # each constraint vertex: its proxy vertex's label, as the segmenter gave it
-        ends = np.unique(np.concatenate([constraints.must_link.ravel(), constraints.cannot_link.ravel()]))
         labels[ends] = inner.labels[nearest[ends]]
         out = Segmentation(labels, out.face_labels, {**out.info, "constraints": constraint_report(labels, constraints)})
     return out
