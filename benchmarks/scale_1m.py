@@ -6,11 +6,13 @@ vertices, CPU and peak memory of the CLI as a user runs it, CPU per stage of the
 
 The pair: TOSCA cat0 -> cat1 (``$TOOLKIT_DATA/tosca5k``), both split s x s (``subdivide``: the original
 vertices keep their ids, so the ground truth holds; s = 14: 979,610 vertices), written to ``DIR`` as binary
-PLY. Each size runs two fresh child processes, one after the other: ``shape-toolkit match A B --json`` (no
-flags: pipeline ``auto``, proxies of 5,000 vertices above 7,500), whose JSON gives each stage's CPU seconds
-(``stages_cpu``; the lift: the map interpolated on the proxies' triangles), and ``shape-toolkit segment A
---method ncut -k 6`` (through its default proxy of 5,000 vertices above 7,500); reading the pair is timed in
-this process. CPU seconds (user + system) and peak RSS of a CLI run come from ``wait4`` (the command and its
+PLY, and their vertices alone as point clouds (``*.cloud.ply``). Each size runs fresh child processes, one
+after the other: ``shape-toolkit match A B --json`` (no flags: pipeline ``auto``, proxies of 5,000 vertices
+above 7,500), whose JSON gives each stage's CPU seconds (``stages_cpu``; the lift: the map interpolated on the
+proxies' triangles); ``shape-toolkit segment A --method ncut -k 6`` (through its default proxy of 5,000
+vertices above 7,500); reading the pair (``load_shape``, imports excluded: the same process state as a CLI
+run, which an in-process timing after the scoring is not); and ``match`` on the two point clouds (proxies of
+5,000 farthest points, the map interpolated among each point's three nearest proxy points). CPU seconds (user + system) and peak RSS of a CLI run come from ``wait4`` (the command and its
 supervised child). Error: mean normalised geodesic error of the 5,000 ground-truth points, each predicted
 vertex mapped to its nearest original vertex, Dijkstra on the clean 5k cat1 / sqrt(area)
 (``matching_scale.toml``'s ``score_on = "clean"``).
@@ -48,6 +50,19 @@ def make_meshes(work: Path, s: int) -> None:
             sub, vmap = subdivide(load_shape(TOSCA / f"{name}.off"), splits=s)
             save_shape(sub, out, binary=True)
             np.save(work / f"{name}_s{s}.vmap.npy", vmap)
+        cloud = work / f"{name}_s{s}.cloud.ply"
+        if not cloud.exists():  # the same vertices without the faces: a scan's point cloud
+            from shape_toolkit.core.shape import Shape
+
+            save_shape(Shape(load_shape(out).vertices, None, name=name), cloud, binary=True)
+
+
+def read_cpu(paths: list[Path]) -> float:
+    """CPU seconds of ``load_shape`` on ``paths`` in a fresh process (as the CLI reads them; imports excluded)."""
+    code = ("import sys, time; from shape_toolkit.io.mesh import load_shape; t = time.process_time(); "
+            "[load_shape(p) for p in sys.argv[1:]]; print(time.process_time() - t)")
+    return float(subprocess.run([sys.executable, "-c", code, *map(str, paths)], check=True, capture_output=True,
+                                text=True).stdout)
 
 
 def run_cli(args: list[str]) -> dict:
@@ -104,23 +119,24 @@ def main() -> None:
     args = ap.parse_args()
     work = Path(args.workdir)
     work.mkdir(parents=True, exist_ok=True)
-    from shape_toolkit.io.mesh import load_shape
-
     rows = []
     for s in args.splits:
         make_meshes(work, s)
         a, b, m = work / f"cat0_s{s}.ply", work / f"cat1_s{s}.ply", work / f"match_s{s}.map.txt"
         match = run_cli(["match", str(a), str(b), "-o", str(m), "--json", "-q"])
         err = score(m, work / f"cat1_s{s}.vmap.npy")
-        t = time.process_time()
-        load_shape(a), load_shape(b)
-        st = stages(match["json"], time.process_time() - t)
+        st = stages(match["json"], read_cpu([a, b]))
+        ca, cb = (work / f"{x}_s{s}.cloud.ply" for x in ("cat0", "cat1"))
+        cm = work / f"cloud_s{s}.map.txt"
+        cloud = run_cli(["match", str(ca), str(cb), "-o", str(cm), "--json", "-q"])
+        cloud["error"] = score(cm, work / f"cat1_s{s}.vmap.npy")
         seg = run_cli(["segment", str(a), "--method", "ncut", "-k", "6", "-o", str(work / f"seg_s{s}.labels.txt"),
                        "--json", "-q"])
         n = match["json"]["n_source"]
-        rows.append({"s": s, "n": n, "match": match, "error": err, "stages": st, "seg": seg})
+        rows.append({"s": s, "n": n, "match": match, "error": err, "stages": st, "seg": seg, "cloud": cloud})
         print(f"s={s}: n={rows[-1]['n']} match cpu {match['cpu']:.1f} s, {match['peak_mb']:.0f} MB, error {err:.4f}; "
-              f"segment cpu {seg['cpu']:.1f} s", flush=True)
+              f"segment cpu {seg['cpu']:.1f} s; clouds cpu {cloud['cpu']:.1f} s, error {cloud['error']:.4f}",
+              flush=True)
     write(rows, Path(args.output), args.splits)
 
 
@@ -162,11 +178,23 @@ def write(rows: list[dict], out: Path, splits: list[int]) -> None:
         g0, g1, n0, n1 = rows[-2]["seg"], rows[-1]["seg"], rows[-2]["n"], rows[-1]["n"]
         L += ["", f"Segment CPU exponent over the last step: {exponent(g0['cpu'], g1['cpu'], n0, n1):.2f}"
               f" (n log n: {nlogn(n0, n1):.2f})."]
+    L += ["", "## `shape-toolkit match A B` on point clouds: the same vertices without faces "
+          "(proxies: 5,000 farthest points above 7,500)", "",
+          "| s | n | CPU s | wall s | peak MB | proxies CPU s | lift CPU s | error | error / mesh error at this size |",
+          "|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        c = r["cloud"]
+        sc = c["json"].get("stages_cpu", {})
+        L.append(f"| {r['s']} | {r['n']:,} | {c['cpu']:.1f} | {c['wall']:.1f} | {c['peak_mb']:,.0f} | "
+                 f"{sc.get('proxies', 0.0):.2f} | {sc.get('lift', 0.0):.2f} | {c['error']:.4f} | "
+                 f"{c['error'] / r['error']:.2f} |")
     out.write_text("\n".join(L) + "\n")
     (out.with_suffix(".json")).write_text(json.dumps(
-        [{k: v for k, v in r.items() if k not in ("match", "seg")} | {
+        [{k: v for k, v in r.items() if k not in ("match", "seg", "cloud")} | {
             "match": {k: v for k, v in r["match"].items() if k != "json"} | {"stages": r["match"]["json"]["stages"]},
-            "segment": {k: v for k, v in r["seg"].items() if k != "json"}} for r in rows], indent=1))
+            "segment": {k: v for k, v in r["seg"].items() if k != "json"},
+            "cloud": {k: v for k, v in r["cloud"].items() if k != "json"} | {"stages": r["cloud"]["json"]["stages"]}}
+         for r in rows], indent=1))
 
 
 if __name__ == "__main__":

@@ -174,6 +174,9 @@ def test_farthest_point_sampling_matches_the_definition():
         d = np.minimum(d, np.sum((P - P[ref[-1]]) ** 2, axis=1))
     np.testing.assert_array_equal(got, ref)
     assert len(set(got.tolist())) == 40
+    # the unordered variant (Open3D's loop, for proxies of large clouds): the same set, in index order
+    np.testing.assert_array_equal(farthest_point_sampling(P, 40, start=7, ordered=False), np.sort(ref))
+    np.testing.assert_array_equal(farthest_point_sampling(P, 300, ordered=False), np.arange(300))
 
 
 def test_sample_weights_are_the_voronoi_cells_masses():

@@ -71,7 +71,7 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
         raise ParameterError(f"the proxy size must be an integer >= 100, got {n_vertices!r}")
     V = np.asarray(shape.vertices, dtype=np.float64)
     if not shape.is_mesh:
-        ids = np.sort(farthest_point_sampling(V, int(n_vertices)))
+        ids = farthest_point_sampling(V, int(n_vertices), ordered=False)
         return Shape(V[ids], None, name=f"{shape.name}-proxy"), ids
     import pymeshlab
     from scipy.spatial import cKDTree
