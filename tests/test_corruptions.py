@@ -130,6 +130,10 @@ def test_correspondence_carried_through_holes(body):
 def test_apply_corruption_registry_and_errors(body):
     s, _ = body
     for name in CORRUPTIONS:
+        if name == "color-noise":  # the one corruption of colours: a shape without any is refused
+            with pytest.raises(InvalidShapeError, match="no vertex colours"):
+                apply_corruption(s, name, random_state=0)
+            continue
         c, vm = apply_corruption(s, name, random_state=0)
         assert len(vm) == c.n_vertices
     same, vm = apply_corruption(s, "none")
@@ -161,6 +165,16 @@ def test_every_corruption_carries_colours_with_the_surface(body, name):
     coloured = shape.with_colors(rng.random((shape.n_vertices, 3)))
     out, vmap = CORRUPTIONS[name](coloured, random_state=1)
     assert out.colors is not None
+    if name == "color-noise":  # changes the colours themselves, the geometry not at all
+        np.testing.assert_array_equal(out.vertices, coloured.vertices)
+        np.testing.assert_array_equal(vmap, np.arange(coloured.n_vertices))
+        d = out.colors - 0.9 * coloured.colors
+        inside = (out.colors > 0) & (out.colors < 1)
+        assert 0.04 < d[inside].std() < 0.06 and abs(d[inside].mean()) < 0.01  # sigma 0.05 around gain 0.9
+        assert out.colors.min() >= 0 and out.colors.max() <= 1
+        same, _ = CORRUPTIONS[name](coloured, strength=0.0, gain=1.0, random_state=1)
+        np.testing.assert_array_equal(same.colors, coloured.colors)
+        return
     np.testing.assert_array_equal(out.colors, coloured.colors[vmap])
 
 

@@ -28,6 +28,7 @@ __all__ = [
     "scaling",
     "gaussian_noise",
     "shot_noise",
+    "color_noise",
     "remesh",
     "holes",
     "micro_holes",
@@ -120,6 +121,22 @@ def shot_noise(
     v = np.array(shape.vertices)
     v[ids] += magnitude * _length_unit(shape) * d
     return shape.with_vertices(v), _identity(shape)
+
+
+def color_noise(
+    shape: Shape, *, strength: float = 0.05, gain: float = 0.9, random_state: int = 0
+) -> Corruption:
+    """The surface's colours as another capture would see them: each channel times ``gain`` (lighting) plus
+    Gaussian noise of standard deviation ``strength`` (colour units: colours are in [0, 1]), clipped to [0, 1].
+    Geometry is unchanged and the vertex map is the identity. A shape without colours is refused."""
+    s = _check_strength(strength, 0.0, 1.0)
+    g = _check_strength(gain, 0.0, np.inf, "gain")
+    if shape.colors is None:
+        raise InvalidShapeError(f"{shape!r} has no vertex colours for 'color-noise' to change "
+                                "(read a coloured file, or give Shape(..., colors=...))")
+    rng = np.random.default_rng(random_state)
+    c = np.clip(g * shape.colors + rng.normal(scale=s, size=shape.colors.shape), 0.0, 1.0)
+    return shape.with_colors(c), _identity(shape)
 
 
 def _carried_colors(shape: Shape, vmap: np.ndarray) -> np.ndarray | None:
@@ -541,6 +558,7 @@ CORRUPTIONS: dict[str, Callable[..., Corruption]] = {
     "scale": scaling,
     "gaussian-noise": gaussian_noise,
     "shot-noise": shot_noise,
+    "color-noise": color_noise,
     "remesh": remesh,
     "holes": holes,
     "micro-holes": micro_holes,
