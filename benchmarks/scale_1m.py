@@ -12,10 +12,11 @@ above 7,500), whose JSON gives each stage's CPU seconds (``stages_cpu``; the lif
 proxies' triangles); ``shape-toolkit segment A --method ncut -k 6`` (through its default proxy of 5,000
 vertices above 7,500); reading the pair (``load_shape``, imports excluded: the same process state as a CLI
 run, which an in-process timing after the scoring is not); and ``match`` on the two point clouds (proxies of
-5,000 farthest points, the map interpolated among each point's three nearest proxy points). CPU seconds (user + system) and peak RSS of a CLI run come from ``wait4`` (the command and its
-supervised child). Error: mean normalised geodesic error of the 5,000 ground-truth points, each predicted
-vertex mapped to its nearest original vertex, Dijkstra on the clean 5k cat1 / sqrt(area)
-(``matching_scale.toml``'s ``score_on = "clean"``).
+5,000 farthest points, the map interpolated among each point's three nearest proxy points). CPU seconds
+(user + system) and peak RSS of a CLI run come from ``wait4`` (the command and its supervised child).
+Error: mean normalised geodesic error of the 5,000 ground-truth points, each predicted vertex mapped to its
+nearest original vertex, Dijkstra on the clean 5k cat1 / sqrt(area) (``matching_scale.toml``'s ``score_on =
+"clean"``).
 """
 
 from __future__ import annotations

@@ -13,13 +13,18 @@ CONFIGS = Path(__file__).resolve().parent.parent / "benchmarks" / "configs"
 
 
 def test_photometric_seeds_config_plans_its_rows():
-    """Generated data only: 5 seeds x (clean + 3 glue strengths) x 3 sparse matchers."""
+    """Generated data only, 5 seeds: (clean + 3 glue strengths + 3 colour noises) x 3 sparse matchers, (clean + 3
+    glue strengths) x 4 dense methods, 3 colour noises x the colour-seeded chain."""
     cfg = load_config(CONFIGS / "photometric_seeds.toml")
-    assert cfg.planned_rows == 60
-    (task,) = cfg.tasks
-    assert task.options["score_on"] == "clean"
-    assert {m.method_label.split("(")[0] for m in task.methods} == {"photometric", "photometric-norefine", "replicator"}
-    assert all(m.keypoints is not None for m in task.methods)
+    assert cfg.planned_rows == 5 * (7 * 3 + 4 * 4 + 3)
+    seeds, dense, colours = cfg.tasks
+    assert all(t.options["score_on"] == "clean" for t in cfg.tasks)
+    assert {m.method_label.split("(")[0] for m in seeds.methods} == {"photometric", "photometric-norefine",
+                                                                     "replicator"}
+    assert all(m.keypoints is not None for m in seeds.methods)
+    assert {m.method_label for m in dense.methods} == {"pipeline:topo-robust-photometric", "pipeline:topo-robust",
+                                                       "pipeline:zoomout", "peer:pyfm"}
+    assert {c.kind for c in colours.corruptions} == {"color-noise"}
 
 
 @pytest.mark.parametrize(("name", "rows"), [("tosca_matching", 24 * 8), ("repeatability", 24 * 6),
