@@ -258,3 +258,15 @@ def test_orientation_operators_from_a_larger_gradient_frame_are_the_same_bits():
     assert frame.k == 35
     kept = orientation_operators(s, b, 20, desc, frame=frame)
     assert kept.tobytes() == orientation_operators(s, b, 20, desc).tobytes()
+
+
+def test_a_part_smaller_than_the_zoomout_basis_is_matched():
+    """A part (and so its support on the whole) with fewer vertices than the matcher's ``k``: the refinement on
+    the support starts ZoomOut at most at its final size (it began at ``k`` and crashed with a shape mismatch)."""
+    s = icosphere(2)  # 162 vertices
+    cap = s.submesh(np.flatnonzero(s.vertices[:, 2] > 0.85))[0]
+    assert cap.n_vertices < 20
+    m = FmapZoomOutMatcher(partial=True, area_ratios=[0.5], k=20, zoomout_iters=1, hypotheses=[{}])
+    corr = m.match(cap, s)
+    assert corr.n_matched == cap.n_vertices and corr.target_of.max() < s.n_vertices
+    assert corr.info["partial"]["search"]["refined"]  # the refinement ran

@@ -127,7 +127,8 @@ def _refined_on_support(matcher, part: Shape, whole: Shape, bs: Basis, bt: Basis
     bsub = basis_of(matcher.spectrum_spec().compute(sub))
     scale = max(1.0, float(bt.mass[ids].sum()) / ratio)  # the support's area over the part's, common units
     k_final = min(matcher.final_basis_size(), part.n_vertices - 1, sub.n_vertices - 1)
-    C0 = fmap_from_p2p(bs, bsub, start, matcher.k, slanted_size(bs, bsub, matcher.k, scale))
+    k0 = min(matcher.k, k_final)  # a tiny part or support: ZoomOut starts no larger than it ends
+    C0 = fmap_from_p2p(bs, bsub, start, k0, slanted_size(bs, bsub, k0, scale))
     _, T = zoomout(C0, bs, bsub, k_final, matcher.zoomout_step, scale=scale)
     support = np.zeros(whole.n_vertices, dtype=bool)
     support[ids] = True
