@@ -270,3 +270,14 @@ def test_a_part_smaller_than_the_zoomout_basis_is_matched():
     corr = m.match(cap, s)
     assert corr.n_matched == cap.n_vertices and corr.target_of.max() < s.n_vertices
     assert corr.info["partial"]["search"]["refined"]  # the refinement ran
+
+
+def test_the_partial_search_refuses_a_cloud_as_the_whole_before_the_candidates():
+    """The search refines each candidate on a submesh of the whole: a point-cloud whole is refused in one line
+    naming the ways out (it failed after every candidate with 'its largest piece needs a triangle mesh')."""
+    s = icosphere(2)
+    cap = s.submesh(np.flatnonzero(s.vertices[:, 2] > 0))[0]
+    m = FmapZoomOutMatcher(partial=True, area_ratios=[0.5], k=10, zoomout_iters=1, hypotheses=[{}])
+    with pytest.raises(InvalidShapeError, match="point cloud: give the whole as a mesh.*area_ratio") as err:
+        m.match(cap, Shape(s.vertices, None))
+    assert "\n" not in str(err.value)

@@ -24,6 +24,7 @@ from shape_toolkit.core.geometry import farthest_point_sampling
 from shape_toolkit.core.inspect import largest_face_piece
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.errors import InvalidShapeError
 from shape_toolkit.features.basis import (
     Basis,
     SharedPairWork,
@@ -145,7 +146,13 @@ def match_over_area_ratios(
     ``info["partial"]["search"]`` records every candidate's ratio and distortion, the refinements' and the choice;
     ``info["partial"]["area_ratio"]`` is the chosen ratio and ``info["partial"]["scale"]`` the whole's length
     units per the part's. What does not depend on the ratio (the bases, the orientation term's gradient frames,
-    the samples) is computed once for every candidate (:class:`~shape_toolkit.features.basis.SharedPairWork`)."""
+    the samples) is computed once for every candidate (:class:`~shape_toolkit.features.basis.SharedPairWork`).
+    The whole ``target`` must be a mesh (the supports are its submeshes)."""
+    if not target.is_mesh:  # before the candidates: each refinement's support is a submesh of the whole
+        raise InvalidShapeError(
+            f"the partial search over area ratios refines each map on a submesh of the whole shape, but the target "
+            f"{target!r} is a point cloud: give the whole as a mesh, or pass the part's share of its area "
+            "(fmap-zoomout with partial = true and area_ratio = R takes clouds)")
     areas = float(np.sum(spec_s.mass)) / float(np.sum(spec_t.mass)) if spec_s.mass is not None else None
     ratios = [min(areas, 1.0)] if areas is not None and 0 < areas <= 1.5 else []
     ratios += [float(r) for r in matcher.area_ratios if not any(abs(float(r) - q) < 1e-9 for q in ratios)]
