@@ -108,3 +108,17 @@ def test_cli_segments_a_large_mesh_through_a_proxy(shapes, capsys, tmp_path, mon
     assert code == 0, err and json.loads(out)["proxy"] is None
     code, out, err = run_cli(capsys, "segment", tmp_path / "big.off", "-k", "5", "--proxy", "10")
     assert code == 2 and err.count("\n") == 1 and "proxy" in err
+
+
+@pytest.mark.parametrize("pairs, match", [
+    ({"must_link": [[0, 10**6]]}, "out of range"),
+    ({"must_link": [[0, -1]]}, "out of range"),
+    ({"cannot_link": [[3, 3]]}, "itself"),
+])
+def test_constraints_through_a_proxy_are_validated_against_the_full_mesh(shapes, pairs, match):
+    """Constraints the segmenter would refuse are refused through the proxy too, as a ConstraintError: an id past
+    the mesh was an IndexError, a negative one indexed from the end and a self-pair passed, silently."""
+    _, big = shapes
+    seg = create_seeded("segmenters", "csc", None, 0, n_segments=4)
+    with pytest.raises(ConstraintError, match=match):
+        segment_through_proxy(seg, big, proxy=600, constraints=Constraints(**pairs))

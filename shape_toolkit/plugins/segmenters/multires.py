@@ -47,6 +47,8 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
     from shape_toolkit.spectra import compute_declared, declared_specs
 
     shape.require_faces("segmenting through a proxy")
+    if constraints is not None:  # as the segmenter itself would, before its ids index anything
+        constraints.validate(shape.n_vertices)
     ps, ids = make_proxy(shape, proxy)
     pc = None
     if constraints is not None:  # only the constraint vertices need their nearest proxy vertex
