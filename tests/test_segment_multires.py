@@ -122,3 +122,22 @@ def test_constraints_through_a_proxy_are_validated_against_the_full_mesh(shapes,
     seg = create_seeded("segmenters", "csc", None, 0, n_segments=4)
     with pytest.raises(ConstraintError, match=match):
         segment_through_proxy(seg, big, proxy=600, constraints=Constraints(**pairs))
+
+
+def test_a_cannot_link_the_proxy_must_links_join_is_refused_naming_the_users_pair(shapes):
+    """Valid on the full mesh, contradictory on the proxy: a must-link and a cannot-link whose ends pairwise share
+    a proxy vertex. Refused naming the user's cannot-link and the way out (it was refused naming proxy ids the
+    user never gave, 'pair [0, 5] is both a must-link and a cannot-link')."""
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.plugins.matching.multires import make_proxy
+
+    _, big = shapes
+    ps, ids = make_proxy(big, 600)  # the same proxy as inside (deterministic)
+    nearest = cKDTree(big.vertices[ids]).query(big.vertices)[1]
+    shared = [np.flatnonzero(nearest == p) for p in range(ps.n_vertices)]
+    (a, c), (b, d), (e, f) = [g[:2] for g in shared if len(g) >= 2][:3]
+    seg = create_seeded("segmenters", "csc", None, 0, n_segments=4)
+    for ml, cl in (([[a, b]], [[c, d]]), ([[a, b], [d, e]], [[c, f]])):  # directly, and through a chain
+        with pytest.raises(ConstraintError, match=rf"cannot-link \[{cl[0][0]}, {cl[0][1]}\] .*must-links.*--proxy 0"):
+            segment_through_proxy(seg, big, proxy=600, constraints=Constraints(must_link=ml, cannot_link=cl))

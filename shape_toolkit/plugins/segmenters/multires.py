@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError
 from shape_toolkit.plugins.matching.multires import PROXY_VERTICES, make_proxy, on_surface
@@ -25,15 +26,23 @@ __all__ = ["segment_through_proxy"]
 
 
 def _proxy_constraints(constraints: Constraints, nearest: np.ndarray) -> Constraints:
-    """``constraints`` moved to the proxy: each vertex to its nearest proxy vertex ``nearest`` ``(n,)``."""
+    """``constraints`` moved to the proxy: each vertex to its nearest proxy vertex ``nearest`` ``(n,)``. A
+    cannot-link whose two ends land on one proxy vertex, or on two that the moved must-links join (transitively),
+    cannot be kept on the proxy: a :class:`ConstraintError` naming the user's pair."""
     ml, cl = nearest[constraints.must_link], nearest[constraints.cannot_link]
-    same = cl[:, 0] == cl[:, 1] if len(cl) else np.zeros(0, dtype=bool)
-    if same.any():
-        i = int(np.flatnonzero(same)[0])
-        raise ConstraintError(
-            f"cannot-link {constraints.cannot_link[i].tolist()} joins two vertices closer than the proxy's spacing "
-            "(one proxy vertex); segment at full resolution (`segment --proxy 0`, or the segmenter's own "
-            "segment()) or click further apart")
+    if len(cl):
+        ends, inv = np.unique(np.concatenate([ml.ravel(), cl.ravel()]), return_inverse=True)
+        _, comp = edge_components(len(ends), inv[: ml.size].reshape(-1, 2))
+        c = comp[inv[ml.size:].reshape(-1, 2)]
+        clash = np.flatnonzero(c[:, 0] == c[:, 1])
+        if clash.size:
+            i = int(clash[0])
+            why = ("joins two vertices closer than the proxy's spacing (one proxy vertex)" if cl[i, 0] == cl[i, 1]
+                   else "joins two vertices that the must-links put in one segment on the proxy (must-link ends "
+                   "closer than the proxy's spacing share a proxy vertex)")
+            raise ConstraintError(
+                f"cannot-link {constraints.cannot_link[i].tolist()} {why}; segment at full resolution "
+                "(`segment --proxy 0`, or the segmenter's own segment()) or click further apart")
     return Constraints(ml[ml[:, 0] != ml[:, 1]] if len(ml) else ml, cl)
 
 
