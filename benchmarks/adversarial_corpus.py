@@ -192,6 +192,10 @@ def mesh_corpus(folder: Path) -> dict[str, Path]:
     files["polygons.obj"] = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nf 1 2 3 4\nf 1 2 5\n"
     files["face_two_vertices.obj"] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n"
     files["point_cloud.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in v.tolist())
+    # clouds whose points' neighbourhoods are collinear: one line, two parallel lines (a curve, not a surface)
+    line = np.column_stack([np.linspace(0, 1, 200), np.zeros(200), np.zeros(200)])
+    files["collinear.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in line.tolist())
+    files["two_lines.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in np.r_[line, line + [0, 1, 0]].tolist())
     # -- issue 27: extreme coordinates, alone and mixed with normal ones
     for e in (200, 250):
         files[f"coords_1e{e}.off"] = _off(v * 10.0**e, f)

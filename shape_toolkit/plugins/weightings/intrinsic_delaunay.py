@@ -78,16 +78,26 @@ class IntrinsicDelaunayWeighting(Weighting):
                     f"{shape!r}: {shape.n_vertices - n_distinct} points coincide with others, which a local "
                     "Delaunay triangulation cannot take: merge them first (shape-toolkit clean)"
                 )
-            if self.cloud_neighbors == "all":
-                L, M = robust_laplacian.point_cloud_laplacian(
-                    centred(v), mollify_factor=self.mollify_factor, n_neighbors=self.n_neighbors
-                )
-            else:
-                triangles = local_delaunay_triangles(v, outward_normals(v), self.n_neighbors)
-                L, M = robust_laplacian.mesh_laplacian(
-                    centred(v), np.ascontiguousarray(triangles), mollify_factor=self.mollify_factor
-                )
-                L, M = L / 3.0, M / 3.0  # each triangle is in up to three points' triangulations
+            curve = (f"{shape!r}: its points' neighbourhoods hold no triangle (they lie on lines: a curve, not a "
+                     "surface); the cloud Laplacian needs points sampling a surface")
+            try:  # geometry-central aborts with a RuntimeError on a cloud with no local triangle at all
+                if self.cloud_neighbors == "all":
+                    L, M = robust_laplacian.point_cloud_laplacian(
+                        centred(v), mollify_factor=self.mollify_factor, n_neighbors=self.n_neighbors
+                    )
+                else:
+                    triangles = local_delaunay_triangles(v, outward_normals(v), self.n_neighbors)
+                    if len(triangles) == 0:
+                        raise InvalidShapeError(curve)
+                    L, M = robust_laplacian.mesh_laplacian(
+                        centred(v), np.ascontiguousarray(triangles), mollify_factor=self.mollify_factor
+                    )
+                    L, M = L / 3.0, M / 3.0  # each triangle is in up to three points' triangulations
+            except RuntimeError as exc:  # the library's own words, and the likely cause
+                said = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                raise InvalidShapeError(f"{shape!r}: robust_laplacian's cloud Laplacian failed ({said}); the likely "
+                                        "cause: its points' neighbourhoods hold no triangle (they lie on lines: a "
+                                        "curve, not a surface)") from None
         L = sp.csr_matrix(L)
         W = -(L - sp.diags(L.diagonal()))
         W = sp.csr_matrix((W + W.T) * 0.5)
