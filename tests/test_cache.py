@@ -172,3 +172,13 @@ def test_geodesic_rows_keep_within_their_float_budget_and_clear(sphere):
         assert len(rows) == 0 and len(g.GEODESIC_SOLVERS_CACHE) == 0 and rows.total_cost == 0
     finally:
         rows.max_cost = old
+
+
+def test_a_value_too_costly_to_store_does_not_leave_the_former_value_under_its_key():
+    """put(k, v) that cannot store v (over max_cost alone) left the former value under k: get(k) then returned
+    a value that was no longer the one put, silently."""
+    c = LRUCache(None, max_cost=10, cost=lambda a: a.size)
+    c.put("k", np.zeros(4))
+    c.put("other", np.zeros(2))
+    c.put("k", np.zeros(11))
+    assert "k" not in c and c.get("k") is None and c.keys() == ["other"] and c.total_cost == 2

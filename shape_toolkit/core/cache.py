@@ -115,14 +115,14 @@ class LRUCache:
     def put(self, key: Hashable, value: Any) -> None:
         """Store ``value`` under ``key`` as the most recently used entry and evict the least recently used
         ones past the bounds; a value costing more than ``max_cost`` on its own is not stored (the others
-        stay)."""
+        stay; a former value under ``key`` goes: it is not the value put)."""
         c = float(self._cost(value)) if self._cost is not None else 0.0
         with self._lock:
-            if self._max_entries == 0 or (self._max_cost is not None and c > self._max_cost):
-                return
             old = self._data.pop(key, None)
             if old is not None:
                 self._total -= old[1]
+            if self._max_entries == 0 or (self._max_cost is not None and c > self._max_cost):
+                return
             self._data[key] = (value, c)
             self._total += c
             self._evict()
