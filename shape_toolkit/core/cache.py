@@ -14,10 +14,14 @@ The caches a caller owns (``plugins.matching.orientation.SideCache``) store thei
 
 from __future__ import annotations
 
+import math
+import numbers
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
 from typing import Any
+
+import numpy as np
 
 from shape_toolkit.errors import ParameterError
 
@@ -27,7 +31,7 @@ __all__ = ["LRUCache"]
 def _check_bound(value: Any, what: str) -> None:
     if value is None:
         return
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or not value >= 0:
         raise ParameterError(f"{what} must be None or a non-negative number, got {value!r}")
 
 
@@ -117,6 +121,8 @@ class LRUCache:
         ones past the bounds; a value costing more than ``max_cost`` on its own is not stored (the others
         stay; a former value under ``key`` goes: it is not the value put)."""
         c = float(self._cost(value)) if self._cost is not None else 0.0
+        if not (math.isfinite(c) and c >= 0):  # a NaN or negative cost would unbound the cache for good
+            raise ParameterError(f"{self.name}: the cost of a value must be a finite number >= 0, got {c!r}")
         with self._lock:
             old = self._data.pop(key, None)
             if old is not None:
