@@ -435,10 +435,17 @@ def crop(shape: Shape, *, strength: float = 0.3, random_state: int = 0, attempts
         kept = float(area[vmap].sum() / area.sum())
         if abs(kept - (1.0 - s)) <= 0.05:
             return out, vmap
-    # the cut split the rest, or the centre's piece is smaller than the cut
+    # the cut split the rest, or the centre's piece is smaller than the cut; or the mesh is in pieces such that no
+    # centre can work: one in the largest piece keeps about share - s, one elsewhere about share
+    share = float(area[largest_face_piece(shape)].sum() / area.sum())
+    if 1.0 - share > 0.05 and abs(share - (1.0 - s)) > 0.05:
+        way_out = (f"the mesh is in pieces (the largest holds {share:.0%} of the area) and a crop keeps one, so no "
+                   "random_state gives that share: crop its largest piece (shape-toolkit clean --keep-largest)")
+    else:
+        way_out = "try another random_state" + (" or more attempts" if attempts > 1 else "")
     raise InvalidShapeError(
         f"crop: cutting {s:.0%} of the area around vertex {centre} keeps one piece with {kept:.0%} of the "
-        f"area (asked: {1 - s:.0%}); try another random_state" + (" or more attempts" if attempts > 1 else "")
+        f"area (asked: {1 - s:.0%}); {way_out}"
     )
 
 
