@@ -168,3 +168,21 @@ def test_the_interpolated_lift_does_not_average_across_a_seam(poses):
     e = pa.edges
     longest = np.linalg.norm(P[e[:, 0]] - P[e[:, 1]], axis=1).max()
     assert d.max() < longest  # without the seam rule: 1.55 against 1.00
+
+
+def test_the_errors_of_a_proxy_name_the_way_out():
+    """A proxy size under 100, a mesh in pieces each too small to keep (a triangle soup: 'decimation left no
+    surface') and a proxy map with too few matches said what went wrong, not what to do: each names --proxy 0."""
+    from shape_toolkit.errors import InvalidShapeError
+    from shape_toolkit.plugins.matching.multires import interpolated_map
+
+    rng = np.random.default_rng(0)
+    corners = rng.random((400, 1, 3)) * 5 + rng.random((400, 3, 3)) * 0.1
+    soup = Shape(corners.reshape(-1, 3), np.arange(1200).reshape(-1, 3))
+    with pytest.raises(InvalidShapeError, match=r"left no surface .*--proxy 0"):
+        make_proxy(soup, 100)
+    with pytest.raises(ParameterError, match=r">= 100, got 5 .*--proxy 0"):
+        make_proxy(soup, 5)
+    cloud = Shape(rng.random((50, 3)), None)
+    with pytest.raises(ParameterError, match=r"too few to lift .*--proxy 0"):
+        interpolated_map(cloud, cloud, cloud, cloud, np.r_[[0, 1], np.full(48, -1)])

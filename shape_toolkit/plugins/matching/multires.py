@@ -49,6 +49,8 @@ CLUSTER_FIRST = 20
 #: pieces of a proxy holding less than this fraction of its vertices are dropped (their input vertices
 #: are lifted through the nearest kept proxy vertex)
 DEBRIS = 0.05
+#: the way out named by the errors of a proxy
+_FULL_RESOLUTION = "work at full resolution (`--proxy 0`; from Python: run(proxy=0), or the segmenter's segment())"
 
 
 def _canonical(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -68,7 +70,8 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
     """A proxy of about ``n_vertices`` vertices and the input vertex ``(p,)`` of each of its vertices
     (decimation moves no vertex; clouds: farthest-point samples)."""
     if not isinstance(n_vertices, (int, np.integer)) or n_vertices < 100:
-        raise ParameterError(f"the proxy size must be an integer >= 100, got {n_vertices!r}")
+        raise ParameterError(f"the proxy size must be an integer >= 100, got {n_vertices!r} (0 turns the proxy off: "
+                             "`--proxy 0`, or run(proxy=0) from Python)")
     V = np.asarray(shape.vertices, dtype=np.float64)
     if not shape.is_mesh:
         ids = np.sort(farthest_point_sampling(V, int(n_vertices)))
@@ -105,7 +108,7 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
     pv = np.asarray(m.vertex_matrix(), dtype=np.float64)
     pf = np.asarray(m.face_matrix(), dtype=np.int64)
     if len(pf) == 0:
-        raise InvalidShapeError(f"{shape!r}: decimation to {n_vertices} vertices left no face")
+        raise InvalidShapeError(f"{shape!r}: decimation to {n_vertices} vertices left no face; {_FULL_RESOLUTION}")
     ids = np.asarray(cKDTree(V).query(pv)[1], dtype=np.int64)  # exact unless clustered: no vertex moved
     # a proxy the spectra can take: no flat face (the cotangent weights' rule), no vertex on no face,
     # no two proxy vertices on one input vertex
@@ -121,7 +124,8 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
     remap = np.full(len(uniq), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
     if len(used) < 4:
-        raise InvalidShapeError(f"{shape!r}: decimation to {n_vertices} vertices left no surface")
+        raise InvalidShapeError(f"{shape!r}: decimation to {n_vertices} vertices left no surface (every piece under "
+                                f"{DEBRIS:.0%} of it: a triangle soup?); {_FULL_RESOLUTION}")
     return Shape(V[uniq[used]], remap[pf], name=f"{shape.name}-proxy"), uniq[used]
 
 
@@ -179,7 +183,8 @@ def interpolated_map(source: Shape, target: Shape, source_proxy: Shape, target_p
                              f"for each of the {source_proxy.n_vertices} source proxy vertices")
     ok = np.flatnonzero(pm >= 0)
     if len(ok) < 3:
-        raise ParameterError(f"the proxy map matched {len(ok)} vertices: too few to lift (need 3)")
+        raise ParameterError(f"the proxy map matched {len(ok)} vertices: too few to lift (need 3); "
+                             f"{_FULL_RESOLUTION}")
     Ps, Pt = np.asarray(source_proxy.vertices, dtype=np.float64), np.asarray(target_proxy.vertices, dtype=np.float64)
     if len(ok) < len(pm):
         pm = pm.copy()
