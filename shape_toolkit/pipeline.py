@@ -44,7 +44,7 @@ from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.plugins.matching.dense.orientation_repair import OrientationRepair
 from shape_toolkit.plugins.matching.descriptors import paired_descriptors
-from shape_toolkit.plugins.matching.multires import PROXY_VERTICES
+from shape_toolkit.plugins.matching.multires import PROXY_VERTICES, check_proxy_size
 from shape_toolkit.plugins.matching.orientation import orientation_verdict, side_cache_scope
 from shape_toolkit.results.correspondence import Correspondence, read_seeds
 from shape_toolkit.spectra import SpectrumSpec, compute_declared, merge_specs
@@ -305,6 +305,8 @@ class Pipeline:
         and the map lifted to full resolution (:mod:`~shape_toolkit.plugins.matching.multires`;
         ``info['proxy']``), unless ``spectra`` are given."""
         say = progress or (lambda _msg: None)
+        if proxy is not None and not (proxy is False or (_is_integer(proxy) and proxy == 0)):
+            proxy = check_proxy_size(proxy)  # before any work: not a string's TypeError, nor NaN or 150.7 let pass
         if proxy and spectra is None and max(source.n_vertices, target.n_vertices) > 1.5 * proxy:
             return self._run_through_proxies(source, target, seeds, int(proxy), say)
         with side_cache_scope():  # the sparse stage and the orientation repair share symmetry map and sides
@@ -440,6 +442,11 @@ class Pipeline:
                                "lift": c_lift}
         info["timings"], info["seconds"] = timings, float(sum(timings.values()))
         return Correspondence(full, target.n_vertices, info=info)
+
+
+def _is_integer(value: object) -> bool:
+    """True for a Python or numpy integer that is not a bool."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
 def _declared(plugins: dict[str, Any]) -> dict[str, list[SpectrumSpec]]:

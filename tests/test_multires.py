@@ -186,3 +186,24 @@ def test_the_errors_of_a_proxy_name_the_way_out():
     cloud = Shape(rng.random((50, 3)), None)
     with pytest.raises(ParameterError, match=r"too few to lift .*--proxy 0"):
         interpolated_map(cloud, cloud, cloud, cloud, np.r_[[0, 1], np.full(48, -1)])
+
+
+@pytest.mark.parametrize("proxy", ["abc", [300], float("nan"), 150.7, True, -5, 50])
+def test_pipeline_run_refuses_a_bad_proxy_size_before_any_work(proxy):
+    """A string or a list was a TypeError, NaN silently matched at full resolution and 150.7 was cut to 150."""
+    s = Shape(np.random.default_rng(0).random((20, 3)), None)
+    with pytest.raises(ParameterError, match="proxy size must be an integer >= 100"):
+        load_pipeline("zoomout").run(s, s, proxy=proxy)
+
+
+@pytest.mark.parametrize("proxy", [None, 0, False, np.int64(0)])
+def test_pipeline_run_without_a_proxy(proxy, monkeypatch):
+    """None, 0 (and False, a numpy 0) turn the proxy off: the stages run on the shapes themselves."""
+    from shape_toolkit.pipeline import Pipeline
+
+    seen = []
+    monkeypatch.setattr(Pipeline, "_run_stages", lambda self, source, *a: seen.append(source.n_vertices))
+    s = Shape(np.random.default_rng(0).random((20, 3)), None)
+    load_pipeline("zoomout").run(s, s, proxy=proxy)
+    assert seen == [20]
+

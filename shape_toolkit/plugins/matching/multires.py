@@ -37,7 +37,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.weightings.cotangent import flat_faces
 
-__all__ = ["PROXY_VERTICES", "make_proxy", "lift_map", "interpolated_map", "on_surface"]
+__all__ = ["PROXY_VERTICES", "check_proxy_size", "make_proxy", "lift_map", "interpolated_map", "on_surface"]
 
 #: vertices of each proxy; shapes up to 1.5x this are matched directly
 PROXY_VERTICES = 5000
@@ -66,12 +66,18 @@ def _canonical(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(V, dtype=np.float64)[order], G[np.lexsort(G.T[::-1])].astype(np.int32)
 
 
+def check_proxy_size(n_vertices: object) -> int:
+    """``n_vertices`` as the vertex count of a proxy: an integer >= 100, else a :class:`ParameterError`."""
+    if isinstance(n_vertices, (bool, np.bool_)) or not isinstance(n_vertices, (int, np.integer)) or n_vertices < 100:
+        raise ParameterError(f"the proxy size must be an integer >= 100, got {n_vertices!r} (0 turns the proxy off: "
+                             "`--proxy 0`, or Pipeline.run(proxy=0) from Python)")
+    return int(n_vertices)
+
+
 def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, np.ndarray]:
     """A proxy of about ``n_vertices`` vertices and the input vertex ``(p,)`` of each of its vertices
     (decimation moves no vertex; clouds: farthest-point samples)."""
-    if not isinstance(n_vertices, (int, np.integer)) or n_vertices < 100:
-        raise ParameterError(f"the proxy size must be an integer >= 100, got {n_vertices!r} (0 turns the proxy off: "
-                             "`--proxy 0`, or run(proxy=0) from Python)")
+    n_vertices = check_proxy_size(n_vertices)
     V = np.asarray(shape.vertices, dtype=np.float64)
     if not shape.is_mesh:
         ids = np.sort(farthest_point_sampling(V, int(n_vertices)))
