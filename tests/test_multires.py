@@ -207,3 +207,16 @@ def test_pipeline_run_without_a_proxy(proxy, monkeypatch):
     load_pipeline("zoomout").run(s, s, proxy=proxy)
     assert seen == [20]
 
+
+@pytest.mark.parametrize("command", ["match", "segment"])
+def test_cli_proxy_under_100_is_refused_by_the_parser(capsys, tmp_path, command):
+    """--proxy 1..99 passed the parser; match then refused it only for shapes large enough to need the proxy."""
+    from helpers import run_cli
+
+    from shape_toolkit.data.generate import icosphere
+    from shape_toolkit.io.mesh import save_shape
+
+    save_shape(icosphere(1), tmp_path / "s.off")  # 42 vertices: no proxy would be made
+    files = [tmp_path / "s.off"] * (2 if command == "match" else 1)
+    code, out, err = run_cli(capsys, command, *files, "--proxy", "50", "-o", tmp_path / "o.txt")
+    assert code == 2 and err.count("\n") == 1 and "0 (no proxy) or an integer >= 100, got 50" in err, err

@@ -16,12 +16,12 @@ from shape_toolkit.cli.commands._common import (
     check_distinct,
     check_output_path,
     check_ply,
-    count_arg,
     declared_spectra,
     emit,
     parse_params,
     plugin_class,
     positive_int_arg,
+    proxy_arg,
     random_state_arg,
     status,
     write_ply,
@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--random-state", type=random_state_arg, default=None, help="seed of k-means / GMM (default 0)")
     p.add_argument("--preset", default=None, help="named parameter preset of the method")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="method parameter")
-    p.add_argument("--proxy", type=count_arg, default=PROXY_VERTICES, metavar="N",
+    p.add_argument("--proxy", type=proxy_arg, default=PROXY_VERTICES, metavar="N",
                    help=f"meshes above 1.5 N vertices are segmented through a proxy of N vertices and the labels "
                         f"carried to every vertex (default {PROXY_VERTICES}, as match; 0: always at full resolution)")
     p.add_argument("-o", "--output", help="labels file (default: SHAPE_STEM.METHOD.labels.txt, "
