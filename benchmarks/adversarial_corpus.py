@@ -60,6 +60,8 @@ NULLABLE = frozenset({
     "n_constraints",  # segment without --constraints
     "proxy",  # match: None when the shapes were matched at full resolution (no proxy, issue 29)
     "preset", "K", "times", "max_keypoints",  # parameters whose default is None, echoed as given
+    "n_embedding", "output_dim",  # csc's parameters whose default is None
+    "reason",  # a segmentation's constraint report: None when every constraint is kept
     "bic_curve_", "bic_monotone_",  # eigvec-gmm's BIC scan: None when k is given (no scan)
 })
 
@@ -445,6 +447,16 @@ def side_runs(side: dict, out: Path) -> list[Run]:
         "map for the wrong shape": ["evaluate-map", good, str(side["other_mesh"]), str(g["map"]), "--truth-src", vts,
                                     "--truth-dst", vts, "--json"],
     }
+    # --proxy (round 19's audit): bad sizes refused by the parser; the good mesh (162 vertices) through a proxy of 100
+    m_out = ["-o", str(out / "m.map"), "--json", "--quiet"]
+    for value in ("50", "-1", "1.5", "abc", "1e3"):
+        args[f"proxy {value} (match)"] = ["match", good, good, "--pipeline", "zoomout", "--proxy", value, *m_out]
+        args[f"proxy {value} (segment)"] = [*gmm, "-k", "3", "--proxy", value, *s_out]
+    args["proxy 100 (match)"] = ["match", good, good, "--pipeline", "zoomout", "--proxy", "100", *m_out]
+    args["proxy 100 (match, partial)"] = ["match", good, good, "--pipeline", "partial", "--proxy", "100", *m_out]
+    args["proxy 100 (segment --faces)"] = ["segment", good, "-k", "3", "--proxy", "100", "--faces", *s_out]
+    args["proxy 100 (segment, constraints)"] = ["segment", good, "--method", "csc", "-k", "3", "--proxy", "100",
+                                                "--constraints", cons, *s_out]
     # issue 27: constraints given to segmenters that take none
     for method in ("eigvec-gmm", "spectral-clustering", "ncut", "sdf", "smoothed"):
         args[f"constraints to {method}"] = ["segment", good, "--method", method, "-k", "3", "--constraints", cons,
