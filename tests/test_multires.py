@@ -220,3 +220,19 @@ def test_cli_proxy_under_100_is_refused_by_the_parser(capsys, tmp_path, command)
     files = [tmp_path / "s.off"] * (2 if command == "match" else 1)
     code, out, err = run_cli(capsys, command, *files, "--proxy", "50", "-o", tmp_path / "o.txt")
     assert code == 2 and err.count("\n") == 1 and "0 (no proxy) or an integer >= 100, got 50" in err, err
+
+
+def test_lift_map_refuses_ids_and_proxy_maps_that_are_not_vertex_ids():
+    """An id past the shape was an IndexError; a negative id indexed from the end, fractional ids and proxy-map
+    entries were truncated and a NaN entry cast to a huge negative number ('unmatched'): silently wrong maps."""
+    rng = np.random.default_rng(0)
+    shape = Shape(rng.random((60, 3)), None)
+    ids, pm = np.arange(0, 60, 3), np.arange(20)
+    assert lift_map(shape, shape, ids, ids, pm)[0].shape == (60,)
+    assert lift_map(shape, shape, ids, ids, pm.astype(float))[0].shape == (60,)  # integral floats are ids
+    for bad_ids in (np.r_[ids[:-1], 60], np.r_[ids[:-1], -1], ids + 0.5, ids[:0]):
+        with pytest.raises(ParameterError, match="src_ids"):
+            lift_map(shape, shape, bad_ids, ids, pm)
+    for bad_map in (pm + 0.5, np.r_[pm[:-1], np.nan], np.r_[pm[:-1], -5], pm > 3):
+        with pytest.raises(ParameterError, match="proxy map must give"):
+            lift_map(shape, shape, ids, ids, bad_map)

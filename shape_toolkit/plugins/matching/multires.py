@@ -36,6 +36,7 @@ from shape_toolkit.core.geometry import edge_components, farthest_point_sampling
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.weightings.cotangent import flat_faces
+from shape_toolkit.validation import check_vertex_ids
 
 __all__ = ["PROXY_VERTICES", "check_proxy_size", "make_proxy", "lift_map", "interpolated_map", "on_surface"]
 
@@ -183,10 +184,14 @@ def interpolated_map(source: Shape, target: Shape, source_proxy: Shape, target_p
     nearest matched one."""
     from scipy.spatial import cKDTree
 
-    pm = np.asarray(proxy_map, dtype=np.int64)
-    if pm.shape != (source_proxy.n_vertices,) or (pm.size and pm.max() >= target_proxy.n_vertices):
-        raise ParameterError(f"the proxy map must give one target proxy vertex (< {target_proxy.n_vertices}, or -1) "
-                             f"for each of the {source_proxy.n_vertices} source proxy vertices")
+    raw = np.asarray(proxy_map)
+    integral = raw.dtype.kind in "iu" or (raw.dtype.kind == "f" and bool(np.all(np.isfinite(raw) & (raw % 1 == 0))))
+    pm = raw.astype(np.int64) if integral else raw
+    if (not integral or pm.shape != (source_proxy.n_vertices,)
+            or (pm.size and (pm.max() >= target_proxy.n_vertices or pm.min() < -1))):
+        raise ParameterError(f"the proxy map must give one target proxy vertex (an integer < "
+                             f"{target_proxy.n_vertices}, or -1) for each of the {source_proxy.n_vertices} source "
+                             "proxy vertices")
     ok = np.flatnonzero(pm >= 0)
     if len(ok) < 3:
         raise ParameterError(f"the proxy map matched {len(ok)} vertices: too few to lift (need 3); "
@@ -219,7 +224,8 @@ def lift_map(
     ``src_ids`` / ``tgt_ids``: the full vertex of each proxy vertex), interpolated (:func:`interpolated_map`) on the
     ``proxies`` (meshes of those vertices, as :func:`make_proxy` gives them; None: the proxy vertices as clouds).
     Returns the map and an info dict (``lift``: how; ``cpu_seconds``: of the interpolation)."""
-    src_ids, tgt_ids = np.asarray(src_ids, dtype=np.int64), np.asarray(tgt_ids, dtype=np.int64)
+    src_ids = check_vertex_ids(src_ids, source.n_vertices, "src_ids", allow_empty=False)
+    tgt_ids = check_vertex_ids(tgt_ids, target.n_vertices, "tgt_ids", allow_empty=False)
     if proxies is None:
         proxies = (Shape(np.asarray(source.vertices)[src_ids], None, name=f"{source.name}-proxy"),
                    Shape(np.asarray(target.vertices)[tgt_ids], None, name=f"{target.name}-proxy"))
