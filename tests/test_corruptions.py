@@ -323,3 +323,12 @@ def test_crop_of_a_mesh_in_pieces_no_centre_can_crop_says_so():
             crop(two, strength=0.3, random_state=rs, attempts=5)
         assert "try another" not in str(err.value)
     assert crop(two, strength=0.5, random_state=0, attempts=20)[0].n_vertices == s.n_vertices  # one sphere: 50%
+
+
+def test_crop_of_a_mesh_too_coarse_to_cut_finely_is_refused():
+    """A tetrahedron cropped by 30% lost three faces of four: its kept vertices held 75% of the vertex areas, so
+    the crop passed as '70% kept' while 21% of the surface was. Refused now (a coarse mesh cannot be cut finely)."""
+    tet = Shape(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
+                np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    with pytest.raises(InvalidShapeError, match="keeps one piece with 21% of the area"):
+        crop(tet, strength=0.3, random_state=0)
