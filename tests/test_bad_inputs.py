@@ -460,3 +460,14 @@ def test_match_cli_refuses_a_collinear_cloud_in_one_line(tmp_path, capsys, mesh_
     code, out, err = run_cli(capsys, "match", tmp_path / "line.xyz", mesh_file, "--pipeline", "zoomout",
                              "-o", tmp_path / "m.txt", "--quiet")
     _one_line_rejection(code, out, err, "curve, not a surface")
+
+
+@pytest.mark.parametrize("n, needle", [(2, "at least 5 points"), (4, "at least 5 points"),
+                                       (20, r"n_neighbors \(30\) must be below its number of points")])
+def test_the_cloud_laplacian_of_a_tiny_cloud_names_the_cloud_and_what_it_needs(n, needle):
+    """It said 'n_neighbors must be in [3, 1], got 30' (an empty range, for a parameter the user never set)."""
+    from shape_toolkit.plugins.weightings.intrinsic_delaunay import IntrinsicDelaunayWeighting
+
+    cloud = Shape(np.random.default_rng(0).random((n, 3)), None, name="tiny")
+    with pytest.raises(ParameterError, match=rf"'tiny'.*{needle}"):
+        IntrinsicDelaunayWeighting().weigh(cloud, np.zeros((0, 2), int))

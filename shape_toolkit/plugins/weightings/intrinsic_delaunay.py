@@ -69,8 +69,11 @@ class IntrinsicDelaunayWeighting(Weighting):
             )
         else:
             if not self.n_neighbors < shape.n_vertices:  # the range that depends on the shape
-                raise ParameterError(
-                    f"n_neighbors must be in [3, {shape.n_vertices - 1}], got {self.n_neighbors}"
+                raise ParameterError(  # the default too: a cloud of 2-30 points is smaller than a neighbourhood
+                    f"{shape!r}: the cloud Laplacian's n_neighbors ({self.n_neighbors}) must be below its number of "
+                    f"points; pass a smaller n_neighbors (at least 3) or give more points"
+                    if shape.n_vertices > 4 else
+                    f"{shape!r}: a point cloud needs at least 5 points for its Laplacian (n_neighbors >= 3 each)"
                 )
             n_distinct = len(np.unique(v, axis=0))
             if n_distinct < shape.n_vertices:  # geometry-central aborts on coincident points
