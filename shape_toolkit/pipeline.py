@@ -412,7 +412,7 @@ class Pipeline:
         """:meth:`run` on proxies of ``proxy`` vertices, the map lifted to the full shapes."""
         from scipy.spatial import cKDTree
 
-        from shape_toolkit.plugins.matching.multires import lift_map, make_proxy
+        from shape_toolkit.plugins.matching.multires import lift_map, make_proxy, values_from_proxy
 
         t0, c0 = time.perf_counter(), time.process_time()
         say(f"{self.name}: proxies of {proxy} vertices")
@@ -434,6 +434,9 @@ class Pipeline:
         t_lift, c_lift = time.perf_counter() - t1, time.process_time() - c1
         info = {k: v for k, v in inner.info.items() if k not in ("orientation", "timings", "cpu_timings", "seconds")}
         info["proxy"] = {**lift, "proxy_orientation": inner.info.get("orientation")}
+        if isinstance(info.get("partial"), dict) and "support" in info["partial"] and ids_t.size != target.n_vertices:
+            # the part's support is a mask of the target proxy's vertices: carried to the target's, as the map is
+            info["partial"] = {**info["partial"], "support": values_from_proxy(info["partial"]["support"], target, pt)}
         info["orientation"] = orientation_verdict(source, target, full)
         timings = {"proxies": t_proxy, **{f"proxy {k}": v for k, v in inner.info.get("timings", {}).items()},
                    "lift": t_lift}

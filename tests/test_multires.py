@@ -236,3 +236,21 @@ def test_lift_map_refuses_ids_and_proxy_maps_that_are_not_vertex_ids():
     for bad_map in (pm + 0.5, np.r_[pm[:-1], np.nan], np.r_[pm[:-1], -5], pm > 3):
         with pytest.raises(ParameterError, match="proxy map must give"):
             lift_map(shape, shape, ids, ids, bad_map)
+
+
+def test_a_partial_map_through_proxies_carries_its_support_to_the_whole():
+    """info['partial']['support'] (where on the whole the part lies, a mask of the whole's vertices) was the
+    target proxy's mask, of its length, next to a map of the full target: carried as the map is, it is the
+    whole's, and holds the part's images."""
+    from shape_toolkit.data.corruptions import crop
+    from shape_toolkit.data.generate import icosphere
+
+    whole = icosphere(3)  # 642 vertices: a proxy of 200
+    part, _ = crop(whole, strength=0.5, random_state=0)
+    m = {"plugin": "fmap-zoomout", "params": {"partial": True, "area_ratio": 0.5, "k": 10, "zoomout_iters": 2}}
+    corr = load_pipeline({"name": "p", "dense": m}).run(part, whole, proxy=200)
+    support = corr.info["partial"]["support"]
+    assert corr.info["proxy"]["proxy_vertices"][1] < whole.n_vertices
+    assert support.shape == (whole.n_vertices,) and support.dtype == bool
+    assert support[corr.target_of].mean() > 0.9 and 0.3 < support.mean() < 0.8, (support[corr.target_of].mean(),
+                                                                                  support.mean())

@@ -38,7 +38,8 @@ from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.weightings.cotangent import flat_faces
 from shape_toolkit.validation import check_vertex_ids
 
-__all__ = ["PROXY_VERTICES", "check_proxy_size", "make_proxy", "lift_map", "interpolated_map", "on_surface"]
+__all__ = ["PROXY_VERTICES", "check_proxy_size", "make_proxy", "lift_map", "interpolated_map", "on_surface",
+           "values_from_proxy"]
 
 #: vertices of each proxy; shapes up to 1.5x this are matched directly
 PROXY_VERTICES = 5000
@@ -147,6 +148,19 @@ def on_surface(points: np.ndarray, mesh: Shape) -> tuple[np.ndarray, np.ndarray,
     w = igl.barycentric_coordinates(closest, *(np.ascontiguousarray(V[tri[:, j]]) for j in range(3)))
     w = np.clip(np.nan_to_num(w, nan=1.0 / 3.0), 0.0, None)  # the closest point lies on its triangle
     return closest, tri, w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+
+
+def values_from_proxy(values: np.ndarray, shape: Shape, proxy: Shape) -> np.ndarray:
+    """Per-vertex ``values`` ``(p, ...)`` of ``proxy`` carried to every vertex of ``shape`` ``(n, ...)``: each takes
+    the value of the nearest corner of its closest point on a mesh proxy (as segment labels are carried), of its
+    nearest proxy point on a cloud one."""
+    from scipy.spatial import cKDTree
+
+    values = np.asarray(values)
+    if proxy.is_mesh:
+        _, tri, w = on_surface(shape.vertices, proxy)
+        return values[tri[np.arange(len(tri)), np.argmax(w, axis=1)]]
+    return values[cKDTree(np.asarray(proxy.vertices, dtype=np.float64)).query(np.asarray(shape.vertices))[1]]
 
 
 def _spread(P: np.ndarray) -> np.ndarray:
