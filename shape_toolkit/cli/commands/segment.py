@@ -51,7 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="method parameter")
     p.add_argument("--proxy", type=proxy_arg, default=PROXY_VERTICES, metavar="N",
                    help=f"meshes above 1.5 N vertices are segmented through a proxy of N vertices and the labels "
-                        f"carried to every vertex (default {PROXY_VERTICES}, as match; 0: always at full resolution)")
+                        f"carried to every vertex (N >= 100; default {PROXY_VERTICES}, as match; 0: always at full "
+                        "resolution)")
     p.add_argument("-o", "--output", help="labels file (default: SHAPE_STEM.METHOD.labels.txt, "
                    "or .seg with --faces)")
     p.add_argument("--faces", action="store_true",
