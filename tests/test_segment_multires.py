@@ -141,3 +141,13 @@ def test_a_cannot_link_the_proxy_must_links_join_is_refused_naming_the_users_pai
     for ml, cl in (([[a, b]], [[c, d]]), ([[a, b], [d, e]], [[c, f]])):  # directly, and through a chain
         with pytest.raises(ConstraintError, match=rf"cannot-link \[{cl[0][0]}, {cl[0][1]}\] .*must-links.*--proxy 0"):
             segment_through_proxy(seg, big, proxy=600, constraints=Constraints(must_link=ml, cannot_link=cl))
+
+
+def test_empty_constraints_through_a_proxy_report_nothing_as_at_full_resolution(shapes):
+    """An empty constraints file gave info['constraints'] (all zeros) through the proxy and None directly."""
+    small, big = shapes
+    seg = create_seeded("segmenters", "csc", None, 0, n_segments=4)
+    empty = Constraints()
+    assert "constraints" not in seg.segment(small, constraints=empty).info
+    through = segment_through_proxy(seg, big, proxy=600, constraints=empty)
+    assert "constraints" not in through.info and "constraints" not in through.info["proxy"]

@@ -90,7 +90,7 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
         _, tri, w = on_surface(shape.vertices, ps)
         labels = inner.labels[tri[np.arange(len(tri)), np.argmax(w, axis=1)]]
         out = Segmentation.of_vertices(shape, labels, **info)
-    if constraints is not None:
+    if constraints is not None and len(constraints):  # no pair: nothing to report, as the segmenter's own segment()
         labels = out.labels.copy()  # each constraint vertex: its proxy vertex's label, as the segmenter gave it
         labels[ends] = inner.labels[nearest[ends]]
         out = Segmentation(labels, out.face_labels, {**out.info, "constraints": constraint_report(labels, constraints)})
