@@ -281,3 +281,12 @@ def test_the_partial_search_refuses_a_cloud_as_the_whole_before_the_candidates()
     with pytest.raises(InvalidShapeError, match="point cloud: give the whole as a mesh.*area_ratio") as err:
         m.match(cap, Shape(s.vertices, None))
     assert "\n" not in str(err.value)
+
+
+def test_a_repeated_candidate_area_ratio_is_matched_once():
+    """area_ratios = [0.5, 0.5]: the second 0.5 was a third candidate, the same map computed again."""
+    s = icosphere(2)
+    cap = s.submesh(np.flatnonzero(s.vertices[:, 2] > 0))[0]
+    m = FmapZoomOutMatcher(partial=True, area_ratios=[0.5, 0.5], k=10, zoomout_iters=1, hypotheses=[{}])
+    rows = m.match(cap, s).info["partial"]["search"]["candidates"]
+    assert len(rows) == 2 and rows[1]["area_ratio"] == 0.5  # the areas' ratio, then 0.5

@@ -155,7 +155,9 @@ def match_over_area_ratios(
             "(fmap-zoomout with partial = true and area_ratio = R takes clouds)")
     areas = float(np.sum(spec_s.mass)) / float(np.sum(spec_t.mass)) if spec_s.mass is not None else None
     ratios = [min(areas, 1.0)] if areas is not None and 0 < areas <= 1.5 else []
-    ratios += [float(r) for r in matcher.area_ratios if not any(abs(float(r) - q) < 1e-9 for q in ratios)]
+    for r in map(float, matcher.area_ratios):  # each candidate once (a repeated one was matched again)
+        if not any(abs(r - q) < 1e-9 for q in ratios):
+            ratios.append(r)
     samples = farthest_point_sampling(np.asarray(source.vertices), min(DISTORTION_SAMPLES, source.n_vertices))
     dp = geodesic_distances(source, samples, samples, method="dijkstra", cache=False)
     shared = SharedPairWork()
