@@ -151,3 +151,17 @@ def test_empty_constraints_through_a_proxy_report_nothing_as_at_full_resolution(
     assert "constraints" not in seg.segment(small, constraints=empty).info
     through = segment_through_proxy(seg, big, proxy=600, constraints=empty)
     assert "constraints" not in through.info and "constraints" not in through.info["proxy"]
+
+
+def test_cli_diagnostics_of_a_proxy_segmentation_are_the_proxys(shapes, capsys, tmp_path, monkeypatch):
+    """segment --json put ncut's cut_labels_ (one per proxy face) in 'diagnostics' beside the mesh's n_faces: they
+    are the fitted segmenter's, on the proxy, so they go with the proxy."""
+    _, big = shapes
+    save_shape(big, tmp_path / "big.off")
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_cli(capsys, "segment", tmp_path / "big.off", "-k", "5", "--proxy", "600", "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["diagnostics"] == {} and res["n_faces"] == big.n_faces
+    cut = res["proxy"]["diagnostics"]["cut_labels_"]
+    assert len(cut) < big.n_faces / 4 and res["proxy"]["proxy_vertices"] < big.n_vertices / 4

@@ -133,7 +133,8 @@ def run(args: argparse.Namespace) -> int:
         "method": args.method,
         "params": seg.get_params(deep=False),
         "spectra": used,
-        "proxy": result.info.get("proxy"),
+        # through a proxy the fitted attributes are the proxy's (cut_labels_, sdf_: one per proxy face): kept with it
+        "proxy": {**result.info["proxy"], "diagnostics": _diagnostics(seg)} if through_proxy else None,
         "per": "face" if args.faces else "vertex",
         "n_vertices": shape.n_vertices,
         "n_faces": shape.n_faces,
@@ -141,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
         if constraints is not None else None,
         "segment_sizes": np.bincount(labels).tolist(),
         "info": result.info,
-        "diagnostics": _diagnostics(seg),
+        "diagnostics": {} if through_proxy else _diagnostics(seg),
         "seconds": round(elapsed, 3),
     }
     return emit(args, result, f"{shape!r}: {result['n_segments']} segments by {args.method} -> {out} "
