@@ -165,3 +165,26 @@ def test_cli_diagnostics_of_a_proxy_segmentation_are_the_proxys(shapes, capsys, 
     assert res["diagnostics"] == {} and res["n_faces"] == big.n_faces
     cut = res["proxy"]["diagnostics"]["cut_labels_"]
     assert len(cut) < big.n_faces / 4 and res["proxy"]["proxy_vertices"] < big.n_vertices / 4
+
+
+def test_the_constraint_warning_through_a_proxy_counts_the_users_constraints(shapes):
+    """A must-link whose two ends share a proxy vertex is not passed to the segmenter: its one-line warning said
+    'broke 0 of 0 must-links' (the proxy's counts) while info['constraints'] gave the user's 1."""
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.plugins.matching.multires import make_proxy
+    from shape_toolkit.plugins.segmenters.constraints import ConstraintWarning
+
+    _, big = shapes
+    ps, ids = make_proxy(big, 600)
+    nearest = cKDTree(big.vertices[ids]).query(big.vertices)[1]
+    a, b = next(g[:2] for g in (np.flatnonzero(nearest == p) for p in range(ps.n_vertices)) if len(g) >= 2)
+    seg = create_seeded("segmenters", "csc", None, 0, n_segments=6)
+    free = segment_through_proxy(seg, big, proxy=600).labels
+    part = np.flatnonzero(free == (free[a] + 1) % (free.max() + 1))  # a segment without a or b
+    c = Constraints(must_link=[[a, b]], cannot_link=[[part[0], part[-1]]])  # csc breaks a cannot-link in a segment
+    with pytest.warns(ConstraintWarning) as caught:
+        out = segment_through_proxy(seg, big, proxy=600, constraints=c)
+    said = [str(w.message) for w in caught if issubclass(w.category, ConstraintWarning)]
+    assert len(said) == 1 and "of 1 must-links and 1 of 1 cannot-links" in said[0], said
+    assert out.info["constraints"]["must_link"] == 1 and out.info["proxy"]["constraints"]["must_link"] == 0

@@ -19,6 +19,7 @@ from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError
 from shape_toolkit.plugins.matching.multires import PROXY_VERTICES, make_proxy, on_surface
+from shape_toolkit.plugins.segmenters.constraints import inner_segmentation, report_constraints
 from shape_toolkit.results.labels import ConstraintError, Constraints, constraint_report
 from shape_toolkit.results.segmentation import Segmentation
 
@@ -73,11 +74,12 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
         if isinstance(exc, NumericallyDisconnectedGraphError):
             raise
         spectra = None  # a proxy in pieces: the segmenter segments it piece by piece, or raises this itself
-    inner = segmenter.segment(ps, spectrum=spectra, constraints=pc)
+    with inner_segmentation():  # no report (nor warning) in the proxy's counts: the user's constraints get theirs
+        inner = segmenter.segment(ps, spectrum=spectra, constraints=pc)
     info = {k: v for k, v in inner.info.items() if k not in ("constraints", "per")}  # "per": set below
     info["proxy"] = {"proxy_vertices": int(ps.n_vertices), "vertices": int(shape.n_vertices)}
-    if "constraints" in inner.info:  # what the segmenter kept on the proxy: the lift keeps the same
-        info["proxy"]["constraints"] = inner.info["constraints"]
+    if pc is not None and len(pc):  # what the segmenter kept on the proxy: the lift keeps the same
+        info["proxy"]["constraints"] = constraint_report(inner.labels, pc)
     if inner.info.get("per") == "face" and inner.face_labels is not None:
         faces = np.asarray(shape.faces)
         centroids = np.asarray(shape.vertices)[faces].mean(axis=1)
@@ -93,5 +95,6 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
     if constraints is not None and len(constraints):  # no pair: nothing to report, as the segmenter's own segment()
         labels = out.labels.copy()  # each constraint vertex: its proxy vertex's label, as the segmenter gave it
         labels[ends] = inner.labels[nearest[ends]]
-        out = Segmentation(labels, out.face_labels, {**out.info, "constraints": constraint_report(labels, constraints)})
+        out = report_constraints(segmenter, Segmentation(labels, out.face_labels, out.info), constraints,
+                                 shape.n_vertices)  # info["constraints"], and the one warning, in the user's counts
     return out
