@@ -60,6 +60,8 @@ NULLABLE = frozenset({
     "n_constraints",  # segment without --constraints
     "proxy",  # match: None when the shapes were matched at full resolution (no proxy, issue 29)
     "preset", "K", "times", "max_keypoints",  # parameters whose default is None, echoed as given
+    "n_embedding", "output_dim",  # csc's parameters whose default is None
+    "reason",  # a segmentation's constraint report: None when every constraint is kept
     "bic_curve_", "bic_monotone_",  # eigvec-gmm's BIC scan: None when k is given (no scan)
 })
 
@@ -192,6 +194,10 @@ def mesh_corpus(folder: Path) -> dict[str, Path]:
     files["polygons.obj"] = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nf 1 2 3 4\nf 1 2 5\n"
     files["face_two_vertices.obj"] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n"
     files["point_cloud.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in v.tolist())
+    # clouds whose points' neighbourhoods are collinear: one line, two parallel lines (a curve, not a surface)
+    line = np.column_stack([np.linspace(0, 1, 200), np.zeros(200), np.zeros(200)])
+    files["collinear.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in line.tolist())
+    files["two_lines.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in np.r_[line, line + [0, 1, 0]].tolist())
     # -- issue 27: extreme coordinates, alone and mixed with normal ones
     for e in (200, 250):
         files[f"coords_1e{e}.off"] = _off(v * 10.0**e, f)
@@ -441,6 +447,16 @@ def side_runs(side: dict, out: Path) -> list[Run]:
         "map for the wrong shape": ["evaluate-map", good, str(side["other_mesh"]), str(g["map"]), "--truth-src", vts,
                                     "--truth-dst", vts, "--json"],
     }
+    # --proxy (round 19's audit): bad sizes refused by the parser; the good mesh (162 vertices) through a proxy of 100
+    m_out = ["-o", str(out / "m.map"), "--json", "--quiet"]
+    for value in ("50", "-1", "1.5", "abc", "1e3"):
+        args[f"proxy {value} (match)"] = ["match", good, good, "--pipeline", "zoomout", "--proxy", value, *m_out]
+        args[f"proxy {value} (segment)"] = [*gmm, "-k", "3", "--proxy", value, *s_out]
+    args["proxy 100 (match)"] = ["match", good, good, "--pipeline", "zoomout", "--proxy", "100", *m_out]
+    args["proxy 100 (match, partial)"] = ["match", good, good, "--pipeline", "partial", "--proxy", "100", *m_out]
+    args["proxy 100 (segment --faces)"] = ["segment", good, "-k", "3", "--proxy", "100", "--faces", *s_out]
+    args["proxy 100 (segment, constraints)"] = ["segment", good, "--method", "csc", "-k", "3", "--proxy", "100",
+                                                "--constraints", cons, *s_out]
     # issue 27: constraints given to segmenters that take none
     for method in ("eigvec-gmm", "spectral-clustering", "ncut", "sdf", "smoothed"):
         args[f"constraints to {method}"] = ["segment", good, "--method", method, "-k", "3", "--constraints", cons,

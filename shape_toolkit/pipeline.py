@@ -44,7 +44,7 @@ from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.plugins.matching.dense.orientation_repair import OrientationRepair
 from shape_toolkit.plugins.matching.descriptors import paired_descriptors
-from shape_toolkit.plugins.matching.multires import PROXY_VERTICES
+from shape_toolkit.plugins.matching.multires import PROXY_VERTICES, check_proxy_size
 from shape_toolkit.plugins.matching.orientation import orientation_verdict, side_cache_scope
 from shape_toolkit.results.correspondence import Correspondence, read_seeds
 from shape_toolkit.spectra import SpectrumSpec, compute_declared, merge_specs
@@ -305,6 +305,8 @@ class Pipeline:
         and the map lifted to full resolution (:mod:`~shape_toolkit.plugins.matching.multires`;
         ``info['proxy']``), unless ``spectra`` are given."""
         say = progress or (lambda _msg: None)
+        if proxy is not None and not (proxy is False or (_is_integer(proxy) and proxy == 0)):
+            proxy = check_proxy_size(proxy)  # before any work: not a string's TypeError, nor NaN or 150.7 let pass
         if proxy and spectra is None and max(source.n_vertices, target.n_vertices) > 1.5 * proxy:
             return self._run_through_proxies(source, target, seeds, int(proxy), say)
         with side_cache_scope():  # the sparse stage and the orientation repair share symmetry map and sides
@@ -410,7 +412,7 @@ class Pipeline:
         """:meth:`run` on proxies of ``proxy`` vertices, the map lifted to the full shapes."""
         from scipy.spatial import cKDTree
 
-        from shape_toolkit.plugins.matching.multires import lift_map, make_proxy
+        from shape_toolkit.plugins.matching.multires import lift_map, make_proxy, values_from_proxy
 
         t0, c0 = time.perf_counter(), time.process_time()
         say(f"{self.name}: proxies of {proxy} vertices")
@@ -432,6 +434,9 @@ class Pipeline:
         t_lift, c_lift = time.perf_counter() - t1, time.process_time() - c1
         info = {k: v for k, v in inner.info.items() if k not in ("orientation", "timings", "cpu_timings", "seconds")}
         info["proxy"] = {**lift, "proxy_orientation": inner.info.get("orientation")}
+        if isinstance(info.get("partial"), dict) and "support" in info["partial"] and ids_t.size != target.n_vertices:
+            # the part's support is a mask of the target proxy's vertices: carried to the target's, as the map is
+            info["partial"] = {**info["partial"], "support": values_from_proxy(info["partial"]["support"], target, pt)}
         info["orientation"] = orientation_verdict(source, target, full)
         timings = {"proxies": t_proxy, **{f"proxy {k}": v for k, v in inner.info.get("timings", {}).items()},
                    "lift": t_lift}
@@ -440,6 +445,11 @@ class Pipeline:
                                "lift": c_lift}
         info["timings"], info["seconds"] = timings, float(sum(timings.values()))
         return Correspondence(full, target.n_vertices, info=info)
+
+
+def _is_integer(value: object) -> bool:
+    """True for a Python or numpy integer that is not a bool."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
 def _declared(plugins: dict[str, Any]) -> dict[str, list[SpectrumSpec]]:

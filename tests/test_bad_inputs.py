@@ -434,3 +434,40 @@ def test_cotangent_weights_of_a_mesh_with_only_flat_faces_are_refused_within_bou
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, preexec_fn=limit,
                        env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"})
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-500:]
+
+
+# ------------------------------------------------------------------------------------------------
+# clouds on lines: the cloud Laplacian has no triangle to build on
+# ------------------------------------------------------------------------------------------------
+def _lines(n: int, rows: int) -> np.ndarray:
+    """``rows`` parallel lines of ``n`` points each, 1 apart (spacing 1/n along them): collinear neighbourhoods."""
+    line = np.column_stack([np.linspace(0, 1, n), np.zeros(n), np.zeros(n)])
+    return np.vstack([line + [0, r, 0] for r in range(rows)])
+
+
+@pytest.mark.parametrize("rows", [1, 2])
+@pytest.mark.parametrize("mode", ["sheet", "all"])
+def test_the_cloud_laplacian_of_points_on_lines_is_a_typed_error(rows, mode):
+    """geometry-central aborted with a RuntimeError ('unreferenced vertex 0'): an internal error, exit 1."""
+    from shape_toolkit.plugins.weightings.intrinsic_delaunay import IntrinsicDelaunayWeighting
+
+    with pytest.raises(InvalidShapeError, match="curve, not a surface"):
+        IntrinsicDelaunayWeighting(cloud_neighbors=mode).weigh(Shape(_lines(200, rows), None), np.zeros((0, 2), int))
+
+
+def test_match_cli_refuses_a_collinear_cloud_in_one_line(tmp_path, capsys, mesh_file):
+    np.savetxt(tmp_path / "line.xyz", _lines(200, 1))
+    code, out, err = run_cli(capsys, "match", tmp_path / "line.xyz", mesh_file, "--pipeline", "zoomout",
+                             "-o", tmp_path / "m.txt", "--quiet")
+    _one_line_rejection(code, out, err, "curve, not a surface")
+
+
+@pytest.mark.parametrize("n, needle", [(2, "at least 5 points"), (4, "at least 5 points"),
+                                       (20, r"n_neighbors \(30\) must be below its number of points")])
+def test_the_cloud_laplacian_of_a_tiny_cloud_names_the_cloud_and_what_it_needs(n, needle):
+    """It said 'n_neighbors must be in [3, 1], got 30' (an empty range, for a parameter the user never set)."""
+    from shape_toolkit.plugins.weightings.intrinsic_delaunay import IntrinsicDelaunayWeighting
+
+    cloud = Shape(np.random.default_rng(0).random((n, 3)), None, name="tiny")
+    with pytest.raises(ParameterError, match=rf"'tiny'.*{needle}"):
+        IntrinsicDelaunayWeighting().weigh(cloud, np.zeros((0, 2), int))

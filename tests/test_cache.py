@@ -172,3 +172,30 @@ def test_geodesic_rows_keep_within_their_float_budget_and_clear(sphere):
         assert len(rows) == 0 and len(g.GEODESIC_SOLVERS_CACHE) == 0 and rows.total_cost == 0
     finally:
         rows.max_cost = old
+
+
+def test_a_value_too_costly_to_store_does_not_leave_the_former_value_under_its_key():
+    """put(k, v) that cannot store v (over max_cost alone) left the former value under k: get(k) then returned
+    a value that was no longer the one put, silently."""
+    c = LRUCache(None, max_cost=10, cost=lambda a: a.size)
+    c.put("k", np.zeros(4))
+    c.put("other", np.zeros(2))
+    c.put("k", np.zeros(11))
+    assert "k" not in c and c.get("k") is None and c.keys() == ["other"] and c.total_cost == 2
+
+
+def test_bounds_may_be_numpy_numbers_and_a_cost_must_be_finite_and_non_negative():
+    """np.int64(3) was refused as 'must be None or a non-negative number'; a NaN cost made the summed cost NaN
+    and a negative one lowered it, and either way the cost bound stopped evicting for good."""
+    c = LRUCache(np.int64(2), max_cost=np.float64(10), cost=lambda v: v)
+    c.max_entries = np.int32(3)
+    assert c.max_entries == 3
+    for bad in (float("nan"), -1.0, float("inf")):
+        with pytest.raises(ParameterError, match="finite number >= 0"):
+            c.put("x", bad)
+    assert len(c) == 0 and c.total_cost == 0
+    for i in range(5):
+        c.put(i, 4)
+    assert c.keys() == [3, 4] and c.total_cost == 8
+    with pytest.raises(ParameterError):
+        LRUCache(np.bool_(True))

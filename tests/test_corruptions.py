@@ -7,6 +7,7 @@ import pytest
 from scipy.sparse.csgraph import shortest_path
 
 from shape_toolkit.core.inspect import connected_components
+from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.corruptions import (
     CORRUPTIONS,
     apply_corruption,
@@ -23,6 +24,7 @@ from shape_toolkit.data.corruptions import (
     shortcut,
     shot_noise,
 )
+from shape_toolkit.data.generate import icosphere
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 
@@ -322,3 +324,25 @@ def test_holes_that_cannot_fit_raise(thin_limbs):
         holes(thin_limbs, strength=1, attempts=0)
     with pytest.raises(ParameterError, match="radius"):
         holes(thin_limbs, strength=1, radius=0)
+
+
+def test_crop_of_a_mesh_in_pieces_no_centre_can_crop_says_so():
+    """Two equal spheres: a crop keeps one piece, so 70% of the area is out of reach from every centre; the error
+    said 'try another random_state' (and more attempts), which could never help. It names the pieces and the way
+    out; a mesh whose largest piece can hold the asked share still gets the random_state advice."""
+    s = icosphere(2)
+    two = Shape(np.vstack([s.vertices, s.vertices + [5.0, 0, 0]]), np.vstack([s.faces, s.faces + s.n_vertices]))
+    for rs in range(3):
+        with pytest.raises(InvalidShapeError, match=r"in pieces \(the largest holds 50% .*--keep-largest") as err:
+            crop(two, strength=0.3, random_state=rs, attempts=5)
+        assert "try another" not in str(err.value)
+    assert crop(two, strength=0.5, random_state=0, attempts=20)[0].n_vertices == s.n_vertices  # one sphere: 50%
+
+
+def test_crop_of_a_mesh_too_coarse_to_cut_finely_is_refused():
+    """A tetrahedron cropped by 30% lost three faces of four: its kept vertices held 75% of the vertex areas, so
+    the crop passed as '70% kept' while 21% of the surface was. Refused now (a coarse mesh cannot be cut finely)."""
+    tet = Shape(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
+                np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    with pytest.raises(InvalidShapeError, match="keeps one piece with 21% of the area"):
+        crop(tet, strength=0.3, random_state=0)

@@ -168,3 +168,89 @@ def test_the_interpolated_lift_does_not_average_across_a_seam(poses):
     e = pa.edges
     longest = np.linalg.norm(P[e[:, 0]] - P[e[:, 1]], axis=1).max()
     assert d.max() < longest  # without the seam rule: 1.55 against 1.00
+
+
+def test_the_errors_of_a_proxy_name_the_way_out():
+    """A proxy size under 100, a mesh in pieces each too small to keep (a triangle soup: 'decimation left no
+    surface') and a proxy map with too few matches said what went wrong, not what to do: each names --proxy 0."""
+    from shape_toolkit.errors import InvalidShapeError
+    from shape_toolkit.plugins.matching.multires import interpolated_map
+
+    rng = np.random.default_rng(0)
+    corners = rng.random((400, 1, 3)) * 5 + rng.random((400, 3, 3)) * 0.1
+    soup = Shape(corners.reshape(-1, 3), np.arange(1200).reshape(-1, 3))
+    with pytest.raises(InvalidShapeError, match=r"left no surface .*--proxy 0"):
+        make_proxy(soup, 100)
+    with pytest.raises(ParameterError, match=r">= 100, got 5 .*--proxy 0"):
+        make_proxy(soup, 5)
+    cloud = Shape(rng.random((50, 3)), None)
+    with pytest.raises(ParameterError, match=r"too few to lift .*--proxy 0"):
+        interpolated_map(cloud, cloud, cloud, cloud, np.r_[[0, 1], np.full(48, -1)])
+
+
+@pytest.mark.parametrize("proxy", ["abc", [300], float("nan"), 150.7, True, -5, 50])
+def test_pipeline_run_refuses_a_bad_proxy_size_before_any_work(proxy):
+    """A string or a list was a TypeError, NaN silently matched at full resolution and 150.7 was cut to 150."""
+    s = Shape(np.random.default_rng(0).random((20, 3)), None)
+    with pytest.raises(ParameterError, match="proxy size must be an integer >= 100"):
+        load_pipeline("zoomout").run(s, s, proxy=proxy)
+
+
+@pytest.mark.parametrize("proxy", [None, 0, False, np.int64(0)])
+def test_pipeline_run_without_a_proxy(proxy, monkeypatch):
+    """None, 0 (and False, a numpy 0) turn the proxy off: the stages run on the shapes themselves."""
+    from shape_toolkit.pipeline import Pipeline
+
+    seen = []
+    monkeypatch.setattr(Pipeline, "_run_stages", lambda self, source, *a: seen.append(source.n_vertices))
+    s = Shape(np.random.default_rng(0).random((20, 3)), None)
+    load_pipeline("zoomout").run(s, s, proxy=proxy)
+    assert seen == [20]
+
+
+@pytest.mark.parametrize("command", ["match", "segment"])
+def test_cli_proxy_under_100_is_refused_by_the_parser(capsys, tmp_path, command):
+    """--proxy 1..99 passed the parser; match then refused it only for shapes large enough to need the proxy."""
+    from helpers import run_cli
+
+    from shape_toolkit.data.generate import icosphere
+    from shape_toolkit.io.mesh import save_shape
+
+    save_shape(icosphere(1), tmp_path / "s.off")  # 42 vertices: no proxy would be made
+    files = [tmp_path / "s.off"] * (2 if command == "match" else 1)
+    code, out, err = run_cli(capsys, command, *files, "--proxy", "50", "-o", tmp_path / "o.txt")
+    assert code == 2 and err.count("\n") == 1 and "0 (no proxy) or an integer >= 100, got 50" in err, err
+
+
+def test_lift_map_refuses_ids_and_proxy_maps_that_are_not_vertex_ids():
+    """An id past the shape was an IndexError; a negative id indexed from the end, fractional ids and proxy-map
+    entries were truncated and a NaN entry cast to a huge negative number ('unmatched'): silently wrong maps."""
+    rng = np.random.default_rng(0)
+    shape = Shape(rng.random((60, 3)), None)
+    ids, pm = np.arange(0, 60, 3), np.arange(20)
+    assert lift_map(shape, shape, ids, ids, pm)[0].shape == (60,)
+    assert lift_map(shape, shape, ids, ids, pm.astype(float))[0].shape == (60,)  # integral floats are ids
+    for bad_ids in (np.r_[ids[:-1], 60], np.r_[ids[:-1], -1], ids + 0.5, ids[:0]):
+        with pytest.raises(ParameterError, match="src_ids"):
+            lift_map(shape, shape, bad_ids, ids, pm)
+    for bad_map in (pm + 0.5, np.r_[pm[:-1], np.nan], np.r_[pm[:-1], -5], pm > 3):
+        with pytest.raises(ParameterError, match="proxy map must give"):
+            lift_map(shape, shape, ids, ids, bad_map)
+
+
+def test_a_partial_map_through_proxies_carries_its_support_to_the_whole():
+    """info['partial']['support'] (where on the whole the part lies, a mask of the whole's vertices) was the
+    target proxy's mask, of its length, next to a map of the full target: carried as the map is, it is the
+    whole's, and holds the part's images."""
+    from shape_toolkit.data.corruptions import crop
+    from shape_toolkit.data.generate import icosphere
+
+    whole = icosphere(3)  # 642 vertices: a proxy of 200
+    part, _ = crop(whole, strength=0.5, random_state=0)
+    m = {"plugin": "fmap-zoomout", "params": {"partial": True, "area_ratio": 0.5, "k": 10, "zoomout_iters": 2}}
+    corr = load_pipeline({"name": "p", "dense": m}).run(part, whole, proxy=200)
+    support = corr.info["partial"]["support"]
+    assert corr.info["proxy"]["proxy_vertices"][1] < whole.n_vertices
+    assert support.shape == (whole.n_vertices,) and support.dtype == bool
+    assert support[corr.target_of].mean() > 0.9 and 0.3 < support.mean() < 0.8, (support[corr.target_of].mean(),
+                                                                                  support.mean())

@@ -258,3 +258,35 @@ def test_orientation_operators_from_a_larger_gradient_frame_are_the_same_bits():
     assert frame.k == 35
     kept = orientation_operators(s, b, 20, desc, frame=frame)
     assert kept.tobytes() == orientation_operators(s, b, 20, desc).tobytes()
+
+
+def test_a_part_smaller_than_the_zoomout_basis_is_matched():
+    """A part (and so its support on the whole) with fewer vertices than the matcher's ``k``: the refinement on
+    the support starts ZoomOut at most at its final size (it began at ``k`` and crashed with a shape mismatch)."""
+    s = icosphere(2)  # 162 vertices
+    cap = s.submesh(np.flatnonzero(s.vertices[:, 2] > 0.85))[0]
+    assert cap.n_vertices < 20
+    m = FmapZoomOutMatcher(partial=True, area_ratios=[0.5], k=20, zoomout_iters=1, hypotheses=[{}])
+    corr = m.match(cap, s)
+    assert corr.n_matched == cap.n_vertices and corr.target_of.max() < s.n_vertices
+    assert corr.info["partial"]["search"]["refined"]  # the refinement ran
+
+
+def test_the_partial_search_refuses_a_cloud_as_the_whole_before_the_candidates():
+    """The search refines each candidate on a submesh of the whole: a point-cloud whole is refused in one line
+    naming the ways out (it failed after every candidate with 'its largest piece needs a triangle mesh')."""
+    s = icosphere(2)
+    cap = s.submesh(np.flatnonzero(s.vertices[:, 2] > 0))[0]
+    m = FmapZoomOutMatcher(partial=True, area_ratios=[0.5], k=10, zoomout_iters=1, hypotheses=[{}])
+    with pytest.raises(InvalidShapeError, match="point cloud: give the whole as a mesh.*area_ratio") as err:
+        m.match(cap, Shape(s.vertices, None))
+    assert "\n" not in str(err.value)
+
+
+def test_a_repeated_candidate_area_ratio_is_matched_once():
+    """area_ratios = [0.5, 0.5]: the second 0.5 was a third candidate, the same map computed again."""
+    s = icosphere(2)
+    cap = s.submesh(np.flatnonzero(s.vertices[:, 2] > 0))[0]
+    m = FmapZoomOutMatcher(partial=True, area_ratios=[0.5, 0.5], k=10, zoomout_iters=1, hypotheses=[{}])
+    rows = m.match(cap, s).info["partial"]["search"]["candidates"]
+    assert len(rows) == 2 and rows[1]["area_ratio"] == 0.5  # the areas' ratio, then 0.5

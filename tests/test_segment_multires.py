@@ -108,3 +108,83 @@ def test_cli_segments_a_large_mesh_through_a_proxy(shapes, capsys, tmp_path, mon
     assert code == 0, err and json.loads(out)["proxy"] is None
     code, out, err = run_cli(capsys, "segment", tmp_path / "big.off", "-k", "5", "--proxy", "10")
     assert code == 2 and err.count("\n") == 1 and "proxy" in err
+
+
+@pytest.mark.parametrize("pairs, match", [
+    ({"must_link": [[0, 10**6]]}, "out of range"),
+    ({"must_link": [[0, -1]]}, "out of range"),
+    ({"cannot_link": [[3, 3]]}, "itself"),
+])
+def test_constraints_through_a_proxy_are_validated_against_the_full_mesh(shapes, pairs, match):
+    """Constraints the segmenter would refuse are refused through the proxy too, as a ConstraintError: an id past
+    the mesh was an IndexError, a negative one indexed from the end and a self-pair passed, silently."""
+    _, big = shapes
+    seg = create_seeded("segmenters", "csc", None, 0, n_segments=4)
+    with pytest.raises(ConstraintError, match=match):
+        segment_through_proxy(seg, big, proxy=600, constraints=Constraints(**pairs))
+
+
+def test_a_cannot_link_the_proxy_must_links_join_is_refused_naming_the_users_pair(shapes):
+    """Valid on the full mesh, contradictory on the proxy: a must-link and a cannot-link whose ends pairwise share
+    a proxy vertex. Refused naming the user's cannot-link and the way out (it was refused naming proxy ids the
+    user never gave, 'pair [0, 5] is both a must-link and a cannot-link')."""
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.plugins.matching.multires import make_proxy
+
+    _, big = shapes
+    ps, ids = make_proxy(big, 600)  # the same proxy as inside (deterministic)
+    nearest = cKDTree(big.vertices[ids]).query(big.vertices)[1]
+    shared = [np.flatnonzero(nearest == p) for p in range(ps.n_vertices)]
+    (a, c), (b, d), (e, f) = [g[:2] for g in shared if len(g) >= 2][:3]
+    seg = create_seeded("segmenters", "csc", None, 0, n_segments=4)
+    for ml, cl in (([[a, b]], [[c, d]]), ([[a, b], [d, e]], [[c, f]])):  # directly, and through a chain
+        with pytest.raises(ConstraintError, match=rf"cannot-link \[{cl[0][0]}, {cl[0][1]}\] .*must-links.*--proxy 0"):
+            segment_through_proxy(seg, big, proxy=600, constraints=Constraints(must_link=ml, cannot_link=cl))
+
+
+def test_empty_constraints_through_a_proxy_report_nothing_as_at_full_resolution(shapes):
+    """An empty constraints file gave info['constraints'] (all zeros) through the proxy and None directly."""
+    small, big = shapes
+    seg = create_seeded("segmenters", "csc", None, 0, n_segments=4)
+    empty = Constraints()
+    assert "constraints" not in seg.segment(small, constraints=empty).info
+    through = segment_through_proxy(seg, big, proxy=600, constraints=empty)
+    assert "constraints" not in through.info and "constraints" not in through.info["proxy"]
+
+
+def test_cli_diagnostics_of_a_proxy_segmentation_are_the_proxys(shapes, capsys, tmp_path, monkeypatch):
+    """segment --json put ncut's cut_labels_ (one per proxy face) in 'diagnostics' beside the mesh's n_faces: they
+    are the fitted segmenter's, on the proxy, so they go with the proxy."""
+    _, big = shapes
+    save_shape(big, tmp_path / "big.off")
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_cli(capsys, "segment", tmp_path / "big.off", "-k", "5", "--proxy", "600", "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["diagnostics"] == {} and res["n_faces"] == big.n_faces
+    cut = res["proxy"]["diagnostics"]["cut_labels_"]
+    assert len(cut) < big.n_faces / 4 and res["proxy"]["proxy_vertices"] < big.n_vertices / 4
+
+
+def test_the_constraint_warning_through_a_proxy_counts_the_users_constraints(shapes):
+    """A must-link whose two ends share a proxy vertex is not passed to the segmenter: its one-line warning said
+    'broke 0 of 0 must-links' (the proxy's counts) while info['constraints'] gave the user's 1."""
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.plugins.matching.multires import make_proxy
+    from shape_toolkit.plugins.segmenters.constraints import ConstraintWarning
+
+    _, big = shapes
+    ps, ids = make_proxy(big, 600)
+    nearest = cKDTree(big.vertices[ids]).query(big.vertices)[1]
+    a, b = next(g[:2] for g in (np.flatnonzero(nearest == p) for p in range(ps.n_vertices)) if len(g) >= 2)
+    seg = create_seeded("segmenters", "csc", None, 0, n_segments=6)
+    free = segment_through_proxy(seg, big, proxy=600).labels
+    part = np.flatnonzero(free == (free[a] + 1) % (free.max() + 1))  # a segment without a or b
+    c = Constraints(must_link=[[a, b]], cannot_link=[[part[0], part[-1]]])  # csc breaks a cannot-link in a segment
+    with pytest.warns(ConstraintWarning) as caught:
+        out = segment_through_proxy(seg, big, proxy=600, constraints=c)
+    said = [str(w.message) for w in caught if issubclass(w.category, ConstraintWarning)]
+    assert len(said) == 1 and "of 1 must-links and 1 of 1 cannot-links" in said[0], said
+    assert out.info["constraints"]["must_link"] == 1 and out.info["proxy"]["constraints"]["must_link"] == 0

@@ -14,10 +14,14 @@ The caches a caller owns (``plugins.matching.orientation.SideCache``) store thei
 
 from __future__ import annotations
 
+import math
+import numbers
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
 from typing import Any
+
+import numpy as np
 
 from shape_toolkit.errors import ParameterError
 
@@ -27,7 +31,7 @@ __all__ = ["LRUCache"]
 def _check_bound(value: Any, what: str) -> None:
     if value is None:
         return
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or not value >= 0:
         raise ParameterError(f"{what} must be None or a non-negative number, got {value!r}")
 
 
@@ -115,14 +119,16 @@ class LRUCache:
     def put(self, key: Hashable, value: Any) -> None:
         """Store ``value`` under ``key`` as the most recently used entry and evict the least recently used
         ones past the bounds; a value costing more than ``max_cost`` on its own is not stored (the others
-        stay)."""
+        stay; a former value under ``key`` goes: it is not the value put)."""
         c = float(self._cost(value)) if self._cost is not None else 0.0
+        if not (math.isfinite(c) and c >= 0):  # a NaN or negative cost would unbound the cache for good
+            raise ParameterError(f"{self.name}: the cost of a value must be a finite number >= 0, got {c!r}")
         with self._lock:
-            if self._max_entries == 0 or (self._max_cost is not None and c > self._max_cost):
-                return
             old = self._data.pop(key, None)
             if old is not None:
                 self._total -= old[1]
+            if self._max_entries == 0 or (self._max_cost is not None and c > self._max_cost):
+                return
             self._data[key] = (value, c)
             self._total += c
             self._evict()

@@ -137,6 +137,14 @@ def count_arg(text: str) -> int:
     return _int_at_least(text, 0, "an integer >= 0")
 
 
+def proxy_arg(text: str) -> int:
+    """argparse ``type=`` for ``--proxy N``: 0 (no proxy) or a vertex count of at least 100 (a proxy's least)."""
+    value = _int_at_least(text, 0, "0 (no proxy) or an integer >= 100")
+    if 0 < value < 100:
+        raise argparse.ArgumentTypeError(f"must be 0 (no proxy) or an integer >= 100, got {value}")
+    return value
+
+
 def number_arg(
     what: str, low: float = -math.inf, high: float = math.inf, *, open_low: bool = False, open_high: bool = False
 ) -> Callable[[str], float]:

@@ -13,9 +13,9 @@ from shape_toolkit.cli.commands._common import (
     check_distinct,
     check_output_path,
     check_ply,
-    count_arg,
     default_output,
     print_json,
+    proxy_arg,
     status,
     write_ply,
 )
@@ -34,9 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"preset ({', '.join(sorted(PRESETS))}) or a .toml spec (default auto: zoomout and "
                         "shells, the map of least ZoomOut residual; zoomout alone is 2.5x faster on isometric pairs)")
     p.add_argument("--seeds", help="seed matches: 'source target' 0-based ids per line")
-    p.add_argument("--proxy", type=count_arg, default=PROXY_VERTICES, metavar="N",
+    p.add_argument("--proxy", type=proxy_arg, default=PROXY_VERTICES, metavar="N",
                    help=f"shapes above 1.5 N vertices are matched through proxies of N vertices and the map lifted "
-                        f"to full resolution (default {PROXY_VERTICES}; 0: always at full resolution)")
+                        f"to full resolution (N >= 100; default {PROXY_VERTICES}; 0: always at full resolution)")
     p.add_argument("-o", "--output", help="map file to write (default SRC_STEM.to-DST_STEM.map.txt)")
     p.add_argument("--ply", metavar="OUT.ply", default=None,
                    help="also write OUT.source.ply and OUT.target.ply: the target coloured by position, "

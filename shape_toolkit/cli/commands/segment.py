@@ -16,12 +16,12 @@ from shape_toolkit.cli.commands._common import (
     check_distinct,
     check_output_path,
     check_ply,
-    count_arg,
     declared_spectra,
     emit,
     parse_params,
     plugin_class,
     positive_int_arg,
+    proxy_arg,
     random_state_arg,
     status,
     write_ply,
@@ -49,9 +49,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--random-state", type=random_state_arg, default=None, help="seed of k-means / GMM (default 0)")
     p.add_argument("--preset", default=None, help="named parameter preset of the method")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="method parameter")
-    p.add_argument("--proxy", type=count_arg, default=PROXY_VERTICES, metavar="N",
+    p.add_argument("--proxy", type=proxy_arg, default=PROXY_VERTICES, metavar="N",
                    help=f"meshes above 1.5 N vertices are segmented through a proxy of N vertices and the labels "
-                        f"carried to every vertex (default {PROXY_VERTICES}, as match; 0: always at full resolution)")
+                        f"carried to every vertex (N >= 100; default {PROXY_VERTICES}, as match; 0: always at full "
+                        "resolution)")
     p.add_argument("-o", "--output", help="labels file (default: SHAPE_STEM.METHOD.labels.txt, "
                    "or .seg with --faces)")
     p.add_argument("--faces", action="store_true",
@@ -132,7 +133,8 @@ def run(args: argparse.Namespace) -> int:
         "method": args.method,
         "params": seg.get_params(deep=False),
         "spectra": used,
-        "proxy": result.info.get("proxy"),
+        # through a proxy the fitted attributes are the proxy's (cut_labels_, sdf_: one per proxy face): kept with it
+        "proxy": {**result.info["proxy"], "diagnostics": _diagnostics(seg)} if through_proxy else None,
         "per": "face" if args.faces else "vertex",
         "n_vertices": shape.n_vertices,
         "n_faces": shape.n_faces,
@@ -140,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
         if constraints is not None else None,
         "segment_sizes": np.bincount(labels).tolist(),
         "info": result.info,
-        "diagnostics": _diagnostics(seg),
+        "diagnostics": {} if through_proxy else _diagnostics(seg),
         "seconds": round(elapsed, 3),
     }
     return emit(args, result, f"{shape!r}: {result['n_segments']} segments by {args.method} -> {out} "

@@ -36,8 +36,10 @@ from shape_toolkit.core.geometry import edge_components, farthest_point_sampling
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.weightings.cotangent import flat_faces
+from shape_toolkit.validation import check_vertex_ids
 
-__all__ = ["PROXY_VERTICES", "make_proxy", "lift_map", "interpolated_map", "on_surface"]
+__all__ = ["PROXY_VERTICES", "check_proxy_size", "make_proxy", "lift_map", "interpolated_map", "on_surface",
+           "values_from_proxy"]
 
 #: vertices of each proxy; shapes up to 1.5x this are matched directly
 PROXY_VERTICES = 5000
@@ -49,6 +51,8 @@ CLUSTER_FIRST = 20
 #: pieces of a proxy holding less than this fraction of its vertices are dropped (their input vertices
 #: are lifted through the nearest kept proxy vertex)
 DEBRIS = 0.05
+#: the way out named by the errors of a proxy
+_FULL_RESOLUTION = "work at full resolution (`--proxy 0`; from Python: run(proxy=0), or the segmenter's segment())"
 
 
 def _canonical(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -64,11 +68,18 @@ def _canonical(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(V, dtype=np.float64)[order], G[np.lexsort(G.T[::-1])].astype(np.int32)
 
 
+def check_proxy_size(n_vertices: object) -> int:
+    """``n_vertices`` as the vertex count of a proxy: an integer >= 100, else a :class:`ParameterError`."""
+    if isinstance(n_vertices, (bool, np.bool_)) or not isinstance(n_vertices, (int, np.integer)) or n_vertices < 100:
+        raise ParameterError(f"the proxy size must be an integer >= 100, got {n_vertices!r} (0 turns the proxy off: "
+                             "`--proxy 0`, or Pipeline.run(proxy=0) from Python)")
+    return int(n_vertices)
+
+
 def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, np.ndarray]:
     """A proxy of about ``n_vertices`` vertices and the input vertex ``(p,)`` of each of its vertices
     (decimation moves no vertex; clouds: farthest-point samples)."""
-    if not isinstance(n_vertices, (int, np.integer)) or n_vertices < 100:
-        raise ParameterError(f"the proxy size must be an integer >= 100, got {n_vertices!r}")
+    n_vertices = check_proxy_size(n_vertices)
     V = np.asarray(shape.vertices, dtype=np.float64)
     if not shape.is_mesh:
         ids = farthest_point_sampling(V, int(n_vertices), ordered=False)
@@ -105,7 +116,7 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
     pv = np.asarray(m.vertex_matrix(), dtype=np.float64)
     pf = np.asarray(m.face_matrix(), dtype=np.int64)
     if len(pf) == 0:
-        raise InvalidShapeError(f"{shape!r}: decimation to {n_vertices} vertices left no face")
+        raise InvalidShapeError(f"{shape!r}: decimation to {n_vertices} vertices left no face; {_FULL_RESOLUTION}")
     ids = np.asarray(cKDTree(V).query(pv)[1], dtype=np.int64)  # exact unless clustered: no vertex moved
     # a proxy the spectra can take: no flat face (the cotangent weights' rule), no vertex on no face,
     # no two proxy vertices on one input vertex
@@ -121,7 +132,8 @@ def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, n
     remap = np.full(len(uniq), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
     if len(used) < 4:
-        raise InvalidShapeError(f"{shape!r}: decimation to {n_vertices} vertices left no surface")
+        raise InvalidShapeError(f"{shape!r}: decimation to {n_vertices} vertices left no surface (every piece under "
+                                f"{DEBRIS:.0%} of it: a triangle soup?); {_FULL_RESOLUTION}")
     return Shape(V[uniq[used]], remap[pf], name=f"{shape.name}-proxy"), uniq[used]
 
 
@@ -136,6 +148,19 @@ def on_surface(points: np.ndarray, mesh: Shape) -> tuple[np.ndarray, np.ndarray,
     w = igl.barycentric_coordinates(closest, *(np.ascontiguousarray(V[tri[:, j]]) for j in range(3)))
     w = np.clip(np.nan_to_num(w, nan=1.0 / 3.0), 0.0, None)  # the closest point lies on its triangle
     return closest, tri, w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+
+
+def values_from_proxy(values: np.ndarray, shape: Shape, proxy: Shape) -> np.ndarray:
+    """Per-vertex ``values`` ``(p, ...)`` of ``proxy`` carried to every vertex of ``shape`` ``(n, ...)``: each takes
+    the value of the nearest corner of its closest point on a mesh proxy (as segment labels are carried), of its
+    nearest proxy point on a cloud one."""
+    from scipy.spatial import cKDTree
+
+    values = np.asarray(values)
+    if proxy.is_mesh:
+        _, tri, w = on_surface(shape.vertices, proxy)
+        return values[tri[np.arange(len(tri)), np.argmax(w, axis=1)]]
+    return values[cKDTree(np.asarray(proxy.vertices, dtype=np.float64)).query(np.asarray(shape.vertices))[1]]
 
 
 def _spread(P: np.ndarray) -> np.ndarray:
@@ -173,13 +198,18 @@ def interpolated_map(source: Shape, target: Shape, source_proxy: Shape, target_p
     nearest matched one."""
     from scipy.spatial import cKDTree
 
-    pm = np.asarray(proxy_map, dtype=np.int64)
-    if pm.shape != (source_proxy.n_vertices,) or (pm.size and pm.max() >= target_proxy.n_vertices):
-        raise ParameterError(f"the proxy map must give one target proxy vertex (< {target_proxy.n_vertices}, or -1) "
-                             f"for each of the {source_proxy.n_vertices} source proxy vertices")
+    raw = np.asarray(proxy_map)
+    integral = raw.dtype.kind in "iu" or (raw.dtype.kind == "f" and bool(np.all(np.isfinite(raw) & (raw % 1 == 0))))
+    pm = raw.astype(np.int64) if integral else raw
+    if (not integral or pm.shape != (source_proxy.n_vertices,)
+            or (pm.size and (pm.max() >= target_proxy.n_vertices or pm.min() < -1))):
+        raise ParameterError(f"the proxy map must give one target proxy vertex (an integer < "
+                             f"{target_proxy.n_vertices}, or -1) for each of the {source_proxy.n_vertices} source "
+                             "proxy vertices")
     ok = np.flatnonzero(pm >= 0)
     if len(ok) < 3:
-        raise ParameterError(f"the proxy map matched {len(ok)} vertices: too few to lift (need 3)")
+        raise ParameterError(f"the proxy map matched {len(ok)} vertices: too few to lift (need 3); "
+                             f"{_FULL_RESOLUTION}")
     Ps, Pt = np.asarray(source_proxy.vertices, dtype=np.float64), np.asarray(target_proxy.vertices, dtype=np.float64)
     if len(ok) < len(pm):
         pm = pm.copy()
@@ -208,7 +238,8 @@ def lift_map(
     ``src_ids`` / ``tgt_ids``: the full vertex of each proxy vertex), interpolated (:func:`interpolated_map`) on the
     ``proxies`` (meshes of those vertices, as :func:`make_proxy` gives them; None: the proxy vertices as clouds).
     Returns the map and an info dict (``lift``: how; ``cpu_seconds``: of the interpolation)."""
-    src_ids, tgt_ids = np.asarray(src_ids, dtype=np.int64), np.asarray(tgt_ids, dtype=np.int64)
+    src_ids = check_vertex_ids(src_ids, source.n_vertices, "src_ids", allow_empty=False)
+    tgt_ids = check_vertex_ids(tgt_ids, target.n_vertices, "tgt_ids", allow_empty=False)
     if proxies is None:
         proxies = (Shape(np.asarray(source.vertices)[src_ids], None, name=f"{source.name}-proxy"),
                    Shape(np.asarray(target.vertices)[tgt_ids], None, name=f"{target.name}-proxy"))

@@ -15,9 +15,11 @@ from typing import Any
 
 import numpy as np
 
+from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError
 from shape_toolkit.plugins.matching.multires import PROXY_VERTICES, make_proxy, on_surface
+from shape_toolkit.plugins.segmenters.constraints import inner_segmentation, report_constraints
 from shape_toolkit.results.labels import ConstraintError, Constraints, constraint_report
 from shape_toolkit.results.segmentation import Segmentation
 
@@ -25,15 +27,23 @@ __all__ = ["segment_through_proxy"]
 
 
 def _proxy_constraints(constraints: Constraints, nearest: np.ndarray) -> Constraints:
-    """``constraints`` moved to the proxy: each vertex to its nearest proxy vertex ``nearest`` ``(n,)``."""
+    """``constraints`` moved to the proxy: each vertex to its nearest proxy vertex ``nearest`` ``(n,)``. A
+    cannot-link whose two ends land on one proxy vertex, or on two that the moved must-links join (transitively),
+    cannot be kept on the proxy: a :class:`ConstraintError` naming the user's pair."""
     ml, cl = nearest[constraints.must_link], nearest[constraints.cannot_link]
-    same = cl[:, 0] == cl[:, 1] if len(cl) else np.zeros(0, dtype=bool)
-    if same.any():
-        i = int(np.flatnonzero(same)[0])
-        raise ConstraintError(
-            f"cannot-link {constraints.cannot_link[i].tolist()} joins two vertices closer than the proxy's spacing "
-            "(one proxy vertex); segment at full resolution (`segment --proxy 0`, or the segmenter's own "
-            "segment()) or click further apart")
+    if len(cl):
+        ends, inv = np.unique(np.concatenate([ml.ravel(), cl.ravel()]), return_inverse=True)
+        _, comp = edge_components(len(ends), inv[: ml.size].reshape(-1, 2))
+        c = comp[inv[ml.size:].reshape(-1, 2)]
+        clash = np.flatnonzero(c[:, 0] == c[:, 1])
+        if clash.size:
+            i = int(clash[0])
+            why = ("joins two vertices closer than the proxy's spacing (one proxy vertex)" if cl[i, 0] == cl[i, 1]
+                   else "joins two vertices that the must-links put in one segment on the proxy (must-link ends "
+                   "closer than the proxy's spacing share a proxy vertex)")
+            raise ConstraintError(
+                f"cannot-link {constraints.cannot_link[i].tolist()} {why}; segment at full resolution "
+                "(`segment --proxy 0`, or the segmenter's own segment()) or click further apart")
     return Constraints(ml[ml[:, 0] != ml[:, 1]] if len(ml) else ml, cl)
 
 
@@ -47,6 +57,8 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
     from shape_toolkit.spectra import compute_declared, declared_specs
 
     shape.require_faces("segmenting through a proxy")
+    if constraints is not None:  # as the segmenter itself would, before its ids index anything
+        constraints.validate(shape.n_vertices)
     ps, ids = make_proxy(shape, proxy)
     pc = None
     if constraints is not None:  # only the constraint vertices need their nearest proxy vertex
@@ -62,11 +74,12 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
         if isinstance(exc, NumericallyDisconnectedGraphError):
             raise
         spectra = None  # a proxy in pieces: the segmenter segments it piece by piece, or raises this itself
-    inner = segmenter.segment(ps, spectrum=spectra, constraints=pc)
+    with inner_segmentation():  # no report (nor warning) in the proxy's counts: the user's constraints get theirs
+        inner = segmenter.segment(ps, spectrum=spectra, constraints=pc)
     info = {k: v for k, v in inner.info.items() if k not in ("constraints", "per")}  # "per": set below
     info["proxy"] = {"proxy_vertices": int(ps.n_vertices), "vertices": int(shape.n_vertices)}
-    if "constraints" in inner.info:  # what the segmenter kept on the proxy: the lift keeps the same
-        info["proxy"]["constraints"] = inner.info["constraints"]
+    if pc is not None and len(pc):  # what the segmenter kept on the proxy: the lift keeps the same
+        info["proxy"]["constraints"] = constraint_report(inner.labels, pc)
     if inner.info.get("per") == "face" and inner.face_labels is not None:
         faces = np.asarray(shape.faces)
         centroids = np.asarray(shape.vertices)[faces].mean(axis=1)
@@ -79,8 +92,9 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
         _, tri, w = on_surface(shape.vertices, ps)
         labels = inner.labels[tri[np.arange(len(tri)), np.argmax(w, axis=1)]]
         out = Segmentation.of_vertices(shape, labels, **info)
-    if constraints is not None:
+    if constraints is not None and len(constraints):  # no pair: nothing to report, as the segmenter's own segment()
         labels = out.labels.copy()  # each constraint vertex: its proxy vertex's label, as the segmenter gave it
         labels[ends] = inner.labels[nearest[ends]]
-        out = Segmentation(labels, out.face_labels, {**out.info, "constraints": constraint_report(labels, constraints)})
+        out = report_constraints(segmenter, Segmentation(labels, out.face_labels, out.info), constraints,
+                                 shape.n_vertices)  # info["constraints"], and the one warning, in the user's counts
     return out

@@ -69,8 +69,11 @@ class IntrinsicDelaunayWeighting(Weighting):
             )
         else:
             if not self.n_neighbors < shape.n_vertices:  # the range that depends on the shape
-                raise ParameterError(
-                    f"n_neighbors must be in [3, {shape.n_vertices - 1}], got {self.n_neighbors}"
+                raise ParameterError(  # the default too: a cloud of 2-30 points is smaller than a neighbourhood
+                    f"{shape!r}: the cloud Laplacian's n_neighbors ({self.n_neighbors}) must be below its number of "
+                    f"points; pass a smaller n_neighbors (at least 3) or give more points"
+                    if shape.n_vertices > 4 else
+                    f"{shape!r}: a point cloud needs at least 5 points for its Laplacian (n_neighbors >= 3 each)"
                 )
             n_distinct = len(np.unique(v, axis=0))
             if n_distinct < shape.n_vertices:  # geometry-central aborts on coincident points
@@ -78,16 +81,26 @@ class IntrinsicDelaunayWeighting(Weighting):
                     f"{shape!r}: {shape.n_vertices - n_distinct} points coincide with others, which a local "
                     "Delaunay triangulation cannot take: merge them first (shape-toolkit clean)"
                 )
-            if self.cloud_neighbors == "all":
-                L, M = robust_laplacian.point_cloud_laplacian(
-                    centred(v), mollify_factor=self.mollify_factor, n_neighbors=self.n_neighbors
-                )
-            else:
-                triangles = local_delaunay_triangles(v, outward_normals(v), self.n_neighbors)
-                L, M = robust_laplacian.mesh_laplacian(
-                    centred(v), np.ascontiguousarray(triangles), mollify_factor=self.mollify_factor
-                )
-                L, M = L / 3.0, M / 3.0  # each triangle is in up to three points' triangulations
+            curve = (f"{shape!r}: its points' neighbourhoods hold no triangle (they lie on lines: a curve, not a "
+                     "surface); the cloud Laplacian needs points sampling a surface")
+            try:  # geometry-central aborts with a RuntimeError on a cloud with no local triangle at all
+                if self.cloud_neighbors == "all":
+                    L, M = robust_laplacian.point_cloud_laplacian(
+                        centred(v), mollify_factor=self.mollify_factor, n_neighbors=self.n_neighbors
+                    )
+                else:
+                    triangles = local_delaunay_triangles(v, outward_normals(v), self.n_neighbors)
+                    if len(triangles) == 0:
+                        raise InvalidShapeError(curve)
+                    L, M = robust_laplacian.mesh_laplacian(
+                        centred(v), np.ascontiguousarray(triangles), mollify_factor=self.mollify_factor
+                    )
+                    L, M = L / 3.0, M / 3.0  # each triangle is in up to three points' triangulations
+            except RuntimeError as exc:  # the library's own words, and the likely cause
+                said = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                raise InvalidShapeError(f"{shape!r}: robust_laplacian's cloud Laplacian failed ({said}); the likely "
+                                        "cause: its points' neighbourhoods hold no triangle (they lie on lines: a "
+                                        "curve, not a surface)") from None
         L = sp.csr_matrix(L)
         W = -(L - sp.diags(L.diagonal()))
         W = sp.csr_matrix((W + W.T) * 0.5)

@@ -24,6 +24,7 @@ from shape_toolkit.core.geometry import farthest_point_sampling
 from shape_toolkit.core.inspect import largest_face_piece
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.errors import InvalidShapeError
 from shape_toolkit.features.basis import (
     Basis,
     SharedPairWork,
@@ -127,7 +128,8 @@ def _refined_on_support(matcher, part: Shape, whole: Shape, bs: Basis, bt: Basis
     bsub = basis_of(matcher.spectrum_spec().compute(sub))
     scale = max(1.0, float(bt.mass[ids].sum()) / ratio)  # the support's area over the part's, common units
     k_final = min(matcher.final_basis_size(), part.n_vertices - 1, sub.n_vertices - 1)
-    C0 = fmap_from_p2p(bs, bsub, start, matcher.k, slanted_size(bs, bsub, matcher.k, scale))
+    k0 = min(matcher.k, k_final)  # a tiny part or support: ZoomOut starts no larger than it ends
+    C0 = fmap_from_p2p(bs, bsub, start, k0, slanted_size(bs, bsub, k0, scale))
     _, T = zoomout(C0, bs, bsub, k_final, matcher.zoomout_step, scale=scale)
     support = np.zeros(whole.n_vertices, dtype=bool)
     support[ids] = True
@@ -144,10 +146,18 @@ def match_over_area_ratios(
     ``info["partial"]["search"]`` records every candidate's ratio and distortion, the refinements' and the choice;
     ``info["partial"]["area_ratio"]`` is the chosen ratio and ``info["partial"]["scale"]`` the whole's length
     units per the part's. What does not depend on the ratio (the bases, the orientation term's gradient frames,
-    the samples) is computed once for every candidate (:class:`~shape_toolkit.features.basis.SharedPairWork`)."""
+    the samples) is computed once for every candidate (:class:`~shape_toolkit.features.basis.SharedPairWork`).
+    The whole ``target`` must be a mesh (the supports are its submeshes)."""
+    if not target.is_mesh:  # before the candidates: each refinement's support is a submesh of the whole
+        raise InvalidShapeError(
+            f"the partial search over area ratios refines each map on a submesh of the whole shape, but the target "
+            f"{target!r} is a point cloud: give the whole as a mesh, or pass the part's share of its area "
+            "(fmap-zoomout with partial = true and area_ratio = R takes clouds)")
     areas = float(np.sum(spec_s.mass)) / float(np.sum(spec_t.mass)) if spec_s.mass is not None else None
     ratios = [min(areas, 1.0)] if areas is not None and 0 < areas <= 1.5 else []
-    ratios += [float(r) for r in matcher.area_ratios if not any(abs(float(r) - q) < 1e-9 for q in ratios)]
+    for r in map(float, matcher.area_ratios):  # each candidate once (a repeated one was matched again)
+        if not any(abs(r - q) < 1e-9 for q in ratios):
+            ratios.append(r)
     samples = farthest_point_sampling(np.asarray(source.vertices), min(DISTORTION_SAMPLES, source.n_vertices))
     dp = geodesic_distances(source, samples, samples, method="dijkstra", cache=False)
     shared = SharedPairWork()
