@@ -184,3 +184,20 @@ def test_canonical_forms_remove_the_pose_and_the_turn(unequal_limbs):
     off = create_plugin("dense_matchers", "best-of", canonical=False).match(a, bt)
     assert "canonical_frame" not in off.info and not any("canonical" in n for n in
                                                          (c["matcher"] for c in off.info["candidates"]))
+
+
+def test_two_clouds_get_the_frame_estimate_and_the_canonical_forms(unequal_limbs):
+    """Point clouds judge orientation with their outward normals and have canonical forms on their local surface
+    (oriented fans), so the shells also run in the intrinsic map's frame and on the canonical forms, as for meshes:
+    the target cloud turned by 120 degrees is aligned."""
+    from shape_toolkit.core.shape import Shape
+
+    a, b = unequal_limbs
+    bt = _turned(b, 120.0)
+    ca, cb = Shape(np.asarray(a.vertices)), Shape(np.asarray(bt.vertices))
+    corr = create_plugin("dense_matchers", "best-of").match(ca, cb)
+    frame = corr.info["estimated_frame"]
+    assert frame["verdict"] == "preserving" and abs(frame["rotation_degrees"] - 120.0) < 10.0
+    names = {c["matcher"] for c in corr.info["candidates"]}
+    assert {"shell-alignment@frame", "shell-alignment@canonical"} <= names and not corr.info["skipped"]
+    assert _error(bt, corr.target_of) < 0.03

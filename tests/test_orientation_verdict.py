@@ -50,14 +50,25 @@ def test_identity_preserves_and_mirror_reverses(poses):
     assert orientation_verdict(pa, _mirror(a), perm)["verdict"] == "reversing"
 
 
-def test_a_random_map_is_undecided_and_clouds_are_not_judged(poses):
+def test_a_random_map_is_undecided(poses):
     a, b = poses
     rnd = np.random.default_rng(0).permutation(b.n_vertices)[: a.n_vertices]
     out = orientation_verdict(a, b, rnd)
     assert out["verdict"] == "undecided" and abs(out["z"]) < 3
-    cloud = Shape(np.asarray(b.vertices))
-    assert orientation_verdict(a, cloud, np.arange(a.n_vertices))["verdict"] == "undecided"
     assert orientation_verdict(a, b, np.full(a.n_vertices, -1))["samples"] == 0
+
+
+def test_clouds_are_judged_with_their_outward_normals(poses):
+    """Point clouds vote with normals signed by visibility: a cloud onto its rotated copy keeps orientation, onto
+    its mirror image reverses it, as the mesh does (and a mesh against a cloud too)."""
+    a, _ = poses
+    ident = np.arange(a.n_vertices)
+    cloud = Shape(np.asarray(a.vertices))
+    keep = orientation_verdict(cloud, Shape(np.asarray(_rotated(a, 0).vertices)), ident)
+    flip = orientation_verdict(cloud, Shape(np.asarray(_mirror(a).vertices)), ident)
+    assert keep["verdict"] == "preserving" and keep["score"] > 0.9
+    assert flip["verdict"] == "reversing" and flip["score"] < -0.9
+    assert orientation_verdict(a, Shape(np.asarray(_mirror(a).vertices)), ident)["verdict"] == "reversing"
 
 
 def test_pipeline_reports_orientation_and_flags_a_mirror(poses):

@@ -28,6 +28,7 @@ from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.geometry import farthest_point_sampling, outward_vertex_normals
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.core.surface import outward_normals
 from shape_toolkit.features.basis import Basis, basis_of
 from shape_toolkit.plugins.matching.descriptors import shared_spectra
 
@@ -36,6 +37,12 @@ __all__ = [
     "fine_matcher", "symmetry_matcher", "SideCache", "symmetry_map", "symmetry_validity", "SideReference",
     "side_reference", "orient_pairs", "side_cache_scope",
 ]
+
+
+def _outward(shape: Shape) -> np.ndarray:
+    """Unit outward normals ``(n, 3)`` of a mesh's vertices, or of a point cloud's points (PCA normals signed by
+    visibility: :func:`~shape_toolkit.core.surface.outward_normals`, computed once per cloud)."""
+    return outward_vertex_normals(shape) if shape.is_mesh else outward_normals(shape.vertices)
 
 
 def orientation_votes(
@@ -51,8 +58,8 @@ def orientation_votes(
 
     Ps = np.asarray(source.vertices, dtype=np.float64)[p[:, 0]]
     Pt = np.asarray(target.vertices, dtype=np.float64)[p[:, 1]]
-    Ns = outward_vertex_normals(source)[p[:, 0]]
-    Nt = outward_vertex_normals(target)[p[:, 1]]
+    Ns = _outward(source)[p[:, 0]]
+    Nt = _outward(target)[p[:, 1]]
     kk = int(min(n_neighbors, q - 1))
     _, nb = cKDTree(Ps).query(Ps, k=kk + 1)
     nb = np.asarray(nb).reshape(q, kk + 1)[:, 1:]
@@ -107,12 +114,13 @@ def orientation_verdict(
     that mean over its standard error (weighted, Kish's effective sample size). The verdict is
     ``preserving`` or ``reversing`` when ``|z| >= ORIENTATION_Z`` (3), else ``undecided``: a mirror image
     (left and right swapped) is never reported as a sound map. A map that swaps left and right *and*
-    front and back (a half turn) keeps orientation, so this test does not see it. Point clouds
-    (no outward normals) and maps of fewer than 4 matches are ``undecided``."""
+    front and back (a half turn) keeps orientation, so this test does not see it. Point clouds vote with
+    their outward normals (:func:`~shape_toolkit.core.surface.outward_normals`); maps of fewer than 4 matches
+    are ``undecided``."""
     t = np.asarray(target_of, dtype=np.int64).ravel()
     out: dict[str, Any] = {"verdict": "undecided", "score": 0.0, "z": 0.0, "samples": 0}
     matched = np.flatnonzero(t >= 0)
-    if not (source.is_mesh and target.is_mesh) or len(matched) < 4:
+    if len(matched) < 4:
         return out
     rows = matched[farthest_point_sampling(np.asarray(source.vertices)[matched], min(n_samples, len(matched)))]
     vote, w = orientation_votes(source, target, np.column_stack([rows, t[rows]]), n_neighbors)

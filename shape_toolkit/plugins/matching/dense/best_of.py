@@ -24,6 +24,13 @@ of all earlier ones): gorillas to men 0.212 -> 0.172 (6 pairs), dogs 0.0250 -> 0
 unchanged (0.0547 -> 0.0546, 15 pairs), glued dogs 0.0398 -> 0.0368, glued FAUST unchanged (6 pairs
 simulated); about 1 s CPU more at 5k (0.2 s the two forms, then one shells run and one polish).
 
+Point clouds take both steps too: they judge orientation with their outward normals (signed by visibility), and
+their canonical forms are taken on their local surface (:func:`~shape_toolkit.core.surface.cloud_surface`: each
+point's oriented fan of neighbours, whose edges carry the geodesics and whose orientation picks the mirror). On
+the tuning half's vertex clouds (6 dog pairs, 10 FAUST pairs of people 0-1, noise 0 and 0.5 %) this took the
+mean error from 0.048 / 0.080 to 0.041 / 0.051 on dogs and from 0.074 / 0.130 to 0.046 / 0.097 on FAUST (the
+frame estimate alone: 0.041 / 0.060 and 0.052 / 0.108), for 1-2 s CPU more per pair.
+
 Why the residual: the point map of a sound correspondence is, to a good approximation, the point map of a
 smooth functional map in the first eigenfunctions (it is what ZoomOut converges to); a part sent to the wrong
 place, or a map that folds a limb, leaves energy that no ``k x k`` functional map explains. On the tuning half
@@ -44,6 +51,7 @@ from shape_toolkit.api.params import InstanceOf, Interval, ListOf, Param
 from shape_toolkit.core.geometry import rigid_rotation
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.core.surface import cloud_surface
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.features.basis import Basis, basis_of, fmap_from_p2p, zoomout, zoomout_residual
 from shape_toolkit.features.canonical import canonical_form
@@ -201,7 +209,7 @@ class BestOfMatcher(DenseMatcher):
                     consider(f"{label}+zoomout", self._polished(corr, bps, bpt, seeds))
         canon: dict[str, Any] = {}
         extrinsic = [(name, m) for name, m in order if getattr(m, "extrinsic", False)]
-        if self.canonical and extrinsic and best is not None and source.is_mesh and target.is_mesh:
+        if self.canonical and extrinsic and best is not None:
             try:
                 pair, canon = self._canonical(source, target, np.asarray(best[2].target_of), bs.mass, best[1])
             except InvalidShapeError as exc:  # e.g. a shape in several pieces
@@ -250,7 +258,7 @@ class BestOfMatcher(DenseMatcher):
         ok = np.flatnonzero(t >= 0)
         if len(ok) < 3:
             raise InvalidShapeError("canonical forms: the best map so far matches fewer than 3 vertices")
-        Ys, Yt = canonical_form(source), canonical_form(target)
+        Ys, Yt = canonical_form(cloud_surface(source)), canonical_form(cloud_surface(target))
         R = rigid_rotation(Ys[ok], Yt[t[ok]], mass[ok])
         return ((source.with_vertices(Ys @ R.T), target.with_vertices(Yt)),
                 {"from": name, "rotation_degrees": _degrees(R)})
