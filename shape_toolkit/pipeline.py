@@ -299,7 +299,8 @@ class Pipeline:
         receives them and picks the one it declares. ``info['spectra']`` records, per stage, the
         spectra each stage declared and received; ``info['orientation']`` whether the final map keeps
         orientation (:func:`~shape_toolkit.plugins.matching.orientation.orientation_verdict`: ``preserving``,
-        ``reversing`` for a mirror image, or ``undecided``). ``progress(message)`` hears each stage, and the
+        ``reversing`` for a mirror image, or ``undecided``; two clouds matched through proxies: the proxies'
+        verdict, with ``"on": "proxies"``). ``progress(message)`` hears each stage, and the
         messages of the dense matchers (their ``match``'s ``progress``). Shapes of more
         than 1.5 ``proxy`` vertices (None or 0: never) are matched through proxies of ``proxy`` vertices
         and the map lifted to full resolution (:mod:`~shape_toolkit.plugins.matching.multires`;
@@ -437,7 +438,10 @@ class Pipeline:
         if isinstance(info.get("partial"), dict) and "support" in info["partial"] and ids_t.size != target.n_vertices:
             # the part's support is a mask of the target proxy's vertices: carried to the target's, as the map is
             info["partial"] = {**info["partial"], "support": values_from_proxy(info["partial"]["support"], target, pt)}
-        info["orientation"] = orientation_verdict(source, target, full)
+        if source.is_mesh and target.is_mesh:
+            info["orientation"] = orientation_verdict(source, target, full)
+        else:  # a full cloud's outward normals cost ~n log n per view (40 s at 245k points): the proxies' verdict
+            info["orientation"] = {**(inner.info.get("orientation") or {}), "on": "proxies"}
         timings = {"proxies": t_proxy, **{f"proxy {k}": v for k, v in inner.info.get("timings", {}).items()},
                    "lift": t_lift}
         info["cpu_timings"] = {"proxies": c_proxy,

@@ -95,6 +95,15 @@ def test_a_large_pair_is_matched_through_proxies_and_lifted(poses):
     assert sum(corr.info["proxy"]["cpu_seconds"].values()) <= cpu["lift"] + 1e-3
 
 
+def test_two_large_clouds_report_the_proxies_orientation(poses):
+    """Through proxies, two clouds are judged on the proxies (a full cloud's outward normals cost minutes at
+    10^6 points), and the verdict says so."""
+    a, b = (Shape(s.vertices, None, "cloud") for s in poses)
+    corr = load_pipeline("zoomout").run(a, b, proxy=2000)
+    assert corr.info["orientation"]["on"] == "proxies"
+    assert corr.info["orientation"]["verdict"] == corr.info["proxy"]["proxy_orientation"]["verdict"] == "preserving"
+
+
 def test_seeds_are_carried_to_the_proxies(poses):
     a, b = poses
     seeds = np.array([[i, i] for i in range(0, a.n_vertices, a.n_vertices // 6)])
