@@ -81,8 +81,7 @@ class IntrinsicDelaunayWeighting(Weighting):
                     f"{shape!r}: {shape.n_vertices - n_distinct} points coincide with others, which a local "
                     "Delaunay triangulation cannot take: merge them first (shape-toolkit clean)"
                 )
-            curve = (f"{shape!r}: its points' neighbourhoods hold no triangle (they lie on lines: a curve, not a "
-                     "surface); the cloud Laplacian needs points sampling a surface")
+            no_triangle = "its points' neighbourhoods hold no triangle (they lie on lines: a curve, not a surface)"
             try:  # geometry-central aborts with a RuntimeError on a cloud with no local triangle at all
                 if self.cloud_neighbors == "all":
                     L, M = robust_laplacian.point_cloud_laplacian(
@@ -91,7 +90,8 @@ class IntrinsicDelaunayWeighting(Weighting):
                 else:
                     triangles = local_delaunay_triangles(v, outward_normals(v), self.n_neighbors)
                     if len(triangles) == 0:
-                        raise InvalidShapeError(curve)
+                        raise InvalidShapeError(f"{shape!r}: {no_triangle}; the cloud Laplacian needs points "
+                                                "sampling a surface")
                     L, M = robust_laplacian.mesh_laplacian(
                         centred(v), np.ascontiguousarray(triangles), mollify_factor=self.mollify_factor
                     )
@@ -99,8 +99,7 @@ class IntrinsicDelaunayWeighting(Weighting):
             except RuntimeError as exc:  # the library's own words, and the likely cause
                 said = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                 raise InvalidShapeError(f"{shape!r}: robust_laplacian's cloud Laplacian failed ({said}); the likely "
-                                        "cause: its points' neighbourhoods hold no triangle (they lie on lines: a "
-                                        "curve, not a surface)") from None
+                                        f"cause: {no_triangle}") from None
         L = sp.csr_matrix(L)
         W = -(L - sp.diags(L.diagonal()))
         W = sp.csr_matrix((W + W.T) * 0.5)
