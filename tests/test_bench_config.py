@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import textwrap
 
+import numpy as np
 import pytest
 from helpers import spectrum_config
 
@@ -309,3 +310,26 @@ def test_cli_refuses_a_bad_composed_corruption_in_one_line(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "corruptions[2].steps[1].kind" in err and "melt" in err
     assert not (tmp_path / "run").exists()
 
+
+def test_a_synthetic_pair_item_names_any_two_poses(tmp_path):
+    """``items = ["pose0-pose2"]`` pairs pose 0 with pose 2 (named as TOSCA's pairs); ``pose1`` is still
+    pose 1 -> pose 2; a pose the dataset lacks is refused naming the item."""
+    from shape_toolkit.data.datasets import load_item
+    from shape_toolkit.data.synthetic import synthetic_dataset
+
+    text = BASE.replace("n_poses = 2, subdivisions = 2", "n_poses = 3, subdivisions = 2, random_state = 5")
+    text = text.replace('kind = "synthetic"', 'kind = "synthetic"\nitems = ["pose0-pose2", "pose1", "pose2-pose0"]')
+    refs = load_config(_write(tmp_path, text)).datasets["synth"].refs
+    assert [r.name for r in refs] == ["pose0-pose2", "pose1", "pose2-pose0"]
+    poses = synthetic_dataset(n_poses=3, subdivisions=2, random_state=5)
+    for ref, (i, j) in zip(refs, [(0, 2), (1, 2), (2, 0)]):
+        item = load_item(ref)
+        np.testing.assert_array_equal(item.shape.vertices, poses[i].shape.vertices)
+        np.testing.assert_array_equal(item.target.vertices, poses[j].shape.vertices)
+        np.testing.assert_array_equal(item.target.colors, poses[j].colors)
+        np.testing.assert_array_equal(item.correspondence[:, 0], item.correspondence[:, 1])
+    assert not np.array_equal(poses[1].shape.vertices, poses[2].shape.vertices)  # the poses differ
+    for bad in ("pose0-pose3", "pose1-pose1", "pose0_pose2", "pose7"):
+        with pytest.raises(ConfigError) as ei:
+            load_config(_write(tmp_path, text.replace('"pose2-pose0"', f'"{bad}"')))
+        assert ei.value.key == "datasets[0].items[2]" and "pose0-pose2" in str(ei.value), str(ei.value)

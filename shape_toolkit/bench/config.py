@@ -19,7 +19,8 @@ without groups or a half left empty is refused before any work, naming the key.
     kind = "psb"               # tosca | psb | folder | synthetic | sequence
     path = "psb"               # absolute, or relative to $TOOLKIT_DATA (else to the config's folder)
     limit = 4                  # optional: first N items
-    items = ["cat0-cat1"]      # optional: these items only, in this order (before limit)
+    items = ["cat0-cat1"]      # optional: these items only, in this order (before limit); a pair is
+                               # "SOURCE-TARGET" (synthetic: any "poseI-poseJ", e.g. "pose0-pose2")
     params = {}                # kind-specific (synthetic: n_poses, subdivisions, max_angle; sequence:
                                # seeds, frames, subdivisions, remesh, merge_frames, max_angle, permute)
 
@@ -895,7 +896,7 @@ def split_line(split: dict[str, Any] | None) -> str | None:
 
 def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dict[str, DatasetSpec]:
     """Every ``[[datasets]]`` entry checked and its items listed."""
-    from shape_toolkit.data.datasets import DATASET_KINDS, GENERATED_KINDS, open_dataset
+    from shape_toolkit.data.datasets import DATASET_KINDS, GENERATED_KINDS, find_item, open_dataset
 
     if not isinstance(raw, list) or not raw:
         raise ConfigError("datasets", "must be a non-empty array of tables ([[datasets]])")
@@ -942,15 +943,16 @@ def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dic
         if not refs:
             raise ConfigError(f"{w}.path", f"no items found in {path}")
         if "items" in d:  # a declared selection of items, in the given order
-            by_name = {r.name: r for r in refs}
             chosen = _names(d["items"], f"{w}.items", "item names")
+            picked = []
             for j, it in enumerate(chosen):
-                if it not in by_name:
-                    raise ConfigError(f"{w}.items[{j}]",
-                                      f"no item {it!r} in the dataset; e.g. {', '.join(list(by_name)[:5])}")
+                try:
+                    picked.append(find_item(kind, refs, it))
+                except ParameterError as exc:
+                    raise ConfigError(f"{w}.items[{j}]", str(exc)) from None
             if len(set(chosen)) != len(chosen):
                 raise ConfigError(f"{w}.items", "lists an item twice")
-            refs = [by_name[it] for it in chosen]
+            refs = picked
         datasets[dname] = DatasetSpec(dname, kind, path, limit, dict(params), tuple(refs))
     return datasets
 
