@@ -274,6 +274,12 @@ def test_composed_corruptions_expand_every_step_grid_and_name_their_steps(tmp_pa
     assert c.kind == "glue+color-noise" and c.group == "glued-noisy"
     assert c.params == {"steps": [{"strength": 6}, {"strength": 0.1, "gain": 0.9}]}
     assert [x.strength for x in task.corruptions] == [0.0, 0.05, 0.1, 0.1, 0.2]  # the swept step's strength
+    one = COMPOSED.replace('} }, { kind = "glue" }]', "} }]")
+    one = one.replace('"gaussian-noise+glue"]', '"gaussian-noise"]')
+    (task,) = load_config(_write(tmp_path, one)).tasks  # one step is the corruption itself, named as one
+    assert [(c.name, c.kind, c.params) for c in task.corruptions[3:]] == [
+        ("gaussian-noise[strength=0.1]", "gaussian-noise", {"strength": 0.1}),
+        ("gaussian-noise[strength=0.2]", "gaussian-noise", {"strength": 0.2})]
 
 
 @pytest.mark.parametrize(
