@@ -297,8 +297,9 @@ def find_item(kind: str, refs: list[ItemRef] | tuple[ItemRef, ...], name: str) -
         n = int(base["n_poses"])
         if m and int(m[1]) != int(m[2]) and max(int(m[1]), int(m[2])) < n:
             return ItemRef("synthetic", name, {}, {**base, "index": int(m[1]), "target_index": int(m[2])})
+        pairs = f" or a pair of two of its {n} poses, e.g. pose0-pose{min(2, n - 1)}" if n > 1 else ""
         raise ParameterError(f"no item {name!r} in the dataset: its items are pose0 ... pose{n - 1} (pose i -> "
-                             f"i + 1) or a pair of two of its {n} poses, e.g. pose0-pose{min(2, n - 1)}")
+                             f"i + 1){pairs}")
     raise ParameterError(f"no item {name!r} in the dataset; e.g. {', '.join(r.name for r in list(refs)[:5])}")
 
 
