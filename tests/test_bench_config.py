@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import textwrap
 
+import numpy as np
 import pytest
 from helpers import spectrum_config
 
@@ -252,3 +253,89 @@ def test_peer_errors_name_the_key(tmp_path, method, key, problem):
                        'params = { n_segments = [3, 6] }', 'peer = "pyfm"')
     with pytest.raises(ConfigError, match="peers are matching methods"):
         load_config(_write(tmp_path, seg, "seg.toml"))
+
+
+COMPOSED = BASE.replace('''[[tasks]]''', '''[[corruptions]]
+name = "glued-noisy"
+steps = [{ kind = "glue", params = { strength = 6 } },
+         { kind = "color-noise", params = { strength = [0.05, 0.1], gain = 0.9 } }]
+[[corruptions]]
+steps = [{ kind = "gaussian-noise", params = { strength = [0.1, 0.2] } }, { kind = "glue" }]
+[[tasks]]''').replace('corruptions = ["none", "noise"]',
+                      'corruptions = ["none", "glued-noisy", "gaussian-noise+glue"]')
+
+
+def test_composed_corruptions_expand_every_step_grid_and_name_their_steps(tmp_path):
+    (task,) = load_config(_write(tmp_path, COMPOSED)).tasks
+    assert [c.name for c in task.corruptions] == [
+        "none", "glued-noisy[glue:6+color-noise:0.05]", "glued-noisy[glue:6+color-noise:0.1]",
+        "gaussian-noise:0.1+glue:4", "gaussian-noise:0.2+glue:4"]  # unnamed: the steps; glue's default strength
+    c = task.corruptions[2]
+    assert c.kind == "glue+color-noise" and c.group == "glued-noisy"
+    assert c.params == {"steps": [{"strength": 6}, {"strength": 0.1, "gain": 0.9}]}
+    assert [x.strength for x in task.corruptions] == [0.0, 0.05, 0.1, 0.1, 0.2]  # the swept step's strength
+    one = COMPOSED.replace('} }, { kind = "glue" }]', "} }]")
+    one = one.replace('"gaussian-noise+glue"]', '"gaussian-noise"]')
+    (task,) = load_config(_write(tmp_path, one)).tasks  # one step is the corruption itself, named as one
+    assert [(c.name, c.kind, c.params) for c in task.corruptions[3:]] == [
+        ("gaussian-noise[strength=0.1]", "gaussian-noise", {"strength": 0.1}),
+        ("gaussian-noise[strength=0.2]", "gaussian-noise", {"strength": 0.2})]
+
+
+@pytest.mark.parametrize(
+    "steps,key,problem",
+    [
+        ('[{ kind = "glue" }, { kind = "melt" }]', "corruptions[2].steps[1].kind", "unknown corruption 'melt'"),
+        ("[]", "corruptions[2].steps", "non-empty array"),
+        ('"glue"', "corruptions[2].steps", "non-empty array"),
+        ('["glue"]', "corruptions[2].steps[0]", "must be a table"),
+        ('[{ kind = "glue", params = { sigma = 1 } }, { kind = "scale" }]', "corruptions[2].steps[0].params.sigma",
+         "no such parameter"),
+        ('[{ kind = "glue", params = { strength = "x" } }, { kind = "scale" }]',
+         "corruptions[2].steps[0].params.strength", "finite number"),
+        ('[{ kind = "glue", seed = 1 }, { kind = "scale" }]', "corruptions[2].steps[0].seed", "unknown key"),
+        ('[{ params = {} }, { kind = "scale" }]', "corruptions[2].steps[0].kind", "is required"),
+    ],
+)
+def test_bad_composed_corruptions_name_the_key(tmp_path, steps, key, problem):
+    text = COMPOSED.replace('steps = [{ kind = "gaussian-noise", params = { strength = [0.1, 0.2] } }, '
+                            '{ kind = "glue" }]', f"steps = {steps}")
+    with pytest.raises(ConfigError) as ei:
+        load_config(_write(tmp_path, text))
+    assert ei.value.key == key and problem in str(ei.value), str(ei.value)
+    with pytest.raises(ConfigError) as ei:  # kind and steps together
+        both = COMPOSED.replace('name = "glued-noisy"\n', 'name = "glued-noisy"\nkind = "glue"\n')
+        load_config(_write(tmp_path, both))
+    assert ei.value.key == "corruptions[1].kind" and "steps" in str(ei.value)
+
+
+def test_cli_refuses_a_bad_composed_corruption_in_one_line(tmp_path, capsys):
+    cfg = _write(tmp_path, COMPOSED.replace('{ kind = "glue" }]', '{ kind = "melt" }]'))
+    assert main(["bench", "run", str(cfg), "-o", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "corruptions[2].steps[1].kind" in err and "melt" in err
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_synthetic_pair_item_names_any_two_poses(tmp_path):
+    """``items = ["pose0-pose2"]`` pairs pose 0 with pose 2 (named as TOSCA's pairs); ``pose1`` is still
+    pose 1 -> pose 2; a pose the dataset lacks is refused naming the item."""
+    from shape_toolkit.data.datasets import load_item
+    from shape_toolkit.data.synthetic import synthetic_dataset
+
+    text = BASE.replace("n_poses = 2, subdivisions = 2", "n_poses = 3, subdivisions = 2, random_state = 5")
+    text = text.replace('kind = "synthetic"', 'kind = "synthetic"\nitems = ["pose0-pose2", "pose1", "pose2-pose0"]')
+    refs = load_config(_write(tmp_path, text)).datasets["synth"].refs
+    assert [r.name for r in refs] == ["pose0-pose2", "pose1", "pose2-pose0"]
+    poses = synthetic_dataset(n_poses=3, subdivisions=2, random_state=5)
+    for ref, (i, j) in zip(refs, [(0, 2), (1, 2), (2, 0)]):
+        item = load_item(ref)
+        np.testing.assert_array_equal(item.shape.vertices, poses[i].shape.vertices)
+        np.testing.assert_array_equal(item.target.vertices, poses[j].shape.vertices)
+        np.testing.assert_array_equal(item.target.colors, poses[j].colors)
+        np.testing.assert_array_equal(item.correspondence[:, 0], item.correspondence[:, 1])
+    assert not np.array_equal(poses[1].shape.vertices, poses[2].shape.vertices)  # the poses differ
+    for bad in ("pose0-pose3", "pose1-pose1", "pose0_pose2", "pose7"):
+        with pytest.raises(ConfigError) as ei:
+            load_config(_write(tmp_path, text.replace('"pose2-pose0"', f'"{bad}"')))
+        assert ei.value.key == "datasets[0].items[2]" and "pose0-pose2" in str(ei.value), str(ei.value)

@@ -492,3 +492,59 @@ def test_the_soft_transfer_alone_gets_a_per_category_table():
     assert g is not None and "soft_label_recall" in g.title
     (_, cells), = g.rows
     assert cells[0][0] == 0.75 and cells[1][0] == 0.25 and cells[2][0] == 0.5  # cat, wolf, mean of categories
+
+
+def test_a_composed_corruption_scored_on_the_clean_target_equals_a_hand_composed_run(tmp_path, monkeypatch):
+    """Two steps (drop and shuffle vertices, then move them by Gaussian noise), each with its own seed from the
+    corruption's: the runner's error on the clean target equals the one of the same steps applied by hand, the
+    nearest-vertex map composed through both back-maps and measured along the clean mesh's edges."""
+    from shape_toolkit.bench import peers
+    from shape_toolkit.data import corruptions
+    from shape_toolkit.data.corruptions import gaussian_noise, step_seeds
+
+    def nearest(source, target):
+        return cKDTree(target.vertices).query(source.vertices)[1]
+
+    monkeypatch.setitem(corruptions.CORRUPTIONS, "shuffle", _shuffle_and_drop)
+    monkeypatch.setitem(peers.PEERS, "nearest", (nearest, "numpy", "numpy"))
+    shape = icosphere(2)
+    folder = _pair_folder(tmp_path / "pair", shape, {})
+    corr = ('[[corruptions]]\nname = "moved"\nseed = 5\nsteps = [{ kind = "shuffle", params = { strength = 0.2 } }, '
+            '{ kind = "gaussian-noise", params = { strength = [0.3, 0.6] } }]\n')
+    cfg = _config(folder, '[[tasks.methods]]\npeer = "nearest"\n',
+                  options='geodesic_method = "dijkstra", truth_sample = 100000, score_on = "clean"',
+                  corruptions=corr, task_corruptions='corruptions = ["moved"]')
+    run_benchmark(parse_config(cfg), tmp_path / "run", progress=False)
+    rows = sorted(read_rows(tmp_path / "run"), key=lambda r: r["strength"])
+    assert [r["corruption"] for r in rows] == ["moved[shuffle:0.2+gaussian-noise:0.3]",
+                                               "moved[shuffle:0.2+gaussian-noise:0.6]"]
+    s1, s2 = step_seeds(5, 2)
+    dropped, m1 = _shuffle_and_drop(shape, strength=0.2, random_state=s1)
+    geo = _edge_distances(shape, np.arange(shape.n_vertices))
+    for r, sigma in zip(rows, (0.3, 0.6)):
+        assert r["status"] == "ok", r.get("error")
+        assert r["corruption_kind"] == "shuffle+gaussian-noise" and r["corruption_seed"] == 5
+        moved, m2 = gaussian_noise(dropped, strength=sigma, random_state=s2)
+        t = m1[m2][nearest(shape, moved)]  # the map onto the clean target, by hand
+        want = geo[np.arange(shape.n_vertices), t] / np.sqrt(shape.area)
+        assert want.mean() > 0.01  # the noise moved the vertices: the map is not exact
+        assert r["metrics"]["mean_geodesic_error"] == pytest.approx(want.mean(), rel=1e-5)
+        assert r["metrics"]["matched_fraction"] == 1.0
+        assert r["n_vertices"] == dropped.n_vertices < shape.n_vertices
+
+
+def test_a_step_the_shape_refuses_fails_its_rows_with_one_typed_line(tmp_path):
+    """Colour noise on a target without colours: every row of that corruption fails with the step's typed
+    error, one line naming the step; the run goes on with the other corruptions."""
+    folder = _pair_folder(tmp_path / "pair", icosphere(1), {"ident": np.arange(42)})
+    corr = ('[[corruptions]]\nname = "noisy"\nsteps = [{ kind = "gaussian-noise" }, '
+            '{ kind = "color-noise", params = { strength = 0.1 } }]\n')
+    cfg = _config(folder, '[[tasks.methods]]\npipeline = "zoomout"\n', corruptions=corr,
+                  task_corruptions='corruptions = ["none", "noisy"]')
+    run_benchmark(parse_config(cfg), tmp_path / "run", progress=False)
+    rows = {r["corruption"]: r for r in read_rows(tmp_path / "run")}
+    assert rows["none"]["status"] == "ok"
+    bad = rows["noisy[gaussian-noise:0.1+color-noise:0.1]"]
+    assert bad["status"] == "failed" and len(bad["error"].splitlines()) == 1
+    assert ("InvalidShapeError: step 2 of 2 of 'gaussian-noise+color-noise' (color-noise):" in bad["error"]
+            and "no vertex colours" in bad["error"]), bad["error"]

@@ -13,6 +13,7 @@ from shape_toolkit.data.corruptions import (
     apply_corruption,
     carry_correspondence,
     carry_labels,
+    compose_vertex_maps,
     crop,
     gaussian_noise,
     holes,
@@ -23,6 +24,7 @@ from shape_toolkit.data.corruptions import (
     rigid_motion,
     shortcut,
     shot_noise,
+    step_seeds,
 )
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.data.synthetic import articulated_shape
@@ -346,3 +348,37 @@ def test_crop_of_a_mesh_too_coarse_to_cut_finely_is_refused():
                 np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
     with pytest.raises(InvalidShapeError, match="keeps one piece with 21% of the area"):
         crop(tet, strength=0.3, random_state=0)
+
+
+def test_a_composed_corruption_maps_through_both_steps(body):
+    """``holes+micro-holes``: each step with its own seed from the chain's, and the chain's map equals the
+    second step's map read through the first's (every kept vertex is at its original's place)."""
+    s, _ = body
+    seeds = step_seeds(3, 2)
+    assert len(set(seeds)) == 2 and 3 not in seeds and step_seeds(3, 2) == seeds  # own streams, deterministic
+    out, vm = apply_corruption(s, "holes+micro-holes", random_state=3,
+                               steps=[{"strength": 2, "radius": 0.08}, {"strength": 0.05}])
+    a, m1 = holes(s, strength=2, radius=0.08, random_state=seeds[0])
+    b, m2 = micro_holes(a, strength=0.05, random_state=seeds[1])
+    np.testing.assert_array_equal(vm, m1[m2])
+    np.testing.assert_array_equal(out.vertices, b.vertices)
+    np.testing.assert_array_equal(out.vertices, s.vertices[vm])
+    assert out.n_vertices < a.n_vertices < s.n_vertices  # both steps removed vertices
+    assert not np.array_equal(vm, m1[: len(vm)])  # not the first map alone
+    np.testing.assert_array_equal(compose_vertex_maps(np.array([4, 5, 6]), np.array([2, -1, 0])), [6, -1, 4])
+    assert compose_vertex_maps(np.array([4, -1]), np.array([1, 0])).tolist() == [-1, 4]
+
+
+def test_a_composed_corruption_names_the_step_that_failed(body):
+    s, _ = body
+    with pytest.raises(InvalidShapeError, match=r"step 2 of 2 of 'gaussian-noise\+color-noise' \(color-noise\): "
+                                                r".*no vertex colours"):
+        apply_corruption(s, "gaussian-noise+color-noise", steps=[{}, {"strength": 0.1}])
+    with pytest.raises(ParameterError, match=r"step 1 of 2 .*strength must be in"):
+        apply_corruption(s, "glue+gaussian-noise", steps=[{"strength": -1}, {}])
+    with pytest.raises(ParameterError, match="unknown step 'melt'"):
+        apply_corruption(s, "glue+melt", steps=[{}, {}])
+    with pytest.raises(ParameterError, match="takes steps = a list of 2 parameter tables"):
+        apply_corruption(s, "glue+gaussian-noise", steps=[{}])
+    with pytest.raises(ParameterError, match="takes steps"):
+        apply_corruption(s, "glue+gaussian-noise", strength=1)

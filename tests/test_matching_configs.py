@@ -13,10 +13,13 @@ CONFIGS = Path(__file__).resolve().parent.parent / "benchmarks" / "configs"
 
 
 def test_photometric_seeds_config_plans_its_rows():
-    """Generated data only, 5 seeds: (clean + 3 glue strengths + 3 colour noises) x 3 sparse matchers, (clean + 3
-    glue strengths) x 4 dense methods, 3 colour noises x the colour-seeded chain."""
+    """Generated data only, 5 seeds x 2 pairs (pose 1 -> 2, pose 0 -> 2): (clean + 3 glue strengths + 3 colour
+    noises + 3 glue strengths then colour noise) x 3 sparse matchers, (clean + 3 glue strengths) x 4 dense methods,
+    (3 colour noises + 3 glued noisy) x the colour-seeded chain."""
     cfg = load_config(CONFIGS / "photometric_seeds.toml")
-    assert cfg.planned_rows == 5 * (7 * 3 + 4 * 4 + 3)
+    assert cfg.planned_rows == 5 * 2 * (10 * 3 + 4 * 4 + 6)
+    assert all([r.name for r in d.refs] == ["pose1", "pose0-pose2"] for d in cfg.datasets.values())
+    assert all([r.params.get("target_index") for r in d.refs] == [None, 2] for d in cfg.datasets.values())
     seeds, dense, colours = cfg.tasks
     assert all(t.options["score_on"] == "clean" for t in cfg.tasks)
     assert {m.method_label.split("(")[0] for m in seeds.methods} == {"photometric", "photometric-norefine",
@@ -24,7 +27,10 @@ def test_photometric_seeds_config_plans_its_rows():
     assert all(m.keypoints is not None for m in seeds.methods)
     assert {m.method_label for m in dense.methods} == {"pipeline:topo-robust-photometric", "pipeline:topo-robust",
                                                        "pipeline:zoomout", "peer:pyfm"}
-    assert {c.kind for c in colours.corruptions} == {"color-noise"}
+    assert {c.kind for c in colours.corruptions} == {"color-noise", "glue+color-noise"}
+    glued_noisy = [c for c in seeds.corruptions if c.kind == "glue+color-noise"]
+    assert [c.name for c in glued_noisy] == [f"glued-noisy[glue:{s}+color-noise:0.05]" for s in (1, 3, 6)]
+    assert [c.strength for c in glued_noisy] == [1, 3, 6]  # plotted against the contacts
 
 
 @pytest.mark.parametrize(("name", "rows"), [("tosca_matching", 24 * 8), ("repeatability", 24 * 6),

@@ -19,7 +19,8 @@ without groups or a half left empty is refused before any work, naming the key.
     kind = "psb"               # tosca | psb | folder | synthetic | sequence
     path = "psb"               # absolute, or relative to $TOOLKIT_DATA (else to the config's folder)
     limit = 4                  # optional: first N items
-    items = ["cat0-cat1"]      # optional: these items only, in this order (before limit)
+    items = ["cat0-cat1"]      # optional: these items only, in this order (before limit); a pair is
+                               # "SOURCE-TARGET" (synthetic: any "poseI-poseJ", e.g. "pose0-pose2")
     params = {}                # kind-specific (synthetic: n_poses, subdivisions, max_angle; sequence:
                                # seeds, frames, subdivisions, remesh, merge_frames, max_angle, permute)
 
@@ -29,6 +30,11 @@ without groups or a half left empty is refused before any work, naming the key.
     params = { strength = [0.1, 0.3] }   # lists are grids (a literal list: wrap it, [[1, 2]])
     seed = 0                   # optional: every item's copy drawn with this random_state (default: a
                                # seed per item, hashed from run.random_state, dataset, item and name)
+
+    [[corruptions]]            # corruptions in sequence: glue, then colour noise on the glued shape
+    name = "glued-noisy"       # optional, default the kinds joined by "+" ("glue+color-noise")
+    steps = [{ kind = "glue", params = { strength = 6 } },
+             { kind = "color-noise", params = { strength = [0.05, 0.1] } }]
 
     [[tasks]]
     task = "segmentation"      # the task kind: spectrum | keypoints | descriptors | segmentation | matching | sequence
@@ -48,6 +54,14 @@ without groups or a half left empty is refused before any work, naming the key.
 Size: the rows a config plans (items x corruption settings x method settings, per task) are
 counted from the grid sizes before anything is expanded; with ``max_rows`` (the CLI's
 ``--max-rows``, default :data:`MAX_ROWS`) a config planning more is refused naming the count.
+
+Composed corruptions (``steps``, instead of ``kind`` and ``params``): each step is applied to the
+previous one's result, with its own random state drawn from the item's corruption seed
+(:func:`shape_toolkit.data.corruptions.step_seeds`), and the vertex maps are composed, so
+``score_on = "clean"`` scores on the clean shape exactly. Every step's grid is an axis of the
+entry's grid; a row's corruption reads ``glued-noisy[glue:6+color-noise:0.1]`` (every step's kind
+and strength; without a ``name``, ``glue:6+color-noise:0.1``), its ``corruption_kind``
+``glue+color-noise`` and its ``strength`` that of the swept step (else of the last one).
 
 A matching method may instead be ``pipeline = "zoomout"`` (a preset, TOML file or inline table of
 :mod:`shape_toolkit.pipeline`), ``peer = "pyfm"`` (a peer's published pipeline,
@@ -139,12 +153,17 @@ class CorruptionSpec:
     params: dict[str, Any]
     group: str = ""
     seed: int | None = None
+    step_strength: float | None = None
 
     @property
     def strength(self) -> float | None:
-        """The ``strength`` parameter (0 for no corruption), for plots."""
+        """The ``strength`` parameter (0 for no corruption), for plots; of a composed corruption
+        (``params = {"steps": [...]}``) ``step_strength``: the strength of its one step whose strength
+        the config sweeps, else of its last step that has one."""
         if self.kind == "none":
             return 0.0
+        if "steps" in self.params:
+            return self.step_strength
         s = self.params.get("strength")
         return float(s) if isinstance(s, (int, float)) else None
 
@@ -425,16 +444,24 @@ def _validate_plugin_params(family: str, plugin: str, preset: str | None, params
 
 @dataclass(frozen=True)
 class _Corruption:
-    """A validated, not yet expanded ``[[corruptions]]`` entry (``size`` grid points)."""
+    """A validated, not yet expanded ``[[corruptions]]`` entry (``size`` grid points); ``steps`` the
+    ``(kind, params)`` of each step of a composed one (``kind`` is then their kinds joined by ``+``,
+    ``params`` empty) and ``named`` whether the config gave its name."""
 
     name: str
     kind: str
     params: dict[str, Any]
     size: int
     seed: int | None = None
+    steps: tuple[tuple[str, dict[str, Any]], ...] = ()
+    named: bool = True
 
     def expand(self) -> list[CorruptionSpec]:
-        """Its grid points, named ``NAME[key=value,...]`` by the parameters that vary."""
+        """Its grid points, named ``NAME[key=value,...]`` by the parameters that vary; a composed
+        one's ``NAME[glue:6+color-noise:0.1]`` by every step's kind and strength (and ``(key=value)``
+        of its other parameters that vary), or without a configured name just ``glue:6+color-noise:0.1``."""
+        if self.steps:
+            return self._expand_steps()
         insts = []
         for g in expand_grid(self.params):
             suffix = ",".join(f"{k}={g[k]}" for k in sorted(g) if isinstance(self.params[k], list))
@@ -442,10 +469,56 @@ class _Corruption:
                                         self.seed))
         return insts
 
+    def _expand_steps(self) -> list[CorruptionSpec]:
+        from shape_toolkit.data.corruptions import CORRUPTIONS
+
+        flat = {f"{j}.{k}": v for j, (_, prm) in enumerate(self.steps) for k, v in prm.items()}
+        swept = [j for j, (_, prm) in enumerate(self.steps) if isinstance(prm.get("strength"), list)]
+        defaults = [inspect.signature(CORRUPTIONS[kind]).parameters.get("strength") for kind, _ in self.steps]
+        with_strength = [j for j, d in enumerate(defaults) if d is not None]
+        # the step whose strength the rows plot: the one swept, else the last step that has a strength
+        plotted = swept[0] if len(swept) == 1 else (with_strength[-1] if with_strength else None)
+        insts = []
+        for g in expand_grid(flat):
+            steps = [{k: g[f"{j}.{k}"] for k in prm} for j, (_, prm) in enumerate(self.steps)]
+            strengths = [st.get("strength", d.default if d is not None else None) for st, d in zip(steps, defaults)]
+            labels = []
+            for j, ((kind, prm), st) in enumerate(zip(self.steps, steps)):
+                other = ",".join(f"{k}={st[k]}" for k in sorted(st) if k != "strength" and isinstance(prm[k], list))
+                labels.append(kind + (f":{strengths[j]}" if strengths[j] is not None else "")
+                              + (f"({other})" if other else ""))
+            label = "+".join(labels)
+            s = strengths[plotted] if plotted is not None else None
+            insts.append(CorruptionSpec(f"{self.name}[{label}]" if self.named else label, self.kind, {"steps": steps},
+                                        self.name, self.seed, float(s) if isinstance(s, (int, float)) else None))
+        return insts
+
+
+def _check_corruption_params(kind: Any, prm: Any, w: str) -> tuple[str, dict[str, Any]]:
+    """One corruption's ``kind`` (at ``w.kind``) and ``params`` (at ``w.params``) checked: a known
+    kind, parameters it has, each (grid) value of the right kind."""
+    from shape_toolkit.data.corruptions import CORRUPTIONS
+
+    kind = _str(kind, f"{w}.kind")
+    if kind not in CORRUPTIONS:
+        raise ConfigError(f"{w}.kind", f"unknown corruption {kind!r}; known: {', '.join(CORRUPTIONS)}")
+    prm = prm or {}
+    if not isinstance(prm, dict):
+        raise ConfigError(f"{w}.params", "must be a table")
+    valid = [p for p in inspect.signature(CORRUPTIONS[kind]).parameters if p not in ("shape", "random_state")]
+    for k in prm:
+        if k not in valid:
+            raise ConfigError(
+                f"{w}.params.{k}", f"corruption {kind!r} has no such parameter; valid: {', '.join(valid)}"
+            )
+    _check_kinds(prm, CORRUPTIONS[kind], f"{w}.params")
+    return kind, dict(prm)
+
 
 def _validate_corruptions(raw: Any) -> dict[str, _Corruption]:
-    """Every corruption checked (kind, parameter names, the kind of each value), none expanded."""
-    from shape_toolkit.data.corruptions import CORRUPTIONS
+    """Every corruption checked (kind, parameter names, the kind of each value; each step of a
+    composed one, ``steps = [{ kind = ..., params = ... }, ...]``), none expanded."""
+    from shape_toolkit.data.corruptions import CHAIN
 
     out: dict[str, _Corruption] = {"none": _Corruption("none", "none", {}, 1)}
     if raw is None:
@@ -454,29 +527,36 @@ def _validate_corruptions(raw: Any) -> dict[str, _Corruption]:
         raise ConfigError("corruptions", "must be an array of tables ([[corruptions]])")
     for i, c in enumerate(raw):
         w = f"corruptions[{i}]"
-        _check_keys(c, {"name", "kind", "params", "seed"}, w, ("kind",))
-        kind = _str(c["kind"], f"{w}.kind")
-        if kind not in CORRUPTIONS:
-            raise ConfigError(f"{w}.kind", f"unknown corruption {kind!r}; known: {', '.join(CORRUPTIONS)}")
+        _check_keys(c, {"name", "kind", "params", "seed", "steps"}, w)
+        steps: list[tuple[str, dict[str, Any]]] = []
+        if "steps" in c:
+            if "kind" in c or "params" in c:
+                key = "kind" if "kind" in c else "params"
+                raise ConfigError(f"{w}.{key}", "a composed corruption (steps = [...]) takes its kinds and "
+                                  "parameters in its steps: steps = [{ kind = ..., params = {...} }, ...]")
+            if not isinstance(c["steps"], list) or not c["steps"]:
+                raise ConfigError(f"{w}.steps", "must be a non-empty array of tables "
+                                  "[{ kind = ..., params = {...} }, ...], applied in order")
+            for j, st in enumerate(c["steps"]):
+                _check_keys(st, {"kind", "params"}, f"{w}.steps[{j}]", ("kind",))
+                steps.append(_check_corruption_params(st["kind"], st.get("params"), f"{w}.steps[{j}]"))
+        elif "kind" not in c:
+            raise ConfigError(f"{w}.kind", "is required (or steps = [...] for corruptions applied in sequence)")
+        else:
+            steps.append(_check_corruption_params(c["kind"], c.get("params"), w))
+        kind = CHAIN.join(k for k, _ in steps)
         name = _str(c.get("name", kind), f"{w}.name")
         if name in out:
             raise ConfigError(f"{w}.name", f"duplicate corruption name {name!r}")
-        prm = c.get("params", {}) or {}
-        if not isinstance(prm, dict):
-            raise ConfigError(f"{w}.params", "must be a table")
-        valid = [
-            p for p in inspect.signature(CORRUPTIONS[kind]).parameters if p not in ("shape", "random_state")
-        ]
-        for k in prm:
-            if k not in valid:
-                raise ConfigError(
-                    f"{w}.params.{k}", f"corruption {kind!r} has no such parameter; valid: {', '.join(valid)}"
-                )
-        _check_kinds(prm, CORRUPTIONS[kind], f"{w}.params")
         seed = _int(c["seed"], f"{w}.seed") if "seed" in c else None
         if seed is not None and seed > 2**31 - 2:  # the range of the per-item seeds
             raise ConfigError(f"{w}.seed", f"must be at most 2**31 - 2, got {seed}")
-        out[name] = _Corruption(name, kind, dict(prm), grid_size(prm), seed)
+        if len(steps) == 1:  # one corruption (a single step is the same)
+            prm = steps[0][1]
+            out[name] = _Corruption(name, kind, prm, grid_size(prm), seed)
+        else:
+            size = math.prod(grid_size(prm) for _, prm in steps)
+            out[name] = _Corruption(name, kind, {}, size, seed, tuple(steps), "name" in c)
     return out
 
 
@@ -816,7 +896,7 @@ def split_line(split: dict[str, Any] | None) -> str | None:
 
 def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dict[str, DatasetSpec]:
     """Every ``[[datasets]]`` entry checked and its items listed."""
-    from shape_toolkit.data.datasets import DATASET_KINDS, GENERATED_KINDS, open_dataset
+    from shape_toolkit.data.datasets import DATASET_KINDS, GENERATED_KINDS, find_item, open_dataset
 
     if not isinstance(raw, list) or not raw:
         raise ConfigError("datasets", "must be a non-empty array of tables ([[datasets]])")
@@ -863,15 +943,16 @@ def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dic
         if not refs:
             raise ConfigError(f"{w}.path", f"no items found in {path}")
         if "items" in d:  # a declared selection of items, in the given order
-            by_name = {r.name: r for r in refs}
             chosen = _names(d["items"], f"{w}.items", "item names")
+            picked = []
             for j, it in enumerate(chosen):
-                if it not in by_name:
-                    raise ConfigError(f"{w}.items[{j}]",
-                                      f"no item {it!r} in the dataset; e.g. {', '.join(list(by_name)[:5])}")
+                try:
+                    picked.append(find_item(kind, refs, it))
+                except ParameterError as exc:
+                    raise ConfigError(f"{w}.items[{j}]", str(exc)) from None
             if len(set(chosen)) != len(chosen):
                 raise ConfigError(f"{w}.items", "lists an item twice")
-            refs = [by_name[it] for it in chosen]
+            refs = picked
         datasets[dname] = DatasetSpec(dname, kind, path, limit, dict(params), tuple(refs))
     return datasets
 

@@ -27,7 +27,7 @@ import scipy.sparse as sp
 
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.data.corruptions import RESAMPLING, apply_corruption, carry_correspondence, carry_labels
+from shape_toolkit.data.corruptions import apply_corruption, carry_correspondence, carry_labels, resamples
 from shape_toolkit.data.datasets import DatasetItem
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.results.correspondence import Correspondence
@@ -121,7 +121,7 @@ def prepare(
         tgt0, truth, sym = item.target, item.correspondence, item.symmetric_correspondence
         tlabels = item.target_labels
         if corrupt in ("both", "source") and corruption_kind != "none":
-            src0, rs = src, corruption_kind in RESAMPLING
+            src0, rs = src, resamples(corruption_kind)
             src, svmap = apply_corruption(src0, corruption_kind, random_state=random_state + 1, **corruption_params)
             truth = carry_correspondence(truth, svmap, src0, side=0, resampled=rs) if truth is not None else None
             sym = carry_correspondence(sym, svmap, src0, side=0, resampled=rs) if sym is not None else None
@@ -138,7 +138,7 @@ def prepare(
     secs = time.perf_counter() - t0
     clean = tgt0 if score_on == "clean" else None
     if corruption_kind != "none" and clean is None:
-        rs = corruption_kind in RESAMPLING
+        rs = resamples(corruption_kind)
         truth = carry_correspondence(truth, vmap, tgt0, resampled=rs) if truth is not None else None
         sym = carry_correspondence(sym, vmap, tgt0, resampled=rs) if sym is not None else None
         tlabels = [carry_labels(lab, vmap) for lab in tlabels]

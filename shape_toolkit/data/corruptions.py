@@ -5,6 +5,11 @@ Every corruption is a seeded, parameterised function ``Shape -> (Shape, vertex_m
 comes from (for resampled vertices: the nearest original vertex). ``strength`` is the one knob
 every corruption has, so results can be plotted against it; its unit is given per function.
 :func:`carry_labels` and :func:`carry_correspondence` move ground truth onto the corrupted shape.
+
+Corruptions compose: the name ``"glue+color-noise"`` applies ``glue`` and then ``color-noise`` to its
+result (:func:`apply_corruption` with ``steps=[{glue's params}, {color-noise's params}]``), each step with
+its own random state (:func:`step_seeds`), and the vertex maps composed (:func:`compose_vertex_maps`), so
+the result maps straight back to the original shape.
 """
 
 from __future__ import annotations
@@ -40,7 +45,12 @@ __all__ = [
     "split_triangles",
     "point_cloud",
     "apply_corruption",
+    "CHAIN",
+    "chain_kinds",
+    "step_seeds",
+    "compose_vertex_maps",
     "RESAMPLING",
+    "resamples",
     "invert_vertex_map",
     "carry_labels",
     "carry_correspondence",
@@ -583,11 +593,44 @@ CORRUPTIONS: dict[str, Callable[..., Corruption]] = {
 }
 
 
+#: joins the kinds of a composed corruption: ``"glue+color-noise"`` is ``glue``, then ``color-noise``
+CHAIN = "+"
+
+
+def chain_kinds(name: str) -> list[str]:
+    """The corruption kinds ``name`` applies in order: ``["glue", "color-noise"]`` for
+    ``"glue+color-noise"``, ``[name]`` for a single kind."""
+    return name.split(CHAIN)
+
+
+def step_seeds(random_state: int, n_steps: int) -> list[int]:
+    """The ``random_state`` of each of the ``n_steps`` steps of a composed corruption drawn with
+    ``random_state``: independent streams spawned from it (``numpy.random.SeedSequence``), each in
+    ``[0, 2**31 - 2]``, so two steps of one kind never draw alike and a step's draw depends on its place."""
+    children = np.random.SeedSequence(int(random_state)).spawn(int(n_steps))
+    return [int(c.generate_state(1, np.uint64)[0] % (2**31 - 1)) for c in children]
+
+
+def compose_vertex_maps(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """The vertex map of two corruptions in sequence: ``first`` (int64 ``(n_1,)``, result of the first
+    -> original) after ``second`` (int64 ``(n_2,)``, result of the second -> result of the first) is
+    ``first[second]`` (int64 ``(n_2,)``), -1 where either map has none."""
+    a = np.asarray(first, dtype=np.int64)
+    b = np.asarray(second, dtype=np.int64)
+    return np.where(b >= 0, a[np.maximum(b, 0)], -1) if a.size else np.full(b.shape, -1, dtype=np.int64)
+
+
 def apply_corruption(shape: Shape, name: str, *, random_state: int = 0, **params: Any) -> Corruption:
     """Apply the corruption registered as ``name`` (see :data:`CORRUPTIONS`) with ``params``;
-    ``name='none'`` returns the shape with the identity map."""
+    ``name='none'`` returns the shape with the identity map. A composed name (``"glue+color-noise"``,
+    kinds joined by :data:`CHAIN`) takes ``steps``, one parameter table per kind, and applies them in
+    order, step ``j`` with ``random_state=step_seeds(random_state, n)[j]``; its map is the composition of
+    the steps' maps (a new vertex -> the vertex of ``shape`` it comes from). A step's error is raised
+    with the same type, naming the step."""
     if name == "none":
         return shape, _identity(shape)
+    if CHAIN in name:
+        return _apply_chain(shape, name, random_state, params)
     if name not in CORRUPTIONS:
         raise ParameterError(f"unknown corruption {name!r}; known: none, {', '.join(CORRUPTIONS)}")
     fn = CORRUPTIONS[name]
@@ -602,9 +645,37 @@ def apply_corruption(shape: Shape, name: str, *, random_state: int = 0, **params
     return fn(shape, random_state=random_state, **params)
 
 
+def _apply_chain(shape: Shape, name: str, random_state: int, params: dict[str, Any]) -> Corruption:
+    """The composed corruption ``name`` (see :func:`apply_corruption`)."""
+    kinds = chain_kinds(name)
+    steps = params.get("steps")
+    if set(params) != {"steps"} or not isinstance(steps, (list, tuple)) or len(steps) != len(kinds) or not all(
+        isinstance(st, dict) for st in steps
+    ):
+        raise ParameterError(f"composed corruption {name!r} takes steps = a list of {len(kinds)} parameter "
+                             f"tables (one per step), got {params!r}")
+    for k in kinds:
+        if k not in CORRUPTIONS:
+            raise ParameterError(f"composed corruption {name!r}: unknown step {k!r}; known: {', '.join(CORRUPTIONS)}")
+    out, vmap = shape, _identity(shape)
+    for j, (kind, prm, seed) in enumerate(zip(kinds, steps, step_seeds(random_state, len(kinds)))):
+        try:
+            out, m = apply_corruption(out, kind, random_state=seed, **prm)
+        except (InvalidShapeError, ParameterError) as exc:
+            raise type(exc)(f"step {j + 1} of {len(kinds)} of {name!r} ({kind}): {exc}") from None
+        vmap = compose_vertex_maps(vmap, m)
+    return out, vmap
+
+
 #: corruptions that resample the surface: their maps name the *nearest* original vertex, so an
 #: original vertex nobody maps to still exists (near its neighbours) rather than being removed
 RESAMPLING = frozenset({"remesh", "glue", "subdivide", "point-cloud"})
+
+
+def resamples(name: str) -> bool:
+    """Whether the corruption ``name`` (composed ones included: when any step does) resamples the
+    surface (:data:`RESAMPLING`)."""
+    return any(k in RESAMPLING for k in chain_kinds(name))
 
 
 def invert_vertex_map(

@@ -36,6 +36,7 @@ __all__ = [
     "folder_dataset",
     "synthetic_refs",
     "open_dataset",
+    "find_item",
     "load_item",
     "PSB_CATEGORIES",
     "item_group",
@@ -193,8 +194,9 @@ def synthetic_refs(
     n_poses: int = 4, *, subdivisions: int = 3, random_state: int = 0, max_angle: float = 1.0,
     limb_lengths: list[float] | None = None,
 ) -> list[ItemRef]:
-    """Refs of :func:`shape_toolkit.data.synthetic.synthetic_dataset`: item i is pose i, matched to pose
-    i + 1 (cyclically) with the identity as exact ground truth; ``limb_lengths``: one per limb (None: alike)."""
+    """Refs of :func:`shape_toolkit.data.synthetic.synthetic_dataset`: item ``pose{i}`` is pose i, matched to
+    pose i + 1 (cyclically) with the identity as exact ground truth; ``limb_lengths``: one per limb (None:
+    alike). Any other pair of poses is the item ``pose{i}-pose{j}`` (:func:`find_item`), named as a TOSCA pair."""
     if not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
         raise ParameterError(f"n_poses must be a positive integer, got {n_poses!r}")
     params = {
@@ -279,6 +281,28 @@ def open_dataset(kind: str, path: str | os.PathLike | None = None, **params: Any
         raise ParameterError(f"{kind} dataset: {exc}") from None
 
 
+def find_item(kind: str, refs: list[ItemRef] | tuple[ItemRef, ...], name: str) -> ItemRef:
+    """The item of a dataset of ``kind`` named ``name``: one of its listed ``refs``, or a pair named
+    ``"SOURCE-TARGET"`` as TOSCA's pairs are: for a synthetic dataset any two distinct poses,
+    ``"pose0-pose2"`` (its listed items pair pose i with pose i + 1, as ``pose{i}``; the identity is the
+    ground truth of every pair). :class:`ParameterError` names a few items when there is no such item."""
+    for r in refs:
+        if r.name == name:
+            return r
+    if kind == "synthetic" and refs:
+        import re
+
+        m = re.fullmatch(r"pose(\d+)-pose(\d+)", name)
+        base = {k: v for k, v in refs[0].params.items() if k != "index"}
+        n = int(base["n_poses"])
+        if m and int(m[1]) != int(m[2]) and max(int(m[1]), int(m[2])) < n:
+            return ItemRef("synthetic", name, {}, {**base, "index": int(m[1]), "target_index": int(m[2])})
+        pairs = f" or a pair of two of its {n} poses, e.g. pose0-pose{min(2, n - 1)}" if n > 1 else ""
+        raise ParameterError(f"no item {name!r} in the dataset: its items are pose0 ... pose{n - 1} (pose i -> "
+                             f"i + 1){pairs}")
+    raise ParameterError(f"no item {name!r} in the dataset; e.g. {', '.join(r.name for r in list(refs)[:5])}")
+
+
 #: PSB categories in id order: model ``ID`` (1..400) is of category ``PSB_CATEGORIES[(ID - 1) // 20]``
 PSB_CATEGORIES = ("human", "cup", "glasses", "airplane", "ant", "chair", "octopus", "table", "teddy", "hand",
                   "plier", "fish", "bird", "spring", "armadillo", "bust", "mech", "bearing", "vase", "fourleg")
@@ -360,8 +384,9 @@ def load_item(ref: ItemRef) -> DatasetItem:
 
         prm = dict(ref.params)
         i = prm.pop("index")
+        j = prm.pop("target_index", None)  # a pair named poseI-poseJ; else pose i -> i + 1
         poses = synthetic_dataset(**prm)
-        a, b = poses[i], poses[(i + 1) % len(poses)]
+        a, b = poses[i], poses[(i + 1) % len(poses) if j is None else j]
         ident = np.arange(a.shape.n_vertices, dtype=np.int64)
         src, tgt = (x.shape if x.colors is None else x.shape.with_colors(x.colors) for x in (a, b))
         return DatasetItem(
