@@ -31,13 +31,13 @@ the tuning half's vertex clouds (6 dog pairs, 10 FAUST pairs of people 0-1, nois
 mean error from 0.048 / 0.080 to 0.041 / 0.051 on dogs and from 0.074 / 0.130 to 0.046 / 0.097 on FAUST (the
 frame estimate alone: 0.041 / 0.060 and 0.052 / 0.108), for 1-2 s CPU more per pair.
 
-Cost. Two choices keep the default's CPU down without changing its maps beyond noise (tuning half: 6 dog pairs,
-15 FAUST pairs of people 0-1, 6 gorillas-to-men pairs, and 11 of them with 6 glued contacts): the ZoomOut polish
-adds 10 eigenfunctions a step (``polish_step``; 5 before: dogs 0.0241 -> 0.0233, FAUST 0.0546 -> 0.0548, gorillas
-to men 0.168 -> 0.175, glued 0.0404 / 0.0633 -> 0.0412 / 0.0628; 5.1 -> 4.0 s CPU a pair), and an estimated frame
-turned by less than ``same_frame`` degrees (15) from the given one is not run again (on the tuning pairs turned by
-2-22 degrees the two maps were within 0.0007; the choice among candidates, simulated, unchanged to 4 decimals).
-Shells on 1,000 samples instead of 2,000 were tried and not adopted: gorillas to men 0.175 -> 0.275.
+Cost. An estimated frame turned by less than ``same_frame`` degrees (15) from the given one is not run again:
+the shells' coarse-to-fine start absorbs such a turn (on the tuning pairs turned by 2-22 degrees the two maps
+were within 0.0007; the choice among candidates, simulated on 27 + 30 tuning pairs, moved the mean by at most
+0.0001), and it saves a shells run and a polish, about 0.8 s of 5 s CPU at 5k, on most pairs of a capture set-up.
+Tried and not adopted (``benchmarks/results/auto_speed_notes.md``): the polish in steps of 10 eigenfunctions
+(``polish_step = 10``: 1.1 s less, but 2-5 % less precise on typical pairs, tuning and report halves alike) and the
+shells on 1,000 samples instead of 2,000 (gorillas to men 0.175 -> 0.275).
 
 Why the residual: the point map of a sound correspondence is, to a good approximation, the point map of a
 smooth functional map in the first eigenfunctions (it is what ZoomOut converges to); a part sent to the wrong
@@ -135,7 +135,7 @@ class BestOfMatcher(DenseMatcher):
     }
 
     def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int = 64,
-                 reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 10,
+                 reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
                  same_frame: float = SAME_FRAME_DEGREES):
         self.matchers = matchers
         self.k = k
