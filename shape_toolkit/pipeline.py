@@ -304,7 +304,9 @@ class Pipeline:
         messages of the dense matchers (their ``match``'s ``progress``). Shapes of more
         than 1.5 ``proxy`` vertices (None or 0: never) are matched through proxies of ``proxy`` vertices
         and the map lifted to full resolution (:mod:`~shape_toolkit.plugins.matching.multires`;
-        ``info['proxy']``), unless ``spectra`` are given."""
+        ``info['proxy']``, which also holds the dense matcher's functional map ``C``, in the proxies' eigenbases;
+        the other matcher entries of ``info``, such as candidates and their residuals, describe the proxy pair),
+        unless ``spectra`` are given."""
         say = progress or (lambda _msg: None)
         if proxy is not None and not (proxy is False or (_is_integer(proxy) and proxy == 0)):
             proxy = check_proxy_size(proxy)  # before any work: not a string's TypeError, nor NaN or 150.7 let pass
@@ -435,6 +437,8 @@ class Pipeline:
         t_lift, c_lift = time.perf_counter() - t1, time.process_time() - c1
         info = {k: v for k, v in inner.info.items() if k not in ("orientation", "timings", "cpu_timings", "seconds")}
         info["proxy"] = {**lift, "proxy_orientation": inner.info.get("orientation")}
+        if "C" in info:  # a functional map between the proxies' eigenbases, not the shapes': filed with the proxy
+            info["proxy"]["C"] = info.pop("C")
         if isinstance(info.get("partial"), dict) and "support" in info["partial"] and ids_t.size != target.n_vertices:
             # the part's support is a mask of the target proxy's vertices: carried to the target's, as the map is
             info["partial"] = {**info["partial"], "support": values_from_proxy(info["partial"]["support"], target, pt)}

@@ -139,7 +139,43 @@ def test_extrinsic_matchers_also_run_in_the_frame_of_the_intrinsic_map(unequal_l
     assert "estimated_frame" not in off.info
 
 
-@pytest.mark.parametrize("bad", [{"polish": 10}, {"polish": -1}, {"reframe": "yes"}])
+def test_a_frame_estimate_of_a_small_turn_does_not_run_the_shells_twice(unequal_limbs):
+    """The target turned by 5 degrees: the estimated frame is that turn, below SAME_FRAME_DEGREES, so the shells
+    run in the given frame only (the same shells twice would cost a run and a polish for the same map)."""
+    from shape_toolkit.plugins.matching.dense.best_of import SAME_FRAME_DEGREES
+
+    a, b = unequal_limbs
+    bt = _turned(b, 5.0)
+    corr = create_plugin("dense_matchers", "best-of", canonical=False).match(a, bt)
+    frame = corr.info["estimated_frame"]
+    assert frame["verdict"] == "preserving" and frame["same_as_given"]
+    assert frame["rotation_degrees"] < SAME_FRAME_DEGREES
+    names = [c["matcher"] for c in corr.info["candidates"]]
+    assert names == ["fmap-zoomout", "shell-alignment", "shell-alignment+zoomout"]
+    assert _error(bt, corr.target_of) < 0.01
+    # same_frame = 0: every estimated frame is run again
+    again = create_plugin("dense_matchers", "best-of", canonical=False, same_frame=0.0).match(a, bt)
+    assert "same_as_given" not in again.info["estimated_frame"]
+    assert "shell-alignment@frame" in [c["matcher"] for c in again.info["candidates"]]
+
+
+def test_the_polish_step_is_a_declared_parameter(unequal_limbs):
+    """``polish_step`` reaches the polish: one step from 20 to 100 eigenfunctions (a single ZoomOut iteration) gives
+    another map than ten at a time; a step of 0 is refused."""
+    a, b = unequal_limbs
+    bt = _turned(b, 120.0)
+    res = {}
+    for step in (10, 80):
+        corr = create_plugin("dense_matchers", "best-of", canonical=False, polish_step=step).match(a, bt)
+        res[step] = {c["matcher"]: c["residual"] for c in corr.info["candidates"]}
+    assert res[10]["shell-alignment"] == res[80]["shell-alignment"]  # the shells do not see the step
+    assert res[10]["shell-alignment+zoomout"] != res[80]["shell-alignment+zoomout"]
+    with pytest.raises(ParameterError):
+        create_plugin("dense_matchers", "best-of", polish_step=0).match(a, b)
+
+
+@pytest.mark.parametrize("bad", [{"polish": 10}, {"polish": -1}, {"reframe": "yes"}, {"same_frame": -1.0},
+                                 {"same_frame": 200.0}, {"polish_step": 1.5}])
 def test_bad_reframe_and_polish_are_refused(unequal_limbs, bad):
     a, b = unequal_limbs
     with pytest.raises(ParameterError):

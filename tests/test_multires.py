@@ -93,6 +93,8 @@ def test_a_large_pair_is_matched_through_proxies_and_lifted(poses):
     assert corr.info["proxy"]["lift"] == "interpolated: barycentric on the proxy's triangles"
     assert set(corr.info["proxy"]["cpu_seconds"]) == {"interpolation"}
     assert sum(corr.info["proxy"]["cpu_seconds"].values()) <= cpu["lift"] + 1e-3
+    # the functional map is between the proxies' eigenbases: it is filed with the proxy, not read as the shapes'
+    assert "C" not in corr.info and np.asarray(corr.info["proxy"]["C"]).ndim == 2
 
 
 def test_two_large_clouds_report_the_proxies_orientation(poses):
@@ -263,3 +265,22 @@ def test_a_partial_map_through_proxies_carries_its_support_to_the_whole():
     assert support.shape == (whole.n_vertices,) and support.dtype == bool
     assert support[corr.target_of].mean() > 0.9 and 0.3 < support.mean() < 0.8, (support[corr.target_of].mean(),
                                                                                   support.mean())
+
+
+def test_cli_match_through_proxies_reports_the_proxy_without_its_functional_map(capsys, tmp_path, poses):
+    """``match --json`` through proxies: the summary names the proxies and the lift; the proxies' functional map, a
+    k x k array in the proxies' eigenbases, stays in the API's ``info['proxy']``."""
+    import json
+
+    from helpers import run_cli
+
+    from shape_toolkit.io.mesh import save_shape
+
+    a, b = poses
+    save_shape(a, tmp_path / "a.off")
+    save_shape(b, tmp_path / "b.off")
+    code, out, err = run_cli(capsys, "match", tmp_path / "a.off", tmp_path / "b.off", "--pipeline", "zoomout",
+                             "--proxy", "2000", "-o", tmp_path / "map.txt", "--json")
+    assert code == 0, err
+    proxy = json.loads(out)["proxy"]
+    assert proxy["proxy_vertices"][0] < a.n_vertices and "C" not in proxy

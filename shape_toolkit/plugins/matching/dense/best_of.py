@@ -31,6 +31,14 @@ the tuning half's vertex clouds (6 dog pairs, 10 FAUST pairs of people 0-1, nois
 mean error from 0.048 / 0.080 to 0.041 / 0.051 on dogs and from 0.074 / 0.130 to 0.046 / 0.097 on FAUST (the
 frame estimate alone: 0.041 / 0.060 and 0.052 / 0.108), for 1-2 s CPU more per pair.
 
+Cost. An estimated frame turned by less than ``same_frame`` degrees (15) from the given one is not run again:
+the shells' coarse-to-fine start absorbs such a turn (on the tuning pairs turned by 2-22 degrees the two maps
+were within 0.0007; the choice among candidates, simulated on 27 + 30 tuning pairs, moved the mean by at most
+0.0001), and it saves a shells run and a polish, about 0.8 s of 5 s CPU at 5k, on most pairs of a capture set-up.
+Tried and not adopted (``benchmarks/results/auto_speed_notes.md``): the polish in steps of 10 eigenfunctions
+(``polish_step = 10``: 1.1 s less, but 2-5 % less precise on typical pairs, tuning and report halves alike) and the
+shells on 1,000 samples instead of 2,000 (gorillas to men 0.175 -> 0.275).
+
 Why the residual: the point map of a sound correspondence is, to a good approximation, the point map of a
 smooth functional map in the first eigenfunctions (it is what ZoomOut converges to); a part sent to the wrong
 place, or a map that folds a limb, leaves energy that no ``k x k`` functional map explains. On the tuning half
@@ -64,8 +72,12 @@ from shape_toolkit.spectra import SpectrumSpec, default_spec
 __all__ = ["BestOfMatcher"]
 
 
-#: where the ZoomOut polish of an extrinsic map starts, and its step (fmap-zoomout's defaults)
-POLISH_START, POLISH_STEP = 20, 5
+#: where the ZoomOut polish of an extrinsic map starts (fmap-zoomout's initial size)
+POLISH_START = 20
+#: the default of ``same_frame``: an estimated frame turned by less than this (degrees) from the given one is the
+#: given one to the shells, whose coarse-to-fine start absorbs the turn (tuning pairs turned by 2-22 degrees: the
+#: two maps within 0.0007), so the extrinsic matchers are not run twice
+SAME_FRAME_DEGREES = 15.0
 
 
 def _residual(bs: Basis, bt: Basis, t: np.ndarray, k: int) -> float:
@@ -92,19 +104,20 @@ def _matcher(spec: Any) -> Any:
 
 
 class BestOfMatcher(DenseMatcher):
-    """Runs every matcher of ``matchers`` (names, ``{plugin, preset, params}`` tables or instances) and keeps
-    the map of least ZoomOut residual in the first ``k`` Laplace-Beltrami eigenfunctions of both shapes.
-    Intrinsic matchers run first. ``reframe``: each extrinsic matcher (``extrinsic = True``) runs a second
-    time with the source turned into the frame of the first intrinsic map, when that map keeps orientation
-    (module docstring). ``polish``: each extrinsic map is also refined by ZoomOut from 20 to ``polish``
-    eigenfunctions (0 or None: not). ``canonical``: each extrinsic matcher also runs on the canonical forms
-    (module docstring). ``info["candidates"]`` lists each map's residual (``NAME@frame``: in the estimated
-    frame, ``NAME@canonical``: on the canonical forms, ``NAME+zoomout``: polished), ``info["chosen"]`` the one
-    kept, ``info["estimated_frame"]`` the estimated frame's rotation in degrees and the verdict it rests on,
-    ``info["canonical_frame"]`` the canonical forms' rotation and the map it came from; the rest of ``info`` is
-    the chosen matcher's. Seeds go to every matcher and stay in polished maps. A matcher that cannot take the pair (a
-    point cloud for a matcher that needs faces: :class:`~shape_toolkit.errors.InvalidShapeError`) is left out
-    and named in ``info["skipped"]``; when none can, the first one's error is raised."""
+    """Runs every matcher of ``matchers`` (names, ``{plugin, preset, params}`` tables or instances) and keeps the map
+    of least ZoomOut residual in the first ``k`` Laplace-Beltrami eigenfunctions of both shapes. Intrinsic matchers
+    run first. ``reframe``: each extrinsic matcher (``extrinsic = True``) runs a second time with the source turned
+    into the frame of the first intrinsic map, when that map keeps orientation and it is turned by at least
+    ``same_frame`` degrees (``info["estimated_frame"]["same_as_given"]`` otherwise; module docstring). ``polish``:
+    each extrinsic map is also refined by ZoomOut from 20 to ``polish`` eigenfunctions (0 or None: not),
+    ``polish_step`` at a time. ``canonical``: each extrinsic matcher also runs on the canonical forms (module
+    docstring). ``info["candidates"]`` lists each map's residual (``NAME@frame``: in the estimated frame,
+    ``NAME@canonical``: on the canonical forms, ``NAME+zoomout``: polished), ``info["chosen"]`` the one kept,
+    ``info["estimated_frame"]`` the estimated frame's rotation in degrees and the verdict it rests on,
+    ``info["canonical_frame"]`` the canonical forms' rotation and the map it came from; the rest of ``info`` is the
+    chosen matcher's. Seeds go to every matcher and stay in polished maps. A matcher that cannot take the pair (a
+    point cloud for a matcher that needs faces: :class:`~shape_toolkit.errors.InvalidShapeError`) is left out and
+    named in ``info["skipped"]``; when none can, the first one's error is raised."""
 
     presets: dict = {}
     parameter_constraints = {
@@ -116,15 +129,21 @@ class BestOfMatcher(DenseMatcher):
                         "(0 or None: no polish)"),
         "canonical": Param(InstanceOf(bool), doc="also run extrinsic matchers on the shapes' canonical forms "
                            "(pose removed), turned by the best map so far"),
+        "polish_step": Param(Interval(int, 1), doc="eigenfunctions added per ZoomOut iteration of the polish"),
+        "same_frame": Param(Interval(float, 0.0, 180.0), doc="degrees below which an estimated frame counts as the "
+                            "given one (the extrinsic matchers are not run again; 0: always run again)"),
     }
 
     def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int = 64,
-                 reframe: bool = True, polish: int | None = 100, canonical: bool = True):
+                 reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
+                 same_frame: float = SAME_FRAME_DEGREES):
         self.matchers = matchers
         self.k = k
         self.reframe = reframe
         self.polish = polish
         self.canonical = canonical
+        self.polish_step = polish_step
+        self.same_frame = same_frame
 
     def _matchers(self) -> list:
         return [_matcher(m) for m in self.matchers]
@@ -195,7 +214,8 @@ class BestOfMatcher(DenseMatcher):
                 if corr is not None:
                     consider(name, corr)
                     if self.reframe and turned is None and not frame:
-                        turned, frame = self._frame(source, target, np.asarray(corr.target_of), bs.mass, name)
+                        turned, frame = self._frame(source, target, np.asarray(corr.target_of), bs.mass, name,
+                                                    float(self.same_frame))
                 continue
             for label, src in [(name, source)] + ([(f"{name}@frame", turned)] if turned is not None else []):
                 corr = run(label, m, src)
@@ -206,7 +226,7 @@ class BestOfMatcher(DenseMatcher):
                                           {**corr.info, "frame": "estimated (info['estimated_frame'])"})
                 consider(label, corr)
                 if bps is not None and np.all(np.asarray(corr.target_of) >= 0):
-                    consider(f"{label}+zoomout", self._polished(corr, bps, bpt, seeds))
+                    consider(f"{label}+zoomout", self._polished(corr, bps, bpt, seeds, self.polish_step))
         canon: dict[str, Any] = {}
         extrinsic = [(name, m) for name, m in order if getattr(m, "extrinsic", False)]
         if self.canonical and extrinsic and best is not None:
@@ -223,7 +243,7 @@ class BestOfMatcher(DenseMatcher):
                                       {**corr.info, "frame": "canonical forms (info['canonical_frame'])"})
                 consider(f"{name}@canonical", corr)
                 if bps is not None and np.all(np.asarray(corr.target_of) >= 0):
-                    consider(f"{name}@canonical+zoomout", self._polished(corr, bps, bpt, seeds))
+                    consider(f"{name}@canonical+zoomout", self._polished(corr, bps, bpt, seeds, self.polish_step))
         if best is None:
             raise first_error
         info = dict(best[2].info)
@@ -235,10 +255,11 @@ class BestOfMatcher(DenseMatcher):
         return Correspondence(best[2].target_of, target.n_vertices, best[2].confidence, best[2].posteriors, info)
 
     @staticmethod
-    def _frame(source: Shape, target: Shape, t: np.ndarray, mass: np.ndarray,
-               name: str) -> tuple[Shape | None, dict[str, Any]]:
+    def _frame(source: Shape, target: Shape, t: np.ndarray, mass: np.ndarray, name: str,
+               same: float) -> tuple[Shape | None, dict[str, Any]]:
         """The source turned into the frame of the intrinsic map ``t`` (None when the map is not judged to
-        keep orientation, or the shapes are not meshes) and what was decided."""
+        keep orientation, or when that frame is turned by less than ``same`` degrees from the given one) and what
+        was decided."""
         verdict = orientation_verdict(source, target, t)
         frame: dict[str, Any] = {"from": name, "verdict": verdict["verdict"], "z": verdict["z"]}
         ok = np.flatnonzero(t >= 0)
@@ -247,6 +268,9 @@ class BestOfMatcher(DenseMatcher):
         X = np.asarray(source.vertices, dtype=np.float64)
         R = rigid_rotation(X[ok], np.asarray(target.vertices, dtype=np.float64)[t[ok]], mass[ok])
         frame["rotation_degrees"] = _degrees(R)
+        if frame["rotation_degrees"] < same:
+            frame["same_as_given"] = True
+            return None, frame
         return source.with_vertices(X @ R.T), frame
 
     @staticmethod
@@ -264,10 +288,11 @@ class BestOfMatcher(DenseMatcher):
                 {"from": name, "rotation_degrees": _degrees(R)})
 
     @staticmethod
-    def _polished(corr: Correspondence, bs: Basis, bt: Basis, seeds: np.ndarray | None) -> Correspondence:
-        """``corr``'s map refined by ZoomOut from its functional map in 20 eigenfunctions to ``bs.k``."""
+    def _polished(corr: Correspondence, bs: Basis, bt: Basis, seeds: np.ndarray | None, step: int) -> Correspondence:
+        """``corr``'s map refined by ZoomOut from its functional map in 20 eigenfunctions to ``bs.k``, ``step``
+        eigenfunctions at a time."""
         C0 = fmap_from_p2p(bs, bt, np.asarray(corr.target_of), POLISH_START, POLISH_START)
-        C, T = zoomout(C0, bs, bt, bs.k, POLISH_STEP)
+        C, T = zoomout(C0, bs, bt, bs.k, step)
         if seeds is not None and len(seeds):
             T[seeds[:, 0]] = seeds[:, 1]
         return Correspondence(T, corr.n_target, info={**corr.info, "C": C,
