@@ -224,8 +224,8 @@ def test_canonical_forms_remove_the_pose_and_the_turn(unequal_limbs):
 
 def test_two_clouds_get_the_frame_estimate_and_the_canonical_forms(unequal_limbs):
     """Point clouds judge orientation with their outward normals and have canonical forms on their local surface
-    (oriented fans), so the shells also run in the intrinsic map's frame and on the canonical forms, as for meshes:
-    the target cloud turned by 120 degrees is aligned."""
+    (oriented fans; the sheet triangles when the fans fall apart), so the shells also run in the intrinsic map's
+    frame and on the canonical forms, as for meshes: the target cloud turned by 120 degrees is aligned."""
     from shape_toolkit.core.shape import Shape
 
     a, b = unequal_limbs

@@ -14,6 +14,9 @@ of Sharp and Crane 2020, but each point triangulates only the neighbours on its 
 (same side by the outward normals, within 30 degrees of its tangent plane, allowing for noise), so that legs
 touching, the two faces of a thin part or of a crease are not linked.
 
+A denoised copy of a cloud (:func:`jet_projected`): each point moved along its normal onto the quadric fitted
+to its neighbours on its own side (the point-cloud Laplacian's lengths and areas are taken there).
+
 Outward normals (:func:`outward_normals`): PCA normals of the nearest neighbours, each given its sign by
 the viewpoints that see it (hidden point removal, Katz et al. 2007, from directions spread over a sphere
 around the cloud: a visible point's outward normal faces the viewer), and the points no viewpoint sees
@@ -35,7 +38,9 @@ from shape_toolkit.core.geometry import edge_components, signed_volume
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError
 
-__all__ = ["cloud_surface", "outward_normals", "local_delaunay_triangles", "FAN_NEIGHBORS"]
+__all__ = [
+    "cloud_surface", "sheet_surface", "outward_normals", "local_delaunay_triangles", "jet_projected", "FAN_NEIGHBORS",
+]
 
 #: neighbours of each point in its fan (a one-ring has about 6)
 FAN_NEIGHBORS = 8
@@ -165,6 +170,25 @@ def cloud_surface(shape: Shape, n_neighbors: int = FAN_NEIGHBORS) -> Shape:
         raise InvalidShapeError(f"{shape!r}: the points span no surface (all collinear?)")
     if signed_volume(P, F) < 0:
         F = F[:, [0, 2, 1]]
+    return Shape(P, F, name=shape.name)
+
+
+def sheet_surface(shape: Shape, n_neighbors: int = 30) -> Shape:
+    """``shape`` itself when it is a mesh; for a point cloud, the same points with the triangles of its point-cloud
+    Laplacian (:func:`local_delaunay_triangles` of ``n_neighbors`` neighbours on the :func:`outward_normals`): each
+    point's local Delaunay triangles among the neighbours on its own sheet, wound counter-clockwise about its outward
+    normal. Unlike :func:`cloud_surface` (fans of the 8 nearest points), it is connected wherever the Laplacian is:
+    points cut off from the rest are triangulated again with more of their neighbours, so a cloud of clustered
+    points (a mesh's uneven vertices) is one piece; and parts that touch in space are not joined, so paths along
+    its edges stay on the surface. :class:`InvalidShapeError` for a cloud too small or with no triangle."""
+    if shape.is_mesh:
+        return shape
+    P = np.asarray(shape.vertices, dtype=np.float64)
+    if len(P) < 5:
+        raise InvalidShapeError(f"{shape!r}: a local surface needs at least 5 points")
+    F = local_delaunay_triangles(P, outward_normals(P), min(int(n_neighbors), len(P) - 1))
+    if len(F) == 0:
+        raise InvalidShapeError(f"{shape!r}: the points span no surface (all collinear?)")
     return Shape(P, F, name=shape.name)
 
 
@@ -304,6 +328,53 @@ def local_delaunay_triangles(points: np.ndarray, normals: np.ndarray, n_neighbor
         G = _delaunay_fans(P, N, nb, keep, cut)
         F = np.concatenate([F, G])
     return _geometric_order(P, F.astype(np.int64))
+
+
+def jet_projected(points: np.ndarray, normals: np.ndarray, n_neighbors: int = 30) -> np.ndarray:
+    """``points`` ``(n, 3)`` each moved along its local normal onto the quadric height field (a 2-jet, Cazals and
+    Pouget 2005) fitted by least squares to itself and its ``n_neighbors`` nearest neighbours on its own side of
+    the surface (outward ``normals`` ``(n, 3)`` with a positive dot product: the far face of a thin part is left
+    out): a denoised copy, same units. The fit's frame is the PCA of those points; the quadric absorbs the
+    curvature, so a clean sampled surface moves by the third order of the spacing while noise across the surface
+    shrinks about as the square root of the neighbours per coefficient. Points with fewer than 6 same-side
+    neighbours, or a degenerate fit, stay where they are. Scale-free (no length parameter)."""
+    from scipy.spatial import cKDTree
+
+    P = np.asarray(points, dtype=np.float64)
+    N = np.asarray(normals, dtype=np.float64)
+    n = len(P)
+    k = int(min(n_neighbors, n - 1))
+    out = P.copy()
+    if k < 6:
+        return out
+    _, nb = cKDTree(P).query(P, k + 1)  # the point itself first
+    for s in range(0, n, FAN_CHUNK):
+        c = slice(s, s + FAN_CHUNK)
+        Q = P[nb[c]]  # (r, k + 1, 3)
+        w = (np.einsum("ikc,ic->ik", N[nb[c]], N[c]) > 0).astype(np.float64)
+        w[:, 0] = 1.0
+        cnt = w.sum(axis=1)
+        mu = np.einsum("ik,ikc->ic", w, Q) / cnt[:, None]
+        D = Q - mu[:, None, :]
+        cov = np.einsum("ik,ikc,ikd->icd", w, D, D)
+        _, vec = np.linalg.eigh(cov)
+        nrm = vec[:, :, 0]  # the least-variance direction
+        e1, e2 = vec[:, :, 2], vec[:, :, 1]
+        d = Q - P[c][:, None, :]
+        u, v, h = (np.einsum("ikc,ic->ik", d, e) for e in (e1, e2, nrm))
+        A = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=2)  # (r, k + 1, 6)
+        AtA = np.einsum("ik,ika,ikb->iab", w, A, A)
+        Atb = np.einsum("ik,ika,ik->ia", w, A, h)
+        ok = cnt >= 7
+        root = np.sqrt(np.maximum(np.einsum("iaa->ia", AtA), 1e-150))  # Jacobi scaling for the conditioning test
+        Sc = AtA / (root[:, :, None] * root[:, None, :])
+        ok &= np.all(np.isfinite(Sc), axis=(1, 2))
+        ok[ok] &= np.linalg.cond(Sc[ok]) < 1e10
+        coef = np.zeros((len(u), 6))
+        if ok.any():
+            coef[ok] = np.linalg.solve(AtA[ok], Atb[ok][:, :, None])[:, :, 0]
+        out[c] = P[c] + np.where(ok, coef[:, 0], 0.0)[:, None] * nrm
+    return out
 
 
 def _geometric_order(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from shape_toolkit.api.interfaces import Weighting, Weights
 from shape_toolkit.api.params import Interval, Options, Param
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.surface import local_delaunay_triangles, outward_normals
+from shape_toolkit.core.surface import jet_projected, local_delaunay_triangles, outward_normals
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins._params import NON_NEGATIVE
 
@@ -40,6 +40,15 @@ class IntrinsicDelaunayWeighting(Weighting):
     in space are not linked; ``'all'`` takes all ``n_neighbors`` (robust_laplacian's point-cloud Laplacian, the
     former default). On the tune half of the cloud benchmark (``benchmarks/results/cloud_matching_notes.md``)
     the sheets brought the spectra of TOSCA dogs and FAUST people closer to their meshes'.
+
+    ``cloud_smoothing`` (point clouds, ``'sheet'``): ``'jet'`` computes the cotangent weights and areas of those
+    triangles on the points projected onto their local quadric fits (:func:`~shape_toolkit.core.surface.jet_projected`,
+    the same ``n_neighbors``, own side only); the triangles themselves are chosen on the points as given. ``'none'``
+    (default) uses the points as given. Noise across the surface acts on matching through the Laplacian (on the tune
+    half, noisy clouds matched as well as clean ones with the Laplacian of the clean positions of the same points);
+    the jet halves a noisy cloud's departure from the clean cloud's spectrum, but on the tune half's matches it was
+    within their scatter and cost clean vertex clouds 0.010, so it is not the default
+    (``benchmarks/results/cloud_matching_notes.md``, round 4).
     """
 
     #: builds its own edges (intrinsic or local Delaunay triangulations); build_graph honours
@@ -53,12 +62,19 @@ class IntrinsicDelaunayWeighting(Weighting):
             Options("sheet", "all"),
             doc="point clouds: triangulate the neighbours on the point's own sheet of the surface, or all",
         ),
+        "cloud_smoothing": Param(
+            Options("jet", "none"),
+            doc="point clouds, 'sheet': build the Laplacian on the points projected onto their local quadric (jet) "
+                "fits, or on the points as given",
+        ),
     }
 
-    def __init__(self, mollify_factor: float = 1e-5, n_neighbors: int = 30, cloud_neighbors: str = "sheet"):
+    def __init__(self, mollify_factor: float = 1e-5, n_neighbors: int = 30, cloud_neighbors: str = "sheet",
+                 cloud_smoothing: str = "none"):
         self.mollify_factor = mollify_factor
         self.n_neighbors = n_neighbors
         self.cloud_neighbors = cloud_neighbors
+        self.cloud_smoothing = cloud_smoothing
 
     def weigh(self, shape: Shape, edges: np.ndarray) -> Weights:
         """Intrinsic-Delaunay cotangent weights and lumped vertex areas."""
@@ -88,7 +104,10 @@ class IntrinsicDelaunayWeighting(Weighting):
                         centred(v), mollify_factor=self.mollify_factor, n_neighbors=self.n_neighbors
                     )
                 else:
-                    triangles = local_delaunay_triangles(v, outward_normals(v), self.n_neighbors)
+                    normals = outward_normals(v)
+                    triangles = local_delaunay_triangles(v, normals, self.n_neighbors)
+                    if self.cloud_smoothing == "jet":  # the same triangles, their lengths and areas denoised
+                        v = jet_projected(v, normals, self.n_neighbors)
                     if len(triangles) == 0:
                         raise InvalidShapeError(f"{shape!r}: {no_triangle}; the cloud Laplacian needs points "
                                                 "sampling a surface")
