@@ -283,13 +283,15 @@ class ShellAlignmentMatcher(DenseMatcher):
                     qs, qt = P, Xtc
                 if use_normals:
                     qs, qt = np.hstack([qs, Ns]), np.hstack([qt, Nt])
-                T, Tr = cols[nn(qt, qs)], rows[nn(qs, qt)]  # target vertex of each row, source vertex of each col
+                T = cols[nn(qt, qs)]  # target vertex of each row
                 # least squares on both maps: source x -> T(x), and T'(y) -> target y (a part: the first only)
-                H = Psr.T @ (wr[:, None] * Psr) + damp
-                g = Psr.T @ (wr[:, None] * (Xt[T] - Xsr))
                 if part is None:
-                    H += Ps[Tr].T @ (wc[:, None] * Ps[Tr])
-                    g += Ps[Tr].T @ (wc[:, None] * (Xtc - Xs[Tr]))
+                    Tr = rows[nn(qs, qt)]  # source vertex of each col
+                    H = Psr.T @ (wr[:, None] * Psr) + Ps[Tr].T @ (wc[:, None] * Ps[Tr]) + damp
+                    g = Psr.T @ (wr[:, None] * (Xt[T] - Xsr)) + Ps[Tr].T @ (wc[:, None] * (Xtc - Xs[Tr]))
+                else:
+                    H = Psr.T @ (wr[:, None] * Psr) + damp
+                    g = Psr.T @ (wr[:, None] * (Xt[T] - Xsr))
                 if ws:
                     a, b = seeds[:, 0], seeds[:, 1]
                     H += ws * Ps[a].T @ Ps[a]
