@@ -8,7 +8,10 @@ assumes, tested on distances between farthest-point samples of the part, up to o
 units do not matter). Each candidate's map is also refined by ZoomOut on the Laplacian eigenbasis of its own
 support on the whole (a submesh slightly larger than the part's image), whose functions are localized on the region
 the part covers (the idea of localized manifold harmonics), and the map of least distortion among the candidates
-and their refinements is kept.
+and their refinements is kept. With ``part_shells`` (the ``partial`` preset), the kept map also places the part's
+smooth shells on the whole (:func:`with_part_shells`: extrinsic, only the part pulls), and those maps compete on
+the same distortion (tuning half, 30% crops: dogs 0.147 -> 0.085, FAUST people 0-1 unchanged;
+benchmarks/results/partial_matching_notes.md, round 4).
 
 The WKS of a part and of the whole at shared energies (:func:`part_wave_kernel_signatures`), which every partial
 ``fmap-zoomout`` map is fitted on, lives here too.
