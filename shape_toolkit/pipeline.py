@@ -129,8 +129,11 @@ PRESETS: dict[str, dict[str, Any]] = {
         "zoomout with rectangular functional maps whose target basis spans the part's frequencies (the slanted "
         "diagonal of Rodola et al. 2017), WKS at shared energies; a map for each area ratio (the diagonal's slope: "
         "the shapes' areas' one and 0.4-1.0), each also refined on the eigenbasis of its support on the whole, the "
-        "one closest to an isometry up to scale kept (shapes in any units)",
-        "dense": {"plugin": "fmap-zoomout", "params": {"partial": True, "area_ratios": PARTIAL_AREA_RATIOS}},
+        "one closest to an isometry up to scale kept (shapes in any units); the part's smooth shells placed on the "
+        "whole from that map (only the part pulls), in the given frame and the map's, compete on the same "
+        "distortion",
+        "dense": {"plugin": "fmap-zoomout",
+                  "params": {"partial": True, "area_ratios": PARTIAL_AREA_RATIOS, "part_shells": True}},
     },
     "zoomout-fast": {
         "description": "zoomout with 8 ZoomOut steps of 10 instead of 16 of 5 (same final basis)",

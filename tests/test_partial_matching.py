@@ -193,6 +193,9 @@ def test_area_ratios_need_partial():
     s = icosphere(2)
     with pytest.raises(ParameterError, match="area_ratios.*needs partial"):
         FmapZoomOutMatcher(area_ratios=[0.5, 1.0]).match(_hemisphere(s), s)
+    for bad in ({"partial": True}, {"partial": True, "area_ratios": [0.5], "area_ratio": 0.5}):
+        with pytest.raises(ParameterError, match="part_shells.*area_ratios"):
+            FmapZoomOutMatcher(part_shells=True, **bad).match(_hemisphere(s), s)
 
 
 @pytest.mark.slow
@@ -217,6 +220,9 @@ def test_the_partial_pipeline_finds_the_area_ratio_of_a_part_in_other_units(shar
     assert abs(found["scale"] - 1 / 1.3) < 0.05
     search = found["search"]
     assert search["distortion"] == min(c["distortion"] for c in search["candidates"] + search["refined"])
+    shells = found["shells"]  # the part's shells placed from the search's map compete on the same distortion
+    assert shells["distortion"] == min([search["distortion"]] + [c["distortion"] for c in shells["candidates"]])
+    assert {c["frame"] for c in shells["candidates"]} >= {"given", "given+zoomout"}
     err = geodesic_errors(whole, corr.target_of, sel, back[sel], method="dijkstra")
     with pytest.warns(UserWarning, match="not smaller than the target"):
         areas_only = FmapZoomOutMatcher(partial=True).match(part, whole)

@@ -120,6 +120,10 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     (:func:`~shape_toolkit.features.basis.part_support`, ``info["partial"]["support"]``). ``area_ratios``: candidate
     ratios (with the areas' one), the map of least geodesic distortion kept and refined on its support
     (:func:`~shape_toolkit.plugins.matching.dense.partial_search.match_over_area_ratios`; shapes in any units).
+    ``part_shells`` (with ``area_ratios``): the search's map also places the part's smooth shells on the whole
+    (``shell-alignment`` with ``partial = True``: extrinsic, the shapes in one frame), in the given frame and in the
+    frame the map estimates, each also refined on its support, and these compete on the same distortion
+    (:func:`~shape_toolkit.plugins.matching.dense.partial_search.with_part_shells`).
     """
 
     presets = {
@@ -150,6 +154,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                             doc="area of the part over the whole's (None: from the shapes' areas; partial only)"),
         "area_ratios": Param(None, ListOf(Interval(float, 0, 1, closed="right")),
                              doc="candidate area ratios, the map of least geodesic distortion kept (partial only)"),
+        "part_shells": Param(bool, doc="also align the part's smooth shells to the whole from the search's map, "
+                             "the least distorted map kept (needs area_ratios)"),
     }
 
     def __init__(
@@ -172,6 +178,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         partial: bool = False,
         area_ratio: float | None = None,
         area_ratios: list[float] | None = None,
+        part_shells: bool = False,
     ):
         self.k = k
         self.descriptor = descriptor
@@ -191,6 +198,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         self.partial = partial
         self.area_ratio = area_ratio
         self.area_ratios = area_ratios
+        self.part_shells = part_shells
 
     def _check(self) -> None:
         self._validate_params()
@@ -216,6 +224,9 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         for name in ("area_ratio", "area_ratios"):
             if getattr(self, name) is not None and not self.partial:
                 raise ParameterError(f"{name}: the part's share of the whole's area, needs partial = True")
+        if self.part_shells and (self.area_ratios is None or self.area_ratio is not None):
+            raise ParameterError("part_shells: the part's shells start from the area-ratio search's map, needs "
+                                 "partial = True and area_ratios (and no fixed area_ratio)")
 
     def _area_scale(self, spec_s: Spectrum, spec_t: Spectrum) -> float:
         """``area_t / area_s``: the whole's area over the part's (at least 1), from ``area_ratio`` or from the

@@ -8,7 +8,10 @@ assumes, tested on distances between farthest-point samples of the part, up to o
 units do not matter). Each candidate's map is also refined by ZoomOut on the Laplacian eigenbasis of its own
 support on the whole (a submesh slightly larger than the part's image), whose functions are localized on the region
 the part covers (the idea of localized manifold harmonics), and the map of least distortion among the candidates
-and their refinements is kept.
+and their refinements is kept. With ``part_shells`` (the ``partial`` preset), the kept map also places the part's
+smooth shells on the whole (:func:`with_part_shells`: extrinsic, only the part pulls), and those maps compete on
+the same distortion (tuning half, 30% crops: dogs 0.147 -> 0.085, FAUST people 0-1 unchanged;
+benchmarks/results/partial_matching_notes.md, round 4).
 
 The WKS of a part and of the whole at shared energies (:func:`part_wave_kernel_signatures`), which every partial
 ``fmap-zoomout`` map is fitted on, lives here too.
@@ -39,7 +42,10 @@ from shape_toolkit.features.geodesics import geodesic_distances
 from shape_toolkit.plugins.descriptors.wks import wave_kernel_signature as _wks
 from shape_toolkit.results.correspondence import Correspondence
 
-__all__ = ["part_wave_kernel_signatures", "geodesic_distortion", "support_submesh", "match_over_area_ratios"]
+__all__ = [
+    "part_wave_kernel_signatures", "geodesic_distortion", "support_submesh", "match_over_area_ratios",
+    "with_part_shells",
+]
 
 
 def part_wave_kernel_signatures(
@@ -186,4 +192,48 @@ def match_over_area_ratios(
     info = dict(corr.info)
     info["partial"] = {**info["partial"], "area_ratio": r, "scale": scale, "support": support, "search": {
         "candidates": rows, "refined": refined, "distortion": d}}
+    found_map = Correspondence(T, target.n_vertices, info=info)
+    if getattr(matcher, "part_shells", False):
+        return with_part_shells(matcher, source, target, spec_s, spec_t, found_map, dp, samples, bs, bt, progress)
+    return found_map
+
+
+def with_part_shells(
+    matcher, source: Shape, target: Shape, spec_s: Spectrum, spec_t: Spectrum, found: Correspondence,
+    part_distances: np.ndarray, samples: np.ndarray, bs: Basis, bt: Basis,
+    progress: Callable[[str], None] | None = None,
+) -> Correspondence:
+    """The map ``found`` of :func:`match_over_area_ratios` against the part's smooth shells placed on the whole
+    from it (:meth:`~shape_toolkit.plugins.matching.dense.shell_alignment.ShellAlignmentMatcher.match_part` at
+    its area ratio): in the given frame and, when ``found`` keeps orientation, in the frame it estimates (the
+    rotation of the ``best-of`` pipeline, :meth:`~shape_toolkit.plugins.matching.dense.best_of.BestOfMatcher._frame`),
+    each also refined on its support (:data:`SUPPORT_GROWTH`'s first growth); the map of least
+    :func:`geodesic_distortion` (``part_distances`` ``(q, q)`` between the part's ``samples``) kept.
+    ``info["partial"]["shells"]`` lists every shells map's distortion and which map was kept
+    (``"search"``: ``found``); ``bs``, ``bt``: the full bases of the two spectra."""
+    from shape_toolkit.plugins.matching.dense.best_of import BestOfMatcher
+    from shape_toolkit.plugins.matching.dense.shell_alignment import ShellAlignmentMatcher
+
+    part = found.info["partial"]
+    d, ratio, T, support, chosen = part["search"]["distortion"], part["area_ratio"], found.target_of, None, "search"
+    scale, shells, rows = part["scale"], ShellAlignmentMatcher(partial=True), []
+    turned, frame = BestOfMatcher._frame(source, target, np.asarray(T), bs.mass, "partial search")
+    growth = SUPPORT_GROWTH[0]
+    for label, src in [("given", source)] + ([("estimated", turned)] if turned is not None else []):
+        c = shells.match_part(src, target, np.asarray(found.target_of), ratio, source_spectrum=spec_s,
+                              target_spectrum=spec_t)
+        T2, keep = _refined_on_support(matcher, source, target, bs, bt, c.target_of, ratio, growth)
+        for name, Tc, sup in ((label, c.target_of, None), (f"{label}+zoomout", T2, keep)):
+            dc, sc = geodesic_distortion(part_distances, target, Tc[samples])
+            rows.append({"frame": name, "distortion": dc})
+            if progress is not None:
+                progress(f"partial: shells ({name}), geodesic distortion {dc:.3g}")
+            if dc < d:
+                d, T, scale, support, chosen = dc, Tc, sc, sup, name
+    if support is None and chosen != "search":  # the shells' own map: its support as the search's maps have one
+        support = part_support(T, bs, bt, ratio)
+    info = dict(found.info)
+    info["partial"] = {**part, "scale": scale, "support": part["support"] if support is None else support,
+                       "shells": {"candidates": rows, "chosen": chosen, "distortion": d,
+                                  "estimated_frame": frame}}
     return Correspondence(T, target.n_vertices, info=info)
