@@ -217,7 +217,8 @@ def with_part_shells(
     part = found.info["partial"]
     d, ratio, T, support, chosen = part["search"]["distortion"], part["area_ratio"], found.target_of, None, "search"
     scale, shells, rows = part["scale"], ShellAlignmentMatcher(partial=True), []
-    turned, frame = BestOfMatcher._frame(source, target, np.asarray(T), bs.mass, "partial search")
+    # every estimated frame is run (same = 0 degrees): measured so; a part's start is less certain than a whole's
+    turned, frame = BestOfMatcher._frame(source, target, np.asarray(T), bs.mass, "partial search", 0.0)
     growth = SUPPORT_GROWTH[0]
     for label, src in [("given", source)] + ([("estimated", turned)] if turned is not None else []):
         c = shells.match_part(src, target, np.asarray(found.target_of), ratio, source_spectrum=spec_s,
