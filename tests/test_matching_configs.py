@@ -15,12 +15,13 @@ CONFIGS = Path(__file__).resolve().parent.parent / "benchmarks" / "configs"
 def test_photometric_seeds_config_plans_its_rows():
     """Generated data only, 5 seeds x 2 pairs (pose 1 -> 2, pose 0 -> 2): (clean + 3 glue strengths + 3 colour
     noises + 3 glue strengths then colour noise) x 3 sparse matchers, (clean + 3 glue strengths) x 4 dense methods,
-    (3 colour noises + 3 glued noisy) x the colour-seeded chain."""
+    (3 colour noises + 3 glued noisy) x the colour-seeded chain, 3 glued noisy x 2 geometric peers (`topo-robust`,
+    pyFM: the same targets as the colour chain's)."""
     cfg = load_config(CONFIGS / "photometric_seeds.toml")
-    assert cfg.planned_rows == 5 * 2 * (10 * 3 + 4 * 4 + 6)
+    assert cfg.planned_rows == 5 * 2 * (10 * 3 + 4 * 4 + 6 + 3 * 2)
     assert all([r.name for r in d.refs] == ["pose1", "pose0-pose2"] for d in cfg.datasets.values())
     assert all([r.params.get("target_index") for r in d.refs] == [None, 2] for d in cfg.datasets.values())
-    seeds, dense, colours = cfg.tasks
+    seeds, dense, colours, peers = cfg.tasks
     assert all(t.options["score_on"] == "clean" for t in cfg.tasks)
     assert {m.method_label.split("(")[0] for m in seeds.methods} == {"photometric", "photometric-norefine",
                                                                      "replicator"}
@@ -28,6 +29,9 @@ def test_photometric_seeds_config_plans_its_rows():
     assert {m.method_label for m in dense.methods} == {"pipeline:topo-robust-photometric", "pipeline:topo-robust",
                                                        "pipeline:zoomout", "peer:pyfm"}
     assert {c.kind for c in colours.corruptions} == {"color-noise", "glue+color-noise"}
+    # the peers see the very targets the colour chain sees: the same corruption entries, hence the same seeds
+    assert [c.name for c in peers.corruptions] == [c.name for c in colours.corruptions if c.kind != "color-noise"]
+    assert {m.method_label for m in peers.methods} == {"pipeline:topo-robust", "peer:pyfm"}
     glued_noisy = [c for c in seeds.corruptions if c.kind == "glue+color-noise"]
     assert [c.name for c in glued_noisy] == [f"glued-noisy[glue:{s}+color-noise:0.05]" for s in (1, 3, 6)]
     assert [c.strength for c in glued_noisy] == [1, 3, 6]  # plotted against the contacts

@@ -102,28 +102,23 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     (the default WKS on the first ``round(band * K)`` of the ``K`` non-null eigenpairs). The one ZoomOut
     refines best on ``selection_samples`` source vertices (:func:`~shape_toolkit.features.basis.zoomout_select`)
     is refined on every vertex; ``info["hypotheses"]`` records the residuals and the choice. None:
-    :data:`DEFAULT_HYPOTHESES`; ``[{}]``: a single fit. Why: which pairs come out with a part swapped
-    depends on the fit's basis size, orientation weight and band, while the refined map's residual tells
-    a swapped map from a sound one. ``band`` applies to the default WKS only.
+    :data:`DEFAULT_HYPOTHESES`; ``[{}]``: a single fit. Why: a swapped part depends on the fit's basis size,
+    orientation weight and band; the refined map's residual tells it (``band``: the default WKS only).
 
-    ``partial``: the source is a part of the target (a scan seeing one side, a region cut away). The functional
-    maps are then rectangular: the target basis spans the frequencies of the source's
+    ``partial``: the source is a part of the target (a scan seeing one side, a region cut away). The functional maps are
+    then rectangular: the target basis spans the frequencies of the source's
     (:func:`~shape_toolkit.features.basis.slanted_size`; Rodola et al. 2017's slanted diagonal, ZoomOut's partial
-    variant), the WKS of both shapes share their energies (:func:`part_wave_kernel_signatures`) and the
-    Laplacian term compares eigenvalues in common units. The part's share of the whole's area is
-    ``area_ratio``, or, by default, the ratio of the two shapes' areas (their spectra's mass: the shapes must be
-    in the same units; a part more than :data:`MAX_PART_AREA_RATIO` times the whole's area is refused, a ratio
-    above 1 is taken as 1). The declared spectrum is twice as large, so a part down to half the target's area
-    is covered; a smaller part is matched on a target basis truncated there (``info["target_basis_truncated"]``).
-    A part in several pieces is refused by its spectrum (``DisconnectedGraphError``, naming the ways out). The
-    final point map looks only inside the part's support on the whole, recovered from the refined map
-    (:func:`~shape_toolkit.features.basis.part_support`, ``info["partial"]["support"]``). ``area_ratios``: candidate
-    ratios (with the areas' one), the map of least geodesic distortion kept and refined on its support
-    (:func:`~shape_toolkit.plugins.matching.dense.partial_search.match_over_area_ratios`; shapes in any units).
-    ``part_shells`` (with ``area_ratios``): the search's map also places the part's smooth shells on the whole
-    (``shell-alignment`` with ``partial = True``: extrinsic, the shapes in one frame), in the given frame and in the
-    frame the map estimates, each also refined on its support, and these compete on the same distortion
-    (:func:`~shape_toolkit.plugins.matching.dense.partial_search.with_part_shells`).
+    variant), the WKS of both shapes share their energies (:func:`part_wave_kernel_signatures`) and the Laplacian term
+    compares eigenvalues in common units. The part's share of the whole's area is ``area_ratio``, or the ratio of the
+    shapes' areas (same units; above :data:`MAX_PART_AREA_RATIO` refused, above 1 taken as 1). The declared spectrum is
+    twice as large, so a part down to half the target's area is covered; a smaller part is matched on a target basis
+    truncated there (``info["target_basis_truncated"]``). A part in several pieces is refused
+    (``DisconnectedGraphError``). The final point map looks only inside the part's support on the whole, recovered from
+    the refined map (:func:`~shape_toolkit.features.basis.part_support`, ``info["partial"]["support"]``).
+    ``area_ratios``: candidate ratios (with the areas' one), the map of least geodesic distortion kept and refined on
+    its support (:func:`~shape_toolkit.plugins.matching.dense.partial_search.match_over_area_ratios`; shapes in any
+    units). ``part_shells``: the search's map also places the part's smooth shells on the whole, and they compete on the
+    same distortion (:func:`~shape_toolkit.plugins.matching.dense.partial_search.with_part_shells`).
     """
 
     presets = {
@@ -154,8 +149,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                             doc="area of the part over the whole's (None: from the shapes' areas; partial only)"),
         "area_ratios": Param(None, ListOf(Interval(float, 0, 1, closed="right")),
                              doc="candidate area ratios, the map of least geodesic distortion kept (partial only)"),
-        "part_shells": Param(bool, doc="also align the part's smooth shells to the whole from the search's map, "
-                             "the least distorted map kept (needs area_ratios)"),
+        "part_shells": Param(bool, doc="also the part's smooth shells placed from the search's map (area_ratios)"),
     }
 
     def __init__(
@@ -225,8 +219,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
             if getattr(self, name) is not None and not self.partial:
                 raise ParameterError(f"{name}: the part's share of the whole's area, needs partial = True")
         if self.part_shells and (self.area_ratios is None or self.area_ratio is not None):
-            raise ParameterError("part_shells: the part's shells start from the area-ratio search's map, needs "
-                                 "partial = True and area_ratios (and no fixed area_ratio)")
+            raise ParameterError("part_shells needs partial = True and area_ratios (no fixed area_ratio)")
 
     def _area_scale(self, spec_s: Spectrum, spec_t: Spectrum) -> float:
         """``area_t / area_s``: the whole's area over the part's (at least 1), from ``area_ratio`` or from the

@@ -154,9 +154,9 @@ class ShellAlignmentMatcher(DenseMatcher):
         part's frequencies)."""
         if not self.partial:
             return default_spec(int(max(self._check())) + 1)
-        from shape_toolkit.plugins.matching.dense.fmap_zoomout import FmapZoomOutMatcher
+        from shape_toolkit.api.registry import create_plugin  # by name: fmap-zoomout's search imports this module
 
-        start = FmapZoomOutMatcher(partial=True).spectrum_spec().k
+        start = create_plugin("dense_matchers", "fmap-zoomout", partial=True).spectrum_spec().k
         return default_spec(max(start, 2 * int(max(self._check())) + 1))
 
     def match(
@@ -179,9 +179,9 @@ class ShellAlignmentMatcher(DenseMatcher):
         (:meth:`match_part`)."""
         self._check()
         if self.partial:
-            from shape_toolkit.plugins.matching.dense.fmap_zoomout import FmapZoomOutMatcher
+            from shape_toolkit.api.registry import create_plugin  # by name, as in spectrum_spec
 
-            start = FmapZoomOutMatcher(partial=True, area_ratio=self.area_ratio).match(
+            start = create_plugin("dense_matchers", "fmap-zoomout", partial=True, area_ratio=self.area_ratio).match(
                 source, target, seeds=seeds, source_spectrum=source_spectrum, target_spectrum=target_spectrum)
             ratio = float(start.info["partial"]["area_ratio"])
             return self.match_part(source, target, np.asarray(start.target_of), ratio, seeds=seeds,
