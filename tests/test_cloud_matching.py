@@ -12,7 +12,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.surface import cloud_surface, outward_normals
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.data.synthetic import articulated_shape
-from shape_toolkit.errors import InvalidShapeError
+from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.spectra import SpectrumSpec
 
 
@@ -275,6 +275,8 @@ def test_a_noisy_clouds_laplacian_can_be_built_on_its_denoised_points():
     w = IntrinsicDelaunayWeighting().weigh(Shape(clean, None, "c"), None)  # the default: the points as given
     wj = IntrinsicDelaunayWeighting(cloud_smoothing="jet").weigh(Shape(clean, None, "c"), None)
     assert abs(wj.W - w.W).max() < 1e-3 * abs(w.W).max()  # a clean cloud: about the same Laplacian
+    with pytest.raises(ParameterError, match="cloud_neighbors='sheet'"):  # 'all' has no triangles of its own
+        IntrinsicDelaunayWeighting(cloud_smoothing="jet", cloud_neighbors="all").weigh(Shape(clean, None, "c"), None)
 
 
 def _patchy_sphere() -> np.ndarray:

@@ -78,6 +78,8 @@ class IntrinsicDelaunayWeighting(Weighting):
 
     def weigh(self, shape: Shape, edges: np.ndarray) -> Weights:
         """Intrinsic-Delaunay cotangent weights and lumped vertex areas."""
+        if self.cloud_smoothing == "jet" and self.cloud_neighbors == "all":  # robust_laplacian's own triangles
+            raise ParameterError("cloud_smoothing='jet' needs cloud_neighbors='sheet' (the triangles it denoises)")
         v = np.ascontiguousarray(shape.vertices)
         if shape.is_mesh:
             L, M = robust_laplacian.mesh_laplacian(
