@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 
 from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.data.synthetic import articulated_shape
+from shape_toolkit.errors import ParameterError
 from shape_toolkit.metrics import geodesic_errors
 from shape_toolkit.plugins.matching.dense import em_registration as em_mod
 from shape_toolkit.plugins.matching.dense.orientation_repair import ORIENTATION_K
@@ -198,6 +199,23 @@ def test_em_register_sampled_path(pair):
     assert abs(s3 - s1) / s1 < 0.1
     again = em_mod.em_register(X, Y, Q0, max_samples=len(Y) // 5, random_state=0)
     np.testing.assert_array_equal(again[0], Q3)  # deterministic given random_state
+
+
+def test_em_register_is_equivariant_to_a_rotation_of_the_means(pair):
+    """EM searches the means once in their own frame (|y - Q x| = |y Q - x| for orthogonal Q): rotating the source
+    embedding by R and the start by R^T gives the same posteriors and Q R^T; a start that is not orthogonal is
+    refused (the identity above would not hold)."""
+    A, B, seeds = pair
+    em = create_plugin("dense_matchers", "em-registration")
+    emb = em.embedding(A, B, None, None)
+    X, Y, Q0 = emb.X, emb.Y, em.initial_transform(emb, seeds)
+    R = np.linalg.qr(np.random.default_rng(0).normal(size=(X.shape[1],) * 2))[0]
+    Q1, s1, P1 = em_mod.em_register(X, Y, Q0, max_iter=10)
+    Q2, s2, P2 = em_mod.em_register(X @ R.T, Y, Q0 @ R.T, max_iter=10)
+    np.testing.assert_allclose(Q2, Q1 @ R.T, atol=1e-8)
+    assert abs(s2 - s1) <= 1e-8 * s1 and abs(P2 - P1).max() < 1e-8
+    with pytest.raises(ParameterError, match="orthogonal"):
+        em_mod.em_register(X, Y, 1.5 * Q0)
 
 
 @pytest.mark.slow
