@@ -168,7 +168,7 @@ def map_distortion(
 class EigvecAlignmentMatcher(EMRegistrationMatcher):
     """Mateus et al. 2008 and Algorithm 5's soft assignments: the eigenvectors aligned (``alignment``), then EM
     registration (parameters as ``em-registration``, plus ``bins``, ``alignment``, ``window``, ``beam``,
-    ``side`` and ``holes``). Seeds are ignored.
+    ``rotations``, ``side`` and ``holes``). Seeds are ignored.
 
     Default: area-normalized Laplace-Beltrami eigenvectors, unscaled, the ``"search"`` alignment (module
     docstring) keeping orientation. Preset ``thesis`` (Algorithm 5, section 5.4): the histogram alignment of the
@@ -259,7 +259,8 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
               target_spectrum=None, min_dim: int = 0) -> tuple[Embedding, np.ndarray, dict]:
         """The embeddings (``scaling``; no bases: no refinement) and ``Q0``: the histogram alignment of their
         eigenvectors, or (``alignment="search"``) the sampled EM fit of the chosen candidate; ``seeds`` are
-        ignored. ``info`` records the alignment (``Q0``; the search's ``alignment_*`` scores)."""
+        ignored. ``info`` records the alignment (``Q0``; the search's ``alignment_*`` scores; the rotations'
+        ``rotations_tried`` and ``rotation_distortion``)."""
         self._check()
         bs, bt = self._bases(source, target, source_spectrum, target_spectrum, min_dim)
         K = self._shared_dimension(int(self.k), bs, bt)  # one size on both shapes, however small
