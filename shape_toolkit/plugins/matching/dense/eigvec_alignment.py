@@ -41,7 +41,8 @@ from shape_toolkit.core.geometry import farthest_point_sampling
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins._params import POSITIVE_INT
-from shape_toolkit.plugins.matching.dense.em_registration import Embedding, EMRegistrationMatcher, em_register
+from shape_toolkit.plugins.matching.dense.em_registration import Embedding, EMRegistrationMatcher
+from shape_toolkit.plugins.matching.em import em_register
 from shape_toolkit.validation import check_random_state
 
 __all__ = ["EigvecAlignmentMatcher", "histogram_alignment", "joint_alignment_candidates", "map_distortion"]
