@@ -1,6 +1,5 @@
 """How far a point map is from an isometry, without ground truth: the geodesic distortion of :func:`map_distortion`,
-which ranks candidate maps where a spectral residual cannot (``eigvec-alignment``'s candidate alignments, the
-final pick of ``best-of``).
+which ranks candidate maps (``eigvec-alignment``'s candidate alignments and their rotations).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """EM registration of two point sets by an orthogonal transform (thesis Algorithm 7, section 7.4.1; Horaud et al.
 2011): the source points are the means of an isotropic Gaussian mixture with a uniform outlier class, the target
 points the data; EM estimates the orthogonal ``Q`` and the variance ``sigma`` (eq. 7.1-7.3). Shared by the
-``em-registration`` and ``eigvec-alignment`` matchers and the orientation repair.
+``em-registration`` and ``eigvec-alignment`` matchers.
 """
 
 from __future__ import annotations
