@@ -355,3 +355,27 @@ def test_the_latex_tables_compile(report, tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout[-2000:]
     assert (tmp_path / "doc.pdf").stat().st_size > 1000
+
+
+def test_sparse_seeds_are_pooled_over_items_and_datasets(tmp_path):
+    """Issue 28: a sparse matcher's precision pooled over every seed of every pair (correct / seeds), beside
+    the per-item means, from the rows' own seed counts."""
+    datasets = [{"name": f"s{seed}", "kind": "synthetic", "items": ["pose1"],
+                 "params": {"n_poses": 2, "subdivisions": 2, "random_state": seed}} for seed in (0, 1)]
+    cfg = {"run": {"name": "pooled", "random_state": 0}, "datasets": datasets,
+           "tasks": [{"task": "matching", "name": "seeds", "metrics": ["geodesic_error"],
+                      "options": {"geodesic_method": "dijkstra", "truth_sample": 100000},
+                      "methods": [{"plugin": "replicator", "keypoints": {"plugin": "adf-maxima"}}]}]}
+    run = run_config(cfg, tmp_path / "run")
+    rows = [json.loads(line) for line in (run / "results.jsonl").read_text().splitlines()]
+    assert len(rows) == 2 and all(r["status"] == "ok" for r in rows)
+    n = [r["metrics"]["n_scored"] for r in rows]
+    assert all(isinstance(v, int) and v > 0 for v in n), n
+    within = [r["metrics"]["within_0.05"] for r in rows]
+    res = write_report(run, renders=0)
+    pooled = next(t for t in res["tables"] if t.name.endswith("-seeds-pooled.csv"))
+    (row,) = list(csv.DictReader(pooled.open(encoding="utf-8")))
+    assert row["method"] == "replicator" and int(float(row["n_scored"])) == sum(n)
+    want = sum(w * c for w, c in zip(within, n)) / sum(n)  # correct seeds / seeds, not the mean of the pairs
+    assert float(row["within_0.05"]) == pytest.approx(want, abs=1e-4)
+    assert "Pooled: each metric is the mean over all scored points" in res["html"].read_text(encoding="utf-8")

@@ -665,6 +665,42 @@ def _category_grid(task: str, rows: list[dict]) -> _Grid | None:
     return g
 
 
+#: the metrics :func:`_pooled_grid` pools (means over scored points: a weighted mean of the rows' is the pooled one)
+_POOLED_METRICS = ("within_0.05", "mean_geodesic_error", "mean_geodesic_error_sym")
+
+
+def _pooled_grid(task: str, rows: list[dict]) -> _Grid | None:
+    """Per method and corruption, the task's scored points pooled over every item of every dataset: each of
+    :data:`_POOLED_METRICS` as the mean of the rows' values weighted by their ``n_scored`` (a sparse
+    matcher's seeds at truth points: ``within_0.05`` becomes correct seeds / seeds), and the total count;
+    None when no ok row has ``n_scored``."""
+    acc: dict = defaultdict(lambda: defaultdict(lambda: [0.0, 0.0]))
+    for r in rows:
+        m = r.get("metrics") or {}
+        if r.get("status") != "ok" or not _is_num(m.get("n_scored")):
+            continue
+        n, cell = float(m["n_scored"]), acc[(method_id(r), str(r.get("corruption", "none")))]
+        cell["n_scored"][0] += n
+        for c in _POOLED_METRICS:
+            if n > 0 and _is_num(m.get(c)):
+                cell[c][0] += n * float(m[c])
+                cell[c][1] += n
+    if not acc:
+        return None
+    cols = [c for c in _POOLED_METRICS if any(c in v for v in acc.values())] + ["n_scored"]
+    g = _Grid(f"Task {task}: pooled over every item and dataset (each scored point weighs the same)",
+              ["method", "corruption"], cols, stats=False)
+    for key in sorted(acc):
+        cell = acc[key]
+        g.rows.append((list(key), [None if c not in cell else (cell[c][0], 0.0, 1, "") if c == "n_scored"
+                                   else (cell[c][0] / cell[c][1], 0.0, 1, "") if cell[c][1] > 0 else _NA
+                                   for c in cols]))
+    g.notes.append("Pooled: each metric is the mean over all scored points of the method's rows, whatever their item "
+                   "or dataset (within_0.05: correct seeds / scored seeds); n_scored is their total. The tables above "
+                   "weigh every item the same instead.")
+    return g
+
+
 def _split_note(run: Path, rows: list[dict]) -> str | None:
     """The one line saying which half of which split the run shows (``RUN/split.json``) and how many of
     its items have rows, or None without a split."""
@@ -1493,6 +1529,9 @@ def _page(run: Path, out: Path, rows: list[dict], figs: _Figs, tables: _Tables, 
             cat = _category_grid(task, trows)
             if cat is not None:
                 parts.append(_html_table(cat) + tables.write(cat, f"{task}-categories"))
+            pooled = _pooled_grid(task, trows)
+            if pooled is not None:
+                parts.append(_html_table(pooled) + tables.write(pooled, f"{task}-pooled"))
             groups = _item_grids(task, trows, measured)
             if groups:
                 n_items = sum(len(g.rows) for _, g in groups)

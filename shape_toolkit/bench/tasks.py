@@ -744,7 +744,8 @@ def _errors(p: Prepared, target_of: np.ndarray, *, symmetric: bool = False) -> n
 
 def _m_geodesic(p, o, opt):
     """The normalised geodesic error against the ground truth alone (mean, median, within 0.05,
-    matched fraction, curve); where the dataset has a symmetric ground truth also the
+    matched fraction, curve; for a sparse method, on its seeds at truth points, and ``n_scored``, how
+    many those are); where the dataset has a symmetric ground truth also the
     symmetry-aware error (``mean_geodesic_error_sym``, its curve) and ``flipped`` (1 when the map
     swaps left and right: :func:`shape_toolkit.metrics.is_flipped`, else 0); without one those are
     null (n/a in reports, never 0)."""
@@ -755,7 +756,7 @@ def _m_geodesic(p, o, opt):
     if o.get("sparse"):  # evaluate the matched truth points only
         keep = t[ts] >= 0
         if not keep.any():
-            return {"mean_geodesic_error": float("nan"), "matched_fraction": 0.0,
+            return {"mean_geodesic_error": float("nan"), "matched_fraction": 0.0, "n_scored": 0,
                     **({"mean_geodesic_error_sym": float("nan"), "flipped": None} if sym else {})}
         sub = Prepared(**{**p.__dict__})
         sub.truth_eval = p.truth_eval[keep]
@@ -778,6 +779,8 @@ def _m_geodesic(p, o, opt):
         out["geodesic_error_sym_curve"] = rs["curve"]
         both = np.isfinite([res["mean_geodesic_error"], rs["mean_geodesic_error"]]).all()
         out["flipped"] = int(flipped(res["mean_geodesic_error"], rs["mean_geodesic_error"])) if both else None
+    if o.get("sparse"):  # how many seeds were scored: the weight of this row when seeds are pooled over items
+        out["n_scored"] = len(p.truth_eval)
     return out
 
 
