@@ -74,7 +74,7 @@ from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
-__all__ = ["BestOfMatcher"]
+__all__ = ["BestOfMatcher", "estimated_frame"]
 
 
 #: where the ZoomOut polish of an extrinsic map starts (fmap-zoomout's initial size)
@@ -105,6 +105,28 @@ def _one_piece(surface: Shape) -> bool:
 def _degrees(R: np.ndarray) -> float:
     """The angle of the rotation ``R`` ``(3, 3)``, in degrees."""
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def estimated_frame(source: Shape, target: Shape, target_of: np.ndarray, mass: np.ndarray, name: str,
+                    same: float = 0.0) -> tuple[Shape | None, dict[str, Any]]:
+    """The source turned into the frame a map ``target_of`` ``(n_s,)`` estimates: the rigid rotation that best
+    carries the source's vertices (weights ``mass`` ``(n_s,)``) onto their images, when the map is judged to keep
+    orientation (:func:`~shape_toolkit.plugins.matching.orientation.orientation_verdict`), and what was decided
+    (``name``: the map's origin, for ``info``). None instead of a shape when the map is not judged to keep
+    orientation, or when the frame is turned by less than ``same`` degrees from the given one."""
+    t = np.asarray(target_of)
+    verdict = orientation_verdict(source, target, t)
+    frame: dict[str, Any] = {"from": name, "verdict": verdict["verdict"], "z": verdict["z"]}
+    ok = np.flatnonzero(t >= 0)
+    if verdict["verdict"] != "preserving" or len(ok) < 3:
+        return None, frame
+    X = np.asarray(source.vertices, dtype=np.float64)
+    R = rigid_rotation(X[ok], np.asarray(target.vertices, dtype=np.float64)[t[ok]], mass[ok])
+    frame["rotation_degrees"] = _degrees(R)
+    if frame["rotation_degrees"] < same:
+        frame["same_as_given"] = True
+        return None, frame
+    return source.with_vertices(X @ R.T), frame
 
 
 def _matcher(spec: Any) -> Any:
@@ -225,8 +247,8 @@ class BestOfMatcher(DenseMatcher):
                 if corr is not None:
                     consider(name, corr)
                     if self.reframe and turned is None and not frame:
-                        turned, frame = self._frame(source, target, np.asarray(corr.target_of), bs.mass, name,
-                                                    float(self.same_frame))
+                        turned, frame = estimated_frame(source, target, np.asarray(corr.target_of), bs.mass, name,
+                                                        float(self.same_frame))
                 continue
             for label, src in [(name, source)] + ([(f"{name}@frame", turned)] if turned is not None else []):
                 corr = run(label, m, src)
@@ -264,25 +286,6 @@ class BestOfMatcher(DenseMatcher):
         if canon:
             info["canonical_frame"] = canon
         return Correspondence(best[2].target_of, target.n_vertices, best[2].confidence, best[2].posteriors, info)
-
-    @staticmethod
-    def _frame(source: Shape, target: Shape, t: np.ndarray, mass: np.ndarray, name: str,
-               same: float) -> tuple[Shape | None, dict[str, Any]]:
-        """The source turned into the frame of the intrinsic map ``t`` (None when the map is not judged to
-        keep orientation, or when that frame is turned by less than ``same`` degrees from the given one) and what
-        was decided."""
-        verdict = orientation_verdict(source, target, t)
-        frame: dict[str, Any] = {"from": name, "verdict": verdict["verdict"], "z": verdict["z"]}
-        ok = np.flatnonzero(t >= 0)
-        if verdict["verdict"] != "preserving" or len(ok) < 3:
-            return None, frame
-        X = np.asarray(source.vertices, dtype=np.float64)
-        R = rigid_rotation(X[ok], np.asarray(target.vertices, dtype=np.float64)[t[ok]], mass[ok])
-        frame["rotation_degrees"] = _degrees(R)
-        if frame["rotation_degrees"] < same:
-            frame["same_as_given"] = True
-            return None, frame
-        return source.with_vertices(X @ R.T), frame
 
     @staticmethod
     def _canonical(source: Shape, target: Shape, t: np.ndarray, mass: np.ndarray,
