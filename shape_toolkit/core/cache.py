@@ -9,7 +9,7 @@ fills it, so a user can find it, read its size, resize it or clear it:
 * ``data.synthetic.POSE_SEQUENCE_CACHE``: generated pose sequences;
 * ``plugins.segmenters.sdf.SDF_CACHE``: normalised per-face shape diameter functions.
 
-The caches a caller owns (``plugins.matching.orientation.SideCache``) store their entries in it too.
+The caches a caller owns (``plugins.matching.side_cache.SideCache``) store their entries in it too.
 """
 
 from __future__ import annotations

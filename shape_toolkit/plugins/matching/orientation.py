@@ -6,36 +6,31 @@
   an orientation-aware functional map as a yardstick of sides (:class:`SideReference`,
   :func:`side_reference`), which decide the side of each sparse match (:func:`orient_pairs`).
 
-The symmetry maps and side references are costly and asked for more than once per pair (a pipeline's
-sparse stage and EM): a caller that wants them computed once owns a :class:`SideCache` and passes it
-as ``cache=``, or opens a scope (``with side_cache_scope():``) in which every call without ``cache=`` shares
-one (a pipeline run does; nothing is kept after the scope).
+The symmetry maps and side references are computed once per pair for a caller that owns a :class:`SideCache`
+or opens a ``side_cache_scope()`` (:mod:`.side_cache`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import weakref
-from collections.abc import Callable, Iterator, Sequence
-from contextvars import ContextVar
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.geometry import farthest_point_sampling, outward_vertex_normals
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.core.surface import outward_normals
-from shape_toolkit.features.basis import Basis, basis_of
+from shape_toolkit.features.basis import Basis, basis_of, fmap_from_p2p, zoomout_residual
 from shape_toolkit.plugins.matching.descriptors import shared_spectra
+from shape_toolkit.plugins.matching.side_cache import SideCache, cached, scoped, side_cache_scope
 
 __all__ = [
     "orientation_votes", "orientation_score", "ORIENTATION_Z", "orientation_verdict", "side_matcher",
     "fine_matcher", "symmetry_matcher", "SideCache", "symmetry_map", "symmetry_validity", "SideReference",
-    "side_reference", "orient_pairs", "side_cache_scope",
+    "side_reference", "orient_pairs", "side_cache_scope", "SYMMETRY_FITS",
 ]
 
 
@@ -148,112 +143,64 @@ def side_matcher(orientation: str = "preserving"):
                          zoomout_step=5, zoomout_samples=1000, hypotheses=({},))
 
 
-def fine_matcher(orientation: str = "preserving"):
+def fine_matcher(orientation: str = "preserving", fit: dict | None = None):
     """The finer functional map matcher of the thesis pipelines' orientation checks
     (``fmap-zoomout``: WKS, k = 30, ZoomOut to 110 in 8 steps of 10, the ``fast`` schedule; every
     vertex queries, and the candidates of the inner steps are all vertices up to 5000 -- every shape
     of the shared 5k sets -- and 5000 farthest-point samples beyond, so that at 245k vertices each
     step is not an exact n x n search; the final map is). ``orientation="reversing"`` is
     :func:`symmetry_matcher`; ``"preserving"`` is the restart of EM's orientation rescue
-    (:class:`~shape_toolkit.plugins.matching.dense.em_registration.EMRegistrationMatcher`)."""
+    (:class:`~shape_toolkit.plugins.matching.dense.em_registration.EMRegistrationMatcher`). ``fit``: a
+    functional map fit overriding ``k`` and the weights (one of ``fmap-zoomout``'s hypotheses)."""
     from shape_toolkit.api.registry import create_plugin
 
     return create_plugin("dense_matchers", "fmap-zoomout", k=30, orientation=orientation, zoomout_iters=8,
-                         zoomout_step=10, zoomout_samples=5000, hypotheses=({},))
+                         zoomout_step=10, zoomout_samples=5000, hypotheses=(dict(fit or {}),))
 
 
-def symmetry_matcher():
+#: the fits :func:`symmetry_map` starts from: pyFM's fit (k = 30) and two coarser fits whose orientation term
+#: weighs 10 (where a pose bends the finer eigenfunctions apart, a coarse map still holds left and right)
+SYMMETRY_FITS: tuple[dict, ...] = ({}, {"k": 15, "w_orient": 10.0}, {"k": 10, "w_orient": 10.0})
+#: eigenfunctions of the ZoomOut residual that chooses among the refined symmetry maps (best-of's)
+SYMMETRY_RESIDUAL_K = 64
+
+
+def symmetry_matcher(fit: dict | None = None):
     """The functional map matcher with the orientation-*reversing* term: its self-map of a shape
-    is the shape's intrinsic (left-right) symmetry (:func:`fine_matcher` with ``"reversing"``).
+    is the shape's intrinsic (left-right) symmetry (:func:`fine_matcher` with ``"reversing"``, from ``fit``).
 
     Finer than :func:`side_matcher`'s coarse map: S depends on the source shape alone (never on a
     corrupted target) and is used per region (:func:`symmetry_validity`); the measurements behind the
     choice: ``benchmarks/results/fmap_zoomout_notes.md``."""
-    return fine_matcher("reversing")
-
-
-class _IdentityCache:
-    """A small LRU of computed values keyed on the *identity* of objects (shapes, spectra) plus a
-    hashable ``extra``: entries hold weak references, and a key only hits while every object is
-    alive and is the very object it was computed for (an ``id`` reused by a new object misses).
-    Shapes and spectra are frozen, so identity stands for content. The entries live in an
-    :class:`~shape_toolkit.core.cache.LRUCache` (``entries``); a key function alone could not replace this
-    class, since a hit must also be checked against the live objects."""
-
-    def __init__(self, size: int = 2):
-        self.entries = LRUCache(size, name="identity")
-
-    def get(self, objs: tuple, extra: Any, compute: Callable[[], Any]) -> Any:
-        key = (tuple(id(o) for o in objs), extra)
-        hit = self.entries.get(key)
-        if hit is not None and all(r() is o for r, o in zip(hit[0], objs)):
-            return hit[1]
-        value = compute()
-        self.entries.put(key, (tuple(weakref.ref(o) for o in objs), value))
-        return value
-
-    def clear(self) -> None:
-        """Forget every entry."""
-        self.entries.clear()
-
-
-class SideCache:
-    """The symmetry maps and side references of the last ``size`` shapes (pairs) a caller asked for, kept
-    for the caller that asks again (a pipeline's sparse stage and EM ask for the same ones): keyed on the
-    identity of the Shape and Spectrum objects used. Owned by the caller and passed as ``cache=``."""
-
-    def __init__(self, size: int = 2):
-        self.symmetry = _IdentityCache(size)
-        self.sides = _IdentityCache(size)
-
-    def clear(self) -> None:
-        """Forget the cached symmetry maps and side references."""
-        self.symmetry.clear()
-        self.sides.clear()
-
-
-#: the cache of the innermost :func:`side_cache_scope` (None outside any)
-_SCOPE: ContextVar[SideCache | None] = ContextVar("side_cache_scope", default=None)
-
-
-@contextlib.contextmanager
-def side_cache_scope(cache: SideCache | None = None) -> Iterator[SideCache]:
-    """A scope in which calls given no ``cache=`` share ``cache`` (None: the open scope's, else a new
-    :class:`SideCache`): a pipeline opens one per run, so its sparse stage and its orientation repair compute
-    each symmetry map and side reference once. The scope is per thread and per task (a context variable)."""
-    cache = (_SCOPE.get() or SideCache()) if cache is None else cache
-    token = _SCOPE.set(cache)
-    try:
-        yield cache
-    finally:
-        _SCOPE.reset(token)
-
-
-def _scoped(cache: SideCache | None) -> SideCache | None:
-    return cache if cache is not None else _SCOPE.get()
-
-
-def _cached(cache: _IdentityCache | None, objs: tuple, extra: Any, compute: Callable[[], Any]) -> Any:
-    return compute() if cache is None else cache.get(objs, extra, compute)
+    return fine_matcher("reversing", fit)
 
 
 def symmetry_map(shape: Shape, spectrum: Spectrum | Sequence[Spectrum] | None = None,
                  cache: SideCache | None = None) -> np.ndarray:
     """The intrinsic symmetry of ``shape`` as a vertex map ``(n,)`` (read-only): its self-map by
-    :func:`symmetry_matcher` (descriptor-preserving and orientation-reversing), computed on the
-    caller's spectra (``spectrum``: the list a pipeline hands the stages; None: the spectrum cache).
+    :func:`symmetry_matcher` (descriptor-preserving and orientation-reversing) from each of
+    :data:`SYMMETRY_FITS`, refined in full, the one of least ZoomOut residual kept (the fine fit alone
+    was wrong on 9 of the 20 FAUST tuning shapes, these three on 3:
+    ``benchmarks/results/fmap_zoomout_notes.md``); computed on the caller's spectra (``spectrum``: the
+    list a pipeline hands the stages; None: the spectrum cache).
     With a :class:`SideCache`, computed once per ``shape`` and spectrum used."""
     given = shared_spectra(spectrum)
-    m = symmetry_matcher()
-    spec = m._spectrum(shape, given)
+    spec = symmetry_matcher()._spectrum(shape, given)
 
     def compute() -> np.ndarray:
-        t = np.array(m.match(shape, shape, source_spectrum=[spec], target_spectrum=[spec]).target_of, dtype=np.int64)
-        t.setflags(write=False)
-        return t
+        b = basis_of(spec, SYMMETRY_RESIDUAL_K)
+        best: tuple[float, np.ndarray] | None = None
+        for fit in SYMMETRY_FITS:
+            res = symmetry_matcher(fit).match(shape, shape, source_spectrum=[spec], target_spectrum=[spec])
+            t = np.array(res.target_of, dtype=np.int64)
+            r = zoomout_residual(fmap_from_p2p(b, b, t, b.k, b.k), b, b, t)
+            if best is None or r < best[0]:
+                best = (r, t)
+        best[1].setflags(write=False)
+        return best[1]
 
-    cache = _scoped(cache)
-    return _cached(None if cache is None else cache.symmetry, (shape, spec), None, compute)
+    cache = scoped(cache)
+    return cached(None if cache is None else cache.symmetry, (shape, spec), None, compute)
 
 
 def symmetry_validity(shape: Shape, sym: np.ndarray, basis: Basis, k_smooth: int = 20) -> np.ndarray:
@@ -404,9 +351,9 @@ def side_reference(
             a.setflags(write=False)
         return SideReference(bs.evecs[:, :k], bt.evecs[:, : C.shape[1]] @ C.T, bs, int(min(m.k, k)), t, bt)
 
-    cache = _scoped(cache)
+    cache = scoped(cache)
     key = orientation if lm is None else (orientation, hashlib.sha1(lm.tobytes()).hexdigest())
-    return _cached(None if cache is None else cache.sides, (source, target, ss, st), key, compute)
+    return cached(None if cache is None else cache.sides, (source, target, ss, st), key, compute)
 
 
 def orient_pairs(
