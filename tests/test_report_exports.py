@@ -375,7 +375,7 @@ def test_sparse_seeds_are_pooled_over_items_and_datasets(tmp_path):
     res = write_report(run, renders=0)
     pooled = next(t for t in res["tables"] if t.name.endswith("-seeds-pooled.csv"))
     (row,) = list(csv.DictReader(pooled.open(encoding="utf-8")))
-    assert row["method"] == "replicator" and int(float(row["n_scored"])) == sum(n)
+    assert row["dataset"] == "all 2" and row["method"] == "replicator" and int(float(row["n_scored"])) == sum(n)
     want = sum(w * c for w, c in zip(within, n)) / sum(n)  # correct seeds / seeds, not the mean of the pairs
     assert float(row["within_0.05"]) == pytest.approx(want, abs=1e-4)
     assert "Pooled: each metric is the mean over all scored points" in res["html"].read_text(encoding="utf-8")

@@ -675,10 +675,12 @@ def _pooled_grid(task: str, rows: list[dict]) -> _Grid | None:
     matcher's seeds at truth points: ``within_0.05`` becomes correct seeds / seeds), and the total count;
     None when no ok row has ``n_scored``."""
     acc: dict = defaultdict(lambda: defaultdict(lambda: [0.0, 0.0]))
+    datasets: set[str] = set()
     for r in rows:
         m = r.get("metrics") or {}
         if r.get("status") != "ok" or not _is_num(m.get("n_scored")):
             continue
+        datasets.add(str(r.get("dataset", "-")))
         n, cell = float(m["n_scored"]), acc[(method_id(r), str(r.get("corruption", "none")))]
         cell["n_scored"][0] += n
         for c in _POOLED_METRICS:
@@ -689,15 +691,16 @@ def _pooled_grid(task: str, rows: list[dict]) -> _Grid | None:
         return None
     cols = [c for c in _POOLED_METRICS if any(c in v for v in acc.values())] + ["n_scored"]
     g = _Grid(f"Task {task}: pooled over every item and dataset (each scored point weighs the same)",
-              ["method", "corruption"], cols, stats=False)
+              ["dataset", "method", "corruption"], cols, stats=False)
+    pooled = next(iter(datasets)) if len(datasets) == 1 else f"all {len(datasets)}"
     for key in sorted(acc):
         cell = acc[key]
-        g.rows.append((list(key), [None if c not in cell else (cell[c][0], 0.0, 1, "") if c == "n_scored"
+        g.rows.append(([pooled, *key], [None if c not in cell else (cell[c][0], 0.0, 1, "") if c == "n_scored"
                                    else (cell[c][0] / cell[c][1], 0.0, 1, "") if cell[c][1] > 0 else _NA
                                    for c in cols]))
     g.notes.append("Pooled: each metric is the mean over all scored points of the method's rows, whatever their item "
-                   "or dataset (within_0.05: correct seeds / scored seeds); n_scored is their total. The tables above "
-                   "weigh every item the same instead.")
+                   "or dataset (within_0.05: correct seeds / scored seeds; dataset 'all N': N datasets pooled); "
+                   "n_scored is their total. The tables above weigh every item the same instead.")
     return g
 
 
