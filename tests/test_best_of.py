@@ -141,7 +141,8 @@ def test_extrinsic_matchers_also_run_in_the_frame_of_the_intrinsic_map(unequal_l
 
 def test_a_frame_estimate_of_a_small_turn_does_not_run_the_shells_twice(unequal_limbs):
     """The target turned by 5 degrees: the estimated frame is that turn, below SAME_FRAME_DEGREES, so the shells
-    run in the given frame only (the same shells twice would cost a run and a polish for the same map)."""
+    run in the given frame only (the same shells twice would cost a run and a polish for the same map); two point
+    clouds run again."""
     from shape_toolkit.plugins.matching.dense.best_of import SAME_FRAME_DEGREES
 
     a, b = unequal_limbs
@@ -157,6 +158,14 @@ def test_a_frame_estimate_of_a_small_turn_does_not_run_the_shells_twice(unequal_
     again = create_plugin("dense_matchers", "best-of", canonical=False, same_frame=0.0).match(a, bt)
     assert "same_as_given" not in again.info["estimated_frame"]
     assert "shell-alignment@frame" in [c["matcher"] for c in again.info["candidates"]]
+    # two point clouds always run again (on clouds the second run is not the same map)
+    from shape_toolkit.core.shape import Shape
+
+    clouds = create_plugin("dense_matchers", "best-of", canonical=False).match(Shape(np.asarray(a.vertices)),
+                                                                               Shape(np.asarray(bt.vertices)))
+    assert clouds.info["estimated_frame"]["verdict"] == "preserving"
+    assert "same_as_given" not in clouds.info["estimated_frame"]
+    assert "shell-alignment@frame" in [c["matcher"] for c in clouds.info["candidates"]]
 
 
 def test_the_polish_step_is_a_declared_parameter(unequal_limbs):

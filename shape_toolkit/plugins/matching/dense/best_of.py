@@ -40,6 +40,9 @@ Cost. An estimated frame turned by less than ``same_frame`` degrees (15) from th
 the shells' coarse-to-fine start absorbs such a turn (on the tuning pairs turned by 2-22 degrees the two maps
 were within 0.0007; the choice among candidates, simulated on 27 + 30 tuning pairs, moved the mean by at most
 0.0001), and it saves a shells run and a polish, about 0.8 s of 5 s CPU at 5k, on most pairs of a capture set-up.
+Meshes only: on point clouds the two runs are not interchangeable (tuning half's clouds, 16 pairs x 4 kinds: the
+second run was better on 2 of 64 -- 0.194 -> 0.157, 0.118 -> 0.041 -- and worse on none, for 0.1-0.5 s CPU), so
+clouds always run again.
 Tried and not adopted (``benchmarks/results/auto_speed_notes.md``): the polish in steps of 10 eigenfunctions
 (``polish_step = 10``: 1.1 s less, but 2-5 % less precise on typical pairs, tuning and report halves alike) and the
 shells on 1,000 samples instead of 2,000 (gorillas to men 0.175 -> 0.275).
@@ -141,7 +144,8 @@ class BestOfMatcher(DenseMatcher):
     of least ZoomOut residual in the first ``k`` Laplace-Beltrami eigenfunctions of both shapes. Intrinsic matchers
     run first. ``reframe``: each extrinsic matcher (``extrinsic = True``) runs a second time with the source turned
     into the frame of the first intrinsic map, when that map keeps orientation and it is turned by at least
-    ``same_frame`` degrees (``info["estimated_frame"]["same_as_given"]`` otherwise; module docstring). ``polish``:
+    ``same_frame`` degrees, meshes only (``info["estimated_frame"]["same_as_given"]`` otherwise; module docstring).
+    ``polish``:
     each extrinsic map is also refined by ZoomOut from 20 to ``polish`` eigenfunctions (0 or None: not),
     ``polish_step`` at a time. ``canonical``: each extrinsic matcher also runs on the canonical forms (module
     docstring). ``info["candidates"]`` lists each map's residual (``NAME@frame``: in the estimated frame,
@@ -164,7 +168,8 @@ class BestOfMatcher(DenseMatcher):
                            "(pose removed), turned by the best map so far"),
         "polish_step": Param(Interval(int, 1), doc="eigenfunctions added per ZoomOut iteration of the polish"),
         "same_frame": Param(Interval(float, 0.0, 180.0), doc="degrees below which an estimated frame counts as the "
-                            "given one (the extrinsic matchers are not run again; 0: always run again)"),
+                            "given one, for two meshes (the extrinsic matchers are not run again; 0: always run "
+                            "again; point clouds always run again)"),
     }
 
     def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int = 64,
@@ -247,8 +252,9 @@ class BestOfMatcher(DenseMatcher):
                 if corr is not None:
                     consider(name, corr)
                     if self.reframe and turned is None and not frame:
+                        same = float(self.same_frame) if source.is_mesh and target.is_mesh else 0.0
                         turned, frame = estimated_frame(source, target, np.asarray(corr.target_of), bs.mass, name,
-                                                        float(self.same_frame))
+                                                        same)
                 continue
             for label, src in [(name, source)] + ([(f"{name}@frame", turned)] if turned is not None else []):
                 corr = run(label, m, src)
