@@ -32,9 +32,9 @@ from shape_toolkit.errors import ParameterError
 
 __all__ = [
     "spectral_basis", "shifted_weights", "Basis", "basis_of", "normalized_spectrum", "fmap_from_p2p",
-    "p2p_from_fmap", "slanted_size", "zoomout", "zoomout_residual", "zoomout_select", "fit_functional_map",
-    "GradientFrame", "gradient_frame", "SharedPairWork", "orientation_operators", "multiplication_operators",
-    "compress_descriptors",
+    "p2p_from_fmap", "slanted_size", "zoomout", "zoomout_residual", "map_residual", "zoomout_select",
+    "fit_functional_map", "GradientFrame", "gradient_frame", "SharedPairWork", "orientation_operators",
+    "multiplication_operators", "compress_descriptors",
 ]
 
 
@@ -245,6 +245,20 @@ def zoomout_residual(C: np.ndarray, src: Basis, tgt: Basis, target_of: np.ndarra
     diff = src.evecs[ids, :ks] @ C - tgt.evecs[np.asarray(target_of)[ids], :kt]
     w = src.mass[ids]
     return float((w * (diff**2).sum(axis=1)).sum() / max(float(w.sum()), 1e-300))
+
+
+def map_residual(src: Basis, tgt: Basis, target_of: np.ndarray, k: int) -> float:
+    """:func:`zoomout_residual` of a point map ``target_of`` ``(n_s,)`` against its own least-squares functional map
+    in the first ``k`` functions of both bases: how far the map is from a smooth one (between maps of one pair, or
+    self-maps of one shape, the smaller the more plausible). A partial map (``-1``) is judged on its matched
+    vertices; ``inf`` when none is matched."""
+    t = np.asarray(target_of)
+    if np.all(t >= 0):
+        return zoomout_residual(fmap_from_p2p(src, tgt, t, k, k), src, tgt, t)
+    ok = np.flatnonzero(t >= 0)
+    if not len(ok):
+        return float("inf")
+    return zoomout_residual(fmap_from_p2p(src, tgt, t[ok], k, k, rows=ok), src, tgt, t, rows=ok)
 
 
 def zoomout_select(

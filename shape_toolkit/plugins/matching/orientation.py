@@ -23,7 +23,7 @@ from shape_toolkit.core.geometry import farthest_point_sampling, outward_vertex_
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.core.surface import outward_normals
-from shape_toolkit.features.basis import Basis, basis_of, fmap_from_p2p, zoomout_residual
+from shape_toolkit.features.basis import Basis, basis_of, map_residual
 from shape_toolkit.plugins.matching.descriptors import shared_spectra
 from shape_toolkit.plugins.matching.side_cache import SideCache, cached, scoped, side_cache_scope
 
@@ -193,7 +193,7 @@ def symmetry_map(shape: Shape, spectrum: Spectrum | Sequence[Spectrum] | None = 
         for fit in SYMMETRY_FITS:
             res = symmetry_matcher(fit).match(shape, shape, source_spectrum=[spec], target_spectrum=[spec])
             t = np.array(res.target_of, dtype=np.int64)
-            r = zoomout_residual(fmap_from_p2p(b, b, t, b.k, b.k), b, b, t)
+            r = map_residual(b, b, t, b.k)
             if best is None or r < best[0]:
                 best = (r, t)
         best[1].setflags(write=False)

@@ -1,5 +1,5 @@
 """Several dense matchers on one pair, the most plausible map kept: the one of least ZoomOut residual
-(:func:`~shape_toolkit.features.basis.zoomout_residual`) in a common basis of both
+(:func:`~shape_toolkit.features.basis.map_residual`) in a common basis of both
 shapes. The ``auto`` pipeline runs ``fmap-zoomout`` (intrinsic: robust to pose, fragile under non-isometry
 and merged contacts) and ``shell-alignment`` (extrinsic and spectral: robust to non-isometry and merges,
 fragile under a change of pose) and keeps what the pair calls for.
@@ -69,7 +69,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.core.surface import cloud_surface, sheet_surface
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.features.basis import Basis, basis_of, fmap_from_p2p, zoomout, zoomout_residual
+from shape_toolkit.features.basis import Basis, basis_of, fmap_from_p2p, map_residual, zoomout
 from shape_toolkit.features.canonical import canonical_form
 from shape_toolkit.plugins.matching.descriptors import resolve_plugin, shared_spectra
 from shape_toolkit.plugins.matching.orientation import orientation_verdict
@@ -86,17 +86,6 @@ POLISH_START = 20
 #: given one to the shells, whose coarse-to-fine start absorbs the turn (tuning pairs turned by 2-22 degrees: the
 #: two maps within 0.0007), so the extrinsic matchers are not run twice
 SAME_FRAME_DEGREES = 15.0
-
-
-def _residual(bs: Basis, bt: Basis, t: np.ndarray, k: int) -> float:
-    """ZoomOut residual of the map ``t`` ``(n_s,)`` in the first ``k`` functions; a partial map (``-1``) is
-    judged on its matched vertices."""
-    if np.all(t >= 0):
-        return zoomout_residual(fmap_from_p2p(bs, bt, t, k, k), bs, bt, t)
-    ok = np.flatnonzero(t >= 0)
-    if not len(ok):
-        return float("inf")
-    return zoomout_residual(fmap_from_p2p(bs, bt, t[ok], k, k, rows=ok), bs, bt, t, rows=ok)
 
 
 def _one_piece(surface: Shape) -> bool:
@@ -229,7 +218,7 @@ class BestOfMatcher(DenseMatcher):
 
         def consider(name: str, corr: Correspondence) -> None:
             nonlocal best
-            residual = _residual(bs, bt, np.asarray(corr.target_of), k)
+            residual = map_residual(bs, bt, np.asarray(corr.target_of), k)
             candidates.append({"matcher": name, "residual": residual})
             if progress is not None:
                 progress(f"best-of: {name} residual {residual:.4g}")
