@@ -289,6 +289,22 @@ class SideReference:
         q1, q3 = _weighted_quantiles(smooth, self.basis.mass, (0.25, 0.75))
         return ~ok | (smooth > q3 + 3.0 * (q3 - q1))
 
+    def conflict_area(self, target_of: np.ndarray) -> float:
+        """Share of the source's area where the dense map ``target_of`` ``(n_s,)`` is farther from the reference
+        than the reference's own map almost ever is: ``d(x, T(x))`` beyond Tukey's far fence (``Q3 + 3 IQR``,
+        area-weighted) of the reference's own ``d(y, R(y))`` (scale-free). About 0 for a map that follows the
+        reference, the area of the parts it puts elsewhere otherwise; unmatched entries (-1) count as in
+        conflict. 0 without the reference's own map."""
+        t = np.asarray(target_of)
+        if self.target_of is None:
+            return 0.0
+        own = self.sq_distances(np.arange(len(t)), np.asarray(self.target_of))
+        q1, q3 = _weighted_quantiles(own, self.basis.mass, (0.25, 0.75))
+        ok = np.flatnonzero(t >= 0)
+        far = np.ones(len(t), dtype=bool)
+        far[ok] = self.sq_distances(ok, t[ok]) > q3 + 3.0 * (q3 - q1)
+        return float(self.basis.mass[far].sum() / max(float(self.basis.mass.sum()), 1e-300))
+
     def overlaps(self, target_of: np.ndarray) -> np.ndarray:
         """Boolean ``(n_s,)``: source vertices whose image lies where the dense map ``target_of``
         piles up more than one layer of the source (two limbs sent onto one): the push-forward of the

@@ -29,12 +29,17 @@ from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec
 
-__all__ = ["ORIENTATION_K", "OrientationRepair", "Registration"]
+__all__ = ["CONFLICT_AREA", "ORIENTATION_K", "OrientationRepair", "Registration"]
 
 #: embedding size of the refined maps the orientation is scored on (see :meth:`OrientationRepair.score`)
 ORIENTATION_K = 30
 #: number of farthest-point samples of the source the orientation is scored on
 N_SCORED = 120
+#: share of the source's area beyond which a map that disagrees with the side reference (``SideReference.
+#: conflict_area``) is rescued: more than half the shape elsewhere than the reference puts it is not a side
+#: question but a wrong map -- or a wrong reference (glued contacts can mislead it), so a rescued map must also
+#: be smoother than the map it replaces (ZoomOut residual, :func:`~shape_toolkit.features.basis.map_residual`)
+CONFLICT_AREA = 0.5
 
 
 class Registration(Protocol):
@@ -128,7 +133,9 @@ class OrientationRepair(DenseMatcher):
             with side_cache_scope():  # the side check and the rescue share one side reference (or the caller's)
                 fit = self.side_check(emb, fit, source, target, info, source_spectrum, target_spectrum, lm)
                 info["orientation_score"] = self.score(emb, source, target, fit.target_of)
-                if info["orientation_score"] < 0:
+                info["orientation_conflict_area"] = self.conflict(source, target, fit.target_of, source_spectrum,
+                                                                  target_spectrum, lm)
+                if info["orientation_score"] < 0 or info["orientation_conflict_area"] > CONFLICT_AREA:
                     fit, k_done = self.rescue(emb, fit, source, target, info, source_spectrum, target_spectrum, lm)
         return m.finish(emb, fit, source, target, info, k_done, source_spectrum, target_spectrum)
 
@@ -163,6 +170,16 @@ class OrientationRepair(DenseMatcher):
         rows = rows[t[rows] >= 0]
         want = 1.0 if self.orientation == "preserving" else -1.0
         return want * orientation_score(source, target, np.column_stack([rows, t[rows]]))
+
+    def conflict(self, source: Shape, target: Shape, t: np.ndarray, source_spectrum: Any = None,
+                 target_spectrum: Any = None, landmarks: np.ndarray | None = None) -> float:
+        """:meth:`~shape_toolkit.plugins.matching.orientation.SideReference.conflict_area` of the map ``t``
+        ``(n,)``: the share of the source's area the side reference puts elsewhere."""
+        from shape_toolkit.plugins.matching.orientation import side_reference
+
+        ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation,
+                             landmarks=landmarks)
+        return ref.conflict_area(t)
 
     def side_check(self, emb: Any, first: Any, source: Shape, target: Shape, info: dict,
                    source_spectrum: Any = None, target_spectrum: Any = None,
@@ -214,16 +231,35 @@ class OrientationRepair(DenseMatcher):
     def rescue(self, emb: Any, first: Any, source: Shape, target: Shape, info: dict,
                source_spectrum: Any = None, target_spectrum: Any = None,
                landmarks: np.ndarray | None = None) -> tuple[Any, int]:
-        """For a map that still reverses orientation on the whole (:meth:`score` < 0): the first candidate
-        that scores positive among the registration run again from the side reference's map, from the fine
-        orientation-aware functional map, then those two maps themselves (``first`` when none does). Returns
-        the fit and the embedding size its map is refined to (polishing goes on from there);
-        ``info["orientation_rescue"]``: the scores and the choice."""
+        """For a map that still reverses orientation on the whole (:meth:`score` < 0), or else that the side
+        reference puts elsewhere on more than :data:`CONFLICT_AREA` of the source (:meth:`conflict`: a half turn
+        keeps orientation): the first candidate that scores positive -- and, for a map in conflict, is in conflict on
+        at most that share itself and has a smaller ZoomOut residual than ``first`` (neither the reference nor
+        the registration judges their own quarrel; the residual is in the first ``SYMMETRY_RESIDUAL_K``
+        Laplace-Beltrami eigenfunctions of both shapes) -- among the registration run again from the side
+        reference's map, from the fine orientation-aware functional map, then (not for a map in conflict: only
+        EM fits compare like with like) those two maps themselves (``first`` when none does). Returns the fit
+        and the embedding size its map is refined to (polishing goes on from there);
+        ``info["orientation_rescue"]``: the scores, the conflicts, the residuals and the choice."""
+        from shape_toolkit.features.basis import basis_of, map_residual
         from shape_toolkit.plugins.matching.descriptors import shared_spectra as _given
-        from shape_toolkit.plugins.matching.orientation import fine_matcher, side_reference
+        from shape_toolkit.plugins.matching.orientation import SYMMETRY_RESIDUAL_K, fine_matcher, side_reference
 
         m, K = self.matcher, emb.K
         rescue = {"score_before": info["orientation_score"], "choice": "first"}
+        # rescued for its conflict alone (a map that reverses orientation keeps the rules above)
+        in_conflict = info["orientation_score"] >= 0 and info.get("orientation_conflict_area", 0.0) > CONFLICT_AREA
+        residual = None
+        if in_conflict:  # the judge of a rescue from a conflict: smoothness in a common basis of both shapes
+            fm = fine_matcher(self.orientation)
+            ss, st = fm._spectrum(source, _given(source_spectrum)), fm._spectrum(target, _given(target_spectrum))
+            k = int(min(SYMMETRY_RESIDUAL_K, ss.k, st.k))
+            bs, bt = basis_of(ss, k), basis_of(st, k)
+
+            def residual(t: np.ndarray) -> float:
+                return map_residual(bs, bt, np.asarray(t), k)
+
+            rescue["residual_first"] = residual(first.target_of)
         info["orientation_rescue"] = rescue
         starts: dict[str, tuple[np.ndarray, int]] = {}
 
@@ -242,7 +278,10 @@ class OrientationRepair(DenseMatcher):
                     starts[name] = (np.asarray(res.target_of), int(res.info["k_final"]))
             return starts[name]
 
-        for name in ("em_from_reference_map", "em_from_fine_map", "reference_map", "fine_map"):
+        # a map in conflict competes with EM fits only (at the same embedding size: a functional map's own map
+        # is a ZoomOut fixed point, smoother by construction, and the residual would not compare like with like)
+        names = ("em_from_reference_map", "em_from_fine_map") + (() if in_conflict else ("reference_map", "fine_map"))
+        for name in names:
             t, k_map = start(name.removeprefix("em_from_"))
             Q = m.transform_of(emb, t)
             if name.startswith("em_from_"):
@@ -252,7 +291,14 @@ class OrientationRepair(DenseMatcher):
                 cand, k_done = replace(first, Q=Q, target_of=t, confidence=np.zeros(len(t)), n_confident=0), k_map
                 score = self.score(emb, source, target, t, refined=False)
             rescue[f"score_{name}"] = score
-            if score > 0:
+            accept = score > 0
+            if accept and residual is not None:
+                rescue[f"conflict_{name}"] = self.conflict(source, target, cand.target_of, source_spectrum,
+                                                           target_spectrum, landmarks)
+                rescue[f"residual_{name}"] = residual(cand.target_of)
+                accept = (rescue[f"conflict_{name}"] <= CONFLICT_AREA
+                          and rescue[f"residual_{name}"] < rescue["residual_first"])
+            if accept:
                 rescue["choice"] = name
                 info["orientation_score"] = score
                 if not name.startswith("em_from_"):
