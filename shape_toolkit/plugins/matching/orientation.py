@@ -161,8 +161,9 @@ def fine_matcher(orientation: str = "preserving", fit: dict | None = None):
 #: the fits :func:`symmetry_map` starts from: pyFM's fit (k = 30) and two coarser fits whose orientation term
 #: weighs 10 (where a pose bends the finer eigenfunctions apart, a coarse map still holds left and right)
 SYMMETRY_FITS: tuple[dict, ...] = ({}, {"k": 15, "w_orient": 10.0}, {"k": 10, "w_orient": 10.0})
-#: eigenfunctions of the ZoomOut residual that chooses among the refined symmetry maps (best-of's)
-SYMMETRY_RESIDUAL_K = 64
+#: eigenfunctions of the ZoomOut residuals the orientation code judges maps by (best-of's): the choice among the
+#: refined symmetry maps, and a rescue from a conflict with the side reference (``OrientationRepair.rescue``)
+RESIDUAL_K = 64
 
 
 def symmetry_matcher(fit: dict | None = None):
@@ -188,7 +189,7 @@ def symmetry_map(shape: Shape, spectrum: Spectrum | Sequence[Spectrum] | None = 
     spec = symmetry_matcher()._spectrum(shape, given)
 
     def compute() -> np.ndarray:
-        b = basis_of(spec, SYMMETRY_RESIDUAL_K)
+        b = basis_of(spec, RESIDUAL_K)
         best: tuple[float, np.ndarray] | None = None
         for fit in SYMMETRY_FITS:
             res = symmetry_matcher(fit).match(shape, shape, source_spectrum=[spec], target_spectrum=[spec])

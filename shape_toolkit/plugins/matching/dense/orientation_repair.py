@@ -235,7 +235,7 @@ class OrientationRepair(DenseMatcher):
         reference puts elsewhere on more than :data:`CONFLICT_AREA` of the source (:meth:`conflict`: a half turn
         keeps orientation): the first candidate that scores positive -- and, for a map in conflict, is in conflict on
         at most that share itself and has a smaller ZoomOut residual than ``first`` (neither the reference nor
-        the registration judges their own quarrel; the residual is in the first ``SYMMETRY_RESIDUAL_K``
+        the registration judges their own quarrel; the residual is in the first ``RESIDUAL_K``
         Laplace-Beltrami eigenfunctions of both shapes) -- among the registration run again from the side
         reference's map, from the fine orientation-aware functional map, then (not for a map in conflict: only
         EM fits compare like with like) those two maps themselves (``first`` when none does). Returns the fit
@@ -243,7 +243,7 @@ class OrientationRepair(DenseMatcher):
         ``info["orientation_rescue"]``: the scores, the conflicts, the residuals and the choice."""
         from shape_toolkit.features.basis import basis_of, map_residual
         from shape_toolkit.plugins.matching.descriptors import shared_spectra as _given
-        from shape_toolkit.plugins.matching.orientation import SYMMETRY_RESIDUAL_K, fine_matcher, side_reference
+        from shape_toolkit.plugins.matching.orientation import RESIDUAL_K, fine_matcher, side_reference
 
         m, K = self.matcher, emb.K
         rescue = {"score_before": info["orientation_score"], "choice": "first"}
@@ -253,7 +253,7 @@ class OrientationRepair(DenseMatcher):
         if in_conflict:  # the judge of a rescue from a conflict: smoothness in a common basis of both shapes
             fm = fine_matcher(self.orientation)
             ss, st = fm._spectrum(source, _given(source_spectrum)), fm._spectrum(target, _given(target_spectrum))
-            k = int(min(SYMMETRY_RESIDUAL_K, ss.k, st.k))
+            k = int(min(RESIDUAL_K, ss.k, st.k))
             bs, bt = basis_of(ss, k), basis_of(st, k)
 
             def residual(t: np.ndarray) -> float:
