@@ -13,6 +13,7 @@ wraps the matcher rather than following it. Design notes and measurements:
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Any, Protocol
@@ -246,13 +247,18 @@ class OrientationRepair(DenseMatcher):
         from shape_toolkit.plugins.matching.orientation import RESIDUAL_K, fine_matcher, side_reference
 
         m, K = self.matcher, emb.K
+
+        @functools.cache
+        def fine() -> tuple[Any, Spectrum, Spectrum]:  # the fine matcher and its spectra, looked up once
+            fm = fine_matcher(self.orientation)
+            return fm, fm._spectrum(source, _given(source_spectrum)), fm._spectrum(target, _given(target_spectrum))
+
         rescue = {"score_before": info["orientation_score"], "choice": "first"}
         # rescued for its conflict alone (a map that reverses orientation keeps the rules above)
         in_conflict = info["orientation_score"] >= 0 and info.get("orientation_conflict_area", 0.0) > CONFLICT_AREA
         residual = None
         if in_conflict:  # the judge of a rescue from a conflict: smoothness in a common basis of both shapes
-            fm = fine_matcher(self.orientation)
-            ss, st = fm._spectrum(source, _given(source_spectrum)), fm._spectrum(target, _given(target_spectrum))
+            _, ss, st = fine()
             k = int(min(RESIDUAL_K, ss.k, st.k))
             bs, bt = basis_of(ss, k), basis_of(st, k)
 
@@ -270,9 +276,7 @@ class OrientationRepair(DenseMatcher):
                                          landmarks=landmarks)
                     starts[name] = (np.asarray(ref.target_of), int(ref.source_points.shape[1]))
                 else:
-                    fm = fine_matcher(self.orientation)
-                    ss = fm._spectrum(source, _given(source_spectrum))
-                    st = fm._spectrum(target, _given(target_spectrum))
+                    fm, ss, st = fine()
                     res = fm.match(source, target, seeds=landmarks, source_spectrum=[ss],
                                    target_spectrum=[st])
                     starts[name] = (np.asarray(res.target_of), int(res.info["k_final"]))
