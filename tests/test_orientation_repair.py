@@ -13,9 +13,11 @@ from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.api.registry import create_plugin, get_registry
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.features.basis import map_residual
 from shape_toolkit.pipeline import PRESETS, Pipeline, load_pipeline
 from shape_toolkit.plugins.matching.dense.em_registration import EMFit
-from shape_toolkit.plugins.matching.dense.orientation_repair import ORIENTATION_K, OrientationRepair
+from shape_toolkit.plugins.matching.dense.orientation_repair import ORIENTATION_K, OrientationRepair, _Fine
+from shape_toolkit.results.correspondence import Correspondence
 
 
 def test_every_dense_matcher_accepts_the_declared_arguments():
@@ -124,3 +126,29 @@ def test_ground_truth_seeds_are_not_mirrored_by_the_side_check(shared_data):
 
     checked, unchecked = error("preserving"), error("none")
     assert checked <= unchecked + 0.005, (checked, unchecked)
+
+
+def test_select_keeps_the_polished_candidate_of_least_residual():
+    """``polish``: the registration's map, the side reference's and the fine functional map's, each polished by
+    ZoomOut, compete on the ZoomOut residual -- a scrambled registration map loses to the stage's own
+    references, and the kept map is the one of least residual."""
+    A = articulated_shape([0.4, 0.4, -0.3, -0.3, 0.2], subdivisions=2).shape
+    B = articulated_shape([-0.4, 0.4, 0.3, -0.3, -0.2], subdivisions=2).shape  # same vertex order: truth is i -> i
+    em = create_plugin("dense_matchers", "em-registration", orientation="none")
+    scrambled = np.random.default_rng(0).permutation(B.n_vertices)[: A.n_vertices]
+
+    stage = OrientationRepair(em, polish=40)
+    fine = _Fine("preserving", A, B, None, None, None)
+    out = stage.select(Correspondence(scrambled, B.n_vertices, info={}), A, B, fine)
+    sel = out.info["orientation_polish"]
+    assert sel["k"] == sel["residual_k"] == 40
+    assert set(sel["residuals"]) == {"registration", "reference_map", "fine_map"}
+    assert sel["choice"] != "registration" and sel["residuals"][sel["choice"]] == min(sel["residuals"].values())
+    bs, bt = fine.bases(40)
+    assert map_residual(bs, bt, np.asarray(out.target_of), 40) == pytest.approx(sel["residuals"][sel["choice"]])
+    err = np.linalg.norm(np.asarray(B.vertices)[out.target_of] - np.asarray(B.vertices), axis=1).mean()
+    assert err < 0.1 * np.linalg.norm(np.asarray(B.vertices)[scrambled] - np.asarray(B.vertices), axis=1).mean()
+    assert out.info["posteriors_of"] == "em-before-polish"
+    for bad in (10, 20, 201, -1, 2.5):  # 0 (off) or a ZoomOut target above its start of 20
+        with pytest.raises(ParameterError, match="polish"):
+            OrientationRepair(em, polish=bad).registration()

@@ -32,7 +32,7 @@ from shape_toolkit.errors import ParameterError
 
 __all__ = [
     "spectral_basis", "shifted_weights", "Basis", "basis_of", "normalized_spectrum", "fmap_from_p2p",
-    "p2p_from_fmap", "slanted_size", "zoomout", "zoomout_residual", "map_residual", "zoomout_select",
+    "p2p_from_fmap", "slanted_size", "zoomout", "polish_map", "zoomout_residual", "map_residual", "zoomout_select",
     "fit_functional_map", "GradientFrame", "gradient_frame", "SharedPairWork", "orientation_operators",
     "multiplication_operators", "compress_descriptors",
 ]
@@ -205,6 +205,19 @@ def zoomout(
         T[rows] = _point_map(C, q_s, e_t)
         return C, T
     return C, _point_map(C, e_s, e_t)
+
+
+def polish_map(
+    target_of: np.ndarray, src: Basis, tgt: Basis, start: int = 20, step: int = 4, seeds: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A point map ``target_of`` ``(n_s,)`` (all entries >= 0) refined by ZoomOut from its functional map in
+    ``start`` functions to ``src.k``, ``step`` at a time; the pairs ``seeds`` ``(q, 2)`` are kept. Returns the
+    final ``C_ts`` and the refined map ``(n_s,)``."""
+    C0 = fmap_from_p2p(src, tgt, np.asarray(target_of), start, start)
+    C, T = zoomout(C0, src, tgt, src.k, step)
+    if seeds is not None and len(seeds):
+        T[seeds[:, 0]] = seeds[:, 1]
+    return C, T
 
 
 def part_support(target_of: np.ndarray, src: Basis, tgt: Basis, area_ratio: float, k_smooth: int = 30) -> np.ndarray:

@@ -69,7 +69,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.core.surface import cloud_surface, sheet_surface
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.features.basis import Basis, basis_of, fmap_from_p2p, map_residual, zoomout
+from shape_toolkit.features.basis import Basis, basis_of, map_residual, polish_map
 from shape_toolkit.features.canonical import canonical_form
 from shape_toolkit.plugins.matching.descriptors import resolve_plugin, shared_spectra
 from shape_toolkit.plugins.matching.orientation import orientation_verdict
@@ -302,10 +302,7 @@ class BestOfMatcher(DenseMatcher):
     @staticmethod
     def _polished(corr: Correspondence, bs: Basis, bt: Basis, seeds: np.ndarray | None, step: int) -> Correspondence:
         """``corr``'s map refined by ZoomOut from its functional map in 20 eigenfunctions to ``bs.k``, ``step``
-        eigenfunctions at a time."""
-        C0 = fmap_from_p2p(bs, bt, np.asarray(corr.target_of), POLISH_START, POLISH_START)
-        C, T = zoomout(C0, bs, bt, bs.k, step)
-        if seeds is not None and len(seeds):
-            T[seeds[:, 0]] = seeds[:, 1]
+        eigenfunctions at a time (:func:`~shape_toolkit.features.basis.polish_map`)."""
+        C, T = polish_map(np.asarray(corr.target_of), bs, bt, POLISH_START, step, seeds)
         return Correspondence(T, corr.n_target, info={**corr.info, "C": C,
                                                       "polished": f"ZoomOut {POLISH_START} -> {bs.k}"})

@@ -21,10 +21,11 @@ from typing import Any, Protocol
 import numpy as np
 
 from shape_toolkit.api.interfaces import DenseMatcher
-from shape_toolkit.api.params import InstanceOf, Param
+from shape_toolkit.api.params import InstanceOf, Interval, Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.features.basis import Basis, basis_of, map_residual, polish_map
 from shape_toolkit.plugins._params import ORIENTATION
 from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
@@ -41,6 +42,8 @@ N_SCORED = 120
 #: question but a wrong map -- or a wrong reference (glued contacts can mislead it), so a rescued map must also
 #: be smoother than the map it replaces (ZoomOut residual, :func:`~shape_toolkit.features.basis.map_residual`)
 CONFLICT_AREA = 0.5
+#: where the ZoomOut polish of :meth:`OrientationRepair.select` starts, and its step (best-of's)
+POLISH_START, POLISH_STEP = 20, 5
 
 
 class Registration(Protocol):
@@ -66,6 +69,39 @@ class Registration(Protocol):
                source_spectrum: Any = None, target_spectrum: Any = None) -> Correspondence: ...
 
 
+class _Fine:
+    """The fine orientation-aware functional map of one pair (the rescue's start and judge, a candidate of
+    :meth:`OrientationRepair.select`): its matcher, spectra and map, each computed once."""
+
+    def __init__(self, orientation: str, source: Shape, target: Shape, source_spectrum: Any, target_spectrum: Any,
+                 landmarks: np.ndarray | None):
+        self.orientation, self.source, self.target = orientation, source, target
+        self.given, self.landmarks = (source_spectrum, target_spectrum), landmarks
+
+    @functools.cached_property
+    def spectra(self) -> tuple[Any, Spectrum, Spectrum]:
+        """The fine matcher and the two spectra it runs on."""
+        from shape_toolkit.plugins.matching.descriptors import shared_spectra
+        from shape_toolkit.plugins.matching.orientation import fine_matcher
+
+        fm = fine_matcher(self.orientation)
+        return (fm, fm._spectrum(self.source, shared_spectra(self.given[0])),
+                fm._spectrum(self.target, shared_spectra(self.given[1])))
+
+    @functools.cached_property
+    def target_of(self) -> tuple[np.ndarray, int]:
+        """The fine map ``(n_s,)`` and the basis size it is refined to."""
+        fm, ss, st = self.spectra
+        res = fm.match(self.source, self.target, seeds=self.landmarks, source_spectrum=[ss], target_spectrum=[st])
+        return np.asarray(res.target_of), int(res.info["k_final"])
+
+    def bases(self, k: int) -> tuple[Basis, Basis]:
+        """The first ``k`` Laplace-Beltrami eigenfunctions of both shapes (fewer if a spectrum has fewer)."""
+        _, ss, st = self.spectra
+        k = int(min(k, ss.k, st.k))
+        return basis_of(ss, k), basis_of(st, k)
+
+
 class OrientationRepair(DenseMatcher):
     """The map of the registration ``matcher`` with the side of ``orientation`` (``"preserving"``,
     ``"reversing"``; ``"none"``: the registration's map as it is). Only meshes are repaired (the side
@@ -75,12 +111,18 @@ class OrientationRepair(DenseMatcher):
         "orientation": ORIENTATION,
         "landmarks": Param(None, InstanceOf(np.ndarray, list, tuple), doc="matches known to be right, (q, 2): "
                            "they decide the sides where they reach (a caller's seeds)"),
+        "polish": Param(Options(0), Interval(int, POLISH_START + 1, 200),
+                        doc="0: the registration's map; else the final map is the one of least ZoomOut residual "
+                        "among the registration's map, the side reference's and the fine functional map's, each "
+                        "polished by ZoomOut to this many Laplace-Beltrami eigenfunctions (select)"),
     }
 
-    def __init__(self, matcher: Any = None, orientation: str = "preserving", landmarks: np.ndarray | None = None):
+    def __init__(self, matcher: Any = None, orientation: str = "preserving", landmarks: np.ndarray | None = None,
+                 polish: int = 0):
         self.matcher = matcher
         self.orientation = orientation
         self.landmarks = landmarks
+        self.polish = polish
 
     def registration(self) -> Registration:
         """The wrapped matcher, checked: a :class:`Registration`."""
@@ -128,17 +170,20 @@ class OrientationRepair(DenseMatcher):
         emb, Q0, info = m.start(source, target, seeds, source_spectrum, target_spectrum, ORIENTATION_K if on else 0)
         info["orientation_landmarks"] = 0 if lm is None else int(len(lm))
         fit, k_done = m.solve(emb, Q0), emb.K
-        if on and source.is_mesh and target.is_mesh:
-            from shape_toolkit.plugins.matching.orientation import side_cache_scope
+        if not (on and source.is_mesh and target.is_mesh):
+            return m.finish(emb, fit, source, target, info, k_done, source_spectrum, target_spectrum)
+        from shape_toolkit.plugins.matching.orientation import side_cache_scope
 
-            with side_cache_scope():  # the side check and the rescue share one side reference (or the caller's)
-                fit = self.side_check(emb, fit, source, target, info, source_spectrum, target_spectrum, lm)
-                info["orientation_score"] = self.score(emb, source, target, fit.target_of)
-                info["orientation_conflict_area"] = self.conflict(source, target, fit.target_of, source_spectrum,
-                                                                  target_spectrum, lm)
-                if info["orientation_score"] < 0 or info["orientation_conflict_area"] > CONFLICT_AREA:
-                    fit, k_done = self.rescue(emb, fit, source, target, info, source_spectrum, target_spectrum, lm)
-        return m.finish(emb, fit, source, target, info, k_done, source_spectrum, target_spectrum)
+        fine = _Fine(self.orientation, source, target, source_spectrum, target_spectrum, lm)
+        with side_cache_scope():  # the side check, the rescue and the selection share one side reference
+            fit = self.side_check(emb, fit, source, target, info, source_spectrum, target_spectrum, lm)
+            info["orientation_score"] = self.score(emb, source, target, fit.target_of)
+            info["orientation_conflict_area"] = self.conflict(source, target, fit.target_of, source_spectrum,
+                                                              target_spectrum, lm)
+            if info["orientation_score"] < 0 or info["orientation_conflict_area"] > CONFLICT_AREA:
+                fit, k_done = self.rescue(emb, fit, source, target, info, source_spectrum, target_spectrum, lm, fine)
+            corr = m.finish(emb, fit, source, target, info, k_done, source_spectrum, target_spectrum)
+            return self.select(corr, source, target, fine, source_spectrum, target_spectrum) if self.polish else corr
 
     def checked_landmarks(self, source: Shape, target: Shape) -> np.ndarray | None:
         """``landmarks`` checked against the shapes, int64 ``(q, 2)``; at most ``ORIENTATION_K`` of them,
@@ -231,7 +276,7 @@ class OrientationRepair(DenseMatcher):
 
     def rescue(self, emb: Any, first: Any, source: Shape, target: Shape, info: dict,
                source_spectrum: Any = None, target_spectrum: Any = None,
-               landmarks: np.ndarray | None = None) -> tuple[Any, int]:
+               landmarks: np.ndarray | None = None, fine: _Fine | None = None) -> tuple[Any, int]:
         """For a map that still reverses orientation on the whole (:meth:`score` < 0), or else that the side
         reference puts elsewhere on more than :data:`CONFLICT_AREA` of the source (:meth:`conflict`: a half turn
         keeps orientation): the first candidate that scores positive -- and, for a map in conflict, is in conflict on
@@ -242,25 +287,17 @@ class OrientationRepair(DenseMatcher):
         EM fits compare like with like) those two maps themselves (``first`` when none does). Returns the fit
         and the embedding size its map is refined to (polishing goes on from there);
         ``info["orientation_rescue"]``: the scores, the conflicts, the residuals and the choice."""
-        from shape_toolkit.features.basis import basis_of, map_residual
-        from shape_toolkit.plugins.matching.descriptors import shared_spectra as _given
-        from shape_toolkit.plugins.matching.orientation import RESIDUAL_K, fine_matcher, side_reference
+        from shape_toolkit.plugins.matching.orientation import RESIDUAL_K, side_reference
 
         m, K = self.matcher, emb.K
-
-        @functools.cache
-        def fine() -> tuple[Any, Spectrum, Spectrum]:  # the fine matcher and its spectra, looked up once
-            fm = fine_matcher(self.orientation)
-            return fm, fm._spectrum(source, _given(source_spectrum)), fm._spectrum(target, _given(target_spectrum))
-
+        fine = fine or _Fine(self.orientation, source, target, source_spectrum, target_spectrum, landmarks)
         rescue = {"score_before": info["orientation_score"], "choice": "first"}
         # rescued for its conflict alone (a map that reverses orientation keeps the rules above)
         in_conflict = info["orientation_score"] >= 0 and info.get("orientation_conflict_area", 0.0) > CONFLICT_AREA
         residual = None
         if in_conflict:  # the judge of a rescue from a conflict: smoothness in a common basis of both shapes
-            _, ss, st = fine()
-            k = int(min(RESIDUAL_K, ss.k, st.k))
-            bs, bt = basis_of(ss, k), basis_of(st, k)
+            bs, bt = fine.bases(RESIDUAL_K)
+            k = bs.k
 
             def residual(t: np.ndarray) -> float:
                 return map_residual(bs, bt, np.asarray(t), k)
@@ -276,10 +313,7 @@ class OrientationRepair(DenseMatcher):
                                          landmarks=landmarks)
                     starts[name] = (np.asarray(ref.target_of), int(ref.source_points.shape[1]))
                 else:
-                    fm, ss, st = fine()
-                    res = fm.match(source, target, seeds=landmarks, source_spectrum=[ss],
-                                   target_spectrum=[st])
-                    starts[name] = (np.asarray(res.target_of), int(res.info["k_final"]))
+                    starts[name] = fine.target_of
             return starts[name]
 
         # a map in conflict competes with EM fits only (at the same embedding size: a functional map's own map
@@ -309,3 +343,36 @@ class OrientationRepair(DenseMatcher):
                     info["posteriors_of"] = "em-before-rescue"
                 return cand, k_done
         return first, K
+
+    def select(self, corr: Correspondence, source: Shape, target: Shape, fine: _Fine,
+               source_spectrum: Any = None, target_spectrum: Any = None) -> Correspondence:
+        """The final map when ``polish`` is set: the registration's map ``corr``, the side reference's and the fine
+        functional map's, each polished by ZoomOut from 20 to ``polish`` Laplace-Beltrami eigenfunctions (5 at a
+        time; the caller's landmarks kept), the one of least ZoomOut residual in the first ``RESIDUAL_K`` (at most
+        ``polish``) kept -- best-of's rule on the maps this stage already has (glued contacts mislead the
+        registration and the reference in different places). ``corr``'s confidence and posteriors are kept
+        (``posteriors_of``); ``info["orientation_polish"]``: the residuals and the choice."""
+        from shape_toolkit.plugins.matching.orientation import RESIDUAL_K, side_reference
+
+        ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation,
+                             landmarks=fine.landmarks)
+        bs, bt = fine.bases(self.polish)
+        rs, rt = fine.bases(min(RESIDUAL_K, self.polish))
+        residuals: dict[str, float] = {}
+        best: tuple[float, str, np.ndarray] | None = None
+        for name, t in (("registration", corr.target_of), ("reference_map", ref.target_of),
+                        ("fine_map", fine.target_of[0])):
+            t = np.asarray(t)
+            if not np.all(t >= 0):  # a partial map has no functional map to polish
+                continue
+            _, tp = polish_map(t, bs, bt, POLISH_START, POLISH_STEP, fine.landmarks)
+            residuals[name] = map_residual(rs, rt, tp, rs.k)
+            if best is None or residuals[name] < best[0]:
+                best = (residuals[name], name, tp)
+        if best is None:
+            return corr
+        info = {**corr.info, "orientation_polish": {"k": bs.k, "residual_k": rs.k, "residuals": residuals,
+                                                    "choice": best[1]}}
+        if best[1] != "registration":
+            info["posteriors_of"] = "em-before-polish"
+        return Correspondence(best[2], corr.n_target, corr.confidence, corr.posteriors, info)
