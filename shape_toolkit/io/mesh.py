@@ -43,6 +43,7 @@ import threading
 import warnings
 from collections.abc import Callable
 from contextlib import contextmanager
+from itertools import chain
 from pathlib import Path
 
 import numpy as np
@@ -1092,55 +1093,49 @@ def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedColors:
 # --------------------------------------------------------------------------------------------
 # writers
 # --------------------------------------------------------------------------------------------
-def _fmt_rows(a: np.ndarray, prefix: str = "") -> str:
-    """Rows of ``a`` as text, floats in shortest round-trip repr, one row per line."""
-    return "".join(prefix + " ".join(map(repr, row)) + "\n" for row in a.tolist())
+def _fmt_rows(*blocks: np.ndarray, prefix: str = "") -> bytes:
+    """Rows of the column blocks side by side as text, one row per line: floats in shortest round-trip
+    repr (exact), integers as integers."""
+    rows = zip(*(b.tolist() for b in blocks))
+    return "".join(prefix + " ".join(map(repr, chain(*row))) + "\n" for row in rows).encode()
 
 
 def _write_off(fh, shape: Shape, binary: bool) -> None:
     if shape.colors is None:
-        fh.write(f"OFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode())
-        fh.write(_fmt_rows(shape.vertices).encode())
+        fh.write(f"OFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode() + _fmt_rows(shape.vertices))
     else:  # COFF: x y z r g b a, colours as floats in [0, 1]
         fh.write(f"COFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode())
-        rgba = np.column_stack([shape.vertices, shape.colors, np.ones(shape.n_vertices)])
-        fh.write(_fmt_rows(rgba).encode())
+        fh.write(_fmt_rows(shape.vertices, shape.colors, np.ones((shape.n_vertices, 1))))
     if shape.faces is not None:
-        fh.write(_fmt_rows(shape.faces, "3 ").encode())
+        fh.write(_fmt_rows(shape.faces, prefix="3 "))
 
 
 def _write_obj(fh, shape: Shape, binary: bool) -> None:
-    v = shape.vertices if shape.colors is None else np.column_stack([shape.vertices, shape.colors])
-    fh.write(_fmt_rows(v, "v ").encode())
+    fh.write(_fmt_rows(shape.vertices, *([] if shape.colors is None else [shape.colors]), prefix="v "))
     if shape.faces is not None:
-        fh.write(_fmt_rows(shape.faces + 1, "f ").encode())
+        fh.write(_fmt_rows(shape.faces + 1, prefix="f "))
 
 
 def _write_xyz(fh, shape: Shape, binary: bool) -> None:
-    v = shape.vertices if shape.colors is None else np.column_stack([shape.vertices, shape.colors])
-    fh.write(_fmt_rows(v).encode())
+    fh.write(_fmt_rows(shape.vertices, *([] if shape.colors is None else [shape.colors])))
 
 
 def _write_pcd(fh, shape: Shape, binary: bool) -> None:
-    n = shape.n_vertices
-    fields, size, typ, count = "x y z", "8 8 8", "F F F", "1 1 1"
-    if shape.colors is not None:  # PCL's packed float rgb (bits 0x00RRGGBB), as PCL and Open3D write it
-        fields, size, typ, count = fields + " rgb", size + " 4", typ + " F", count + " 1"
+    n, rgb = shape.n_vertices, shape.colors is not None  # colours: PCL's packed float rgb (bits 0x00RRGGBB)
     fh.write(
         (
-            f"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS {fields}\n"
-            f"SIZE {size}\nTYPE {typ}\nCOUNT {count}\nWIDTH {n}\nHEIGHT 1\n"
+            f"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z{' rgb' * rgb}\n"
+            f"SIZE 8 8 8{' 4' * rgb}\nTYPE F F F{' F' * rgb}\nCOUNT 1 1 1{' 1' * rgb}\nWIDTH {n}\nHEIGHT 1\n"
             f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA ascii\n"
         ).encode()
     )
-    if shape.colors is None:
-        fh.write(_fmt_rows(shape.vertices).encode())
+    if not rgb:
+        fh.write(_fmt_rows(shape.vertices))
         return
     c = np.round(shape.colors * 255.0).astype(np.uint32)
     packed = ((c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]).view(np.float32)
-    # repr of the float32 value as a double is exact, and reads back to the same 32 bits
-    fh.write("".join(f"{x!r} {y!r} {z!r} {float(w)!r}\n"
-                     for (x, y, z), w in zip(shape.vertices.tolist(), packed)).encode())
+    # the float32 value as a double prints exactly, and reads back to the same 32 bits
+    fh.write(_fmt_rows(shape.vertices, packed[:, None].astype(np.float64)))
 
 
 def _write_ply(fh, shape: Shape, binary: bool) -> None:
@@ -1155,13 +1150,9 @@ def _write_ply(fh, shape: Shape, binary: bool) -> None:
         head += f"element face {shape.n_faces}\nproperty list uchar int vertex_indices\n"
     fh.write((head + "end_header\n").encode())
     if not binary:
-        if rgb is None:
-            fh.write(_fmt_rows(shape.vertices).encode())
-        else:
-            fh.write("".join(f"{x!r} {y!r} {z!r} {r} {g} {b}\n" for (x, y, z), (r, g, b)
-                             in zip(shape.vertices.tolist(), rgb.tolist())).encode())
+        fh.write(_fmt_rows(shape.vertices, *([] if rgb is None else [rgb])))
         if shape.faces is not None:
-            fh.write(_fmt_rows(shape.faces, "3 ").encode())
+            fh.write(_fmt_rows(shape.faces, prefix="3 "))
         return
     if rgb is None:
         fh.write(np.ascontiguousarray(shape.vertices, dtype="=f8").tobytes())
@@ -1171,8 +1162,7 @@ def _write_ply(fh, shape: Shape, binary: bool) -> None:
         fh.write(rec.tobytes())
     if shape.faces is not None:
         rec = np.empty(shape.n_faces, dtype=[("n", "u1"), ("i", "=i4", (3,))])
-        rec["n"] = 3
-        rec["i"] = shape.faces
+        rec["n"], rec["i"] = 3, shape.faces
         fh.write(rec.tobytes())
 
 
