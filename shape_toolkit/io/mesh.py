@@ -969,6 +969,8 @@ def _quiet():
 # --------------------------------------------------------------------------------------------
 #: PCD fields holding packed colour (PCL's ``rgb`` float / ``rgba`` uint32: bits 0x00RRGGBB)
 _PCD_PACKED = ("rgb", "rgba")
+#: PCD TYPE letters as numpy kinds
+_PCD_KINDS = {"F": "f", "I": "i", "U": "u"}
 
 
 def _unpack_rgb(bits: np.ndarray) -> np.ndarray:
@@ -993,9 +995,8 @@ def _pcd_colors(names: list[str], sizes: list[int], types: list[str], counts: li
         v = column(packed)
         bits = v.astype(np.float32).view(np.uint32) if types[i].upper() == "F" else v.astype(np.int64)
         return _unpack_rgb(bits)
-    kinds = {"F": "f", "I": "i", "U": "u"}
     vert = {nm: column(nm) for nm in names if nm in {c for trio in _PLY_COLOR_NAMES for c in trio}}
-    typ = {nm: kinds.get(types[names.index(nm)].upper(), "f") + str(sizes[names.index(nm)]) for nm in vert}
+    typ = {nm: _PCD_KINDS.get(types[names.index(nm)].upper(), "f") + str(sizes[names.index(nm)]) for nm in vert}
     return _ply_colors(vert, typ)
 
 
@@ -1055,16 +1056,9 @@ def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedColors:
             colors = _pcd_colors(names, sizes, types, counts, lambda nm: _floats(rows, [at(nm)], nm)[:, 0])
         return table, None, colors
     if mode == "binary":
-        kinds = {"F": "f", "I": "i", "U": "u"}
         try:
-            dt = np.dtype(
-                [
-                    (nm, "<" + kinds[t.upper()] + str(sz), (c,))
-                    if c > 1
-                    else (nm, "<" + kinds[t.upper()] + str(sz))
-                    for nm, sz, t, c in zip(names, sizes, types, counts)
-                ]
-            )
+            dt = np.dtype([(nm, f"<{_PCD_KINDS[t.upper()]}{sz}", (c,) if c > 1 else ())
+                           for nm, sz, t, c in zip(names, sizes, types, counts)])
         except (KeyError, TypeError, ValueError):
             raise _Err("PCD header: unsupported TYPE/SIZE combination") from None
         if len(data) - pos < dt.itemsize * n:
@@ -1080,9 +1074,7 @@ def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedColors:
     import open3d as o3d  # imported lazily: slow import; only for LZF-compressed data
 
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        pc = o3d.io.read_point_cloud(
-            str(p), format="pcd", remove_nan_points=False, remove_infinite_points=False
-        )
+        pc = o3d.io.read_point_cloud(str(p), format="pcd", remove_nan_points=False, remove_infinite_points=False)
     pts = np.asarray(pc.points, dtype=np.float64)
     if pts.shape[0] != n:  # Open3D returns an empty cloud instead of raising
         raise _Err(f"header declares {n} points but Open3D could read {pts.shape[0]}")
