@@ -1,41 +1,37 @@
-"""Read and write shapes: triangle meshes (OFF, PLY, OBJ, STL) and point clouds (PLY, XYZ, PCD).
+"""Read and write shapes: triangle meshes (OFF, PLY, OBJ, STL) and point clouds (PLY, XYZ, PCD, OFF, OBJ).
 
-Every file is validated before anything large is allocated or a library sees it (size against the
-header's counts, counts against :data:`MAX_VERTICES`), and every problem is a :class:`ShapeFileError`
-naming the file (and the line, where there is one). STL is read by libigl (``readSTL``) and LZF-compressed
-PCD by Open3D, after those checks. STL triangle soups are welded (exactly coincident corners merged,
-first-occurrence order). Polygons are triangulated as fans. Indices are 0-based in the API and in every
-file written, except where the format itself is 1-based (OBJ).
+Validation comes first: the file size against the header's counts and the counts against
+:data:`MAX_VERTICES`, before anything large is allocated or a library sees the file; every problem is
+a :class:`ShapeFileError` naming the file (and the line, where there is one). libigl reads STL (the
+soup welded here, first-occurrence order) and Open3D LZF-compressed PCD. Polygons are fan-triangulated;
+indices are 0-based except in OBJ. Colours (``Shape.colors``, RGB in [0, 1]) are read from PLY, COFF,
+OBJ (``v x y z r g b``, or a texture sampled bilinearly with Pillow, a vertex's samples averaged), XYZ
+and PCD: integer types are 8-bit (``ushort`` 16-bit), float types in [0, 1], and in text files values
+that are all integers with one above 1 are 8-bit. Writers round-trip float64 (STL: float32) and keep
+colours (PLY and PCD: 8-bit).
 
-OFF, OBJ, PLY, XYZ and ascii/binary PCD keep numpy parsers, because the libraries accept malformed
-files without an error (checked with libigl 2.6.3 and Open3D 0.19.0):
+The other readers are numpy parsers, because each library tried mishandles a malformed file silently,
+refuses a valid one, or cannot say what is wrong (libigl 2.6.3, Open3D 0.19.0, plyfile 1.1.5, trimesh
+5.2.0, meshio 5.3.5, pypcd4 1.5.1):
 
-- libigl reads face index 4294967298 as 2 in OFF and OBJ (32-bit wrap: a wrong mesh that passes every
-  range check), OBJ index 0 as -1, PLY float list indices 1.5 as 1, leaves PLY polygons untriangulated,
-  returns uninitialised coordinates for a truncated binary PLY, and prints its errors on stdout;
-- Open3D returns uninitialised coordinates for an OFF vertex ``1 abc 0`` and for a truncated ascii PCD,
-  an empty mesh for ``OFF 3 1 0`` on one line and for an OBJ polygon ``f 1/1 2/2 3/3 4/4``, drops a
-  malformed XYZ line, and both keep PLY face indices out of range (7 of 3 vertices, -1);
-- Open3D divides PLY colours by 255 whatever their type (float 1.0 gives 0.0039, ushort 65535 gives
-  257) and ignores ``r g b``; libigl's ``readOFF`` divides float COFF colours by 255 too (the COFF
-  files written here would come back dark); neither samples OBJ textures per vertex;
-- writers: libigl's ``writeOFF`` keeps 15 digits and Open3D's writers 6; ours round-trip float64.
-
-Per-vertex colours (``Shape.colors``, RGB in [0, 1]) are read from PLY (vertex ``red green blue``,
-also ``r g b`` or ``diffuse_*``, any numeric type: integer types are 8-bit except ``ushort``,
-16-bit; float types are in [0, 1]; alpha ignored), COFF/CNOFF (RGB or RGBA after the coordinates or
-normals), OBJ ``v x y z r g b`` and texture-mapped OBJ (``mtllib`` + ``usemtl`` + ``map_Kd`` image +
-``vt``: the image is sampled bilinearly, repeating, at every corner's UV with Pillow; a vertex with
-several UVs gets the mean), XYZ ``x y z r g b`` rows (six columns; ``x y z nx ny nz`` unit normals
-are told apart and ignored) and ``x y z nx ny nz r g b`` rows (nine columns; also ``x y z r g b nx
-ny nz``: the unit normals are told apart and ignored) and PCD (PCL's packed ``rgb`` / ``rgba``
-field, or separate ``r g b`` fields typed as in PLY; LZF-compressed files through Open3D). In text
-formats, colours whose values are all integers with one above 1 are 8-bit (0..255), otherwise they
-are in [0, 1]. A missing or unreadable texture or material library is a :class:`ShapeFileError`
-naming that file (nothing is silently dropped; ``load_shape(..., colors=False)`` reads the geometry
-alone). Writers keep colours: PLY as ``uchar`` (8-bit, what viewers read), OFF as COFF, OBJ as ``v x
-y z r g b`` and XYZ as ``x y z r g b`` (all three exact floats), PCD as PCL's packed float ``rgb``
-(8-bit).
+- OFF: libigl reads index 4294967298 as 2 (32-bit wrap) and divides float COFF colours by 255; Open3D
+  returns uninitialised coordinates for a vertex ``1 abc 0`` and an empty mesh for ``OFF 3 1 0`` on one
+  line; trimesh drops a face ``2 0 1`` and reads ``4 0 1 2`` as a triangle; meshio prints and raises
+  SystemExit on COFF, polygons and a one-line header.
+- OBJ: libigl wraps indices too and reads index 0 as -1; Open3D returns an empty mesh for ``f 1/1 2/2
+  3/3 4/4``; trimesh reads ``f 0 1 2`` as (0, 0, 1) and drops the vertex of ``f 1/1 2/1 3/1 -1/1``;
+  meshio keeps index 0 as -1; none averages the texture samples of a vertex with several UVs.
+- PLY: libigl reads float index 1.5 as 1, leaves polygons untriangulated and returns uninitialised
+  coordinates for a truncated binary file; Open3D divides every colour by 255 (float 1.0 gives 0.0039)
+  and both keep indices out of range. plyfile refuses these, but refuses the whole file for one bad
+  colour (uchar 2.5: the geometry cannot be read alone), names neither a list count of -2 nor -1 (it
+  says "malformed input", "early end-of-file"), and reads variable-length lists row by row (two million
+  empty faces: 9 s before anything can refuse them; an ascii mesh of 200k vertices: 4.7 s against
+  0.7 s here; writing it: 8.8 s against 1.6 s).
+- XYZ, PCD: Open3D drops a malformed XYZ line and returns uninitialised points for a truncated ascii
+  PCD; pypcd4 ignores POINTS (reads 2 rows of 3 declared points as 2 points) and refuses the whole file
+  for a colour of 300 in a ``U 1`` field.
+- writers: libigl's keep 15 digits and Open3D's 6.
 """
 
 from __future__ import annotations
@@ -45,8 +41,9 @@ import re
 import sys
 import threading
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from contextlib import contextmanager
+from itertools import chain
 from pathlib import Path
 
 import numpy as np
@@ -248,10 +245,7 @@ def _read_text(p: Path) -> str:
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError:
-        try:
-            return data.decode("latin-1")
-        except UnicodeDecodeError:  # pragma: no cover - latin-1 decodes any byte
-            raise _Err("not a text file") from None
+        return data.decode("latin-1")  # decodes any byte
 
 
 def _content(text: str) -> list[tuple[int, str]]:
@@ -421,45 +415,73 @@ def _read_obj(p: Path, want_colors: bool = True) -> _ParsedColors:
         vertices, colors = table[:, :3], _text_colors(table[:, 3:], "OBJ vertex")
     else:
         vertices = _floats(vrows, 3, "vertex")
-    faces = _obj_faces(lines)
-    if want_colors and colors is None and faces is not None:
-        colors = _obj_texture_colors(p, lines, len(vertices))
+    libs = [line[6:] for _, line in lines if line.startswith("mtllib") and line[6:7].isspace()]
+    textured = want_colors and colors is None and bool(libs) and any(line[:3] in ("vt ", "vt\t") for _, line in lines)
+    faces = _obj_triangles(lines)
+    if faces is None or textured:
+        polys, where, corners, uv_rows, names = _obj_walk(lines, textured)
+        if faces is None and polys:
+            faces = _fan(polys, where)
+        if textured and faces is not None:
+            colors = _obj_texture_colors(p, libs, corners, uv_rows, names, len(vertices))
     return vertices, faces, colors
 
 
-def _obj_faces(lines: list[tuple[int, str]]) -> np.ndarray | None:
-    """Fan-triangulated 0-based faces of the OBJ ``f`` lines (None without any)."""
-    frows = [(ln, line[2:]) for ln, line in lines if line[:2] in ("f ", "f\t")]
-    if not frows:
+def _obj_triangles(lines: list[tuple[int, str]]) -> np.ndarray | None:
+    """0-based faces of an OBJ whose faces are all triangles with absolute indices (numpy's parser); else None."""
+    frows = [line[2:] for _, line in lines if line[:2] in ("f ", "f\t")]
+    if not frows or any("-" in line for line in frows):
         return None
-    if not any("-" in line for _, line in frows):  # fast path: absolute indices, triangles
-        stripped = frows
-        if any("/" in line for _, line in frows):
-            slash = re.compile(r"/\S*")
-            stripped = [(ln, slash.sub("", line)) for ln, line in frows]
-        try:
-            arr = np.loadtxt([r for _, r in stripped], dtype=np.int64, ndmin=2, comments="#")
-        except (ValueError, OverflowError):
-            arr = None
-        if arr is not None and arr.shape[1] == 3 and arr.min() > 0:
-            return arr - 1
-    # general path: polygons and negative indices (relative to the vertices read so far)
+    if any("/" in line for line in frows):
+        slash = re.compile(r"/\S*")
+        frows = [slash.sub("", line) for line in frows]
+    try:
+        arr = np.loadtxt(frows, dtype=np.int64, ndmin=2, comments="#")
+    except (ValueError, OverflowError):
+        return None
+    return arr - 1 if arr.shape[1] == 3 and arr.min() > 0 else None
+
+
+def _obj_walk(lines: list[tuple[int, str]], textures: bool) -> tuple:
+    """The OBJ faces in one pass: lists of 0-based vertex ids (negative indices count back from the
+    vertices read so far) and their line numbers; with ``textures`` also every corner as (vertex,
+    ``vt`` index or -1, material or -1), the ``vt`` rows and the ``usemtl`` names in order of first use."""
     polys: list[list[int]] = []
     where: list[int] = []
-    nv = 0
+    corners: list[tuple[int, int, int]] = []
+    uv_rows: list[tuple[int, str]] = []
+    names: dict[str, int] = {}
+    nv, cur = 0, -1
     for ln, line in lines:
         if line[:2] in ("v ", "v\t"):
             nv += 1
+        elif textures and line[:3] in ("vt ", "vt\t"):
+            uv_rows.append((ln, line[3:]))
+        elif textures and line.startswith("usemtl") and line[6:7].isspace():
+            cur = names.setdefault(line[6:].split("#", 1)[0].strip(), len(names))
         elif line[:2] in ("f ", "f\t"):
-            idx = []
-            for t in _tokens(line)[1:]:
-                i = _int(t.split("/")[0], ln, "face index")
+            poly = []
+            for tok in _tokens(line)[1:]:
+                parts = tok.split("/")
+                i = _int(parts[0], ln, "face index")
                 if i == 0:
                     raise _Err(f"line {ln}: face index 0 is invalid in OBJ (indices are 1-based)")
-                idx.append(i - 1 if i > 0 else nv + i)
-            polys.append(idx)
+                poly.append(i - 1 if i > 0 else nv + i)
+                if not textures:
+                    continue
+                t, nt = -1, len(uv_rows)
+                if len(parts) > 1 and parts[1]:
+                    t = _int(parts[1], ln, "texture coordinate index")
+                    if t == 0:
+                        raise _Err(f"line {ln}: texture coordinate index 0 is invalid in OBJ (1-based)")
+                    t = t - 1 if t > 0 else nt + t
+                    if not 0 <= t < nt:
+                        raise _Err(f"line {ln}: texture coordinate index {parts[1]} out of range "
+                                   f"({nt} vt lines so far)")
+                corners.append((poly[-1], t, cur))
+            polys.append(poly)
             where.append(ln)
-    return _fan(polys, where)
+    return polys, where, np.array(corners, dtype=np.int64).reshape(-1, 3), uv_rows, list(names)
 
 
 def _obj_refs(rest: str, base: Path) -> list[Path]:
@@ -478,7 +500,7 @@ _MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-c
 
 
 def _read_mtl(mtl: Path) -> dict[str, dict]:
-    """Materials of an MTL file: ``{name: {"Kd": (3,) or None, "map": Path or None, "line": int}}``."""
+    """Materials of an MTL file: ``{name: {"Kd": (3,) or None, "map": Path or None, "mtl": mtl}}``."""
     if not mtl.is_file():
         raise _Err(f"material library {str(mtl)!r} (mtllib) not found; put it next to the OBJ file, "
                    "or remove the mtllib line to load the geometry without colours")
@@ -495,7 +517,7 @@ def _read_mtl(mtl: Path) -> dict[str, dict]:
         key, _, rest = t.partition(" ")
         key = key.strip()
         if key == "newmtl":
-            cur = mats.setdefault(rest.strip(), {"Kd": None, "map": None, "line": ln})
+            cur = mats.setdefault(rest.strip(), {"Kd": None, "map": None, "mtl": mtl})
         elif cur is None:
             continue
         elif key == "Kd":
@@ -516,7 +538,6 @@ def _read_mtl(mtl: Path) -> dict[str, dict]:
             if not names:
                 raise _Err(f"material library {str(mtl)!r} line {ln}: map_Kd names no image")
             cur["map"] = _obj_refs(names, mtl.parent)[0]
-            cur["map_line"] = ln
     return mats
 
 
@@ -566,72 +587,29 @@ def _sample_bilinear(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return np.clip(out / top, 0.0, 1.0)
 
 
-def _obj_texture_colors(p: Path, lines: Sequence[tuple[int, str]], n_vertices: int) -> np.ndarray | None:
-    """Vertex colours of a texture-mapped OBJ (None when it is not one: no ``mtllib``, no ``vt``
-    referenced by faces, or no ``map_Kd`` among the materials used). Each distinct (vertex, UV,
-    material) corner contributes the bilinear texture sample (or, without a UV or an image, the
-    material's ``Kd`` when it has one); a vertex gets the mean of its contributions."""
-    libs = [rest for _, line in lines if line.startswith("mtllib") for rest in [line[6:]] if rest[:1].isspace()]
-    if not libs or not any(line[:3] in ("vt ", "vt\t") for _, line in lines):
-        return None
+def _obj_texture_colors(p: Path, libs: list[str], corners: np.ndarray, uv_rows: list[tuple[int, str]],
+                        names: list[str], n_vertices: int) -> np.ndarray | None:
+    """Vertex colours of a texture-mapped OBJ (None when it is not one: no ``vt`` referenced by faces, or
+    no ``map_Kd`` among the materials used). ``corners``, ``uv_rows``, ``names``: :func:`_obj_walk`'s.
+    Each distinct (vertex, UV, material) corner contributes the bilinear texture sample (or, without a
+    UV or an image, the material's ``Kd`` when it has one); a vertex gets the mean of its contributions."""
     mats: dict[str, dict] = {}
-    mtl_of: dict[str, Path] = {}
     for rest in libs:
         for mtl in _obj_refs(rest.split("#", 1)[0], p.parent):
             for name, m in _read_mtl(mtl).items():
                 mats.setdefault(name, m)
-                mtl_of.setdefault(name, mtl)
-    # corners: vertex id, vt id (-1: none), material id (-1: none), in file order
-    names: list[str] = []
-    mat_id = {}
-    cur = -1
-    nv = nt = 0
-    cv: list[int] = []
-    ct: list[int] = []
-    cm: list[int] = []
-    trows: list[tuple[int, str]] = []
-    for ln, line in lines:
-        head = line[:2]
-        if head in ("v ", "v\t"):
-            nv += 1
-        elif line[:3] in ("vt ", "vt\t"):
-            nt += 1
-            trows.append((ln, line[3:]))
-        elif line.startswith("usemtl") and line[6:7].isspace():
-            name = line[6:].split("#", 1)[0].strip()
-            if name not in mat_id:
-                mat_id[name] = len(names)
-                names.append(name)
-            cur = mat_id[name]
-        elif head in ("f ", "f\t"):
-            for tok in _tokens(line)[1:]:
-                parts = tok.split("/")
-                i = _int(parts[0], ln, "face index")
-                cv.append(i - 1 if i > 0 else nv + i)
-                if len(parts) > 1 and parts[1]:
-                    t = _int(parts[1], ln, "texture coordinate index")
-                    if t == 0:
-                        raise _Err(f"line {ln}: texture coordinate index 0 is invalid in OBJ (1-based)")
-                    t = t - 1 if t > 0 else nt + t
-                    if not 0 <= t < nt:
-                        raise _Err(f"line {ln}: texture coordinate index {parts[1]} out of range "
-                                   f"({nt} vt lines so far)")
-                    ct.append(t)
-                else:
-                    ct.append(-1)
-                cm.append(cur)
-    if not any(m["map"] is not None for m in mats.values()) or not ct or max(ct) < 0:
+    if not any(m["map"] is not None for m in mats.values()) or not (corners[:, 1] >= 0).any():
         return None  # no texture image, or no face with texture coordinates
     for nm in names:
         if nm not in mats:
-            raise _Err(f"material {nm!r} (usemtl) is not defined in the material libraries "
-                       f"{', '.join(repr(str(m)) for m in dict.fromkeys(mtl_of.values())) or '(none)'}")
+            files = ", ".join(repr(str(f)) for f in dict.fromkeys(m["mtl"] for m in mats.values()))
+            raise _Err(f"material {nm!r} (usemtl) is not defined in the material libraries {files}")
     if not any(mats[nm]["map"] is not None for nm in names):
         return None
-    uv = _floats(trows, 2, "texture coordinate (vt u v)")
+    uv = _floats(uv_rows, 2, "texture coordinate (vt u v)")
     if not np.isfinite(uv).all():
         raise _Err("texture coordinates (vt) must be finite")
-    corners = np.unique(np.array([cv, ct, cm], dtype=np.int64).T, axis=0)  # distinct (vertex, uv, material)
+    corners = np.unique(corners, axis=0)  # distinct (vertex, uv, material)
     corners = corners[(corners[:, 0] >= 0) & (corners[:, 0] < n_vertices)]
     total = np.zeros((n_vertices, 3))
     count = np.zeros(n_vertices)
@@ -640,7 +618,7 @@ def _obj_texture_colors(p: Path, lines: Sequence[tuple[int, str]], n_vertices: i
         mine = corners[corners[:, 2] == k]
         with_uv = mine[mine[:, 1] >= 0] if m["map"] is not None else mine[:0]
         if len(with_uv):
-            img = _load_texture(m["map"], mtl_of[nm], nm)
+            img = _load_texture(m["map"], m["mtl"], nm)
             np.add.at(total, with_uv[:, 0], _sample_bilinear(img, uv[with_uv[:, 1]]))
             np.add.at(count, with_uv[:, 0], 1.0)
         rest = mine[mine[:, 1] < 0] if m["map"] is not None else mine
@@ -991,6 +969,8 @@ def _quiet():
 # --------------------------------------------------------------------------------------------
 #: PCD fields holding packed colour (PCL's ``rgb`` float / ``rgba`` uint32: bits 0x00RRGGBB)
 _PCD_PACKED = ("rgb", "rgba")
+#: PCD TYPE letters as numpy kinds
+_PCD_KINDS = {"F": "f", "I": "i", "U": "u"}
 
 
 def _unpack_rgb(bits: np.ndarray) -> np.ndarray:
@@ -1015,9 +995,8 @@ def _pcd_colors(names: list[str], sizes: list[int], types: list[str], counts: li
         v = column(packed)
         bits = v.astype(np.float32).view(np.uint32) if types[i].upper() == "F" else v.astype(np.int64)
         return _unpack_rgb(bits)
-    kinds = {"F": "f", "I": "i", "U": "u"}
     vert = {nm: column(nm) for nm in names if nm in {c for trio in _PLY_COLOR_NAMES for c in trio}}
-    typ = {nm: kinds.get(types[names.index(nm)].upper(), "f") + str(sizes[names.index(nm)]) for nm in vert}
+    typ = {nm: _PCD_KINDS.get(types[names.index(nm)].upper(), "f") + str(sizes[names.index(nm)]) for nm in vert}
     return _ply_colors(vert, typ)
 
 
@@ -1077,16 +1056,9 @@ def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedColors:
             colors = _pcd_colors(names, sizes, types, counts, lambda nm: _floats(rows, [at(nm)], nm)[:, 0])
         return table, None, colors
     if mode == "binary":
-        kinds = {"F": "f", "I": "i", "U": "u"}
         try:
-            dt = np.dtype(
-                [
-                    (nm, "<" + kinds[t.upper()] + str(sz), (c,))
-                    if c > 1
-                    else (nm, "<" + kinds[t.upper()] + str(sz))
-                    for nm, sz, t, c in zip(names, sizes, types, counts)
-                ]
-            )
+            dt = np.dtype([(nm, f"<{_PCD_KINDS[t.upper()]}{sz}", (c,) if c > 1 else ())
+                           for nm, sz, t, c in zip(names, sizes, types, counts)])
         except (KeyError, TypeError, ValueError):
             raise _Err("PCD header: unsupported TYPE/SIZE combination") from None
         if len(data) - pos < dt.itemsize * n:
@@ -1102,9 +1074,7 @@ def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedColors:
     import open3d as o3d  # imported lazily: slow import; only for LZF-compressed data
 
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        pc = o3d.io.read_point_cloud(
-            str(p), format="pcd", remove_nan_points=False, remove_infinite_points=False
-        )
+        pc = o3d.io.read_point_cloud(str(p), format="pcd", remove_nan_points=False, remove_infinite_points=False)
     pts = np.asarray(pc.points, dtype=np.float64)
     if pts.shape[0] != n:  # Open3D returns an empty cloud instead of raising
         raise _Err(f"header declares {n} points but Open3D could read {pts.shape[0]}")
@@ -1115,55 +1085,49 @@ def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedColors:
 # --------------------------------------------------------------------------------------------
 # writers
 # --------------------------------------------------------------------------------------------
-def _fmt_rows(a: np.ndarray, prefix: str = "") -> str:
-    """Rows of ``a`` as text, floats in shortest round-trip repr, one row per line."""
-    return "".join(prefix + " ".join(map(repr, row)) + "\n" for row in a.tolist())
+def _fmt_rows(*blocks: np.ndarray, prefix: str = "") -> bytes:
+    """Rows of the column blocks side by side as text, one row per line: floats in shortest round-trip
+    repr (exact), integers as integers."""
+    rows = zip(*(b.tolist() for b in blocks))
+    return "".join(prefix + " ".join(map(repr, chain(*row))) + "\n" for row in rows).encode()
 
 
 def _write_off(fh, shape: Shape, binary: bool) -> None:
     if shape.colors is None:
-        fh.write(f"OFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode())
-        fh.write(_fmt_rows(shape.vertices).encode())
+        fh.write(f"OFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode() + _fmt_rows(shape.vertices))
     else:  # COFF: x y z r g b a, colours as floats in [0, 1]
         fh.write(f"COFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode())
-        rgba = np.column_stack([shape.vertices, shape.colors, np.ones(shape.n_vertices)])
-        fh.write(_fmt_rows(rgba).encode())
+        fh.write(_fmt_rows(shape.vertices, shape.colors, np.ones((shape.n_vertices, 1))))
     if shape.faces is not None:
-        fh.write(_fmt_rows(shape.faces, "3 ").encode())
+        fh.write(_fmt_rows(shape.faces, prefix="3 "))
 
 
 def _write_obj(fh, shape: Shape, binary: bool) -> None:
-    v = shape.vertices if shape.colors is None else np.column_stack([shape.vertices, shape.colors])
-    fh.write(_fmt_rows(v, "v ").encode())
+    fh.write(_fmt_rows(shape.vertices, *([] if shape.colors is None else [shape.colors]), prefix="v "))
     if shape.faces is not None:
-        fh.write(_fmt_rows(shape.faces + 1, "f ").encode())
+        fh.write(_fmt_rows(shape.faces + 1, prefix="f "))
 
 
 def _write_xyz(fh, shape: Shape, binary: bool) -> None:
-    v = shape.vertices if shape.colors is None else np.column_stack([shape.vertices, shape.colors])
-    fh.write(_fmt_rows(v).encode())
+    fh.write(_fmt_rows(shape.vertices, *([] if shape.colors is None else [shape.colors])))
 
 
 def _write_pcd(fh, shape: Shape, binary: bool) -> None:
-    n = shape.n_vertices
-    fields, size, typ, count = "x y z", "8 8 8", "F F F", "1 1 1"
-    if shape.colors is not None:  # PCL's packed float rgb (bits 0x00RRGGBB), as PCL and Open3D write it
-        fields, size, typ, count = fields + " rgb", size + " 4", typ + " F", count + " 1"
+    n, rgb = shape.n_vertices, shape.colors is not None  # colours: PCL's packed float rgb (bits 0x00RRGGBB)
     fh.write(
         (
-            f"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS {fields}\n"
-            f"SIZE {size}\nTYPE {typ}\nCOUNT {count}\nWIDTH {n}\nHEIGHT 1\n"
+            f"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z{' rgb' * rgb}\n"
+            f"SIZE 8 8 8{' 4' * rgb}\nTYPE F F F{' F' * rgb}\nCOUNT 1 1 1{' 1' * rgb}\nWIDTH {n}\nHEIGHT 1\n"
             f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA ascii\n"
         ).encode()
     )
-    if shape.colors is None:
-        fh.write(_fmt_rows(shape.vertices).encode())
+    if not rgb:
+        fh.write(_fmt_rows(shape.vertices))
         return
     c = np.round(shape.colors * 255.0).astype(np.uint32)
     packed = ((c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]).view(np.float32)
-    # repr of the float32 value as a double is exact, and reads back to the same 32 bits
-    fh.write("".join(f"{x!r} {y!r} {z!r} {float(w)!r}\n"
-                     for (x, y, z), w in zip(shape.vertices.tolist(), packed)).encode())
+    # the float32 value as a double prints exactly, and reads back to the same 32 bits
+    fh.write(_fmt_rows(shape.vertices, packed[:, None].astype(np.float64)))
 
 
 def _write_ply(fh, shape: Shape, binary: bool) -> None:
@@ -1178,13 +1142,9 @@ def _write_ply(fh, shape: Shape, binary: bool) -> None:
         head += f"element face {shape.n_faces}\nproperty list uchar int vertex_indices\n"
     fh.write((head + "end_header\n").encode())
     if not binary:
-        if rgb is None:
-            fh.write(_fmt_rows(shape.vertices).encode())
-        else:
-            fh.write("".join(f"{x!r} {y!r} {z!r} {r} {g} {b}\n" for (x, y, z), (r, g, b)
-                             in zip(shape.vertices.tolist(), rgb.tolist())).encode())
+        fh.write(_fmt_rows(shape.vertices, *([] if rgb is None else [rgb])))
         if shape.faces is not None:
-            fh.write(_fmt_rows(shape.faces, "3 ").encode())
+            fh.write(_fmt_rows(shape.faces, prefix="3 "))
         return
     if rgb is None:
         fh.write(np.ascontiguousarray(shape.vertices, dtype="=f8").tobytes())
@@ -1194,8 +1154,7 @@ def _write_ply(fh, shape: Shape, binary: bool) -> None:
         fh.write(rec.tobytes())
     if shape.faces is not None:
         rec = np.empty(shape.n_faces, dtype=[("n", "u1"), ("i", "=i4", (3,))])
-        rec["n"] = 3
-        rec["i"] = shape.faces
+        rec["n"], rec["i"] = 3, shape.faces
         fh.write(rec.tobytes())
 
 
@@ -1220,18 +1179,7 @@ def _write_stl(fh, shape: Shape, binary: bool) -> None:
 
 
 _READERS: dict[str, Callable[[Path, bool], _ParsedColors]] = {
-    ".off": _read_off,
-    ".obj": _read_obj,
-    ".ply": _read_ply,
-    ".stl": _read_stl,
-    ".xyz": _read_xyz,
-    ".pcd": _read_pcd,
+    ".off": _read_off, ".obj": _read_obj, ".ply": _read_ply, ".stl": _read_stl, ".xyz": _read_xyz, ".pcd": _read_pcd
 }
-_WRITERS = {
-    ".off": _write_off,
-    ".obj": _write_obj,
-    ".ply": _write_ply,
-    ".stl": _write_stl,
-    ".xyz": _write_xyz,
-    ".pcd": _write_pcd,
-}
+_WRITERS = {".off": _write_off, ".obj": _write_obj, ".ply": _write_ply, ".stl": _write_stl, ".xyz": _write_xyz,
+            ".pcd": _write_pcd}
