@@ -90,14 +90,16 @@ PRESETS: dict[str, dict[str, Any]] = {
         "description": "thesis 7.4: ADF keypoints, replicator matching (orientation-checked), small-scale "
         "heat-diffusion descriptors (eq. 6.61-6.63), seed growing (Alg. 6), EM on the thesis's embedding "
         "(graph Laplacian, commute-time scaling, scree dimension; Alg. 7), coarse-to-fine refinement (40 graph, "
-        "then 100 Laplace-Beltrami eigenvectors; an extension), orientation repair",
+        "then 100 Laplace-Beltrami eigenvectors; an extension), orientation repair; the final map is the one of "
+        "least ZoomOut residual among EM's, the side reference's and the fine functional map's, each polished by "
+        "ZoomOut to 100 eigenfunctions (glued contacts mislead each in different places)",
         "keypoints": {"plugin": "adf-maxima", "preset": "thesis-dense"},
         "sparse": {"plugin": "replicator"},
         "descriptors": {"plugin": "heat-diffusion", "params": {"K": 50, "time_ratio": 1.5}},
         "dense": {"plugin": "seed-growing", "params": {
             "descriptor": "heat-diffusion", "descriptor_params": {"K": 50, "time_ratio": 1.5}}},
         "refine": {"plugin": "em-registration", "preset": "topo-robust", "params": {"k_final": 40, "polish_k": 100}},
-        "orient": {"plugin": "orientation-repair"},
+        "orient": {"plugin": "orientation-repair", "params": {"polish": 100}},
     },
     "seed-growing": {
         "description": "ADF keypoints, replicator matching, heat-distance descriptors, seed growing",
