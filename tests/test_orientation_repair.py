@@ -149,6 +149,11 @@ def test_select_keeps_the_polished_candidate_of_least_residual():
     err = np.linalg.norm(np.asarray(B.vertices)[out.target_of] - np.asarray(B.vertices), axis=1).mean()
     assert err < 0.1 * np.linalg.norm(np.asarray(B.vertices)[scrambled] - np.asarray(B.vertices), axis=1).mean()
     assert out.info["posteriors_of"] == "em-before-polish"
+    assert all(v > 0 for v in sel["scores"].values())
+    # the residual cannot tell a mirror image: a candidate that reverses the stage's side does not compete
+    flipped = OrientationRepair(em, orientation="reversing", polish=40).select(
+        Correspondence(scrambled, B.n_vertices, info={}), A, B, fine).info["orientation_polish"]
+    assert flipped["scores"]["fine_map"] < 0 and "fine_map" not in flipped["residuals"]
     for bad in (10, 20, 201, -1, 2.5):  # 0 (off) or a ZoomOut target above its start of 20
         with pytest.raises(ParameterError, match="polish"):
             OrientationRepair(em, polish=bad).registration()

@@ -307,14 +307,14 @@ def test_a_pipeline_run_computes_each_side_reference_once(pair, monkeypatch):
     real_match = type(real()).match
 
     def counting_match(self, source, target, *a, **k):
-        computed.append("symmetry" if source is target else "sides")
+        computed.append("symmetry" if source is target else "pair")
         return real_match(self, source, target, *a, **k)
 
     monkeypatch.setattr(type(real()), "match", counting_match)
     load_pipeline("topo-robust").run(A.shape, B.shape)
-    # one side reference and one symmetry map (a self-map from each of its fits) for the whole run (sparse
-    # stage + orientation repair)
-    assert sorted(computed) == ["sides"] + ["symmetry"] * len(orientation.SYMMETRY_FITS)
+    # one side reference, one fine map (the final selection's candidate; the rescue's start) and one symmetry
+    # map (a self-map from each of its fits) for the whole run (sparse stage + orientation repair)
+    assert sorted(computed) == ["pair"] * 2 + ["symmetry"] * len(orientation.SYMMETRY_FITS)
     with orientation.side_cache_scope() as cache:
         side_reference(A.shape, B.shape)
         assert side_reference(A.shape, B.shape, cache=cache) is side_reference(A.shape, B.shape)

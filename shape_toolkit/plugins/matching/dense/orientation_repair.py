@@ -350,8 +350,11 @@ class OrientationRepair(DenseMatcher):
         functional map's, each polished by ZoomOut from 20 to ``polish`` Laplace-Beltrami eigenfunctions (5 at a
         time; the caller's landmarks kept), the one of least ZoomOut residual in the first ``RESIDUAL_K`` (at most
         ``polish``) kept -- best-of's rule on the maps this stage already has (glued contacts mislead the
-        registration and the reference in different places). ``corr``'s confidence and posteriors are kept
-        (``posteriors_of``); ``info["orientation_polish"]``: the residuals and the choice."""
+        registration and the reference in different places). The residual cannot tell a map from its mirror image
+        (an intrinsic symmetry is as smooth as the identity), and the side was decided above: a candidate other
+        than the registration's map competes only if it keeps the side (:meth:`score` > 0, the rescue's rule).
+        ``corr``'s confidence and posteriors are kept (``posteriors_of``); ``info["orientation_polish"]``: the
+        residuals, the scores and the choice."""
         from shape_toolkit.plugins.matching.orientation import RESIDUAL_K, side_reference
 
         ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation,
@@ -359,6 +362,7 @@ class OrientationRepair(DenseMatcher):
         bs, bt = fine.bases(self.polish)
         rs, rt = fine.bases(min(RESIDUAL_K, self.polish))
         residuals: dict[str, float] = {}
+        scores: dict[str, float] = {}
         best: tuple[float, str, np.ndarray] | None = None
         for name, t in (("registration", corr.target_of), ("reference_map", ref.target_of),
                         ("fine_map", fine.target_of[0])):
@@ -366,13 +370,17 @@ class OrientationRepair(DenseMatcher):
             if not np.all(t >= 0):  # a partial map has no functional map to polish
                 continue
             _, tp = polish_map(t, bs, bt, POLISH_START, POLISH_STEP, fine.landmarks)
+            if name != "registration":
+                scores[name] = self.score(None, source, target, tp, refined=False)
+                if scores[name] <= 0:
+                    continue
             residuals[name] = map_residual(rs, rt, tp, rs.k)
             if best is None or residuals[name] < best[0]:
                 best = (residuals[name], name, tp)
         if best is None:
             return corr
         info = {**corr.info, "orientation_polish": {"k": bs.k, "residual_k": rs.k, "residuals": residuals,
-                                                    "choice": best[1]}}
+                                                    "scores": scores, "choice": best[1]}}
         if best[1] != "registration":
             info["posteriors_of"] = "em-before-polish"
         return Correspondence(best[2], corr.n_target, corr.confidence, corr.posteriors, info)
