@@ -208,7 +208,7 @@ def zoomout(
 
 
 def polish_map(
-    target_of: np.ndarray, src: Basis, tgt: Basis, start: int = 20, step: int = 4, seeds: np.ndarray | None = None,
+    target_of: np.ndarray, src: Basis, tgt: Basis, start: int = 20, step: int = 5, seeds: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A point map ``target_of`` ``(n_s,)`` (all entries >= 0) refined by ZoomOut from its functional map in
     ``start`` functions to ``src.k``, ``step`` at a time; the pairs ``seeds`` ``(q, 2)`` are kept. Returns the
