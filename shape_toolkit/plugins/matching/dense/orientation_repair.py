@@ -7,8 +7,9 @@ bodies it can settle on a map that is right on some parts and mirrored on others
 em_registration.EMRegistrationMatcher`): it decides the side of each region against an orientation-aware
 functional map (:meth:`~OrientationRepair.side_check`) and replaces a map that still reverses orientation on
 the whole (:meth:`~OrientationRepair.rescue`). Both restart the registration from repaired maps, so the stage
-wraps the matcher rather than following it. Design notes and measurements:
-``benchmarks/results/em_registration_notes.md``.
+wraps the matcher rather than following it. With ``polish`` (``topo-robust``), the final map is chosen among the
+registration's and the stage's two references, each polished by ZoomOut (:meth:`~OrientationRepair.select`).
+Design notes and measurements: ``benchmarks/results/em_registration_notes.md``.
 """
 
 from __future__ import annotations
@@ -353,8 +354,8 @@ class OrientationRepair(DenseMatcher):
         registration and the reference in different places). The residual cannot tell a map from its mirror image
         (an intrinsic symmetry is as smooth as the identity), and the side was decided above: a candidate other
         than the registration's map competes only if it keeps the side (:meth:`score` > 0, the rescue's rule).
-        ``corr``'s confidence and posteriors are kept (``posteriors_of``); ``info["orientation_polish"]``: the
-        residuals, the scores and the choice."""
+        ``corr``'s confidence and posteriors are kept and describe the registration's map before the polish
+        (``posteriors_of``); ``info["orientation_polish"]``: the residuals, the scores and the choice."""
         from shape_toolkit.plugins.matching.orientation import RESIDUAL_K, side_reference
 
         ref = side_reference(source, target, source_spectrum, target_spectrum, self.orientation,
@@ -381,6 +382,5 @@ class OrientationRepair(DenseMatcher):
             return corr
         info = {**corr.info, "orientation_polish": {"k": bs.k, "residual_k": rs.k, "residuals": residuals,
                                                     "scores": scores, "choice": best[1]}}
-        if best[1] != "registration":
-            info["posteriors_of"] = "em-before-polish"
+        info["posteriors_of"] = "em-before-polish"  # every candidate is polished
         return Correspondence(best[2], corr.n_target, corr.confidence, corr.posteriors, info)
