@@ -32,7 +32,8 @@ from shape_toolkit.errors import ParameterError
 
 __all__ = [
     "spectral_basis", "shifted_weights", "Basis", "basis_of", "normalized_spectrum", "fmap_from_p2p",
-    "p2p_from_fmap", "slanted_size", "zoomout", "polish_map", "zoomout_residual", "map_residual", "zoomout_select",
+    "p2p_from_fmap", "slanted_size", "zoomout", "POLISH_START", "polish_map", "zoomout_residual", "map_residual",
+    "zoomout_select",
     "fit_functional_map", "GradientFrame", "gradient_frame", "SharedPairWork", "orientation_operators",
     "multiplication_operators", "compress_descriptors",
 ]
@@ -207,8 +208,13 @@ def zoomout(
     return C, _point_map(C, e_s, e_t)
 
 
+#: where a ZoomOut polish of a point map starts (fmap-zoomout's initial size): best-of's and the orientation repair's
+POLISH_START = 20
+
+
 def polish_map(
-    target_of: np.ndarray, src: Basis, tgt: Basis, start: int = 20, step: int = 5, seeds: np.ndarray | None = None,
+    target_of: np.ndarray, src: Basis, tgt: Basis, start: int = POLISH_START, step: int = 5,
+    seeds: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A point map ``target_of`` ``(n_s,)`` (all entries >= 0) refined by ZoomOut from its functional map in
     ``start`` functions to ``src.k``, ``step`` at a time; the pairs ``seeds`` ``(q, 2)`` are kept. Returns the

@@ -69,7 +69,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.core.surface import cloud_surface, sheet_surface
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.features.basis import Basis, basis_of, map_residual, polish_map
+from shape_toolkit.features.basis import POLISH_START, Basis, basis_of, map_residual, polish_map
 from shape_toolkit.features.canonical import canonical_form
 from shape_toolkit.plugins.matching.descriptors import resolve_plugin, shared_spectra
 from shape_toolkit.plugins.matching.orientation import orientation_verdict
@@ -80,8 +80,6 @@ from shape_toolkit.spectra import SpectrumSpec, default_spec
 __all__ = ["BestOfMatcher", "estimated_frame"]
 
 
-#: where the ZoomOut polish of an extrinsic map starts (fmap-zoomout's initial size)
-POLISH_START = 20
 #: the default of ``same_frame``: an estimated frame turned by less than this (degrees) from the given one is the
 #: given one to the shells, whose coarse-to-fine start absorbs the turn (tuning pairs turned by 2-22 degrees: the
 #: two maps within 0.0007), so the extrinsic matchers are not run twice

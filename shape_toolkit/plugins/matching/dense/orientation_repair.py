@@ -26,7 +26,7 @@ from shape_toolkit.api.params import InstanceOf, Interval, Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.features.basis import Basis, basis_of, map_residual, polish_map
+from shape_toolkit.features.basis import POLISH_START, Basis, basis_of, map_residual, polish_map
 from shape_toolkit.plugins._params import ORIENTATION
 from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
@@ -43,8 +43,6 @@ N_SCORED = 120
 #: question but a wrong map -- or a wrong reference (glued contacts can mislead it), so a rescued map must also
 #: be smoother than the map it replaces (ZoomOut residual, :func:`~shape_toolkit.features.basis.map_residual`)
 CONFLICT_AREA = 0.5
-#: where the ZoomOut polish of :meth:`OrientationRepair.select` starts, and its step (best-of's)
-POLISH_START, POLISH_STEP = 20, 5
 
 
 class Registration(Protocol):
@@ -370,7 +368,7 @@ class OrientationRepair(DenseMatcher):
             t = np.asarray(t)
             if not np.all(t >= 0):  # a partial map has no functional map to polish
                 continue
-            _, tp = polish_map(t, bs, bt, POLISH_START, POLISH_STEP, fine.landmarks)
+            _, tp = polish_map(t, bs, bt, seeds=fine.landmarks)
             if name != "registration":
                 scores[name] = self.score(None, source, target, tp, refined=False)
                 if scores[name] <= 0:
