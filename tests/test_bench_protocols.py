@@ -548,3 +548,36 @@ def test_a_step_the_shape_refuses_fails_its_rows_with_one_typed_line(tmp_path):
     assert bad["status"] == "failed" and len(bad["error"].splitlines()) == 1
     assert ("InvalidShapeError: step 2 of 2 of 'gaussian-noise+color-noise' (color-noise):" in bad["error"]
             and "no vertex colours" in bad["error"]), bad["error"]
+
+
+def test_truth_reference_row_is_the_filled_ground_truth_and_never_best(tmp_path):
+    from types import SimpleNamespace
+
+    from shape_toolkit.bench.report import write_report
+    from shape_toolkit.bench.tasks import GroundTruthMap
+
+    shape = icosphere(2)
+    n = shape.n_vertices
+    perm = np.random.default_rng(0).permutation(n)
+    folder = _pair_folder(tmp_path / "pair", shape, {"ident": np.arange(n), "perm": perm})
+    keep = np.arange(0, n, 3)  # the ground truth pairs every third vertex, as template points do
+    for name in ("A", "B"):
+        np.savetxt(folder / "corres" / f"{name}.vts", keep + 1, fmt="%d")
+    # by hand: every vertex takes the image of the nearest paired vertex along the edges (here itself)
+    t = GroundTruthMap.target_of(SimpleNamespace(name="A-B", source=shape, truth=np.c_[keep, keep]))
+    d = _edge_distances(shape, keep)
+    assert np.array_equal(t[keep], keep)
+    assert np.allclose(d[np.searchsorted(keep, t), np.arange(n)], d.min(axis=0))
+    cfg = _config(folder, _maps("ident", "perm"), options='geodesic_method = "dijkstra", truth_reference = true')
+    rows = _rows(cfg, tmp_path / "run")
+    ref = rows["ground truth"]
+    assert ref["family"] == "references" and ref["seconds"] is None
+    assert ref["metrics"]["mean_geodesic_error"] == 0.0 and ref["metrics"]["matched_fraction"] == 1.0
+    md = tmp_path / "x.md"
+    write_report(tmp_path / "run", renders=0, markdown=md)
+    lines = md.read_text().splitlines()
+    line = next(s for s in lines if s.startswith("| pair | ground truth |"))
+    assert "**" not in line  # a reference, never ranked, though its error is the least
+    assert "*tie*" not in next(s for s in lines if s.startswith("| pair | ident |"))  # ident alone is best
+    with pytest.raises(ConfigError, match="score_on"):
+        parse_config(_config(folder, _maps("ident"), options='truth_reference = true, score_on = "clean"'))

@@ -776,6 +776,9 @@ def parse_config(
         if options.get("human_consistency"):
             human = MethodSpec("human", "humans", None, {}, "human")
             methods.append(((lambda human=human: [human]), 1))
+        if options.get("truth_reference"):
+            truth = MethodSpec("ground truth", "references", None, {}, "ground truth")
+            methods.append(((lambda truth=truth: [truth]), 1))
         n_items = sum(_dataset_size(datasets[dn], limit) for dn in dict.fromkeys(dsel))
         n_corr = sum(corruptions[cn].size for cn in dict.fromkeys(csel))
         n_meth = sum(size for _, size in methods)

@@ -110,6 +110,10 @@ def create_method(family: str, plugin: str, preset: str | None, params: dict, ra
         from shape_toolkit.bench.tasks import HumanSegmentations
 
         return HumanSegmentations()
+    if family == "references":
+        from shape_toolkit.bench.tasks import GroundTruthMap
+
+        return GroundTruthMap()
     from shape_toolkit.bench.tasks import _with_random_state
 
     return _with_random_state(family, plugin, preset, params, random_state)

@@ -312,7 +312,8 @@ def _ranks(cells: dict, column: str) -> dict[tuple[str, str, str], str]:
     or the means sharing the best within the printed precision (memory: within 1 MB), named a tie; no
     best memory below 1 MB.
     Nothing where only one method has a value, or where they all share the best (a constant column:
-    nothing to choose). The reference rows (:data:`REFERENCE_METHODS`, the humans) are never ranked."""
+    nothing to choose). The reference rows (:data:`REFERENCE_METHODS`: the humans, the ground truth) are never
+    ranked."""
     d = metric_direction(column)
     if d is None:
         return {}
@@ -340,8 +341,9 @@ def _ranks(cells: dict, column: str) -> dict[tuple[str, str, str], str]:
 
 
 _NA = "n/a"
-#: method names of reference rows, shown beside the methods but never ranked (the human-consistency row)
-REFERENCE_METHODS = frozenset({"human"})
+#: method names of reference rows, shown beside the methods but never ranked (the human-consistency row,
+#: the ground-truth map of ``truth_reference``)
+REFERENCE_METHODS = frozenset({"human", "ground truth"})
 
 
 class _Grid:

@@ -45,6 +45,7 @@ __all__ = [
     "received_spec",
     "method_specs",
     "lookup_metric",
+    "GroundTruthMap",
     "HumanSegmentations",
     "HUMAN_MODE",
 ]
@@ -880,6 +881,33 @@ def _kept(corr: Any) -> dict[str, Any]:
     return {"correspondence": corr} if isinstance(corr, Correspondence) else {}
 
 
+class GroundTruthMap:
+    """The method of the ground-truth reference row (``truth_reference = true``): each pair's own
+    ground truth scored by the same metrics, so that a table shows what the metric gives a perfect
+    map (between independently remeshed shapes even the true map is not r-smooth everywhere). The
+    ground truth pairs some source vertices (template points); every other source vertex takes the
+    image of the nearest paired one along the edges, so that the map is total. No spectrum."""
+
+    def spectrum_spec(self) -> None:
+        """No spectrum."""
+        return None
+
+    @staticmethod
+    def target_of(prepared: Prepared) -> np.ndarray:
+        """int64 ``(n_source,)`` target vertex of each source vertex (-1 where no paired vertex is reachable)."""
+        from shape_toolkit.features.geodesics import nearest_source
+
+        truth = prepared.truth
+        if truth is None or not len(truth):
+            raise ParameterError(f"item {prepared.name!r} has no ground-truth correspondence for truth_reference")
+        t = np.full(prepared.source.n_vertices, -1, dtype=np.int64)
+        t[truth[:, 0]] = truth[:, 1]
+        owner = nearest_source(prepared.source, np.flatnonzero(t >= 0))
+        fill = (t < 0) & (owner >= 0)
+        t[fill] = t[owner[fill]]
+        return t
+
+
 class MatchingTask(TaskAdapter):
     """Dense matchers (and sparse matchers on detected keypoints) from the clean source to the
     (corrupted) target, scored by the normalised geodesic error on ground-truth pairs.
@@ -894,7 +922,9 @@ class MatchingTask(TaskAdapter):
     the item.
     ``corrupt = "both"`` corrupts the source too (a size grid of pairs with ``subdivide``), ``corrupt =
     "source"`` the source only (a crop of the source against the whole target: partial matching);
-    ``truth_seeds = N`` gives dense matcher plugins N ground-truth seeds (:func:`truth_seeds`)."""
+    ``truth_seeds = N`` gives dense matcher plugins N ground-truth seeds (:func:`truth_seeds`);
+    ``truth_reference = true`` adds a ``ground truth`` row, the pair's own ground-truth map
+    (:class:`GroundTruthMap`), shown beside the methods and never ranked."""
 
     name = "matching"
     families = ("dense_matchers", "sparse_matchers")
@@ -923,6 +953,8 @@ class MatchingTask(TaskAdapter):
         "corrupt": "target",
         # N: dense matchers get N ground-truth seeds (farthest-point samples on the source; those using seeds)
         "truth_seeds": None,
+        # true: a "ground truth" reference row, the ground-truth map scored by the same metrics
+        "truth_reference": False,
     }
     default_metrics = ("geodesic_error",)
     metrics = {
@@ -959,6 +991,11 @@ class MatchingTask(TaskAdapter):
         if o["corrupt"] in ("both", "source") and o["target"] == "self":
             raise ParameterError(f'corrupt = "{o["corrupt"]}" needs a pair: with target = "self" the source is the '
                                  'clean shape')
+        if not isinstance(o["truth_reference"], bool):
+            raise ParameterError(f"truth_reference must be true or false, got {o['truth_reference']!r}")
+        if o["truth_reference"] and o["score_on"] == "clean":
+            raise ParameterError('truth_reference scores the ground truth of the matched target: it does not go '
+                                 'with score_on = "clean"')
         rsd = o["r_smooth_random_state"]
         if isinstance(rsd, bool) or not isinstance(rsd, int) or rsd < 0:
             raise ParameterError(f"r_smooth_random_state must be a non-negative integer, got {rsd!r}")
@@ -986,6 +1023,8 @@ class MatchingTask(TaskAdapter):
 
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         src, tgt = prepared.source, prepared.target
+        if isinstance(method, GroundTruthMap):  # the reference row: no method ran, no cost
+            return {"target_of": method.target_of(prepared), "sparse": False, "published": True}
         if hasattr(method, "match_item"):  # published maps: read for the item, onto its clean target
             corr = method.match_item(prepared)
             return {"target_of": np.asarray(corr.target_of, dtype=np.int64), "sparse": False, "published": True}
