@@ -4,13 +4,11 @@ run commands surviving a report-only regeneration."""
 
 from __future__ import annotations
 
-import json
 import shutil
 import subprocess
 from pathlib import Path
 
 import pytest
-from helpers import load_script
 
 from shape_toolkit.bench import worker
 from shape_toolkit.bench.worker import code_revision, revision_label
@@ -89,30 +87,3 @@ def test_revision_label_reads_old_records():
     assert revision_label(old_example) == "c1 + uncommitted edits in shape_toolkit/x.py"
     assert revision_label({"commit": "c1", "dirty": True, "dirty_files": []}) == "c1 + uncommitted edits"
     assert revision_label(None) == revision_label({}) == "not recorded"
-
-
-def test_tosca_example_reads_old_and_new_revision_records(tmp_path):
-    """examples/tosca_matching/results.py: a run log and revision log written before code_revision
-    (``dirty`` a list of files) and after it (``dirty`` a bool, ``dirty_files``) both render."""
-    res = load_script("tosca_results", REPO / "examples" / "tosca_matching" / "results.py")
-    curve = [[0.0, 0.0], [0.1, 1.0]]
-    metrics = {f"r_smooth@{r:g}": 10.0 for r in res.RS}
-    metrics.update(label_recall=0.5, label_precision=0.5, mean_geodesic_error=0.1, geodesic_error_curve=curve)
-    run = tmp_path / "run"
-    run.mkdir()
-    rows = [{"key": f"k{i}", "status": "ok", "task_name": "dense", "task_kind": "matching", "item": f"cat0-cat{i}",
-             "method_label": "pipeline:zoomout", "metrics": metrics, "seconds": 2.0, "cpu_seconds": 1.0}
-            for i in (1, 4)]
-    (run / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
-    old = {"commit": "ef8533952115", "dirty": ["shape_toolkit/a.py"]}
-    new = {"commit": "a1e638a00000", "dirty": True, "dirty_files": ["shape_toolkit/b.py"]}
-    (run / "revisions.jsonl").write_text(json.dumps({"key": "k1", **old}) + "\n" + json.dumps({"key": "k4", **new}))
-    log = {"methods": ["zoomout"], "new_rows": 1, "started": "s", "ended": "e", "wall_seconds": 1.0}
-    (run / "runlog.jsonl").write_text(json.dumps({**log, **old}) + "\n" + json.dumps({**log, **new}) + "\n")
-    summ = res.write_results([run], tmp_path / "out")
-    assert summ["zoomout"]["commits"] == ["a1e638a00000+dirty", "ef8533952115+dirty"]
-    md = (tmp_path / "out" / "results.md").read_text()
-    assert "code ef8533952115 + uncommitted edits in shape_toolkit/a.py." in md
-    assert "code a1e638a00000 + uncommitted edits in shape_toolkit/b.py." in md
-    rev = res.git_revision()  # this checkout: a real commit, or "unknown" without git
-    assert set(rev) >= {"commit", "dirty", "dirty_files"} and isinstance(rev["dirty"], bool)
