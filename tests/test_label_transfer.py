@@ -212,3 +212,22 @@ def test_rotations_recover_eigenvectors_that_holes_mixed(shared_data):
         if rotations == "greedy":
             assert corr.info["rotation_distortion"] < corr.info["alignment_distortion"][corr.info["alignment_chosen"]]
     assert recall["none"] < 0.8 and recall["greedy"] > 0.9, recall
+
+
+def test_fmap_alignment_recovers_a_rotation_of_the_embedding():
+    """The functional-map candidate of the search: on a vertex-permuted copy whose embedding is the source's
+    turned by a known rotation R (not a signed permutation: eigenvectors mixed, as holes mix them), the orthogonal
+    Procrustes fit through fmap-zoomout's map is R."""
+    from shape_toolkit.core.shape import Shape
+    from shape_toolkit.data.synthetic import SEQUENCE_LIMB_LENGTHS
+    from shape_toolkit.plugins.matching.dense.eigvec_alignment import Embedding, fmap_alignment
+
+    a = articulated_shape([0.4, 0.4, -0.3, -0.3, 0.2], subdivisions=3, limb_length=SEQUENCE_LIMB_LENGTHS).shape
+    rng = np.random.default_rng(0)
+    perm = rng.permutation(a.n_vertices)  # target vertex j is source vertex perm[j]
+    inv = np.argsort(perm)
+    b = Shape(np.asarray(a.vertices)[perm], inv[np.asarray(a.faces)])
+    X = rng.standard_normal((a.n_vertices, 6))
+    R, _ = np.linalg.qr(rng.standard_normal((6, 6)))
+    Q = fmap_alignment(Embedding(X, (X @ R.T)[perm]), a, b)
+    np.testing.assert_allclose(Q, R, atol=0.05)

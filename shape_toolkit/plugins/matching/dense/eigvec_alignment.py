@@ -9,7 +9,9 @@ Two alignments (``alignment``):
   shape's, Hungarian assignment over eigenvector pairs, each with its better sign (:func:`histogram_alignment`).
 - ``"search"`` (default): candidate signed permutations from a beam search on the *joint* distribution of the
   embedded points (:func:`joint_alignment_candidates`; eigenvectors matched only within ``window`` places), the
-  histogram's among them; EM is run from each on a sample, and the candidate whose map distorts geodesic
+  histogram's among them, and (``fmap_candidate``, meshes) the rotation that best carries one embedding onto the
+  other through a descriptor functional map's map (:func:`fmap_alignment`); EM is run from each on a sample, and
+  the candidate whose map distorts geodesic
   distances least on average (:func:`map_distortion`) is kept, among those that keep orientation (``side``) when
   any does; then (``rotations="greedy"``) greedy Givens rotations of two of its eigenvectors, each re-fitted by
   EM, while one makes the map distort less.
@@ -132,21 +134,33 @@ def joint_alignment_candidates(
     return [_signed_permutation(c, s) for c, s, _ in states if len(c) == k]
 
 
+def fmap_alignment(emb: Embedding, source: Shape, target: Shape) -> np.ndarray:
+    """The orthogonal ``Q`` ``(k, k)`` that best carries the source embedding onto the target's through the map
+    of the descriptor functional map (``fmap-zoomout``'s defaults): least squares ``sum |Q x_i - y_t(i)|^2``
+    (orthogonal Procrustes). Holes and bridges mix close eigenvectors, so the right start of EM is often not a
+    signed permutation; a map from descriptors gives it whatever the mixing."""
+    from shape_toolkit.plugins.matching.dense.fmap_zoomout import FmapZoomOutMatcher
+
+    t = np.asarray(FmapZoomOutMatcher().match(source, target).target_of, dtype=np.int64)
+    U, _, Vt = np.linalg.svd(emb.Y[t].T @ emb.X)
+    return U @ Vt
+
+
 class EigvecAlignmentMatcher(EMRegistrationMatcher):
     """Mateus et al. 2008 and Algorithm 5's soft assignments: the eigenvectors aligned (``alignment``), then EM
     registration (parameters as ``em-registration``, plus ``bins``, ``alignment``, ``window``, ``beam``,
-    ``rotations``, ``side`` and ``holes``). Seeds are ignored.
+    ``rotations``, ``fmap_candidate``, ``side`` and ``holes``). Seeds are ignored.
 
     Default: area-normalized Laplace-Beltrami eigenvectors, unscaled, the ``"search"`` alignment (module
-    docstring) keeping orientation. Preset ``thesis`` (Algorithm 5, section 5.4): the histogram alignment of the
-    text, the unnormalized Laplacian ``D - W`` of the Gaussian graph (eq. 3.7) and its L-embedding, the
+    docstring) keeping orientation, the functional map's candidate among its starts. Preset ``thesis``
+    (Algorithm 5, section 5.4): the histogram alignment of the text, the unnormalized Laplacian ``D - W`` of the Gaussian graph (eq. 3.7) and its L-embedding, the
     commute-time scaling ``Lambda^{-1/2} U^T`` of eq. 5.1; the histograms are those of the eigenvectors
     themselves (a scaling per column would only move them between bins), no orientation cue (it matches up to
     symmetry)."""
 
     presets: dict = {"thesis": {"spectrum": "graph", "weighting": "gaussian", "scaling": "commute-time",
                                 "alignment": "histogram", "side": "none", "holes": "keep",
-                                "rotations": "none"}}
+                                "rotations": "none", "fmap_candidate": False}}
     parameter_constraints = {
         **{p: c for p, c in EMRegistrationMatcher.parameter_constraints.items()
            if p in ("k", "outlier_weight", "n_neighbors", "max_iter", "tol", "threshold", "one_to_one",
@@ -160,6 +174,8 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
                        "closed by a fan (core.cleanup.close_holes) and the eigenvectors read on the original vertices"),
         "rotations": Param(Options("greedy", "none"), doc="search: refine the kept alignment by greedy Givens "
                            "rotations of two eigenvectors, each re-fitted by EM and kept when the map distorts less"),
+        "fmap_candidate": Param(bool, doc="search: one more candidate, the rotation that best aligns the embeddings "
+                                "through the map of a descriptor functional map (fmap-zoomout; meshes)"),
         "side": Param(Options("preserving", "reversing", "none"),
                       doc="search: orientation the kept candidate keeps, when one does (meshes; none: the least "
                       "distorting)"),
@@ -185,6 +201,7 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         side: str = "preserving",
         holes: str = "close",
         rotations: str = "greedy",
+        fmap_candidate: bool = True,
         random_state: Any = 0,
     ):
         super().__init__(
@@ -199,6 +216,7 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         self.side = side
         self.holes = holes
         self.rotations = rotations
+        self.fmap_candidate = fmap_candidate
 
     def _bases(self, source, target, source_spectrum, target_spectrum, min_dim: int = 0):
         """The embedding bases; with ``holes="close"`` a shape with a boundary gets the basis of its closed copy
@@ -252,6 +270,8 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
             if not any(np.array_equal(Q, q) for q in seen):
                 seen.append(Q)
         meshes = source.is_mesh and target.is_mesh
+        if self.fmap_candidate and meshes:
+            seen.append(fmap_alignment(emb, source, target))
         tree = cKDTree(emb.Y)
         src_d = None
         scores, sides, fits = [], [], []
