@@ -153,10 +153,10 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
 
     Default: area-normalized Laplace-Beltrami eigenvectors, unscaled, the ``"search"`` alignment (module
     docstring) keeping orientation, the functional map's candidate among its starts. Preset ``thesis``
-    (Algorithm 5, section 5.4): the histogram alignment of the text, the unnormalized Laplacian ``D - W`` of the Gaussian graph (eq. 3.7) and its L-embedding, the
-    commute-time scaling ``Lambda^{-1/2} U^T`` of eq. 5.1; the histograms are those of the eigenvectors
-    themselves (a scaling per column would only move them between bins), no orientation cue (it matches up to
-    symmetry)."""
+    (Algorithm 5, section 5.4): the histogram alignment of the text, the unnormalized Laplacian ``D - W`` of the
+    Gaussian graph (eq. 3.7) and its L-embedding, the commute-time scaling ``Lambda^{-1/2} U^T`` of eq. 5.1; the
+    histograms are those of the eigenvectors themselves (a scaling per column would only move them between bins),
+    no orientation cue (it matches up to symmetry)."""
 
     presets: dict = {"thesis": {"spectrum": "graph", "weighting": "gaussian", "scaling": "commute-time",
                                 "alignment": "histogram", "side": "none", "holes": "keep",
