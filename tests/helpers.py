@@ -160,3 +160,23 @@ def run_config(text: str, folder: Path) -> Path:
 def bench_run(config: Path, run: Path, *extra: str) -> int:
     """Exit code of ``shape-toolkit bench run CONFIG -o RUN --no-progress EXTRA...``."""
     return main(["bench", "run", str(config), "-o", str(run), "--no-progress", *extra])
+
+
+def panel_empty_fractions(png: str | Path) -> list[float]:
+    """For each panel a figure of :func:`shape_toolkit.viz.render_shapes` (or ``render_trajectories``) recorded in
+    its PNG, the share of the panel outside the bounding box of its drawn (non-white) pixels (1.0 when blank)."""
+    import json
+
+    from PIL import Image
+
+    from shape_toolkit.viz import PANELS_KEY
+
+    with Image.open(png) as im:
+        boxes = json.loads(im.text[PANELS_KEY])
+        img = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
+    out = []
+    for x, y, w, h in boxes:
+        ink = (img[y:y + h, x:x + w] < 0.97).any(axis=2)
+        rows, cols = np.flatnonzero(ink.any(axis=1)), np.flatnonzero(ink.any(axis=0))
+        out.append(1.0 if not rows.size else 1 - (rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1) / ink.size)
+    return out

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import panel_empty_fractions
 
 from shape_toolkit.cli import main
 from shape_toolkit.core.shape import Shape
@@ -156,6 +157,9 @@ def _demo(out: Path, *flags: str) -> dict:
     assert str(out) in r.stdout
     for name in ("eigenvectors.png", "spectrum.png", "match.png"):
         assert (out / name).stat().st_size > 10_000
+        assert (out / name).with_suffix(".pdf").read_bytes()[:5] == b"%PDF-"  # every figure also as PDF
+    for name in ("eigenvectors.png", "match.png"):  # shapes upright and cropped tight, as in the reports
+        assert max(panel_empty_fractions(out / name)) <= 0.15, (name, panel_empty_fractions(out / name))
     assert summary_ok(out)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["eigenvalues"][0] == pytest.approx(0, abs=1e-8)

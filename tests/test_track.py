@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import run_cli
+from helpers import panel_empty_fractions, run_cli
 
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.synthetic import SEQUENCE_LIMB_LENGTHS, articulated_shape, pose_sequence
@@ -218,17 +218,10 @@ def test_track_cli_end_to_end(seq, seq_files, tmp_path, capsys):
     assert Image.open(tmp_path / "t.png").size[0] > 4 * 200
     gif = Image.open(tmp_path / "t.gif")
     assert gif.n_frames == 4
-    # upright and cropped tight as every render (issue 28): each frame panel at most 15% empty
-    from shape_toolkit.viz import PANELS_KEY
-
-    with Image.open(tmp_path / "t.png") as im:
-        boxes = json.loads(im.text[PANELS_KEY])
-        img = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
-    assert len(boxes) == 4
-    for x, y, w, h in boxes:
-        ink = (img[y:y + h, x:x + w] < 0.97).any(axis=2)
-        rows, cols = np.flatnonzero(ink.any(axis=1)), np.flatnonzero(ink.any(axis=0))
-        assert 1 - (rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1) / ink.size <= 0.15
+    # upright and cropped tight as every render (issue 28): each frame panel at most 15% empty; the PDF beside it
+    empty = panel_empty_fractions(tmp_path / "t.png")
+    assert len(empty) == 4 and max(empty) <= 0.15, empty
+    assert (tmp_path / "t.pdf").read_bytes()[:5] == b"%PDF-" and res["outputs"]["pdf"] == str(tmp_path / "t.pdf")
 
 
 def test_track_ply_dir_pullback_colours(seq, seq_files, tmp_path, capsys):

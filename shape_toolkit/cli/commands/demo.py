@@ -112,7 +112,7 @@ def _showcase(out: Path, random_state: int, workers: int, quiet: bool) -> dict:
 
 def _spectrum_figures(shape, spec, out: Path) -> list[str]:
     """``spectrum.png`` (eigenvalues against their index) and ``eigenvectors.png`` (eigenvectors 2-4
-    on the shape, diverging colours symmetric about 0, with colour bars)."""
+    on the shape, diverging colours symmetric about 0, with colour bars), each also as PDF."""
     from shape_toolkit.viz import _mpl, render_shapes
 
     _, plt = _mpl()
@@ -125,6 +125,7 @@ def _spectrum_figures(shape, spec, out: Path) -> list[str]:
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(out / "spectrum.png", dpi=120)
+    fig.savefig(out / "spectrum.pdf", metadata={"CreationDate": None})
     plt.close(fig)
     panels = []
     for j in (1, 2, 3):
@@ -133,9 +134,10 @@ def _spectrum_figures(shape, spec, out: Path) -> list[str]:
         title = f"eigenvector {j}, lambda = {spec.eigenvalues[j]:.3g}"
         panels.append({"shape": shape, "scalars": u, "cmap": "coolwarm", "vmin": -lim, "vmax": lim,
                        "colorbar": f"eigenvector {j} value", "title": title})
-    render_shapes(panels, out / "eigenvectors.png", panel_size=4.0, dpi=110,
-                  title="Laplacian eigenvectors on the shape (blue < 0 < red)")
-    return ["spectrum.png", "eigenvectors.png"]
+    for name in ("eigenvectors.png", "eigenvectors.pdf"):
+        render_shapes(panels, out / name, panel_size=4.0, dpi=110,
+                      title="Laplacian eigenvectors on the shape (blue < 0 < red)")
+    return ["spectrum.png", "spectrum.pdf", "eigenvectors.png", "eigenvectors.pdf"]
 
 
 def _match_demo(out: Path, random_state: int, args: argparse.Namespace) -> dict:
@@ -165,18 +167,19 @@ def _match_demo(out: Path, random_state: int, args: argparse.Namespace) -> dict:
         err = float(d.mean() / np.sqrt(b.shape.area))
         st.update("demo: drawing match.png")
         cs, ct = pullback_colors(a.shape, b.shape, corr.target_of)
-        render_shapes(
-            [{"shape": b.shape, "colors": ct, "title": "target: colour = position"},
-             {"shape": a.shape, "colors": cs, "title": "source: target colours pulled back through the map"}],
-            out / "match.png", panel_size=4.5, dpi=110,
-            title=f"zoomout pipeline with {len(tips)} limb-tip seeds, pull-back colour transfer "
-                  f"(mean error {err:.3f} sqrt(area), lower is better)",
-        )
+        for name in ("match.png", "match.pdf"):
+            render_shapes(
+                [{"shape": b.shape, "colors": ct, "title": "target: colour = position"},
+                 {"shape": a.shape, "colors": cs, "title": "source: target colours pulled back through the map"}],
+                out / name, panel_size=4.5, dpi=110,
+                title=f"zoomout pipeline with {len(tips)} limb-tip seeds, pull-back colour transfer "
+                      f"(mean error {err:.3f} sqrt(area), lower is better)",
+            )
         save_colored_ply(a.shape, out / "match.source.ply", cs)
         save_colored_ply(b.shape, out / "match.target.ply", ct)
     return {"pipeline": "zoomout", "n_seeds": len(tips), "mean_error_euclidean_sqrt_area": round(err, 4),
             "seconds": round(seconds, 2),
-            "figure": "match.png", "ply": ["match.source.ply", "match.target.ply"]}
+            "figure": "match.png", "figure_pdf": "match.pdf", "ply": ["match.source.ply", "match.target.ply"]}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -201,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"shape: {shape!r}")
     print(f"first eigenvalues: {np.array2string(spec.eigenvalues[:6], precision=4)}")
     match = _match_demo(out, args.random_state, args)
-    figures.append(match["figure"])
+    figures += [match["figure"], match["figure_pdf"]]
     print(f"zoomout matching of two poses: mean error {match['mean_error_euclidean_sqrt_area']:.4f} "
           f"(sqrt-area units, lower is better) in {match['seconds']:.1f} s -> {out / 'match.png'}, "
           f"{out / 'match.source.ply'}")

@@ -152,7 +152,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", nargs="+", metavar="FILE",
                    help="seed matches per frame pair: T-1 files of 'source target' 0-based ids per line")
     p.add_argument("-o", "--output", help="trajectory file (.npz; default FRAME_0_STEM.traj.npz)")
-    p.add_argument("--png", metavar="FIG.png", help="draw the frames side by side with trajectory tails")
+    p.add_argument("--png", metavar="FIG.png",
+                   help="draw the frames side by side with trajectory tails (and the same figure as FIG.pdf)")
     vis = p.add_mutually_exclusive_group()
     vis.add_argument("--gif", metavar="ANIM.gif", help="animated GIF of the frames with trajectory tails")
     vis.add_argument("--ply-dir", metavar="DIR",
@@ -175,7 +176,9 @@ def _check_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | N
     check_distinct(out, *args.frames)
     png = check_output_path(args.png, "--png", suffixes=(".png",))
     gif = check_output_path(args.gif, "--gif", suffixes=(".gif",))
-    for extra in (png, gif):
+    if png is not None:  # the same figure as a PDF beside it (a vector copy for a paper)
+        check_output_path(png.with_suffix(".pdf"), "--png (its PDF copy)", suffixes=(".pdf",))
+    for extra in (png, png.with_suffix(".pdf") if png is not None else None, gif):
         if extra is not None:
             check_distinct(extra, *args.frames, out)
     ply_dir = None
@@ -235,9 +238,10 @@ def run(args: argparse.Namespace) -> int:
             if png:
                 from shape_toolkit.viz import render_trajectories
 
-                render_trajectories(frames, traj.ids, png, colors=colors, n_tracks=args.tracks,
-                                    tail=args.tail, title=title)
-                written["png"] = str(png)
+                for path in (png, png.with_suffix(".pdf")):
+                    render_trajectories(frames, traj.ids, path, colors=colors, n_tracks=args.tracks,
+                                        tail=args.tail, title=title)
+                written["png"], written["pdf"] = str(png), str(png.with_suffix(".pdf"))
             if gif:
                 from shape_toolkit.viz import render_trajectories
 
@@ -267,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"{pipe.name}: {traj.n_tracks} trajectories through {traj.n_frames} frames "
               f"({100 * alive:.1f}% reach the last) in {seconds:.1f} s -> {out}")
-        for k in ("png", "gif"):
+        for k in ("png", "pdf", "gif"):
             if k in written:
                 print(f"{k}: {written[k]}")
         if "ply" in written:
