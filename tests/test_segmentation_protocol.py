@@ -168,6 +168,29 @@ def test_split_keeps_one_half(shared_data):
     assert cfg.split["datasets"]["psb"]["report"]["items"] == len(rep)
 
 
+def test_the_report_says_which_half_it_shows(shared_data, tmp_path):
+    """The one split line of a report (HTML and Markdown): the half shown, the rule, its groups and item count,
+    how many items of the other half are left out, and how many items have rows."""
+    import json
+
+    from shape_toolkit.bench.report import _split_note
+    from shape_toolkit.bench.store import SPLIT
+
+    cfg = parse_config(_config(shared_data, run={"split": {"half": "report"}}))
+    tune = parse_config(_config(shared_data, run={"split": {"half": "tune"}}))
+    (tmp_path / SPLIT).write_text(json.dumps(cfg.split))
+    rows = [{"dataset": "psb", "item": r.name} for r in cfg.datasets["psb"].refs[:3]]
+    line = _split_note(tmp_path, rows)
+    rep_groups = sorted({item_group(r) for r in cfg.datasets["psb"].refs})
+    tune_groups = {item_group(r) for r in tune.datasets["psb"].refs}
+    assert line.startswith("Split: only the report half is shown.") and "SHA-1(group name)" in line
+    assert f"psb: {len(cfg.datasets['psb'].refs)} items in {len(rep_groups)} groups ({', '.join(rep_groups)})" in line
+    assert f"{len(tune.datasets['psb'].refs)} tune items left out" in line
+    assert not any(f"{g}," in line or f"{g})" in line for g in tune_groups)
+    assert line.endswith("Items with rows in this run: 3.")
+    assert _split_note(tmp_path / "nothing", rows) is None  # a run without a split says nothing
+
+
 @pytest.mark.parametrize("options, methods, key", [
     ({"n_segments": "human-mode"}, [{"plugin": "seeded-walk"}], "tasks[0].methods[0].plugin"),
     ({"clicks": {}}, [{"plugin": "csc"}, {"plugin": "ncut"}], "tasks[0].methods[1].plugin"),
