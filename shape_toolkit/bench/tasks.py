@@ -996,6 +996,8 @@ class MatchingTask(TaskAdapter):
         if o["truth_reference"] and o["score_on"] == "clean":
             raise ParameterError('truth_reference scores the ground truth of the matched target: it does not go '
                                  'with score_on = "clean"')
+        if not o["truth_reference"]:  # kept only when true: the options are part of a row's key, which must hold
+            del o["truth_reference"]  # for the rows of runs made before the option existed
         rsd = o["r_smooth_random_state"]
         if isinstance(rsd, bool) or not isinstance(rsd, int) or rsd < 0:
             raise ParameterError(f"r_smooth_random_state must be a non-negative integer, got {rsd!r}")
