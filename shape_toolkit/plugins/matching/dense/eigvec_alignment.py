@@ -48,7 +48,8 @@ from shape_toolkit.plugins.matching.distortion import map_distortion
 from shape_toolkit.plugins.matching.em import em_register
 from shape_toolkit.validation import check_random_state
 
-__all__ = ["EigvecAlignmentMatcher", "histogram_alignment", "joint_alignment_candidates", "map_distortion"]
+__all__ = ["EigvecAlignmentMatcher", "fmap_alignment", "histogram_alignment", "joint_alignment_candidates",
+           "map_distortion"]
 
 #: target points the EM of each candidate alignment is fitted to (the final EM uses every point)
 SEARCH_SAMPLES = 1000
