@@ -62,6 +62,9 @@ def test_outputs_are_escaped_and_exported(runs, tmp_path):
     assert "<b>sc</b>" not in page and "&lt;b&gt;sc&lt;/b&gt;" in page
     rows = list(csv.DictReader((tmp_path / "cmp" / "compare.csv").open()))
     assert {r["method"] for r in rows} == {"<b>sc</b>", "ncut"}
+    sc = next(r for r in rows if r["method"] == "<b>sc</b>" and r["metric"] == "n_segments")
+    assert sc["moved_most"].count("3 -> 6") == 3  # the items that moved most, as in the HTML (every one: 3 -> 6)
+    assert next(r for r in rows if r["method"] == "ncut" and r["metric"] == "n_segments")["moved_most"] == ""
 
 
 def test_cli_compare(runs, tmp_path, capsys):

@@ -176,10 +176,11 @@ def _csv(comp: Comparison) -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(["task", "method", "metric", "pairs", "mean_a", "mean_b", "mean_diff", "se_diff", "direction",
-                "verdict"])
+                "verdict", "moved_most"])
     for c in comp.changes:
+        moved = "; ".join(f"{lbl}: {_n(a)} -> {_n(b)}" for lbl, a, b in c.moved)
         w.writerow([c.task, c.method, c.metric, c.n_pairs, c.mean_a, c.mean_b, c.mean_diff,
-                    "" if c.se_diff is None else c.se_diff, c.direction or "", c.verdict])
+                    "" if c.se_diff is None else c.se_diff, c.direction or "", c.verdict, moved])
     return buf.getvalue()
 
 
