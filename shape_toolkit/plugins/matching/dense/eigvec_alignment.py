@@ -12,8 +12,8 @@ Two alignments (``alignment``):
   histogram's among them, and (``fmap_candidate``, meshes) the rotation that best carries one embedding onto the
   other through a descriptor functional map's map (:func:`fmap_alignment`); EM is run from each on a sample, and
   the candidate whose map distorts geodesic distances least on average (:func:`map_distortion`) is kept, among
-  those that keep orientation (``side``) when any does; then (``rotations="greedy"``) greedy Givens rotations of two of its eigenvectors, each re-fitted by
-  EM, while one makes the map distort less.
+  those that keep orientation (``side``) when any does; then (``rotations="greedy"``) greedy Givens rotations of
+  two of its eigenvectors, each re-fitted by EM, while one makes the map distort less.
 
 ``holes="close"`` (default; ``"keep"`` in preset ``thesis``): the spectrum of a shape with holes is that of its
 copy with every hole closed by a fan (:func:`shape_toolkit.core.cleanup.close_holes`), read on its own vertices.
