@@ -29,7 +29,7 @@ def _command(path: Path) -> list[str] | None:
 
 
 @pytest.mark.parametrize("path", RESULTS, ids=[p.relative_to(REPO).as_posix() for p in RESULTS])
-def test_results_file_names_the_command_that_writes_it(path, shared_data, monkeypatch):
+def test_results_file_names_the_command_that_writes_it(path, request, monkeypatch):
     words = _command(path)
     rel = path.relative_to(REPO).as_posix()
     if words is None:  # a tool, not a config: it is named in the file and justified in the benchmarks README
@@ -43,7 +43,7 @@ def test_results_file_names_the_command_that_writes_it(path, shared_data, monkey
         return
     assert "--markdown" in words and words[words.index("--markdown") + 1] == rel, (rel, words)
     config = REPO / words[3]
-    monkeypatch.setenv("TOOLKIT_DATA", str(shared_data))
+    monkeypatch.setenv("TOOLKIT_DATA", str(request.getfixturevalue("shared_data")))  # skips when absent
     assert load_config(config).planned_rows > 0
 
 
