@@ -44,7 +44,7 @@ from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins._params import POSITIVE_INT
 from shape_toolkit.plugins.matching.dense.em_registration import Embedding, EMRegistrationMatcher
 from shape_toolkit.plugins.matching.distortion import map_distortion
-from shape_toolkit.plugins.matching.em import em_register
+from shape_toolkit.plugins.matching.em import em_register, procrustes
 from shape_toolkit.validation import check_random_state
 
 __all__ = ["EigvecAlignmentMatcher", "fmap_alignment", "histogram_alignment", "joint_alignment_candidates",
@@ -142,8 +142,7 @@ def fmap_alignment(emb: Embedding, source: Shape, target: Shape) -> np.ndarray:
     from shape_toolkit.plugins.matching.dense.fmap_zoomout import FmapZoomOutMatcher
 
     t = np.asarray(FmapZoomOutMatcher().match(source, target).target_of, dtype=np.int64)
-    U, _, Vt = np.linalg.svd(emb.Y[t].T @ emb.X)
-    return U @ Vt
+    return procrustes(emb.Y[t].T @ emb.X)
 
 
 class EigvecAlignmentMatcher(EMRegistrationMatcher):
