@@ -895,17 +895,14 @@ class GroundTruthMap:
     @staticmethod
     def target_of(prepared: Prepared) -> np.ndarray:
         """int64 ``(n_source,)`` target vertex of each source vertex (-1 where no paired vertex is reachable)."""
-        from shape_toolkit.features.geodesics import nearest_source
+        from shape_toolkit.features.geodesics import fill_from_nearest
 
         truth = prepared.truth
         if truth is None or not len(truth):
             raise ParameterError(f"item {prepared.name!r} has no ground-truth correspondence for truth_reference")
         t = np.full(prepared.source.n_vertices, -1, dtype=np.int64)
         t[truth[:, 0]] = truth[:, 1]
-        owner = nearest_source(prepared.source, np.flatnonzero(t >= 0))
-        fill = (t < 0) & (owner >= 0)
-        t[fill] = t[owner[fill]]
-        return t
+        return fill_from_nearest(prepared.source, t)
 
 
 class MatchingTask(TaskAdapter):

@@ -42,6 +42,7 @@ from shape_toolkit.validation import check_vertex_ids
 __all__ = [
     "GEODESIC_METHODS",
     "GeodesicBudget",
+    "fill_from_nearest",
     "geodesic_distances",
     "paired_geodesic_distances",
     "geodesic_distance_to_set",
@@ -534,6 +535,19 @@ def nearest_source(shape: Shape, sources: Sequence[int] | np.ndarray) -> np.ndar
     owner = np.asarray(owner, dtype=np.int64)
     owner[owner < 0] = -1
     return owner
+
+
+def fill_from_nearest(shape: Shape, values: np.ndarray) -> np.ndarray:
+    """Per-vertex integer ``values`` ``(n,)`` with every ``-1`` replaced by the value of the nearest vertex that has
+    one along the edges (:func:`nearest_source`); ``-1`` stays where no such vertex is reachable, or when none has
+    one. Returns a new int64 array."""
+    out = np.array(values, dtype=np.int64)
+    have, miss = np.flatnonzero(out >= 0), np.flatnonzero(out < 0)
+    if have.size and miss.size:
+        owner = nearest_source(shape, have)[miss]
+        ok = owner >= 0
+        out[miss[ok]] = out[owner[ok]]
+    return out
 
 
 def geodesic_farthest_points(

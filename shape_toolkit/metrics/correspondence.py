@@ -342,15 +342,12 @@ def map_label_scores(
         raise ParameterError(f"{lt.size} target labels for a target of {target.n_vertices} vertices")
     pred = transfer_labels(corr, ls, to="target", soft=bool(soft))
     filled = 0.0
-    miss = np.flatnonzero(pred < 0)
-    have = np.flatnonzero(pred >= 0)
-    if target is not None and miss.size and have.size:
-        from shape_toolkit.features.geodesics import nearest_source
+    if target is not None:
+        from shape_toolkit.features.geodesics import fill_from_nearest
 
-        owner = nearest_source(target, have)[miss]
-        ok = owner >= 0
-        pred[miss[ok]] = pred[owner[ok]]
-        filled = float(ok.sum() / lt.size)
+        before = int((pred < 0).sum())
+        pred = fill_from_nearest(target, pred)
+        filled = float((before - int((pred < 0).sum())) / lt.size)
     out = label_transfer_scores(pred, lt)
     out["filled"] = filled
     return out
@@ -372,7 +369,7 @@ def truth_segments(
     ``0..n_segments-1`` (-1 only where a component holds no labelled vertex). The segments are
     patches, not body parts; they are consistent with the ground truth by construction, so a
     map's recall and precision measure how well it carries regions."""
-    from shape_toolkit.features.geodesics import geodesic_farthest_points, nearest_source
+    from shape_toolkit.features.geodesics import fill_from_nearest, geodesic_farthest_points, nearest_source
 
     ts = np.asarray(truth_src, dtype=np.int64)
     td = np.asarray(truth_dst, dtype=np.int64)
@@ -388,12 +385,6 @@ def truth_segments(
     src = np.where(owner >= 0, index[np.maximum(owner, 0)], -1)
     tgt = np.full(target.n_vertices, -1, dtype=np.int64)
     tgt[td] = src[ts]
-    have = np.flatnonzero(tgt >= 0)
-    if have.size == 0:
+    if not np.any(tgt >= 0):
         raise ParameterError("no ground-truth pair reaches a labelled source vertex")
-    miss = np.flatnonzero(tgt < 0)
-    if miss.size:
-        near = nearest_source(target, have)[miss]
-        ok = near >= 0
-        tgt[miss[ok]] = tgt[near[ok]]
-    return src, tgt
+    return src, fill_from_nearest(target, tgt)
