@@ -413,18 +413,22 @@ def _wrap(text: str, width_in: float, fontsize: float) -> str:
     return "\n".join(textwrap.wrap(text, chars)) or text
 
 
-def _save_with_panels(fig, path: Path, dpi: int, boxes: list[tuple[float, float, float, float]], height: float) -> None:
-    """Save ``fig`` to ``path``; a PNG records its panels' boxes (inches from the bottom left, figure
-    ``height`` inches) as pixels from the top left in the text chunk :data:`PANELS_KEY`."""
+def _save_with_panels(fig, path: Path, dpi: int, boxes: list[tuple[float, float, float, float]], height: float,
+                      pdf: bool = False) -> None:
+    """Save ``fig`` to ``path`` (and with ``pdf`` the same figure to ``path`` with the suffix ``.pdf``); a PNG
+    records its panels' boxes (inches from the bottom left, figure ``height`` inches) as pixels from the top left
+    in the text chunk :data:`PANELS_KEY`."""
     import json
 
-    meta = None
-    if path.suffix.lower() == ".png":
-        px = [[round(x * dpi), round((height - y - h) * dpi), round(w * dpi), round(h * dpi)] for x, y, w, h in boxes]
-        meta = {PANELS_KEY: json.dumps(px)}
-    elif path.suffix.lower() == ".pdf":
-        meta = {"CreationDate": None}
-    fig.savefig(path, dpi=dpi, metadata=meta)
+    for out in (path, path.with_suffix(".pdf")) if pdf and path.suffix.lower() != ".pdf" else (path,):
+        meta = None
+        if out.suffix.lower() == ".png":
+            px = [[round(x * dpi), round((height - y - h) * dpi), round(w * dpi), round(h * dpi)]
+                  for x, y, w, h in boxes]
+            meta = {PANELS_KEY: json.dumps(px)}
+        elif out.suffix.lower() == ".pdf":
+            meta = {"CreationDate": None}
+        fig.savefig(out, dpi=dpi, metadata=meta)
 
 
 #: layout of :func:`render_shapes` (inches): outer margin, gap between panels, narrowest panel
@@ -440,8 +444,10 @@ def render_shapes(
     title: str | None = None,
     up: str = "auto",
     max_width: float | None = None,
+    pdf: bool = False,
 ) -> Path:
-    """Render several shapes side by side into one PNG (or PDF, by the suffix of ``path``). Each
+    """Render several shapes side by side into one PNG (or PDF, by the suffix of ``path``; ``pdf``: the same
+    figure also as ``path`` with the suffix ``.pdf``). Each
     panel is a dict of :func:`render_shape` arguments (``shape`` plus optional scalars/labels/colors/
     points/title/cmap/vmin/vmax/up, and ``colorbar``: a label string to draw a colour bar of the
     scalars). Every shape is upright (:func:`upright_frame` with the panel's ``up`` rule, default
@@ -504,7 +510,7 @@ def render_shapes(
         fig.text(0.5, 1 - _MARGIN / height, sup, ha="center", va="top", fontsize=fs)
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    _save_with_panels(fig, p, dpi, boxes, height)
+    _save_with_panels(fig, p, dpi, boxes, height, pdf)
     plt.close(fig)
     return p
 
@@ -635,10 +641,12 @@ def render_trajectories(
     fps: float = 3.0,
     title: str | None = None,
     up: str = "auto",
+    pdf: bool = False,
 ) -> Path:
     """Dense trajectories over a sequence, as in thesis Figs. 7.17-7.18: a PNG with the chosen
-    ``frames`` side by side (default all, at most 9 evenly spaced), or an animated GIF (``path``
-    ending in ``.gif``, one frame per sequence frame, ``fps`` frames per second, Pillow).
+    ``frames`` side by side (default all, at most 9 evenly spaced; ``pdf``: the same figure also as
+    ``path`` with the suffix ``.pdf``), or an animated GIF (``path`` ending in ``.gif``, one frame per
+    sequence frame, ``fps`` frames per second, Pillow).
 
     ``shapes``: the ``T`` frames; ``trajectories`` int ``(n_0, T)``: vertex of frame ``t`` reached
     by the trajectory of vertex ``j`` of frame 0 (``-1`` lost). Each frame is drawn with its
@@ -749,7 +757,7 @@ def render_trajectories(
                  va="bottom", fontsize=10)
     if sup:
         fig.text(0.5, 1 - _MARGIN / height, sup, ha="center", va="top", fontsize=11)
-    _save_with_panels(fig, p, dpi, boxes, height)
+    _save_with_panels(fig, p, dpi, boxes, height, pdf)
     plt.close(fig)
     return p
 

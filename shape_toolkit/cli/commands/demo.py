@@ -134,9 +134,8 @@ def _spectrum_figures(shape, spec, out: Path) -> list[str]:
         title = f"eigenvector {j}, lambda = {spec.eigenvalues[j]:.3g}"
         panels.append({"shape": shape, "scalars": u, "cmap": "coolwarm", "vmin": -lim, "vmax": lim,
                        "colorbar": f"eigenvector {j} value", "title": title})
-    for name in ("eigenvectors.png", "eigenvectors.pdf"):
-        render_shapes(panels, out / name, panel_size=4.0, dpi=110,
-                      title="Laplacian eigenvectors on the shape (blue < 0 < red)")
+    render_shapes(panels, out / "eigenvectors.png", panel_size=4.0, dpi=110, pdf=True,
+                  title="Laplacian eigenvectors on the shape (blue < 0 < red)")
     return ["spectrum.png", "spectrum.pdf", "eigenvectors.png", "eigenvectors.pdf"]
 
 
@@ -167,14 +166,13 @@ def _match_demo(out: Path, random_state: int, args: argparse.Namespace) -> dict:
         err = float(d.mean() / np.sqrt(b.shape.area))
         st.update("demo: drawing match.png")
         cs, ct = pullback_colors(a.shape, b.shape, corr.target_of)
-        for name in ("match.png", "match.pdf"):
-            render_shapes(
-                [{"shape": b.shape, "colors": ct, "title": "target: colour = position"},
-                 {"shape": a.shape, "colors": cs, "title": "source: target colours pulled back through the map"}],
-                out / name, panel_size=4.5, dpi=110,
-                title=f"zoomout pipeline with {len(tips)} limb-tip seeds, pull-back colour transfer "
-                      f"(mean error {err:.3f} sqrt(area), lower is better)",
-            )
+        render_shapes(
+            [{"shape": b.shape, "colors": ct, "title": "target: colour = position"},
+             {"shape": a.shape, "colors": cs, "title": "source: target colours pulled back through the map"}],
+            out / "match.png", panel_size=4.5, dpi=110, pdf=True,
+            title=f"zoomout pipeline with {len(tips)} limb-tip seeds, pull-back colour transfer "
+                  f"(mean error {err:.3f} sqrt(area), lower is better)",
+        )
         save_colored_ply(a.shape, out / "match.source.ply", cs)
         save_colored_ply(b.shape, out / "match.target.ply", ct)
     return {"pipeline": "zoomout", "n_seeds": len(tips), "mean_error_euclidean_sqrt_area": round(err, 4),

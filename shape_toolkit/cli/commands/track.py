@@ -238,9 +238,8 @@ def run(args: argparse.Namespace) -> int:
             if png:
                 from shape_toolkit.viz import render_trajectories
 
-                for path in (png, png.with_suffix(".pdf")):
-                    render_trajectories(frames, traj.ids, path, colors=colors, n_tracks=args.tracks,
-                                        tail=args.tail, title=title)
+                render_trajectories(frames, traj.ids, png, colors=colors, n_tracks=args.tracks,
+                                    tail=args.tail, title=title, pdf=True)
                 written["png"], written["pdf"] = str(png), str(png.with_suffix(".pdf"))
             if gif:
                 from shape_toolkit.viz import render_trajectories
