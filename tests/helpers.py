@@ -162,9 +162,10 @@ def bench_run(config: Path, run: Path, *extra: str) -> int:
     return main(["bench", "run", str(config), "-o", str(run), "--no-progress", *extra])
 
 
-def panel_empty_fractions(png: str | Path) -> list[float]:
-    """For each panel a figure of :func:`shape_toolkit.viz.render_shapes` (or ``render_trajectories``) recorded in
-    its PNG, the share of the panel outside the bounding box of its drawn (non-white) pixels (1.0 when blank)."""
+
+def read_render(png: str | Path) -> tuple[np.ndarray, list | None]:
+    """A render's PNG as RGB floats in [0, 1] ``(h, w, 3)`` and the panel boxes it recorded
+    (:data:`shape_toolkit.viz.PANELS_KEY`: left, top, width, height in pixels), or None."""
     import json
 
     from PIL import Image
@@ -172,11 +173,25 @@ def panel_empty_fractions(png: str | Path) -> list[float]:
     from shape_toolkit.viz import PANELS_KEY
 
     with Image.open(png) as im:
-        boxes = json.loads(im.text[PANELS_KEY])
-        img = np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0
-    out = []
-    for x, y, w, h in boxes:
-        ink = (img[y:y + h, x:x + w] < 0.97).any(axis=2)
-        rows, cols = np.flatnonzero(ink.any(axis=1)), np.flatnonzero(ink.any(axis=0))
-        out.append(1.0 if not rows.size else 1 - (rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1) / ink.size)
-    return out
+        boxes = json.loads(im.text[PANELS_KEY]) if PANELS_KEY in im.text else None
+        return np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0, boxes
+
+
+def empty_fraction(img: np.ndarray, box: tuple[int, int, int, int] | list[int] | None = None) -> float:
+    """Share of a panel (``box``: left, top, width, height in pixels; default the whole image) outside the bounding
+    box of its drawn (non-white) pixels; 1.0 when blank."""
+    if box is not None:
+        x, y, w, h = box
+        img = img[y:y + h, x:x + w]
+    ink = (img[..., :3] < 0.97).any(axis=2)
+    rows, cols = np.flatnonzero(ink.any(axis=1)), np.flatnonzero(ink.any(axis=0))
+    if not rows.size:
+        return 1.0
+    return 1.0 - (rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1) / ink.size
+
+
+def panel_empty_fractions(png: str | Path) -> list[float]:
+    """:func:`empty_fraction` of each panel a figure of :func:`shape_toolkit.viz.render_shapes` (or
+    ``render_trajectories``) recorded in its PNG."""
+    img, boxes = read_render(png)
+    return [empty_fraction(img, b) for b in boxes]

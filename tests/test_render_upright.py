@@ -4,16 +4,15 @@ cropped tight (no panel more than 15% empty, measured on the rendered pixels).""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
+from helpers import empty_fraction, read_render
 from scipy.spatial.transform import Rotation
 
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.viz import PANELS_KEY, _frame, method_colors, render_shape, render_shapes, upright_frame
+from shape_toolkit.viz import _frame, method_colors, render_shape, render_shapes, upright_frame
 
 _BOX_FACES = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
                        [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
@@ -105,33 +104,12 @@ def test_a_quadruped_stands_on_its_legs_whatever_its_pose():
         assert old[body[perm]].min() < old.min() + 0.25 * np.ptp(old)  # the former default: not on its legs
 
 
-def _empty_fraction(img: np.ndarray, box: tuple[int, int, int, int] | None = None) -> float:
-    """Share of a panel (``box``: left, top, width, height in pixels; default the whole image) outside
-    the bounding box of its drawn (non-white) pixels."""
-    if box is not None:
-        x, y, w, h = box
-        img = img[y:y + h, x:x + w]
-    ink = (img[..., :3] < 0.97).any(axis=2)
-    rows, cols = np.flatnonzero(ink.any(axis=1)), np.flatnonzero(ink.any(axis=0))
-    if not rows.size:
-        return 1.0
-    return 1.0 - (rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1) / ink.size
-
-
-def _read(path):
-    from PIL import Image
-
-    with Image.open(path) as im:
-        boxes = json.loads(im.text[PANELS_KEY]) if PANELS_KEY in im.text else None
-        return np.asarray(im.convert("RGB"), dtype=np.float64) / 255.0, boxes
-
-
 def test_one_panel_is_cropped_tight(tmp_path):
     shapes = [_rigid(_figure(), 1)[0], articulated_shape(subdivisions=2, random_state=0).shape,
               Shape(articulated_shape(subdivisions=2, random_state=2).shape.vertices)]  # and a point cloud
     for i, s in enumerate(shapes):
-        img, _ = _read(render_shape(s, tmp_path / f"{i}.png", size=3.0))
-        assert _empty_fraction(img) <= 0.15, (i, _empty_fraction(img))
+        img, _ = read_render(render_shape(s, tmp_path / f"{i}.png", size=3.0))
+        assert empty_fraction(img) <= 0.15, (i, empty_fraction(img))
 
 
 def test_every_panel_of_a_figure_is_cropped_tight(tmp_path):
@@ -139,12 +117,12 @@ def test_every_panel_of_a_figure_is_cropped_tight(tmp_path):
     panels = [{"shape": _rigid(_figure(), 2)[0], "title": "a standing figure, moved"},
               {"shape": a.shape, "labels": a.labels, "title": "labels"},
               {"shape": a.shape, "scalars": a.shape.vertices[:, 0], "colorbar": "x", "title": "with a colour bar"}]
-    img, boxes = _read(render_shapes(panels, tmp_path / "p.png", panel_size=3.0, title="three panels"))
+    img, boxes = read_render(render_shapes(panels, tmp_path / "p.png", panel_size=3.0, title="three panels"))
     assert boxes is not None and len(boxes) == 3
     for box in boxes:
-        assert _empty_fraction(img, box) <= 0.15, (box, _empty_fraction(img, box))
-    img2, boxes2 = _read(render_shapes(panels, tmp_path / "q.png", panel_size=3.0, max_width=6.0))
-    assert img2.shape[1] <= 6.0 * 100 + 1 and all(_empty_fraction(img2, b) <= 0.15 for b in boxes2)
+        assert empty_fraction(img, box) <= 0.15, (box, empty_fraction(img, box))
+    img2, boxes2 = read_render(render_shapes(panels, tmp_path / "q.png", panel_size=3.0, max_width=6.0))
+    assert img2.shape[1] <= 6.0 * 100 + 1 and all(empty_fraction(img2, b) <= 0.15 for b in boxes2)
 
 
 def test_method_colours_are_one_per_method_and_stable():
