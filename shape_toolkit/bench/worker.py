@@ -458,7 +458,7 @@ def execute_job(job: Job, pinfo: dict | None = None) -> dict[str, Any]:
                 if job.subject_spectrum is not None:
                     row.spectrum_seconds = solved
         row.peak_memory_mb = peak
-        if output.pop("published", False):  # a map no method computed here (a published file, the ground truth): no cost
+        if output.pop("published", False):  # a map no method computed here (a file, the ground truth): no cost
             row.seconds = row.cpu_seconds = row.peak_memory_mb = None
         t0 = time.perf_counter()
         if job.options.get("metric_costs"):  # the metrics are the subject: their peak memory too
