@@ -136,3 +136,62 @@ def test_published_peer_maps_are_one_based(shared_data):
     for peer in ("BIM", "BCICP"):
         m = np.loadtxt(root / "maps" / peer / f"{a}_{b}.map", dtype=np.int64)
         assert len(m) == A.n_vertices and 1 <= m.min() and m.max() <= B.n_vertices
+
+
+def _ellipsoid_part_mirrored(height: float = 0.4):
+    """An ellipsoid (icosphere, 4 subdivisions, axes 3 / 1.5 / 1: mirror-symmetric in x) mapped onto itself by the
+    identity, except on the cap z > ``height`` where the map is the mirror x -> -x (the exact mirror vertex): a map that
+    keeps orientation on the whole and mirrors a part. Returns the shape, the map, the cap and the mirror map."""
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.data.generate import icosphere
+
+    s = icosphere(4)
+    V = np.asarray(s.vertices) * [3.0, 1.5, 1.0]
+    e = Shape(V, s.faces)
+    mirror = cKDTree(V).query(V * [-1.0, 1.0, 1.0])[1]
+    cap = V[:, 2] > height
+    t = np.where(cap, mirror, np.arange(len(V)))
+    return e, t, cap, mirror
+
+
+def test_reversing_region_finds_the_mirrored_part():
+    """The part of a map that mirrors (a cap of an ellipsoid sent to its reflection) is found as the region whose
+    smoothed orientation votes are negative; the identity and a random relabelling inside a rotation have none; the
+    whole mirror is one region."""
+    from shape_toolkit.features.basis import basis_of
+    from shape_toolkit.plugins.matching.orientation import reversing_region
+    from shape_toolkit.spectra import shape_spectrum
+
+    e, t, cap, mirror = _ellipsoid_part_mirrored()
+    basis = basis_of(shape_spectrum(e, 30))
+    region = reversing_region(e, e, t, basis)
+    assert orientation_verdict(e, e, t)["verdict"] == "preserving"  # the whole keeps orientation
+    inter, union = (region & cap).sum(), (region | cap).sum()
+    assert inter / union > 0.7, (region.sum(), cap.sum(), inter)
+    ident = np.arange(e.n_vertices)
+    assert not reversing_region(e, _rotated(e, 3), ident, basis).any()
+    assert reversing_region(e, e, mirror, basis).all()
+    # a partial map has no region (every vertex must be matched)
+    assert not reversing_region(e, e, np.where(cap, -1, t), basis).any()
+
+
+def test_a_refit_on_the_unmirrored_part_recovers_the_map():
+    """ZoomOut started from the functional map fitted where the map keeps orientation (``polish_map(rows=...)``)
+    recovers the identity on the mirrored half; started from the whole map (half of it mirrored) it does not."""
+    from shape_toolkit.features.basis import basis_of, polish_map
+    from shape_toolkit.spectra import shape_spectrum
+
+    e, t, cap, _ = _ellipsoid_part_mirrored(0.0)  # half the shape mirrored
+    basis = basis_of(shape_spectrum(e, 41))
+    ident = np.arange(e.n_vertices)
+    V = np.asarray(e.vertices)
+
+    def err(m):
+        return float(np.linalg.norm(V[m] - V, axis=1)[cap].mean())
+
+    _, whole = polish_map(t, basis, basis, 10, 5)
+    _, refit = polish_map(t, basis, basis, 10, 5, rows=np.flatnonzero(~cap))
+    assert err(refit) < 0.01 * err(t), (err(refit), err(t))
+    assert err(whole) > 0.1 * err(t)
+    assert np.mean(refit == ident) > 0.99

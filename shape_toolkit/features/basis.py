@@ -214,12 +214,14 @@ POLISH_START = 20
 
 def polish_map(
     target_of: np.ndarray, src: Basis, tgt: Basis, start: int = POLISH_START, step: int = 5,
-    seeds: np.ndarray | None = None,
+    seeds: np.ndarray | None = None, rows: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A point map ``target_of`` ``(n_s,)`` (all entries >= 0) refined by ZoomOut from its functional map in
-    ``start`` functions to ``src.k``, ``step`` at a time; the pairs ``seeds`` ``(q, 2)`` are kept. Returns the
-    final ``C_ts`` and the refined map ``(n_s,)``."""
-    C0 = fmap_from_p2p(src, tgt, np.asarray(target_of), start, start)
+    ``start`` functions to ``src.k``, ``step`` at a time; the pairs ``seeds`` ``(q, 2)`` are kept. ``rows``: the
+    start is fitted on those source vertices only (the map is trusted there; elsewhere ZoomOut infers it).
+    Returns the final ``C_ts`` and the refined map ``(n_s,)``."""
+    t = np.asarray(target_of)
+    C0 = fmap_from_p2p(src, tgt, t if rows is None else t[rows], start, start, rows=rows)
     C, T = zoomout(C0, src, tgt, src.k, step)
     if seeds is not None and len(seeds):
         T[seeds[:, 0]] = seeds[:, 1]

@@ -28,9 +28,9 @@ from shape_toolkit.plugins.matching.descriptors import shared_spectra
 from shape_toolkit.plugins.matching.side_cache import SideCache, cached, scoped, side_cache_scope
 
 __all__ = [
-    "orientation_votes", "orientation_score", "ORIENTATION_Z", "orientation_verdict", "side_matcher",
-    "fine_matcher", "symmetry_matcher", "SideCache", "symmetry_map", "symmetry_validity", "SideReference",
-    "side_reference", "orient_pairs", "side_cache_scope", "SYMMETRY_FITS",
+    "orientation_votes", "orientation_score", "ORIENTATION_Z", "orientation_verdict", "reversing_region",
+    "side_matcher", "fine_matcher", "symmetry_matcher", "SideCache", "symmetry_map", "symmetry_validity",
+    "SideReference", "side_reference", "orient_pairs", "side_cache_scope", "SYMMETRY_FITS",
 ]
 
 
@@ -129,6 +129,34 @@ def orientation_verdict(
     z = mean / se
     verdict = "undecided" if abs(z) < ORIENTATION_Z else ("preserving" if z > 0 else "reversing")
     return {"verdict": verdict, "score": mean, "z": float(z), "samples": int(len(rows))}
+
+
+def reversing_region(
+    source: Shape, target: Shape, target_of: np.ndarray, basis: Basis, k_smooth: int = 20,
+) -> np.ndarray:
+    """Where the dense map ``target_of`` ``(n_source,)`` (every entry >= 0) reverses orientation on a part of the
+    source: boolean ``(n_source,)``, all False when no part does.
+
+    A map can keep orientation on the whole and mirror a part (FAUST: the feet or the arms swapped left for
+    right). Every source vertex votes with the local triple products of :func:`orientation_votes`; the votes
+    (weighted by their triplets' weight) are low-pass filtered on the first ``k_smooth`` eigenfunctions of
+    ``basis`` (a part is judged as a whole, as in :func:`symmetry_validity`), and the region is where that is
+    negative. It counts only when the map restricted to it is judged ``reversing`` by
+    :func:`orientation_verdict` (3 standard errors, farthest-point samples of the region): a few noisy votes
+    are not a mirrored part."""
+    t = np.asarray(target_of, dtype=np.int64).ravel()
+    n = len(t)
+    none = np.zeros(n, dtype=bool)
+    if n < 4 or np.any(t < 0):
+        return none
+    vote, w = orientation_votes(source, target, np.column_stack([np.arange(n), t]))
+    smooth = basis.low_pass(vote * w, k_smooth) / np.maximum(basis.low_pass(w, k_smooth), 1e-300)
+    region = smooth < 0
+    if region.sum() < 4:
+        return none
+    if orientation_verdict(source, target, np.where(region, t, -1))["verdict"] != "reversing":
+        return none
+    return region
 
 
 def side_matcher(orientation: str = "preserving"):
