@@ -53,11 +53,14 @@ reverses orientation on a part (:func:`~shape_toolkit.plugins.matching.orientati
 orientation votes low-pass filtered, the region where they are negative, counted when the map there reverses
 orientation at 3 standard errors), the map is trusted on the rest only: ZoomOut restarts from the functional map
 in ``reorient`` (10) eigenfunctions fitted on the rest (:func:`~shape_toolkit.features.basis.polish_map` with
-``rows``), which extends it smoothly over the mirrored part, and the refitted map (``NAME+reoriented``) competes
-on the residual; ``info["mirrored_part"]`` names the map and the part's share of the area. On the tuning half
+``rows``), which extends it smoothly over the mirrored part. The refitted map (``NAME+reoriented``) competes on
+the residual only when it reverses orientation on less of the shape than the map it repairs (a refit that mirrors
+more is no repair: on FAUST pairs across people 0 and 1 the residual preferred such refits, smoother and wrong,
+0.02-0.03 -> 0.07); ``info["mirrored_part"]`` names the map, the part's share of the area before and after the
+refit and whether the refit competed. On the tuning half
 (``benchmarks/results/auto_mirrored_notes.md``) this took FAUST people 0-1 from 0.0292 (1 flipped pair of 22) to
-0.0215 (none), tr_reg_007 -> 008 (feet swapped) from 0.193 to 0.027, for about 0.6 s CPU a pair; dogs, glued dogs
-and gorillas to men within 0.001.
+0.0214 (none), tr_reg_007 -> 008 (feet swapped) from 0.193 to 0.027; dogs, glued dogs and gorillas to men within
+0.001, one glued FAUST pair 0.045 -> 0.051. About 0.8 s CPU where a part reads as mirrored.
 
 Why the residual: the point map of a sound correspondence is, to a good approximation, the point map of a
 smooth functional map in the first eigenfunctions (it is what ZoomOut converges to); a part sent to the wrong
@@ -299,12 +302,15 @@ class BestOfMatcher(DenseMatcher):
             t = np.asarray(best[2].target_of)
             region = reversing_region(source, target, t, bps)
             if region.any():
-                name = best[1]
-                mirrored = {"from": name, "area": float(bps.mass[region].sum())}
+                name, area = best[1], float(bps.mass[region].sum())
                 k0 = int(min(self.reorient, bps.k))
                 C, T = polish_map(t, bps, bpt, k0, self.polish_step, seeds, rows=np.flatnonzero(~region))
-                consider(f"{name}+reoriented", Correspondence(T, target.n_vertices, info={
-                    **best[2].info, "C": C, "reoriented": f"ZoomOut {k0} -> {bps.k} from the unmirrored part"}))
+                after = float(bps.mass[reversing_region(source, target, T, bps)].sum())
+                # the refit is there to remove the mirrored part: one that mirrors more of the shape is no repair
+                mirrored = {"from": name, "area": area, "refit_area": after, "refit_competes": after < area}
+                if after < area:
+                    consider(f"{name}+reoriented", Correspondence(T, target.n_vertices, info={
+                        **best[2].info, "C": C, "reoriented": f"ZoomOut {k0} -> {bps.k} from the unmirrored part"}))
         info = dict(best[2].info)
         info.update({"candidates": candidates, "chosen": best[1], "skipped": skipped})
         if frame:
