@@ -316,3 +316,31 @@ def test_a_run_folder_of_an_earlier_version_resumes_with_no_recomputation(tmp_pa
         old = json.loads(old_lines[r["key"]])
         assert list(r) == list(old)
         assert dumps_json({k: old[k] if k in MEASURED else v for k, v in r.items()}) == old_lines[r["key"]]
+
+
+def test_rerun_computes_a_methods_rows_again_and_keeps_the_former(config_path, tmp_path, capsys):
+    """Rows are reused by their config, not by the code: ``--rerun LABEL`` computes that method's rows again (after a
+    change of code the config cannot see), the other rows are reused, and the former rows move to
+    ``results.jsonl.replaced``; a label the config does not plan is one line and exit 2, and nothing is moved."""
+    run = tmp_path / "run"
+    base = ["bench", "run", str(config_path), "-o", str(run), "--json", "--no-progress", "--limit", "1"]
+    assert main(base) == 0
+    first = json.loads(capsys.readouterr().out)
+    before = {r["key"]: r for r in read_rows(run)}
+    label = "spectral-clustering:luxburg-unnormalized"
+    n_label = sum(r["method_label"] == label for r in before.values())
+    assert n_label == 2
+    assert main(base + ["--rerun", label]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["rows"] == n_label and again["reused"] == first["rows"] - n_label
+    after = {r["key"]: r for r in read_rows(run)}
+    assert after.keys() == before.keys() and len(read_rows(run)) == len(before)  # one row per key
+    replaced = [json.loads(line) for line in (run / "results.jsonl.replaced").read_text().splitlines()]
+    assert sorted(r["key"] for r in replaced) == sorted(k for k, r in before.items() if r["method_label"] == label)
+    assert all(after[k] == r for k, r in before.items() if r["method_label"] != label)
+    # an unknown label: exit 2, one line naming the labels, no row moved
+    assert main(base + ["--rerun", "no-such-method"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no-such-method" in err and label in err
+    assert len(read_rows(run)) == len(before)
+    assert len((run / "results.jsonl.replaced").read_text().splitlines()) == n_label

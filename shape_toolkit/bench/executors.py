@@ -14,7 +14,7 @@ import contextlib
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import CancelledError
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
@@ -36,6 +36,7 @@ from shape_toolkit.bench.store import (
     clean_results,
     read_rows,
     run_lock,
+    set_aside_rows,
     write_planned,
 )
 from shape_toolkit.bench.worker import execute_job, lost_row, prepare_job
@@ -91,8 +92,11 @@ def run_benchmark(
     progress: bool = True,
     retry_failed: bool = False,
     worker_timeout: float = WORKER_TIMEOUT,
+    rerun: Sequence[str] = (),
 ) -> RunSummary:
-    """Run every planned row not already in ``RUN_DIR/results.jsonl``; see the module docstring.
+    """Run every planned row not already in ``RUN_DIR/results.jsonl``; see the module docstring. ``rerun``: method
+    labels whose planned rows are computed again (after a change of code the config cannot see); their former rows
+    move to ``results.jsonl.replaced``; a label the config does not plan is a :class:`ParameterError`.
     :class:`~shape_toolkit.bench.store.RunFolderError` when the folder is locked by another run
     or not writable; :class:`~shape_toolkit.bench.store.RunStoppedError` when a transient fault
     (an unwritable folder, a lost worker or scheduler, ``worker_timeout`` seconds without a Dask
@@ -107,14 +111,16 @@ def run_benchmark(
     run = _open_run_dir(run_dir)
     with run_lock(run):
         try:
-            return _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed, worker_timeout)
+            return _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed, worker_timeout,
+                               tuple(rerun))
         except OSError as exc:
             if exc.errno not in _WRITE_ERRORS:
                 raise
             raise RunFolderError(f"cannot write to run folder {run}: {exc.strerror or exc}") from None
 
 
-def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed, worker_timeout) -> RunSummary:
+def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_failed, worker_timeout,
+                rerun=()) -> RunSummary:
     claim_run_folder(run)
     results = run / RESULTS
     try:
@@ -129,8 +135,15 @@ def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_fail
         clean_results_log(run / PREPARED)
     except ShapeFileError as exc:  # atomic_output's typed write failure, as the OSError below
         raise RunFolderError(f"cannot write to run folder {run}: {exc.problem}") from None
-    done = {r["key"] for r in read_rows(run)}
     jobs, preps = plan(config, run, limit=limit)
+    if rerun:
+        labels = sorted({j.method_label for j in jobs})
+        unknown = [r for r in rerun if r not in labels]
+        if unknown:
+            raise ParameterError(f"--rerun {unknown[0]!r}: not a method label of this config; its labels: "
+                                 + ", ".join(repr(x) for x in labels))
+        set_aside_rows(results, {j.key for j in jobs if j.method_label in set(rerun)})
+    done = {r["key"] for r in read_rows(run)}
     try:  # what this config plans: a report shows these rows, not those an earlier config left in the folder
         write_planned(run, [j.key for j in jobs])
     except ShapeFileError as exc:

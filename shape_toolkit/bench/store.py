@@ -362,6 +362,26 @@ def clean_results(path: Path, *, keep_failed: bool = True) -> None:
         fh.writelines(dumps_json(r) + "\n" for r in keep)
 
 
+#: where ``--rerun`` sets aside the rows it replaces (appended, never deleted)
+REPLACED_SUFFIX = ".replaced"
+
+
+def set_aside_rows(path: Path, keys: set[str]) -> int:
+    """Move the rows of a JSON-lines results file whose ``key`` is in ``keys`` to ``NAME.replaced`` (appended) and
+    rewrite the file without them (the run holds the lock); returns how many were moved (``--rerun``)."""
+    if not path.exists() or not keys:
+        return 0
+    good, _ = _scan(path, _row_problem)
+    moved = [r for r in good if r.get("key") in keys]
+    if not moved:
+        return 0
+    with open(path.with_name(path.name + REPLACED_SUFFIX), "a", encoding="utf-8") as fh:
+        fh.writelines(dumps_json(r) + "\n" for r in moved)
+    with atomic_output(path, "results file", durable=True) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        fh.writelines(dumps_json(r) + "\n" for r in good if r.get("key") not in keys)
+    return len(moved)
+
+
 class Appender:
     """Append JSON objects to a JSON-lines file, one whole line each, flushed and fsynced."""
 

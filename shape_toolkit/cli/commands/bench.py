@@ -74,6 +74,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(default 1000, bench.config.MAX_ROWS)",
     )
     r.add_argument("--retry-failed", action="store_true", help="run failed rows again")
+    r.add_argument("--rerun", metavar="LABEL", action="append", default=[],
+                   help="compute the rows of this method label again (repeatable): rows are reused by their config, "
+                   "not by the code, so after a code change name the methods it touches; the former rows move to "
+                   "RUN_DIR/results.jsonl.replaced")
     add_quiet(r)
     r.add_argument("--report", action="store_true", help="write the report when the run ends")
     r.add_argument("--markdown", metavar="FILE",
@@ -138,6 +142,7 @@ def run_cmd(args: argparse.Namespace) -> int:
             progress=not (args.quiet or args.json),
             retry_failed=args.retry_failed,
             worker_timeout=args.worker_timeout,
+            rerun=args.rerun,
         )
         report = None
         if args.report:
