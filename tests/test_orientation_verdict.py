@@ -157,8 +157,8 @@ def _ellipsoid_part_mirrored(height: float = 0.4):
 
 def test_reversing_region_finds_the_mirrored_part():
     """The part of a map that mirrors (a cap of an ellipsoid sent to its reflection) is found as the region whose
-    smoothed orientation votes are negative; the identity and a random relabelling inside a rotation have none; the
-    whole mirror is one region."""
+    smoothed orientation votes are negative; the identity onto a turned copy has none; the whole mirror is one
+    region; a map with unmatched vertices has none."""
     from shape_toolkit.features.basis import basis_of
     from shape_toolkit.plugins.matching.orientation import reversing_region
     from shape_toolkit.spectra import shape_spectrum
