@@ -192,23 +192,34 @@ def test_bad_reframe_and_polish_are_refused(unequal_limbs, bad):
         create_plugin("dense_matchers", "best-of", **bad).match(a, b)
 
 
+def _faust_pair(shared_data, a: str, b: str):
+    """FAUST scans ``a`` -> ``b`` (e.g. ``"tr_reg_008"``) and the pair's error: mean Dijkstra geodesic error /
+    sqrt(area) of a map at every 5th ground-truth point."""
+    from shape_toolkit.io.mesh import load_shape
+
+    d = shared_data / "faust5k"
+    A, B = load_shape(d / f"{a}.off"), load_shape(d / f"{b}.off")
+    ta = np.loadtxt(d / "corres" / f"{a}.vts", dtype=np.int64)[::5] - 1
+    tb = np.loadtxt(d / "corres" / f"{b}.vts", dtype=np.int64)[::5] - 1
+
+    def error(corr) -> float:
+        e = paired_geodesic_distances(B, np.asarray(corr.target_of)[ta], tb, method="dijkstra") / np.sqrt(B.area)
+        return float(e.mean())
+
+    return A, B, error
+
+
 @pytest.mark.slow
 def test_a_person_turned_between_scans_is_not_swapped(shared_data):
     """FAUST tr_reg_008 -> tr_reg_011 (tuning subjects 0 and 1; the second scan turned by about 110 degrees):
     the shells in the scans' own frames swap left and right (0.505 before the frame estimate), the functional
     map is sound enough (0.08) to give the frame, and the shells in that frame (or on the canonical forms turned by
     that map, which do as well: 0.022) are kept."""
-    from shape_toolkit.io.mesh import load_shape
-
-    d = shared_data / "faust5k"
-    a, b = load_shape(d / "tr_reg_008.off"), load_shape(d / "tr_reg_011.off")
-    ta = np.loadtxt(d / "corres" / "tr_reg_008.vts", dtype=np.int64)[::5] - 1
-    tb = np.loadtxt(d / "corres" / "tr_reg_011.vts", dtype=np.int64)[::5] - 1
+    a, b, err = _faust_pair(shared_data, "tr_reg_008", "tr_reg_011")
     corr = run_pipeline("auto", a, b)
     assert corr.info["chosen"].split("+")[0] in ("shell-alignment@frame", "shell-alignment@canonical")
     assert corr.info["estimated_frame"]["rotation_degrees"] > 90.0
-    err = paired_geodesic_distances(b, np.asarray(corr.target_of)[ta], tb, method="dijkstra") / np.sqrt(b.area)
-    assert float(err.mean()) < 0.04
+    assert err(corr) < 0.04
 
 
 def test_canonical_forms_remove_the_pose_and_the_turn(unequal_limbs):
@@ -254,17 +265,7 @@ def test_a_mirrored_part_is_refitted_from_the_rest(shared_data):
     """FAUST tr_reg_007 -> tr_reg_008 (tuning subject 0): every candidate maps the feet left for right while the rest
     keeps orientation (0.19 without the refit). The part is found as reversing, ZoomOut restarts from the rest, and
     that map is kept (0.027 in the tuning run)."""
-    from shape_toolkit.io.mesh import load_shape
-
-    d = shared_data / "faust5k"
-    a, b = load_shape(d / "tr_reg_007.off"), load_shape(d / "tr_reg_008.off")
-    ta = np.loadtxt(d / "corres" / "tr_reg_007.vts", dtype=np.int64)[::5] - 1
-    tb = np.loadtxt(d / "corres" / "tr_reg_008.vts", dtype=np.int64)[::5] - 1
-
-    def err(corr):
-        e = paired_geodesic_distances(b, np.asarray(corr.target_of)[ta], tb, method="dijkstra") / np.sqrt(b.area)
-        return float(e.mean())
-
+    a, b, err = _faust_pair(shared_data, "tr_reg_007", "tr_reg_008")
     corr = run_pipeline("auto", a, b)
     part = corr.info["mirrored_part"]
     assert corr.info["chosen"].endswith("+reoriented")
@@ -282,15 +283,9 @@ def test_a_refit_that_mirrors_more_does_not_compete(shared_data):
     as reversing; ZoomOut from the rest gives a smoother map (its residual is lower) that is wrong (0.07) and
     reverses orientation on most of the shape. Such a refit is no repair: it does not compete, and the sound map
     is kept."""
-    from shape_toolkit.io.mesh import load_shape
-
-    d = shared_data / "faust5k"
-    a, b = load_shape(d / "tr_reg_003.off"), load_shape(d / "tr_reg_010.off")
-    ta = np.loadtxt(d / "corres" / "tr_reg_003.vts", dtype=np.int64)[::5] - 1
-    tb = np.loadtxt(d / "corres" / "tr_reg_010.vts", dtype=np.int64)[::5] - 1
+    a, b, err = _faust_pair(shared_data, "tr_reg_003", "tr_reg_010")
     corr = run_pipeline("auto", a, b)
     part = corr.info["mirrored_part"]
     assert part["refit_area"] > part["area"] and not part["refit_competes"]
     assert not any(c["matcher"].endswith("+reoriented") for c in corr.info["candidates"])
-    e = paired_geodesic_distances(b, np.asarray(corr.target_of)[ta], tb, method="dijkstra") / np.sqrt(b.area)
-    assert float(e.mean()) < 0.04
+    assert err(corr) < 0.04

@@ -142,7 +142,7 @@ def _run_locked(config, run, t0, workers, scheduler, limit, progress, retry_fail
         if unknown:
             raise ParameterError(f"--rerun {unknown[0]!r}: not a method label of this config; its labels: "
                                  + ", ".join(repr(x) for x in labels))
-        set_aside_rows(results, {j.key for j in jobs if j.method_label in set(rerun)})
+        set_aside_rows(results, {j.key for j in jobs if j.method_label in rerun})
     done = {r["key"] for r in read_rows(run)}
     try:  # what this config plans: a report shows these rows, not those an earlier config left in the folder
         write_planned(run, [j.key for j in jobs])

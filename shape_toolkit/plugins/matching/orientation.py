@@ -150,8 +150,7 @@ def reversing_region(
     if n < 4 or np.any(t < 0):
         return none
     vote, w = orientation_votes(source, target, np.column_stack([np.arange(n), t]))
-    smooth = basis.low_pass(vote * w, k_smooth) / np.maximum(basis.low_pass(w, k_smooth), 1e-300)
-    region = smooth < 0
+    region = basis.low_pass(vote * w, k_smooth) < 0
     if region.sum() < 4:
         return none
     if orientation_verdict(source, target, np.where(region, t, -1))["verdict"] != "reversing":
