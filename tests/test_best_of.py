@@ -37,6 +37,16 @@ def test_auto_keeps_the_sound_map(poses):
     assert [s.k for s in load_pipeline("auto").spectrum_specs()] == [111]
 
 
+def test_one_spectrum_serves_best_of_and_its_matchers():
+    """best-of declares the Laplace-Beltrami spectrum with the most eigenpairs among its own need (``max(k, polish)
+    + 1``) and its matchers' (``fmap-zoomout``'s 111), so a call without spectra solves one eigenproblem per shape
+    and keeps the same spectrum as the ``auto`` pipeline."""
+    assert create_plugin("dense_matchers", "best-of").spectrum_spec().k == 111
+    assert create_plugin("dense_matchers", "best-of", matchers=["shell-alignment"]).spectrum_spec().k == 101
+    assert create_plugin("dense_matchers", "best-of", k=150).spectrum_spec().k == 151
+    assert create_plugin("dense_matchers", "best-of").spectrum_spec() == load_pipeline("auto").spectrum_specs()[0]
+
+
 def test_seeds_reach_every_matcher_and_the_choice_is_repeatable(poses):
     a, b = poses
     seeds = np.array([[0, 0], [100, 100], [400, 400]])

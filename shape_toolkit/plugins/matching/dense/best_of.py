@@ -44,8 +44,10 @@ Meshes only: on point clouds the two runs are not interchangeable (tuning half's
 second run was better on 2 of 64 -- 0.194 -> 0.157, 0.118 -> 0.041 -- and worse on none, for 0.1-0.5 s CPU), so
 clouds always run again.
 Tried and not adopted (``benchmarks/results/auto_speed_notes.md``): the polish in steps of 10 eigenfunctions
-(``polish_step = 10``: 1.1 s less, but 2-5 % less precise on typical pairs, tuning and report halves alike) and the
-shells on 1,000 samples instead of 2,000 (gorillas to men 0.175 -> 0.275).
+(``polish_step = 10``: 1.1 s less, but 2-5 % less precise on typical pairs, tuning and report halves alike), the
+shells on 1,000 samples instead of 2,000 (gorillas to men 0.175 -> 0.275), only the most promising polish in full
+(8 % less CPU, two glued dog pairs worse) and the pick by residual times WKS disagreement (better on the tuning
+half; on the report half glued cats 0.034 -> 0.13 and gorillas to women 0.41 -> 0.55).
 
 Mirrored parts. A map can keep orientation on the whole and mirror a part: on FAUST people the feet or the arms
 swapped left for right, every candidate alike, since all start from the same intrinsic ambiguity. Where the kept map
@@ -90,7 +92,7 @@ from shape_toolkit.plugins.matching.descriptors import resolve_plugin, shared_sp
 from shape_toolkit.plugins.matching.orientation import orientation_verdict, reversing_region
 from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
-from shape_toolkit.spectra import SpectrumSpec, default_spec
+from shape_toolkit.spectra import SpectrumSpec, declared_specs, default_spec, merge_specs
 
 __all__ = ["BestOfMatcher", "estimated_frame"]
 
@@ -207,8 +209,10 @@ class BestOfMatcher(DenseMatcher):
 
     def spectrum_spec(self) -> SpectrumSpec:
         """The Laplace-Beltrami spectrum with ``max(k, polish) + 1`` eigenpairs (the residual's common basis
-        and the polish's)."""
-        return default_spec(max(int(self.k), int(self.polish or 0)) + 1)
+        and the polish's), or as many as a nested matcher's of the same kind when more (``fmap-zoomout``'s 111):
+        called without spectra, ``match`` then solves one eigenproblem per shape for every matcher, not two."""
+        own = default_spec(max(int(self.k), int(self.polish or 0)) + 1)
+        return merge_specs([own, *declared_specs(self._matchers())])[0]
 
     def match(
         self,
