@@ -38,6 +38,7 @@ without groups or a half left empty is refused before any work, naming the key.
 
     [[tasks]]
     task = "segmentation"      # the task kind: spectrum | keypoints | descriptors | segmentation | matching | sequence
+                               # | geodesics
     name = "seg"               # optional task name, default = the task kind
     datasets = ["psb"]         # default: every dataset
     corruptions = ["none", "noise"]      # default: ["none"]
@@ -67,6 +68,11 @@ A matching method may instead be ``pipeline = "zoomout"`` (a preset, TOML file o
 :mod:`shape_toolkit.pipeline`), ``peer = "pyfm"`` (a peer's published pipeline,
 :mod:`shape_toolkit.bench.peers`) or ``peer = "maps"`` with ``path = "maps/BCICP"`` (published maps
 ``A_B.map`` in that folder of a pair dataset, uncorrupted only), each with an optional ``label``.
+
+Geodesics: the ``geodesics`` task takes ``method = "heat"`` methods (``exact``, ``fmm``, ``heat``,
+``dijkstra``: :func:`shape_toolkit.features.geodesics.geodesic_distances`) on single-shape datasets;
+each row computes the distances from ``sources`` evenly spaced vertices, and its error is taken against
+the ``reference`` method on the first ``reference_sources`` of them (``GeodesicsTask``).
 
 Sequences (thesis 7.5.3): the ``sequence`` task takes ``pipeline = ...`` methods on ``sequence``
 datasets (generated pose sequences, one item per seed); it matches frame t -> t+1 and chains the
@@ -629,6 +635,26 @@ def _peer_method(task: str, m: dict, where: str) -> MethodSpec:
     return MethodSpec(name, "peers", None, params, label)
 
 
+def _geodesic_method(task: str, m: dict, where: str) -> MethodSpec:
+    """A ``geodesics`` task's method: ``method = "heat"`` (one of
+    :data:`~shape_toolkit.features.geodesics.GEODESIC_METHODS`), with an optional ``label``."""
+    from shape_toolkit.features.geodesics import GEODESIC_METHODS
+
+    if task != "geodesics":
+        raise ConfigError(f"{where}.method", 'a geodesic method belongs to a geodesics task (task = "geodesics")')
+    if "method" not in m:
+        raise ConfigError(f"{where}.method", f"a geodesics task's methods are method = one of "
+                          f"{', '.join(map(repr, GEODESIC_METHODS))}")
+    extra = sorted(set(m) - {"method", "label"})
+    if extra:
+        raise ConfigError(f"{where}.{extra[0]}", "not allowed with a geodesic method (keys: method, label)")
+    name = m["method"]
+    if name not in GEODESIC_METHODS:
+        raise ConfigError(f"{where}.method", f"must be one of {', '.join(map(repr, GEODESIC_METHODS))}, got {name!r}")
+    label = _str(m["label"], f"{where}.label") if "label" in m else name
+    return MethodSpec(name, "geodesics", None, {}, label)
+
+
 def _peer_name(m: dict, where: str, create: Any) -> str:
     """The ``peer`` name of a method entry, checked by making the peer (``create(name)``)."""
     name = m["peer"]
@@ -996,7 +1022,11 @@ def _check_task_method(adapter: Any, options: dict[str, Any], m: Any, mw: str) -
 def _check_method(kind: str, adapter: Any, spectrum: dict | None, m: Any, mw: str) -> tuple[Any, int]:
     """One ``[[tasks.methods]]`` entry checked without expanding its grid: ``(make, size)``, where
     ``make()`` expands and checks each grid point into :class:`MethodSpec` instances."""
-    _check_keys(m, {"plugin", "pipeline", "peer", "path", "preset", "label", "params", "spectrum", "keypoints"}, mw)
+    _check_keys(m, {"plugin", "pipeline", "peer", "path", "preset", "label", "params", "spectrum", "keypoints",
+                    "method"}, mw)
+    if kind == "geodesics" or "method" in m:
+        spec = _geodesic_method(kind, m, mw)
+        return (lambda: [spec]), 1
     if "pipeline" in m:
         spec = _pipeline_method(kind, m, mw)
         return (lambda: [spec]), 1

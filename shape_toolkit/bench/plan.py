@@ -114,6 +114,10 @@ def create_method(family: str, plugin: str, preset: str | None, params: dict, ra
         from shape_toolkit.bench.tasks import GroundTruthMap
 
         return GroundTruthMap()
+    if family == "geodesics":
+        from shape_toolkit.bench.tasks import GeodesicMethod
+
+        return GeodesicMethod(plugin)
     from shape_toolkit.bench.tasks import _with_random_state
 
     return _with_random_state(family, plugin, preset, params, random_state)

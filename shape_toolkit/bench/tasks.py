@@ -1159,8 +1159,87 @@ class SequenceTask(TaskAdapter):
                 "pair_wall": np.array([t["wall"] for _, t in res])}
 
 
+# -- geodesics -------------------------------------------------------------------------------
+class GeodesicMethod:
+    """A ``geodesics`` task's method: one of :data:`~shape_toolkit.features.geodesics.GEODESIC_METHODS`."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def distances(self, shape: Shape, sources: np.ndarray) -> np.ndarray:
+        """Distances ``(len(sources), n)`` from each source vertex, mesh length units (nothing cached)."""
+        from shape_toolkit.features.geodesics import geodesic_distances
+
+        return geodesic_distances(shape, sources, method=self.name, cache=False)
+
+
+def _geodesic_sources(n: int, count: int) -> np.ndarray:
+    """``count`` vertex ids evenly spaced from 0 to ``n - 1`` (at most ``n``)."""
+    return np.unique(np.linspace(0, n - 1, min(int(count), n)).astype(np.int64))
+
+
+def _m_relative_error(p, o, opt):
+    from shape_toolkit.features.geodesics import geodesic_distances
+
+    rows = np.asarray(o["reference_rows"])
+    ids = np.asarray(o["sources"])[: len(rows)]
+    # the reference rows are cached in the worker (content hash, method, source): every method compares to one copy
+    ref = geodesic_distances(p.target, ids, method=opt["reference"])
+    far = np.isfinite(ref) & (ref > 0.01 * np.max(ref[np.isfinite(ref)], initial=0.0))
+    if not far.any():
+        return {"mean_relative_error": None, "max_relative_error": None}
+    rel = np.abs(rows[far] - ref[far]) / ref[far]
+    return {"mean_relative_error": float(rel.mean()), "max_relative_error": float(rel.max())}
+
+
+def _m_sources(p, o, opt):
+    return {"n_sources": int(len(o["sources"]))}
+
+
+class GeodesicsTask(TaskAdapter):
+    """Geodesic distances on single shapes (the compared methods: ``method = "exact" | "fmm" | "heat" |
+    "dijkstra"``, :func:`~shape_toolkit.features.geodesics.geodesic_distances`): each row computes the
+    distances from ``sources`` vertex ids evenly spaced from 0 to ``n - 1`` (the row's time is theirs; divide by
+    ``n_sources`` for a source's). Metric ``relative_error``: against the ``reference`` method (default
+    ``exact``, libigl's exact polyhedral geodesics) on the first ``reference_sources`` sources, the mean and the
+    largest ``|d - d_ref| / d_ref`` over the vertices farther than 1 % of the largest reference distance (the
+    reference is computed in the metric, outside the row's time, once per worker and shape); ``sources``:
+    ``n_sources``. Output: the source ids and the first ``reference_sources`` distance rows."""
+
+    name = "geodesics"
+    families = ()
+    option_defaults = {"sources": 20, "reference": "exact", "reference_sources": 2}
+    default_metrics = ("relative_error", "sources")
+    metrics = {"relative_error": (_m_relative_error, ()), "sources": (_m_sources, ())}
+    uses_spectra = False
+
+    def check_options(self, options):
+        from shape_toolkit.features.geodesics import GEODESIC_METHODS
+
+        o = super().check_options(options)
+        for key in ("sources", "reference_sources"):
+            v = o[key]
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ParameterError(f"{key} must be a positive integer, got {v!r}")
+        if o["reference_sources"] > o["sources"]:
+            raise ParameterError(f"reference_sources ({o['reference_sources']}) must be at most sources "
+                                 f"({o['sources']})")
+        if o["reference"] not in GEODESIC_METHODS:
+            raise ParameterError(f"reference must be one of {', '.join(map(repr, GEODESIC_METHODS))}, "
+                                 f"got {o['reference']!r}")
+        return o
+
+    def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
+        shape = prepared.target
+        ids = _geodesic_sources(shape.n_vertices, options["sources"])
+        D = method.distances(shape, ids)
+        # every row of the (sources, n) matrix is not kept: at 10^5 vertices it would fill the run folder
+        return {"sources": ids, "reference_rows": D[: options["reference_sources"]]}
+
+
 #: task name -> adapter
 TASKS: dict[str, TaskAdapter] = {
     t.name: t
-    for t in (SpectrumTask(), KeypointsTask(), DescriptorsTask(), SegmentationTask(), MatchingTask(), SequenceTask())
+    for t in (SpectrumTask(), KeypointsTask(), DescriptorsTask(), SegmentationTask(), MatchingTask(), SequenceTask(),
+              GeodesicsTask())
 }
