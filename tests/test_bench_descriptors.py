@@ -131,6 +131,28 @@ method = "heat"
     assert 0.0 < edges["mean_relative_error"] < 0.3 and edges["mean_relative_error"] <= edges["max_relative_error"]
     assert rows["heat"]["metrics"]["mean_relative_error"] < edges["mean_relative_error"]
     assert all(r["metrics"]["n_sources"] == 5 for r in rows.values())
+    assert all(r["metrics"]["unreached_fraction"] == 0.0 for r in rows.values())
+
+
+def test_vertices_a_method_leaves_unreached_are_counted_not_averaged():
+    """A method's infinite distance where the reference is finite is counted in ``unreached_fraction`` and kept
+    out of the relative error (no inf or NaN in a row)."""
+    import numpy as np
+
+    from shape_toolkit.bench.tasks import _m_relative_error
+    from shape_toolkit.data.generate import icosphere
+    from shape_toolkit.features.geodesics import geodesic_distances
+
+    class P:
+        target = icosphere(2)
+
+    ids = np.array([0])
+    rows = geodesic_distances(P.target, ids, method="exact").copy()
+    far = np.flatnonzero(rows[0] > 0.01 * rows.max())
+    rows[0, far[:10]] = np.inf
+    m = _m_relative_error(P, {"sources": ids, "reference_rows": rows}, {"reference": "exact"})
+    assert m["unreached_fraction"] == pytest.approx(10 / len(far))
+    assert m["mean_relative_error"] == 0.0 and m["max_relative_error"] == 0.0
 
 
 @pytest.mark.parametrize("bad, key", [

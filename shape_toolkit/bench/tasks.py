@@ -1186,10 +1186,13 @@ def _m_relative_error(p, o, opt):
     # the reference rows are cached in the worker (content hash, method, source): every method compares to one copy
     ref = geodesic_distances(p.target, ids, method=opt["reference"])
     far = np.isfinite(ref) & (ref > 0.01 * np.max(ref[np.isfinite(ref)], initial=0.0))
-    if not far.any():
-        return {"mean_relative_error": None, "max_relative_error": None}
-    rel = np.abs(rows[far] - ref[far]) / ref[far]
-    return {"mean_relative_error": float(rel.mean()), "max_relative_error": float(rel.max())}
+    # a vertex the reference reaches and the method does not (inf, NaN) is counted apart, never averaged in
+    reached = far & np.isfinite(rows)
+    out = {"unreached_fraction": float(1.0 - reached.sum() / far.sum()) if far.any() else None}
+    if not reached.any():
+        return {"mean_relative_error": None, "max_relative_error": None, **out}
+    rel = np.abs(rows[reached] - ref[reached]) / ref[reached]
+    return {"mean_relative_error": float(rel.mean()), "max_relative_error": float(rel.max()), **out}
 
 
 def _m_sources(p, o, opt):
@@ -1202,8 +1205,9 @@ class GeodesicsTask(TaskAdapter):
     distances from ``sources`` vertex ids evenly spaced from 0 to ``n - 1`` (the row's time is theirs; divide by
     ``n_sources`` for a source's). Metric ``relative_error``: against the ``reference`` method (default
     ``exact``, libigl's exact polyhedral geodesics) on the first ``reference_sources`` sources, the mean and the
-    largest ``|d - d_ref| / d_ref`` over the vertices farther than 1 % of the largest reference distance (the
-    reference is computed in the metric, outside the row's time, once per worker and shape); ``sources``:
+    largest ``|d - d_ref| / d_ref`` over the vertices farther than 1 % of the largest reference distance, and the
+    ``unreached_fraction`` of those the method leaves at infinity (the reference is computed in the metric,
+    outside the row's time, once per worker and shape); ``sources``:
     ``n_sources``. Output: the source ids and the first ``reference_sources`` distance rows."""
 
     name = "geodesics"
