@@ -288,6 +288,32 @@ COMMON_OPTIONS: dict[str, Any] = {"repeats": 1, "blas_threads": None, "memory": 
 MEMORY_PROBES = ("rss", "traced")
 
 
+def check_positive_ints(options: dict[str, Any], keys: Sequence[str], *, optional: bool = False,
+                        note: str = "") -> None:
+    """Each option of ``keys`` is an integer >= 1 (``optional``: or None), else :class:`ParameterError` naming it
+    (``note``: what the number counts, appended to the message)."""
+    for key in keys:
+        v = options[key]
+        if optional and v is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise ParameterError(f"{key} must be a positive integer{note}, got {v!r}")
+
+
+def check_geodesic_methods(options: dict[str, Any], keys: Sequence[str]) -> None:
+    """Each option of ``keys`` names one of :data:`~shape_toolkit.features.geodesics.GEODESIC_METHODS`."""
+    from shape_toolkit.features.geodesics import GEODESIC_METHODS
+
+    for key in keys:
+        if options[key] not in GEODESIC_METHODS:
+            raise ParameterError(f"{key} must be one of {', '.join(GEODESIC_METHODS)}, got {options[key]!r}")
+
+
+def evenly_spaced_vertices(n: int, count: int) -> np.ndarray:
+    """``min(count, n)`` vertex ids evenly spaced from 0 to ``n - 1`` (distinct: the spacing is at least 1)."""
+    return np.linspace(0, n - 1, min(int(count), n)).astype(np.int64)
+
+
 class TaskAdapter:
     """Base adapter: ``families`` of the compared plugins, metric table, option defaults."""
 
@@ -533,16 +559,14 @@ class DescriptorsTask(TaskAdapter):
 
     def check_options(self, options):
         o = super().check_options(options)
-        v = o["keypoints"]
-        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
-            raise ParameterError(f"keypoints must be a positive integer (evenly spaced vertices), got {v!r}")
+        check_positive_ints(o, ("keypoints",), optional=True, note=" (evenly spaced vertices)")
         return o
 
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         shape = prepared.target
         kp = None
         if options["keypoints"] is not None:
-            kp = np.linspace(0, shape.n_vertices - 1, min(options["keypoints"], shape.n_vertices)).astype(np.int64)
+            kp = evenly_spaced_vertices(shape.n_vertices, options["keypoints"])
         elif detector is not None:
             kp = np.asarray(detector.detect(shape, spectrum=(detector_spectra or {}).get("target")), np.int64)
         d = np.asarray(method.compute(shape, spectrum=spectra.get("target"), keypoints=kp))
@@ -963,16 +987,9 @@ class MatchingTask(TaskAdapter):
     }
 
     def check_options(self, options):
-        from shape_toolkit.features.geodesics import GEODESIC_METHODS
-
         o = super().check_options(options)
-        for key in ("geodesic_method", "r_smooth_geodesics"):
-            if o[key] not in GEODESIC_METHODS:
-                raise ParameterError(f"{key} must be one of {', '.join(GEODESIC_METHODS)}, got {o[key]!r}")
-        for key in ("truth_sample", "r_smooth_sample", "label_segments", "truth_seeds"):
-            v = o[key]
-            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
-                raise ParameterError(f"{key} must be a positive integer, got {v!r}")
+        check_geodesic_methods(o, ("geodesic_method", "r_smooth_geodesics"))
+        check_positive_ints(o, ("truth_sample", "r_smooth_sample", "label_segments", "truth_seeds"), optional=True)
         rs = o["r_smooth_rs"]
         if not isinstance(rs, list) or not rs or not all(
             isinstance(r, (int, float)) and not isinstance(r, bool) and 0 < r <= 100 for r in rs
@@ -1125,9 +1142,7 @@ class SequenceTask(TaskAdapter):
         o = super().check_options(options)
         if o["mode"] not in SEQUENCE_MODES:
             raise ParameterError(f"mode must be one of {', '.join(map(repr, SEQUENCE_MODES))}, got {o['mode']!r}")
-        v = o["sample"]
-        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
-            raise ParameterError(f"sample must be a positive integer, got {v!r}")
+        check_positive_ints(o, ("sample",), optional=True)
         r = o["radius"]
         if isinstance(r, bool) or not isinstance(r, (int, float)) or not 0 < r < 1:
             raise ParameterError(f"radius must be in (0, 1) (units of sqrt(area)), got {r!r}")
@@ -1173,11 +1188,6 @@ class GeodesicMethod:
         return geodesic_distances(shape, sources, method=self.name, cache=False)
 
 
-def _geodesic_sources(n: int, count: int) -> np.ndarray:
-    """``count`` vertex ids evenly spaced from 0 to ``n - 1`` (at most ``n``)."""
-    return np.unique(np.linspace(0, n - 1, min(int(count), n)).astype(np.int64))
-
-
 def _m_relative_error(p, o, opt):
     from shape_toolkit.features.geodesics import geodesic_distances
 
@@ -1218,24 +1228,17 @@ class GeodesicsTask(TaskAdapter):
     uses_spectra = False
 
     def check_options(self, options):
-        from shape_toolkit.features.geodesics import GEODESIC_METHODS
-
         o = super().check_options(options)
-        for key in ("sources", "reference_sources"):
-            v = o[key]
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ParameterError(f"{key} must be a positive integer, got {v!r}")
+        check_positive_ints(o, ("sources", "reference_sources"))
         if o["reference_sources"] > o["sources"]:
             raise ParameterError(f"reference_sources ({o['reference_sources']}) must be at most sources "
                                  f"({o['sources']})")
-        if o["reference"] not in GEODESIC_METHODS:
-            raise ParameterError(f"reference must be one of {', '.join(map(repr, GEODESIC_METHODS))}, "
-                                 f"got {o['reference']!r}")
+        check_geodesic_methods(o, ("reference",))
         return o
 
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         shape = prepared.target
-        ids = _geodesic_sources(shape.n_vertices, options["sources"])
+        ids = evenly_spaced_vertices(shape.n_vertices, options["sources"])
         D = method.distances(shape, ids)
         # every row of the (sources, n) matrix is not kept: at 10^5 vertices it would fill the run folder
         return {"sources": ids, "reference_rows": D[: options["reference_sources"]]}

@@ -302,8 +302,8 @@ class BestOfMatcher(DenseMatcher):
         if best is None:
             raise first_error
         mirrored: dict[str, Any] = {}
-        if self.reorient and bps is not None and np.all(np.asarray(best[2].target_of) >= 0):
-            t = np.asarray(best[2].target_of)
+        t = np.asarray(best[2].target_of)
+        if self.reorient and bps is not None and np.all(t >= 0):
             region = reversing_region(source, target, t, bps)
             if region.any():
                 name, area = best[1], float(bps.mass[region].sum())
