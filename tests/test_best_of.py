@@ -193,9 +193,22 @@ def test_the_polish_step_is_a_declared_parameter(unequal_limbs):
         create_plugin("dense_matchers", "best-of", polish_step=0).match(a, b)
 
 
+def test_the_polish_samples_are_a_declared_parameter(unequal_limbs):
+    """``polish_samples`` reaches the polish (and only it): the shells' map is the same with 0 (every vertex in every
+    iteration) and with 200 samples, the polished map is not."""
+    a, b = unequal_limbs
+    bt = _turned(b, 120.0)
+    res = {}
+    for n in (0, 200):
+        corr = create_plugin("dense_matchers", "best-of", canonical=False, polish_samples=n).match(a, bt)
+        res[n] = {c["matcher"]: c["residual"] for c in corr.info["candidates"]}
+    assert res[0]["shell-alignment"] == res[200]["shell-alignment"]
+    assert res[0]["shell-alignment+zoomout"] != res[200]["shell-alignment+zoomout"]
+
+
 @pytest.mark.parametrize("bad", [{"polish": 10}, {"polish": -1}, {"reframe": "yes"}, {"same_frame": -1.0},
                                  {"same_frame": 200.0}, {"polish_step": 1.5}, {"reorient": -1},
-                                 {"reorient": 2.5}])
+                                 {"reorient": 2.5}, {"polish_samples": -1}, {"polish_samples": 2.5}])
 def test_bad_reframe_and_polish_are_refused(unequal_limbs, bad):
     a, b = unequal_limbs
     with pytest.raises(ParameterError):

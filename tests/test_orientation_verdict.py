@@ -195,3 +195,13 @@ def test_a_refit_on_the_unmirrored_part_recovers_the_map():
     assert err(refit) < 0.01 * err(t), (err(refit), err(t))
     assert err(whole) > 0.1 * err(t)
     assert np.mean(refit == ident) > 0.99
+    # the iterations on 300 of the 2,562 vertices (each weighted by its Voronoi cell), then one on every vertex:
+    # the same repair, and the functional map returned is the exact projection of the full point map
+    from shape_toolkit.core.geometry import farthest_point_sampling, sample_weights
+    from shape_toolkit.features.basis import fmap_from_p2p
+
+    ids = farthest_point_sampling(V, 300)
+    C, sampled = polish_map(t, basis, basis, 10, 5, rows=np.flatnonzero(~cap), samples=ids,
+                            sample_mass=sample_weights(V, ids, basis.mass))
+    assert np.mean(sampled == ident) > 0.99
+    assert np.allclose(C, fmap_from_p2p(basis, basis, sampled, basis.k, basis.k))

@@ -172,14 +172,18 @@ def zoomout(
     C: np.ndarray, src: Basis, tgt: Basis, k_final: int, step: int = 1,
     rows: np.ndarray | None = None, cols: np.ndarray | None = None,
     progress: Callable[[str], None] | None = None, final: bool = True, scale: float | None = None,
+    weights: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """ZoomOut (Melzi et al. 2019): alternate point map and functional map while the source basis grows
     from ``C.shape[0]`` to ``k_final`` by ``step``; returns the final ``C_ts`` and the point map of
-    every source vertex. ``rows``/``cols`` (source/target vertex samples) speed up the inner iterations
-    (the final point map always covers every source vertex). Point maps are nearest neighbours in single
-    precision (:func:`~shape_toolkit.core.geometry.nearest_neighbors`); ``progress`` receives one
-    message per iteration. ``final=False`` skips the point map of every source vertex: the returned map
-    then covers ``rows`` only (``-1`` elsewhere).
+    every source vertex. ``rows``/``cols`` (source/target vertex samples) speed up the iterations; with ``rows``,
+    one more iteration at ``k_final`` queries every source vertex, so the returned ``C_ts`` is the projection of a
+    full point map. ``weights`` ``(len(rows),)``: the share of the source's mass each row stands for in the
+    least-squares fits (default: the rows' own vertex masses; the area of each sample's Voronoi cell,
+    :func:`~shape_toolkit.core.geometry.sample_weights`, keeps the fits close to the full ones). Point
+    maps are nearest neighbours in single precision (:func:`~shape_toolkit.core.geometry.nearest_neighbors`);
+    ``progress`` receives one message per iteration. ``final=False`` skips the point map of every source
+    vertex: the returned map then covers ``rows`` only (``-1`` elsewhere).
 
     ``scale`` (None: two whole shapes) makes the source a part of the target with ``area_t / area_s =
     scale`` in common units: each functional map is rectangular, ``(k, slanted_size(k))``, the target basis
@@ -197,7 +201,7 @@ def zoomout(
         if cols is not None:
             T = cols[T]
         k = min(k + step, k_final)
-        C = fmap_from_p2p(src, tgt, T, k, slanted_size(src, tgt, k, scale), rows=rows)
+        C = fmap_from_p2p(src, tgt, T, k, slanted_size(src, tgt, k, scale), rows=rows, weights=weights)
         it += 1
         if progress is not None:
             progress(f"zoomout: iteration {it}/{n_iter} (k = {k})")
@@ -205,7 +209,11 @@ def zoomout(
         T = np.full(e_s.shape[0], -1, dtype=np.int64)
         T[rows] = _point_map(C, q_s, e_t)
         return C, T
-    return C, _point_map(C, e_s, e_t)
+    T = _point_map(C, e_s, e_t)
+    if rows is not None:
+        C = fmap_from_p2p(src, tgt, T, k_final, slanted_size(src, tgt, k_final, scale))
+        T = _point_map(C, e_s, e_t)
+    return C, T
 
 
 #: where a ZoomOut polish of a point map starts (fmap-zoomout's initial size): best-of's and the orientation repair's
@@ -214,15 +222,18 @@ POLISH_START = 20
 
 def polish_map(
     target_of: np.ndarray, src: Basis, tgt: Basis, start: int = POLISH_START, step: int = 5,
-    seeds: np.ndarray | None = None, rows: np.ndarray | None = None,
+    seeds: np.ndarray | None = None, rows: np.ndarray | None = None, samples: np.ndarray | None = None,
+    sample_mass: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A point map ``target_of`` ``(n_s,)`` (all entries >= 0) refined by ZoomOut from its functional map in
     ``start`` functions to ``src.k``, ``step`` at a time; the pairs ``seeds`` ``(q, 2)`` are kept. ``rows``: the
     start is fitted on those source vertices only (the map is trusted there; elsewhere ZoomOut infers it).
+    ``samples`` (source vertex ids) and ``sample_mass``: :func:`zoomout`'s ``rows`` and ``weights`` (the iterations
+    query the samples, then one queries every vertex).
     Returns the final ``C_ts`` and the refined map ``(n_s,)``."""
     t = np.asarray(target_of)
     C0 = fmap_from_p2p(src, tgt, t if rows is None else t[rows], start, start, rows=rows)
-    C, T = zoomout(C0, src, tgt, src.k, step)
+    C, T = zoomout(C0, src, tgt, src.k, step, rows=samples, weights=sample_mass)
     if seeds is not None and len(seeds):
         T[seeds[:, 0]] = seeds[:, 1]
     return C, T

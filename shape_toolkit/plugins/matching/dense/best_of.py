@@ -43,6 +43,12 @@ were within 0.0007; the choice among candidates, simulated on 27 + 30 tuning pai
 Meshes only: on point clouds the two runs are not interchangeable (tuning half's clouds, 16 pairs x 4 kinds: the
 second run was better on 2 of 64 -- 0.194 -> 0.157, 0.118 -> 0.041 -- and worse on none, for 0.1-0.5 s CPU), so
 clouds always run again.
+The polishes' ZoomOut iterations query ``polish_samples`` (1,000) farthest-point samples of the source, each
+fitted with the area of its Voronoi cell, then one iteration queries every vertex. Tuning half: the groups' means
+within 2 % (FAUST people 0-1 0.0214 either way, gorillas to men 0.168 -> 0.172), 20-28 % less CPU; with each sample
+weighted by its own vertex's area instead, 4 % worse on four of five groups. Report half (``auto_speed.md``, one
+worker): 21-25 % less CPU in every group, 1.5x-2.0x below pyFM; FAUST 0.0262 -> 0.0270, gorillas to women 0.413 ->
+0.423, glued FAUST 0.0451 -> 0.0440, the TOSCA groups within 0.0002.
 Tried and not adopted (``benchmarks/results/auto_speed_notes.md``): the polish in steps of 10 eigenfunctions
 (``polish_step = 10``: 1.1 s less, but 2-5 % less precise on typical pairs, tuning and report halves alike), the
 shells on 1,000 samples instead of 2,000 (gorillas to men 0.175 -> 0.275), only the most promising polish in full
@@ -81,7 +87,7 @@ import numpy as np
 
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.api.params import InstanceOf, Interval, ListOf, Param
-from shape_toolkit.core.geometry import edge_components, rigid_rotation
+from shape_toolkit.core.geometry import edge_components, farthest_point_sampling, rigid_rotation, sample_weights
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.core.surface import cloud_surface, sheet_surface
@@ -101,6 +107,9 @@ __all__ = ["BestOfMatcher", "estimated_frame"]
 #: many eigenfunctions fitted on the rest (a coarse start extends the trusted part smoothly over the mirrored one);
 #: chosen on the tuning half between 10 and 20: 20 took a glued FAUST pair from 0.10 to 0.59 and helped nowhere
 REORIENT_START = 10
+
+#: the default of ``polish_samples``: source vertices the polish's iterations query, before one on every vertex
+POLISH_SAMPLES = 1000
 
 #: the default of ``same_frame``: an estimated frame turned by less than this (degrees) from the given one is the
 #: given one to the shells, whose coarse-to-fine start absorbs the turn (tuning pairs turned by 2-22 degrees: the
@@ -183,11 +192,14 @@ class BestOfMatcher(DenseMatcher):
                             "again; point clouds always run again)"),
         "reorient": Param(None, Interval(int, 0), doc="ZoomOut start size of the kept map refitted where it keeps "
                           "orientation, when a part of it is mirrored (0 or None: not)"),
+        "polish_samples": Param(None, Interval(int, 0), doc="source vertices (farthest point samples) the polish's "
+                                "iterations query before one on every vertex (0 or None: every vertex throughout)"),
     }
 
     def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int = 64,
                  reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
-                 same_frame: float = SAME_FRAME_DEGREES, reorient: int | None = REORIENT_START):
+                 same_frame: float = SAME_FRAME_DEGREES, reorient: int | None = REORIENT_START,
+                 polish_samples: int | None = POLISH_SAMPLES):
         self.matchers = matchers
         self.k = k
         self.reframe = reframe
@@ -196,6 +208,7 @@ class BestOfMatcher(DenseMatcher):
         self.polish_step = polish_step
         self.same_frame = same_frame
         self.reorient = reorient
+        self.polish_samples = polish_samples
 
     def _matchers(self) -> list:
         return [_matcher(m) for m in self.matchers]
@@ -237,6 +250,10 @@ class BestOfMatcher(DenseMatcher):
         bs, bt = basis_of(spec_s, k), basis_of(spec_t, k)
         kp = int(min(self.polish, spec_s.k, spec_t.k)) if self.polish else None
         bps, bpt = (basis_of(spec_s, kp), basis_of(spec_t, kp)) if kp and kp > POLISH_START else (None, None)
+        samples = None  # the polishes' source samples and the mass each stands for
+        if bps is not None and self.polish_samples and self.polish_samples < source.n_vertices:
+            ids = farthest_point_sampling(source.vertices, int(self.polish_samples))
+            samples = (ids, sample_weights(source.vertices, ids, bps.mass))
         # each matcher picks its own spectra among these
         share_s, share_t = shared_spectra(source_spectrum), shared_spectra(target_spectrum)
         best, candidates, skipped, first_error = None, [], [], None
@@ -281,7 +298,7 @@ class BestOfMatcher(DenseMatcher):
                                           {**corr.info, "frame": "estimated (info['estimated_frame'])"})
                 consider(label, corr)
                 if bps is not None and np.all(np.asarray(corr.target_of) >= 0):
-                    consider(f"{label}+zoomout", self._polished(corr, bps, bpt, seeds, self.polish_step))
+                    consider(f"{label}+zoomout", self._polished(corr, bps, bpt, seeds, samples))
         canon: dict[str, Any] = {}
         extrinsic = [(name, m) for name, m in order if getattr(m, "extrinsic", False)]
         if self.canonical and extrinsic and best is not None:
@@ -298,7 +315,7 @@ class BestOfMatcher(DenseMatcher):
                                       {**corr.info, "frame": "canonical forms (info['canonical_frame'])"})
                 consider(f"{name}@canonical", corr)
                 if bps is not None and np.all(np.asarray(corr.target_of) >= 0):
-                    consider(f"{name}@canonical+zoomout", self._polished(corr, bps, bpt, seeds, self.polish_step))
+                    consider(f"{name}@canonical+zoomout", self._polished(corr, bps, bpt, seeds, samples))
         if best is None:
             raise first_error
         mirrored: dict[str, Any] = {}
@@ -308,7 +325,8 @@ class BestOfMatcher(DenseMatcher):
             if region.any():
                 name, area = best[1], float(bps.mass[region].sum())
                 k0 = int(min(self.reorient, bps.k))
-                C, T = polish_map(t, bps, bpt, k0, self.polish_step, seeds, rows=np.flatnonzero(~region))
+                C, T = polish_map(t, bps, bpt, k0, self.polish_step, seeds, rows=np.flatnonzero(~region),
+                                  **self._sampled(samples))
                 after = float(bps.mass[reversing_region(source, target, T, bps)].sum())
                 # the refit is there to remove the mirrored part: one that mirrors more of the shape is no repair
                 mirrored = {"from": name, "area": area, "refit_area": after, "refit_competes": after < area}
@@ -343,9 +361,16 @@ class BestOfMatcher(DenseMatcher):
                 {"from": name, "rotation_degrees": _degrees(R)})
 
     @staticmethod
-    def _polished(corr: Correspondence, bs: Basis, bt: Basis, seeds: np.ndarray | None, step: int) -> Correspondence:
-        """``corr``'s map refined by ZoomOut from its functional map in 20 eigenfunctions to ``bs.k``, ``step``
-        eigenfunctions at a time (:func:`~shape_toolkit.features.basis.polish_map`)."""
-        C, T = polish_map(np.asarray(corr.target_of), bs, bt, POLISH_START, step, seeds)
+    def _sampled(samples: tuple | None) -> dict[str, np.ndarray]:
+        """:func:`~shape_toolkit.features.basis.polish_map`'s arguments for the polishes' source samples."""
+        return {} if samples is None else {"samples": samples[0], "sample_mass": samples[1]}
+
+    def _polished(self, corr: Correspondence, bs: Basis, bt: Basis, seeds: np.ndarray | None,
+                  samples: tuple | None) -> Correspondence:
+        """``corr``'s map refined by ZoomOut from its functional map in 20 eigenfunctions to ``bs.k``, ``polish_step``
+        eigenfunctions at a time, querying the source ``samples`` (ids, mass) before every vertex
+        (:func:`~shape_toolkit.features.basis.polish_map`)."""
+        C, T = polish_map(np.asarray(corr.target_of), bs, bt, POLISH_START, self.polish_step, seeds,
+                          **self._sampled(samples))
         return Correspondence(T, corr.n_target, info={**corr.info, "C": C,
                                                       "polished": f"ZoomOut {POLISH_START} -> {bs.k}"})
