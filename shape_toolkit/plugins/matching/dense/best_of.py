@@ -165,7 +165,9 @@ class BestOfMatcher(DenseMatcher):
     ``same_frame`` degrees, meshes only (``info["estimated_frame"]["same_as_given"]`` otherwise; module docstring).
     ``polish``:
     each extrinsic map is also refined by ZoomOut from 20 to ``polish`` eigenfunctions (0 or None: not),
-    ``polish_step`` at a time. ``canonical``: each extrinsic matcher also runs on the canonical forms (module
+    ``polish_step`` at a time, its iterations querying ``polish_samples`` farthest-point samples of the source (each
+    fitted with its Voronoi cell's area) and then every vertex once (0 or None: every vertex throughout).
+    ``canonical``: each extrinsic matcher also runs on the canonical forms (module
     docstring). ``info["candidates"]`` lists each map's residual (``NAME@frame``: in the estimated frame,
     ``NAME@canonical``: on the canonical forms, ``NAME+zoomout``: polished), ``info["chosen"]`` the one kept,
     ``info["estimated_frame"]`` the estimated frame's rotation in degrees and the verdict it rests on,
