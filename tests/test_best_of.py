@@ -208,7 +208,8 @@ def test_the_polish_samples_are_a_declared_parameter(unequal_limbs):
 
 @pytest.mark.parametrize("bad", [{"polish": 10}, {"polish": -1}, {"reframe": "yes"}, {"same_frame": -1.0},
                                  {"same_frame": 200.0}, {"polish_step": 1.5}, {"reorient": -1},
-                                 {"reorient": 2.5}, {"polish_samples": -1}, {"polish_samples": 2.5}])
+                                 {"reorient": 2.5}, {"polish_samples": -1}, {"polish_samples": 2.5},
+                                 {"polish_samples": 50}])
 def test_bad_reframe_and_polish_are_refused(unequal_limbs, bad):
     a, b = unequal_limbs
     with pytest.raises(ParameterError):

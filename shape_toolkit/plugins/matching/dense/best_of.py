@@ -245,6 +245,10 @@ class BestOfMatcher(DenseMatcher):
         """The map of least residual among the matchers' maps source -> target."""
         if self.polish and self.polish <= POLISH_START:
             raise ParameterError(f"polish must be 0 (none) or above {POLISH_START}, got {self.polish}")
+        if self.polish and self.polish_samples and self.polish_samples < self.polish:
+            raise ParameterError(f"polish_samples must be 0 (every vertex) or at least polish ({self.polish}): a "
+                                 f"{self.polish} x {self.polish} functional map is fitted on them, got "
+                                 f"{self.polish_samples}")
         matchers = self._matchers()
         seeds = check_seeds(seeds, source.n_vertices, target.n_vertices)
         spec_s, spec_t = self._spectrum(source, source_spectrum), self._spectrum(target, target_spectrum)
