@@ -178,36 +178,23 @@ def test_a_frame_estimate_of_a_small_turn_does_not_run_the_shells_twice(unequal_
     assert "shell-alignment@frame" in [c["matcher"] for c in clouds.info["candidates"]]
 
 
-def test_the_polish_step_is_a_declared_parameter(unequal_limbs):
-    """``polish_step`` reaches the polish: one step from 20 to 100 eigenfunctions (a single ZoomOut iteration) gives
-    another map than ten at a time; a step of 0 is refused."""
+@pytest.mark.parametrize("name, values", [("polish_step", (10, 80)), ("polish_samples", (0, 200))])
+def test_the_polish_parameters_reach_the_polish(unequal_limbs, name, values):
+    """``polish_step`` (ten eigenfunctions at a time against one step from 20 to 100) and ``polish_samples`` (every
+    vertex in every iteration against 200 samples) reach the polish and only it: the shells' map is the same, the
+    polished map is not."""
     a, b = unequal_limbs
     bt = _turned(b, 120.0)
-    res = {}
-    for step in (10, 80):
-        corr = create_plugin("dense_matchers", "best-of", canonical=False, polish_step=step).match(a, bt)
-        res[step] = {c["matcher"]: c["residual"] for c in corr.info["candidates"]}
-    assert res[10]["shell-alignment"] == res[80]["shell-alignment"]  # the shells do not see the step
-    assert res[10]["shell-alignment+zoomout"] != res[80]["shell-alignment+zoomout"]
-    with pytest.raises(ParameterError):
-        create_plugin("dense_matchers", "best-of", polish_step=0).match(a, b)
-
-
-def test_the_polish_samples_are_a_declared_parameter(unequal_limbs):
-    """``polish_samples`` reaches the polish (and only it): the shells' map is the same with 0 (every vertex in every
-    iteration) and with 200 samples, the polished map is not."""
-    a, b = unequal_limbs
-    bt = _turned(b, 120.0)
-    res = {}
-    for n in (0, 200):
-        corr = create_plugin("dense_matchers", "best-of", canonical=False, polish_samples=n).match(a, bt)
-        res[n] = {c["matcher"]: c["residual"] for c in corr.info["candidates"]}
-    assert res[0]["shell-alignment"] == res[200]["shell-alignment"]
-    assert res[0]["shell-alignment+zoomout"] != res[200]["shell-alignment+zoomout"]
+    res = []
+    for v in values:
+        corr = create_plugin("dense_matchers", "best-of", canonical=False, **{name: v}).match(a, bt)
+        res.append({c["matcher"]: c["residual"] for c in corr.info["candidates"]})
+    assert res[0]["shell-alignment"] == res[1]["shell-alignment"]
+    assert res[0]["shell-alignment+zoomout"] != res[1]["shell-alignment+zoomout"]
 
 
 @pytest.mark.parametrize("bad", [{"polish": 10}, {"polish": -1}, {"reframe": "yes"}, {"same_frame": -1.0},
-                                 {"same_frame": 200.0}, {"polish_step": 1.5}, {"reorient": -1},
+                                 {"same_frame": 200.0}, {"polish_step": 1.5}, {"polish_step": 0}, {"reorient": -1},
                                  {"reorient": 2.5}, {"polish_samples": -1}, {"polish_samples": 2.5},
                                  {"polish_samples": 50}])
 def test_bad_reframe_and_polish_are_refused(unequal_limbs, bad):
