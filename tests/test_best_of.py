@@ -191,6 +191,11 @@ def test_the_polish_parameters_reach_the_polish(unequal_limbs, name, values):
         res.append({c["matcher"]: c["residual"] for c in corr.info["candidates"]})
     assert res[0]["shell-alignment"] == res[1]["shell-alignment"]
     assert res[0]["shell-alignment+zoomout"] != res[1]["shell-alignment+zoomout"]
+    if name == "polish_samples":  # what the polish did is in the kept map's info when the polished map is kept
+        corr = create_plugin("dense_matchers", "best-of", canonical=False, matchers=["shell-alignment"],
+                             reorient=0, polish_samples=200).match(a, b)
+        assert corr.info["chosen"] == "shell-alignment+zoomout"
+        assert corr.info["polished"].endswith("iterations on 200 source samples, the last on every vertex")
 
 
 @pytest.mark.parametrize("bad", [{"polish": 10}, {"polish": -1}, {"reframe": "yes"}, {"same_frame": -1.0},

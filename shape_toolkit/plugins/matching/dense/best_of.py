@@ -378,5 +378,6 @@ class BestOfMatcher(DenseMatcher):
         (:func:`~shape_toolkit.features.basis.polish_map`)."""
         C, T = polish_map(np.asarray(corr.target_of), bs, bt, POLISH_START, self.polish_step, seeds,
                           **self._sampled(samples))
+        how = "" if samples is None else f", iterations on {len(samples[0])} source samples, the last on every vertex"
         return Correspondence(T, corr.n_target, info={**corr.info, "C": C,
-                                                      "polished": f"ZoomOut {POLISH_START} -> {bs.k}"})
+                                                      "polished": f"ZoomOut {POLISH_START} -> {bs.k}{how}"})
