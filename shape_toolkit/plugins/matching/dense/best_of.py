@@ -256,10 +256,10 @@ class BestOfMatcher(DenseMatcher):
         bs, bt = basis_of(spec_s, k), basis_of(spec_t, k)
         kp = int(min(self.polish, spec_s.k, spec_t.k)) if self.polish else None
         bps, bpt = (basis_of(spec_s, kp), basis_of(spec_t, kp)) if kp and kp > POLISH_START else (None, None)
-        samples = None  # the polishes' source samples and the mass each stands for
+        sampled: dict[str, np.ndarray] = {}  # polish_map's source samples and the mass each stands for
         if bps is not None and self.polish_samples and self.polish_samples < source.n_vertices:
             ids = farthest_point_sampling(source.vertices, int(self.polish_samples))
-            samples = (ids, sample_weights(source.vertices, ids, bps.mass))
+            sampled = {"samples": ids, "sample_mass": sample_weights(source.vertices, ids, bps.mass)}
         # each matcher picks its own spectra among these
         share_s, share_t = shared_spectra(source_spectrum), shared_spectra(target_spectrum)
         best, candidates, skipped, first_error = None, [], [], None
@@ -304,7 +304,7 @@ class BestOfMatcher(DenseMatcher):
                                           {**corr.info, "frame": "estimated (info['estimated_frame'])"})
                 consider(label, corr)
                 if bps is not None and np.all(np.asarray(corr.target_of) >= 0):
-                    consider(f"{label}+zoomout", self._polished(corr, bps, bpt, seeds, samples))
+                    consider(f"{label}+zoomout", self._polished(corr, bps, bpt, seeds, sampled))
         canon: dict[str, Any] = {}
         extrinsic = [(name, m) for name, m in order if getattr(m, "extrinsic", False)]
         if self.canonical and extrinsic and best is not None:
@@ -321,7 +321,7 @@ class BestOfMatcher(DenseMatcher):
                                       {**corr.info, "frame": "canonical forms (info['canonical_frame'])"})
                 consider(f"{name}@canonical", corr)
                 if bps is not None and np.all(np.asarray(corr.target_of) >= 0):
-                    consider(f"{name}@canonical+zoomout", self._polished(corr, bps, bpt, seeds, samples))
+                    consider(f"{name}@canonical+zoomout", self._polished(corr, bps, bpt, seeds, sampled))
         if best is None:
             raise first_error
         mirrored: dict[str, Any] = {}
@@ -332,7 +332,7 @@ class BestOfMatcher(DenseMatcher):
                 name, area = best[1], float(bps.mass[region].sum())
                 k0 = int(min(self.reorient, bps.k))
                 C, T = polish_map(t, bps, bpt, k0, self.polish_step, seeds, rows=np.flatnonzero(~region),
-                                  **self._sampled(samples))
+                                  **sampled)
                 after = float(bps.mass[reversing_region(source, target, T, bps)].sum())
                 # the refit is there to remove the mirrored part: one that mirrors more of the shape is no repair
                 mirrored = {"from": name, "area": area, "refit_area": after, "refit_competes": after < area}
@@ -366,18 +366,12 @@ class BestOfMatcher(DenseMatcher):
         return ((source.with_vertices(Ys @ R.T), target.with_vertices(Yt)),
                 {"from": name, "rotation_degrees": _degrees(R)})
 
-    @staticmethod
-    def _sampled(samples: tuple | None) -> dict[str, np.ndarray]:
-        """:func:`~shape_toolkit.features.basis.polish_map`'s arguments for the polishes' source samples."""
-        return {} if samples is None else {"samples": samples[0], "sample_mass": samples[1]}
-
     def _polished(self, corr: Correspondence, bs: Basis, bt: Basis, seeds: np.ndarray | None,
-                  samples: tuple | None) -> Correspondence:
+                  sampled: dict[str, np.ndarray]) -> Correspondence:
         """``corr``'s map refined by ZoomOut from its functional map in 20 eigenfunctions to ``bs.k``, ``polish_step``
-        eigenfunctions at a time, querying the source ``samples`` (ids, mass) before every vertex
-        (:func:`~shape_toolkit.features.basis.polish_map`)."""
-        C, T = polish_map(np.asarray(corr.target_of), bs, bt, POLISH_START, self.polish_step, seeds,
-                          **self._sampled(samples))
-        how = "" if samples is None else f", iterations on {len(samples[0])} source samples, the last on every vertex"
+        eigenfunctions at a time, querying the source samples of ``sampled`` (polish_map's ``samples`` and
+        ``sample_mass``; empty: every vertex) before every vertex (:func:`~shape_toolkit.features.basis.polish_map`)."""
+        C, T = polish_map(np.asarray(corr.target_of), bs, bt, POLISH_START, self.polish_step, seeds, **sampled)
+        how = f", iterations on {len(sampled['samples'])} source samples, the last on every vertex" if sampled else ""
         return Correspondence(T, corr.n_target, info={**corr.info, "C": C,
                                                       "polished": f"ZoomOut {POLISH_START} -> {bs.k}{how}"})
