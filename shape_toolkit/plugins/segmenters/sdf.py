@@ -86,31 +86,35 @@ def face_sdf(shape: Shape, n_rays: int = 25, cone_angle: float = 2.0 * np.pi / 3
     eps = 1e-6
     best = np.full(m, np.nan)
     best_hits = np.full(m, -1)
-    for side in (-1.0, 1.0):  # inward first (ties keep it), then the flipped normal
-        axis = side * N
-        d = (local[None, :, 0:1] * t1[:, None, :] + local[None, :, 1:2] * (side * t2)[:, None, :]
-             + local[None, :, 2:3] * axis[:, None, :])  # (m, r, 3)
-        o = np.broadcast_to((P + eps * axis)[:, None, :], d.shape)
-        rays = np.concatenate([o, d], axis=2).reshape(-1, 6).astype(np.float32)
-        hit = scene.cast_rays(o3d.core.Tensor(rays), nthreads=1)
-        t = hit["t_hit"].numpy().astype(np.float64).reshape(m, -1)
-        prim = hit["primitive_ids"].numpy().astype(np.int64).reshape(m, -1)
-        valid = np.isfinite(t) & (prim != np.arange(m)[:, None]) & (prim < m)
-        hn = N[np.where(valid, prim, 0)]
-        # the back side of a face (leaving the solid); with flipped normals, the front side
-        valid &= -side * np.einsum("mrk,mrk->mr", d, hn) > 0
-        R = np.where(valid, t, np.nan)
-        nh = valid.sum(axis=1)
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            med = np.nanmedian(R, axis=1)
-            sd = np.nanstd(R, axis=1)
-            keep = np.abs(R - med[:, None]) <= sd[:, None] + 1e-12
-            val = np.nansum(np.where(keep, R, 0.0), axis=1) / np.maximum(keep.sum(axis=1), 1)
-        val[nh == 0] = np.nan
-        better = nh > best_hits
-        best[better] = val[better]
-        best_hits[better] = nh[better]
+    # faces a block at a time: the rays and their temporaries are ~1 KB a face and ray, 40 MB a block
+    step = max(1, 40_000_000 // (1_000 * max(1, len(local))))
+    for a in range(0, m, step):
+        f = np.arange(a, min(m, a + step))
+        for side in (-1.0, 1.0):  # inward first (ties keep it), then the flipped normal
+            axis = side * N[f]
+            d = (local[None, :, 0:1] * t1[f, None, :] + local[None, :, 1:2] * (side * t2[f])[:, None, :]
+                 + local[None, :, 2:3] * axis[:, None, :])  # (block, r, 3)
+            o = np.broadcast_to((P[f] + eps * axis)[:, None, :], d.shape)
+            rays = np.concatenate([o, d], axis=2).reshape(-1, 6).astype(np.float32)
+            hit = scene.cast_rays(o3d.core.Tensor(rays), nthreads=1)
+            t = hit["t_hit"].numpy().astype(np.float64).reshape(len(f), -1)
+            prim = hit["primitive_ids"].numpy().astype(np.int64).reshape(len(f), -1)
+            valid = np.isfinite(t) & (prim != f[:, None]) & (prim < m)
+            hn = N[np.where(valid, prim, 0)]
+            # the back side of a face (leaving the solid); with flipped normals, the front side
+            valid &= -side * np.einsum("mrk,mrk->mr", d, hn) > 0
+            R = np.where(valid, t, np.nan)
+            nh = valid.sum(axis=1)
+            with np.errstate(invalid="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                med = np.nanmedian(R, axis=1)
+                sd = np.nanstd(R, axis=1)
+                keep = np.abs(R - med[:, None]) <= sd[:, None] + 1e-12
+                val = np.nansum(np.where(keep, R, 0.0), axis=1) / np.maximum(keep.sum(axis=1), 1)
+            val[nh == 0] = np.nan
+            better = nh > best_hits[f]
+            best[f[better]] = val[better]
+            best_hits[f[better]] = nh[better]
     return best * diag
 
 
@@ -172,6 +176,20 @@ def normalized_sdf(
         x = np.log1p(log_alpha * x) / np.log1p(log_alpha)
     SDF_CACHE.put(key, x)
     return x.copy()
+
+
+def thickness_affinities(shape: Shape, pairs: np.ndarray, scale: float, floor: float = 1e-3) -> np.ndarray:
+    """Affinities ``(p,)`` in ``[floor, 1]`` of the dual-graph ``pairs`` ``(p, 2)`` that drop where the shape's
+    thickness changes (Shapira et al. 2008: a fin, a wing or a handle is thinner than the body it joins):
+    ``exp(-|x_a - x_b| / (scale * mean |x_a - x_b|))`` with ``x`` the :func:`normalized_sdf` of the faces (scale-free,
+    in ``[0, 1]``); the concavity term's construction (:func:`~shape_toolkit.features.smoothing.concavity_weights`),
+    ``scale`` its ``concavity_scale``. All 1 where the SDF does not change."""
+    x = normalized_sdf(shape)
+    d = np.abs(x[pairs[:, 0]] - x[pairs[:, 1]]) if len(pairs) else np.zeros(0)
+    mu = float(d.mean()) if len(d) else 0.0
+    if not np.isfinite(mu) or mu <= 0:
+        return np.ones(len(d))
+    return np.maximum(np.exp(-d / (float(scale) * mu)), float(floor))
 
 
 def _check_k(k: Any, m: int) -> int:
