@@ -738,6 +738,9 @@ class SegmentationTask(TaskAdapter):
             constraints = clicks_from_segmentation(prepared.target, _truth_faces(prepared)[0], faces=True,
                                                    random_state=random_state, **options["clicks"])
             clicked = 0
+        from shape_toolkit.plugins.segmenters.sdf import SDF_CACHE
+
+        SDF_CACHE.clear()  # each row its own SDF (ncut and sdf share it): a row's time is not the rows' order
         result = method.segment(prepared.target, spectrum=spectra.get("target"), constraints=constraints)
         out: dict[str, Any] = {"labels": result.labels, "clicked_truth": clicked}
         if result.face_labels is not None:
