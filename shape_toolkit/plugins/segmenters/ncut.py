@@ -52,7 +52,8 @@ concavity term, where the balanced Ncut halved the body. Tune half of the runner
 categories): Rand index error 0.143 -> 0.109 (fish 0.411 -> 0.219, airplane 0.172 -> 0.092; the humans 0.104);
 the scale of the term at 0.5 / 1 / 2 / 3 times the concavity term's: 0.139 / 0.109 / 0.107 / 0.127, so the
 shared scale (1) was kept, not fitted. Report half (10 categories), once: 0.072 -> 0.070. An SDF costs a few
-hundred thousand rays (Open3D; about 1 s at 50k faces). ``thickness=False`` is the segmenter before.
+hundred thousand rays (Open3D: about 2 s CPU at 55k faces, and Open3D's import, about 2 s once in a process).
+``thickness=False`` is the segmenter before.
 """
 
 from __future__ import annotations
