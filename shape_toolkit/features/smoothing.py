@@ -44,6 +44,7 @@ from shape_toolkit.errors import ParameterError
 __all__ = [
     "dihedral_edge_costs",
     "concavity_weights",
+    "relative_affinities",
     "dual_adjacency",
     "alpha_expansion",
     "potts_energy",
@@ -119,16 +120,22 @@ def concavity_weights(
     if len(pairs) == 0:
         return pairs, np.zeros(0)
     _, theta, concave = dihedral_edge_costs(shape, pairs, edges, cons)
-    d = np.where(concave, 1.0, cf) * (1.0 - np.cos(theta))
-    sigma = scale * float(d.mean())
-    w = np.exp(-d / sigma) if sigma > 0 else np.ones(len(d))
-    w = np.maximum(w, floor)
+    w = relative_affinities(np.where(concave, 1.0, cf) * (1.0 - np.cos(theta)), scale, floor)
     if length_weighted:
         v = shape.vertices / shape.scale
         ln = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
         if ln.mean() > 0:
             w = w * np.maximum(ln / ln.mean(), 1e-12)
     return pairs, w
+
+
+def relative_affinities(d: np.ndarray, scale: float, floor: float) -> np.ndarray:
+    """Affinities ``(p,)`` in ``[floor, 1]`` of edges with dissimilarities ``d`` ``(p,)`` (>= 0) relative to the
+    shape's own: ``exp(-d / (scale * mean(d)))``, floored; all 1 where ``d`` is 0 everywhere. The construction of
+    :func:`concavity_weights` and of ``ncut``'s thickness term."""
+    sigma = float(scale) * float(d.mean()) if len(d) else 0.0
+    w = np.exp(-d / sigma) if np.isfinite(sigma) and sigma > 0 else np.ones(len(d))
+    return np.maximum(w, float(floor))
 
 
 def dual_adjacency(n_faces: int, pairs: np.ndarray, weights: np.ndarray) -> sp.csr_matrix:

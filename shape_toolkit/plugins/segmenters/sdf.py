@@ -41,7 +41,7 @@ from shape_toolkit.api.params import RANDOM_STATE, Interval, Param, PluginRef
 from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.features.smoothing import EPS, dual_adjacency, dual_graph, smooth_labels
+from shape_toolkit.features.smoothing import EPS, dual_adjacency, dual_graph, relative_affinities, smooth_labels
 from shape_toolkit.plugins._params import CONVEX_FACTOR, N_INIT, N_SEGMENTS, NON_NEGATIVE, POSITIVE, POSITIVE_INT
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter
 from shape_toolkit.plugins.segmenters.kmeans import single_thread
@@ -182,14 +182,10 @@ def thickness_affinities(shape: Shape, pairs: np.ndarray, scale: float, floor: f
     """Affinities ``(p,)`` in ``[floor, 1]`` of the dual-graph ``pairs`` ``(p, 2)`` that drop where the shape's
     thickness changes (Shapira et al. 2008: a fin, a wing or a handle is thinner than the body it joins):
     ``exp(-|x_a - x_b| / (scale * mean |x_a - x_b|))`` with ``x`` the :func:`normalized_sdf` of the faces (scale-free,
-    in ``[0, 1]``); the concavity term's construction (:func:`~shape_toolkit.features.smoothing.concavity_weights`),
+    in ``[0, 1]``); the concavity term's construction (:func:`~shape_toolkit.features.smoothing.relative_affinities`),
     ``scale`` its ``concavity_scale``. All 1 where the SDF does not change."""
     x = normalized_sdf(shape)
-    d = np.abs(x[pairs[:, 0]] - x[pairs[:, 1]]) if len(pairs) else np.zeros(0)
-    mu = float(d.mean()) if len(d) else 0.0
-    if not np.isfinite(mu) or mu <= 0:
-        return np.ones(len(d))
-    return np.maximum(np.exp(-d / (float(scale) * mu)), float(floor))
+    return relative_affinities(np.abs(x[pairs[:, 0]] - x[pairs[:, 1]]) if len(pairs) else np.zeros(0), scale, floor)
 
 
 def _check_k(k: Any, m: int) -> int:
