@@ -152,6 +152,13 @@ def _solver(shape: Shape, method: str) -> Any:
     return GEODESIC_SOLVERS_CACHE.get_or_compute((shape.content_hash, method), lambda: _make_solver(shape, method))
 
 
+def _dijkstra(G: sp.csr_matrix, **kwargs: Any) -> Any:
+    """SciPy's Dijkstra on the symmetric edge graph ``G`` of :func:`_edge_graph`, as a directed graph: the same
+    distances as ``directed=False``, without the transpose SciPy forms on every undirected call (28 % of a
+    single-source run at 5k vertices)."""
+    return _csgraph_dijkstra(G, directed=True, **kwargs)
+
+
 def _make_solver(shape: Shape, method: str) -> Any:
     V = np.ascontiguousarray(shape.vertices, dtype=np.float64)
     if method == "dijkstra":
@@ -193,7 +200,7 @@ def _compute_rows(
         block = sources.size if budget is None else _DIJKSTRA_BLOCK
         for b in range(0, sources.size, block):
             idx = sources[b : b + block]
-            out[b : b + idx.size] = _csgraph_dijkstra(solver, directed=False, indices=idx)
+            out[b : b + idx.size] = _dijkstra(solver, indices=idx)
             if budget is not None:
                 budget.tick(idx.size)
         return out
@@ -333,7 +340,7 @@ def geodesic_distance_to_set(
         raise ParameterError("geodesic_distance_to_set needs at least one source vertex")
     solver = _solver(shape, method)
     if method == "dijkstra":
-        d = np.asarray(_csgraph_dijkstra(solver, directed=False, indices=src, min_only=True))
+        d = np.asarray(_dijkstra(solver, indices=src, min_only=True))
         d[src] = 0.0
         return d
     labels = _components(shape)
@@ -497,11 +504,11 @@ def geodesic_nearest(
     radius = 2.0 * np.sqrt(count / n * area / np.pi) + 2.0 * step if area > 0 else np.inf
     for b in range(0, src.size, chunk):
         block = src[b : b + chunk]
-        rows = np.asarray(_csgraph_dijkstra(G, directed=False, indices=block, limit=radius))
+        rows = np.asarray(_dijkstra(G, indices=block, limit=radius))
         for k in range(block.size):
             fin = np.flatnonzero(np.isfinite(rows[k]))
             if fin.size < count or np.partition(rows[k][fin], count - 1)[count - 1] >= radius:
-                rows[k] = _csgraph_dijkstra(G, directed=False, indices=int(block[k]))
+                rows[k] = _dijkstra(G, indices=int(block[k]))
         fill(rows, block, b)
         if budget is not None:
             budget.tick(block.size)
@@ -563,18 +570,18 @@ def geodesic_farthest_points(
         raise ParameterError(f"n_points must be an integer in [1, {n}], got {n_points!r}")
     G = _solver(shape, "dijkstra")
     if start is None:
-        d0 = _csgraph_dijkstra(G, directed=False, indices=0)
+        d0 = _dijkstra(G, indices=0)
         start = int(np.argmax(np.where(np.isfinite(d0), d0, -1.0)))
     first = int(check_vertex_ids([start], n, "start")[0])
     chosen = [first]
-    rows = [np.asarray(_csgraph_dijkstra(G, directed=False, indices=first), dtype=np.float64)]
+    rows = [np.asarray(_dijkstra(G, indices=first), dtype=np.float64)]
     d = rows[0].copy()
     for _ in range(int(n_points) - 1):
         score = np.where(np.isfinite(d), d, np.finfo(np.float64).max)
         score[chosen] = -1.0
         nxt = int(np.argmax(score))
         chosen.append(nxt)
-        row = np.asarray(_csgraph_dijkstra(G, directed=False, indices=nxt), dtype=np.float64)
+        row = np.asarray(_dijkstra(G, indices=nxt), dtype=np.float64)
         d = np.minimum(d, row)
         if return_distances:
             rows.append(row)
