@@ -256,10 +256,14 @@ class BestOfMatcher(DenseMatcher):
         bs, bt = basis_of(spec_s, k), basis_of(spec_t, k)
         kp = int(min(self.polish, spec_s.k, spec_t.k)) if self.polish else None
         bps, bpt = (basis_of(spec_s, kp), basis_of(spec_t, kp)) if kp and kp > POLISH_START else (None, None)
-        sampled: dict[str, np.ndarray] = {}  # polish_map's source samples and the mass each stands for
-        if bps is not None and self.polish_samples and self.polish_samples < source.n_vertices:
-            ids = farthest_point_sampling(source.vertices, int(self.polish_samples))
-            sampled = {"samples": ids, "sample_mass": sample_weights(source.vertices, ids, bps.mass)}
+        drawn: dict[str, np.ndarray] = {}  # polish_map's source samples and the mass each stands for
+
+        def sampled() -> dict[str, np.ndarray]:  # drawn when a polish or a refit first needs them
+            if not drawn and bps is not None and self.polish_samples and self.polish_samples < source.n_vertices:
+                ids = farthest_point_sampling(source.vertices, int(self.polish_samples))
+                drawn.update(samples=ids, sample_mass=sample_weights(source.vertices, ids, bps.mass))
+            return drawn
+
         # each matcher picks its own spectra among these
         share_s, share_t = shared_spectra(source_spectrum), shared_spectra(target_spectrum)
         best, candidates, skipped, first_error = None, [], [], None
@@ -304,7 +308,7 @@ class BestOfMatcher(DenseMatcher):
                                           {**corr.info, "frame": "estimated (info['estimated_frame'])"})
                 consider(label, corr)
                 if bps is not None and np.all(np.asarray(corr.target_of) >= 0):
-                    consider(f"{label}+zoomout", self._polished(corr, bps, bpt, seeds, sampled))
+                    consider(f"{label}+zoomout", self._polished(corr, bps, bpt, seeds, sampled()))
         canon: dict[str, Any] = {}
         extrinsic = [(name, m) for name, m in order if getattr(m, "extrinsic", False)]
         if self.canonical and extrinsic and best is not None:
@@ -321,7 +325,7 @@ class BestOfMatcher(DenseMatcher):
                                       {**corr.info, "frame": "canonical forms (info['canonical_frame'])"})
                 consider(f"{name}@canonical", corr)
                 if bps is not None and np.all(np.asarray(corr.target_of) >= 0):
-                    consider(f"{name}@canonical+zoomout", self._polished(corr, bps, bpt, seeds, sampled))
+                    consider(f"{name}@canonical+zoomout", self._polished(corr, bps, bpt, seeds, sampled()))
         if best is None:
             raise first_error
         mirrored: dict[str, Any] = {}
@@ -332,7 +336,7 @@ class BestOfMatcher(DenseMatcher):
                 name, area = best[1], float(bps.mass[region].sum())
                 k0 = int(min(self.reorient, bps.k))
                 C, T = polish_map(t, bps, bpt, k0, self.polish_step, seeds, rows=np.flatnonzero(~region),
-                                  **sampled)
+                                  **sampled())
                 after = float(bps.mass[reversing_region(source, target, T, bps)].sum())
                 # the refit is there to remove the mirrored part: one that mirrors more of the shape is no repair
                 mirrored = {"from": name, "area": area, "refit_area": after, "refit_competes": after < area}
