@@ -42,7 +42,12 @@ were within 0.0007; the choice among candidates, simulated on 27 + 30 tuning pai
 0.0001), and it saves a shells run and a polish, about 0.8 s of 5 s CPU at 5k, on most pairs of a capture set-up.
 Meshes only: on point clouds the two runs are not interchangeable (tuning half's clouds, 16 pairs x 4 kinds: the
 second run was better on 2 of 64 -- 0.194 -> 0.157, 0.118 -> 0.041 -- and worse on none, for 0.1-0.5 s CPU), so
-clouds always run again.
+clouds always run again. Nor is the frame run again when the extrinsic matcher's map in the given frame (raw or
+polished) already has a lower residual than the intrinsic map the frame was estimated from (``given_frame_first``,
+meshes only; ``info["estimated_frame"]["not_run"]``): the frame is evidence as good as that map, and the given
+frame's map has beaten it. On the tuning half (dogs, FAUST people 0-1, gorillas to men; clean and with 6 glued
+contacts) the kept map was the same on every pair; the run was left out on 5 of the 9 pairs with a frame to run
+(``auto_speed_notes.md``).
 The polishes' ZoomOut iterations query ``polish_samples`` (1,000) farthest-point samples of the source, each
 fitted with the area of its Voronoi cell, then one iteration queries every vertex. Tuning half: the groups' means
 within 2 % (FAUST people 0-1 0.0214 either way, gorillas to men 0.168 -> 0.172), 20-28 % less CPU; with each sample
@@ -162,7 +167,9 @@ class BestOfMatcher(DenseMatcher):
     of least ZoomOut residual in the first ``k`` Laplace-Beltrami eigenfunctions of both shapes. Intrinsic matchers
     run first. ``reframe``: each extrinsic matcher (``extrinsic = True``) runs a second time with the source turned
     into the frame of the first intrinsic map, when that map keeps orientation and it is turned by at least
-    ``same_frame`` degrees, meshes only (``info["estimated_frame"]["same_as_given"]`` otherwise; module docstring).
+    ``same_frame`` degrees, meshes only (``info["estimated_frame"]["same_as_given"]`` otherwise; module docstring),
+    and, with ``given_frame_first``, only when its map in the given frame has no lower residual than that intrinsic
+    map (meshes only; ``info["estimated_frame"]["not_run"]`` otherwise).
     ``polish``:
     each extrinsic map is also refined by ZoomOut from 20 to ``polish`` eigenfunctions (0 or None: not),
     ``polish_step`` at a time, its iterations querying ``polish_samples`` farthest-point samples of the source (each
@@ -196,12 +203,15 @@ class BestOfMatcher(DenseMatcher):
                           "orientation, when a part of it is mirrored (0 or None: not)"),
         "polish_samples": Param(None, Interval(int, 0), doc="source vertices (farthest point samples) the polish's "
                                 "iterations query before one on every vertex (0 or None: every vertex throughout)"),
+        "given_frame_first": Param(InstanceOf(bool), doc="two meshes: an extrinsic matcher is not run again in the "
+                                   "estimated frame when its map in the given frame already has a lower residual "
+                                   "than the intrinsic map the frame was estimated from"),
     }
 
     def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int = 64,
                  reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
                  same_frame: float = SAME_FRAME_DEGREES, reorient: int | None = REORIENT_START,
-                 polish_samples: int | None = POLISH_SAMPLES):
+                 polish_samples: int | None = POLISH_SAMPLES, given_frame_first: bool = True):
         self.matchers = matchers
         self.k = k
         self.reframe = reframe
@@ -211,6 +221,7 @@ class BestOfMatcher(DenseMatcher):
         self.same_frame = same_frame
         self.reorient = reorient
         self.polish_samples = polish_samples
+        self.given_frame_first = given_frame_first
 
     def _matchers(self) -> list:
         return [_matcher(m) for m in self.matchers]
@@ -300,6 +311,12 @@ class BestOfMatcher(DenseMatcher):
                                                         same)
                 continue
             for label, src in [(name, source)] + ([(f"{name}@frame", turned)] if turned is not None else []):
+                if src is turned and self.given_frame_first and source.is_mesh and target.is_mesh:
+                    given = min(c["residual"] for c in candidates if c["matcher"] in (name, f"{name}+zoomout"))
+                    origin = min(c["residual"] for c in candidates if c["matcher"] == frame["from"])
+                    if given < origin:  # the given frame's map is more plausible than the frame's evidence
+                        frame["not_run"] = {"matcher": name, "given_residual": given, "from_residual": origin}
+                        continue
                 corr = run(label, m, src)
                 if corr is None:
                     continue
