@@ -42,12 +42,12 @@ were within 0.0007; the choice among candidates, simulated on 27 + 30 tuning pai
 0.0001), and it saves a shells run and a polish, about 0.8 s of 5 s CPU at 5k, on most pairs of a capture set-up.
 Meshes only: on point clouds the two runs are not interchangeable (tuning half's clouds, 16 pairs x 4 kinds: the
 second run was better on 2 of 64 -- 0.194 -> 0.157, 0.118 -> 0.041 -- and worse on none, for 0.1-0.5 s CPU), so
-clouds always run again. Nor is the frame run again when the extrinsic matcher's map in the given frame (raw or
-polished) already has a lower residual than the intrinsic map the frame was estimated from (``given_frame_first``,
-meshes only; ``info["estimated_frame"]["not_run"]``): the frame is evidence as good as that map, and the given
-frame's map has beaten it. On the tuning half (dogs, FAUST people 0-1, gorillas to men; clean and with 6 glued
-contacts) the kept map was the same on every pair; the run was left out on 5 of the 9 pairs with a frame to run
-(``auto_speed_notes.md``).
+clouds always run again. ``given_frame_first`` (off by default) also leaves the frame's run out when the extrinsic
+matcher's map in the given frame (raw or polished) already has a lower residual than the intrinsic map the frame was
+estimated from (meshes only; ``info["estimated_frame"]["not_run"]``). Tried for the CPU and not adopted
+(``auto_speed_notes.md``): on the tuning half it changed no kept map but three glued dog pairs' (0.0366 -> 0.0355);
+on the report half it flipped a glued FAUST pair (028 -> 033: 0.024 -> 0.393; glued FAUST 0.044 -> 0.069) and
+saved no CPU on TOSCA, though gorillas to women went 0.423 -> 0.383.
 The polishes' ZoomOut iterations query ``polish_samples`` (1,000) farthest-point samples of the source, each
 fitted with the area of its Voronoi cell, then one iteration queries every vertex. Tuning half: the groups' means
 within 2 % (FAUST people 0-1 0.0214 either way, gorillas to men 0.168 -> 0.172), 20-28 % less CPU; with each sample
@@ -211,7 +211,7 @@ class BestOfMatcher(DenseMatcher):
     def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int = 64,
                  reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
                  same_frame: float = SAME_FRAME_DEGREES, reorient: int | None = REORIENT_START,
-                 polish_samples: int | None = POLISH_SAMPLES, given_frame_first: bool = True):
+                 polish_samples: int | None = POLISH_SAMPLES, given_frame_first: bool = False):
         self.matchers = matchers
         self.k = k
         self.reframe = reframe
