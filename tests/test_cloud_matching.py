@@ -326,3 +326,18 @@ def test_best_of_takes_the_canonical_forms_of_patchy_clouds():
     names = [c["matcher"] for c in corr.info["candidates"]]
     assert any(n.endswith("@canonical") for n in names), (names, corr.info["skipped"])
     assert not any(s["matcher"] == "canonical forms" for s in corr.info["skipped"])
+
+
+def test_vertex_normals_sum_the_faces_in_face_order():
+    """vertex_normals accumulates each vertex's face normals corner by corner in face order (np.bincount), the
+    order of the former np.add.at loop: the same normals bit for bit, on a mesh and on a deformed copy of it."""
+    from shape_toolkit.data.generate import icosphere
+
+    sphere = icosphere(3)
+    F = np.asarray(sphere.faces)
+    for X in (np.asarray(sphere.vertices), np.asarray(sphere.vertices) * np.array([1.0, 2.0, 0.5]) + 0.3):
+        fn = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
+        N = np.zeros_like(X)
+        for c in range(3):
+            np.add.at(N, F[:, c], fn)
+        np.testing.assert_array_equal(vertex_normals(X, F), N / np.linalg.norm(N, axis=1, keepdims=True))

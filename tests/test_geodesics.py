@@ -279,3 +279,19 @@ def test_vertex_ids_refuse_masks_and_can_drop_repeats(sphere3):
     np.testing.assert_array_equal(check_vertex_ids([7, 2, 7, 5, 2.0], 10, unique=True), [7, 2, 5])
     np.testing.assert_array_equal(check_vertex_ids([7, 2, 7], 10), [7, 2, 7])
     assert check_vertex_ids([], 10, unique=True).shape == (0,)
+
+
+def test_dijkstra_runs_on_the_symmetric_edge_graph_as_directed(sphere3):
+    """The edge graph of a mesh and the k-nearest-neighbour graph of a cloud are symmetric, so SciPy's Dijkstra run
+    as directed on them (without the transpose of an undirected run) gives the undirected distances, bit for bit."""
+    from scipy.sparse.csgraph import dijkstra
+
+    rng = np.random.default_rng(0)
+    cloud = Shape(rng.normal(size=(300, 3)))
+    for shape in (sphere3, cloud):
+        G = g._edge_graph(shape)
+        assert abs(G - G.T).max() == 0.0
+        src = np.arange(0, shape.n_vertices, 17)
+        np.testing.assert_array_equal(g._dijkstra(G, indices=src), dijkstra(G, directed=False, indices=src))
+        np.testing.assert_array_equal(g.geodesic_distances(shape, src, method="dijkstra", cache=False),
+                                      dijkstra(G, directed=False, indices=src))

@@ -312,8 +312,9 @@ class BestOfMatcher(DenseMatcher):
                 continue
             for label, src in [(name, source)] + ([(f"{name}@frame", turned)] if turned is not None else []):
                 if src is turned and self.given_frame_first and source.is_mesh and target.is_mesh:
-                    given = min(c["residual"] for c in candidates if c["matcher"] in (name, f"{name}+zoomout"))
-                    origin = min(c["residual"] for c in candidates if c["matcher"] == frame["from"])
+                    given = min((c["residual"] for c in candidates if c["matcher"] in (name, f"{name}+zoomout")),
+                                default=np.inf)  # inf: the matcher gave no map in the given frame
+                    origin = min((c["residual"] for c in candidates if c["matcher"] == frame["from"]), default=np.inf)
                     if given < origin:  # the given frame's map is more plausible than the frame's evidence
                         frame["not_run"] = {"matcher": name, "given_residual": given, "from_residual": origin}
                         continue
