@@ -536,6 +536,8 @@ def nearest_source(shape: Shape, sources: Sequence[int] | np.ndarray) -> np.ndar
     src = np.unique(check_vertex_ids(sources, n, "sources"))
     if src.size == 0:
         raise ParameterError("nearest_source needs at least one source vertex")
+    # undirected, not _dijkstra: the distances would be the same, but which source owns a vertex at equal distance
+    # follows the order edges are relaxed in, and the Voronoi cells callers have seen are kept
     _, _, owner = _csgraph_dijkstra(
         _solver(shape, "dijkstra"), directed=False, indices=src, min_only=True, return_predecessors=True
     )
