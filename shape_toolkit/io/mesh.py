@@ -57,6 +57,7 @@ __all__ = [
     "MAX_VERTICES",
     "MESH_FORMATS",
     "POINT_FORMATS",
+    "declared_vertices",
     "load_shape",
     "save_shape",
 ]
@@ -219,6 +220,38 @@ def save_shape(shape: Shape, path: str | Path, *, binary: bool = False) -> None:
         raise ShapeFileError(p, "STL stores triangles only; this shape is a point cloud")
     with atomic_output(p, f"{ext[1:].upper()} file") as tmp, open(tmp, "wb") as fh:
         writer(fh, shape, binary)
+
+
+def declared_vertices(path: str | Path) -> int | None:
+    """How many vertices (or points) the file's header declares, from its first 64 KiB alone, so that a caller
+    can refuse a shape too large for its memory before anything is read: OFF, PLY and PCD their count; a binary STL
+    half its triangles (a closed mesh's vertices once welded). None where the format has no count in a header (OBJ,
+    XYZ, ascii STL) or the header cannot be read (:func:`load_shape` then says what is wrong)."""
+    p = Path(path)
+    ext = p.suffix.lower()
+    try:
+        size = p.stat().st_size
+        with open(p, "rb") as fh:
+            head = fh.read(65536)
+    except OSError:
+        return None
+    text = head.decode("latin-1")
+    try:
+        if ext == ".off":
+            toks = " ".join(line.split("#")[0] for line in text.splitlines()[:3]).split()
+            return int(toks[1]) if toks and toks[0] in ("OFF", "COFF", "NOFF", "CNOFF") and len(toks) > 2 else None
+        if ext == ".ply":
+            m = re.search(r"^element\s+vertex\s+(\d+)\s*$", text, flags=re.MULTILINE)
+            return int(m.group(1)) if text.startswith("ply") and m else None
+        if ext == ".pcd":
+            m = re.search(r"^POINTS\s+(\d+)\s*$", text, flags=re.MULTILINE | re.IGNORECASE)
+            return int(m.group(1)) if m else None
+        if ext == ".stl" and len(head) >= 84:
+            n = int(np.frombuffer(head, dtype="<u4", count=1, offset=80)[0])
+            return n // 2 if size == 84 + 50 * n else None
+    except (ValueError, IndexError):
+        return None
+    return None
 
 
 # --------------------------------------------------------------------------------------------

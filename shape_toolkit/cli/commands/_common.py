@@ -312,6 +312,65 @@ def time_limit_hint(exc: TimeLimitError, args: argparse.Namespace) -> TimeLimitE
     return TimeLimitError(f"{exc} (--time-limit {args.time_limit:g})")
 
 
+def memory_limit_arg(text: str) -> float:
+    """``--memory-limit GB``: a finite number of gigabytes (10^9 bytes) > 0, returned in bytes."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number of gigabytes > 0, got {text!r}")
+    return value * 1e9
+
+
+def machine_memory() -> int | None:
+    """Bytes of memory this process may use: the machine's physical memory, or the container's limit (cgroup v2
+    ``memory.max``, v1 ``memory.limit_in_bytes``) when lower; None when neither can be read."""
+    found = []
+    try:
+        found.append(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        pass
+    for f in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            found.append(int(Path(f).read_text().strip()))  # "max" (no limit): ValueError
+        except (OSError, ValueError):
+            pass
+    found = [v for v in found if v > 0]
+    return min(found) if found else None
+
+
+def add_memory_limit(p: argparse.ArgumentParser) -> None:
+    """``--memory-limit GB`` (default: :func:`machine_memory`), checked by :func:`check_memory`."""
+    p.add_argument("--memory-limit", type=memory_limit_arg, default=None, metavar="GB",
+                   help="refuse (one line, exit 2) shapes whose declared size needs more memory than this, before "
+                        "reading them (default: this machine's memory)")
+
+
+def check_memory(args: argparse.Namespace, paths: list[str], model: tuple[float, float], work: str) -> None:
+    """Refuse, before reading them, the shapes ``paths`` when the vertices their headers declare
+    (:func:`~shape_toolkit.io.mesh.declared_vertices`; a file without a count does not take part) need more than
+    ``args.memory_limit`` bytes (default :func:`machine_memory`) by ``model``, ``(bytes, bytes per vertex)``
+    measured for the command; ``work`` names what needs it. :class:`ParameterError` naming the options."""
+    from shape_toolkit.io.mesh import declared_vertices
+
+    limit = args.memory_limit if args.memory_limit is not None else machine_memory()
+    counts = [declared_vertices(p) for p in paths]
+    if limit is None or not any(counts):
+        return
+    n = sum(c for c in counts if c)
+    need = model[0] + model[1] * n
+    if need > limit:
+        shapes = " + ".join(f"{c:,}" for c in counts if c)
+        default = "" if args.memory_limit is not None else ", this machine's memory"
+        one = len(paths) == 1
+        raise ParameterError(
+            f"{' and '.join(str(p) for p in paths)} declare{'s' if one else ''} {shapes} vertices, for which {work} "
+            f"would need about {need / 1e9:.1f} GB (measured growth, benchmarks/results/scale_1m.md), above the "
+            f"memory limit of {limit / 1e9:.1f} GB (--memory-limit{default}); remesh {'it' if one else 'them'} "
+            "coarser first (shape-toolkit clean --remesh EDGE_LEN), or raise --memory-limit")
+
+
 def default_output(given: str | None, inp: str | os.PathLike, what: str) -> Path:
     """The output path: ``given``, else ``INPUT_STEM.<what>`` in the current directory (the one
     ``-o`` rule of every command that writes a file)."""

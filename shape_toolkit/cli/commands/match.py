@@ -9,8 +9,10 @@ import time
 from pathlib import Path
 
 from shape_toolkit.cli.commands._common import (
+    add_memory_limit,
     add_quiet,
     check_distinct,
+    check_memory,
     check_output_path,
     check_ply,
     default_output,
@@ -22,7 +24,7 @@ from shape_toolkit.cli.commands._common import (
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.pipeline import PRESETS, load_pipeline
-from shape_toolkit.plugins.matching.multires import PROXY_VERTICES
+from shape_toolkit.plugins.matching.multires import MATCH_MEMORY, PROXY_VERTICES
 from shape_toolkit.results.correspondence import read_seeds, save_map
 
 
@@ -42,6 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also write OUT.source.ply and OUT.target.ply: the target coloured by position, "
                         "the source by the colours pulled back through the map (MeshLab, Open3D)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_memory_limit(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -62,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
         for written in ply_pair(args.ply):
             check_distinct(written, args.source, args.target, args.seeds, str(out))
     pipe = load_pipeline(args.pipeline)
+    check_memory(args, [args.source, args.target], MATCH_MEMORY, "matching them")
     source = load_shape(args.source)
     target = load_shape(args.target)
     seeds = read_seeds(args.seeds, source.n_vertices, target.n_vertices) if args.seeds else None

@@ -11,9 +11,11 @@ import numpy as np
 
 from shape_toolkit.api.registry import create_seeded
 from shape_toolkit.cli.commands._common import (
+    add_memory_limit,
     add_ply,
     add_quiet,
     check_distinct,
+    check_memory,
     check_output_path,
     check_ply,
     declared_spectra,
@@ -60,6 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "else the majority of the face's vertices), PSB .seg format")
     add_ply(p, "the segments (one colour per label)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_memory_limit(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -80,6 +83,9 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(out)
     check_distinct(out, args.shape, args.constraints)
     check_ply(args.ply, args.shape, args.constraints, str(out))
+    from shape_toolkit.plugins.segmenters.multires import SEGMENT_MEMORY
+
+    check_memory(args, [args.shape], SEGMENT_MEMORY, f"segmenting it ({args.method})")
     shape = load_shape(args.shape)
     if args.n_segments is not None:
         params["n_segments"] = args.n_segments

@@ -38,11 +38,16 @@ from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.weightings.cotangent import flat_faces
 from shape_toolkit.validation import check_vertex_ids
 
-__all__ = ["PROXY_VERTICES", "check_proxy_size", "make_proxy", "lift_map", "interpolated_map", "on_surface",
-           "values_from_proxy"]
+__all__ = ["PROXY_VERTICES", "MATCH_MEMORY", "check_proxy_size", "make_proxy", "lift_map", "interpolated_map",
+           "on_surface", "values_from_proxy"]
 
 #: vertices of each proxy; shapes up to 1.5x this are matched directly
 PROXY_VERTICES = 5000
+#: peak memory of ``shape-toolkit match`` through proxies, in bytes: a fixed part and a part per vertex of the two
+#: shapes (the vertices the files declare), from its measured peaks (``benchmarks/results/scale_1m.md``, 2026-12-06:
+#: 552 MB for two shapes of 244,904 vertices, 845 MB for two of 979,610; 0.2 kB more a vertex between them). An
+#: estimate for refusing shapes too large for the memory before reading them (``--memory-limit``), not a bound
+MATCH_MEMORY = (450e6, 200.0)
 #: a proxy triangle whose corners' images are this many times further apart than its corners (in units of the
 #: proxies' spacings) straddles a seam of the map: a continuous map of a near-isometry stretches it about 1x
 SEAM_STRETCH = 3.0

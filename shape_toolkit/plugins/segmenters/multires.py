@@ -23,7 +23,13 @@ from shape_toolkit.plugins.segmenters.constraints import inner_segmentation, rep
 from shape_toolkit.results.labels import ConstraintError, Constraints, constraint_report
 from shape_toolkit.results.segmentation import Segmentation
 
-__all__ = ["segment_through_proxy"]
+__all__ = ["SEGMENT_MEMORY", "segment_through_proxy"]
+
+#: peak memory of ``shape-toolkit segment`` (the default method, through a proxy), in bytes: a fixed part and a part
+#: per vertex the file declares, from its measured peaks (``benchmarks/results/scale_1m.md``, 2026-12-06: 643 MB at
+#: 244,904 vertices, 862 MB at 979,610; 0.3 kB more a vertex between them). An estimate for refusing a shape too
+#: large for the memory before reading it (``--memory-limit``), not a bound
+SEGMENT_MEMORY = (570e6, 300.0)
 
 
 def _proxy_constraints(constraints: Constraints, nearest: np.ndarray) -> Constraints:

@@ -1,0 +1,104 @@
+"""Shapes too large for the memory are refused before they are read (issue 29): the header's declared count
+(``io.mesh.declared_vertices``), the commands' measured memory models and ``--memory-limit``."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shape_toolkit.cli import main
+from shape_toolkit.cli.commands import _common
+from shape_toolkit.data.generate import icosphere
+from shape_toolkit.io.mesh import declared_vertices, save_shape
+from shape_toolkit.plugins.matching.multires import MATCH_MEMORY
+from shape_toolkit.plugins.segmenters.multires import SEGMENT_MEMORY
+
+ROOT = Path(__file__).resolve().parents[1]
+#: a binary PLY header declaring 30M vertices and no body: reading it would fail as truncated
+BIG_HEADER = (b"ply\nformat binary_little_endian 1.0\nelement vertex 30000000\nproperty float x\nproperty float y\n"
+              b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n")
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("mem")
+    s = icosphere(2)
+    out = {}
+    for ext in ("off", "ply", "obj", "stl", "pcd", "xyz"):
+        p = d / f"sphere.{ext}"
+        save_shape(s, p, binary=ext in ("ply", "stl"))
+        out[ext] = p
+    (d / "big.ply").write_bytes(BIG_HEADER)
+    out["big"] = d / "big.ply"
+    return out
+
+
+def test_declared_vertices_reads_the_header_only(files, tmp_path):
+    n = icosphere(2).n_vertices
+    assert declared_vertices(files["off"]) == n
+    assert declared_vertices(files["ply"]) == n
+    assert declared_vertices(files["pcd"]) == n
+    assert declared_vertices(files["stl"]) == icosphere(2).n_faces // 2  # a closed mesh: V = F / 2 + 2
+    assert declared_vertices(files["obj"]) is None and declared_vertices(files["xyz"]) is None
+    assert declared_vertices(files["big"]) == 30_000_000
+    for name, text in [("a.off", "OFF\n# c\n"), ("b.off", "OFF x 3 0\n"), ("c.ply", "ply\nend_header\n"),
+                       ("d.pcd", "POINTS many\n"), ("e.stl", "solid x\n"), ("f.off", "")]:
+        (tmp_path / name).write_text(text)
+        assert declared_vertices(tmp_path / name) is None, name
+    assert declared_vertices(tmp_path / "missing.off") is None
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["match", "{big}", "{off}", "--memory-limit", "3"], ["about 6.5 GB", "3.0 GB (--memory-limit)", "remesh them"]),
+    (["match", "{off}", "{big}", "--memory-limit", "3", "--json"], ["162 + 30,000,000 vertices"]),
+    (["segment", "{big}", "--memory-limit", "2"], ["declares 30,000,000", "9.6 GB", "(ncut)", "remesh it"]),
+])
+def test_a_shape_too_large_for_the_limit_is_refused_before_reading(files, capsys, argv, words):
+    code = main([a.format(**{k: str(v) for k, v in files.items()}) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert "--memory-limit" in err and "shape-toolkit clean --remesh" in err  # the ways out
+    assert "truncated" not in err and "need at least" not in err  # the body was never read
+    for w in words:
+        assert w in err, (w, err)
+
+
+def test_the_default_limit_is_the_machines_memory(files, capsys, monkeypatch):
+    assert (_common.machine_memory() or 0) > 0
+    monkeypatch.setattr(_common, "machine_memory", lambda: 1e9)
+    assert main(["segment", str(files["big"])]) == 2
+    assert "1.0 GB (--memory-limit, this machine's memory)" in capsys.readouterr().err
+    monkeypatch.setattr(_common, "machine_memory", lambda: None)  # unknown: nothing is refused for it
+    assert main(["segment", str(files["big"])]) == 2
+    assert "truncated" in capsys.readouterr().err  # read, and refused by the reader
+
+
+def test_a_shape_within_the_limit_runs(files, tmp_path, capsys):
+    out = tmp_path / "s.labels.txt"
+    assert main(["segment", str(files["off"]), "-k", "3", "--memory-limit", "1", "-o", str(out), "-q"]) == 0
+    assert len(np.loadtxt(out)) == icosphere(2).n_vertices
+
+
+@pytest.mark.parametrize("bad", ["0", "-1", "nan", "inf", "lots"])
+def test_a_bad_memory_limit_is_one_line(files, capsys, bad):
+    assert main(["segment", str(files["off"]), "--memory-limit", bad]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--memory-limit" in err and "gigabytes" in err
+
+
+def test_the_memory_models_follow_the_measured_peaks():
+    """Each model against the peaks of benchmarks/results/scale_1m.md at the two largest sizes (within 10 %): a
+    re-run that moves the memory fails here until the model is measured again."""
+    text = (ROOT / "benchmarks" / "results" / "scale_1m.md").read_text()
+    tables = text.split("## ")
+    match = next(t for t in tables if t.startswith("`shape-toolkit match"))
+    segment = next(t for t in tables if t.startswith("`shape-toolkit segment"))
+    for table, model, shapes in ((match, MATCH_MEMORY, 2), (segment, SEGMENT_MEMORY, 1)):
+        rows = [r.split("|") for r in table.splitlines() if re.match(r"\| \d+ \| [\d,]+ \|", r)]
+        for r in rows[-2:]:
+            n, peak = int(r[2].replace(",", "")), float(r[5])
+            est = (model[0] + model[1] * shapes * n) / 1e6
+            assert abs(est - peak) <= 0.1 * peak, (n, est, peak)
