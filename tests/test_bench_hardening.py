@@ -474,8 +474,6 @@ params = {{ {SEVEN} }}
 
 
 def test_a_grid_bomb_is_refused_before_anything_is_expanded(tmp_path, capsys, monkeypatch):
-    import time
-
     import shape_toolkit.bench.config as config_module
 
     config = _write(tmp_path, BOMB)
@@ -483,10 +481,9 @@ def test_a_grid_bomb_is_refused_before_anything_is_expanded(tmp_path, capsys, mo
     expanded = []
     real = config_module.expand_grid
     monkeypatch.setattr(config_module, "expand_grid", lambda p: expanded.append(p) or real(p))
-    t0 = time.perf_counter()
     with pytest.raises(config_module.ConfigError, match=r"20,000,000 rows .*--max-rows N"):
         config_module.load_config(config, max_rows=config_module.MAX_ROWS)
-    assert not expanded and time.perf_counter() - t0 < 10
+    assert not expanded  # refused from the counts, no grid built
     run = tmp_path / "run"
     assert main(["bench", "run", str(config), "-o", str(run)]) == 2
     err = capsys.readouterr().err.strip()

@@ -5,7 +5,6 @@ finish, and running the same command again resumes."""
 from __future__ import annotations
 
 import errno
-import time
 from pathlib import Path
 
 import numpy as np
@@ -65,14 +64,11 @@ def test_a_scheduler_without_workers_times_out_with_one_line(tmp_path, capsys):
 
     no_workers = {"n_workers": 0, "processes": False, "protocol": "tcp", "host": "127.0.0.1"}
     with LocalCluster(**no_workers, dashboard_address=None) as cluster:
-        t0 = time.monotonic()
         code = _run(tmp_path, tmp_path / "run", "spectral-clustering", "--scheduler", cluster.scheduler_address,
                     "--worker-timeout", "2")
-        waited = time.monotonic() - t0
     assert code == 3
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "no worker" in err, err
-    assert waited < 60  # bounded by the timeout, not forever
     assert read_rows(tmp_path / "run") == []
 
 
