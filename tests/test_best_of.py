@@ -313,3 +313,30 @@ def test_a_refit_that_mirrors_more_does_not_compete(shared_data):
     assert part["refit_area"] > part["area"] and not part["refit_competes"]
     assert not any(c["matcher"].endswith("+reoriented") for c in corr.info["candidates"])
     assert err(corr) < 0.04
+
+
+def test_the_intrinsic_maps_final_zoomout_runs_on_samples_in_auto_only(unequal_limbs):
+    """``fmap-zoomout``'s ``source_samples``: its final ZoomOut's iterations on Voronoi-weighted samples, then one on
+    every vertex. ``best-of`` sets it (:data:`DEFAULT_MATCHERS`), the matcher alone does not; on the sound pair the
+    sampled map is as good as the full one (within 0.005 of sqrt(area)) but not the same computation, and a part
+    (``partial``, the slanted bases) ignores it."""
+    from shape_toolkit.features.basis import ZOOMOUT_SAMPLES
+
+    a, b = unequal_limbs
+    assert create_plugin("dense_matchers", "best-of")._matchers()[0].source_samples == ZOOMOUT_SAMPLES
+    assert create_plugin("dense_matchers", "fmap-zoomout").source_samples is None
+    full = create_plugin("dense_matchers", "fmap-zoomout").match(a, b)
+    sampled = create_plugin("dense_matchers", "fmap-zoomout", source_samples=200).match(a, b)
+    assert not np.array_equal(full.info["C"], sampled.info["C"])
+    assert abs(_error(b, sampled.target_of) - _error(b, full.target_of)) < 0.005
+    assert _error(b, sampled.target_of) < 0.03
+    every = create_plugin("dense_matchers", "fmap-zoomout", source_samples=a.n_vertices).match(a, b)
+    assert np.array_equal(every.target_of, full.target_of)  # as many samples as vertices: every vertex
+    part = a.submesh(np.flatnonzero(a.vertices[:, 0] < np.median(a.vertices[:, 0])))[0]
+    kw = {"partial": True, "area_ratio": 0.5, "hypotheses": [{}]}
+    p0 = create_plugin("dense_matchers", "fmap-zoomout", **kw).match(part, b)
+    p1 = create_plugin("dense_matchers", "fmap-zoomout", source_samples=100, **kw).match(part, b)
+    assert np.array_equal(p0.target_of, p1.target_of)
+    for bad in (-1, 2.5, "many"):
+        with pytest.raises(ParameterError):
+            create_plugin("dense_matchers", "fmap-zoomout", source_samples=bad).match(a, b)

@@ -13,7 +13,7 @@ from shape_toolkit.features.basis import spectral_basis
 from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE, POSITIVE_INT, WEIGHTING
 from shape_toolkit.plugins.descriptors.heat_spectrum import K_PARAM, SignatureSpectrumMixin, own_spectrum
 
-__all__ = ["WKSDescriptor", "wave_kernel_signature"]
+__all__ = ["WKSDescriptor", "wave_kernel_signature", "spectrum_wave_kernel_signature"]
 
 
 def wave_kernel_signature(
@@ -44,6 +44,20 @@ def wave_kernel_signature(
         b = U[s : s + 16384]
         out[s : s + 16384] = (b * b) @ G
     return out / norm[None, :]
+
+
+def spectrum_wave_kernel_signature(
+    spectrum: Spectrum, n_energies: int = 100, variance: float = 7.0, band: float = 1.0,
+) -> np.ndarray:
+    """WKS ``(n, n_energies)`` on the first ``round(band * K)`` (at least 2) of the ``K`` non-null eigenpairs of
+    ``spectrum`` (``band`` 1: every one): ``fmap-zoomout``'s default descriptor, on its own Laplace-Beltrami
+    spectrum (with the mass matrix, which does not depend on the sampling as the ``wks`` plugin's graph
+    spectrum does)."""
+    vals, U = spectral_basis(spectrum)
+    if band < 1.0:
+        K = max(2, int(round(band * vals.size)))
+        vals, U = vals[:K], U[:, :K]
+    return wave_kernel_signature(vals, U, n_energies, variance)
 
 
 class WKSDescriptor(SignatureSpectrumMixin, Descriptor):

@@ -19,6 +19,7 @@ import numpy as np
 
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.api.params import InstanceOf, Interval, ListOf, Param
+from shape_toolkit.core.geometry import sample_weights
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
@@ -30,7 +31,6 @@ from shape_toolkit.features.basis import (
     part_support,
     point_map_within,
     slanted_size,
-    spectral_basis,
     zoomout,
     zoomout_select,
 )
@@ -42,28 +42,14 @@ from shape_toolkit.plugins._params import (
     POSITIVE,
     POSITIVE_INT,
 )
-from shape_toolkit.plugins.descriptors.wks import wave_kernel_signature as _wks
+from shape_toolkit.plugins.descriptors.wks import spectrum_wave_kernel_signature
 from shape_toolkit.plugins.matching.dense.partial_search import part_wave_kernel_signatures
 from shape_toolkit.plugins.matching.descriptors import UsesDescriptor, normalize_columns, shared_spectra
 from shape_toolkit.plugins.matching.validation import check_descriptors, check_seeds
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
-__all__ = ["FmapZoomOutMatcher", "wave_kernel_signature", "part_wave_kernel_signatures"]
-
-def wave_kernel_signature(
-    spectrum: Spectrum, n_energies: int = 100, variance: float = 7.0, band: float = 1.0,
-) -> np.ndarray:
-    """WKS (Aubry et al. 2011) ``(n, n_energies)`` on the first ``round(band * K)`` (at least 2) of the
-    ``K`` non-null eigenpairs of ``spectrum`` (``band`` 1: every one): ``fmap-zoomout``'s default descriptor,
-    on its own Laplace-Beltrami spectrum (with the mass matrix, which does not depend on the sampling as
-    the ``wks`` plugin's graph spectrum does)."""
-    vals, U = spectral_basis(spectrum)
-    if band < 1.0:
-        K = max(2, int(round(band * vals.size)))
-        vals, U = vals[:K], U[:, :K]
-    return _wks(vals, U, n_energies, variance)
-
+__all__ = ["FmapZoomOutMatcher", "part_wave_kernel_signatures"]
 
 #: target functions low-passing the part's image into its support on the whole (:func:`part_support`), where the
 #: final point map of ``partial`` looks; chosen a priori (about the fitted map's size), kept on the tuning half
@@ -90,13 +76,15 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
 
     ``descriptor``/``descriptor_params``: descriptor plugin computed on both shapes (unless the
     caller passes ``source_descriptors``/``target_descriptors``); a name, a ``{plugin, preset,
-    params}`` table or an instance; None (default) is the WKS (:func:`wave_kernel_signature`;
-    ``descriptor_params`` may set ``n_energies`` and ``variance``) on this matcher's own
-    Laplace-Beltrami eigenpairs; ``n_descriptors`` evenly spaced columns are kept. ``k``: size of the
+    params}`` table or an instance; None (default) is the WKS on this matcher's own Laplace-Beltrami eigenpairs
+    (:func:`~shape_toolkit.plugins.descriptors.wks.spectrum_wave_kernel_signature`; ``descriptor_params`` may set
+    ``n_energies`` and ``variance``); ``n_descriptors`` evenly spaced columns are kept. ``k``: size of the
     fitted map; ZoomOut then grows it by ``zoomout_step`` for ``zoomout_iters`` iterations (0: none).
     ``orientation``: ``"preserving"`` (default), ``"reversing"`` or ``"none"`` (weight ``w_orient``).
-    ``zoomout_samples``: farthest-point target vertices matched to inside ZoomOut (None: all). Seeds
-    add one heat-kernel descriptor per seed pair.
+    ``zoomout_samples``: farthest-point target vertices matched to inside ZoomOut (None: all); ``source_samples``:
+    source vertices (farthest points, each weighted by its Voronoi cell) the final ZoomOut's iterations query before
+    one on every vertex (0 or None, the default: every vertex throughout; two whole shapes only; ``best-of`` sets it).
+    Seeds add one heat-kernel descriptor per seed pair.
 
     ``hypotheses``: several fits, each a mapping overriding some of ``k``, the four weights and ``band``
     (the default WKS on the first ``round(band * K)`` of the ``K`` non-null eigenpairs). The one ZoomOut
@@ -141,6 +129,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         "zoomout_iters": Param(Interval(int, 0), doc="ZoomOut iterations (0: off)"),
         "zoomout_step": Param(POSITIVE_INT, doc="eigenfunctions added per ZoomOut iteration"),
         "zoomout_samples": Param(None, POSITIVE_INT, doc="target samples inside ZoomOut (None: all)"),
+        "source_samples": Param(None, Interval(int, 0), doc="source samples of the final ZoomOut iterations (0: all)"),
         "seed_time": Param(POSITIVE, doc="time of the heat-kernel descriptor of each seed pair"),
         "hypotheses": Param(None, ListOf(InstanceOf(dict, name="mapping")), doc="fits tried (None: the default set)"),
         "selection_samples": Param(Interval(int, 10), doc="samples of the residual choosing a hypothesis"),
@@ -166,6 +155,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         zoomout_iters: int = 16,
         zoomout_step: int = 5,
         zoomout_samples: int | None = None,
+        source_samples: int | None = None,
         seed_time: float = 0.01,
         hypotheses: tuple[dict, ...] | list[dict] | None = None,
         selection_samples: int = 500,
@@ -186,6 +176,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         self.zoomout_iters = zoomout_iters
         self.zoomout_step = zoomout_step
         self.zoomout_samples = zoomout_samples
+        self.source_samples = source_samples
         self.seed_time = seed_time
         self.hypotheses = hypotheses
         self.selection_samples = selection_samples
@@ -261,7 +252,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         return default_spec((2 if self.partial else 1) * self.final_basis_size() + 1)
 
     def _descriptor_plugin(self):
-        if self.descriptor is None:  # computed by wave_kernel_signature on this matcher's own spectrum
+        if self.descriptor is None:  # the WKS on this matcher's own spectrum
             return None
         return super()._descriptor_plugin()
 
@@ -352,8 +343,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 if band not in descs and scale is not None:
                     descs[band] = part_wave_kernel_signatures(spec_s, spec_t, scale, **params, band=band)
                 elif band not in descs:
-                    ws = wave_kernel_signature(spec_s, **params, band=band)
-                    descs[band] = (ws, ws if same else wave_kernel_signature(spec_t, **params, band=band))
+                    ws = spectrum_wave_kernel_signature(spec_s, **params, band=band)
+                    descs[band] = (ws, ws if same else spectrum_wave_kernel_signature(spec_t, **params, band=band))
         elif source_descriptors is None or target_descriptors is None:
             desc = self._descriptor_plugin()
             # the descriptor picks its own declared spectrum among what the caller gave
@@ -438,8 +429,12 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
             if progress is not None:
                 progress(f"fmap-zoomout: hypothesis {chosen} {hyps[chosen]} chosen (residuals "
                          + ", ".join(f"{r:.3g}" for r in residuals) + ")")
-        C, T = zoomout(fits[chosen], bs, bt, k_final, self.zoomout_step, None, cols, progress=progress,
-                       scale=scale)
+        rows = weights = None  # the final refinement's iterations on Voronoi-weighted source samples (whole shapes)
+        if scale is None and self.source_samples and self.source_samples < source.n_vertices:
+            rows = shared.samples(source, int(self.source_samples))
+            weights = sample_weights(source.vertices, rows, bs.mass)
+        C, T = zoomout(fits[chosen], bs, bt, k_final, self.zoomout_step, rows, cols, progress=progress, scale=scale,
+                       weights=weights)
         if scale is not None:  # each part vertex to its nearest within the part's support on the whole
             support = part_support(T, bs, bt, 1.0 / scale, SUPPORT_SMOOTHING)
             T = point_map_within(C, bs, bt, support)
