@@ -218,9 +218,6 @@ def zoomout(
 
 #: where a ZoomOut polish of a point map starts (fmap-zoomout's initial size): best-of's and the orientation repair's
 POLISH_START = 20
-#: farthest-point source samples the iterations of a sampled ZoomOut query, each weighted by its Voronoi cell (then
-#: one iteration queries every vertex): best-of's polishes and fmap-zoomout's final refinement
-ZOOMOUT_SAMPLES = 1000
 
 
 def polish_map(

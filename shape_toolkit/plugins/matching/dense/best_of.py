@@ -97,14 +97,7 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.core.surface import cloud_surface, sheet_surface
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.features.basis import (
-    POLISH_START,
-    ZOOMOUT_SAMPLES,
-    Basis,
-    basis_of,
-    map_residual,
-    polish_map,
-)
+from shape_toolkit.features.basis import POLISH_START, Basis, basis_of, map_residual, polish_map
 from shape_toolkit.features.canonical import canonical_form
 from shape_toolkit.plugins.matching.descriptors import resolve_plugin, shared_spectra
 from shape_toolkit.plugins.matching.orientation import orientation_verdict, reversing_region
@@ -121,12 +114,7 @@ __all__ = ["BestOfMatcher", "estimated_frame"]
 REORIENT_START = 10
 
 #: the default of ``polish_samples``: source vertices the polish's iterations query, before one on every vertex
-POLISH_SAMPLES = ZOOMOUT_SAMPLES
-
-#: the default ``matchers``: the intrinsic functional map, its final ZoomOut's iterations on as many Voronoi-weighted
-#: samples as the polishes' (the same maps within 0.0001 of mean error on the tuning half, 0.1-0.2 s less a pair:
-#: benchmarks/results/auto_speed_notes.md), and the extrinsic smooth shells
-DEFAULT_MATCHERS = ({"plugin": "fmap-zoomout", "params": {"source_samples": ZOOMOUT_SAMPLES}}, "shell-alignment")
+POLISH_SAMPLES = 1000
 
 #: the default of ``same_frame``: an estimated frame turned by less than this (degrees) from the given one is the
 #: given one to the shells, whose coarse-to-fine start absorbs the turn (tuning pairs turned by 2-22 degrees: the
@@ -175,8 +163,7 @@ def _matcher(spec: Any) -> Any:
 
 
 class BestOfMatcher(DenseMatcher):
-    """Runs every matcher of ``matchers`` (names, ``{plugin, preset, params}`` tables or instances; default
-    :data:`DEFAULT_MATCHERS`) and keeps the map
+    """Runs every matcher of ``matchers`` (names, ``{plugin, preset, params}`` tables or instances) and keeps the map
     of least ZoomOut residual in the first ``k`` Laplace-Beltrami eigenfunctions of both shapes. Intrinsic matchers
     run first. ``reframe``: each extrinsic matcher (``extrinsic = True``) runs a second time with the source turned
     into the frame of the first intrinsic map, when that map keeps orientation and it is turned by at least
@@ -221,7 +208,7 @@ class BestOfMatcher(DenseMatcher):
                                    "than the intrinsic map the frame was estimated from"),
     }
 
-    def __init__(self, matchers: tuple | list = DEFAULT_MATCHERS, k: int = 64,
+    def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int = 64,
                  reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
                  same_frame: float = SAME_FRAME_DEGREES, reorient: int | None = REORIENT_START,
                  polish_samples: int | None = POLISH_SAMPLES, given_frame_first: bool = False):

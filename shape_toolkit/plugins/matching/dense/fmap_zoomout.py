@@ -83,8 +83,9 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     ``orientation``: ``"preserving"`` (default), ``"reversing"`` or ``"none"`` (weight ``w_orient``).
     ``zoomout_samples``: farthest-point target vertices matched to inside ZoomOut (None: all); ``source_samples``:
     source vertices (farthest points, each weighted by its Voronoi cell) the final ZoomOut's iterations query before
-    one on every vertex (0 or None, the default: every vertex throughout; two whole shapes only; ``best-of`` sets it).
-    Seeds add one heat-kernel descriptor per seed pair.
+    one on every vertex (0 or None, the default: every vertex throughout; two whole shapes only; 5 % less CPU in
+    ``auto``, 5 % worse on FAUST across people: not its default, benchmarks/results/auto_speed_notes.md). Seeds add
+    one heat-kernel descriptor per seed pair.
 
     ``hypotheses``: several fits, each a mapping overriding some of ``k``, the four weights and ``band``
     (the default WKS on the first ``round(band * K)`` of the ``K`` non-null eigenpairs). The one ZoomOut
