@@ -42,19 +42,37 @@ def test_declared_vertices_reads_the_header_only(files, tmp_path):
     assert declared_vertices(files["ply"]) == n
     assert declared_vertices(files["pcd"]) == n
     assert declared_vertices(files["stl"]) == icosphere(2).n_faces // 2  # a closed mesh: V = F / 2 + 2
-    assert declared_vertices(files["obj"]) is None and declared_vertices(files["xyz"]) is None
+    assert declared_vertices(files["obj"]) == n and declared_vertices(files["xyz"]) == n  # counted lines
     assert declared_vertices(files["big"]) == 30_000_000
     for name, text in [("a.off", "OFF\n# c\n"), ("b.off", "OFF x 3 0\n"), ("c.ply", "ply\nend_header\n"),
-                       ("d.pcd", "POINTS many\n"), ("e.stl", "solid x\n"), ("f.off", "")]:
+                       ("d.pcd", "POINTS many\n"), ("e.stl", "solid x\nvertex 0 0 0\n"), ("f.off", "")]:
         (tmp_path / name).write_text(text)
         assert declared_vertices(tmp_path / name) is None, name
     assert declared_vertices(tmp_path / "missing.off") is None
+
+
+@pytest.mark.parametrize("text", [
+    "v 0 0 0\nvt 0 0\nvn 0 0 1\nv 1 0 0\r\nf 1 2 3\n# v 9 9 9\nv 2 0 0",  # no final newline, CRLF, a comment
+    "\n\nv 0 0 0\n\nv 1 1 1\n", "", "vvv\nv\tx\n",
+])
+@pytest.mark.parametrize("block", [1, 2, 3, 5, 1 << 24])
+def test_lines_are_counted_across_block_boundaries(tmp_path, text, block):
+    """The OBJ and XYZ counts of :func:`declared_vertices` read the file in blocks: a line start split between two
+    blocks counts once, whatever the block size (against a count of the whole text)."""
+    from shape_toolkit.io.mesh import _count_lines
+
+    p = tmp_path / "t.obj"
+    p.write_bytes(text.encode())
+    lines = text.replace("\r", "").split("\n")
+    assert _count_lines(p, b"v ", block) == sum(line.startswith("v ") for line in lines)
+    assert _count_lines(p, None, block) == len(lines) - (text.endswith("\n") or not text)
 
 
 @pytest.mark.parametrize("argv, words", [
     (["match", "{big}", "{off}", "--memory-limit", "3"], ["about 6.5 GB", "3.0 GB (--memory-limit)", "remesh them"]),
     (["match", "{off}", "{big}", "--memory-limit", "3", "--json"], ["162 + 30,000,000 vertices"]),
     (["segment", "{big}", "--memory-limit", "2"], ["declares 30,000,000", "9.6 GB", "(ncut)", "remesh it"]),
+    (["segment", "{obj}", "--memory-limit", "0.1"], ["declares 162 vertices", "0.6 GB", "0.1 GB"]),  # counted lines
 ])
 def test_a_shape_too_large_for_the_limit_is_refused_before_reading(files, capsys, argv, words):
     code = main([a.format(**{k: str(v) for k, v in files.items()}) for a in argv])

@@ -223,10 +223,11 @@ def save_shape(shape: Shape, path: str | Path, *, binary: bool = False) -> None:
 
 
 def declared_vertices(path: str | Path) -> int | None:
-    """How many vertices (or points) the file's header declares, from its first 64 KiB alone, so that a caller
-    can refuse a shape too large for its memory before anything is read: OFF, PLY and PCD their count; a binary STL
-    half its triangles (a closed mesh's vertices once welded). None where the format has no count in a header (OBJ,
-    XYZ, ascii STL) or the header cannot be read (:func:`load_shape` then says what is wrong)."""
+    """How many vertices (or points) the file declares, so that a caller can refuse a shape too large for its memory
+    before anything is parsed: OFF, PLY and PCD the count in their header (its first 64 KiB); a binary STL half its
+    triangles (a closed mesh's vertices once welded); OBJ its ``v`` lines and XYZ its lines, counted in 16 MiB blocks
+    (no array of the file's size). None for an ascii STL, or where the header cannot be read (:func:`load_shape`
+    then says what is wrong)."""
     p = Path(path)
     ext = p.suffix.lower()
     try:
@@ -249,9 +250,24 @@ def declared_vertices(path: str | Path) -> int | None:
         if ext == ".stl" and len(head) >= 84:
             n = int(np.frombuffer(head, dtype="<u4", count=1, offset=80)[0])
             return n // 2 if size == 84 + 50 * n else None
-    except (ValueError, IndexError):
+        if ext in (".obj", ".xyz"):
+            return _count_lines(p, b"v " if ext == ".obj" else None)
+    except (ValueError, IndexError, OSError):
         return None
     return None
+
+
+def _count_lines(p: Path, prefix: bytes | None, block_bytes: int = 1 << 24) -> int:
+    """Lines of ``p`` starting with ``prefix`` (None: every line), read in blocks of ``block_bytes``."""
+    pattern = b"\n" + (prefix or b"")
+    count, tail, end = 0, b"\n", b""  # the first line starts after an implied newline
+    with open(p, "rb") as fh:
+        while block := fh.read(block_bytes):
+            text = tail + block
+            count += text.count(pattern)
+            tail = text[-(len(pattern) - 1):] if len(pattern) > 1 else b""  # too short to hold a whole match
+            end = block[-1:]
+    return count - (prefix is None and end == b"\n")  # a final newline starts no line
 
 
 # --------------------------------------------------------------------------------------------
