@@ -1,4 +1,4 @@
-"""Shapes too large for the memory are refused before they are read (issue 29): the header's declared count
+"""Shapes too large for the memory are refused before they are read (issue 29): the vertices a file declares
 (``io.mesh.declared_vertices``), the commands' measured memory models and ``--memory-limit``."""
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def files(tmp_path_factory) -> dict[str, Path]:
     return out
 
 
-def test_declared_vertices_reads_the_header_only(files, tmp_path):
+def test_declared_vertices_of_every_format(files, tmp_path):
     n = icosphere(2).n_vertices
     assert declared_vertices(files["off"]) == n
     assert declared_vertices(files["ply"]) == n
