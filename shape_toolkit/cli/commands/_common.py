@@ -312,15 +312,12 @@ def time_limit_hint(exc: TimeLimitError, args: argparse.Namespace) -> TimeLimitE
     return TimeLimitError(f"{exc} (--time-limit {args.time_limit:g})")
 
 
+_gigabytes_arg = number_arg("a finite number of gigabytes > 0", 0.0, open_low=True)
+
+
 def memory_limit_arg(text: str) -> float:
     """``--memory-limit GB``: a finite number of gigabytes (10^9 bytes) > 0, returned in bytes."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not (np.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number of gigabytes > 0, got {text!r}")
-    return value * 1e9
+    return _gigabytes_arg(text) * 1e9
 
 
 def machine_memory() -> int | None:
@@ -348,7 +345,7 @@ def add_memory_limit(p: argparse.ArgumentParser) -> None:
 
 
 def check_memory(args: argparse.Namespace, paths: list[str], model: tuple[float, float], work: str) -> None:
-    """Refuse, before reading them, the shapes ``paths`` when the vertices their headers declare
+    """Refuse, before reading them, the shapes ``paths`` when the vertices their files declare
     (:func:`~shape_toolkit.io.mesh.declared_vertices`; a file without a count does not take part) need more than
     ``args.memory_limit`` bytes (default :func:`machine_memory`) by ``model``, ``(bytes, bytes per vertex)``
     measured for the command; ``work`` names what needs it. :class:`ParameterError` naming the options."""
