@@ -11,6 +11,7 @@ import pytest
 
 from shape_toolkit.cli import main
 from shape_toolkit.cli.commands import _common
+from shape_toolkit.core.spectrum import SPECTRUM_MEMORY
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.io.mesh import declared_vertices, save_shape
 from shape_toolkit.plugins.matching.multires import MATCH_MEMORY
@@ -73,6 +74,9 @@ def test_lines_are_counted_across_block_boundaries(tmp_path, text, block):
     (["match", "{off}", "{big}", "--memory-limit", "3", "--json"], ["162 + 30,000,000 vertices"]),
     (["segment", "{big}", "--memory-limit", "2"], ["declares 30,000,000", "9.6 GB", "(ncut)", "remesh it"]),
     (["segment", "{obj}", "--memory-limit", "0.1"], ["declares 162 vertices", "0.6 GB", "0.1 GB"]),  # counted lines
+    (["spectrum", "{big}", "-k", "100", "--memory-limit", "8"],
+     ["declares 30,000,000", "138.1 GB", "computing 100 eigenpairs (-k)", "spectrum_memory.md", "remesh it"]),
+    (["spectrum", "{big}", "--memory-limit", "32"], ["63.7 GB", "computing 20 eigenpairs"]),  # the default -k 20
 ])
 def test_a_shape_too_large_for_the_limit_is_refused_before_reading(files, capsys, argv, words):
     code = main([a.format(**{k: str(v) for k, v in files.items()}) for a in argv])
@@ -120,3 +124,16 @@ def test_the_memory_models_follow_the_measured_peaks():
             n, peak = int(r[2].replace(",", "")), float(r[5])
             est = (model[0] + model[1] * shapes * n) / 1e6
             assert abs(est - peak) <= 0.1 * peak, (n, est, peak)
+
+
+def test_the_spectrum_memory_model_follows_the_measured_peaks():
+    """``SPECTRUM_MEMORY`` against every row of benchmarks/results/spectrum_memory.md (80k-500k vertices, k = 20-200)
+    within 15 %, the estimate's share of a peak recomputed here from the row's n and k, not read from the table."""
+    text = (ROOT / "benchmarks" / "results" / "spectrum_memory.md").read_text()
+    rows = [r.split("|") for r in text.splitlines() if re.match(r"\| [\d,]+ \| \d+ \|", r)]
+    assert len(rows) >= 6
+    a, b, c = SPECTRUM_MEMORY
+    for r in rows:
+        n, k, peak = int(r[1].replace(",", "")), int(r[2]), float(r[5])
+        est = (a + n * (b + c * k)) / 1e6
+        assert abs(est - peak) <= 0.15 * peak, (n, k, est, peak)

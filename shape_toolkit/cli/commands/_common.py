@@ -344,11 +344,13 @@ def add_memory_limit(p: argparse.ArgumentParser) -> None:
                         "reading them (default: this machine's memory)")
 
 
-def check_memory(args: argparse.Namespace, paths: list[str], model: tuple[float, float], work: str) -> None:
+def check_memory(args: argparse.Namespace, paths: list[str], model: tuple[float, float], work: str,
+                 measured: str = "scale_1m.md") -> None:
     """Refuse, before reading them, the shapes ``paths`` when the vertices their files declare
     (:func:`~shape_toolkit.io.mesh.declared_vertices`; a file without a count does not take part) need more than
     ``args.memory_limit`` bytes (default :func:`machine_memory`) by ``model``, ``(bytes, bytes per vertex)``
-    measured for the command; ``work`` names what needs it. :class:`ParameterError` naming the options."""
+    measured for the command (in ``benchmarks/results/<measured>``); ``work`` names what needs it.
+    :class:`ParameterError` naming the options."""
     from shape_toolkit.io.mesh import declared_vertices
 
     limit = args.memory_limit if args.memory_limit is not None else machine_memory()
@@ -363,7 +365,7 @@ def check_memory(args: argparse.Namespace, paths: list[str], model: tuple[float,
         one = len(paths) == 1
         raise ParameterError(
             f"{' and '.join(str(p) for p in paths)} declare{'s' if one else ''} {shapes} vertices, for which {work} "
-            f"would need about {need / 1e9:.1f} GB (measured growth, benchmarks/results/scale_1m.md), above the "
+            f"would need about {need / 1e9:.1f} GB (measured growth, benchmarks/results/{measured}), above the "
             f"memory limit of {limit / 1e9:.1f} GB (--memory-limit{default}); remesh {'it' if one else 'them'} "
             "coarser first (shape-toolkit clean --remesh EDGE_LEN), or raise --memory-limit")
 

@@ -7,8 +7,10 @@ import argparse
 import numpy as np
 
 from shape_toolkit.cli.commands._common import (
+    add_memory_limit,
     add_ply,
     add_quiet,
+    check_memory,
     check_output_path,
     check_ply,
     parse_params,
@@ -19,7 +21,7 @@ from shape_toolkit.cli.commands._common import (
     status,
     write_ply,
 )
-from shape_toolkit.core.spectrum import LAPLACIANS, compute_spectrum
+from shape_toolkit.core.spectrum import LAPLACIANS, SPECTRUM_MEMORY, compute_spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.spectra import build_graph
@@ -44,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--eigenvector", type=int, default=1, metavar="I",
                    help="0-based index of the eigenvector written by --ply (default 1: the Fiedler vector)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_memory_limit(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -54,6 +57,9 @@ def run(args: argparse.Namespace) -> int:
     if args.ply and not 0 <= args.eigenvector < args.k:
         raise ParameterError(f"--eigenvector {args.eigenvector}: must be in [0, {args.k - 1}] (-k {args.k})")
     params = parse_params(args.param, plugin_class("weightings", args.weighting))
+    a, b, c = SPECTRUM_MEMORY
+    check_memory(args, [args.shape], (a, b + c * max(args.k, 0)), f"computing {args.k} eigenpairs (-k)",
+                 "spectrum_memory.md")
     shape = load_shape(args.shape)
     with status(args, f"spectrum: {args.k} eigenpairs of {shape.n_vertices} vertices"):
         graph = build_graph(
