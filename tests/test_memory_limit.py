@@ -14,8 +14,8 @@ from shape_toolkit.cli.commands import _common
 from shape_toolkit.core.spectrum import SPECTRUM_MEMORY
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.io.mesh import declared_vertices, save_shape
-from shape_toolkit.plugins.matching.multires import MATCH_MEMORY
-from shape_toolkit.plugins.segmenters.multires import SEGMENT_MEMORY
+from shape_toolkit.plugins.matching.multires import MATCH_FULL_MEMORY, MATCH_MEMORY, match_memory
+from shape_toolkit.plugins.segmenters.multires import SEGMENT_FULL_MEMORY, SEGMENT_MEMORY, segment_memory
 
 ROOT = Path(__file__).resolve().parents[1]
 #: a binary PLY header declaring 30M vertices and no body: reading it would fail as truncated
@@ -73,10 +73,15 @@ def test_lines_are_counted_across_block_boundaries(tmp_path, text, block):
     (["match", "{big}", "{off}", "--memory-limit", "3"], ["about 6.5 GB", "3.0 GB (--memory-limit)", "remesh them"]),
     (["match", "{off}", "{big}", "--memory-limit", "3", "--json"], ["162 + 30,000,000 vertices"]),
     (["segment", "{big}", "--memory-limit", "2"], ["declares 30,000,000", "9.6 GB", "(ncut)", "remesh it"]),
-    (["segment", "{obj}", "--memory-limit", "0.1"], ["declares 162 vertices", "0.6 GB", "0.1 GB"]),  # counted lines
+    # counted lines; a shape this small is segmented directly (the full-resolution model)
+    (["segment", "{obj}", "--memory-limit", "0.1"], ["declares 162 vertices", "0.2 GB", "0.1 GB"]),
     (["spectrum", "{big}", "-k", "100", "--memory-limit", "8"],
-     ["declares 30,000,000", "138.1 GB", "computing 100 eigenpairs (-k)", "spectrum_memory.md", "remesh it"]),
+     ["declares 30,000,000", "138.1 GB", "computing 100 eigenpairs (-k)", "memory_models.md", "remesh it"]),
     (["spectrum", "{big}", "--memory-limit", "32"], ["63.7 GB", "computing 20 eigenpairs"]),  # the default -k 20
+    (["match", "{off}", "{big}", "--proxy", "0", "--memory-limit", "100"],
+     ["267.1 GB", "matching them at full resolution (--proxy 0)", "memory_models.md"]),
+    (["segment", "{big}", "--proxy", "0", "--memory-limit", "50"],
+     ["at full resolution: --proxy 0", "memory_models.md"]),
 ])
 def test_a_shape_too_large_for_the_limit_is_refused_before_reading(files, capsys, argv, words):
     code = main([a.format(**{k: str(v) for k, v in files.items()}) for a in argv])
@@ -126,14 +131,35 @@ def test_the_memory_models_follow_the_measured_peaks():
             assert abs(est - peak) <= 0.1 * peak, (n, est, peak)
 
 
-def test_the_spectrum_memory_model_follows_the_measured_peaks():
-    """``SPECTRUM_MEMORY`` against every row of benchmarks/results/spectrum_memory.md (80k-500k vertices, k = 20-200)
-    within 15 %, the estimate's share of a peak recomputed here from the row's n and k, not read from the table."""
-    text = (ROOT / "benchmarks" / "results" / "spectrum_memory.md").read_text()
-    rows = [r.split("|") for r in text.splitlines() if re.match(r"\| [\d,]+ \| \d+ \|", r)]
-    assert len(rows) >= 6
+def test_the_full_resolution_and_spectrum_models_follow_the_measured_peaks():
+    """``SPECTRUM_MEMORY``, ``match_memory(n, 0)`` and ``segment_memory(n, 0)`` against every row of
+    benchmarks/results/memory_models.md within 15 %, each estimate recomputed here from the row's sizes (not read
+    from the table): a re-run that moves the peaks fails here until the models are fitted again."""
+    text = (ROOT / "benchmarks" / "results" / "memory_models.md").read_text()
+    sections = {t.split("`")[1].split()[1]: t for t in text.split("\n## ")[1:]}
+    assert set(sections) == {"spectrum", "match", "segment"}
     a, b, c = SPECTRUM_MEMORY
-    for r in rows:
-        n, k, peak = int(r[1].replace(",", "")), int(r[2]), float(r[5])
-        est = (a + n * (b + c * k)) / 1e6
-        assert abs(est - peak) <= 0.15 * peak, (n, k, est, peak)
+    for name, section in sections.items():
+        rows = [[x.strip() for x in r.strip().strip("|").split("|")] for r in section.splitlines()
+                if re.match(r"\| [\d,]+ [|+]", r)]
+        assert len(rows) >= 3, name
+        for r in rows:
+            n = sum(int(x.replace(",", "")) for x in r[0].split("+"))
+            if name == "spectrum":
+                est, peak = a + n * (b + c * int(r[1])), float(r[4])
+            else:
+                est, peak = (match_memory if name == "match" else segment_memory)(n, 0), float(r[3])
+            assert abs(est / 1e6 - peak) <= 0.15 * peak, (name, r, est / 1e6)
+
+
+def test_the_models_choose_the_path_the_command_takes():
+    """Through proxies the proxy path's model, never below a direct match or segmentation of the largest shapes
+    matched or segmented directly (1.5 proxy vertices); at full resolution (proxy 0 or None) the full model."""
+    n = 2_000_000
+    assert match_memory(n, 5000) == MATCH_MEMORY[0] + MATCH_MEMORY[1] * n
+    assert match_memory(n, 0) == match_memory(n, None) == MATCH_FULL_MEMORY[0] + MATCH_FULL_MEMORY[1] * n
+    assert match_memory(n, 200_000) == MATCH_FULL_MEMORY[0] + MATCH_FULL_MEMORY[1] * 600_000  # proxies of 200k
+    assert match_memory(n, 5000) < match_memory(n, 200_000) < match_memory(n, 0)
+    assert segment_memory(n, 5000) == SEGMENT_MEMORY[0] + SEGMENT_MEMORY[1] * n
+    assert segment_memory(n, 0) == segment_memory(n, n) == SEGMENT_FULL_MEMORY[0] + SEGMENT_FULL_MEMORY[1] * n
+    assert segment_memory(n, 500_000) == SEGMENT_FULL_MEMORY[0] + SEGMENT_FULL_MEMORY[1] * 750_000

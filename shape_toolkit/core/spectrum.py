@@ -38,7 +38,7 @@ __all__ = [
 
 LAPLACIANS = ("combinatorial", "normalized", "random-walk")
 #: peak memory of ``shape-toolkit spectrum`` in bytes, ``a + n (b + c k)`` for ``n`` vertices and ``k`` eigenpairs:
-#: ``(a, b, c)`` fitted to its measured peaks (``benchmarks/results/spectrum_memory.md``, 2026-12-06: cotangent
+#: ``(a, b, c)`` fitted to its measured peaks (``benchmarks/results/memory_models.md``, 2026-12-06: cotangent
 #: weighting, 80k-500k vertices, k = 20-200; every row within 11 %). An estimate for refusing a shape too large for
 #: the memory before reading it (``--memory-limit``), not a bound
 SPECTRUM_MEMORY = (77e6, 1500.0, 31.0)

@@ -24,7 +24,7 @@ from shape_toolkit.cli.commands._common import (
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.pipeline import PRESETS, load_pipeline
-from shape_toolkit.plugins.matching.multires import MATCH_MEMORY, PROXY_VERTICES
+from shape_toolkit.plugins.matching.multires import PROXY_VERTICES, match_memory
 from shape_toolkit.results.correspondence import read_seeds, save_map
 
 
@@ -65,7 +65,9 @@ def run(args: argparse.Namespace) -> int:
         for written in ply_pair(args.ply):
             check_distinct(written, args.source, args.target, args.seeds, str(out))
     pipe = load_pipeline(args.pipeline)
-    check_memory(args, [args.source, args.target], MATCH_MEMORY, "matching them")
+    check_memory(args, [args.source, args.target], lambda n: match_memory(n, args.proxy),
+                 "matching them" if args.proxy else "matching them at full resolution (--proxy 0)",
+                 "scale_1m.md" if args.proxy else "memory_models.md")
     source = load_shape(args.source)
     target = load_shape(args.target)
     seeds = read_seeds(args.seeds, source.n_vertices, target.n_vertices) if args.seeds else None

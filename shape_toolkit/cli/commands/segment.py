@@ -83,9 +83,11 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(out)
     check_distinct(out, args.shape, args.constraints)
     check_ply(args.ply, args.shape, args.constraints, str(out))
-    from shape_toolkit.plugins.segmenters.multires import SEGMENT_MEMORY
+    from shape_toolkit.plugins.segmenters.multires import segment_memory
 
-    check_memory(args, [args.shape], SEGMENT_MEMORY, f"segmenting it ({args.method})")
+    check_memory(args, [args.shape], lambda n: segment_memory(n, args.proxy),
+                 f"segmenting it ({args.method}{'' if args.proxy else ', at full resolution: --proxy 0'})",
+                 "scale_1m.md" if args.proxy else "memory_models.md")
     shape = load_shape(args.shape)
     if args.n_segments is not None:
         params["n_segments"] = args.n_segments

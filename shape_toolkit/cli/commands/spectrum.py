@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     params = parse_params(args.param, plugin_class("weightings", args.weighting))
     a, b, c = SPECTRUM_MEMORY
     check_memory(args, [args.shape], (a, b + c * max(args.k, 0)), f"computing {args.k} eigenpairs (-k)",
-                 "spectrum_memory.md")
+                 "memory_models.md")
     shape = load_shape(args.shape)
     with status(args, f"spectrum: {args.k} eigenpairs of {shape.n_vertices} vertices"):
         graph = build_graph(

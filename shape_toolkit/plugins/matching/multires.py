@@ -38,8 +38,8 @@ from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.plugins.weightings.cotangent import flat_faces
 from shape_toolkit.validation import check_vertex_ids
 
-__all__ = ["PROXY_VERTICES", "MATCH_MEMORY", "check_proxy_size", "make_proxy", "lift_map", "interpolated_map",
-           "on_surface", "values_from_proxy"]
+__all__ = ["PROXY_VERTICES", "MATCH_MEMORY", "MATCH_FULL_MEMORY", "match_memory", "check_proxy_size", "make_proxy",
+           "lift_map", "interpolated_map", "on_surface", "values_from_proxy"]
 
 #: vertices of each proxy; shapes up to 1.5x this are matched directly
 PROXY_VERTICES = 5000
@@ -48,6 +48,9 @@ PROXY_VERTICES = 5000
 #: 552 MB for two shapes of 244,904 vertices, 845 MB for two of 979,610; 0.2 kB more a vertex between them). An
 #: estimate for refusing shapes too large for the memory before reading them (``--memory-limit``), not a bound
 MATCH_MEMORY = (450e6, 200.0)
+#: the same at full resolution (``--proxy 0``; pipeline ``auto``): 100 MB + 8.9 kB a vertex of the two shapes, from its
+#: measured peaks (``benchmarks/results/memory_models.md``, 2026-12-06: 2 x 20k to 2 x 80k vertices)
+MATCH_FULL_MEMORY = (100e6, 8900.0)
 #: a proxy triangle whose corners' images are this many times further apart than its corners (in units of the
 #: proxies' spacings) straddles a seam of the map: a continuous map of a near-isometry stretches it about 1x
 SEAM_STRETCH = 3.0
@@ -71,6 +74,15 @@ def _canonical(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     first = np.argmin(G, axis=1)
     G = np.stack([G[np.arange(len(G)), (first + j) % 3] for j in range(3)], axis=1)
     return np.asarray(V, dtype=np.float64)[order], G[np.lexsort(G.T[::-1])].astype(np.int32)
+
+
+def match_memory(n: int, proxy: int | None) -> float:
+    """Estimated peak bytes of ``shape-toolkit match`` on two shapes of ``n`` vertices in all: at full resolution
+    (``proxy`` 0 or None: :data:`MATCH_FULL_MEMORY`), or through proxies of ``proxy`` vertices (:data:`MATCH_MEMORY`,
+    and never less than a full-resolution match of two shapes of 1.5 ``proxy`` vertices, the largest matched
+    directly)."""
+    full = MATCH_FULL_MEMORY[0] + MATCH_FULL_MEMORY[1] * (min(n, 3 * proxy) if proxy else n)
+    return max(MATCH_MEMORY[0] + MATCH_MEMORY[1] * n, full) if proxy else full
 
 
 def check_proxy_size(n_vertices: object) -> int:

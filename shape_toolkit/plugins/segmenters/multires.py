@@ -23,13 +23,26 @@ from shape_toolkit.plugins.segmenters.constraints import inner_segmentation, rep
 from shape_toolkit.results.labels import ConstraintError, Constraints, constraint_report
 from shape_toolkit.results.segmentation import Segmentation
 
-__all__ = ["SEGMENT_MEMORY", "segment_through_proxy"]
+__all__ = ["SEGMENT_MEMORY", "SEGMENT_FULL_MEMORY", "segment_memory", "segment_through_proxy"]
 
 #: peak memory of ``shape-toolkit segment`` (the default method, through a proxy), in bytes: a fixed part and a part
 #: per vertex the file declares, from its measured peaks (``benchmarks/results/scale_1m.md``, 2026-12-06: 643 MB at
 #: 244,904 vertices, 862 MB at 979,610; 0.3 kB more a vertex between them). An estimate for refusing a shape too
 #: large for the memory before reading it (``--memory-limit``), not a bound
 SEGMENT_MEMORY = (570e6, 300.0)
+#: the same at full resolution (``--proxy 0``): 180 MB + 3 kB a vertex, from its measured peaks (``memory_models.md``,
+#: 2026-12-06: 80k to 500k vertices)
+SEGMENT_FULL_MEMORY = (180e6, 3000.0)
+
+
+def segment_memory(n: int, proxy: int | None) -> float:
+    """Estimated peak bytes of ``shape-toolkit segment`` (the default method) on a shape of ``n`` vertices: at full
+    resolution (``proxy`` 0 or None, or ``n`` at most 1.5 ``proxy``: :data:`SEGMENT_FULL_MEMORY`), or through a proxy
+    (:data:`SEGMENT_MEMORY`, and never less than segmenting 1.5 ``proxy`` vertices directly)."""
+    a, b = SEGMENT_FULL_MEMORY
+    if not proxy or n <= 1.5 * proxy:
+        return a + b * n
+    return max(SEGMENT_MEMORY[0] + SEGMENT_MEMORY[1] * n, a + b * 1.5 * proxy)
 
 
 def _proxy_constraints(constraints: Constraints, nearest: np.ndarray) -> Constraints:

@@ -1,0 +1,141 @@
+"""Peak memory of the commands whose ``--memory-limit`` uses a model fitted here, measured as a user runs them, and
+each model's estimate beside each measurement.
+
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/memory_models.py --workdir DIR \\
+        [--output benchmarks/results/memory_models.md]
+
+TOSCA cat0 and cat1 (``$TOOLKIT_DATA/tosca5k``, or ``../shared/data``) with every triangle split s x s
+(``subdivide``), written to ``DIR`` as binary PLY. Each row runs one command in a fresh child process, one after the
+other; CPU seconds (user + system) and peak RSS come from ``wait4``:
+
+- ``shape-toolkit spectrum cat0 -k K -o OUT.npz`` (cotangent weighting), s = 4, 7, 10 (79,970 to 499,802
+  vertices), k = 20, 100, 200: ``core.spectrum.SPECTRUM_MEMORY``, ``a + n (b + c k)``;
+- ``shape-toolkit match cat0 cat1 --proxy 0`` (pipeline ``auto`` at full resolution), s = 2, 3, 4 (2 x 19,994 to
+  2 x 79,970 vertices): ``plugins.matching.multires.MATCH_FULL_MEMORY``, ``a + b n`` for the two shapes' n;
+- ``shape-toolkit segment cat0 --proxy 0`` (``ncut``, 6 segments, full resolution), s = 4, 7, 10:
+  ``plugins.segmenters.multires.SEGMENT_FULL_MEMORY``, ``a + b n``.
+
+Each model is also fitted to its rows by least squares (printed beside the shipped constants). The proxy path's
+models (``MATCH_MEMORY``, ``SEGMENT_MEMORY``) come from ``scale_1m.py``. About 12 minutes.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+DATA = Path(os.environ.get("TOOLKIT_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+
+
+def run_cli(args: list[str]) -> dict:
+    """CPU s, wall s and peak RSS (MB, 10^6 bytes) of ``shape-toolkit ARGS -q`` in a fresh process."""
+    t0 = time.perf_counter()
+    p = subprocess.Popen([sys.executable, "-m", "shape_toolkit", *args, "-q"], stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE)
+    err = p.stderr.read()
+    _, status, ru = os.wait4(p.pid, 0)
+    rc = os.waitstatus_to_exitcode(status)
+    if rc != 0:
+        raise SystemExit(f"{' '.join(args)}: exit {rc}: {err.decode()[-500:]}")
+    return {"cpu": ru.ru_utime + ru.ru_stime, "wall": time.perf_counter() - t0, "peak": ru.ru_maxrss * 1024 / 1e6}
+
+
+def mesh(work: Path, name: str, s: int) -> tuple[Path, int]:
+    """TOSCA ``name`` split ``s`` x ``s``, written once to ``work``; its path and vertex count."""
+    from shape_toolkit.data.corruptions import subdivide
+    from shape_toolkit.io.mesh import declared_vertices, load_shape, save_shape
+
+    p = work / f"{name}_s{s}.ply"
+    if not p.exists():
+        save_shape(subdivide(load_shape(DATA / "tosca5k" / f"{name}.off"), splits=s)[0], p, binary=True)
+    return p, int(declared_vertices(p))
+
+
+def fit(X: list[list[float]], peaks: list[float]) -> np.ndarray:
+    """Least-squares coefficients of bytes = X @ coef."""
+    return np.linalg.lstsq(np.asarray(X, float), np.asarray(peaks) * 1e6, rcond=None)[0]
+
+
+def table(rows: list[dict], head: str) -> list[str]:
+    cols = head.count("|") + 6
+    out = [f"| {head} | CPU s | wall s | peak MB | model MB | model / peak |", "|" + "---|" * cols]
+    for r in rows:
+        out.append(f"| {r['label']} | {r['cpu']:.1f} | {r['wall']:.1f} | {r['peak']:.0f} | {r['model'] / 1e6:.0f} | "
+                   f"{r['model'] / 1e6 / r['peak']:.2f} |")
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--workdir", type=Path, required=True)
+    ap.add_argument("--output", type=Path, default=Path(__file__).resolve().parent / "results" / "memory_models.md")
+    a = ap.parse_args()
+    from shape_toolkit.core.spectrum import SPECTRUM_MEMORY
+    from shape_toolkit.plugins.matching.multires import MATCH_FULL_MEMORY
+    from shape_toolkit.plugins.segmenters.multires import SEGMENT_FULL_MEMORY
+
+    a.workdir.mkdir(parents=True, exist_ok=True)
+    out = a.workdir / "out"
+    spec, match, seg = [], [], []
+    for s in (4, 7, 10):
+        p, n = mesh(a.workdir, "cat0", s)
+        for k in (20, 100, 200):
+            r = run_cli(["spectrum", str(p), "-k", str(k), "-o", f"{out}.npz"])
+            sa, sb, sc = SPECTRUM_MEMORY
+            spec.append({**r, "n": n, "k": k, "label": f"{n:,} | {k}", "model": sa + n * (sb + sc * k)})
+            print(f"spectrum n={n} k={k}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
+    for s in (2, 3, 4):
+        (p, n), (q, m) = mesh(a.workdir, "cat0", s), mesh(a.workdir, "cat1", s)
+        r = run_cli(["match", str(p), str(q), "--proxy", "0", "-o", f"{out}.map.txt"])
+        match.append({**r, "n": n + m, "label": f"{n:,} + {m:,}", "model": MATCH_FULL_MEMORY[0] + MATCH_FULL_MEMORY[1]
+                      * (n + m)})
+        print(f"match --proxy 0 n={n}+{m}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
+    for s in (4, 7, 10):
+        p, n = mesh(a.workdir, "cat0", s)
+        r = run_cli(["segment", str(p), "-k", "6", "--proxy", "0", "-o", f"{out}.labels.txt"])
+        seg.append({**r, "n": n, "label": f"{n:,}", "model": SEGMENT_FULL_MEMORY[0] + SEGMENT_FULL_MEMORY[1] * n})
+        print(f"segment --proxy 0 n={n}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
+    fs = fit([[1, r["n"], r["n"] * r["k"]] for r in spec], [r["peak"] for r in spec])
+    fm = fit([[1, r["n"]] for r in match], [r["peak"] for r in match])
+    fg = fit([[1, r["n"]] for r in seg], [r["peak"] for r in seg])
+    lines = [
+        "# Peak memory of `spectrum`, `match --proxy 0` and `segment --proxy 0` (the models of `--memory-limit`)",
+        "",
+        "Regenerate with:", "",
+        "    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/memory_models.py --workdir /tmp/memory_models",
+        "",
+        "TOSCA cat0 (and cat1) with every triangle split s x s, each command in a fresh process per row, one BLAS "
+        "thread; CPU and peak RSS from `wait4`. `model` is the estimate `--memory-limit` compares with the limit "
+        "before reading the files (the proxy path's models are fitted in `scale_1m.md`).", "",
+        "## `shape-toolkit spectrum MESH -k K` (cotangent weighting)", "",
+        f"`core.spectrum.SPECTRUM_MEMORY`: bytes = a + n (b + c k), shipped a = {SPECTRUM_MEMORY[0] / 1e6:.0f} MB, "
+        f"b = {SPECTRUM_MEMORY[1]:.0f}, c = {SPECTRUM_MEMORY[2]:.1f}; least squares on these rows: a = "
+        f"{fs[0] / 1e6:.0f} MB, b = {fs[1]:.0f}, c = {fs[2]:.1f}.", "",
+        *table(spec, "n | k"), "",
+        "## `shape-toolkit match A B --proxy 0` (`auto` at full resolution)", "",
+        f"`plugins.matching.multires.MATCH_FULL_MEMORY`: bytes = a + b n (n: both shapes' vertices), shipped a = "
+        f"{MATCH_FULL_MEMORY[0] / 1e6:.0f} MB, b = {MATCH_FULL_MEMORY[1]:.0f}; least squares: a = {fm[0] / 1e6:.0f} "
+        f"MB, b = {fm[1]:.0f}.", "",
+        *table(match, "n (source + target)"), "",
+        "## `shape-toolkit segment MESH --proxy 0` (`ncut`, 6 segments, full resolution)", "",
+        f"`plugins.segmenters.multires.SEGMENT_FULL_MEMORY`: bytes = a + b n, shipped a = "
+        f"{SEGMENT_FULL_MEMORY[0] / 1e6:.0f} MB, b = {SEGMENT_FULL_MEMORY[1]:.0f}; least squares: a = "
+        f"{fg[0] / 1e6:.0f} MB, b = {fg[1]:.0f}.", "",
+        *table(seg, "n"),
+    ]
+    a.output.write_text("\n".join(lines) + "\n")
+    print(f"wrote {a.output}")
+
+
+if __name__ == "__main__":
+    main()
