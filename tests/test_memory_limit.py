@@ -81,7 +81,7 @@ def test_lines_are_counted_across_block_boundaries(tmp_path, text, block):
     (["match", "{off}", "{big}", "--proxy", "0", "--memory-limit", "100"],
      ["267.1 GB", "matching them at full resolution (--proxy 0)", "memory_models.md"]),
     (["segment", "{big}", "--proxy", "0", "--memory-limit", "50"],
-     ["at full resolution: --proxy 0", "memory_models.md"]),
+     ["90.2 GB", "at full resolution: --proxy 0", "memory_models.md"]),
 ])
 def test_a_shape_too_large_for_the_limit_is_refused_before_reading(files, capsys, argv, words):
     code = main([a.format(**{k: str(v) for k, v in files.items()}) for a in argv])
