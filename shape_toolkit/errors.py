@@ -57,19 +57,23 @@ COMPONENT_OPTIONS = (
 
 class DisconnectedGraphError(ToolkitError):
     """A graph has several connected components where one is required; the message names the sizes
-    and every option (largest component, per-component spectra, cleanup)."""
+    and every option (largest component, per-component spectra, cleanup); ``shape`` names the shape when known."""
 
-    def __init__(self, n_components: int, sizes: list[int]):
+    shape: str | None = None
+
+    def __init__(self, n_components: int, sizes: list[int], shape: str | None = None):
         self.n_components = int(n_components)
         self.sizes = [int(s) for s in sizes]
+        self.shape = shape
         shown = ", ".join(str(s) for s in self.sizes[:8]) + (", ..." if len(self.sizes) > 8 else "")
+        of = f" of {shape}" if shape else ""
         super().__init__(
-            f"the shape graph has {self.n_components} connected components (sizes {shown}); a spectrum "
+            f"the shape graph{of} has {self.n_components} connected components (sizes {shown}); a spectrum "
             f"of a disconnected graph mixes its components. Options: {COMPONENT_OPTIONS}"
         )
 
     def __reduce__(self):  # picklable (Dask workers send errors back)
-        return (type(self), (self.n_components, self.sizes))
+        return (type(self), (self.n_components, self.sizes, self.shape))
 
 
 class NumericallyDisconnectedGraphError(DisconnectedGraphError):

@@ -28,7 +28,7 @@ from shape_toolkit.core import graph as _graph
 from shape_toolkit.core.graph import ShapeGraph
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import LAPLACIANS, Spectrum, compute_spectrum, is_cached
-from shape_toolkit.errors import ParameterError, PluginError, SpectrumMismatchError
+from shape_toolkit.errors import DisconnectedGraphError, ParameterError, PluginError, SpectrumMismatchError
 
 __all__ = [
     "build_graph",
@@ -164,8 +164,14 @@ class SpectrumSpec:
         solved afresh, e.g. to time the solver); ``k`` capped by :func:`spectrum_k` (with
         ``components='largest'``, at the largest component's size); ``solver``: another eigensolver than
         the default (see :func:`~shape_toolkit.core.spectrum.compute_spectrum`)."""
-        graph, kwargs = self._request(shape, components)
-        return compute_spectrum(graph, **kwargs, solver=solver, cache=cache)
+        try:
+            graph, kwargs = self._request(shape, components)
+            return compute_spectrum(graph, **kwargs, solver=solver, cache=cache)
+        except DisconnectedGraphError as exc:  # named: of two shapes matched, the user learns which one it is
+            if type(exc) is not DisconnectedGraphError or exc.shape:
+                raise
+            named = f"{shape.name!r} ({shape.n_vertices} vertices)"
+            raise DisconnectedGraphError(exc.n_components, exc.sizes, named) from None
 
     def is_cached(self, shape: Shape, *, components: str = "raise", solver: Any = None) -> bool:
         """Whether :meth:`compute` with these arguments would be served from the cache."""

@@ -565,3 +565,25 @@ def test_core_build_graph_leaves_the_callers_weighting_object_alone():
     before = scheme.get_params()
     g = core_build_graph(icosphere(2), scheme, name="intrinsic-delaunay", connectivity="knn", n_neighbors=7)
     assert scheme.get_params() == before and g.params["n_neighbors"] == 7
+
+
+def test_a_disconnected_shape_is_named_in_the_error(tmp_path, capsys):
+    """Of two shapes matched, the one in pieces is named (by the spectrum spec that computes its spectrum), at full
+    resolution and through proxies (the proxy's name says so); the named error still pickles (Dask workers)."""
+    from shape_toolkit.cli import main
+    from shape_toolkit.io.mesh import save_shape
+    from shape_toolkit.spectra import default_spec
+
+    s = icosphere(3)
+    two = Shape(np.vstack([s.vertices, s.vertices + 3.0]), np.vstack([s.faces, s.faces + s.n_vertices]), "two")
+    with pytest.raises(DisconnectedGraphError, match=r"of 'two' \(1284 vertices\) has 2 connected components") as e:
+        default_spec(10).compute(two)
+    back = pickle.loads(pickle.dumps(e.value))
+    assert str(back) == str(e.value) and back.shape == e.value.shape and back.sizes == [642, 642]
+    save_shape(s, tmp_path / "one.off")
+    save_shape(two, tmp_path / "two.off")
+    for extra, named in (["--proxy", "0"], "'two' (1284 vertices)"), (["--proxy", "500"], "'two-proxy'"):
+        code = main(["match", str(tmp_path / "one.off"), str(tmp_path / "two.off"), "-q", "-o",
+                     str(tmp_path / "m.txt"), *extra])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1 and f"of {named}" in err and "clean --keep-largest" in err, err
