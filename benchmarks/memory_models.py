@@ -80,9 +80,9 @@ def main() -> None:
     ap.add_argument("--workdir", type=Path, required=True)
     ap.add_argument("--output", type=Path, default=Path(__file__).resolve().parent / "results" / "memory_models.md")
     a = ap.parse_args()
-    from shape_toolkit.core.spectrum import SPECTRUM_MEMORY
-    from shape_toolkit.plugins.matching.multires import MATCH_FULL_MEMORY
-    from shape_toolkit.plugins.segmenters.multires import SEGMENT_FULL_MEMORY
+    from shape_toolkit.core.spectrum import SPECTRUM_MEMORY, spectrum_memory
+    from shape_toolkit.plugins.matching.multires import MATCH_FULL_MEMORY, match_memory
+    from shape_toolkit.plugins.segmenters.multires import SEGMENT_FULL_MEMORY, segment_memory
 
     a.workdir.mkdir(parents=True, exist_ok=True)
     out = a.workdir / "out"
@@ -91,19 +91,17 @@ def main() -> None:
         p, n = mesh(a.workdir, "cat0", s)
         for k in (20, 100, 200):
             r = run_cli(["spectrum", str(p), "-k", str(k), "-o", f"{out}.npz"])
-            sa, sb, sc = SPECTRUM_MEMORY
-            spec.append({**r, "n": n, "k": k, "label": f"{n:,} | {k}", "model": sa + n * (sb + sc * k)})
+            spec.append({**r, "n": n, "k": k, "label": f"{n:,} | {k}", "model": spectrum_memory(n, k)})
             print(f"spectrum n={n} k={k}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
     for s in (2, 3, 4):
         (p, n), (q, m) = mesh(a.workdir, "cat0", s), mesh(a.workdir, "cat1", s)
         r = run_cli(["match", str(p), str(q), "--proxy", "0", "-o", f"{out}.map.txt"])
-        match.append({**r, "n": n + m, "label": f"{n:,} + {m:,}", "model": MATCH_FULL_MEMORY[0] + MATCH_FULL_MEMORY[1]
-                      * (n + m)})
+        match.append({**r, "n": n + m, "label": f"{n:,} + {m:,}", "model": match_memory(n + m, 0)})
         print(f"match --proxy 0 n={n}+{m}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
     for s in (4, 7, 10):
         p, n = mesh(a.workdir, "cat0", s)
         r = run_cli(["segment", str(p), "-k", "6", "--proxy", "0", "-o", f"{out}.labels.txt"])
-        seg.append({**r, "n": n, "label": f"{n:,}", "model": SEGMENT_FULL_MEMORY[0] + SEGMENT_FULL_MEMORY[1] * n})
+        seg.append({**r, "n": n, "label": f"{n:,}", "model": segment_memory(n, 0)})
         print(f"segment --proxy 0 n={n}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
     fs = fit([[1, r["n"], r["n"] * r["k"]] for r in spec], [r["peak"] for r in spec])
     fm = fit([[1, r["n"]] for r in match], [r["peak"] for r in match])

@@ -25,6 +25,7 @@ from shape_toolkit.validation import atomic_output
 __all__ = [
     "LAPLACIANS",
     "SPECTRUM_MEMORY",
+    "spectrum_memory",
     "Spectrum",
     "laplacian_matrix",
     "compute_spectrum",
@@ -42,6 +43,13 @@ LAPLACIANS = ("combinatorial", "normalized", "random-walk")
 #: weighting, 80k-500k vertices, k = 20-200; every row within 11 %). An estimate for refusing a shape too large for
 #: the memory before reading it (``--memory-limit``), not a bound
 SPECTRUM_MEMORY = (77e6, 1500.0, 31.0)
+
+
+def spectrum_memory(n: int, k: int) -> float:
+    """Estimated peak bytes of ``shape-toolkit spectrum`` for ``k`` eigenpairs of ``n`` vertices
+    (:data:`SPECTRUM_MEMORY`)."""
+    a, b, c = SPECTRUM_MEMORY
+    return a + n * (b + c * max(k, 0))
 _CACHE_VERSION = "3"  # 3: each cache file carries its key, verified on read
 
 

@@ -344,12 +344,12 @@ def add_memory_limit(p: argparse.ArgumentParser) -> None:
                         "reading them (default: this machine's memory)")
 
 
-def check_memory(args: argparse.Namespace, paths: list[str], model: tuple[float, float] | Callable[[int], float],
-                 work: str, measured: str = "scale_1m.md") -> None:
+def check_memory(args: argparse.Namespace, paths: list[str], model: Callable[[int], float], work: str,
+                 measured: str = "scale_1m.md") -> None:
     """Refuse, before reading them, the shapes ``paths`` when the vertices their files declare
     (:func:`~shape_toolkit.io.mesh.declared_vertices`; a file without a count does not take part) need more than
-    ``args.memory_limit`` bytes (default :func:`machine_memory`) by ``model``, ``(bytes, bytes per vertex)`` or a
-    function of the vertices in all giving bytes, measured for the command (in ``benchmarks/results/<measured>``);
+    ``args.memory_limit`` bytes (default :func:`machine_memory`) by ``model``, the bytes the command needs for
+    that many vertices in all, measured (in ``benchmarks/results/<measured>``);
     ``work`` names what needs it. :class:`ParameterError` naming the options."""
     from shape_toolkit.io.mesh import declared_vertices
 
@@ -358,7 +358,7 @@ def check_memory(args: argparse.Namespace, paths: list[str], model: tuple[float,
     if limit is None or not any(counts):
         return
     n = sum(c for c in counts if c)
-    need = model(n) if callable(model) else model[0] + model[1] * n
+    need = model(n)
     if need > limit:
         shapes = " + ".join(f"{c:,}" for c in counts if c)
         default = "" if args.memory_limit is not None else ", this machine's memory"

@@ -21,7 +21,7 @@ from shape_toolkit.cli.commands._common import (
     status,
     write_ply,
 )
-from shape_toolkit.core.spectrum import LAPLACIANS, SPECTRUM_MEMORY, compute_spectrum
+from shape_toolkit.core.spectrum import LAPLACIANS, compute_spectrum, spectrum_memory
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.spectra import build_graph
@@ -57,8 +57,7 @@ def run(args: argparse.Namespace) -> int:
     if args.ply and not 0 <= args.eigenvector < args.k:
         raise ParameterError(f"--eigenvector {args.eigenvector}: must be in [0, {args.k - 1}] (-k {args.k})")
     params = parse_params(args.param, plugin_class("weightings", args.weighting))
-    a, b, c = SPECTRUM_MEMORY
-    check_memory(args, [args.shape], (a, b + c * max(args.k, 0)), f"computing {args.k} eigenpairs (-k)",
+    check_memory(args, [args.shape], lambda n: spectrum_memory(n, args.k), f"computing {args.k} eigenpairs (-k)",
                  "memory_models.md")
     shape = load_shape(args.shape)
     with status(args, f"spectrum: {args.k} eigenpairs of {shape.n_vertices} vertices"):
