@@ -72,15 +72,15 @@ def test_lines_are_counted_across_block_boundaries(tmp_path, text, block):
 @pytest.mark.parametrize("argv, words", [
     (["match", "{big}", "{off}", "--memory-limit", "3"], ["about 6.5 GB", "3.0 GB (--memory-limit)", "remesh them"]),
     (["match", "{off}", "{big}", "--memory-limit", "3", "--json"], ["162 + 30,000,000 vertices"]),
-    (["segment", "{big}", "--memory-limit", "2"], ["declares 30,000,000", "9.6 GB", "(ncut)", "remesh it"]),
+    (["segment", "{big}", "-k", "4", "--memory-limit", "2"], ["declares 30,000,000", "9.6 GB", "(ncut)", "remesh it"]),
     # counted lines; a shape this small is segmented directly (the full-resolution model)
-    (["segment", "{obj}", "--memory-limit", "0.1"], ["declares 162 vertices", "0.2 GB", "0.1 GB"]),
+    (["segment", "{obj}", "-k", "4", "--memory-limit", "0.1"], ["declares 162 vertices", "0.2 GB", "0.1 GB"]),
     (["spectrum", "{big}", "-k", "100", "--memory-limit", "8"],
      ["declares 30,000,000", "138.1 GB", "computing 100 eigenpairs (-k)", "memory_models.md", "remesh it"]),
     (["spectrum", "{big}", "--memory-limit", "32"], ["63.7 GB", "computing 20 eigenpairs"]),  # the default -k 20
     (["match", "{off}", "{big}", "--proxy", "0", "--memory-limit", "100"],
      ["267.1 GB", "matching them at full resolution (--proxy 0)", "memory_models.md"]),
-    (["segment", "{big}", "--proxy", "0", "--memory-limit", "50"],
+    (["segment", "{big}", "-k", "4", "--proxy", "0", "--memory-limit", "50"],
      ["90.2 GB", "at full resolution: --proxy 0", "memory_models.md"]),
 ])
 def test_a_shape_too_large_for_the_limit_is_refused_before_reading(files, capsys, argv, words):
@@ -93,13 +93,32 @@ def test_a_shape_too_large_for_the_limit_is_refused_before_reading(files, capsys
         assert w in err, (w, err)
 
 
+def test_segment_without_k_is_refused_before_reading(files, capsys):
+    """A segmenter that needs the number of segments, given none, is refused before the file is read (the 30M-vertex
+    header-only file would fail on reading, or on the memory limit, were it reached); wrappers answer for theirs."""
+    from shape_toolkit.api.registry import create_plugin
+    from shape_toolkit.plugins.segmenters.per_component import PerComponent
+
+    big = str(files["big"])
+    for argv in (["segment", big], ["segment", big, "--method", "csc", "--memory-limit", "1"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "needs the number of segments: add -k N" in err, err
+    ncut = create_plugin("segmenters", "ncut")
+    assert ncut.lacks_n_segments() and PerComponent(ncut).lacks_n_segments()
+    assert create_plugin("segmenters", "smoothed", base="ncut").lacks_n_segments()
+    assert not create_plugin("segmenters", "smoothed", base="ncut", n_segments=3).lacks_n_segments()
+    assert not create_plugin("segmenters", "ncut", n_segments=3).lacks_n_segments()
+    assert not create_plugin("segmenters", "eigvec-gmm").lacks_n_segments()  # it chooses the number
+
+
 def test_the_default_limit_is_the_machines_memory(files, capsys, monkeypatch):
     assert (_common.machine_memory() or 0) > 0
     monkeypatch.setattr(_common, "machine_memory", lambda: 1e9)
-    assert main(["segment", str(files["big"])]) == 2
+    assert main(["segment", str(files["big"]), "-k", "4"]) == 2
     assert "1.0 GB (--memory-limit, this machine's memory)" in capsys.readouterr().err
     monkeypatch.setattr(_common, "machine_memory", lambda: None)  # unknown: nothing is refused for it
-    assert main(["segment", str(files["big"])]) == 2
+    assert main(["segment", str(files["big"]), "-k", "4"]) == 2
     assert "truncated" in capsys.readouterr().err  # read, and refused by the reader
 
 

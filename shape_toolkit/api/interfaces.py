@@ -283,6 +283,13 @@ class Segmenter(BasePlugin, ABC):
     _validated_methods = ("segment", "spectrum_spec")
     #: whether :meth:`segment` uses its ``constraints``; False: they are refused
     takes_constraints: ClassVar[bool] = False
+    #: whether :meth:`segment` needs ``n_segments`` (the method cannot choose the number of segments)
+    requires_n_segments: ClassVar[bool] = False
+
+    def lacks_n_segments(self) -> bool:
+        """Whether this segmenter needs ``n_segments`` and has none, so that :meth:`segment` would refuse any
+        shape (the command line says so before reading the file); a wrapper answers for the segmenter it wraps."""
+        return bool(self.requires_n_segments) and getattr(self, "n_segments", None) is None
 
     def accepts_constraints(self) -> bool:
         """Whether this segmenter uses ``constraints`` (default: the class's ``takes_constraints``;

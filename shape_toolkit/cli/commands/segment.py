@@ -83,12 +83,6 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(out)
     check_distinct(out, args.shape, args.constraints)
     check_ply(args.ply, args.shape, args.constraints, str(out))
-    from shape_toolkit.plugins.segmenters.multires import segment_memory
-
-    check_memory(args, [args.shape], lambda n: segment_memory(n, args.proxy),
-                 f"segmenting it ({args.method}{'' if args.proxy else ', at full resolution: --proxy 0'})",
-                 "scale_1m.md" if args.proxy else "memory_models.md")
-    shape = load_shape(args.shape)
     if args.n_segments is not None:
         params["n_segments"] = args.n_segments
     if args.random_state is not None:  # the flag wins over --param random_state=...
@@ -102,6 +96,14 @@ def run(args: argparse.Namespace) -> int:
             f"--constraints: {args.method!r} takes no constraints (it is unsupervised) and would ignore them; "
             f"drop them or use a segmenter that uses them: {', '.join(plugins_taking_constraints())}"
         )
+    if seg.lacks_n_segments():  # before reading the file: the method would refuse any shape
+        raise ParameterError(f"{args.method!r} needs the number of segments: add -k N (an integer >= 2)")
+    from shape_toolkit.plugins.segmenters.multires import segment_memory
+
+    check_memory(args, [args.shape], lambda n: segment_memory(n, args.proxy),
+                 f"segmenting it ({args.method}{'' if args.proxy else ', at full resolution: --proxy 0'})",
+                 "scale_1m.md" if args.proxy else "memory_models.md")
+    shape = load_shape(args.shape)
     if args.faces:
         shape.require_faces("--faces")
     constraints = None

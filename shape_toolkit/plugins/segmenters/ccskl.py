@@ -62,6 +62,7 @@ class CCSKL(BaseSegmenter):
     """
 
     takes_constraints = True
+    requires_n_segments = True
     split_clouds = True
 
     parameter_constraints = {

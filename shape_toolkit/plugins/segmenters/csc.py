@@ -151,6 +151,7 @@ class ConstrainedSpectralClustering(BaseSegmenter):
     """
 
     takes_constraints = True
+    requires_n_segments = True
     split_clouds = True
     presets = {"thesis": {"graph": "vertex", "weighting": "gaussian", "output_dim": "k", "cannot_mode": "volume",
                           "reweight": "set", "must_weight": 1.0, "kmeans_init": "k-means++", "k_mismatch": "kmeans"}}

@@ -90,6 +90,7 @@ class NormalizedCutSegmenter(BaseSegmenter):
     relabelling), ``ncut_values_`` (Ncut of each cut made, in order), ``n_segments_``.
     """
 
+    requires_n_segments = True
     parameter_constraints = {
         "n_segments": N_SEGMENTS,
         "concavity_scale": Param(NON_NEGATIVE, doc="how strongly concave edges are weakened"),

@@ -154,6 +154,10 @@ class PerComponent(Segmenter):
         """Whether the wrapped segmenter uses constraints (they are shared out between the pieces)."""
         return bool(self.segmenter.accepts_constraints())
 
+    def lacks_n_segments(self) -> bool:
+        """Whether the wrapped segmenter needs ``n_segments`` and has none."""
+        return bool(self.segmenter.lacks_n_segments())
+
     def _by_faces(self, shape: Shape) -> bool:
         if self.pieces not in ("auto", "vertex", "dual"):
             raise ParameterError(f"pieces must be 'auto', 'vertex' or 'dual', got {self.pieces!r}")

@@ -355,6 +355,10 @@ class SmoothedSegmenter(BaseSegmenter):
         """Whether the base segmenter uses constraints (they are passed on to it)."""
         return self._make_base().accepts_constraints()
 
+    def lacks_n_segments(self) -> bool:
+        """Whether the base segmenter needs ``n_segments`` and has none (``n_segments`` is passed on to it)."""
+        return self._make_base().lacks_n_segments()
+
     def spectrum_spec(self):
         return self._make_base().spectrum_spec()
 

@@ -40,6 +40,7 @@ class SpectralLearning(BaseSegmenter):
     """
 
     takes_constraints = True
+    requires_n_segments = True
 
     parameter_constraints = {
         "n_segments": N_SEGMENTS,
