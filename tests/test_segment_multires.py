@@ -188,3 +188,44 @@ def test_the_constraint_warning_through_a_proxy_counts_the_users_constraints(sha
     said = [str(w.message) for w in caught if issubclass(w.category, ConstraintWarning)]
     assert len(said) == 1 and "of 1 must-links and 1 of 1 cannot-links" in said[0], said
     assert out.info["constraints"]["must_link"] == 1 and out.info["proxy"]["constraints"]["must_link"] == 0
+
+
+def _dumbbell_cloud() -> tuple[np.ndarray, np.ndarray]:
+    """6,400 points: two unit spheres 3.2 apart joined by a thin tube, and each point's sphere (by the sign of x)."""
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=(6000, 3))
+    X = u / np.linalg.norm(u, axis=1, keepdims=True) + np.where(np.arange(6000) < 3000, -1.6, 1.6)[:, None] * [1, 0, 0]
+    t, th = rng.uniform(-0.7, 0.7, 400), rng.uniform(0, 2 * np.pi, 400)
+    X = np.vstack([X, np.c_[t, 0.2 * np.cos(th), 0.2 * np.sin(th)]])
+    return X, (X[:, 0] > 0).astype(int)
+
+
+def test_a_point_cloud_is_segmented_through_a_farthest_point_proxy(capsys, tmp_path, monkeypatch):
+    """A cloud above 1.5 proxy points went to the segmenter whole (segment_through_proxy needed faces): it now goes
+    through the farthest-point proxy match uses, each point taking its nearest proxy point's label; on a shape of two
+    clear parts the segments are the parts, as segmenting the cloud directly gives them."""
+    from scipy.spatial import cKDTree
+
+    from shape_toolkit.core.shape import Shape
+    from shape_toolkit.plugins.matching.multires import make_proxy
+
+    X, truth = _dumbbell_cloud()
+    cloud, far = Shape(X, None, "dumbbell"), np.abs(X[:, 0]) > 1.0  # the spheres' far halves: away from the tube
+    seg = create_seeded("segmenters", "spectral-clustering", None, 0, n_segments=2)
+    out = segment_through_proxy(seg, cloud, proxy=600)
+    ps, ids = make_proxy(cloud, 600)  # farthest points: a cloud of 600
+    assert not ps.is_mesh and out.face_labels is None and out.info["proxy"]["proxy_vertices"] == 600
+    inner = _direct(seg, ps)
+    np.testing.assert_array_equal(out.labels[ids], inner.labels)
+    np.testing.assert_array_equal(out.labels, inner.labels[cKDTree(X[ids]).query(X)[1]])
+    assert adjusted_rand_score(truth[far], out.labels[far]) == 1.0
+    assert adjusted_rand_score(truth[far], _direct(seg, cloud).labels[far]) == 1.0
+    # the command line: a cloud file (no faces) through --proxy, the proxy reported
+    save_shape(cloud, tmp_path / "cloud.ply")
+    monkeypatch.chdir(tmp_path)
+    code, text, err = run_cli(capsys, "segment", tmp_path / "cloud.ply", "--method", "spectral-clustering", "-k", "2",
+                              "--proxy", "600", "--json")
+    assert code == 0, err
+    res = json.loads(text)
+    assert res["proxy"]["proxy_vertices"] == 600 and res["proxy"]["vertices"] == len(X)
+    np.testing.assert_array_equal(np.loadtxt(tmp_path / "cloud.spectral-clustering.labels.txt", dtype=int), out.labels)

@@ -52,9 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default=None, help="named parameter preset of the method")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="method parameter")
     p.add_argument("--proxy", type=proxy_arg, default=PROXY_VERTICES, metavar="N",
-                   help=f"meshes above 1.5 N vertices are segmented through a proxy of N vertices and the labels "
-                        f"carried to every vertex (N >= 100; default {PROXY_VERTICES}, as match; 0: always at full "
-                        "resolution)")
+                   help=f"shapes (meshes and point clouds) above 1.5 N vertices are segmented through a proxy of N "
+                        f"vertices and the labels carried to every vertex (N >= 100; default {PROXY_VERTICES}, as "
+                        "match; 0: always at full resolution)")
     p.add_argument("-o", "--output", help="labels file (default: SHAPE_STEM.METHOD.labels.txt, "
                    "or .seg with --faces)")
     p.add_argument("--faces", action="store_true",
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     if args.constraints:
         constraints = load_constraints(args.constraints, shape.n_vertices)
     t0 = time.perf_counter()
-    through_proxy = bool(args.proxy) and shape.is_mesh and shape.n_vertices > 1.5 * args.proxy
+    through_proxy = bool(args.proxy) and shape.n_vertices > 1.5 * args.proxy
     with status(args, f"segment: {args.method} on {shape.n_vertices} vertices") as st:
         if through_proxy:
             from shape_toolkit.plugins.segmenters.multires import segment_through_proxy

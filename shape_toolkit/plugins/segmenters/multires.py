@@ -1,12 +1,13 @@
-"""Segmenting large meshes through a proxy: segment a decimated copy, carry its labels to every vertex.
+"""Segmenting large shapes through a proxy: segment a decimated copy, carry its labels to every vertex.
 
 A segmenter's eigenproblems and graphs grow faster than the vertex count (``ncut`` on a 10^6-vertex mesh: 103 s
-CPU, and its segments change with the resolution), so a mesh of more than 1.5 ``proxy`` vertices is segmented
-through the proxy the matching pipelines use (:func:`~shape_toolkit.plugins.matching.multires.make_proxy`:
-quadric edge collapse that moves no vertex) and the labels are carried back on the proxy's triangles: a vertex
-takes the label of the nearest corner of its closest point on the proxy, a face (for a segmenter of faces) the
-label of the proxy face its centroid is closest to. Constraint vertices move to their nearest proxy vertex, and
-keep that vertex's label exactly, so a must-link kept on the proxy is kept on the mesh.
+CPU, and its segments change with the resolution), so a shape of more than 1.5 ``proxy`` vertices is segmented
+through the proxy the matching pipelines use (:func:`~shape_toolkit.plugins.matching.multires.make_proxy`: on a
+mesh, quadric edge collapse that moves no vertex; on a point cloud, farthest-point samples) and the labels are
+carried back (:func:`~shape_toolkit.plugins.matching.multires.values_from_proxy`): a vertex takes the label of the
+nearest corner of its closest point on a mesh proxy, of its nearest proxy point on a cloud one; a face (for a
+segmenter of faces) the label of the proxy face its centroid is closest to. Constraint vertices move to their
+nearest proxy vertex, and keep that vertex's label exactly, so a must-link kept on the proxy is kept on the shape.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError
-from shape_toolkit.plugins.matching.multires import PROXY_VERTICES, make_proxy, on_surface
+from shape_toolkit.plugins.matching.multires import PROXY_VERTICES, make_proxy, values_from_proxy
 from shape_toolkit.plugins.segmenters.constraints import inner_segmentation, report_constraints
 from shape_toolkit.results.labels import ConstraintError, Constraints, constraint_report
 from shape_toolkit.results.segmentation import Segmentation
@@ -68,14 +69,13 @@ def _proxy_constraints(constraints: Constraints, nearest: np.ndarray) -> Constra
 
 def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VERTICES,
                           constraints: Constraints | None = None) -> Segmentation:
-    """:class:`~shape_toolkit.results.segmentation.Segmentation` of the mesh ``shape`` by ``segmenter`` run on a
-    proxy of about ``proxy`` vertices (module docstring), with the spectra it declares computed on the proxy;
-    ``info["proxy"]`` gives the proxy's size."""
+    """:class:`~shape_toolkit.results.segmentation.Segmentation` of the mesh or point cloud ``shape`` by
+    ``segmenter`` run on a proxy of about ``proxy`` vertices (module docstring), with the spectra it declares computed
+    on the proxy; ``info["proxy"]`` gives the proxy's size."""
     from scipy.spatial import cKDTree
 
     from shape_toolkit.spectra import compute_declared, declared_specs
 
-    shape.require_faces("segmenting through a proxy")
     if constraints is not None:  # as the segmenter itself would, before its ids index anything
         constraints.validate(shape.n_vertices)
     ps, ids = make_proxy(shape, proxy)
@@ -108,9 +108,7 @@ def segment_through_proxy(segmenter: Any, shape: Shape, *, proxy: int = PROXY_VE
                                                      np.asarray(ps.faces, dtype=np.int64))
         out = Segmentation.of_faces(shape, inner.face_labels[face], **info)
     else:
-        _, tri, w = on_surface(shape.vertices, ps)
-        labels = inner.labels[tri[np.arange(len(tri)), np.argmax(w, axis=1)]]
-        out = Segmentation.of_vertices(shape, labels, **info)
+        out = Segmentation.of_vertices(shape, values_from_proxy(inner.labels, shape, ps), **info)
     if constraints is not None and len(constraints):  # no pair: nothing to report, as the segmenter's own segment()
         labels = out.labels.copy()  # each constraint vertex: its proxy vertex's label, as the segmenter gave it
         labels[ends] = inner.labels[nearest[ends]]
