@@ -74,7 +74,9 @@ def test_lines_are_counted_across_block_boundaries(tmp_path, text, block):
     (["match", "{off}", "{big}", "--memory-limit", "3", "--json"], ["162 + 30,000,000 vertices"]),
     (["segment", "{big}", "-k", "4", "--memory-limit", "2"], ["declares 30,000,000", "9.6 GB", "(ncut)", "remesh it"]),
     # counted lines; a shape this small is segmented directly (the full-resolution model)
-    (["segment", "{obj}", "-k", "4", "--memory-limit", "0.1"], ["declares 162 vertices", "0.2 GB", "0.1 GB"]),
+    # (the estimate is the larger of the proxy path's model and the full-resolution one: both results files named)
+    (["segment", "{obj}", "-k", "4", "--memory-limit", "0.1"],
+     ["declares 162 vertices", "0.2 GB", "0.1 GB", "scale_1m.md and memory_models.md"]),
     (["spectrum", "{big}", "-k", "100", "--memory-limit", "8"],
      ["declares 30,000,000", "138.1 GB", "computing 100 eigenpairs (-k)", "memory_models.md", "remesh it"]),
     (["spectrum", "{big}", "--memory-limit", "32"], ["63.7 GB", "computing 20 eigenpairs"]),  # the default -k 20

@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     pipe = load_pipeline(args.pipeline)
     check_memory(args, [args.source, args.target], lambda n: match_memory(n, args.proxy),
                  "matching them" if args.proxy else "matching them at full resolution (--proxy 0)",
-                 "scale_1m.md" if args.proxy else "memory_models.md")
+                 "scale_1m.md and memory_models.md" if args.proxy else "memory_models.md")
     source = load_shape(args.source)
     target = load_shape(args.target)
     seeds = read_seeds(args.seeds, source.n_vertices, target.n_vertices) if args.seeds else None

@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
 
     check_memory(args, [args.shape], lambda n: segment_memory(n, args.proxy),
                  f"segmenting it ({args.method}{'' if args.proxy else ', at full resolution: --proxy 0'})",
-                 "scale_1m.md" if args.proxy else "memory_models.md")
+                 "scale_1m.md and memory_models.md" if args.proxy else "memory_models.md")
     shape = load_shape(args.shape)
     if args.faces:
         shape.require_faces("--faces")
