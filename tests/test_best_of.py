@@ -33,6 +33,10 @@ def test_auto_keeps_the_sound_map(poses):
     assert corr.info["chosen"].startswith("shell-alignment")
     assert _error(b, corr.target_of) < 0.03
     assert corr.info["orientation"]["verdict"] == "preserving"
+    # the swapped limbs (and the maps in the frame they estimate) are far from the kept map, and clearly worse
+    amb, far = corr.info["ambiguity"], {c["matcher"]: c["disagreement"] for c in corr.info["candidates"]}
+    assert far[corr.info["chosen"]] == 0.0 and far["fmap-zoomout"] > 0.3
+    assert amb["rival"] is not None and amb["residual_ratio"] > 1.5 and not amb["ambiguous"]
     # the pipeline declares one spectrum per shape kind, the largest k of its matchers
     assert [s.k for s in load_pipeline("auto").spectrum_specs()] == [111]
 
@@ -78,6 +82,7 @@ def test_match_uses_auto_by_default(poses, capsys, tmp_path):
                  "--json", "--quiet"])
     res = json.loads(capsys.readouterr().out)
     assert code == 0 and res["pipeline"] == "auto" and res["orientation"]["verdict"] == "preserving"
+    assert res["ambiguity"]["ambiguous"] is False and res["ambiguity"]["rival"]
     assert _error(b, np.loadtxt(tmp_path / "m.txt", dtype=int)) < 0.03
 
 
@@ -337,3 +342,49 @@ def test_the_intrinsic_maps_final_zoomout_on_samples_is_an_option(unequal_limbs)
     for bad in (-1, 2.5, "many"):
         with pytest.raises(ParameterError):
             create_plugin("dense_matchers", "fmap-zoomout", source_samples=bad).match(a, b)
+
+
+def test_the_rival_of_the_kept_map_is_a_different_map_of_close_residual():
+    """map_ambiguity: each candidate's disagreement (the mean distance between its images and the kept map's, in
+    sqrt(area)); the rival is the least residual among candidates at least RIVAL_DISTANCE away, and the pair is
+    ambiguous when the rival's residual is within AMBIGUOUS_RATIO of the kept map's."""
+    from shape_toolkit.data.synthetic import icosphere
+    from shape_toolkit.plugins.matching.dense.best_of import AMBIGUOUS_RATIO, RIVAL_DISTANCE, map_ambiguity
+
+    sphere = icosphere(2)
+    X, n = np.asarray(sphere.vertices), sphere.n_vertices
+    mass, area = np.full(n, 1.0), 4 * np.pi
+    ident = np.arange(n)
+    antipode = np.array([int(np.argmin(((X + x) ** 2).sum(axis=1))) for x in X])  # images 2 apart: 2 / sqrt(4 pi)
+    near = np.array([int(np.argsort(((X - x) ** 2).sum(axis=1))[1]) for x in X])  # each vertex's nearest other one
+    partly = ident.copy()
+    partly[: n // 2] = -1  # unmatched entries are left out of the mean
+
+    def cands(far_residual):
+        return [{"matcher": "kept", "residual": 1.0}, {"matcher": "near", "residual": 0.99},
+                {"matcher": "far", "residual": far_residual}, {"matcher": "partly", "residual": 2.0}]
+
+    maps = [ident, near, antipode, partly]
+    c = cands(1.05)
+    amb = map_ambiguity(c, maps, "kept", sphere, mass, area)
+    d = {x["matcher"]: x["disagreement"] for x in c}
+    assert d["kept"] == 0.0 and d["partly"] == 0.0 and 0 < d["near"] < RIVAL_DISTANCE
+    assert d["far"] == pytest.approx(2 / np.sqrt(area), rel=0.01)
+    assert amb == {"rival": "far", "residual_ratio": pytest.approx(1.05), "disagreement": d["far"], "ambiguous": True}
+    c = cands(AMBIGUOUS_RATIO + 0.2)  # the rival explains the pair clearly worse: not ambiguous, still named
+    assert map_ambiguity(c, maps, "kept", sphere, mass, area)["rival"] == "far"
+    assert not map_ambiguity(c, maps, "kept", sphere, mass, area)["ambiguous"]
+    assert map_ambiguity(cands(1.0)[:2], maps[:2], "kept", sphere, mass, area) == {"rival": None, "ambiguous": False}
+
+
+def test_match_warns_when_the_pair_is_ambiguous(shared_data, capsys, tmp_path):
+    """gorilla_05 -> man_07 (the tuning half of the split by subject): auto keeps a map at 0.23 whose rival, 0.45
+    sqrt(area) away, has a residual within 9 % of it; the command says so and names the way out."""
+    from shape_toolkit.cli import main
+
+    root = shared_data / "tosca_noniso"
+    code = main(["match", str(root / "8_gorilla_05.off"), str(root / "8_man_07.off"), "-o", str(tmp_path / "m.txt")])
+    out = capsys.readouterr().out
+    assert code == 0
+    warn = [line for line in out.splitlines() if line.startswith("warning: another map")]
+    assert len(warn) == 1 and "the pair is ambiguous" in warn[0] and "--seeds" in warn[0], out

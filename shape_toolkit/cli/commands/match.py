@@ -97,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         "stages_cpu": {k: round(v, 3) for k, v in corr.info.get("cpu_timings", {}).items()},
         "n_seeds": corr.info.get("n_seeds", 0),
         "orientation": corr.info.get("orientation"),
+        "ambiguity": corr.info.get("ambiguity"),
         # the proxies' functional map (a k x k array) is for the API, not the summary
         "proxy": {k: v for k, v in corr.info["proxy"].items() if k != "C"} if corr.info.get("proxy") else None,
     }
@@ -108,6 +109,11 @@ def run(args: argparse.Namespace) -> int:
         if o and o["verdict"] != "preserving" and o["samples"] > 0:  # clouds have no outward normals to judge
             print(f"warning: the map's orientation is {o['verdict']} (score {o['score']:+.2f}, z {o['z']:+.1f}): "
                   "left and right may be swapped; pass seeds (--seeds) to fix it")
+        a = corr.info.get("ambiguity")
+        if a and a.get("ambiguous"):
+            print(f"warning: another map ({a['rival']}) lies {a['disagreement']:.2f} sqrt(area) from this one with a "
+                  f"residual only {a['residual_ratio']:.2f} times its own: the pair is ambiguous (a half turn or a "
+                  "swapped part may have been kept); pass seeds (--seeds) to decide")
         if plys:
             print(f"coloured meshes: {plys[0]} (pull-back), {plys[1]}")
     return 0
