@@ -229,3 +229,22 @@ def test_a_point_cloud_is_segmented_through_a_farthest_point_proxy(capsys, tmp_p
     res = json.loads(text)
     assert res["proxy"]["proxy_vertices"] == 600 and res["proxy"]["vertices"] == len(X)
     np.testing.assert_array_equal(np.loadtxt(tmp_path / "cloud.spectral-clustering.labels.txt", dtype=int), out.labels)
+
+
+def test_a_cloud_refused_by_a_segmenter_of_faces_is_told_which_methods_take_points(capsys, tmp_path, monkeypatch):
+    """ncut (the default) needs faces: on a cloud the one-line error names the methods that take points, and those
+    do segment it (directly, and through a proxy)."""
+    from shape_toolkit.cli.commands.segment import CLOUD_METHODS
+    from shape_toolkit.core.shape import Shape
+
+    X, _ = _dumbbell_cloud()
+    save_shape(Shape(X, None, "dumbbell"), tmp_path / "cloud.ply")
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_cli(capsys, "segment", tmp_path / "cloud.ply", "-k", "2")
+    assert code == 2 and err.count("\n") == 1 and "needs a triangle mesh" in err
+    assert all(f"--method {m}" in err or f" or {m}" in err for m in CLOUD_METHODS), err
+    for m in CLOUD_METHODS:
+        for proxy in ("0", "600"):
+            code, _, err = run_cli(capsys, "segment", tmp_path / "cloud.ply", "-k", "2", "--method", m,
+                                   "--proxy", proxy)
+            assert code == 0, (m, proxy, err)

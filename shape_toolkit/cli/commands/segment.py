@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +31,12 @@ from shape_toolkit.cli.commands._common import (
     write_ply,
 )
 from shape_toolkit.data.datasets import write_labels
-from shape_toolkit.errors import DisconnectedGraphError, NumericallyDisconnectedGraphError, ParameterError
+from shape_toolkit.errors import (
+    DisconnectedGraphError,
+    InvalidShapeError,
+    NumericallyDisconnectedGraphError,
+    ParameterError,
+)
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.plugins.matching.multires import PROXY_VERTICES
 from shape_toolkit.results.labels import load_constraints
@@ -75,6 +82,21 @@ def _diagnostics(seg: Any) -> dict[str, Any]:
     return out
 
 
+#: segmenters of points (no faces needed), named when a segmenter of faces is given a point cloud
+CLOUD_METHODS = ("spectral-clustering", "eigvec-gmm")
+
+
+@contextmanager
+def _cloud_hint(shape: Any) -> Iterator[None]:
+    """A point cloud refused by a segmenter that needs faces: the error also names methods that take points."""
+    try:
+        yield
+    except InvalidShapeError as exc:
+        if shape.is_mesh or "needs a triangle mesh" not in str(exc):
+            raise
+        raise InvalidShapeError(f"{exc}; segment a point cloud with --method {' or '.join(CLOUD_METHODS)}") from exc
+
+
 def run(args: argparse.Namespace) -> int:
     params = parse_params(args.param, plugin_class("segmenters", args.method))
     out = Path(args.output) if args.output else Path(
@@ -111,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
         constraints = load_constraints(args.constraints, shape.n_vertices)
     t0 = time.perf_counter()
     through_proxy = bool(args.proxy) and shape.n_vertices > 1.5 * args.proxy
-    with status(args, f"segment: {args.method} on {shape.n_vertices} vertices") as st:
+    with status(args, f"segment: {args.method} on {shape.n_vertices} vertices") as st, _cloud_hint(shape):
         if through_proxy:
             from shape_toolkit.plugins.segmenters.multires import segment_through_proxy
 
