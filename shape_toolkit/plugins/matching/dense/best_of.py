@@ -123,7 +123,8 @@ REORIENT_START = 10
 POLISH_SAMPLES = 1000
 
 #: ``info["ambiguity"]``: a candidate is a rival of the kept map when its images lie on average at least this far from
-#: the kept map's (in sqrt(area) of the target): 7 times the error of a sound FAUST map, a third of a half turn's
+#: the kept map's (Euclidean, in sqrt(area) of the target): 7 times a sound FAUST map's error; the FAUST rivals that
+#: were the right map or its half turn lay 0.16-0.24 away (tuning half)
 RIVAL_DISTANCE = 0.15
 #: the pair is reported ambiguous when a rival's residual is within this factor of the kept map's; a report, not a
 #: choice (``auto_mirrored_notes.md``, session 33: on the tuning half most kept maps so flagged were wrong)
