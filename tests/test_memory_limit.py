@@ -80,6 +80,10 @@ def test_lines_are_counted_across_block_boundaries(tmp_path, text, block):
     (["spectrum", "{big}", "-k", "100", "--memory-limit", "8"],
      ["declares 30,000,000", "138.1 GB", "computing 100 eigenpairs (-k)", "memory_models.md", "remesh it"]),
     (["spectrum", "{big}", "--memory-limit", "32"], ["63.7 GB", "computing 20 eigenpairs"]),  # the default -k 20
+    # keypoints: the detector's declared spectrum (adf-maxima: 11 eigenpairs), by the spectrum model
+    (["keypoints", "{big}", "--memory-limit", "8"],
+     ["declares 30,000,000", "55.3 GB", "detecting keypoints (adf-maxima, a spectrum of 11 eigenpairs)",
+      "memory_models.md"]),
     (["match", "{off}", "{big}", "--proxy", "0", "--memory-limit", "100"],
      ["267.1 GB", "matching them at full resolution (--proxy 0)", "memory_models.md"]),
     (["segment", "{big}", "-k", "4", "--proxy", "0", "--memory-limit", "50"],

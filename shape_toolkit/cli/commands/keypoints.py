@@ -9,9 +9,11 @@ import numpy as np
 
 from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.cli.commands._common import (
+    add_memory_limit,
     add_ply,
     add_quiet,
     check_distinct,
+    check_memory,
     check_output_path,
     check_ply,
     declared_spectra,
@@ -35,6 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", help="also write the ids, one per line, to this file")
     add_ply(p, "the keypoints (red spots on a grey shape)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_memory_limit(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -59,6 +62,12 @@ def run(args: argparse.Namespace) -> int:
     check_ply(args.ply, args.shape, args.output)
     params = parse_params(args.param, plugin_class("keypoints", args.detector))
     detector = create_plugin("keypoints", args.detector, preset=args.preset, **params)
+    from shape_toolkit.core.spectrum import spectrum_memory
+    from shape_toolkit.spectra import declared_specs
+
+    k = max((spec.k for spec in declared_specs(detector)), default=0)  # the spectrum is most of its memory
+    check_memory(args, [args.shape], lambda n: spectrum_memory(n, k),
+                 f"detecting keypoints ({args.detector}, a spectrum of {k} eigenpairs)", "memory_models.md")
     shape = load_shape(args.shape)
     start = time.perf_counter()
     with status(args, f"keypoints: {args.detector} on {shape.n_vertices} vertices"):
