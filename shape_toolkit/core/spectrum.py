@@ -87,6 +87,12 @@ class Spectrum:
         return self.mass is not None
 
     @property
+    def area(self) -> float:
+        """Sum of the mass (the surface area, for a spectrum with the mass matrix); without one, the vertex count
+        (each vertex a unit of area)."""
+        return float(np.sum(self.mass)) if self.mass is not None else float(self.n_vertices)
+
+    @property
     def volume(self) -> float:
         """Graph volume ``Vol(G) = sum_i d_i``."""
         return float(self.degrees.sum())

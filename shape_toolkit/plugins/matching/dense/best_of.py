@@ -300,7 +300,6 @@ class BestOfMatcher(DenseMatcher):
         matchers = self._matchers()
         seeds = check_seeds(seeds, source.n_vertices, target.n_vertices)
         spec_s, spec_t = self._spectrum(source, source_spectrum), self._spectrum(target, target_spectrum)
-        area_t = float(np.sum(spec_t.mass)) if spec_t.mass is not None else float(target.n_vertices)  # as the shells'
         k = int(min(self.k, spec_s.k, spec_t.k))
         bs, bt = basis_of(spec_s, k), basis_of(spec_t, k)
         kp = int(min(self.polish, spec_s.k, spec_t.k)) if self.polish else None
@@ -404,7 +403,7 @@ class BestOfMatcher(DenseMatcher):
                         **best[2].info, "C": C, "reoriented": f"ZoomOut {k0} -> {bps.k} from the unmirrored part"}))
         info = dict(best[2].info)
         info.update({"candidates": candidates, "chosen": best[1], "skipped": skipped,
-                     "ambiguity": map_ambiguity(candidates, maps, best[1], target, bs.mass, area_t)})
+                     "ambiguity": map_ambiguity(candidates, maps, best[1], target, bs.mass, spec_t.area)})
         if frame:
             info["estimated_frame"] = frame
         if canon:

@@ -60,8 +60,8 @@ def part_wave_kernel_signatures(
     part, the higher ones mostly near the cut."""
     vp, Up = spectral_basis(part)
     vw, Uw = spectral_basis(whole)
-    vp = vp * float(np.sum(part.mass) if part.mass is not None else part.n_vertices) * float(scale)
-    vw = vw * float(np.sum(whole.mass) if whole.mass is not None else whole.n_vertices)
+    vp = vp * part.area * float(scale)
+    vw = vw * whole.area
     low = min(PART_WKS_LOWEST, vp.size - 2)
     if band < 1.0:
         K = max(low + 2, int(round(band * vp.size)))

@@ -226,8 +226,7 @@ class ShellAlignmentMatcher(DenseMatcher):
         k_max = int(min(ks[-1], spec_s.k - 1, spec_t.k - 1, source.n_vertices - 1, target.n_vertices - 1))
         ks = tuple(k for k in ks if k < k_max) + (k_max,)
         bs, bt = basis_of(spec_s, k_max), basis_of(spec_t, k_max if part is None else None)
-        area_s = float(np.sum(spec_s.mass)) if spec_s.mass is not None else float(source.n_vertices)
-        area_t = float(np.sum(spec_t.mass)) if spec_t.mass is not None else float(target.n_vertices)
+        area_s, area_t = spec_s.area, spec_t.area
         ms, mt = bs.mass, bt.mass
         Xt0 = _centred(target, bt, area_t)
         if part is None:
