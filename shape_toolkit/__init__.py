@@ -11,6 +11,7 @@ from shape_toolkit.core.spectrum import Spectrum, compute_spectrum, laplacian_ma
 from shape_toolkit.errors import (
     DisconnectedGraphError,
     InvalidShapeError,
+    MeshRequiredError,
     NumericallyDisconnectedGraphError,
     ParameterError,
     PluginError,
@@ -39,6 +40,7 @@ __all__ = [
     "ToolkitError",
     "ShapeFileError",
     "InvalidShapeError",
+    "MeshRequiredError",
     "ParameterError",
     "PluginError",
     "DisconnectedGraphError",

@@ -38,6 +38,10 @@ class InvalidShapeError(ToolkitError):
     """Arrays do not describe a valid shape (empty, NaN/inf, bad faces, ...)."""
 
 
+class MeshRequiredError(InvalidShapeError):
+    """A step that needs triangles was given a point cloud (:meth:`~shape_toolkit.core.shape.Shape.require_faces`)."""
+
+
 class ParameterError(ToolkitError, ValueError):
     """A parameter value is out of range or of the wrong kind."""
 

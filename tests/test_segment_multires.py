@@ -236,8 +236,12 @@ def test_a_cloud_refused_by_a_segmenter_of_faces_is_told_which_methods_take_poin
     do segment it (directly, and through a proxy)."""
     from shape_toolkit.cli.commands.segment import CLOUD_METHODS
     from shape_toolkit.core.shape import Shape
+    from shape_toolkit.errors import InvalidShapeError, MeshRequiredError
 
     X, _ = _dumbbell_cloud()
+    with pytest.raises(MeshRequiredError, match="needs a triangle mesh"):  # the type the command adds its hint to
+        Shape(X, None, "dumbbell").require_faces("ncut")
+    assert issubclass(MeshRequiredError, InvalidShapeError)
     save_shape(Shape(X, None, "dumbbell"), tmp_path / "cloud.ply")
     monkeypatch.chdir(tmp_path)
     code, _, err = run_cli(capsys, "segment", tmp_path / "cloud.ply", "-k", "2")

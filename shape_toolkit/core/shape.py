@@ -9,7 +9,7 @@ from functools import cached_property
 
 import numpy as np
 
-from shape_toolkit.errors import InvalidShapeError
+from shape_toolkit.errors import InvalidShapeError, MeshRequiredError
 
 __all__ = [
     "Shape",
@@ -256,9 +256,10 @@ class Shape:
         return f"Shape({nm}{self.n_vertices} vertices, {kind}{col})"
 
     def require_faces(self, what: str) -> np.ndarray:
-        """Return the faces or raise :class:`InvalidShapeError` naming ``what`` needs them."""
+        """Return the faces or raise :class:`MeshRequiredError` (an :class:`InvalidShapeError`) naming ``what`` needs
+        them."""
         if self.faces is None:
-            raise InvalidShapeError(f"{what} needs a triangle mesh, but {self!r} has no faces")
+            raise MeshRequiredError(f"{what} needs a triangle mesh, but {self!r} has no faces")
         return self.faces
 
     # -- cached derived properties ----------------------------------------------------------

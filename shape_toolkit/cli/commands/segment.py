@@ -33,7 +33,7 @@ from shape_toolkit.cli.commands._common import (
 from shape_toolkit.data.datasets import write_labels
 from shape_toolkit.errors import (
     DisconnectedGraphError,
-    InvalidShapeError,
+    MeshRequiredError,
     NumericallyDisconnectedGraphError,
     ParameterError,
 )
@@ -91,10 +91,10 @@ def _cloud_hint(shape: Any) -> Iterator[None]:
     """A point cloud refused by a segmenter that needs faces: the error also names methods that take points."""
     try:
         yield
-    except InvalidShapeError as exc:
-        if shape.is_mesh or "needs a triangle mesh" not in str(exc):
+    except MeshRequiredError as exc:
+        if shape.is_mesh:
             raise
-        raise InvalidShapeError(f"{exc}; segment a point cloud with --method {' or '.join(CLOUD_METHODS)}") from exc
+        raise MeshRequiredError(f"{exc}; segment a point cloud with --method {' or '.join(CLOUD_METHODS)}") from exc
 
 
 def run(args: argparse.Namespace) -> int:
