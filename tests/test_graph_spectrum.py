@@ -587,3 +587,24 @@ def test_a_disconnected_shape_is_named_in_the_error(tmp_path, capsys):
                      str(tmp_path / "m.txt"), *extra])
         err = capsys.readouterr().err
         assert code == 2 and err.count("\n") == 1 and f"of {named}" in err and "clean --keep-largest" in err, err
+
+
+@pytest.mark.parametrize("where", ["first", "last"])
+def test_vertices_on_no_face_are_reported_wherever_they_are(where):
+    """libigl sizes the Voronoi mass by the largest vertex id of a face: a last vertex on no face (or only on flat
+    ones) once gave a mass vector one short and the error "returned an invalid mass vector". Wherever the vertex is,
+    the cotangent mass has one entry per vertex (zero there), and the spectrum names the cleanup."""
+    from shape_toolkit.data.generate import icosphere
+
+    sphere = icosphere(2)
+    v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    far = np.array([[5.0, 5.0, 5.0], [6.0, 5.0, 5.0], [7.0, 5.0, 5.0]])  # collinear: a flat face
+    if where == "first":
+        shape = Shape(np.vstack([far, v]), np.vstack([f + 3, [[0, 1, 2]]]))
+    else:
+        n = len(v)
+        shape = Shape(np.vstack([v, far]), np.vstack([f, [[n, n + 1, n + 2]]]))
+    g = build_graph(shape, "cotangent")
+    assert g.mass.shape == (shape.n_vertices,) and np.sum(g.mass == 0) == 3
+    with pytest.raises(ParameterError, match=r"3 vertices have zero mass .*shape-toolkit clean"):
+        compute_spectrum(g, 6)

@@ -168,8 +168,10 @@ def close_holes(shape: Shape) -> tuple[Shape, int]:
     as the face across that edge. Returns the closed shape and the number of loops closed (0: ``shape`` itself).
     Meant for intrinsic computations that a hole changes (a Laplacian spectrum), not for display: the fans are
     cones, not a smooth patch. Loops that share a vertex are closed by one fan; open chains of free edges (not
-    a loop) are left as they are."""
-    from shape_toolkit.core.geometry import edge_components
+    a loop) are left as they are, and so are slits: loops whose every fan triangle would be numerically flat
+    (:func:`~shape_toolkit.core.geometry.flat_faces`; a loop along a line, as a cut that did not open), which enclose
+    no area and whose centre would have none."""
+    from shape_toolkit.core.geometry import edge_components, flat_faces
 
     f = np.asarray(shape.require_faces("close_holes"), dtype=np.int64)
     half = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
@@ -201,6 +203,17 @@ def close_holes(shape: Shape) -> tuple[Shape, int]:
     np.add.at(centres, lab, v[verts])
     centres /= np.bincount(lab, minlength=n_loops)[:, None]
     fans = np.column_stack([bnd[:, 1], bnd[:, 0], shape.n_vertices + loop_of_edge])
+    solid = np.bincount(loop_of_edge, weights=~flat_faces(np.concatenate([v, centres]), fans), minlength=n_loops) > 0
+    if not solid.all():  # slits: left open, the others renumbered
+        renum = np.cumsum(solid) - 1
+        keep = solid[loop_of_edge]
+        fans, loop_of_edge = fans[keep], renum[loop_of_edge[keep]]
+        fans[:, 2] = shape.n_vertices + loop_of_edge
+        on_loop = solid[lab]
+        verts, lab, centres = verts[on_loop], renum[lab[on_loop]], centres[solid]
+        n_loops = int(solid.sum())
+        if n_loops == 0:
+            return shape, 0
     colors = None
     if shape.colors is not None:
         c = np.asarray(shape.colors)

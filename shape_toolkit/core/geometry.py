@@ -12,6 +12,8 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 
 __all__ = [
+    "FLAT_FACE",
+    "flat_faces",
     "signed_volume",
     "vertex_normals",
     "outward_vertex_normals",
@@ -25,6 +27,20 @@ __all__ = [
 
 
 # -- normals -----------------------------------------------------------------------------------------
+#: a face whose area is below this times its longest edge squared is numerically a segment (cotangents above ~10^8)
+FLAT_FACE = 1e-8
+
+
+def flat_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Mask ``(m,)`` of the numerically flat faces of ``faces`` ``(m, 3)`` on ``vertices`` ``(n, 3)``: area
+    below :data:`FLAT_FACE` times the longest edge squared (cotangents above ~10^8)."""
+    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces)
+    e = [v[f[:, b]] - v[f[:, a]] for a, b in ((0, 1), (1, 2), (2, 0))]
+    longest2 = np.max([(x * x).sum(axis=1) for x in e], axis=0)
+    area = 0.5 * np.linalg.norm(np.cross(e[0], -e[2]), axis=1)
+    return area < FLAT_FACE * longest2
+
+
 def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Six times the signed volume enclosed by the triangles ``faces`` ``(m, 3)`` of ``vertices`` ``(n, 3)``:
     positive when the faces wind outwards (sum of ``det[v0, v1, v2]``; only its sign is used)."""

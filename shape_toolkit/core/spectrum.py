@@ -365,7 +365,7 @@ def compute_spectrum(
     if use_mass and np.any(graph.mass <= 0):
         raise ParameterError(
             f"{int(np.sum(graph.mass <= 0))} vertices have zero mass (unreferenced or degenerate): "
-            "clean the shape first"
+            "clean the shape first (shape-toolkit clean; from Python: clean_shape)"
         )
     key = _spectrum_key(graph, k, laplacian, use_mass, sign_fix, components, solver)
     if cache and (hit := _cache_get(key)) is not None:

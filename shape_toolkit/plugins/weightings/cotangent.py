@@ -8,6 +8,7 @@ import scipy.sparse as sp
 
 from shape_toolkit.api.interfaces import Weighting, Weights
 from shape_toolkit.api.params import Param
+from shape_toolkit.core.geometry import FLAT_FACE, flat_faces
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError
 
@@ -25,7 +26,7 @@ class CotangentWeighting(Weighting):
     """
 
     #: a face whose area is below this times its longest edge squared is numerically a segment
-    DEGENERATE = 1e-8
+    DEGENERATE = FLAT_FACE
 
     needs_faces = True
     #: builds its edges from the triangles: the graph's connectivity must be the mesh's
@@ -63,17 +64,11 @@ class CotangentWeighting(Weighting):
         if self.clamp_negative and negative:
             W.data[W.data < 0] = 0.0
             W.eliminate_zeros()
-        mass = sp.csr_matrix(igl.massmatrix(v, f, igl.MASSMATRIX_TYPE_VORONOI)).diagonal()
+        # libigl sizes the mass by the largest vertex id of a face: the last vertices, when on no (kept) face, get
+        # theirs here (zero), so that they are reported as vertices of zero mass, as any other such vertex
+        mass = np.zeros(len(v))
+        m = sp.csr_matrix(igl.massmatrix(v, f, igl.MASSMATRIX_TYPE_VORONOI)).diagonal()
+        mass[: len(m)] = m
         info = {"negative_weights": negative, "clamped": bool(self.clamp_negative and negative),
                 "degenerate_faces_skipped": int(flat.sum())}
         return Weights(W, np.asarray(mass, dtype=np.float64), info)
-
-
-def flat_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Mask ``(m,)`` of the numerically flat faces of ``faces`` ``(m, 3)`` on ``vertices`` ``(n, 3)``: area
-    below :attr:`CotangentWeighting.DEGENERATE` times the longest edge squared (cotangents above ~10^8)."""
-    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces)
-    e = [v[f[:, b]] - v[f[:, a]] for a, b in ((0, 1), (1, 2), (2, 0))]
-    longest2 = np.max([(x * x).sum(axis=1) for x in e], axis=0)
-    area = 0.5 * np.linalg.norm(np.cross(e[0], -e[2]), axis=1)
-    return area < CotangentWeighting.DEGENERATE * longest2
