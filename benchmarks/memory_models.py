@@ -13,10 +13,21 @@ other; CPU seconds (user + system) and peak RSS come from ``wait4``:
 - ``shape-toolkit match cat0 cat1 --proxy 0`` (pipeline ``auto`` at full resolution), s = 2, 3, 4 (2 x 19,994 to
   2 x 79,970 vertices): ``plugins.matching.multires.MATCH_FULL_MEMORY``, ``a + b n`` for the two shapes' n;
 - ``shape-toolkit segment cat0 --proxy 0`` (``ncut``, 6 segments, full resolution), s = 4, 7, 10:
-  ``plugins.segmenters.multires.SEGMENT_FULL_MEMORY``, ``a + b n``.
+  ``plugins.segmenters.multires.SEGMENT_FULL_MEMORY``, ``a + b n``;
+- ``shape-toolkit geodesics cat0 --sources ... --method M``, one source and 20: s = 4, 7, 10 for ``dijkstra``,
+  ``fmm`` and ``heat``, s = 2, 3, 4 for ``exact`` (one source): ``features.geodesics.GEODESIC_MEMORY``, ``a + b n``
+  per method on the one-source rows, and ``GEODESIC_ROW_BYTES`` per vertex and source (not fitted: the arrays the
+  code holds per source);
+- ``shape-toolkit transfer-labels cat0 LABELS cat1``: at full resolution (``--proxy 0``), s = 1, 2, and through
+  proxies, s = 4, 7, 10: ``plugins.matching.multires.LABEL_TRANSFER_FULL_MEMORY`` and ``LABEL_TRANSFER_MEMORY``,
+  ``a + b n`` for the two shapes' n;
+- ``shape-toolkit track cat0 cat1 cat2`` (``zoomout``, through proxies), s = 4, 7: ``cli.commands.track.track_memory``,
+  every frame held (``FRAME_BYTES`` a vertex) and ``match``'s model for one pair (not fitted).
 
 Each model is also fitted to its rows by least squares (printed beside the shipped constants). The proxy path's
-models (``MATCH_MEMORY``, ``SEGMENT_MEMORY``) come from ``scale_1m.py``. About 12 minutes.
+models of ``match`` and ``segment`` (``MATCH_MEMORY``, ``SEGMENT_MEMORY``) come from ``scale_1m.py``. Each row's
+measurement is kept in ``DIR/rows.json`` and reused when the script runs again (``--fresh``: measure all again).
+About 25 minutes.
 """
 
 from __future__ import annotations
@@ -27,6 +38,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
+import json  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -61,6 +73,34 @@ def mesh(work: Path, name: str, s: int) -> tuple[Path, int]:
     return p, int(declared_vertices(p))
 
 
+class Rows:
+    """Measurements of ``run_cli`` kept in ``DIR/rows.json`` by command line, reused on the next run."""
+
+    def __init__(self, path: Path, fresh: bool) -> None:
+        self.path = path
+        self.rows = {} if fresh or not path.exists() else json.loads(path.read_text())
+
+    def run(self, args: list[str]) -> dict:
+        key = " ".join(args)
+        if key not in self.rows:
+            self.rows[key] = run_cli(args)
+            self.path.write_text(json.dumps(self.rows, indent=1))
+        return dict(self.rows[key])
+
+
+def labels_file(work: Path, shape_file: Path, n: int) -> Path:
+    """Four labels (the quadrants of the first two coordinates) for the ``n`` vertices of ``shape_file``."""
+    from shape_toolkit.io.mesh import load_shape
+
+    p = work / f"{shape_file.stem}.labels.txt"
+    if not p.exists():
+        V = np.asarray(load_shape(shape_file).vertices)
+        lab = (V[:, 0] > np.median(V[:, 0])).astype(int) + 2 * (V[:, 1] > np.median(V[:, 1])).astype(int)
+        assert lab.size == n
+        np.savetxt(p, lab, fmt="%d")
+    return p
+
+
 def fit(X: list[list[float]], peaks: list[float]) -> np.ndarray:
     """Least-squares coefficients of bytes = X @ coef."""
     return np.linalg.lstsq(np.asarray(X, float), np.asarray(peaks) * 1e6, rcond=None)[0]
@@ -78,36 +118,77 @@ def table(rows: list[dict], head: str) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--workdir", type=Path, required=True)
+    ap.add_argument("--fresh", action="store_true", help="measure every row again (default: reuse DIR/rows.json)")
     ap.add_argument("--output", type=Path, default=Path(__file__).resolve().parent / "results" / "memory_models.md")
     a = ap.parse_args()
+    from shape_toolkit.cli.commands.track import FRAME_BYTES, track_memory
     from shape_toolkit.core.spectrum import SPECTRUM_MEMORY, spectrum_memory
-    from shape_toolkit.plugins.matching.multires import MATCH_FULL_MEMORY, match_memory
+    from shape_toolkit.features.geodesics import GEODESIC_MEMORY, GEODESIC_ROW_BYTES, geodesic_memory
+    from shape_toolkit.plugins.matching.multires import (
+        LABEL_TRANSFER_FULL_MEMORY,
+        LABEL_TRANSFER_MEMORY,
+        MATCH_FULL_MEMORY,
+        PROXY_VERTICES,
+        label_transfer_memory,
+        match_memory,
+    )
     from shape_toolkit.plugins.segmenters.multires import SEGMENT_FULL_MEMORY, segment_memory
 
     a.workdir.mkdir(parents=True, exist_ok=True)
     out = a.workdir / "out"
-    spec, match, seg = [], [], []
+    measure = Rows(a.workdir / "rows.json", a.fresh).run
+    spec, match, seg, geo, tl, trk = [], [], [], [], [], []
     for s in (4, 7, 10):
         p, n = mesh(a.workdir, "cat0", s)
         for k in (20, 100, 200):
-            r = run_cli(["spectrum", str(p), "-k", str(k), "-o", f"{out}.npz"])
+            r = measure(["spectrum", str(p), "-k", str(k), "-o", f"{out}.npz"])
             spec.append({**r, "n": n, "k": k, "label": f"{n:,} | {k}", "model": spectrum_memory(n, k)})
             print(f"spectrum n={n} k={k}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
     for s in (2, 3, 4):
         (p, n), (q, m) = mesh(a.workdir, "cat0", s), mesh(a.workdir, "cat1", s)
-        r = run_cli(["match", str(p), str(q), "--proxy", "0", "-o", f"{out}.map.txt"])
+        r = measure(["match", str(p), str(q), "--proxy", "0", "-o", f"{out}.map.txt"])
         match.append({**r, "n": n + m, "label": f"{n:,} + {m:,}", "model": match_memory(n + m, 0)})
         print(f"match --proxy 0 n={n}+{m}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
     for s in (4, 7, 10):
         p, n = mesh(a.workdir, "cat0", s)
-        r = run_cli(["segment", str(p), "-k", "6", "--proxy", "0", "-o", f"{out}.labels.txt"])
+        r = measure(["segment", str(p), "-k", "6", "--proxy", "0", "-o", f"{out}.labels.txt"])
         seg.append({**r, "n": n, "label": f"{n:,}", "model": segment_memory(n, 0)})
         print(f"segment --proxy 0 n={n}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
+    many = ",".join(str(i) for i in range(20))
+    for method, sizes in (("dijkstra", (4, 7, 10)), ("fmm", (4, 7, 10)), ("heat", (4, 7, 10)), ("exact", (2, 3, 4))):
+        for s in sizes:
+            p, n = mesh(a.workdir, "cat0", s)
+            for src in ("0",) if method == "exact" else ("0", many):
+                k = src.count(",") + 1
+                r = measure(["geodesics", str(p), "--sources", src, "--method", method, "--time-limit", "600", "-o",
+                             f"{out}.npz"])
+                geo.append({**r, "n": n, "k": k, "method": method, "label": f"{method} | {n:,} | {k}",
+                            "model": geodesic_memory(n, k, method)})
+                print(f"geodesics {method} n={n} sources={k}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
+    for s, proxy in ((1, 0), (2, 0), (4, 5000), (7, 5000), (10, 5000)):
+        (p, n), (q, m) = mesh(a.workdir, "cat0", s), mesh(a.workdir, "cat1", s)
+        r = measure(["transfer-labels", str(p), str(labels_file(a.workdir, p, n)), str(q), "--proxy", str(proxy),
+                     "-o", f"{out}.labels.txt"])
+        tl.append({**r, "n": n + m, "proxy": proxy, "label": f"{'--proxy 0' if proxy == 0 else proxy} | {n:,} + {m:,}",
+                   "model": label_transfer_memory(n + m, proxy)})
+        print(f"transfer-labels --proxy {proxy} n={n}+{m}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
+    for s in (4, 7):
+        frames = [mesh(a.workdir, f"cat{i}", s) for i in range(3)]
+        r = measure(["track", *(str(p) for p, _ in frames), "-o", f"{out}.traj.npz"])
+        n = sum(m for _, m in frames)
+        trk.append({**r, "n": n, "label": " + ".join(f"{m:,}" for _, m in frames),
+                    "model": track_memory(n, len(frames), PROXY_VERTICES)})
+        print(f"track n={n}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
+    fgeo = {m: fit([[1, r["n"]] for r in geo if r["method"] == m and r["k"] == 1],
+                   [r["peak"] for r in geo if r["method"] == m and r["k"] == 1]) for m in GEODESIC_MEMORY}
+    ftf = fit([[1, r["n"]] for r in tl if r["proxy"] == 0], [r["peak"] for r in tl if r["proxy"] == 0])
+    ftp = fit([[1, r["n"]] for r in tl if r["proxy"]], [r["peak"] for r in tl if r["proxy"]])
     fs = fit([[1, r["n"], r["n"] * r["k"]] for r in spec], [r["peak"] for r in spec])
     fm = fit([[1, r["n"]] for r in match], [r["peak"] for r in match])
     fg = fit([[1, r["n"]] for r in seg], [r["peak"] for r in seg])
     lines = [
-        "# Peak memory of `spectrum`, `match --proxy 0` and `segment --proxy 0` (the models of `--memory-limit`)",
+        "# Peak memory of `spectrum`, `match --proxy 0`, `segment --proxy 0`, `geodesics` and `transfer-labels` "
+        "(the models of `--memory-limit`)",
         "",
         "Regenerate with:", "",
         "    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/memory_models.py --workdir /tmp/memory_models",
@@ -129,7 +210,27 @@ def main() -> None:
         f"`plugins.segmenters.multires.SEGMENT_FULL_MEMORY`: bytes = a + b n, shipped a = "
         f"{SEGMENT_FULL_MEMORY[0] / 1e6:.0f} MB, b = {SEGMENT_FULL_MEMORY[1]:.0f}; least squares: a = "
         f"{fg[0] / 1e6:.0f} MB, b = {fg[1]:.0f}.", "",
-        *table(seg, "n"),
+        *table(seg, "n"), "",
+        "## `shape-toolkit geodesics MESH --sources IDS --method M`", "",
+        "`features.geodesics.GEODESIC_MEMORY`: bytes = a + n (b + c s) for s sources, c = "
+        f"`GEODESIC_ROW_BYTES` = {GEODESIC_ROW_BYTES:.0f} (the float64 arrays the code holds per source: not fitted); "
+        "shipped a and b per method, and least squares on the one-source rows:", "",
+        "| method | shipped a MB | shipped b | fitted a MB | fitted b |", "|---|---|---|---|---|",
+        *[f"| {m} | {GEODESIC_MEMORY[m][0] / 1e6:.0f} | {GEODESIC_MEMORY[m][1]:.0f} | {fgeo[m][0] / 1e6:.0f} | "
+          f"{fgeo[m][1]:.0f} |" for m in GEODESIC_MEMORY], "",
+        *table(geo, "method | n | sources"), "",
+        "## `shape-toolkit transfer-labels TRAIN LABELS TEST` (`eigvec-alignment`)", "",
+        "`plugins.matching.multires.LABEL_TRANSFER_FULL_MEMORY` (`--proxy 0`): bytes = a + b n (n: both shapes' "
+        f"vertices), "
+        f"shipped a = {LABEL_TRANSFER_FULL_MEMORY[0] / 1e6:.0f} MB, b = {LABEL_TRANSFER_FULL_MEMORY[1]:.0f}; least "
+        f"squares: a = {ftf[0] / 1e6:.0f} MB, b = {ftf[1]:.0f}. `LABEL_TRANSFER_MEMORY` (through proxies of 5,000 "
+        f"vertices, the default): shipped a = {LABEL_TRANSFER_MEMORY[0] / 1e6:.0f} MB, b = "
+        f"{LABEL_TRANSFER_MEMORY[1]:.0f}; least squares: a = {ftp[0] / 1e6:.0f} MB, b = {ftp[1]:.0f}.", "",
+        *table(tl, "proxy | n (train + test)"), "",
+        "## `shape-toolkit track F0 F1 F2` (`zoomout`, through proxies of 5,000 vertices)", "",
+        f"`cli.commands.track.track_memory`: bytes = `FRAME_BYTES` n + `match_memory`(2 n / frames), `FRAME_BYTES` = "
+        f"{FRAME_BYTES:.0f} (n: every frame's vertices; not fitted).", "",
+        *table(trk, "frames' vertices"),
     ]
     a.output.write_text("\n".join(lines) + "\n")
     print(f"wrote {a.output}")

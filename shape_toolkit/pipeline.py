@@ -418,9 +418,7 @@ class Pipeline:
     def _run_through_proxies(self, source: Shape, target: Shape, seeds: np.ndarray | None, proxy: int,
                              say: Callable[[str], None]) -> Correspondence:
         """:meth:`run` on proxies of ``proxy`` vertices, the map lifted to the full shapes."""
-        from scipy.spatial import cKDTree
-
-        from shape_toolkit.plugins.matching.multires import lift_map, make_proxy, values_from_proxy
+        from shape_toolkit.plugins.matching.multires import lift_map, make_proxy, proxy_seeds, values_from_proxy
 
         t0, c0 = time.perf_counter(), time.process_time()
         say(f"{self.name}: proxies of {proxy} vertices")
@@ -429,12 +427,7 @@ class Pipeline:
         ids_s = np.arange(source.n_vertices) if ids_s is None else ids_s
         ids_t = np.arange(target.n_vertices) if ids_t is None else ids_t
         t_proxy, c_proxy = time.perf_counter() - t0, time.process_time() - c0
-        pseeds = None
-        if seeds is not None:  # each seed end moves to its nearest proxy vertex
-            seeds = check_seeds(seeds, source.n_vertices, target.n_vertices, allow_empty=False)
-            ns = cKDTree(np.asarray(source.vertices)[ids_s]).query(np.asarray(source.vertices)[seeds[:, 0]])[1]
-            nt = cKDTree(np.asarray(target.vertices)[ids_t]).query(np.asarray(target.vertices)[seeds[:, 1]])[1]
-            pseeds = np.column_stack([ns, nt]).astype(np.int64)
+        pseeds = None if seeds is None else proxy_seeds(seeds, source, target, ids_s, ids_t)
         inner = self.run(ps, pt, pseeds, progress=say, proxy=None)
         say(f"{self.name}: lifting the proxy map to {source.n_vertices} and {target.n_vertices} vertices")
         t1, c1 = time.perf_counter(), time.process_time()
@@ -525,13 +518,14 @@ def run_pair_timed(
     source: Shape,
     target: Shape,
     seeds: np.ndarray | None = None,
+    proxy: int | None = PROXY_VERTICES,
 ) -> tuple[Correspondence, dict[str, float]]:
     """One frame pair as ``shape-toolkit track`` and the runner's sequence task match it: a fresh
-    pipeline loaded from ``spec_or_name`` run with one BLAS thread, so the map does not depend on
-    where it runs; returns the map and ``{"wall": s, "cpu": s}`` (process CPU seconds)."""
+    pipeline loaded from ``spec_or_name`` run with one BLAS thread (and ``proxy`` as :meth:`Pipeline.run`'s), so the
+    map does not depend on where it runs; returns the map and ``{"wall": s, "cpu": s}`` (process CPU seconds)."""
     from threadpoolctl import threadpool_limits
 
     t0, c0 = time.perf_counter(), time.process_time()
     with threadpool_limits(limits=1):
-        corr = load_pipeline(spec_or_name).run(source, target, seeds)
+        corr = load_pipeline(spec_or_name).run(source, target, seeds, proxy=proxy)
     return corr, {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0}

@@ -101,6 +101,14 @@ def test_transfer_labels_accepts_psb_face_labels(pose, capsys, tmp_path):
     assert code == 0, err
     res = json.loads(out)
     assert res["per"] == "face" and len(np.loadtxt(tmp_path / "b.out.seg")) == b.shape.n_faces
+    assert res["proxy"] is None  # small shapes are labelled directly
+    # shapes above 1.5 --proxy vertices through proxies; faces labelled from the lifted vertex labels
+    code, out, err = run_cli(capsys, "transfer-labels", d / "a.off", d / "a.seg", d / "b.off", "--faces",
+                             "--truth", d / "b.seg", "-o", tmp_path / "b.proxy.seg", "--proxy", "100", "--json")
+    assert code == 0, err
+    prox = json.loads(out)
+    assert prox["proxy"]["test_vertices"] == b.shape.n_vertices and max(prox["proxy"]["proxy_vertices"]) < 150
+    assert len(np.loadtxt(tmp_path / "b.proxy.seg")) == b.shape.n_faces and prox["recall"] > 0.5 * res["recall"]
     # without --faces: one line naming the flag
     code, _, err = run_cli(capsys, "transfer-labels", d / "a.off", d / "a.seg", d / "b.off", "-o", tmp_path / "x.txt")
     assert code == 2 and "--faces" in err and len(err.strip().splitlines()) == 1

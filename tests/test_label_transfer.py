@@ -68,6 +68,41 @@ def test_label_transfer_errors(shapes):
         probabilistic_label_transfer(a.shape, -np.ones(a.shape.n_vertices, int), b.shape)
 
 
+def test_label_transfer_through_proxies_lifts_the_proxies_labels(shapes):
+    """Shapes above 1.5 ``proxy`` vertices are labelled through ``make_proxy``'s proxies (seeds moved to their nearest
+    proxy vertices) and each test vertex takes its nearest proxy vertex's label: at the proxy's vertices, exactly the
+    labels of the transfer run on the two proxies themselves."""
+    from shape_toolkit.plugins.matching.multires import make_proxy, proxy_seeds, transfer_labels_through_proxies
+
+    a, b = shapes
+    lab = SYMMETRIC_CLASSES[a.labels]
+    s = np.random.default_rng(0).choice(a.shape.n_vertices, 30, replace=False)
+    seeds = np.column_stack([s, s])  # the generated pair shares its vertex order
+    labels, corr = transfer_labels_through_proxies(a.shape, lab, b.shape, 1000, seeds=seeds,
+                                                   matcher="em-registration")
+    assert labels.shape == (b.shape.n_vertices,) and labels.dtype == np.int64
+    pa, ia = make_proxy(a.shape, 1000)
+    pb, ib = make_proxy(b.shape, 1000)
+    info = corr.info["proxy"]
+    np.testing.assert_array_equal(info["train_ids"], ia)
+    np.testing.assert_array_equal(info["test_ids"], ib)
+    assert info["test_vertices"] == b.shape.n_vertices and corr.n_target == pb.n_vertices
+    direct, _ = probabilistic_label_transfer(pa, lab[ia], pb, matcher="em-registration",
+                                             seeds=proxy_seeds(seeds, a.shape, b.shape, ia, ib))
+    np.testing.assert_array_equal(labels[ib], direct)
+    sc = label_transfer_scores(labels, SYMMETRIC_CLASSES[b.labels])
+    assert sc["recall"] > 0.9 and sc["precision"] > 0.9
+    with pytest.raises(ParameterError, match="proxy size"):
+        transfer_labels_through_proxies(a.shape, lab, b.shape, 50)
+    with pytest.raises(ParameterError, match="one entry per train vertex"):
+        transfer_labels_through_proxies(a.shape, lab[:-1], b.shape, 1000)
+    # labels only where the proxy has no vertex: said, with the way out
+    only = np.full(a.shape.n_vertices, -1)
+    only[np.setdiff1d(np.arange(a.shape.n_vertices), ia)[0]] = 1
+    with pytest.raises(ParameterError, match="full resolution"):
+        transfer_labels_through_proxies(a.shape, only, b.shape, 1000)
+
+
 @pytest.mark.slow  # two Python processes; transfer-labels runs in process in tests/test_cli_commands.py
 def test_cli_transfer_labels(shapes, tmp_path):
     a, b = shapes

@@ -14,7 +14,12 @@ from shape_toolkit.cli.commands import _common
 from shape_toolkit.core.spectrum import spectrum_memory
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.io.mesh import declared_vertices, save_shape
-from shape_toolkit.plugins.matching.multires import MATCH_FULL_MEMORY, MATCH_MEMORY, match_memory
+from shape_toolkit.plugins.matching.multires import (
+    MATCH_FULL_MEMORY,
+    MATCH_MEMORY,
+    label_transfer_memory,
+    match_memory,
+)
 from shape_toolkit.plugins.segmenters.multires import SEGMENT_FULL_MEMORY, SEGMENT_MEMORY, segment_memory
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -99,6 +104,46 @@ def test_a_shape_too_large_for_the_limit_is_refused_before_reading(files, capsys
         assert w in err, (w, err)
 
 
+def test_geodesics_transfer_labels_and_track_are_refused_before_reading(files, tmp_path, capsys):
+    """``geodesics`` (per method, and per source: many sources on a small mesh too), ``transfer-labels`` and ``track``
+    estimate their memory by their models (``memory_models.md``) before reading; the CLI cites the model's estimate."""
+    from shape_toolkit.cli.commands.track import track_memory
+    from shape_toolkit.features.geodesics import geodesic_memory
+
+    big, off = str(files["big"]), str(files["off"])
+    n = icosphere(2).n_vertices
+    labels = tmp_path / "l.txt"
+    np.savetxt(labels, np.zeros(n, dtype=int), fmt="%d")
+    many = tmp_path / "sources.txt"
+    np.savetxt(many, np.zeros(2_000_000, dtype=int), fmt="%d")  # 2M sources (repeats) of a 162-vertex sphere
+    cases = [
+        (["geodesics", big, "--sources", "0,1", "--method", "heat", "--memory-limit", "8"],
+         [f"{geodesic_memory(30_000_000, 2, 'heat') / 1e9:.1f} GB", "heat geodesics from 2 sources"]),
+        (["geodesics", big, "--sources", "0", "--method", "dijkstra", "--memory-limit", "4"],
+         [f"{geodesic_memory(30_000_000, 1, 'dijkstra') / 1e9:.1f} GB", "dijkstra geodesics from 1 source would"]),
+        (["geodesics", off, "--sources", str(many), "--method", "dijkstra", "--memory-limit", "1"],
+         [f"declares {n} vertices", f"{geodesic_memory(n, 2_000_000, 'dijkstra') / 1e9:.1f} GB", "2000000 sources",
+          "give fewer --sources, or raise"]),
+        (["transfer-labels", big, str(labels), off, "--memory-limit", "4"],
+         [f"{label_transfer_memory(30_000_000 + n, 5000) / 1e9:.1f} GB", "transferring the labels", "memory_models"]),
+        (["transfer-labels", off, str(labels), big, "--proxy", "0", "--memory-limit", "4"],
+         [f"{label_transfer_memory(30_000_000 + n, 0) / 1e9:.1f} GB", "at full resolution (--proxy 0)"]),
+        (["track", off, big, off, "--memory-limit", "4"],
+         [f"{track_memory(30_000_000 + 2 * n, 3, 5000) / 1e9:.1f} GB", "tracking through 3 frames"]),
+    ]
+    for argv, words in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--memory-limit" in err and "truncated" not in err, err
+        for w in words:
+            assert w in err, (w, err)
+    # the models grow with what they are given
+    heat, dijkstra = geodesic_memory(10**6, 1, "heat"), geodesic_memory(10**6, 1, "dijkstra")
+    assert geodesic_memory(10**6, 10, "heat") > heat > dijkstra
+    assert label_transfer_memory(10**6, 0) > label_transfer_memory(10**6, 5000) > label_transfer_memory(10**5, 5000)
+    assert track_memory(10**6, 4, 5000, parallel=2) > track_memory(10**6, 4, 5000) > track_memory(10**5, 4, 5000)
+
+
 def test_segment_without_k_is_refused_before_reading(files, capsys):
     """A segmenter that needs the number of segments, given none, is refused before the file is read (the 30M-vertex
     header-only file would fail on reading, or on the memory limit, were it reached); wrappers answer for theirs."""
@@ -162,8 +207,9 @@ def test_the_full_resolution_and_spectrum_models_follow_the_measured_peaks():
     from the table): a re-run that moves the peaks fails here until the models are fitted again."""
     text = (ROOT / "benchmarks" / "results" / "memory_models.md").read_text()
     sections = {t.split("`")[1].split()[1]: t for t in text.split("\n## ")[1:]}
-    assert set(sections) == {"spectrum", "match", "segment"}
-    for name, section in sections.items():
+    assert set(sections) == {"spectrum", "match", "segment", "geodesics", "transfer-labels", "track"}
+    for name in ("spectrum", "match", "segment"):
+        section = sections[name]
         rows = [[x.strip() for x in r.strip().strip("|").split("|")] for r in section.splitlines()
                 if re.match(r"\| [\d,]+ [|+]", r)]
         assert len(rows) >= 3, name
@@ -174,6 +220,44 @@ def test_the_full_resolution_and_spectrum_models_follow_the_measured_peaks():
             else:
                 est, peak = (match_memory if name == "match" else segment_memory)(n, 0), float(r[3])
             assert abs(est / 1e6 - peak) <= 0.15 * peak, (name, r, est / 1e6)
+
+
+def test_the_geodesic_label_transfer_and_track_models_follow_the_measured_peaks():
+    """``geodesic_memory``, ``label_transfer_memory`` and ``track_memory`` recomputed from each row's sizes of
+    benchmarks/results/memory_models.md: one source within 15 % (the per-source bytes are the code's arrays, an
+    estimate from above: at least the peak, at most 1.5x); label transfer within 25 % (through proxies the peak is
+    not monotonic in n: the largest shapes are clustered first); track at least its peak, at most 1.7x (``match``'s
+    model for the pair, from above at these sizes)."""
+    from shape_toolkit.cli.commands.track import track_memory
+    from shape_toolkit.features.geodesics import geodesic_memory
+
+    text = (ROOT / "benchmarks" / "results" / "memory_models.md").read_text()
+    sections = {t.split("`")[1].split()[1]: t for t in text.split("\n## ")[1:]}
+
+    def rows(name: str, first: str) -> list[list[str]]:
+        return [[x.strip() for x in r.strip().strip("|").split("|")] for r in sections[name].splitlines()
+                if re.match(first, r)]
+
+    geo = [r for r in rows("geodesics", r"\| (dijkstra|fmm|heat|exact) \| [\d,]+ \|") if len(r) == 8]  # not a-b
+    assert len(geo) >= 20
+    for method, n, k, *_, peak, _model, _ratio in geo:
+        est = geodesic_memory(int(n.replace(",", "")), int(k), method) / 1e6
+        if k == "1":
+            assert abs(est - float(peak)) <= 0.15 * float(peak), (method, n, k, est, peak)
+        else:
+            assert 0.95 * float(peak) <= est <= 1.5 * float(peak), (method, n, k, est, peak)
+    tl = rows("transfer-labels", r"\| (--proxy 0|\d+) \| [\d,]+ \+")
+    assert len(tl) >= 5
+    for proxy, shapes, *_, peak, _model, _ratio in tl:
+        n = sum(int(x.replace(",", "")) for x in shapes.split("+"))
+        est = label_transfer_memory(n, 0 if proxy == "--proxy 0" else int(proxy)) / 1e6
+        assert abs(est - float(peak)) <= 0.25 * float(peak), (proxy, shapes, est, peak)
+    trk = rows("track", r"\| [\d,]+ \+ [\d,]+ \+")
+    assert len(trk) >= 2
+    for frames, *_, peak, _model, _ratio in trk:
+        sizes = [int(x.replace(",", "")) for x in frames.split("+")]
+        est = track_memory(sum(sizes), len(sizes), 5000) / 1e6
+        assert float(peak) <= est <= 1.7 * float(peak), (frames, est, peak)
 
 
 def test_the_models_choose_the_path_the_command_takes():

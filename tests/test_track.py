@@ -224,6 +224,28 @@ def test_track_cli_end_to_end(seq, seq_files, tmp_path, capsys):
     assert (tmp_path / "t.pdf").read_bytes()[:5] == b"%PDF-" and res["outputs"]["pdf"] == str(tmp_path / "t.pdf")
 
 
+def test_track_through_proxies(seq, seq_files, tmp_path, capsys):
+    """``--proxy N``: frames above 1.5 N vertices are matched through proxies of N vertices (``Pipeline.run``'s, as
+    ``match`` does), and the maps lifted to every vertex; the default leaves these 642-vertex frames alone."""
+    from shape_toolkit.cli.commands.track import track_frames
+    from shape_toolkit.io.mesh import load_shape
+
+    out = tmp_path / "p.npz"
+    code, _, err = run_cli(capsys, "track", *seq_files[:3], "--pipeline", "zoomout", "--proxy", "400", "-o", out, "-q")
+    assert code == 0, err
+    tr = Trajectories.load(out)
+    frames = [load_shape(p) for p in seq_files[:3]]
+    through, _ = track_frames(frames, "zoomout", proxy=400)
+    direct, _ = track_frames(frames, "zoomout", proxy=0)
+    default, _ = track_frames(frames, "zoomout")
+    np.testing.assert_array_equal(tr.ids, through.ids)
+    np.testing.assert_array_equal(default.ids, direct.ids)
+    assert tr.ids.shape == direct.ids.shape and not np.array_equal(through.ids, direct.ids)
+    assert tr.alive[:, -1].mean() > 0.95  # every vertex of the first frame followed to the last
+    code, _, err = run_cli(capsys, "track", *seq_files[:2], "--proxy", "50")
+    assert code == 2 and err.count("\n") == 1 and "--proxy" in err
+
+
 def test_track_ply_dir_pullback_colours(seq, seq_files, tmp_path, capsys):
     code, stdout, err = run_cli(capsys, "track", *seq_files[:3], "--pipeline", "zoomout", "-o", tmp_path / "t.npz",
                              "--ply-dir", tmp_path / "plys", "--quiet")

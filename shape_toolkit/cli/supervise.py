@@ -31,6 +31,8 @@ MEMORY_HINTS = {
     "match": "decimate or remesh the shapes first (shape-toolkit clean --remesh)",
     "track": "fewer --workers, or remeshed frames (shape-toolkit clean --remesh)",
     "spectrum": "a smaller -k, or a remeshed shape (shape-toolkit clean --remesh)",
+    "geodesics": "fewer --sources, the dijkstra method, or a remeshed shape (shape-toolkit clean --remesh)",
+    "transfer-labels": "a proxy (--proxy, not 0), or remeshed shapes (shape-toolkit clean --remesh)",
     "demo": "--no-bench, or a smaller -k",
 }
 _DEFAULT_HINT = "a remeshed, smaller shape (shape-toolkit clean --remesh)"

@@ -68,6 +68,13 @@ GEODESIC_SOLVERS_CACHE = LRUCache(8, name="geodesic solvers")
 _KNN_NEIGHBORS = 8
 
 
+#: peak bytes of ``shape-toolkit geodesics`` per method, a fixed part and a part per vertex (mesh, solver), from its
+#: measured peaks with one source (``benchmarks/results/memory_models.md``, 2026-12-06: 80k to 500k vertices; exact
+#: 20k to 80k)
+GEODESIC_MEMORY = {"dijkstra": (85e6, 380.0), "fmm": (60e6, 1260.0), "heat": (0.0, 4500.0), "exact": (5e6, 6400.0)}
+#: bytes per vertex and source: the distance rows, the solved rows, their read-only copy in the rows cache and the
+#: command's nearest-source distances (float64 each; the cache is capped, so an estimate from above)
+GEODESIC_ROW_BYTES = 32.0
 #: sources solved in one call of scipy's Dijkstra between two budget checks
 _DIJKSTRA_BLOCK = 256
 
@@ -225,6 +232,14 @@ def _compute_rows(
         if budget is not None:
             budget.tick()
     return out
+
+
+def geodesic_memory(n: int, n_sources: int, method: str) -> float:
+    """Estimated peak bytes of ``shape-toolkit geodesics`` on a shape of ``n`` vertices from ``n_sources`` sources by
+    ``method`` (:data:`GEODESIC_MEMORY`, :data:`GEODESIC_ROW_BYTES`). An estimate for refusing a shape before reading
+    it (``--memory-limit``), not a bound."""
+    a, b = GEODESIC_MEMORY[method]
+    return a + n * (b + GEODESIC_ROW_BYTES * max(int(n_sources), 1))
 
 
 def _check_method(shape: Shape, method: str) -> None:

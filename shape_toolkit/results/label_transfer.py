@@ -7,6 +7,8 @@ takes ``argmax_l sum_j p_ij delta_jl`` (eq. 5.7, 5.9). The default matcher is th
 thesis: eigenvector alignment + EM registration (``eigvec-alignment``; its preset ``thesis`` aligns by
 histograms as the text, its default searches, see that module); with seeds,
 ``em-registration``. A matcher without posteriors is run test -> train and its hard map is used.
+Large shapes go through proxies: :func:`~shape_toolkit.plugins.matching.multires.transfer_labels_through_proxies`
+(``shape-toolkit transfer-labels`` does above 1.5 ``--proxy`` vertices).
 """
 
 from __future__ import annotations

@@ -345,12 +345,13 @@ def add_memory_limit(p: argparse.ArgumentParser) -> None:
 
 
 def check_memory(args: argparse.Namespace, paths: list[str], model: Callable[[int], float], work: str,
-                 measured: str = "scale_1m.md") -> None:
+                 measured: str = "scale_1m.md", also: str = "") -> None:
     """Refuse, before reading them, the shapes ``paths`` when the vertices their files declare
     (:func:`~shape_toolkit.io.mesh.declared_vertices`; a file without a count does not take part) need more than
     ``args.memory_limit`` bytes (default :func:`machine_memory`) by ``model``, the bytes the command needs for
     that many vertices in all, measured (in ``benchmarks/results/<measured>``);
-    ``work`` names what needs it. :class:`ParameterError` naming the options."""
+    ``work`` names what needs it. :class:`ParameterError` naming the options (``also``: another way out, named
+    between the remeshing and the limit)."""
     from shape_toolkit.io.mesh import declared_vertices
 
     limit = args.memory_limit if args.memory_limit is not None else machine_memory()
@@ -367,7 +368,8 @@ def check_memory(args: argparse.Namespace, paths: list[str], model: Callable[[in
             f"{' and '.join(str(p) for p in paths)} declare{'s' if one else ''} {shapes} vertices, for which {work} "
             f"would need about {need / 1e9:.1f} GB (measured growth, benchmarks/results/{measured}), above the "
             f"memory limit of {limit / 1e9:.1f} GB (--memory-limit{default}); remesh {'it' if one else 'them'} "
-            "coarser first (shape-toolkit clean --remesh EDGE_LEN), or raise --memory-limit")
+            f"coarser first (shape-toolkit clean --remesh EDGE_LEN), {also + ', ' if also else ''}or raise "
+            "--memory-limit")
 
 
 def default_output(given: str | None, inp: str | os.PathLike, what: str) -> Path:

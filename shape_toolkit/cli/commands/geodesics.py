@@ -12,10 +12,12 @@ from pathlib import Path
 import numpy as np
 
 from shape_toolkit.cli.commands._common import (
+    add_memory_limit,
     add_ply,
     add_quiet,
     add_time_limit,
     check_distinct,
+    check_memory,
     check_output_path,
     check_ply,
     default_output,
@@ -25,16 +27,16 @@ from shape_toolkit.cli.commands._common import (
     write_ply,
 )
 from shape_toolkit.errors import ParameterError, TimeLimitError
-from shape_toolkit.features.geodesics import geodesic_distances
+from shape_toolkit.features.geodesics import geodesic_distances, geodesic_memory
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.results.labels import read_vertex_ids
 
 METHODS = ("exact", "heat", "fmm", "dijkstra")
 
 
-def parse_sources(text: str, n_vertices: int) -> np.ndarray:
+def parse_sources(text: str, n_vertices: int | None = None) -> np.ndarray:
     """``--sources``: comma-separated 0-based ids (``0,15,200``) or a file of one id per line;
-    int64 ``(s,)`` checked against ``n_vertices``."""
+    int64 ``(s,)``, checked against ``n_vertices`` when given."""
     if Path(text).is_file():
         return read_vertex_ids(text, one_based=False, n_vertices=n_vertices)
     try:
@@ -43,9 +45,10 @@ def parse_sources(text: str, n_vertices: int) -> np.ndarray:
         raise ParameterError(f"--sources expects comma-separated vertex ids or a file, got {text[:40]!r}") from None
     if ids.size == 0:
         raise ParameterError("--sources: give at least one vertex id")
-    bad = ids[(ids < 0) | (ids >= n_vertices)]
+    bad = ids[(ids < 0) | (ids >= (np.inf if n_vertices is None else n_vertices))]
     if bad.size:
-        raise ParameterError(f"--sources: vertex id {int(bad[0])} is out of range [0, {n_vertices - 1}]")
+        raise ParameterError(f"--sources: vertex id {int(bad[0])} is "
+                             + ("negative" if n_vertices is None else f"out of range [0, {n_vertices - 1}]"))
     return ids
 
 
@@ -60,6 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_time_limit(p, "; exact geodesics take about 1 s per source on a 5,000-vertex mesh")
     add_ply(p, "the distance to the nearest source")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_memory_limit(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -69,6 +73,10 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(out, suffixes=(".npz",))
     check_distinct(out, args.shape)
     check_ply(args.ply, args.shape, str(out))
+    count = parse_sources(args.sources).size  # (a bad list is refused before the mesh is read)
+    check_memory(args, [args.shape], lambda n: geodesic_memory(n, count, args.method),
+                 f"{args.method} geodesics from {count} source{'s' if count > 1 else ''}", "memory_models.md",
+                 "give fewer --sources" if count > 1 else "")
     shape = load_shape(args.shape)
     src = parse_sources(args.sources, shape.n_vertices)
     t0 = time.perf_counter()

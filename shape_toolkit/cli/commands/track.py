@@ -21,29 +21,47 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.cli.commands._common import (
+    add_memory_limit,
     add_quiet,
     check_distinct,
+    check_memory,
     check_output_path,
     dask_target,
     default_output,
     positive_int_arg,
     print_json,
+    proxy_arg,
     status,
 )
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.plugins.matching.multires import PROXY_VERTICES, match_memory
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.results.trajectories import Trajectories, chain_maps, compose_maps
 
-__all__ = ["match_pairs", "track_frames", "pullback_sequence_colors", "register", "run"]
+__all__ = ["match_pairs", "track_frames", "pullback_sequence_colors", "track_memory", "FRAME_BYTES", "register", "run"]
+
+#: bytes a frame holds per vertex while the others are matched (the loaded shape, its cached areas and normals, its
+#: trajectory entries; one 244,904-vertex mesh loaded: 150 B, with its areas 250 B, 2026-12-06)
+FRAME_BYTES = 300.0
 
 
-def _match_pair(spec: dict[str, Any], source: Shape, target: Shape, seeds: np.ndarray | None) -> dict[str, Any]:
+def track_memory(n: int, n_frames: int, proxy: int | None, parallel: int = 1) -> float:
+    """Estimated peak bytes of ``shape-toolkit track`` on ``n_frames`` frames of ``n`` vertices in all: every frame held
+    (:data:`FRAME_BYTES` a vertex) and ``parallel`` frame pairs (Dask workers) matched at once, each estimated by
+    ``match``'s model for a pair of average frames. An estimate for refusing frames before reading them
+    (``--memory-limit``; ``benchmarks/results/memory_models.md``), not a bound."""
+    pair = 2 * n / max(n_frames, 1)
+    return FRAME_BYTES * n + max(int(parallel), 1) * match_memory(int(pair), proxy)
+
+
+def _match_pair(spec: dict[str, Any], source: Shape, target: Shape, seeds: np.ndarray | None,
+                proxy: int | None = PROXY_VERTICES) -> dict[str, Any]:
     """One frame pair (runs in the caller or on a Dask worker): the pipeline with one BLAS thread,
     so that the result does not depend on where it runs; the map, wall and CPU seconds."""
     from shape_toolkit.pipeline import run_pair_timed
 
-    corr, secs = run_pair_timed(spec, source, target, seeds)
+    corr, secs = run_pair_timed(spec, source, target, seeds, proxy)
     return {"target_of": np.asarray(corr.target_of), "n_target": corr.n_target, **secs, "n_matched": corr.n_matched}
 
 
@@ -55,12 +73,15 @@ def match_pairs(
     seeds: Sequence[np.ndarray | None] | None = None,
     client: Any = None,
     progress: Callable[[int, int], None] | None = None,
+    proxy: int | None = PROXY_VERTICES,
 ) -> list[tuple[Correspondence, dict[str, float]]]:
     """Match ``frames[i] -> frames[j]`` for every ``(i, j)`` in ``pairs`` with ``pipeline`` (a
     preset name, TOML path, dict or :class:`~shape_toolkit.pipeline.Pipeline`); ``seeds``: one
     ``(q, 2)`` array or None per pair. With a ``distributed.Client`` the pairs run in parallel on
     its workers, else one after the other; either way each runs with one BLAS thread, so both
-    give the same maps. ``progress(done, total)`` after each pair. Returns, per pair, the
+    give the same maps. Frames above 1.5 ``proxy`` vertices are matched through proxies (:meth:`Pipeline.run
+    <shape_toolkit.pipeline.Pipeline.run>`; None or 0: never). ``progress(done, total)`` after each pair. Returns,
+    per pair, the
     :class:`Correspondence` and ``{"wall": s, "cpu": s}`` measured where it ran."""
     from shape_toolkit.pipeline import load_pipeline
 
@@ -76,12 +97,12 @@ def match_pairs(
     results: list[dict[str, Any] | None] = [None] * len(pairs)
     if client is None:
         for k, (i, j) in enumerate(pairs):
-            results[k] = _match_pair(spec, frames[i], frames[j], seeds[k])
+            results[k] = _match_pair(spec, frames[i], frames[j], seeds[k], proxy)
             say(k + 1, len(pairs))
     else:
         from distributed import as_completed
 
-        futs = {client.submit(_match_pair, spec, frames[i], frames[j], seeds[k], pure=False): k
+        futs = {client.submit(_match_pair, spec, frames[i], frames[j], seeds[k], proxy, pure=False): k
                 for k, (i, j) in enumerate(pairs)}
         for done, fut in enumerate(as_completed(list(futs)), 1):
             results[futs[fut]] = fut.result()
@@ -101,18 +122,19 @@ def track_frames(
     seeds: Sequence[np.ndarray | None] | None = None,
     client: Any = None,
     progress: Callable[[int, int], None] | None = None,
+    proxy: int | None = PROXY_VERTICES,
 ) -> tuple[Trajectories, list[Correspondence]]:
     """Dense trajectories through ``frames`` (at least 2): match each frame to the next
-    (:func:`match_pairs`) and chain the maps (:func:`~shape_toolkit.results.trajectories.chain_maps`).
-    Returns the trajectories (``info``: pipeline, per-pair wall/CPU seconds and matched counts)
-    and the ``T - 1`` frame maps."""
+    (:func:`match_pairs`, through proxies above 1.5 ``proxy`` vertices) and chain the maps
+    (:func:`~shape_toolkit.results.trajectories.chain_maps`). Returns the trajectories (``info``: pipeline, per-pair
+    wall/CPU seconds and matched counts) and the ``T - 1`` frame maps."""
     from shape_toolkit.pipeline import load_pipeline
 
     if len(frames) < 2:
         raise ParameterError(f"tracking needs at least 2 frames, got {len(frames)}")
     pipe = load_pipeline(pipeline)
     res = match_pairs(frames, [(t, t + 1) for t in range(len(frames) - 1)], pipe, seeds=seeds,
-                      client=client, progress=progress)
+                      client=client, progress=progress, proxy=proxy)
     maps = [c for c, _ in res]
     info = {"pipeline": pipe.name, "pairs": [dict(s) for _, s in res],
             "frames": [f.name for f in frames]}
@@ -163,7 +185,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dask", metavar="SCHEDULER", type=dask_target,
                    help="match frame pairs in parallel on Dask: 'local' (a local cluster) or tcp://host:port")
     p.add_argument("--workers", type=positive_int_arg, default=2, help="local Dask workers (default 2)")
+    p.add_argument("--proxy", type=proxy_arg, default=PROXY_VERTICES, metavar="N",
+                   help=f"frames above 1.5 N vertices are matched through proxies of N vertices and the maps lifted to "
+                        f"full resolution, as match's (N >= 100; default {PROXY_VERTICES}; 0: always at full "
+                        "resolution)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_memory_limit(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -202,6 +229,10 @@ def run(args: argparse.Namespace) -> int:
 
     out, png, gif, ply_dir = _check_inputs(args)
     pipe = load_pipeline(args.pipeline)
+    parallel = min(args.workers, len(args.frames) - 1) if args.dask == "local" else 1
+    check_memory(args, list(args.frames), lambda n: track_memory(n, len(args.frames), args.proxy, parallel),
+                 f"tracking through {len(args.frames)} frames"
+                 + ("" if args.proxy else " at full resolution (--proxy 0)"), "memory_models.md")
     frames = [load_shape(f) for f in args.frames]
     kinds = {("mesh" if f.is_mesh else "point cloud") for f in frames}
     if len(kinds) > 1:
@@ -225,9 +256,10 @@ def run(args: argparse.Namespace) -> int:
             st.update(f"track ({pipe.name}): starting Dask")
             with dask_client(args.workers, None if args.dask == "local" else args.dask) as client:
                 st.update(f"track ({pipe.name}): 0/{n_pairs} frame pairs on Dask")
-                traj, maps = track_frames(frames, pipe, seeds=seeds, client=client, progress=progress)
+                traj, maps = track_frames(frames, pipe, seeds=seeds, client=client, progress=progress,
+                                          proxy=args.proxy)
         else:
-            traj, maps = track_frames(frames, pipe, seeds=seeds, progress=progress)
+            traj, maps = track_frames(frames, pipe, seeds=seeds, progress=progress, proxy=args.proxy)
         traj.info["files"] = [str(f) for f in args.frames]
         traj.save(out)
         written: dict[str, Any] = {"npz": str(out)}

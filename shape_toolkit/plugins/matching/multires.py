@@ -29,17 +29,19 @@ resolution; ``PROXY_VERTICES`` is the resolution the pipelines were built and me
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
-from shape_toolkit.core.geometry import edge_components, farthest_point_sampling
+from shape_toolkit.core.geometry import edge_components, farthest_point_sampling, flat_faces
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.plugins.weightings.cotangent import flat_faces
-from shape_toolkit.validation import check_vertex_ids
+from shape_toolkit.validation import check_seeds, check_vertex_ids
 
 __all__ = ["PROXY_VERTICES", "MATCH_MEMORY", "MATCH_FULL_MEMORY", "match_memory", "check_proxy_size", "make_proxy",
-           "lift_map", "interpolated_map", "on_surface", "values_from_proxy"]
+           "lift_map", "interpolated_map", "on_surface", "values_from_proxy", "proxy_seeds",
+           "transfer_labels_through_proxies", "LABEL_TRANSFER_MEMORY", "LABEL_TRANSFER_FULL_MEMORY",
+           "label_transfer_memory"]
 
 #: vertices of each proxy; shapes up to 1.5x this are matched directly
 PROXY_VERTICES = 5000
@@ -51,6 +53,13 @@ MATCH_MEMORY = (450e6, 200.0)
 #: the same at full resolution (``--proxy 0``; pipeline ``auto``): 100 MB + 8.9 kB a vertex of the two shapes, from its
 #: measured peaks (``benchmarks/results/memory_models.md``, 2026-12-06: 2 x 20k to 2 x 80k vertices)
 MATCH_FULL_MEMORY = (100e6, 8900.0)
+#: peak memory of ``shape-toolkit transfer-labels`` through proxies, in bytes: a fixed part and a part per vertex of the
+#: two shapes (the vertices the files declare), least squares on its measured peaks (``benchmarks/results/
+#: memory_models.md``, 2026-12-06: 302 to 578 MB for 2 x 80k to 2 x 500k vertices)
+LABEL_TRANSFER_MEMORY = (330e6, 270.0)
+#: the same at full resolution (``--proxy 0``; ``eigvec-alignment``): 212 and 421 MB for 2 x 5k and 2 x 20k vertices
+#: (and 1.1 GB for 42k + 90k, one run)
+LABEL_TRANSFER_FULL_MEMORY = (140e6, 7000.0)
 #: a proxy triangle whose corners' images are this many times further apart than its corners (in units of the
 #: proxies' spacings) straddles a seam of the map: a continuous map of a near-isometry stretches it about 1x
 SEAM_STRETCH = 3.0
@@ -83,6 +92,16 @@ def match_memory(n: int, proxy: int | None) -> float:
     directly)."""
     full = MATCH_FULL_MEMORY[0] + MATCH_FULL_MEMORY[1] * (min(n, 3 * proxy) if proxy else n)
     return max(MATCH_MEMORY[0] + MATCH_MEMORY[1] * n, full) if proxy else full
+
+
+def label_transfer_memory(n: int, proxy: int | None) -> float:
+    """Estimated peak bytes of ``shape-toolkit transfer-labels`` on two shapes of ``n`` vertices in all: at full
+    resolution (``proxy`` 0 or None: :data:`LABEL_TRANSFER_FULL_MEMORY`), or through proxies of ``proxy`` vertices
+    (:data:`LABEL_TRANSFER_MEMORY`, and never less than a full-resolution transfer between two shapes of 1.5 ``proxy``
+    vertices, the largest labelled directly). An estimate for refusing shapes before reading them, not a bound."""
+    a, b = LABEL_TRANSFER_FULL_MEMORY
+    full = a + b * (min(n, 3 * proxy) if proxy else n)
+    return max(LABEL_TRANSFER_MEMORY[0] + LABEL_TRANSFER_MEMORY[1] * n, full) if proxy else full
 
 
 def check_proxy_size(n_vertices: object) -> int:
@@ -180,6 +199,18 @@ def values_from_proxy(values: np.ndarray, shape: Shape, proxy: Shape) -> np.ndar
     return values[cKDTree(np.asarray(proxy.vertices, dtype=np.float64)).query(np.asarray(shape.vertices))[1]]
 
 
+def proxy_seeds(seeds: np.ndarray, source: Shape, target: Shape, ids_s: np.ndarray, ids_t: np.ndarray) -> np.ndarray:
+    """Seed pairs ``(s, 2)`` (checked against the shapes) moved to the proxies: each end to the nearest of the proxy
+    vertices ``ids_s`` of ``source`` and ``ids_t`` of ``target`` (ids into the proxies, int64 ``(s, 2)``)."""
+    from scipy.spatial import cKDTree
+
+    seeds = check_seeds(seeds, source.n_vertices, target.n_vertices, allow_empty=False)
+    Vs, Vt = np.asarray(source.vertices), np.asarray(target.vertices)
+    ns = cKDTree(Vs[ids_s]).query(Vs[seeds[:, 0]])[1]
+    nt = cKDTree(Vt[ids_t]).query(Vt[seeds[:, 1]])[1]
+    return np.column_stack([ns, nt]).astype(np.int64)
+
+
 def _spread(P: np.ndarray) -> np.ndarray:
     """Longest side ``(n,)`` of each triangle of corner positions ``P`` ``(n, 3, 3)`` (side by side, no ``(n, 3, 3)``
     temporary: at 10^6 vertices those cost 1.5 s a call in fresh memory, this 0.1 s)."""
@@ -271,3 +302,34 @@ def lift_map(
     return out, {"proxy_vertices": [int(len(src_ids)), int(len(tgt_ids))],
                  "lift": f"interpolated: {how[proxies[0].is_mesh]}",
                  "cpu_seconds": {"interpolation": time.process_time() - c0}}
+
+
+def transfer_labels_through_proxies(train: Shape, train_labels: np.ndarray, test: Shape, proxy: int = PROXY_VERTICES,
+                                    seeds: np.ndarray | None = None, **kwargs: Any) -> tuple[np.ndarray, Any]:
+    """Labels ``(n_test,)`` int64 of ``test`` from ``train_labels`` ``(n_train,)`` by
+    :func:`~shape_toolkit.results.label_transfer.probabilistic_label_transfer` (``kwargs``: its ``matcher``,
+    ``matcher_params``, ``preset``) run on proxies of ``proxy`` vertices of the shapes above 1.5 ``proxy``: the
+    training labels read at the training proxy's vertices (each a vertex of the shape), seeds ``[train, test]`` moved
+    to their nearest proxy vertices, and each test vertex given the label of its nearest test proxy vertex
+    (:func:`values_from_proxy`). Returns the labels and the proxies' correspondence, whose ``info["proxy"]`` holds
+    each proxy's vertex ids in its shape (``train_ids``, ``test_ids``). The alignment's search and the EM registration
+    cost more than linearly in the vertex count: PSB meshes 1 and 2 split to 42k and 90k vertices took 330 s of CPU
+    and 1.1 GB at full resolution, 33 s and 0.3 GB through proxies (one run, 2026-12-06)."""
+    from shape_toolkit.results.label_transfer import probabilistic_label_transfer
+
+    proxy = check_proxy_size(proxy)
+    lab = np.asarray(train_labels)
+    if lab.shape != (train.n_vertices,):
+        raise ParameterError(f"train labels must have one entry per train vertex ({train.n_vertices}), got {lab.shape}")
+    ptr, ids_tr = make_proxy(train, proxy) if train.n_vertices > 1.5 * proxy else (train, np.arange(train.n_vertices))
+    pte, ids_te = make_proxy(test, proxy) if test.n_vertices > 1.5 * proxy else (test, np.arange(test.n_vertices))
+    pseeds = None if seeds is None else proxy_seeds(seeds, train, test, ids_tr, ids_te)
+    if np.any(lab >= 0) and not np.any(lab[ids_tr] >= 0):
+        raise ParameterError(f"no labelled vertex of the train shape is among its proxy's {ptr.n_vertices}; label "
+                             "more of it, or transfer at full resolution (`--proxy 0`; probabilistic_label_transfer)")
+    out, corr = probabilistic_label_transfer(ptr, lab[ids_tr], pte, seeds=pseeds, **kwargs)
+    if pte is not test:
+        out = values_from_proxy(out, test, pte)
+    corr.info["proxy"] = {"train_vertices": int(train.n_vertices), "test_vertices": int(test.n_vertices),
+                          "train_ids": ids_tr, "test_ids": ids_te}
+    return np.asarray(out, dtype=np.int64), corr
