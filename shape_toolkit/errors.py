@@ -65,19 +65,23 @@ class DisconnectedGraphError(ToolkitError):
 
     shape: str | None = None
 
-    def __init__(self, n_components: int, sizes: list[int], shape: str | None = None):
+    def __init__(self, n_components: int, sizes: list[int], shape: str | None = None, coincident: int = 0):
         self.n_components = int(n_components)
         self.sizes = [int(s) for s in sizes]
         self.shape = shape
+        self.coincident = int(coincident)
         shown = ", ".join(str(s) for s in self.sizes[:8]) + (", ..." if len(self.sizes) > 8 else "")
         of = f" of {shape}" if shape else ""
+        welded = (f"{self.coincident} vertices lie on another vertex (an unwelded mesh, as a triangle soup): "
+                  "'shape-toolkit clean FILE' (clean_shape) merges them, which may join the pieces; other options: "
+                  if self.coincident else "Options: ")
         super().__init__(
             f"the shape graph{of} has {self.n_components} connected components (sizes {shown}); a spectrum "
-            f"of a disconnected graph mixes its components. Options: {COMPONENT_OPTIONS}"
+            f"of a disconnected graph mixes its components. {welded}{COMPONENT_OPTIONS}"
         )
 
     def __reduce__(self):  # picklable (Dask workers send errors back)
-        return (type(self), (self.n_components, self.sizes, self.shape))
+        return (type(self), (self.n_components, self.sizes, self.shape, self.coincident))
 
 
 class NumericallyDisconnectedGraphError(DisconnectedGraphError):

@@ -171,7 +171,7 @@ class SpectrumSpec:
             if type(exc) is not DisconnectedGraphError or exc.shape:
                 raise
             named = f"{shape.name!r} ({shape.n_vertices} vertices)"
-            raise DisconnectedGraphError(exc.n_components, exc.sizes, named) from None
+            raise DisconnectedGraphError(exc.n_components, exc.sizes, named, exc.coincident) from None
 
     def is_cached(self, shape: Shape, *, components: str = "raise", solver: Any = None) -> bool:
         """Whether :meth:`compute` with these arguments would be served from the cache."""

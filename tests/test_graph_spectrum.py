@@ -221,6 +221,27 @@ def test_multi_component_errors_name_the_options():
         assert "components='largest'" in msg and "component_spectra" in msg and "keep_largest_component" in msg
     back = pickle.loads(pickle.dumps(exc.value))
     assert str(back) == msg and back.sizes == [a.n_vertices, b.n_vertices]
+    assert "lie on another vertex" not in msg  # two pieces apart: nothing to weld
+
+
+def test_an_unwelded_mesh_is_told_to_merge_its_vertices():
+    """A triangle soup (every face with its own three corners, as an STL or a careless export) is 1,280 pieces of
+    three vertices: keeping the largest would keep one triangle. The error counts the vertices that lie on another
+    one and names the cleanup that merges them, which gives the sphere's spectrum back."""
+    from shape_toolkit.core.cleanup import clean_shape
+    from shape_toolkit.spectra import SpectrumSpec
+
+    s = icosphere(3)
+    corners = np.asarray(s.vertices)[np.asarray(s.faces)].reshape(-1, 3)
+    soup = Shape(corners, np.arange(len(corners)).reshape(-1, 3), "soup")
+    with pytest.raises(DisconnectedGraphError, match="1280 connected components") as exc:
+        SpectrumSpec(k=5).compute(soup)
+    msg = str(exc.value)
+    assert f"{len(corners) - s.n_vertices} vertices lie on another vertex" in msg and "shape-toolkit clean" in msg
+    assert exc.value.coincident == len(corners) - s.n_vertices and "'soup' (3840 vertices)" in msg
+    assert pickle.loads(pickle.dumps(exc.value)).coincident == exc.value.coincident
+    welded = clean_shape(soup)[0]
+    np.testing.assert_allclose(SpectrumSpec(k=5).compute(welded).eigenvalues[1:4], 2.0, rtol=0.01)
 
 
 def test_binary_trace_is_mean_neighbourhood_size_eq_3_8(sphere):

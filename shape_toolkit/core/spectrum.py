@@ -377,7 +377,9 @@ def compute_spectrum(
     if n_comp > 1:
         sizes = np.bincount(labels)
         if components == "raise":
-            raise DisconnectedGraphError(n_comp, sorted(sizes.tolist(), reverse=True))
+            V = np.asarray(graph.shape.vertices)
+            coincident = len(V) - len(np.unique(V, axis=0))  # an unwelded mesh: merging joins the pieces
+            raise DisconnectedGraphError(n_comp, sorted(sizes.tolist(), reverse=True), coincident=coincident)
         vertices = np.flatnonzero(labels == int(np.argmax(sizes)))
         if not 1 <= k <= len(vertices):
             raise ParameterError(f"k must be in [1, {len(vertices)}] (largest component)")
