@@ -860,3 +860,34 @@ def test_components_clicks_cannot_links_debris_and_small_pieces():
     # nothing of the split is left on the instance when it then segments a connected mesh
     res = seg.segment(a.shape)
     assert "segments_per_component" not in res.info and not hasattr(seg, "segments_per_component_")
+
+
+def test_an_unwelded_mesh_is_segmented_piece_by_piece_with_a_warning():
+    """A mesh whose pieces lie on one another along seams without sharing their vertices (a sphere cut in two
+    along a line of duplicated vertices, as an unwelded export) is segmented piece by piece, and a warning names the
+    cleanup that merges them; pieces that touch at one point (a bowtie: one shared position) and pieces apart give
+    none."""
+    import warnings
+
+    from shape_toolkit.data.generate import icosphere
+
+    s = icosphere(2)
+    V, F = np.asarray(s.vertices), np.asarray(s.faces)
+    upper = V[F].mean(axis=1)[:, 2] > 0  # the faces of the upper half take copies of their vertices
+    ids = np.unique(F[upper])
+    copy = np.full(len(V), -1)
+    copy[ids] = len(V) + np.arange(len(ids))
+    F2 = F.copy()
+    F2[upper] = copy[F[upper]]
+    cut = Shape(np.vstack([V, V[ids]]), F2)
+    with pytest.warns(UserWarning, match="unwelded mesh.*shape-toolkit clean"):
+        res = create_plugin("segmenters", "ncut", n_segments=4).segment(cut)
+    assert res.info["n_components"] == 2
+    a, _, _, _ = _two_bodies()
+    apart = Shape(np.vstack([a.shape.vertices, a.shape.vertices + [10.0, 0, 0]]),
+                  np.vstack([a.shape.faces, a.shape.faces + a.shape.n_vertices]))
+    touching = Shape(np.vstack([V, V + (V[np.argmax(V[:, 0])] - V[np.argmin(V[:, 0])])]), np.vstack([F, F + len(V)]))
+    for shape in (apart, touching):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            create_plugin("segmenters", "ncut", n_segments=4).segment(shape)

@@ -11,6 +11,7 @@ pieces (:func:`segments_per_component`); specks and debris join their nearest se
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -28,6 +29,22 @@ __all__ = ["PerComponent", "MIN_SPLIT_SIZE", "segments_per_component", "nearest_
 
 #: a mesh component with fewer vertices or faces than this is never split (one segment at most)
 MIN_SPLIT_SIZE = 20
+
+
+def _unwelded(shape: Shape, vcomp: np.ndarray) -> bool:
+    """Whether two pieces (``vcomp``: each vertex's piece, -1 on no face) share two or more vertex positions through
+    distinct vertices: an edge's worth of seam, which merging the vertices would join (pieces touching at one point,
+    as the cleanup leaves a non-manifold vertex split, share one)."""
+    _, group = np.unique(np.asarray(shape.vertices), axis=0, return_inverse=True)
+    on = vcomp >= 0
+    pairs = np.unique(np.column_stack([group.ravel()[on], vcomp[on]]), axis=0)  # (position, piece), once each
+    first = np.unique(pairs[:, 0], return_index=True)[1]
+    many = np.flatnonzero(np.diff(np.append(first, len(pairs))) > 1)  # positions held by two pieces or more
+    if not len(many):
+        return False
+    a, b = pairs[first[many], 1], pairs[first[many] + 1, 1]  # the first two pieces at each shared position
+    _, counts = np.unique(np.column_stack([a, b]), axis=0, return_counts=True)
+    return bool(np.any(counts >= 2))
 
 
 def segments_per_component(
@@ -206,6 +223,10 @@ class PerComponent(Segmenter):
             face_comp, vcomp = np.zeros(0, dtype=np.int64), np.asarray(vcomp, dtype=np.int64)
         if n_comp < 2 and (vcomp >= 0).all():
             return None
+        if mesh and n_comp > 1 and _unwelded(shape, vcomp):
+            warnings.warn(f"{shape!r} is in {n_comp} pieces, some of which lie on one another along seams without "
+                          "sharing their vertices (an unwelded mesh): each piece is segmented apart; 'shape-toolkit "
+                          "clean FILE' (clean_shape) merges them first", UserWarning, stacklevel=2)
         k = check_n_segments(getattr(seg, "n_segments", None), shape.n_vertices, allow_none=True)
         cons = coerce_constraints(constraints, shape.n_vertices)
         if cons is not None and len(cons.must_link):
