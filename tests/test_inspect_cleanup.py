@@ -448,3 +448,38 @@ def test_close_holes_leaves_slits_open():
     assert n_loops == 1 and closed.n_vertices == grid.n_vertices + 1
     np.testing.assert_allclose(closed.vertices[-1], [2.0, 2.0, 0.0])  # the rim's centre
     assert np.all(build_graph(closed, "cotangent").mass > 0)
+
+
+def test_inconsistently_oriented_faces_are_counted_and_oriented_by_the_cleanup(sphere):
+    """Faces of one piece that disagree on their orientation (as a careless export leaves them) are counted by
+    ``info`` (edges whose two faces run along them in the same direction) and flipped by ``clean``: each piece keeps
+    the orientation most of its faces had, so the sphere comes back exactly; a Moebius strip, which cannot be
+    oriented, is said in the notes."""
+    from shape_toolkit.core.inspect import inconsistent_edges
+
+    f = np.asarray(sphere.faces)
+    assert len(inconsistent_edges(f)) == 0 and mesh_info(sphere)["inconsistently_oriented_edges"] == 0
+    one = f.copy()
+    one[0] = one[0][::-1]
+    assert len(inconsistent_edges(one)) == 3  # a face against its three neighbours
+    cap = np.asarray(sphere.vertices)[f].mean(axis=1)[:, 2] > 0.5  # a cap, fewer than half the faces
+    mixed = f.copy()
+    mixed[cap] = mixed[cap][:, ::-1]
+    shape = Shape(sphere.vertices, mixed)
+    n_bad = mesh_info(shape)["inconsistently_oriented_edges"]
+    assert n_bad > 0
+    out, rep = clean_shape(shape)
+    assert rep.faces_reoriented == int(cap.sum()) and not rep.notes
+    np.testing.assert_array_equal(out.faces, f)  # the cap's faces back as they were
+    assert mesh_info(out)["inconsistently_oriented_edges"] == 0
+    same, rep0 = clean_shape(sphere)
+    assert rep0.faces_reoriented == 0 and np.array_equal(same.faces, f)
+    # a Moebius strip: a band of 8 quads whose ends are joined with a half twist
+    t = np.linspace(0, 2 * np.pi, 9)[:-1]
+    ring = np.column_stack([np.cos(t), np.sin(t), np.zeros(8)])
+    off = np.column_stack([np.cos(t / 2) * np.cos(t), np.cos(t / 2) * np.sin(t), np.sin(t / 2)]) * 0.3
+    v = np.vstack([ring - off, ring + off])
+    quads = [(i, (i + 1) % 8, 8 + (i + 1) % 8, 8 + i) for i in range(7)] + [(7, 8, 0, 15)]  # the twist
+    faces = np.array([tri for a, b, c, d in quads for tri in ((a, b, c), (a, c, d))])
+    _, rep = clean_shape(Shape(v, faces))
+    assert any("not orientable" in n for n in rep.notes)

@@ -1,7 +1,8 @@
 """Repair common mesh defects and report exactly what changed.
 
 Topological repairs are done here with numpy (exact, deterministic, and every output vertex
-keeps track of the input vertex it came from); only isotropic remeshing calls pymeshlab. The
+keeps track of the input vertex it came from); isotropic remeshing calls pymeshlab, and the coherent
+orientation of the faces libigl's breadth-first orientation (which flips faces and moves no vertex). The
 libraries' filters do not do the same job (checked with Open3D 0.19.0 and pymeshlab 2025.7):
 none returns the index map that :attr:`CleanupReport.vertex_map` reports; Open3D's
 ``remove_degenerate_triangles`` keeps zero-area faces with three distinct vertices and its
@@ -24,6 +25,7 @@ from shape_toolkit.core.inspect import (
     duplicate_vertex_map,
     edge_face_counts,
     face_fans,
+    inconsistent_edges,
 )
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
@@ -54,6 +56,7 @@ class CleanupReport:
     unreferenced_vertices_removed: int = 0
     non_manifold_edges_repaired: int = 0
     non_manifold_vertices_repaired: int = 0
+    faces_reoriented: int = 0
     components_removed: int = 0
     remeshed: bool = False
     notes: list[str] = field(default_factory=list)
@@ -79,6 +82,7 @@ def clean_shape(
     remove_degenerate: bool = True,
     remove_unreferenced: bool = True,
     repair_non_manifold: bool = True,
+    orient_faces: bool = True,
     keep_largest_component: bool = False,
     remesh_target_edge: float | None = None,
     remesh_iterations: int = 3,
@@ -87,8 +91,9 @@ def clean_shape(
 
     Steps, in order: merge exactly coincident vertices, drop degenerate faces (repeated index
     or zero area), drop duplicate faces (same vertex set), repair non-manifold edges (keep the
-    two largest faces on each) and vertices (split each extra fan into a new vertex), drop
-    unreferenced vertices, keep the component with most faces, isotropic remeshing to
+    two largest faces on each) and vertices (split each extra fan into a new vertex), orient the faces
+    coherently (each piece as most of its faces already were; a piece that cannot be, as a Moebius strip, is said in
+    the notes), drop unreferenced vertices, keep the component with most faces, isotropic remeshing to
     ``remesh_target_edge`` (file units). A point cloud only gets duplicate points merged.
     """
     if remesh_target_edge is not None and not (np.isfinite(remesh_target_edge) and remesh_target_edge > 0):
@@ -131,6 +136,11 @@ def clean_shape(
             rep.notes.append(
                 "split vertices are exact copies (they count as duplicate vertices in mesh_info)"
             )
+    if orient_faces and len(f) and len(inconsistent_edges(f)):
+        f, rep.faces_reoriented = _orient_coherently(f)
+        left = len(inconsistent_edges(f))
+        if left:
+            rep.notes.append(f"{left} edges are still inconsistently oriented: a piece is not orientable")
     if remove_unreferenced:
         used = np.zeros(len(v), dtype=bool)
         used[f.ravel()] = True
@@ -160,6 +170,22 @@ def clean_shape(
         v, f, vmap = _remesh(v, f, vmap, float(remesh_target_edge), int(remesh_iterations))
         rep.remeshed = True
     return _finish(shape, v, f, vmap, rep)
+
+
+def _orient_coherently(f: np.ndarray) -> tuple[np.ndarray, int]:
+    """Faces ``(m, 3)`` flipped so that every two faces across a manifold edge run along it in opposite directions
+    (libigl's breadth-first orientation over each piece), each piece keeping the orientation most of its faces
+    had; and how many faces were flipped."""
+    import igl
+
+    f = np.asarray(f, dtype=np.int64)
+    g, piece = igl.bfs_orient(np.ascontiguousarray(f))
+    piece = np.asarray(piece, dtype=np.int64).ravel()
+    flipped = ~np.all(np.asarray(g) == f, axis=1)  # bfs_orient reverses whole faces, or leaves them
+    pieces = int(piece.max()) + 1 if len(piece) else 0
+    back = np.bincount(piece, weights=flipped, minlength=pieces) > 0.5 * np.bincount(piece, minlength=pieces)
+    flip = flipped ^ back[piece]  # a piece mostly flipped: the other way round
+    return np.where(flip[:, None], f[:, ::-1], f), int(flip.sum())
 
 
 def close_holes(shape: Shape) -> tuple[Shape, int]:

@@ -18,6 +18,7 @@ __all__ = [
     "duplicate_vertex_map",
     "edge_face_counts",
     "face_fans",
+    "inconsistent_edges",
     "largest_face_piece",
     "mesh_info",
 ]
@@ -143,6 +144,21 @@ def edge_face_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return keys[first].reshape(-1, 2), counts.astype(np.int64)
 
 
+def inconsistent_edges(faces: np.ndarray) -> np.ndarray:
+    """Edges ``(e, 2)`` (``i < j``) on exactly two faces that run along them in the same direction: where the two
+    faces' orientations (and so their normals) disagree. A consistently oriented mesh has none."""
+    f = np.asarray(faces, dtype=np.int64)
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
+    he = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    forward = he[:, 0] < he[:, 1]
+    keys = np.sort(he, axis=1)
+    order = np.lexsort((keys[:, 1], keys[:, 0]))
+    keys, forward = keys[order], forward[order]
+    first, _, counts = _unique_rows(keys)
+    two = first[counts == 2]
+    return keys[two[forward[two] == forward[two + 1]]].reshape(-1, 2)
+
+
 def face_fans(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Group the corners around each vertex into fans (faces joined across shared edges).
 
@@ -212,6 +228,7 @@ def mesh_info(shape: Shape) -> dict:
         "non_manifold_edges": None,
         "non_manifold_vertices": None,
         "degenerate_faces": None,
+        "inconsistently_oriented_edges": None,
         "duplicate_faces": None,
         "duplicate_vertices": int((dup != np.arange(len(v))).sum()),
         "unreferenced_vertices": None,
@@ -243,6 +260,7 @@ def mesh_info(shape: Shape) -> dict:
         non_manifold_edges=n_nme,
         non_manifold_vertices=n_nmv,
         degenerate_faces=int(degenerate_face_mask(v, f).sum()),
+        inconsistently_oriented_edges=len(inconsistent_edges(f)),
         duplicate_faces=int(duplicate_face_mask(f).sum()),
         unreferenced_vertices=n_unref,
         euler_characteristic=int(chi),

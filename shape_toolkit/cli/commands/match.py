@@ -107,8 +107,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"{pipe.name}: matched {corr.n_matched}/{corr.n_source} vertices in {seconds:.2f} s -> {out}")
         o = corr.info.get("orientation")
         if o and o["verdict"] != "preserving" and o["samples"] > 0:  # clouds have no outward normals to judge
+            from shape_toolkit.core.inspect import inconsistent_edges
+
+            mixed = [(f, n) for f, s in ((args.source, source), (args.target, target))
+                     if s.is_mesh and (n := len(inconsistent_edges(s.faces)))]
+            why = (f"; but the faces of {mixed[0][0]} are not consistently oriented ({mixed[0][1]} edges), which the "
+                   "verdict reads from: 'shape-toolkit clean' orients them") if mixed else ""
             print(f"warning: the map's orientation is {o['verdict']} (score {o['score']:+.2f}, z {o['z']:+.1f}): "
-                  "left and right may be swapped; pass seeds (--seeds) to fix it")
+                  f"left and right may be swapped; pass seeds (--seeds) to fix it{why}")
         a = corr.info.get("ambiguity")
         if a and a.get("ambiguous"):
             print(f"warning: another map ({a['rival']}) lies {a['disagreement']:.2f} sqrt(area) from this one with a "
