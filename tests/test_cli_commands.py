@@ -484,3 +484,24 @@ def test_outputs_never_replace_an_input(pose, capsys, tmp_path):
     code, _, err = run_cli(capsys, "match", src, tgt, "--pipeline", "zoomout-fast", "-o", tmp_path / "m.txt",
                         "--ply", tmp_path / "m.ply", "--quiet")
     assert code == 2 and "must differ from the input" in err and (src.read_bytes(), tgt.read_bytes()) == kept
+
+
+def test_match_names_a_target_whose_faces_are_not_consistently_oriented(pose, capsys, tmp_path):
+    """Half the target's faces flipped: the orientation verdict, read from the faces' normals, cannot decide; the
+    warning names the shape whose faces disagree and the cleanup that orients them (after which it is gone)."""
+    from shape_toolkit.core.cleanup import clean_shape
+    from shape_toolkit.core.shape import Shape
+    from shape_toolkit.io.mesh import load_shape
+
+    d, _, b = pose
+    V, F = np.asarray(b.shape.vertices), np.asarray(b.shape.faces).copy()
+    half = V[F].mean(axis=1)[:, 0] > np.median(V[:, 0])
+    F[half] = F[half][:, ::-1]
+    save_shape(Shape(V, F), tmp_path / "flip.off")
+    code, out, err = run_cli(capsys, "match", d / "a.off", tmp_path / "flip.off", "-o", tmp_path / "m.txt")
+    assert code == 0, err
+    assert "orientation is undecided" in out and "faces of" in out and "flip.off are not consistently" in out
+    assert "'shape-toolkit clean' orients them" in out
+    save_shape(clean_shape(load_shape(tmp_path / "flip.off"))[0], tmp_path / "fixed.off")
+    code, out, err = run_cli(capsys, "match", d / "a.off", tmp_path / "fixed.off", "-o", tmp_path / "m.txt")
+    assert code == 0 and "not consistently" not in out
