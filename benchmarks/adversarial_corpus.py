@@ -193,6 +193,19 @@ def mesh_corpus(folder: Path) -> dict[str, Path]:
     files["bowtie.off"] = _off([[0, 0, 0], [1, 0, 0], [1, 1, 0], [-1, 0, 0], [-1, -1, 0]], [[0, 1, 2], [0, 3, 4]])
     files["disconnected.off"] = _off(np.r_[v, v + 5.0], np.r_[f, f + len(v)])
     files["unreferenced_vertices.off"] = _off(np.r_[v, [[9.0, 9.0, 9.0]] * 5], f)
+    files["unreferenced_vertices_first.off"] = _off(np.r_[[[9.0, 9.0, 9.0]] * 5, v], f + 5)
+    # session 34: a triangle soup (every face its own corners), a sphere cut along unwelded vertices, half the faces
+    # flipped
+    files["triangle_soup.off"] = _off(np.asarray(v)[np.asarray(f)].reshape(-1, 3), np.arange(3 * len(f)).reshape(-1, 3))
+    upper = np.asarray(v)[np.asarray(f)].mean(axis=1)[:, 2] > 0
+    twin = np.full(len(v), -1)
+    twin[np.unique(np.asarray(f)[upper])] = len(v) + np.arange(len(np.unique(np.asarray(f)[upper])))
+    cut_f = np.array(f)
+    cut_f[upper] = twin[np.asarray(f)[upper]]
+    files["unwelded_seam.off"] = _off(np.r_[v, np.asarray(v)[np.unique(np.asarray(f)[upper])]], cut_f)
+    mixed_f = np.array(f)
+    mixed_f[upper] = mixed_f[upper][:, ::-1]
+    files["mixed_orientation.off"] = _off(v, mixed_f)
     files["polygons.obj"] = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nf 1 2 3 4\nf 1 2 5\n"
     files["face_two_vertices.obj"] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n"
     files["point_cloud.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in v.tolist())
@@ -454,6 +467,17 @@ def side_runs(side: dict, out: Path) -> list[Run]:
     for value in ("50", "-1", "1.5", "abc", "1e3"):
         args[f"proxy {value} (match)"] = ["match", good, good, "--pipeline", "zoomout", "--proxy", value, *m_out]
         args[f"proxy {value} (segment)"] = [*gmm, "-k", "3", "--proxy", value, *s_out]
+    for value in ("50", "-1", "abc"):  # session 34: transfer-labels and track take --proxy too
+        args[f"proxy {value} (transfer-labels)"] = ["transfer-labels", good, labels, good, "--proxy", value,
+                                                    "-o", str(out / "t.txt"), "--json"]
+        args[f"proxy {value} (track)"] = ["track", good, good, "--proxy", value, "-o", str(out / "t.npz"), "--json"]
+    args["proxy 100 (transfer-labels)"] = ["transfer-labels", good, labels, good, "--proxy", "100",
+                                           "-o", str(out / "t.txt"), "--json"]
+    args["proxy 100 (track)"] = ["track", good, good, "--proxy", "100", "-o", str(out / "t.npz"), "--json", "--quiet"]
+    many = out / "many_sources.txt"
+    many.write_text("0\n" * 1_000_000)  # a million sources of a small mesh: refused before the mesh is read
+    args["geodesics 1M sources"] = ["geodesics", good, "--sources", str(many), "--method", "dijkstra",
+                                    "--memory-limit", "1", "-o", str(out / "g.npz"), "--json"]
     args["proxy 100 (match)"] = ["match", good, good, "--pipeline", "zoomout", "--proxy", "100", *m_out]
     args["proxy 100 (match, partial)"] = ["match", good, good, "--pipeline", "partial", "--proxy", "100", *m_out]
     args["proxy 100 (segment --faces)"] = ["segment", good, "-k", "3", "--proxy", "100", "--faces", *s_out]
