@@ -149,11 +149,8 @@ def inconsistent_edges(faces: np.ndarray) -> np.ndarray:
     faces' orientations (and so their normals) disagree. A consistently oriented mesh has none."""
     f = np.asarray(faces, dtype=np.int64)
     f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
-    he = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    forward = he[:, 0] < he[:, 1]
-    keys = np.sort(he, axis=1)
-    order = np.lexsort((keys[:, 1], keys[:, 0]))
-    keys, forward = keys[order], forward[order]
+    keys, fid, side = _half_edges(f)  # sorted by key: a pair's two half edges are adjacent
+    forward = f[fid, side] < f[fid, (side + 1) % 3]  # the face runs along its edge from the lower vertex
     first, _, counts = _unique_rows(keys)
     two = first[counts == 2]
     return keys[two[forward[two] == forward[two + 1]]].reshape(-1, 2)

@@ -377,8 +377,10 @@ def compute_spectrum(
     if n_comp > 1:
         sizes = np.bincount(labels)
         if components == "raise":
-            V = np.asarray(graph.shape.vertices)
-            coincident = len(V) - len(np.unique(V, axis=0))  # an unwelded mesh: merging joins the pieces
+            from shape_toolkit.core.inspect import duplicate_vertex_map
+
+            first = duplicate_vertex_map(graph.shape.vertices)  # an unwelded mesh: merging joins the pieces
+            coincident = int(np.sum(first != np.arange(len(first))))
             raise DisconnectedGraphError(n_comp, sorted(sizes.tolist(), reverse=True), coincident=coincident)
         vertices = np.flatnonzero(labels == int(np.argmax(sizes)))
         if not 1 <= k <= len(vertices):

@@ -21,7 +21,22 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.results.correspondence import Correspondence, transfer_labels
 
-__all__ = ["probabilistic_label_transfer"]
+__all__ = ["probabilistic_label_transfer", "check_train_labels"]
+
+
+def check_train_labels(train: Shape, train_labels: np.ndarray) -> np.ndarray:
+    """``train_labels`` as an integer array ``(n_train,)`` with at least one labelled (``>= 0``) vertex of ``train``,
+    else a :class:`ParameterError` saying what is wrong."""
+    lab = np.asarray(train_labels)
+    if lab.shape != (train.n_vertices,):
+        raise ParameterError(
+            f"train labels must have one entry per train vertex ({train.n_vertices}), got {lab.shape}"
+        )
+    if lab.size and not np.issubdtype(lab.dtype, np.integer):
+        raise ParameterError("train labels must be integers")
+    if not np.any(lab >= 0):
+        raise ParameterError("the train shape has no labelled vertex")
+    return lab
 
 
 def probabilistic_label_transfer(
@@ -39,15 +54,7 @@ def probabilistic_label_transfer(
     ``seeds`` are ``[train, test]`` vertex pairs."""
     from shape_toolkit.api.registry import create_plugin
 
-    lab = np.asarray(train_labels)
-    if lab.shape != (train.n_vertices,):
-        raise ParameterError(
-            f"train labels must have one entry per train vertex ({train.n_vertices}), got {lab.shape}"
-        )
-    if lab.size and not np.issubdtype(lab.dtype, np.integer):
-        raise ParameterError("train labels must be integers")
-    if not np.any(lab >= 0):
-        raise ParameterError("the train shape has no labelled vertex")
+    lab = check_train_labels(train, train_labels)
     m = create_plugin("dense_matchers", matcher, preset, **(matcher_params or {}))
     corr = m.match(train, test, seeds=seeds)
     if corr.posteriors is not None:

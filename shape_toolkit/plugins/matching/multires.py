@@ -90,8 +90,15 @@ def match_memory(n: int, proxy: int | None) -> float:
     (``proxy`` 0 or None: :data:`MATCH_FULL_MEMORY`), or through proxies of ``proxy`` vertices (:data:`MATCH_MEMORY`,
     and never less than a full-resolution match of two shapes of 1.5 ``proxy`` vertices, the largest matched
     directly)."""
-    full = MATCH_FULL_MEMORY[0] + MATCH_FULL_MEMORY[1] * (min(n, 3 * proxy) if proxy else n)
-    return max(MATCH_MEMORY[0] + MATCH_MEMORY[1] * n, full) if proxy else full
+    return _pair_memory(n, proxy, MATCH_MEMORY, MATCH_FULL_MEMORY)
+
+
+def _pair_memory(n: int, proxy: int | None, proxied: tuple[float, float], full: tuple[float, float]) -> float:
+    """Bytes ``a + b n`` of a command on two shapes of ``n`` vertices in all: ``full`` at full resolution (``proxy`` 0
+    or None), else ``proxied``, and never less than ``full`` for two shapes of 1.5 ``proxy`` vertices (the largest
+    run directly)."""
+    direct = full[0] + full[1] * (min(n, 3 * proxy) if proxy else n)
+    return max(proxied[0] + proxied[1] * n, direct) if proxy else direct
 
 
 def label_transfer_memory(n: int, proxy: int | None) -> float:
@@ -99,9 +106,7 @@ def label_transfer_memory(n: int, proxy: int | None) -> float:
     resolution (``proxy`` 0 or None: :data:`LABEL_TRANSFER_FULL_MEMORY`), or through proxies of ``proxy`` vertices
     (:data:`LABEL_TRANSFER_MEMORY`, and never less than a full-resolution transfer between two shapes of 1.5 ``proxy``
     vertices, the largest labelled directly). An estimate for refusing shapes before reading them, not a bound."""
-    a, b = LABEL_TRANSFER_FULL_MEMORY
-    full = a + b * (min(n, 3 * proxy) if proxy else n)
-    return max(LABEL_TRANSFER_MEMORY[0] + LABEL_TRANSFER_MEMORY[1] * n, full) if proxy else full
+    return _pair_memory(n, proxy, LABEL_TRANSFER_MEMORY, LABEL_TRANSFER_FULL_MEMORY)
 
 
 def check_proxy_size(n_vertices: object) -> int:
@@ -315,16 +320,14 @@ def transfer_labels_through_proxies(train: Shape, train_labels: np.ndarray, test
     each proxy's vertex ids in its shape (``train_ids``, ``test_ids``). The alignment's search and the EM registration
     cost more than linearly in the vertex count: PSB meshes 1 and 2 split to 42k and 90k vertices took 330 s of CPU
     and 1.1 GB at full resolution, 33 s and 0.3 GB through proxies (one run, 2026-12-06)."""
-    from shape_toolkit.results.label_transfer import probabilistic_label_transfer
+    from shape_toolkit.results.label_transfer import check_train_labels, probabilistic_label_transfer
 
     proxy = check_proxy_size(proxy)
-    lab = np.asarray(train_labels)
-    if lab.shape != (train.n_vertices,):
-        raise ParameterError(f"train labels must have one entry per train vertex ({train.n_vertices}), got {lab.shape}")
+    lab = check_train_labels(train, train_labels)
     ptr, ids_tr = make_proxy(train, proxy) if train.n_vertices > 1.5 * proxy else (train, np.arange(train.n_vertices))
     pte, ids_te = make_proxy(test, proxy) if test.n_vertices > 1.5 * proxy else (test, np.arange(test.n_vertices))
     pseeds = None if seeds is None else proxy_seeds(seeds, train, test, ids_tr, ids_te)
-    if np.any(lab >= 0) and not np.any(lab[ids_tr] >= 0):
+    if not np.any(lab[ids_tr] >= 0):
         raise ParameterError(f"no labelled vertex of the train shape is among its proxy's {ptr.n_vertices}; label "
                              "more of it, or transfer at full resolution (`--proxy 0`; probabilistic_label_transfer)")
     out, corr = probabilistic_label_transfer(ptr, lab[ids_tr], pte, seeds=pseeds, **kwargs)

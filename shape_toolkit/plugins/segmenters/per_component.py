@@ -35,9 +35,11 @@ def _unwelded(shape: Shape, vcomp: np.ndarray) -> bool:
     """Whether two pieces (``vcomp``: each vertex's piece, -1 on no face) share two or more vertex positions through
     distinct vertices: an edge's worth of seam, which merging the vertices would join (pieces touching at one point,
     as the cleanup leaves a non-manifold vertex split, share one)."""
-    _, group = np.unique(np.asarray(shape.vertices), axis=0, return_inverse=True)
+    from shape_toolkit.core.inspect import duplicate_vertex_map
+
+    group = duplicate_vertex_map(shape.vertices)  # one id per position: its first vertex
     on = vcomp >= 0
-    pairs = np.unique(np.column_stack([group.ravel()[on], vcomp[on]]), axis=0)  # (position, piece), once each
+    pairs = np.unique(np.column_stack([group[on], vcomp[on]]), axis=0)  # (position, piece), once each
     first = np.unique(pairs[:, 0], return_index=True)[1]
     many = np.flatnonzero(np.diff(np.append(first, len(pairs))) > 1)  # positions held by two pieces or more
     if not len(many):
