@@ -379,6 +379,10 @@ def test_evaluate_map_time_limit_exits_2_with_one_line(pose, capsys, tmp_path):
     assert "time limit of 1e-06 s exceeded" in err and "(--time-limit 1e-06)" in err and "heat" in err
     code, out, err = run_cli(capsys, *args, "--time-limit", "-3")
     assert code == 2 and "--time-limit" in err
+    # r-smoothness is always Dijkstra: its way out is fewer evaluated vertices, not another method
+    code, out, err = run_cli(capsys, *args[:4], "--r-smoothness", "--time-limit", "0.000001")
+    assert code == 2 and not out and len(err.strip().splitlines()) == 1
+    assert "r-smoothness" in err and "--r-sample N" in err and "heat" not in err
 
 
 def test_number_args_share_one_parser():

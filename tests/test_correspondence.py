@@ -188,6 +188,24 @@ def test_r_smoothness_table(ico):
     assert r_smoothness_table(ico, ico, shuffled, rs=(5.0,), sample=20)[5.0] < 50.0
 
 
+def test_r_smoothness_table_blocks_equal_one_pass(ico, monkeypatch):
+    """Evaluated a few vertices at a time (flat memory on large meshes), the table is the one of a single pass."""
+    import shape_toolkit.metrics.correspondence as mc
+
+    rng = np.random.default_rng(3)
+    t = np.arange(ico.n_vertices)
+    swap = rng.choice(ico.n_vertices, 30, replace=False)
+    t[swap] = rng.permutation(t[swap])  # 30 vertices sent elsewhere
+    t[rng.choice(ico.n_vertices, 10, replace=False)] = -1  # and some unmatched
+    whole = mc.r_smoothness_table(ico, ico, t, rs=(1.0, 2.0, 5.0), sample=None)
+    assert 0.0 < min(whole.values()) and max(whole.values()) < 100.0  # neither all nor none smooth
+    from shape_toolkit.features.geodesics import relative_neighbourhood_size
+
+    count = relative_neighbourhood_size(5.0, ico.n_vertices)
+    monkeypatch.setattr(mc, "R_SMOOTH_BLOCK_VALUES", 7 * count)  # blocks of 7 vertices
+    assert mc.r_smoothness_table(ico, ico, t, rs=(1.0, 2.0, 5.0), sample=None) == whole
+
+
 def test_label_transfer_scores_hand_made():
     truth = np.array([0, 0, 0, 1, 1, 1])
     assert label_transfer_scores(truth, truth)["recall"] == 1.0

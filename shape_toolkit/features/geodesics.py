@@ -101,6 +101,7 @@ class GeodesicBudget:
         total: int | None = None,
         progress: Callable[[int, int | None], None] | None = None,
         what: str = "geodesics",
+        remedy: str = "use a faster geodesic method (heat, fmm, dijkstra) or a larger time limit",
     ):
         if time_limit is not None:
             if isinstance(time_limit, bool) or not isinstance(time_limit, (int, float)) or not (
@@ -111,6 +112,7 @@ class GeodesicBudget:
         self.total = None if total is None else int(total)
         self.progress = progress
         self.what = what
+        self.remedy = remedy
         self.done = 0
         self.t0 = time.perf_counter()
 
@@ -135,15 +137,14 @@ class GeodesicBudget:
         if el > self.time_limit:
             raise TimeLimitError(
                 f"{self.what}: time limit of {self.time_limit:g} s exceeded after {self.done}{of} sources "
-                f"({el:.1f} s); use a faster geodesic method (heat, fmm, dijkstra) or a larger time limit"
+                f"({el:.1f} s); {self.remedy}"
             )
         if self.total and self.done >= self.MIN_SOURCES_FOR_PROJECTION and self.done < self.total:
             projected = el / self.done * self.total
             if projected > self.PROJECTION_FACTOR * self.time_limit:
                 raise TimeLimitError(
                     f"{self.what}: {self.done}{of} sources took {el:.1f} s, about {projected:.0f} s for all, "
-                    f"over the time limit of {self.time_limit:g} s; use a faster geodesic method "
-                    "(heat, fmm, dijkstra) or a larger time limit"
+                    f"over the time limit of {self.time_limit:g} s; {self.remedy}"
                 )
 
 

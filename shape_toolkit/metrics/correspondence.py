@@ -163,6 +163,8 @@ def correspondence_report(
 
 #: neighbourhood sizes r of thesis Table 7.2, in percent of a shape's vertices
 R_SMOOTH_RS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.8)
+#: neighbourhood entries (vertex ids) held at once by :func:`r_smoothness_table`, 32 MB of int64 per shape
+R_SMOOTH_BLOCK_VALUES = 2**22
 
 
 def _map_array(target_of: np.ndarray | Correspondence, n_source: int, n_target: int) -> np.ndarray:
@@ -234,21 +236,29 @@ def r_smoothness_table(
     cs = [relative_neighbourhood_size(r, source.n_vertices) for r in rs]
     ct = [relative_neighbourhood_size(r, target.n_vertices) for r in rs]
     matched = ids[t[ids] >= 0]
-    budget = GeodesicBudget(time_limit, 2 * matched.size, progress, f"r-smoothness ({method} geodesics)")
-    near_s = geodesic_nearest(source, matched, max(cs), method=method, budget=budget)
-    near_t = geodesic_nearest(target, t[matched], max(ct), method=method, budget=budget)
+    budget = GeodesicBudget(time_limit, 2 * matched.size, progress, f"r-smoothness ({method} geodesics)",
+                            remedy="evaluate fewer source vertices (sample; --r-sample N on the command line) "
+                            "or give a larger time limit")
     smooth = np.zeros(len(rs))
-    row = np.arange(matched.size, dtype=np.int64)[:, None] * target.n_vertices
-    for j, (c_s, c_t) in enumerate(zip(cs, ct)):
-        nb = near_s[:, :c_s]
-        img = np.where(nb >= 0, t[np.maximum(nb, 0)], -1)  # images of Nei_r(i), -1: unmatched or padding
-        valid = img >= 0
-        ball = near_t[:, :c_t]
-        keys = (row + ball)[ball >= 0]  # (row, target vertex) pairs of Nei_r(Phi(i)), as one integer
-        inside = np.isin(row + img, keys) & valid
-        n_valid = valid.sum(axis=1)
-        frac = inside.sum(axis=1) / np.maximum(n_valid, 1)
-        smooth[j] = np.count_nonzero((n_valid > 0) & (frac >= theta - 1e-12))
+    # a block of evaluated vertices at a time: their neighbourhoods are (block, count) arrays of at most
+    # R_SMOOTH_BLOCK_VALUES entries, so the memory stays flat when every vertex of a large mesh is evaluated
+    # (all at once they were two (n, r n / 100) arrays: 2 x 16 GB at 500k vertices and r = 0.8)
+    block = max(1, R_SMOOTH_BLOCK_VALUES // max(max(cs), max(ct)))
+    for b in range(0, matched.size, block):
+        here = matched[b : b + block]
+        near_s = geodesic_nearest(source, here, max(cs), method=method, budget=budget)
+        near_t = geodesic_nearest(target, t[here], max(ct), method=method, budget=budget)
+        row = np.arange(here.size, dtype=np.int64)[:, None] * target.n_vertices
+        for j, (c_s, c_t) in enumerate(zip(cs, ct)):
+            nb = near_s[:, :c_s]
+            img = np.where(nb >= 0, t[np.maximum(nb, 0)], -1)  # images of Nei_r(i), -1: unmatched or padding
+            valid = img >= 0
+            ball = near_t[:, :c_t]
+            keys = (row + ball)[ball >= 0]  # (row, target vertex) pairs of Nei_r(Phi(i)), as one integer
+            inside = np.isin(row + img, keys) & valid
+            n_valid = valid.sum(axis=1)
+            frac = inside.sum(axis=1) / np.maximum(n_valid, 1)
+            smooth[j] += np.count_nonzero((n_valid > 0) & (frac >= theta - 1e-12))
     return {r: float(100.0 * smooth[j] / ids.size) for j, r in enumerate(rs)}
 
 
