@@ -22,7 +22,13 @@ other; CPU seconds (user + system) and peak RSS come from ``wait4``:
   proxies, s = 4, 7, 10: ``plugins.matching.multires.LABEL_TRANSFER_FULL_MEMORY`` and ``LABEL_TRANSFER_MEMORY``,
   ``a + b n`` for the two shapes' n;
 - ``shape-toolkit track cat0 cat1 cat2`` (``zoomout``, through proxies), s = 4, 7: ``cli.commands.track.track_memory``,
-  every frame held (``FRAME_BYTES`` a vertex) and ``match``'s model for one pair (not fitted).
+  every frame held (``FRAME_BYTES`` a vertex) and ``match``'s model for one pair (not fitted);
+- ``shape-toolkit describe cat0 --descriptor D`` (``hks``, ``wks``, ``heat-distance`` from 20 keypoints), s = 4, 7, 10:
+  ``cli.commands.describe.describe_memory``, the spectrum's model or the eigenvectors held beside the descriptor
+  (``DESCRIPTOR_BYTES`` a value; not fitted);
+- ``shape-toolkit evaluate-map cat0 cat0 IDENTITY`` with 100 truth points (``heat``, ``dijkstra``, ``fmm``) or
+  ``--r-smoothness --r-sample 200``, s = 4, 7, 10: ``cli.commands.evaluate_map.evaluate_map_memory``, the geodesic
+  model of the rows solved at once, or r-smoothness's Dijkstra rows and neighbourhood blocks (not fitted).
 
 Each model is also fitted to its rows by least squares (printed beside the shipped constants). The proxy path's
 models of ``match`` and ``segment`` (``MATCH_MEMORY``, ``SEGMENT_MEMORY``) come from ``scale_1m.py``. Each row's
@@ -101,6 +107,14 @@ def labels_file(work: Path, shape_file: Path, n: int) -> Path:
     return p
 
 
+def ids_file(work: Path, name: str, n: int, count: int, one_based: bool) -> Path:
+    """``count`` vertex ids spread evenly over ``n`` vertices, one per line, written once to ``work``."""
+    p = work / name
+    if not p.exists():
+        np.savetxt(p, np.arange(0, n, n // count)[:count] + int(one_based), fmt="%d")
+    return p
+
+
 def fit(X: list[list[float]], peaks: list[float]) -> np.ndarray:
     """Least-squares coefficients of bytes = X @ coef."""
     return np.linalg.lstsq(np.asarray(X, float), np.asarray(peaks) * 1e6, rcond=None)[0]
@@ -121,9 +135,12 @@ def main() -> None:
     ap.add_argument("--fresh", action="store_true", help="measure every row again (default: reuse DIR/rows.json)")
     ap.add_argument("--output", type=Path, default=Path(__file__).resolve().parent / "results" / "memory_models.md")
     a = ap.parse_args()
+    from shape_toolkit.cli.commands.describe import DESCRIPTOR_BYTES, describe_memory
+    from shape_toolkit.cli.commands.evaluate_map import evaluate_map_memory
     from shape_toolkit.cli.commands.track import FRAME_BYTES, track_memory
     from shape_toolkit.core.spectrum import SPECTRUM_MEMORY, spectrum_memory
     from shape_toolkit.features.geodesics import GEODESIC_MEMORY, GEODESIC_ROW_BYTES, geodesic_memory
+    from shape_toolkit.metrics.correspondence import R_SMOOTH_RS
     from shape_toolkit.plugins.matching.multires import (
         LABEL_TRANSFER_FULL_MEMORY,
         LABEL_TRANSFER_MEMORY,
@@ -137,7 +154,7 @@ def main() -> None:
     a.workdir.mkdir(parents=True, exist_ok=True)
     out = a.workdir / "out"
     measure = Rows(a.workdir / "rows.json", a.fresh).run
-    spec, match, seg, geo, tl, trk = [], [], [], [], [], []
+    spec, match, seg, geo, tl, trk, desc, ev = [], [], [], [], [], [], [], []
     for s in (4, 7, 10):
         p, n = mesh(a.workdir, "cat0", s)
         for k in (20, 100, 200):
@@ -179,6 +196,30 @@ def main() -> None:
         trk.append({**r, "n": n, "label": " + ".join(f"{m:,}" for _, m in frames),
                     "model": track_memory(n, len(frames), PROXY_VERTICES)})
         print(f"track n={n}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
+    widths = {"hks": 16, "wks": 100, "heat-distance": 100}  # the defaults; 20 keypoints x 5 times
+    for s in (4, 7, 10):
+        p, n = mesh(a.workdir, "cat0", s)
+        kp = ids_file(a.workdir, f"kp20_s{s}.txt", n, 20, False)
+        truth = ids_file(a.workdir, f"truth100_s{s}.vts", n, 100, True)
+        ident = a.workdir / f"id_s{s}.txt"
+        if not ident.exists():
+            np.savetxt(ident, np.arange(n), fmt="%d")
+        for d, extra in (("hks", []), ("wks", []), ("heat-distance", ["--keypoints", str(kp)])):
+            r = measure(["describe", str(p), "--descriptor", d, *extra, "-o", f"{out}.npz"])
+            k = 51 if d == "heat-distance" else 101
+            desc.append({**r, "n": n, "label": f"{d} | {n:,}", "model": describe_memory(n, k, widths[d])})
+            print(f"describe {d} n={n}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
+        for g in ("heat", "dijkstra", "fmm"):
+            r = measure(["evaluate-map", str(p), str(p), str(ident), "--truth-src", str(truth), "--truth-dst",
+                         str(truth), "--geodesics", g, "--time-limit", "900"])
+            ev.append({**r, "n": n, "label": f"{g} from 100 truth points | {n:,}",
+                       "model": evaluate_map_memory(n, n, g, 100, False)})
+            print(f"evaluate-map {g} n={n}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
+        r = measure(["evaluate-map", str(p), str(p), str(ident), "--r-smoothness", "--r-sample", "200", "--time-limit",
+                     "900"])
+        ev.append({**r, "n": n, "label": f"--r-smoothness --r-sample 200 | {n:,}",
+                   "model": evaluate_map_memory(n, n, "heat", 0, R_SMOOTH_RS, 200)})
+        print(f"evaluate-map r-smoothness n={n}: {r['cpu']:.1f} s CPU, {r['peak']:.0f} MB", flush=True)
     fgeo = {m: fit([[1, r["n"]] for r in geo if r["method"] == m and r["k"] == 1],
                    [r["peak"] for r in geo if r["method"] == m and r["k"] == 1]) for m in GEODESIC_MEMORY}
     ftf = fit([[1, r["n"]] for r in tl if r["proxy"] == 0], [r["peak"] for r in tl if r["proxy"] == 0])
@@ -187,8 +228,8 @@ def main() -> None:
     fm = fit([[1, r["n"]] for r in match], [r["peak"] for r in match])
     fg = fit([[1, r["n"]] for r in seg], [r["peak"] for r in seg])
     lines = [
-        "# Peak memory of `spectrum`, `match --proxy 0`, `segment --proxy 0`, `geodesics` and `transfer-labels` "
-        "(the models of `--memory-limit`)",
+        "# Peak memory of `spectrum`, `match --proxy 0`, `segment --proxy 0`, `geodesics`, `transfer-labels`, `track`, "
+        "`describe` and `evaluate-map` (the models of `--memory-limit`)",
         "",
         "Regenerate with:", "",
         "    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/memory_models.py --workdir /tmp/memory_models",
@@ -230,7 +271,19 @@ def main() -> None:
         "## `shape-toolkit track F0 F1 F2` (`zoomout`, through proxies of 5,000 vertices)", "",
         f"`cli.commands.track.track_memory`: bytes = `FRAME_BYTES` n + `match_memory`(2 n / frames), `FRAME_BYTES` = "
         f"{FRAME_BYTES:.0f} (n: every frame's vertices; not fitted).", "",
-        *table(trk, "frames' vertices"),
+        *table(trk, "frames' vertices"), "",
+        "## `shape-toolkit describe MESH --descriptor D` (its declared spectrum: Gaussian weights, combinatorial)", "",
+        "`cli.commands.describe.describe_memory`: the larger of the spectrum's model for the declared k (101 for `hks` "
+        "and `wks`, 51 for `heat-distance`) and, once it is solved, its eigenvectors (8 k bytes a vertex) held beside "
+        f"the descriptor's columns (`DESCRIPTOR_BYTES` = {DESCRIPTOR_BYTES} a value: the matrix and the copy written; "
+        "16, 100 and 100 columns here, `heat-distance` from 20 keypoints); not fitted.", "",
+        *table(desc, "descriptor | n"), "",
+        "## `shape-toolkit evaluate-map SRC DST MAP` (the identity map of a shape onto itself)", "",
+        "`cli.commands.evaluate_map.evaluate_map_memory`: the geodesic error's rows on the target, min(128, truth "
+        "points) solved at once (`geodesic_memory`), or r-smoothness's: both shapes' Dijkstra graphs "
+        "(`GEODESIC_MEMORY`), 64 float64 rows and their mask on the larger shape, and two blocks of neighbourhoods "
+        "(200 vertices here); not fitted.", "",
+        *table(ev, "what | n"),
     ]
     a.output.write_text("\n".join(lines) + "\n")
     print(f"wrote {a.output}")

@@ -231,6 +231,19 @@ def test_heat_diffusion_descriptor(bump):
         )
 
 
+@pytest.mark.parametrize("name, params", [("hks", {}), ("hks", {"times": [0.1, 1.0, 10.0]}), ("wks", {"n_energies": 7}),
+                                          ("heat-diffusion", {}), ("heat-distance", {"n_times": 3})])
+def test_output_width_is_the_width_compute_returns(bump, name, params):
+    """``output_width`` (what ``describe --memory-limit`` counts before reading a shape) is the number of columns
+    ``compute`` returns, for the keypoints given; keypoint descriptors without keypoints do not know it."""
+    shape = bump[0]
+    desc = create_plugin("descriptors", name, **params)
+    kp = np.array([0, 5, 40, 90])
+    assert desc.output_width(kp.size) == desc.compute(shape, keypoints=kp).shape[1]
+    if name.startswith("heat-"):
+        assert desc.output_width(None) is None
+
+
 def test_heat_distance_descriptor_and_matching_score(bump):
     shape, tips, spec = bump
     times = [2.0, 8.0, 32.0]

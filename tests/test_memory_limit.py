@@ -144,6 +144,52 @@ def test_geodesics_transfer_labels_and_track_are_refused_before_reading(files, t
     assert track_memory(10**6, 4, 5000, parallel=2) > track_memory(10**6, 4, 5000) > track_memory(10**5, 4, 5000)
 
 
+def test_describe_and_evaluate_map_are_refused_before_reading(files, tmp_path, capsys):
+    """``describe`` counts its declared spectrum and the descriptor's columns (``output_width``: keypoints make
+    heat-distance wider); ``evaluate-map`` its geodesic error on the target (per method, rows from the truth
+    points) or its r-smoothness on the larger shape (memory_models.md): both before reading a shape."""
+    from shape_toolkit.cli.commands.describe import describe_memory
+    from shape_toolkit.cli.commands.evaluate_map import evaluate_map_memory
+    from shape_toolkit.metrics.correspondence import R_SMOOTH_RS
+
+    big, off = str(files["big"]), str(files["off"])
+    n, N = icosphere(2).n_vertices, 30_000_000
+    kp = tmp_path / "kp.txt"
+    np.savetxt(kp, np.arange(40), fmt="%d")
+    truth = tmp_path / "t.vts"
+    np.savetxt(truth, np.arange(1, 101), fmt="%d")
+    ident = tmp_path / "id.txt"
+    np.savetxt(ident, np.arange(n), fmt="%d")
+    cases = [
+        (["describe", big, "--memory-limit", "8"],
+         [f"{describe_memory(N, 101, 16) / 1e9:.1f} GB", "fewer eigenpairs (--param K=...)",
+          "the hks descriptor (a spectrum of 101 eigenpairs, 16 columns)"]),
+        (["describe", big, "--descriptor", "heat-distance", "--keypoints", str(kp), "--memory-limit", "8"],
+         [f"{describe_memory(N, 51, 200) / 1e9:.1f} GB", "51 eigenpairs, 200 columns"]),
+        (["evaluate-map", off, big, str(ident), "--truth-src", str(truth), "--truth-dst", str(truth),
+          "--memory-limit", "8"],
+         [f"{evaluate_map_memory(n, N, 'heat', 100) / 1e9:.1f} GB", "heat geodesics from 100 truth points",
+          "fewer truth points"]),
+        (["evaluate-map", big, off, str(ident), "--r-smoothness", "--memory-limit", "2"],
+         [f"{evaluate_map_memory(N, n, 'heat', 0, R_SMOOTH_RS) / 1e9:.1f} GB", "evaluating the map (r-smoothness)"]),
+    ]
+    for argv, words in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--memory-limit" in err and "truncated" not in err, err
+        for w in words:
+            assert w in err, (w, err)
+    # the geodesic error needs the target's rows, not the source's; r-smoothness the larger shape's
+    assert evaluate_map_memory(n, N, "heat", 100) > evaluate_map_memory(N, n, "heat", 100)
+    assert evaluate_map_memory(N, n, "dijkstra", 0, (1.0,)) == evaluate_map_memory(n, N, "heat", 0, (1.0,))
+    assert evaluate_map_memory(n, N, "heat", 1000) == evaluate_map_memory(n, N, "heat", 128)  # rows in chunks
+    assert evaluate_map_memory(N, N, "heat", 0, (0.001,)) > evaluate_map_memory(N, N, "heat", 0, (0.001,), 10)
+    assert describe_memory(N, 51, 2000) > describe_memory(N, 51, 16) == describe_memory(N, 51, None)  # the solve
+    # a shape within the limit runs
+    out = tmp_path / "d.npz"
+    assert main(["describe", off, "--memory-limit", "1", "-o", str(out), "-q"]) == 0 and out.exists()
+
+
 def test_segment_without_k_is_refused_before_reading(files, capsys):
     """A segmenter that needs the number of segments, given none, is refused before the file is read (the 30M-vertex
     header-only file would fail on reading, or on the memory limit, were it reached); wrappers answer for theirs."""
@@ -207,7 +253,8 @@ def test_the_full_resolution_and_spectrum_models_follow_the_measured_peaks():
     from the table): a re-run that moves the peaks fails here until the models are fitted again."""
     text = (ROOT / "benchmarks" / "results" / "memory_models.md").read_text()
     sections = {t.split("`")[1].split()[1]: t for t in text.split("\n## ")[1:]}
-    assert set(sections) == {"spectrum", "match", "segment", "geodesics", "transfer-labels", "track"}
+    assert set(sections) == {"spectrum", "match", "segment", "geodesics", "transfer-labels", "track", "describe",
+                             "evaluate-map"}
     for name in ("spectrum", "match", "segment"):
         section = sections[name]
         rows = [[x.strip() for x in r.strip().strip("|").split("|")] for r in section.splitlines()
@@ -258,6 +305,38 @@ def test_the_geodesic_label_transfer_and_track_models_follow_the_measured_peaks(
         sizes = [int(x.replace(",", "")) for x in frames.split("+")]
         est = track_memory(sum(sizes), len(sizes), 5000) / 1e6
         assert float(peak) <= est <= 1.7 * float(peak), (frames, est, peak)
+
+
+def test_the_describe_and_evaluate_map_models_follow_the_measured_peaks():
+    """``describe_memory`` and ``evaluate_map_memory`` recomputed from each row's sizes of
+    benchmarks/results/memory_models.md (neither is fitted): at least 0.95x the peak and at most 1.4x (estimates from
+    above: the geodesic rows' model counts what the geodesics command holds per source)."""
+    from shape_toolkit.cli.commands.describe import describe_memory
+    from shape_toolkit.cli.commands.evaluate_map import evaluate_map_memory
+    from shape_toolkit.metrics.correspondence import R_SMOOTH_RS
+
+    text = (ROOT / "benchmarks" / "results" / "memory_models.md").read_text()
+    sections = {t.split("`")[1].split()[1]: t for t in text.split("\n## ")[1:]}
+
+    def rows(name: str, first: str) -> list[list[str]]:
+        return [[x.strip() for x in r.strip().strip("|").split("|")] for r in sections[name].splitlines()
+                if re.match(first, r)]
+
+    desc = rows("describe", r"\| (hks|wks|heat-distance) \| [\d,]+ \|")
+    assert len(desc) >= 9
+    for name, n, _cpu, _wall, peak, _model, _ratio in desc:
+        k, width = (51, 100) if name == "heat-distance" else (101, 16 if name == "hks" else 100)
+        est = describe_memory(int(n.replace(",", "")), k, width) / 1e6
+        assert 0.95 * float(peak) <= est <= 1.4 * float(peak), (name, n, est, peak)
+    ev = rows("evaluate-map", r"\| (heat|dijkstra|fmm|--r-smoothness)")
+    assert len(ev) >= 12
+    for what, n, _cpu, _wall, peak, _model, _ratio in ev:
+        n = int(n.replace(",", ""))
+        if what.startswith("--r-smoothness"):
+            est = evaluate_map_memory(n, n, "heat", 0, R_SMOOTH_RS, int(what.split()[-1]))
+        else:
+            est = evaluate_map_memory(n, n, what.split()[0], int(what.split()[2]))
+        assert 0.95 * float(peak) <= est / 1e6 <= 1.4 * float(peak), (what, n, est / 1e6, peak)
 
 
 def test_the_models_choose_the_path_the_command_takes():

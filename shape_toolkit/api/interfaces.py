@@ -218,6 +218,11 @@ class Descriptor(BasePlugin, ABC):
     ) -> np.ndarray:
         """A float64 ``(n, d)`` descriptor matrix, one row per vertex."""
 
+    def output_width(self, n_keypoints: int | None = None) -> int | None:
+        """``d``, the columns :meth:`compute` will return given ``n_keypoints`` keypoints (None: none given), when
+        known before computing (the memory estimate of ``shape-toolkit describe``); None: not known."""
+        return None
+
 
 class SparseMatcher(BasePlugin, ABC):
     """One-to-one matching of the keypoints of two shapes."""

@@ -235,6 +235,10 @@ def _compute_rows(
     return out
 
 
+#: distance rows solved at once by :func:`paired_geodesic_distances` and :func:`geodesic_nearest`
+PAIRED_CHUNK, NEAREST_CHUNK = 128, 64
+
+
 def geodesic_memory(n: int, n_sources: int, method: str) -> float:
     """Estimated peak bytes of ``shape-toolkit geodesics`` on a shape of ``n`` vertices from ``n_sources`` sources by
     ``method`` (:data:`GEODESIC_MEMORY`, :data:`GEODESIC_ROW_BYTES`). An estimate for refusing a shape before reading
@@ -308,7 +312,7 @@ def paired_geodesic_distances(
     b: np.ndarray,
     *,
     method: str = "exact",
-    chunk: int = 128,
+    chunk: int = PAIRED_CHUNK,
     time_limit: float | None = None,
     progress: Callable[[int, int | None], None] | None = None,
 ) -> np.ndarray:
@@ -485,7 +489,7 @@ def geodesic_nearest(
     *,
     method: str = "dijkstra",
     budget: GeodesicBudget | None = None,
-    chunk: int = 64,
+    chunk: int = NEAREST_CHUNK,
 ) -> np.ndarray:
     """The ``count`` vertices geodesically closest to each source, int64 ``(len(sources), count)``,
     sorted as :func:`order_by_distance` (the source first, ties by id); ``-1`` pads a row whose

@@ -344,12 +344,13 @@ def add_memory_limit(p: argparse.ArgumentParser) -> None:
                         "reading them (default: this machine's memory)")
 
 
-def check_memory(args: argparse.Namespace, paths: list[str], model: Callable[[int], float], work: str,
-                 measured: str = "scale_1m.md", also: str = "") -> None:
+def check_memory(args: argparse.Namespace, paths: list[str], model: Callable[[Any], float], work: str,
+                 measured: str = "scale_1m.md", also: str = "", *, by_shape: bool = False) -> None:
     """Refuse, before reading them, the shapes ``paths`` when the vertices their files declare
     (:func:`~shape_toolkit.io.mesh.declared_vertices`; a file without a count does not take part) need more than
     ``args.memory_limit`` bytes (default :func:`machine_memory`) by ``model``, the bytes the command needs for
-    that many vertices in all, measured (in ``benchmarks/results/<measured>``);
+    that many vertices in all (``by_shape``: given each path's count, 0 for a file without one), measured (in
+    ``benchmarks/results/<measured>``);
     ``work`` names what needs it. :class:`ParameterError` naming the options (``also``: another way out, named
     between the remeshing and the limit)."""
     from shape_toolkit.io.mesh import declared_vertices
@@ -359,7 +360,7 @@ def check_memory(args: argparse.Namespace, paths: list[str], model: Callable[[in
     if limit is None or not any(counts):
         return
     n = sum(c for c in counts if c)
-    need = model(n)
+    need = model([c or 0 for c in counts]) if by_shape else model(n)
     if need > limit:
         shapes = " + ".join(f"{c:,}" for c in counts if c)
         default = "" if args.memory_limit is not None else ", this machine's memory"

@@ -11,8 +11,10 @@ import numpy as np
 
 from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.cli.commands._common import (
+    add_memory_limit,
     add_quiet,
     check_distinct,
+    check_memory,
     check_output_path,
     declared_spectra,
     default_output,
@@ -25,6 +27,19 @@ from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.results.labels import read_vertex_ids
 from shape_toolkit.validation import dumps_json
+
+#: bytes per descriptor value held while describing: the computed matrix and the copy written to the .npz
+DESCRIPTOR_BYTES = 16
+
+
+def describe_memory(n: int, k: int, width: int | None) -> float:
+    """Estimated peak bytes of ``shape-toolkit describe`` on a shape of ``n`` vertices: computing the declared spectrum
+    of ``k`` eigenpairs (:func:`~shape_toolkit.core.spectrum.spectrum_memory`), or afterwards its eigenvectors held
+    beside ``width`` descriptor columns (:data:`DESCRIPTOR_BYTES` a value; None: unknown, not counted), whichever is
+    more. An estimate for refusing a shape before reading it (``--memory-limit``), not a bound."""
+    from shape_toolkit.core.spectrum import spectrum_memory
+
+    return max(spectrum_memory(n, k), spectrum_memory(n, 0) + n * (8 * k + DESCRIPTOR_BYTES * (width or 0)))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", help="output .npz (default SHAPE_STEM.DESCRIPTOR.npz): 'descriptor' "
                    "(n_vertices, d) float64, 'params' (JSON text), 'spectra' (JSON text)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_memory_limit(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -49,8 +65,18 @@ def run(args: argparse.Namespace) -> int:
     check_distinct(out, args.shape, args.keypoints)
     params = parse_params(args.param, plugin_class("descriptors", args.descriptor))
     desc = create_plugin("descriptors", args.descriptor, preset=args.preset, **params)
+    from shape_toolkit.spectra import declared_specs
+
+    kp = read_vertex_ids(args.keypoints, one_based=False) if args.keypoints else None
+    k = sum(spec.k for spec in declared_specs(desc))
+    width = desc.output_width(None if kp is None else kp.size)
+    check_memory(args, [args.shape], lambda n: describe_memory(n, k, width),
+                 f"the {args.descriptor} descriptor (a spectrum of {k} eigenpairs"
+                 + (f", {width} columns)" if width else ")"), "memory_models.md",
+                 "fewer eigenpairs (--param K=...)")
     shape = load_shape(args.shape)
-    kp = read_vertex_ids(args.keypoints, one_based=False, n_vertices=shape.n_vertices) if args.keypoints else None
+    if kp is not None:  # the ids against the shape, as read_vertex_ids words it
+        kp = read_vertex_ids(args.keypoints, one_based=False, n_vertices=shape.n_vertices)
     t0 = time.perf_counter()
     with status(args, f"describe: {args.descriptor} on {shape.n_vertices} vertices"):
         spectra, used = declared_spectra(desc, shape)

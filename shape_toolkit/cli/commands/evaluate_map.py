@@ -19,8 +19,10 @@ import argparse
 import numpy as np
 
 from shape_toolkit.cli.commands._common import (
+    add_memory_limit,
     add_quiet,
     add_time_limit,
+    check_memory,
     number_arg,
     positive_int_arg,
     print_json,
@@ -47,6 +49,34 @@ from shape_toolkit.results.labels import read_vertex_ids
 #: geodesics of the r-neighbourhoods: Dijkstra along edges ranks the nearest vertices like the
 #: surface distance does, and explores only a small disc around each vertex
 R_SMOOTH_GEODESICS = "dijkstra"
+
+
+def evaluate_map_memory(n_source: int, n_target: int, method: str, n_truth: int,
+                        r_smoothness: tuple[float, ...] | None = None, r_sample: int | None = None) -> float:
+    """Estimated peak bytes of ``shape-toolkit evaluate-map`` on shapes of ``n_source`` and ``n_target`` vertices: the
+    geodesic error's rows on the target from ``n_truth`` points by ``method`` (none when 0;
+    :func:`~shape_toolkit.features.geodesics.geodesic_memory`), or r-smoothness for the neighbourhood sizes
+    ``r_smoothness`` (percent; None: not asked) on ``r_sample`` source vertices (None: all), whichever is more. An
+    estimate for refusing shapes before reading them (``--memory-limit``), not a bound."""
+    from shape_toolkit.features.geodesics import (
+        GEODESIC_MEMORY,
+        NEAREST_CHUNK,
+        PAIRED_CHUNK,
+        geodesic_memory,
+        relative_neighbourhood_size,
+    )
+    from shape_toolkit.metrics.correspondence import R_SMOOTH_BLOCK_VALUES
+
+    need = [0.0]
+    if n_truth:
+        need.append(geodesic_memory(n_target, min(PAIRED_CHUNK, n_truth), method))
+    if r_smoothness:  # both shapes' Dijkstra graphs, float64 rows and a mask on the larger, two neighbourhood blocks
+        a, b = GEODESIC_MEMORY["dijkstra"]
+        n = max(n_source, n_target)
+        count = relative_neighbourhood_size(max(r_smoothness), max(n, 1))
+        block = min(R_SMOOTH_BLOCK_VALUES, min(r_sample or n_source, n_source) * count)
+        need.append(a + b * (n_source + n_target) + 2 * 8 * NEAREST_CHUNK * n + 2 * 8 * block)
+    return max(need)
 
 
 _percent_arg = number_arg("a percent of the vertices in (0, 100]", 0.0, 100.0, open_low=True)
@@ -85,6 +115,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "of the source's labels carried onto the target through the map (Table 7.3)")
     p.add_argument("--faces", action="store_true", help="--labels files hold one label per face (PSB .seg)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_memory_limit(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -156,6 +187,14 @@ def _geodesic_error(args, source, target, corr, st) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     _check_args(args)
+    n_truth = read_vertex_ids(args.truth_src, one_based=False).size if args.truth_src else 0
+    rs = None if args.r_smoothness is None else (tuple(args.r_smoothness) or R_SMOOTH_RS)
+    work = " and ".join(([f"{args.geodesics} geodesics from {n_truth} truth points"] if n_truth else [])
+                        + (["r-smoothness"] if args.r_smoothness is not None else []))
+    check_memory(args, [args.source, args.target],
+                 lambda c: evaluate_map_memory(c[0], c[1], args.geodesics, n_truth, rs, args.r_sample),
+                 f"evaluating the map ({work})" if work else "evaluating the map", "memory_models.md",
+                 "fewer truth points" if n_truth else "", by_shape=True)
     source = load_shape(args.source)
     target = load_shape(args.target)
     # Every score is scale-free (errors in units of sqrt(area), neighbourhoods by vertex counts).
@@ -177,8 +216,7 @@ def run(args: argparse.Namespace) -> int:
     with status(args, "evaluate-map") as st:
         if args.truth_src is not None:
             result.update(_geodesic_error(args, source, target, corr, st))
-        if args.r_smoothness is not None:
-            rs = tuple(args.r_smoothness) or R_SMOOTH_RS
+        if rs is not None:
             st.update("evaluate-map: r-smoothness (geodesic neighbourhoods on both shapes)")
             try:
                 table = r_smoothness_table(

@@ -57,6 +57,10 @@ class HeatDistanceDescriptor(KeypointHeatMixin, Descriptor):
         self.weighting = weighting
         self.laplacian = laplacian
 
+    def output_width(self, n_keypoints: int | None = None) -> int | None:
+        """``M tau`` for ``M`` keypoints (None when none are given: the descriptor then refuses to run)."""
+        return None if n_keypoints is None else int(n_keypoints) * self.n_times_out()
+
     def compute(
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None
     ) -> np.ndarray:

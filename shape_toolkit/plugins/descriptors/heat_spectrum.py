@@ -106,6 +106,10 @@ class KeypointHeatMixin:
         """``2K + 1`` eigenpairs of the ``laplacian`` of the ``weighting`` graph (no mass)."""
         return keypoint_heat_spec(self.K, self.weighting, self.laplacian)  # type: ignore[attr-defined]
 
+    def n_times_out(self) -> int:
+        """``tau``, the number of times (given, or the scree rule's ``n_times``)."""
+        return len(self.times) if self.times is not None else int(self.n_times)  # type: ignore[attr-defined]
+
     def inputs(
         self, shape: Shape, spectrum: Spectrum | None, keypoints: np.ndarray | Sequence[int] | None
     ) -> tuple[Spectrum, int, np.ndarray, np.ndarray]:

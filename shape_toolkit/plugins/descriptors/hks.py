@@ -53,6 +53,10 @@ class HKSDescriptor(SignatureSpectrumMixin, Descriptor):
         self.weighting = weighting
         self.laplacian = laplacian
 
+    def output_width(self, n_keypoints: int | None = None) -> int | None:
+        """One column per time."""
+        return len(self.times) if self.times is not None else int(self.n_times)
+
     def compute(
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None
     ) -> np.ndarray:

@@ -94,6 +94,10 @@ class WKSDescriptor(SignatureSpectrumMixin, Descriptor):
         self.weighting = weighting
         self.laplacian = laplacian
 
+    def output_width(self, n_keypoints: int | None = None) -> int | None:
+        """One column per energy."""
+        return int(self.n_energies)
+
     def compute(
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None
     ) -> np.ndarray:
