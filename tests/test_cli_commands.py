@@ -509,3 +509,29 @@ def test_match_names_a_target_whose_faces_are_not_consistently_oriented(pose, ca
     save_shape(clean_shape(load_shape(tmp_path / "flip.off"))[0], tmp_path / "fixed.off")
     code, out, err = run_cli(capsys, "match", d / "a.off", tmp_path / "fixed.off", "-o", tmp_path / "m.txt")
     assert code == 0 and "not consistently" not in out
+
+
+def test_match_notes_a_part_against_a_whole(pose, capsys, tmp_path):
+    """One mesh open (a region cut away) and the other closed: `match` notes that the partial pipeline matches a part
+    to a whole, naming the files in that order; `--json` gives each boundary's length in sqrt(area). No note for two
+    closed meshes, nor under `--pipeline partial`."""
+    from shape_toolkit.core.inspect import boundary_length
+    from shape_toolkit.data.corruptions import crop
+
+    d, a, _ = pose
+    part = crop(a.shape, strength=0.3, attempts=10)[0]
+    save_shape(part, tmp_path / "part.off")
+    length = boundary_length(part) / np.sqrt(part.area)
+    assert length > 0 and boundary_length(a.shape) == 0.0
+    fast = ["--pipeline", "zoomout", "-o", tmp_path / "m.txt"]
+    code, out, err = run_cli(capsys, "match", d / "b.off", tmp_path / "part.off", *fast)
+    assert code == 0, err
+    assert f"part.off has an open boundary ({length:.2f} sqrt(area) long)" in out
+    assert f"'shape-toolkit match {tmp_path / 'part.off'} {d / 'b.off'} --pipeline partial'" in out
+    code, out, err = run_cli(capsys, "match", tmp_path / "part.off", d / "b.off", *fast, "--json")
+    assert json.loads(out)["open_boundary"] == {"source": round(length, 4), "target": 0.0}
+    code, out, err = run_cli(capsys, "match", d / "a.off", d / "b.off", *fast)
+    assert code == 0 and "open boundary" not in out
+    code, out, err = run_cli(capsys, "match", tmp_path / "part.off", d / "b.off", "--pipeline", "partial",
+                             "-o", tmp_path / "m.txt")
+    assert code == 0 and "open boundary" not in out

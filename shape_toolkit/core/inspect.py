@@ -203,6 +203,16 @@ def _boundary_loops(boundary: np.ndarray) -> int:
     return int(len(boundary) - len(verts) + k)
 
 
+def boundary_length(shape: Shape) -> float | None:
+    """Total length of a mesh's boundary edges (those on one face), in file units; 0.0 for a closed mesh, None for a
+    point cloud."""
+    if not shape.is_mesh:
+        return None
+    edges, counts = edge_face_counts(shape.faces)
+    b = edges[counts == 1]
+    return float(np.linalg.norm(shape.vertices[b[:, 0]] - shape.vertices[b[:, 1]], axis=1).sum())
+
+
 def mesh_info(shape: Shape) -> dict:
     """Counts of vertices, faces, components, boundaries and defects as a JSON-ready dict.
 

@@ -8,6 +8,8 @@ import argparse
 import time
 from pathlib import Path
 
+import numpy as np
+
 from shape_toolkit.cli.commands._common import (
     add_memory_limit,
     add_quiet,
@@ -21,6 +23,7 @@ from shape_toolkit.cli.commands._common import (
     status,
     write_ply,
 )
+from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.pipeline import PRESETS, load_pipeline
@@ -100,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
         "ambiguity": corr.info.get("ambiguity"),
         # the proxies' functional map (a k x k array) is for the API, not the summary
         "proxy": {k: v for k, v in corr.info["proxy"].items() if k != "C"} if corr.info.get("proxy") else None,
+        "open_boundary": _open_boundary(source, target),
     }
     if args.json:
         print_json(result)
@@ -120,6 +124,31 @@ def run(args: argparse.Namespace) -> int:
             print(f"warning: another map ({a['rival']}) lies {a['disagreement']:.2f} sqrt(area) from this one with a "
                   f"residual only {a['residual_ratio']:.2f} times its own: the pair is ambiguous (a half turn or a "
                   "swapped part may have been kept); pass seeds (--seeds) to decide")
+        hint = _partial_hint(result["open_boundary"], args, pipe.name)
+        if hint:
+            print(hint)
         if plys:
             print(f"coloured meshes: {plys[0]} (pull-back), {plys[1]}")
     return 0
+
+
+def _open_boundary(source: Shape, target: Shape) -> dict:
+    """Each shape's boundary length in units of the square root of its area (0: closed; None: a point cloud)."""
+    from shape_toolkit.core.inspect import boundary_length
+
+    def rel(s: Shape) -> float | None:
+        b = boundary_length(s)
+        return None if b is None else (round(b / np.sqrt(s.area), 4) if s.area > 0 else None)
+
+    return {"source": rel(source), "target": rel(target)}
+
+
+def _partial_hint(open_boundary: dict, args: argparse.Namespace, pipeline: str) -> str | None:
+    """A note when one mesh is closed and the other is not (a part of a whole?) and the pipeline is not ``partial``."""
+    s, t = open_boundary["source"], open_boundary["target"]
+    if pipeline == "partial" or s is None or t is None or (s > 0) == (t > 0):
+        return None
+    part, whole, length = (args.source, args.target, s) if s > 0 else (args.target, args.source, t)
+    return (f"note: {part} has an open boundary ({length:.2f} sqrt(area) long) and {whole} is closed: if it is a part "
+            f"of the other (a region cut away or unseen), 'shape-toolkit match {part} {whole} --pipeline partial' "
+            "matches a part to a whole")
