@@ -104,6 +104,16 @@ def test_a_shape_too_large_for_the_limit_is_refused_before_reading(files, capsys
         assert w in err, (w, err)
 
 
+def _refused_before_reading(cases: list, capsys) -> None:
+    """Each ``(argv, words)``: exit 2, one line naming ``--memory-limit`` and every word, the file never read."""
+    for argv, words in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--memory-limit" in err and "truncated" not in err, err
+        for w in words:
+            assert w in err, (w, err)
+
+
 def test_geodesics_transfer_labels_and_track_are_refused_before_reading(files, tmp_path, capsys):
     """``geodesics`` (per method, and per source: many sources on a small mesh too), ``transfer-labels`` and ``track``
     estimate their memory by their models (``memory_models.md``) before reading; the CLI cites the model's estimate."""
@@ -131,12 +141,7 @@ def test_geodesics_transfer_labels_and_track_are_refused_before_reading(files, t
         (["track", off, big, off, "--memory-limit", "4"],
          [f"{track_memory(30_000_000 + 2 * n, 3, 5000) / 1e9:.1f} GB", "tracking through 3 frames"]),
     ]
-    for argv, words in cases:
-        assert main(argv) == 2, argv
-        err = capsys.readouterr().err
-        assert err.count("\n") == 1 and "--memory-limit" in err and "truncated" not in err, err
-        for w in words:
-            assert w in err, (w, err)
+    _refused_before_reading(cases, capsys)
     # the models grow with what they are given
     heat, dijkstra = geodesic_memory(10**6, 1, "heat"), geodesic_memory(10**6, 1, "dijkstra")
     assert geodesic_memory(10**6, 10, "heat") > heat > dijkstra
@@ -173,12 +178,7 @@ def test_describe_and_evaluate_map_are_refused_before_reading(files, tmp_path, c
         (["evaluate-map", big, off, str(ident), "--r-smoothness", "--memory-limit", "2"],
          [f"{evaluate_map_memory(N, n, 'heat', 0, R_SMOOTH_RS) / 1e9:.1f} GB", "evaluating the map (r-smoothness)"]),
     ]
-    for argv, words in cases:
-        assert main(argv) == 2, argv
-        err = capsys.readouterr().err
-        assert err.count("\n") == 1 and "--memory-limit" in err and "truncated" not in err, err
-        for w in words:
-            assert w in err, (w, err)
+    _refused_before_reading(cases, capsys)
     # the geodesic error needs the target's rows, not the source's; r-smoothness the larger shape's
     assert evaluate_map_memory(n, N, "heat", 100) > evaluate_map_memory(N, n, "heat", 100)
     assert evaluate_map_memory(N, n, "dijkstra", 0, (1.0,)) == evaluate_map_memory(n, N, "heat", 0, (1.0,))
