@@ -78,6 +78,26 @@ def test_one_hole(sphere):
     assert info["euler_characteristic"] == 1 and info["genus"] is None
 
 
+def test_boundary_length_is_the_perimeter_of_the_holes(sphere):
+    """The boundary edges' total length: 0 for a closed mesh, the perimeter of a removed face, twice for two; a
+    degenerate face and a repeated face change nothing (as edge_face_counts counts them); None for a cloud."""
+    from shape_toolkit.core.inspect import boundary_length
+
+    V, F = sphere.vertices, sphere.faces
+    assert boundary_length(sphere) == 0.0 and boundary_length(Shape(V, None)) is None
+
+    def perimeter(f: np.ndarray) -> float:
+        return sum(np.linalg.norm(V[f[i]] - V[f[(i + 1) % 3]]) for i in range(3))
+
+    assert boundary_length(Shape(V, F[1:])) == pytest.approx(perimeter(F[0]))
+    c = V[F].mean(axis=1)
+    far = [int(np.argmax(c[:, 2])), int(np.argmin(c[:, 2]))]
+    keep = np.setdiff1d(np.arange(len(F)), far)
+    assert boundary_length(Shape(V, F[keep])) == pytest.approx(perimeter(F[far[0]]) + perimeter(F[far[1]]))
+    noisy = np.vstack([F[1:], [[F[5, 0], F[5, 0], F[5, 1]]]])  # a face with a repeated corner
+    assert boundary_length(Shape(V, noisy)) == pytest.approx(perimeter(F[0]))
+
+
 def test_two_holes_are_two_loops(sphere):
     # remove two faces far apart (one near +z, one near -z)
     c = sphere.vertices[sphere.faces].mean(axis=1)
