@@ -79,7 +79,12 @@ Ambiguity. The residual cannot tell a person's half turn (left for right and fro
 orientation) from the right map, and no judge tried so far can (``auto_mirrored_notes.md``). So ``info["ambiguity"]``
 reports the kept map's rival (:func:`map_ambiguity`): the candidate of least residual among those whose images lie
 on average at least ``RIVAL_DISTANCE`` (0.15 sqrt(area)) from the kept map's, and whether its residual is within
-``AMBIGUOUS_RATIO`` (1.1) of the kept map's. Nothing is chosen by it.
+``AMBIGUOUS_RATIO`` (1.1) of the kept map's. Nothing is chosen by it, but for one case: when the map of least
+residual reverses orientation (a mirror image) and a candidate within that ratio does not, that candidate is kept
+(``keep_orientation``, :func:`~shape_toolkit.plugins.matching.selection.preserving_alternative`,
+``info["orientation_switch"]``): the residual cannot see a mirror, the orientation verdict can. Tuning half (78 FAUST
+pairs of people 0-1, dogs, gorillas to men, glued): it changes 3 FAUST pairs (two 0.097 -> 0.022, one 0.528 -> 0.577)
+and nothing else (``benchmarks/results/rigid_motion_notes.md``).
 
 Why the residual: the point map of a sound correspondence is, to a good approximation, the point map of a
 smooth functional map in the first eigenfunctions (it is what ZoomOut converges to); a part sent to the wrong
@@ -107,11 +112,17 @@ from shape_toolkit.features.basis import POLISH_START, Basis, basis_of, map_resi
 from shape_toolkit.features.canonical import canonical_form
 from shape_toolkit.plugins.matching.descriptors import resolve_plugin, shared_spectra
 from shape_toolkit.plugins.matching.orientation import orientation_verdict, reversing_region
+from shape_toolkit.plugins.matching.selection import (
+    AMBIGUOUS_RATIO,
+    RIVAL_DISTANCE,
+    map_ambiguity,
+    preserving_alternative,
+)
 from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec, declared_specs, default_spec, merge_specs
 
-__all__ = ["BestOfMatcher", "estimated_frame", "map_ambiguity", "RIVAL_DISTANCE", "AMBIGUOUS_RATIO"]
+__all__ = ["BestOfMatcher", "estimated_frame", "map_ambiguity", "RIVAL_DISTANCE", "AMBIGUOUS_RATIO"]  # (re-exported)
 
 
 #: the default of ``reorient``: the kept map, where a part of it is mirrored, is refitted from a functional map in this
@@ -121,14 +132,6 @@ REORIENT_START = 10
 
 #: the default of ``polish_samples``: source vertices the polish's iterations query, before one on every vertex
 POLISH_SAMPLES = 1000
-
-#: ``info["ambiguity"]``: a candidate is a rival of the kept map when its images lie on average at least this far from
-#: the kept map's (Euclidean, in sqrt(area) of the target): 7 times a sound FAUST map's error; the FAUST rivals that
-#: were the right map or its half turn lay 0.16-0.24 away (tuning half)
-RIVAL_DISTANCE = 0.15
-#: the pair is reported ambiguous when a rival's residual is within this factor of the kept map's; a report, not a
-#: choice (``auto_mirrored_notes.md``, session 33: on the tuning half most kept maps so flagged were wrong)
-AMBIGUOUS_RATIO = 1.1
 
 #: the default of ``same_frame``: an estimated frame turned by less than this (degrees) from the given one is the
 #: given one to the shells, whose coarse-to-fine start absorbs the turn (tuning pairs turned by 2-22 degrees: the
@@ -176,28 +179,6 @@ def _matcher(spec: Any) -> Any:
     return resolve_plugin("dense_matchers", spec, None, method="match", what="matcher", kind="dense matcher")
 
 
-def map_ambiguity(candidates: list[dict[str, Any]], maps: list[np.ndarray], kept: str, target: Shape,
-                  mass: np.ndarray, area: float) -> dict[str, Any]:
-    """How far each candidate's map ``(n_s,)`` lies from the kept one's (``candidates[i]["disagreement"]``, set here:
-    the ``mass``-weighted mean distance between the two images on ``target``, over sqrt(``area``)), and the
-    rival of least residual among those at least :data:`RIVAL_DISTANCE` away: ``{"rival", "residual_ratio",
-    "disagreement", "ambiguous"}``, ambiguous when its residual is within :data:`AMBIGUOUS_RATIO` of the kept map's
-    (two different maps explain the pair about as well: a half turn or a swapped part may have been kept)."""
-    i = next(j for j, c in enumerate(candidates) if c["matcher"] == kept)
-    X, t = np.asarray(target.vertices, dtype=np.float64), maps[i]
-    for c, T in zip(candidates, maps):
-        ok = (T >= 0) & (t >= 0)
-        w = mass[ok] / max(float(mass[ok].sum()), 1e-300)
-        c["disagreement"] = float(w @ np.linalg.norm(X[T[ok]] - X[t[ok]], axis=1) / np.sqrt(area)) if ok.any() else 0.0
-    rivals = [c for c in candidates if c["disagreement"] >= RIVAL_DISTANCE]
-    if not rivals:
-        return {"rival": None, "ambiguous": False}
-    r = min(rivals, key=lambda c: c["residual"])
-    ratio = r["residual"] / max(candidates[i]["residual"], 1e-300)
-    return {"rival": r["matcher"], "residual_ratio": ratio, "disagreement": r["disagreement"],
-            "ambiguous": bool(ratio <= AMBIGUOUS_RATIO)}
-
-
 class BestOfMatcher(DenseMatcher):
     """Runs every matcher of ``matchers`` (names, ``{plugin, preset, params}`` tables or instances) and keeps the map
     of least ZoomOut residual in the first ``k`` Laplace-Beltrami eigenfunctions of both shapes. Intrinsic matchers
@@ -217,7 +198,9 @@ class BestOfMatcher(DenseMatcher):
     ``info["estimated_frame"]`` the estimated frame's rotation in degrees and the verdict it rests on,
     ``info["canonical_frame"]`` the canonical forms' rotation and the map it came from. ``reorient``: where the kept
     map mirrors a part, it is also refitted from a ``reorient x reorient`` functional map fitted on the rest (0 or
-    None: not; module docstring), ``info["mirrored_part"]``; the rest of ``info`` is the
+    None: not; module docstring), ``info["mirrored_part"]``; ``keep_orientation``: a mirror image of least residual
+gives way to a close candidate that keeps orientation (module docstring), ``info["orientation_switch"]``; the rest
+of ``info`` is the
     chosen matcher's. Seeds go to every matcher and stay in polished maps. A matcher that cannot take the pair (a
     point cloud for a matcher that needs faces: :class:`~shape_toolkit.errors.InvalidShapeError`) is left out and
     named in ``info["skipped"]``; when none can, the first one's error is raised."""
@@ -243,12 +226,15 @@ class BestOfMatcher(DenseMatcher):
         "given_frame_first": Param(InstanceOf(bool), doc="two meshes: an extrinsic matcher is not run again in the "
                                    "estimated frame when its map in the given frame already has a lower residual "
                                    "than the intrinsic map the frame was estimated from"),
+        "keep_orientation": Param(InstanceOf(bool), doc="when the map of least residual reverses orientation, keep "
+                                  "a candidate that does not, of residual within AMBIGUOUS_RATIO of it"),
     }
 
     def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int = 64,
                  reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
                  same_frame: float = SAME_FRAME_DEGREES, reorient: int | None = REORIENT_START,
-                 polish_samples: int | None = POLISH_SAMPLES, given_frame_first: bool = False):
+                 polish_samples: int | None = POLISH_SAMPLES, given_frame_first: bool = False,
+                 keep_orientation: bool = True):
         self.matchers = matchers
         self.k = k
         self.reframe = reframe
@@ -259,6 +245,7 @@ class BestOfMatcher(DenseMatcher):
         self.reorient = reorient
         self.polish_samples = polish_samples
         self.given_frame_first = given_frame_first
+        self.keep_orientation = keep_orientation
 
     def _matchers(self) -> list:
         return [_matcher(m) for m in self.matchers]
@@ -319,12 +306,14 @@ class BestOfMatcher(DenseMatcher):
         turned: Shape | None = None
 
         maps: list[np.ndarray] = []  # each candidate's map, for info["ambiguity"]
+        corrs: dict[str, Correspondence] = {}
 
         def consider(name: str, corr: Correspondence) -> None:
             nonlocal best
             residual = map_residual(bs, bt, np.asarray(corr.target_of), k)
             candidates.append({"matcher": name, "residual": residual})
             maps.append(np.asarray(corr.target_of))
+            corrs[name] = corr
             if progress is not None:
                 progress(f"best-of: {name} residual {residual:.4g}")
             if best is None or residual < best[0]:
@@ -386,6 +375,10 @@ class BestOfMatcher(DenseMatcher):
                     consider(f"{name}@canonical+zoomout", self._polished(corr, bps, bpt, seeds, sampled()))
         if best is None:
             raise first_error
+        switched = preserving_alternative(source, target, candidates, maps, best[1]) if self.keep_orientation else None
+        if switched:  # the least residual reverses orientation; a map the residual cannot tell from it does not
+            best = (next(c["residual"] for c in candidates if c["matcher"] == switched["to"]), switched["to"],
+                    corrs[switched["to"]])
         mirrored: dict[str, Any] = {}
         t = np.asarray(best[2].target_of)
         if self.reorient and bps is not None and np.all(t >= 0):
@@ -410,6 +403,8 @@ class BestOfMatcher(DenseMatcher):
             info["canonical_frame"] = canon
         if mirrored:
             info["mirrored_part"] = mirrored
+        if switched:
+            info["orientation_switch"] = switched
         return Correspondence(best[2].target_of, target.n_vertices, best[2].confidence, best[2].posteriors, info)
 
     @staticmethod

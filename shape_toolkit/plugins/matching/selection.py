@@ -1,0 +1,73 @@
+"""How ``best-of`` reads its candidate maps of one pair beyond their ZoomOut residual.
+
+- :func:`map_ambiguity`: the kept map's rival, a different map of close residual (a report, ``info["ambiguity"]``).
+- :func:`preserving_alternative`: when the map of least residual reverses orientation (a mirror image, as a whole
+  or on most of it) and a candidate of nearly the same residual does not, that candidate. Two oriented surfaces of
+  real objects correspond by an orientation-preserving map, and the residual, intrinsic, cannot see a mirror; the
+  orientation verdict (:func:`~shape_toolkit.plugins.matching.orientation.orientation_verdict`) can. "Nearly the same
+  residual" is the ambiguity's own ratio (:data:`AMBIGUOUS_RATIO`), so only maps the residual cannot tell apart are
+  decided by orientation (``benchmarks/results/rigid_motion_notes.md``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.plugins.matching.orientation import orientation_verdict
+
+__all__ = ["map_ambiguity", "preserving_alternative", "RIVAL_DISTANCE", "AMBIGUOUS_RATIO"]
+
+#: ``info["ambiguity"]``: a candidate is a rival of the kept map when its images lie on average at least this far from
+#: the kept map's (Euclidean, in sqrt(area) of the target): 7 times a sound FAUST map's error; the FAUST rivals that
+#: were the right map or its half turn lay 0.16-0.24 away (tuning half)
+RIVAL_DISTANCE = 0.15
+#: the pair is reported ambiguous when a rival's residual is within this factor of the kept map's; a report, not a
+#: choice (``auto_mirrored_notes.md``, session 33: on the tuning half most kept maps so flagged were wrong)
+AMBIGUOUS_RATIO = 1.1
+
+
+def map_ambiguity(candidates: list[dict[str, Any]], maps: list[np.ndarray], kept: str, target: Shape,
+                  mass: np.ndarray, area: float) -> dict[str, Any]:
+    """How far each candidate's map ``(n_s,)`` lies from the kept one's (``candidates[i]["disagreement"]``, set here:
+    the ``mass``-weighted mean distance between the two images on ``target``, over sqrt(``area``)), and the
+    rival of least residual among those at least :data:`RIVAL_DISTANCE` away: ``{"rival", "residual_ratio",
+    "disagreement", "ambiguous"}``, ambiguous when its residual is within :data:`AMBIGUOUS_RATIO` of the kept map's
+    (two different maps explain the pair about as well: a half turn or a swapped part may have been kept)."""
+    i = next(j for j, c in enumerate(candidates) if c["matcher"] == kept)
+    X, t = np.asarray(target.vertices, dtype=np.float64), maps[i]
+    for c, T in zip(candidates, maps):
+        ok = (T >= 0) & (t >= 0)
+        w = mass[ok] / max(float(mass[ok].sum()), 1e-300)
+        c["disagreement"] = float(w @ np.linalg.norm(X[T[ok]] - X[t[ok]], axis=1) / np.sqrt(area)) if ok.any() else 0.0
+    rivals = [c for c in candidates if c["disagreement"] >= RIVAL_DISTANCE]
+    if not rivals:
+        return {"rival": None, "ambiguous": False}
+    r = min(rivals, key=lambda c: c["residual"])
+    ratio = r["residual"] / max(candidates[i]["residual"], 1e-300)
+    return {"rival": r["matcher"], "residual_ratio": ratio, "disagreement": r["disagreement"],
+            "ambiguous": bool(ratio <= AMBIGUOUS_RATIO)}
+
+
+def preserving_alternative(source: Shape, target: Shape, candidates: list[dict[str, Any]], maps: list[np.ndarray],
+                           kept: str) -> dict[str, Any] | None:
+    """When the kept candidate's map ``(n_s,)`` reverses orientation (verdict ``reversing``) and another candidate's,
+    of residual within :data:`AMBIGUOUS_RATIO` of it, does not: the least residual such candidate, as
+    ``{"from", "to", "residual_ratio", "z_from", "verdict_to", "z_to"}``; None otherwise (the kept map does not
+    reverse, or every close candidate does too)."""
+    i = next(j for j, c in enumerate(candidates) if c["matcher"] == kept)
+    v = orientation_verdict(source, target, maps[i])
+    if v["verdict"] != "reversing":
+        return None
+    r0 = max(candidates[i]["residual"], 1e-300)
+    close = sorted((j for j, c in enumerate(candidates)
+                    if j != i and np.all(maps[j] >= 0) and c["residual"] <= AMBIGUOUS_RATIO * r0),
+                   key=lambda j: candidates[j]["residual"])
+    for j in close:
+        w = orientation_verdict(source, target, maps[j])
+        if w["verdict"] != "reversing":
+            return {"from": kept, "to": candidates[j]["matcher"], "residual_ratio": candidates[j]["residual"] / r0,
+                    "z_from": v["z"], "verdict_to": w["verdict"], "z_to": w["z"]}
+    return None
