@@ -199,11 +199,10 @@ class BestOfMatcher(DenseMatcher):
     ``info["canonical_frame"]`` the canonical forms' rotation and the map it came from. ``reorient``: where the kept
     map mirrors a part, it is also refitted from a ``reorient x reorient`` functional map fitted on the rest (0 or
     None: not; module docstring), ``info["mirrored_part"]``; ``keep_orientation``: a mirror image of least residual
-gives way to a close candidate that keeps orientation (module docstring), ``info["orientation_switch"]``; the rest
-of ``info`` is the
-    chosen matcher's. Seeds go to every matcher and stay in polished maps. A matcher that cannot take the pair (a
-    point cloud for a matcher that needs faces: :class:`~shape_toolkit.errors.InvalidShapeError`) is left out and
-    named in ``info["skipped"]``; when none can, the first one's error is raised."""
+    gives way to a close candidate that keeps orientation (module docstring), ``info["orientation_switch"]``; the rest
+    of ``info`` is the chosen matcher's. Seeds go to every matcher and stay in polished maps. A matcher that cannot
+    take the pair (a point cloud for a matcher that needs faces: :class:`~shape_toolkit.errors.InvalidShapeError`) is
+    left out and named in ``info["skipped"]``; when none can, the first one's error is raised."""
 
     presets: dict = {}
     parameter_constraints = {
