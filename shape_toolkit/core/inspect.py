@@ -139,9 +139,17 @@ def edge_face_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     f = np.asarray(faces, dtype=np.int64)
     f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
-    keys, _, _ = _half_edges(f)
-    first, _, counts = _unique_rows(keys)
-    return keys[first].reshape(-1, 2), counts.astype(np.int64)
+    if not len(f):
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.int64)
+    # each edge as one integer lo * n + hi, sorted (the rows' lexicographic order): 7x faster than sorting the
+    # half edges' rows at 10^6 vertices
+    e = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    n = int(f.max()) + 1
+    key = np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1])
+    key.sort()
+    starts = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
+    counts = np.diff(np.append(starts, key.size)).astype(np.int64)
+    return np.column_stack([key[starts] // n, key[starts] % n]), counts
 
 
 def inconsistent_edges(faces: np.ndarray) -> np.ndarray:
@@ -208,17 +216,9 @@ def boundary_length(shape: Shape) -> float | None:
     point cloud."""
     if not shape.is_mesh:
         return None
-    f = np.asarray(shape.faces, dtype=np.int64)
-    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]  # as edge_face_counts
-    e = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    # each edge as one integer, sorted: the edges seen once are the boundary (7x faster than edge_face_counts'
-    # row sort at 10^6 vertices, where match computes it for its note)
-    key = np.minimum(e[:, 0], e[:, 1]) * shape.n_vertices + np.maximum(e[:, 0], e[:, 1])
-    key.sort()
-    starts = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
-    once = key[starts[np.diff(np.append(starts, key.size)) == 1]]
-    i, j = once // shape.n_vertices, once % shape.n_vertices
-    return float(np.linalg.norm(shape.vertices[i] - shape.vertices[j], axis=1).sum())
+    edges, counts = edge_face_counts(shape.faces)
+    b = edges[counts == 1]
+    return float(np.linalg.norm(shape.vertices[b[:, 0]] - shape.vertices[b[:, 1]], axis=1).sum())
 
 
 def mesh_info(shape: Shape) -> dict:
