@@ -27,6 +27,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "read_vertex_ids",
+    "vertex_ids_within",
     "read_int_file",
     "Constraints",
     "ConstraintError",
@@ -104,7 +105,14 @@ def read_vertex_ids(
         ids = ids - 1
     elif ids.min() < 0:
         raise ShapeFileError(path, f"negative vertex index {int(ids.min())}")
-    if n_vertices is not None and ids.max() >= n_vertices:
+    return ids if n_vertices is None else vertex_ids_within(ids, path, n_vertices, one_based=one_based)
+
+
+def vertex_ids_within(ids: np.ndarray, path: str | os.PathLike, n_vertices: int, *, one_based: bool) -> np.ndarray:
+    """``ids`` (0-based, as :func:`read_vertex_ids` returns them from ``path``) checked against a shape of
+    ``n_vertices`` vertices: :class:`ShapeFileError` naming the file's own (``one_based``) index when one is out of
+    range. For ids read before the shape (a command's memory estimate counts them first)."""
+    if ids.size and ids.max() >= n_vertices:
         raise ShapeFileError(
             path, f"vertex index {int(ids.max()) + one_based} is out of range for {n_vertices} vertices"
         )

@@ -25,7 +25,7 @@ from shape_toolkit.cli.commands._common import (
 )
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
-from shape_toolkit.results.labels import read_vertex_ids
+from shape_toolkit.results.labels import read_vertex_ids, vertex_ids_within
 from shape_toolkit.validation import dumps_json
 
 #: bytes per descriptor value held while describing: the computed matrix and the copy written to the .npz
@@ -75,8 +75,8 @@ def run(args: argparse.Namespace) -> int:
                  + (f", {width} columns)" if width else ")"), "memory_models.md",
                  "fewer eigenpairs (--param K=...)")
     shape = load_shape(args.shape)
-    if kp is not None:  # the ids against the shape, as read_vertex_ids words it
-        kp = read_vertex_ids(args.keypoints, one_based=False, n_vertices=shape.n_vertices)
+    if kp is not None:  # the ids read above, against the shape
+        kp = vertex_ids_within(kp, args.keypoints, shape.n_vertices, one_based=False)
     t0 = time.perf_counter()
     with status(args, f"describe: {args.descriptor} on {shape.n_vertices} vertices"):
         spectra, used = declared_spectra(desc, shape)

@@ -44,7 +44,7 @@ from shape_toolkit.metrics.correspondence import (
     target_coverage,
 )
 from shape_toolkit.results.correspondence import load_map
-from shape_toolkit.results.labels import read_vertex_ids
+from shape_toolkit.results.labels import read_vertex_ids, vertex_ids_within
 
 #: geodesics of the r-neighbourhoods: Dijkstra along edges ranks the nearest vertices like the
 #: surface distance does, and explores only a small disc around each vertex
@@ -120,9 +120,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _truth(path: str, n: int, one_based: bool):
+def _truth(path: str, one_based: bool) -> np.ndarray:
     try:
-        return read_vertex_ids(path, one_based=one_based, n_vertices=n)
+        return read_vertex_ids(path, one_based=one_based)
     except ShapeFileError as exc:
         hint = " (use --zero-based for 0-based files)" if one_based and "1-based" in str(exc) else ""
         raise ShapeFileError(path, exc.problem + hint) from None
@@ -141,10 +141,19 @@ def _check_args(args: argparse.Namespace) -> None:
         )
 
 
-def _geodesic_error(args, source, target, corr, st) -> dict:
+def _read_truths(args: argparse.Namespace) -> tuple[np.ndarray, ...] | None:
+    """The truth files' ids (0-based), read before the shapes (the memory estimate counts them): source, target and,
+    with ``--truth-dst-sym``, the symmetric target; None without ``--truth-src``."""
+    if args.truth_src is None:
+        return None
     one = not args.zero_based
-    ts = _truth(args.truth_src, source.n_vertices, one)
-    td = _truth(args.truth_dst, target.n_vertices, one)
+    return tuple(_truth(p, one) for p in (args.truth_src, args.truth_dst, args.truth_dst_sym) if p)
+
+
+def _geodesic_error(args, source, target, corr, st, truths: tuple[np.ndarray, ...]) -> dict:
+    one = not args.zero_based
+    ts = vertex_ids_within(truths[0], args.truth_src, source.n_vertices, one_based=one)
+    td = vertex_ids_within(truths[1], args.truth_dst, target.n_vertices, one_based=one)
     if ts.size != td.size:
         raise ShapeFileError(
             args.truth_dst,
@@ -152,7 +161,7 @@ def _geodesic_error(args, source, target, corr, st) -> dict:
         )
     sym = None
     if args.truth_dst_sym:
-        sym = _truth(args.truth_dst_sym, target.n_vertices, one)
+        sym = vertex_ids_within(truths[2], args.truth_dst_sym, target.n_vertices, one_based=one)
         if sym.size != td.size:
             raise ShapeFileError(args.truth_dst_sym, f"has {sym.size} ids, expected {td.size}")
     st.update(f"evaluate-map: {args.geodesics} geodesics from the predicted images")
@@ -187,7 +196,8 @@ def _geodesic_error(args, source, target, corr, st) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     _check_args(args)
-    n_truth = read_vertex_ids(args.truth_src, one_based=False).size if args.truth_src else 0
+    truths = _read_truths(args)
+    n_truth = truths[0].size if truths else 0
     rs = None if args.r_smoothness is None else (tuple(args.r_smoothness) or R_SMOOTH_RS)
     work = " and ".join(([f"{args.geodesics} geodesics from {n_truth} truth points"] if n_truth else [])
                         + (["r-smoothness"] if args.r_smoothness is not None else []))
@@ -215,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
     result: dict = {}
     with status(args, "evaluate-map") as st:
         if args.truth_src is not None:
-            result.update(_geodesic_error(args, source, target, corr, st))
+            result.update(_geodesic_error(args, source, target, corr, st, truths))
         if rs is not None:
             st.update("evaluate-map: r-smoothness (geodesic neighbourhoods on both shapes)")
             try:

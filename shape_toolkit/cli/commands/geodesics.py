@@ -29,26 +29,36 @@ from shape_toolkit.cli.commands._common import (
 from shape_toolkit.errors import ParameterError, TimeLimitError
 from shape_toolkit.features.geodesics import geodesic_distances, geodesic_memory
 from shape_toolkit.io.mesh import load_shape
-from shape_toolkit.results.labels import read_vertex_ids
+from shape_toolkit.results.labels import read_vertex_ids, vertex_ids_within
 
 METHODS = ("exact", "heat", "fmm", "dijkstra")
 
 
 def parse_sources(text: str, n_vertices: int | None = None) -> np.ndarray:
     """``--sources``: comma-separated 0-based ids (``0,15,200``) or a file of one id per line;
-    int64 ``(s,)``, checked against ``n_vertices`` when given."""
+    int64 ``(s,)``, checked against ``n_vertices`` when given (:func:`sources_within`)."""
     if Path(text).is_file():
-        return read_vertex_ids(text, one_based=False, n_vertices=n_vertices)
-    try:
-        ids = np.array([int(t) for t in text.replace(" ", "").split(",") if t != ""], dtype=np.int64)
-    except ValueError:
-        raise ParameterError(f"--sources expects comma-separated vertex ids or a file, got {text[:40]!r}") from None
-    if ids.size == 0:
-        raise ParameterError("--sources: give at least one vertex id")
-    bad = ids[(ids < 0) | (ids >= (np.inf if n_vertices is None else n_vertices))]
+        ids = read_vertex_ids(text, one_based=False)
+    else:
+        try:
+            ids = np.array([int(t) for t in text.replace(" ", "").split(",") if t != ""], dtype=np.int64)
+        except ValueError:
+            raise ParameterError(f"--sources expects comma-separated vertex ids or a file, got {text[:40]!r}") from None
+        if ids.size == 0:
+            raise ParameterError("--sources: give at least one vertex id")
+        if (ids < 0).any():
+            raise ParameterError(f"--sources: vertex id {int(ids[ids < 0][0])} is negative")
+    return ids if n_vertices is None else sources_within(ids, text, n_vertices)
+
+
+def sources_within(ids: np.ndarray, text: str, n_vertices: int) -> np.ndarray:
+    """The ids :func:`parse_sources` read from ``text`` (before the mesh, for the memory estimate), checked against a
+    mesh of ``n_vertices`` vertices, in the words of the file's or the list's own errors."""
+    if Path(text).is_file():
+        return vertex_ids_within(ids, text, n_vertices, one_based=False)
+    bad = ids[ids >= n_vertices]
     if bad.size:
-        raise ParameterError(f"--sources: vertex id {int(bad[0])} is "
-                             + ("negative" if n_vertices is None else f"out of range [0, {n_vertices - 1}]"))
+        raise ParameterError(f"--sources: vertex id {int(bad[0])} is out of range [0, {n_vertices - 1}]")
     return ids
 
 
@@ -73,12 +83,13 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(out, suffixes=(".npz",))
     check_distinct(out, args.shape)
     check_ply(args.ply, args.shape, str(out))
-    count = parse_sources(args.sources).size  # (a bad list is refused before the mesh is read)
+    src = parse_sources(args.sources)  # (a bad list is refused before the mesh is read)
+    count = src.size
     check_memory(args, [args.shape], lambda n: geodesic_memory(n, count, args.method),
                  f"{args.method} geodesics from {count} source{'s' if count > 1 else ''}", "memory_models.md",
                  "give fewer --sources" if count > 1 else "")
     shape = load_shape(args.shape)
-    src = parse_sources(args.sources, shape.n_vertices)
+    src = sources_within(src, args.sources, shape.n_vertices)
     t0 = time.perf_counter()
     with status(args, f"geodesics: {args.method} from {src.size} sources") as st:
         try:
