@@ -201,9 +201,7 @@ def main() -> None:
         p, n = mesh(a.workdir, "cat0", s)
         kp = ids_file(a.workdir, f"kp20_s{s}.txt", n, 20, False)
         truth = ids_file(a.workdir, f"truth100_s{s}.vts", n, 100, True)
-        ident = a.workdir / f"id_s{s}.txt"
-        if not ident.exists():
-            np.savetxt(ident, np.arange(n), fmt="%d")
+        ident = ids_file(a.workdir, f"id_s{s}.txt", n, n, False)  # the identity map
         for d, extra in (("hks", []), ("wks", []), ("heat-distance", ["--keypoints", str(kp)])):
             r = measure(["describe", str(p), "--descriptor", d, *extra, "-o", f"{out}.npz"])
             k = 51 if d == "heat-distance" else 101
