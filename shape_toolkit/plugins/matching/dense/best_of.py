@@ -13,6 +13,13 @@ are also polished by ZoomOut (an intrinsic refinement of an extrinsic map), and 
 On the tuning half (FAUST people 0-1 mapped across the two people, 11 pairs; dogs; gorillas to men) this took
 a pair turned by 113 degrees from 0.505 (left and right swapped) to 0.022 and the 11 pairs' mean from 0.143 to
 0.096; one pair turned by 115 degrees stays swapped (its intrinsic map, 0.30, gives a poor frame).
+Since session 36 the frame comes from the most plausible map once the extrinsic matcher has run in the given frame
+(``frame_from = "best"``: the least residual so far, as the canonical forms' turn below; ``"intrinsic"``: the former
+rule). An intrinsic map that is a poor guide no longer sets a frame whose convincing wrong map then wins on the
+residual. Tuning half: gorillas to men 0.172 -> 0.133, FAUST people 0-1 60 pairs 0.0986 -> 0.0942 (two pairs 0.45-0.52
+-> 0.05-0.13; tr_reg_008 -> 011 0.021 -> 0.54, its shells' given-frame map, swapped, now setting the frame), 22 more
+and dogs unchanged, glued dogs 0.0366 -> 0.0355; FAUST 5,000-point clouds 0.067 -> 0.040 (22 pairs), other clouds
+within their scatter (``auto_speed_notes.md``).
 
 Pose. An extrinsic matcher also needs the two shapes in one pose, and a gorilla crouching is not a person
 standing. So the extrinsic matchers run once more on the two shapes' canonical forms
@@ -54,11 +61,8 @@ within 2 % (FAUST people 0-1 0.0214 either way, gorillas to men 0.168 -> 0.172),
 weighted by its own vertex's area instead, 4 % worse on four of five groups. Report half (``auto_speed.md``, one
 worker): 21-25 % less CPU in every group, 1.5x-2.0x below pyFM; FAUST 0.0262 -> 0.0270, gorillas to women 0.413 ->
 0.423, glued FAUST 0.0451 -> 0.0440, the TOSCA groups within 0.0002.
-Tried and not adopted (``benchmarks/results/auto_speed_notes.md``): the polish in steps of 10 eigenfunctions
-(``polish_step = 10``: 1.1 s less, but 2-5 % less precise on typical pairs, tuning and report halves alike), the
-shells on 1,000 samples instead of 2,000 (gorillas to men 0.175 -> 0.275), only the most promising polish in full
-(8 % less CPU, two glued dog pairs worse) and the pick by residual times WKS disagreement (better on the tuning
-half; on the report half glued cats 0.034 -> 0.13 and gorillas to women 0.41 -> 0.55).
+Tried and not adopted: ``benchmarks/results/auto_speed_notes.md`` (coarser polish steps, fewer shells samples, one
+polish in full, the residual times the WKS disagreement).
 
 Mirrored parts. A map can keep orientation on the whole and mirror a part: on FAUST people the feet or the arms
 swapped left for right, every candidate alike, since all start from the same intrinsic ambiguity. Where the kept map
@@ -102,7 +106,7 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.api.interfaces import DenseMatcher
-from shape_toolkit.api.params import InstanceOf, Interval, ListOf, Param
+from shape_toolkit.api.params import InstanceOf, Interval, ListOf, Options, Param
 from shape_toolkit.core.geometry import edge_components, farthest_point_sampling, rigid_rotation, sample_weights
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
@@ -183,7 +187,8 @@ class BestOfMatcher(DenseMatcher):
     """Runs every matcher of ``matchers`` (names, ``{plugin, preset, params}`` tables or instances) and keeps the map
     of least ZoomOut residual in the first ``k`` Laplace-Beltrami eigenfunctions of both shapes. Intrinsic matchers
     run first. ``reframe``: each extrinsic matcher (``extrinsic = True``) runs a second time with the source turned
-    into the frame of the first intrinsic map, when that map keeps orientation and it is turned by at least
+    into the frame of the map of least residual once the first extrinsic matcher ran in the given frame (``frame_from
+    = "intrinsic"``: the first intrinsic map's), when that map keeps orientation and it is turned by at least
     ``same_frame`` degrees, meshes only (``info["estimated_frame"]["same_as_given"]`` otherwise; module docstring),
     and, with ``given_frame_first``, only when its map in the given frame has no lower residual than that intrinsic
     map (meshes only; ``info["estimated_frame"]["not_run"]`` otherwise).
@@ -225,6 +230,9 @@ class BestOfMatcher(DenseMatcher):
         "given_frame_first": Param(InstanceOf(bool), doc="two meshes: an extrinsic matcher is not run again in the "
                                    "estimated frame when its map in the given frame already has a lower residual "
                                    "than the intrinsic map the frame was estimated from"),
+        "frame_from": Param(Options("intrinsic", "best"), doc="the map the estimated frame is taken from: the "
+                            "first intrinsic matcher's, or the least residual once the first extrinsic matcher ran in "
+                            "the given frame"),
         "keep_orientation": Param(InstanceOf(bool), doc="when the map of least residual reverses orientation, keep "
                                   "a candidate that does not, of residual within AMBIGUOUS_RATIO of it"),
     }
@@ -233,7 +241,7 @@ class BestOfMatcher(DenseMatcher):
                  reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
                  same_frame: float = SAME_FRAME_DEGREES, reorient: int | None = REORIENT_START,
                  polish_samples: int | None = POLISH_SAMPLES, given_frame_first: bool = False,
-                 keep_orientation: bool = True):
+                 keep_orientation: bool = True, frame_from: str = "best"):
         self.matchers = matchers
         self.k = k
         self.reframe = reframe
@@ -245,6 +253,7 @@ class BestOfMatcher(DenseMatcher):
         self.polish_samples = polish_samples
         self.given_frame_first = given_frame_first
         self.keep_orientation = keep_orientation
+        self.frame_from = frame_from
 
     def _matchers(self) -> list:
         return [_matcher(m) for m in self.matchers]
@@ -327,18 +336,24 @@ class BestOfMatcher(DenseMatcher):
                 first_error = first_error or exc
                 return None
 
+        same = float(self.same_frame) if source.is_mesh and target.is_mesh else 0.0
         order = sorted(zip(self._names(), matchers), key=lambda nm: bool(getattr(nm[1], "extrinsic", False)))
         for name, m in order:
             if not getattr(m, "extrinsic", False):
                 corr = run(name, m, source)
                 if corr is not None:
                     consider(name, corr)
-                    if self.reframe and turned is None and not frame:
-                        same = float(self.same_frame) if source.is_mesh and target.is_mesh else 0.0
+                    if self.reframe and self.frame_from == "intrinsic" and turned is None and not frame:
                         turned, frame = estimated_frame(source, target, np.asarray(corr.target_of), bs.mass, name,
                                                         same)
                 continue
-            for label, src in [(name, source)] + ([(f"{name}@frame", turned)] if turned is not None else []):
+            for label in (name, f"{name}@frame"):
+                if label != name and self.reframe and self.frame_from == "best" and not frame and best is not None:
+                    turned, frame = estimated_frame(source, target, np.asarray(best[2].target_of), bs.mass, best[1],
+                                                    same)
+                src = source if label == name else turned
+                if src is None:
+                    continue
                 if src is turned and self.given_frame_first and source.is_mesh and target.is_mesh:
                     given = min((c["residual"] for c in candidates if c["matcher"] in (name, f"{name}+zoomout")),
                                 default=np.inf)  # inf: the matcher gave no map in the given frame
