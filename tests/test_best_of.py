@@ -176,8 +176,8 @@ def test_a_frame_estimate_of_a_small_turn_does_not_run_the_shells_twice(unequal_
     assert "shell-alignment@frame" in [c["matcher"] for c in again.info["candidates"]]
     assert "not_run" not in again.info["estimated_frame"]
     # ... unless given_frame_first (not the default): the shells' map in the given frame already has a lower
-    # residual than the intrinsic map the frame came from (frame_from = "intrinsic"), so they are not run in it
-    first = create_plugin("dense_matchers", "best-of", canonical=False, same_frame=0.0, frame_from="intrinsic",
+    # residual than the intrinsic map the frame came from, so they are not run in it
+    first = create_plugin("dense_matchers", "best-of", canonical=False, same_frame=0.0,
                           given_frame_first=True).match(a, bt)
     not_run = first.info["estimated_frame"]["not_run"]
     assert not_run["matcher"] == "shell-alignment" and not_run["given_residual"] < not_run["from_residual"]
@@ -192,15 +192,16 @@ def test_a_frame_estimate_of_a_small_turn_does_not_run_the_shells_twice(unequal_
     assert "shell-alignment@frame" in [c["matcher"] for c in clouds.info["candidates"]]
 
 
-def test_the_frame_comes_from_the_most_plausible_map_so_far(unequal_limbs):
-    """``frame_from = "best"`` (the default): the frame is estimated once the shells ran in the given frame, from the
-    candidate of least residual so far. Turned by 120 degrees, the shells fail in the given frame, so the frame is
-    the intrinsic map's as before; turned by 5 degrees, the shells' map in the given frame is the most plausible, so
-    its frame (the given one) is kept and the shells are not run again."""
+def test_frame_from_best_takes_the_frame_of_the_most_plausible_map_so_far(unequal_limbs):
+    """``frame_from = "best"`` (not the default): the frame is estimated once the shells ran in the given frame, from
+    the candidate of least residual so far. Turned by 120 degrees, the shells fail in the given frame, so the frame is
+    the intrinsic map's, as with the default; turned by 5 degrees, the shells' map in the given frame is the most
+    plausible, so its frame (the given one) is kept and the shells are not run again. The default takes the
+    intrinsic map's frame either way."""
     a, b = unequal_limbs
     for degrees, origin in [(120.0, "fmap-zoomout"), (5.0, None)]:
         bt = _turned(b, degrees)
-        corr = create_plugin("dense_matchers", "best-of", canonical=False, reorient=0).match(a, bt)
+        corr = create_plugin("dense_matchers", "best-of", canonical=False, reorient=0, frame_from="best").match(a, bt)
         frame, cands = corr.info["estimated_frame"], corr.info["candidates"]
         before = [c for c in cands if "@" not in c["matcher"]]  # the candidates there were when it was estimated
         assert frame["from"] == min(before, key=lambda c: c["residual"])["matcher"]
@@ -210,9 +211,8 @@ def test_the_frame_comes_from_the_most_plausible_map_so_far(unequal_limbs):
         else:
             assert frame["from"].startswith("shell-alignment") and frame["same_as_given"]
             assert [c["matcher"] for c in cands] == ["fmap-zoomout", "shell-alignment", "shell-alignment+zoomout"]
-        old = create_plugin("dense_matchers", "best-of", canonical=False, reorient=0,
-                            frame_from="intrinsic").match(a, bt)
-        assert old.info["estimated_frame"]["from"] == "fmap-zoomout"
+        default = create_plugin("dense_matchers", "best-of", canonical=False, reorient=0).match(a, bt)
+        assert default.info["estimated_frame"]["from"] == "fmap-zoomout"
 
 
 @pytest.mark.parametrize("name, values", [("polish_step", (10, 80)), ("polish_samples", (0, 200))])
@@ -265,29 +265,29 @@ def _faust_pair(shared_data, a: str, b: str):
 
 @pytest.mark.slow
 def test_a_person_turned_between_scans_is_not_swapped(shared_data):
-    """FAUST tr_reg_008 -> tr_reg_011 (tuning subjects 0 and 1; the second scan turned by about 110 degrees), the
-    frame taken from the intrinsic map (``frame_from = "intrinsic"``): the shells in the scans' own frames swap left
-    and right (0.505 before the frame estimate), the functional map is sound enough (0.08) to give the frame, and
-    the shells in that frame (or on the canonical forms turned by that map, which do as well: 0.022) are kept.
-    With the default ``frame_from = "best"`` this pair is lost (0.54): the swapped given-frame map has the lower
-    residual and sets the frame; tr_reg_010 -> tr_reg_003 is the converse (below)."""
+    """FAUST tr_reg_008 -> tr_reg_011 (tuning subjects 0 and 1; the second scan turned by about 110 degrees):
+    the shells in the scans' own frames swap left and right (0.505 before the frame estimate), the functional
+    map is sound enough (0.08) to give the frame, and the shells in that frame (or on the canonical forms turned by
+    that map, which do as well: 0.022) are kept. ``frame_from = "best"`` loses this pair (0.54): the swapped
+    given-frame map has the lower residual and sets the frame."""
     a, b, err = _faust_pair(shared_data, "tr_reg_008", "tr_reg_011")
-    corr = BestOfMatcher(frame_from="intrinsic").match(a, b)
+    corr = run_pipeline("auto", a, b)
     assert corr.info["chosen"].split("+")[0] in ("shell-alignment@frame", "shell-alignment@canonical")
     assert corr.info["estimated_frame"]["rotation_degrees"] > 90.0
     assert err(corr) < 0.04
+    assert err(BestOfMatcher(frame_from="best").match(a, b)) > 0.3
 
 
 @pytest.mark.slow
-def test_the_frame_of_a_misleading_intrinsic_map_is_not_taken(shared_data):
-    """FAUST tr_reg_010 -> tr_reg_003 (tuning subjects): the intrinsic map's frame gave shells a swapped map (0.52) of
-    lower residual than the right map in the given frame; the default takes the frame from that more plausible map
-    (``frame_from = "best"``), so the swapped one is never made (0.047)."""
+def test_frame_from_best_does_not_take_the_frame_of_a_misleading_intrinsic_map(shared_data):
+    """FAUST tr_reg_010 -> tr_reg_003 (tuning subjects), the converse: the intrinsic map's frame gives the shells a
+    swapped map (0.52) of lower residual than the right map in the given frame, which the default keeps;
+    ``frame_from = "best"`` takes the frame from that more plausible map, so the swapped one is never made (0.047)."""
     a, b, err = _faust_pair(shared_data, "tr_reg_010", "tr_reg_003")
-    corr = run_pipeline("auto", a, b)
+    corr = BestOfMatcher(frame_from="best").match(a, b)
     assert corr.info["estimated_frame"]["from"] != "fmap-zoomout"
     assert err(corr) < 0.06
-    assert err(BestOfMatcher(frame_from="intrinsic").match(a, b)) > 0.3
+    assert err(run_pipeline("auto", a, b)) > 0.3
 
 
 def test_canonical_forms_remove_the_pose_and_the_turn(unequal_limbs):
@@ -415,17 +415,12 @@ def test_the_rival_of_the_kept_map_is_a_different_map_of_close_residual():
 
 
 def test_match_warns_when_the_pair_is_ambiguous(shared_data, capsys, tmp_path):
-    """gorilla_05 -> man_07 (the tuning half of the split by subject), with the frame taken from the intrinsic map
-    (``frame_from = "intrinsic"``, the default until session 36): auto keeps a map at 0.23 whose rival, 0.45
-    sqrt(area) away, has a residual within 9 % of it; the command says so and names the way out. (With today's
-    default the rival, the shells in the intrinsic map's frame, is not run, and no tuning pair is ambiguous.)"""
+    """gorilla_05 -> man_07 (the tuning half of the split by subject): auto keeps a map at 0.23 whose rival, 0.45
+    sqrt(area) away, has a residual within 9 % of it; the command says so and names the way out."""
     from shape_toolkit.cli import main
 
     root = shared_data / "tosca_noniso"
-    spec = tmp_path / "auto-intrinsic-frame.toml"
-    spec.write_text('[dense]\nplugin = "best-of"\nparams = { frame_from = "intrinsic" }\n')
-    code = main(["match", str(root / "8_gorilla_05.off"), str(root / "8_man_07.off"), "-o", str(tmp_path / "m.txt"),
-                 "--pipeline", str(spec)])
+    code = main(["match", str(root / "8_gorilla_05.off"), str(root / "8_man_07.off"), "-o", str(tmp_path / "m.txt")])
     out = capsys.readouterr().out
     assert code == 0
     warn = [line for line in out.splitlines() if line.startswith("warning: another map")]

@@ -13,13 +13,10 @@ are also polished by ZoomOut (an intrinsic refinement of an extrinsic map), and 
 On the tuning half (FAUST people 0-1 mapped across the two people, 11 pairs; dogs; gorillas to men) this took
 a pair turned by 113 degrees from 0.505 (left and right swapped) to 0.022 and the 11 pairs' mean from 0.143 to
 0.096; one pair turned by 115 degrees stays swapped (its intrinsic map, 0.30, gives a poor frame).
-Since session 36 the frame comes from the most plausible map once the extrinsic matcher has run in the given frame
-(``frame_from = "best"``: the least residual so far, as the canonical forms' turn below; ``"intrinsic"``: the former
-rule). An intrinsic map that is a poor guide no longer sets a frame whose convincing wrong map then wins on the
-residual. Tuning half: gorillas to men 0.172 -> 0.133, FAUST people 0-1 60 pairs 0.0986 -> 0.0942 (two pairs 0.45-0.52
--> 0.05-0.13; tr_reg_008 -> 011 0.021 -> 0.54, its shells' given-frame map, swapped, now setting the frame), 22 more
-and dogs unchanged, glued dogs 0.0366 -> 0.0355; FAUST 5,000-point clouds 0.067 -> 0.040 (22 pairs), other clouds
-within their scatter (``auto_speed_notes.md``).
+``frame_from = "best"`` (not the default) takes the frame instead from the map of least residual once the extrinsic
+matcher has run in the given frame. Tried in session 36 (``auto_speed_notes.md``): ahead on the tuning half (gorillas
+to men 0.172 -> 0.133, FAUST 5,000-point clouds 0.067 -> 0.040, 60 FAUST pairs 0.0986 -> 0.0942 with one pair lost),
+no better on the report half, where it flipped a glued FAUST pair (0.024 -> 0.393): not adopted.
 
 Pose. An extrinsic matcher also needs the two shapes in one pose, and a gorilla crouching is not a person
 standing. So the extrinsic matchers run once more on the two shapes' canonical forms
@@ -187,8 +184,8 @@ class BestOfMatcher(DenseMatcher):
     """Runs every matcher of ``matchers`` (names, ``{plugin, preset, params}`` tables or instances) and keeps the map
     of least ZoomOut residual in the first ``k`` Laplace-Beltrami eigenfunctions of both shapes. Intrinsic matchers
     run first. ``reframe``: each extrinsic matcher (``extrinsic = True``) runs a second time with the source turned
-    into the frame of the map of least residual once the first extrinsic matcher ran in the given frame (``frame_from
-    = "intrinsic"``: the first intrinsic map's), when that map keeps orientation and it is turned by at least
+    into the frame of the first intrinsic map (``frame_from = "best"``: of the map of least residual once the first
+    extrinsic matcher ran in the given frame), when that map keeps orientation and it is turned by at least
     ``same_frame`` degrees, meshes only (``info["estimated_frame"]["same_as_given"]`` otherwise; module docstring),
     and, with ``given_frame_first``, only when its map in the given frame has no lower residual than that intrinsic
     map (meshes only; ``info["estimated_frame"]["not_run"]`` otherwise).
@@ -241,7 +238,7 @@ class BestOfMatcher(DenseMatcher):
                  reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
                  same_frame: float = SAME_FRAME_DEGREES, reorient: int | None = REORIENT_START,
                  polish_samples: int | None = POLISH_SAMPLES, given_frame_first: bool = False,
-                 keep_orientation: bool = True, frame_from: str = "best"):
+                 keep_orientation: bool = True, frame_from: str = "intrinsic"):
         self.matchers = matchers
         self.k = k
         self.reframe = reframe
