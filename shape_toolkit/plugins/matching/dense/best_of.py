@@ -311,14 +311,14 @@ class BestOfMatcher(DenseMatcher):
         turned: Shape | None = None
 
         maps: list[np.ndarray] = []  # each candidate's map, for info["ambiguity"]
-        corrs: dict[str, Correspondence] = {}
+        corrs: list[Correspondence] = []  # each candidate, in the order of candidates and maps
 
         def consider(name: str, corr: Correspondence) -> None:
             nonlocal best
             residual = map_residual(bs, bt, np.asarray(corr.target_of), k)
             candidates.append({"matcher": name, "residual": residual})
             maps.append(np.asarray(corr.target_of))
-            corrs[name] = corr
+            corrs.append(corr)
             if progress is not None:
                 progress(f"best-of: {name} residual {residual:.4g}")
             if best is None or residual < best[0]:
@@ -388,8 +388,8 @@ class BestOfMatcher(DenseMatcher):
             raise first_error
         switched = preserving_alternative(source, target, candidates, maps, best[1]) if self.keep_orientation else None
         if switched:  # the least residual reverses orientation; a map the residual cannot tell from it does not
-            best = (next(c["residual"] for c in candidates if c["matcher"] == switched["to"]), switched["to"],
-                    corrs[switched["to"]])
+            j = next(j for j, c in enumerate(candidates) if c["matcher"] == switched["to"])
+            best = (candidates[j]["residual"], switched["to"], corrs[j])
         mirrored: dict[str, Any] = {}
         t = np.asarray(best[2].target_of)
         if self.reorient and bps is not None and np.all(t >= 0):
