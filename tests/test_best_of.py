@@ -63,6 +63,26 @@ def test_seeds_reach_every_matcher_and_the_choice_is_repeatable(poses):
         np.testing.assert_array_equal(one.target_of[seeds[:, 0]], seeds[:, 1])
 
 
+def test_a_matcher_listed_twice_is_labelled_apart(poses):
+    """Two variants of one plugin (here ``fmap-zoomout`` keeping and reversing orientation) are two candidates,
+    ``fmap-zoomout`` and ``fmap-zoomout#2``: ``info`` names the kept one without ambiguity, and the map returned is
+    that variant's own map."""
+    a, b = poses
+    variants = [{"plugin": "fmap-zoomout", "preset": "fast"},
+                {"plugin": "fmap-zoomout", "preset": "fast", "params": {"orientation": "reversing"}}]
+    corr = create_plugin("dense_matchers", "best-of", matchers=variants, reorient=0, keep_orientation=False).match(a, b)
+    residual = {c["matcher"]: c["residual"] for c in corr.info["candidates"]}
+    assert set(residual) == {"fmap-zoomout", "fmap-zoomout#2"}
+    assert residual["fmap-zoomout"] != residual["fmap-zoomout#2"]
+    chosen = corr.info["chosen"]
+    assert chosen == min(residual, key=residual.get)
+    alone = create_plugin("dense_matchers", variants[chosen == "fmap-zoomout#2"]["plugin"],
+                          **{"preset": "fast", **variants[chosen == "fmap-zoomout#2"].get("params", {})}).match(a, b)
+    np.testing.assert_array_equal(corr.target_of, alone.target_of)
+    far = {c["matcher"]: c["disagreement"] for c in corr.info["candidates"]}
+    assert far[chosen] == 0.0
+
+
 @pytest.mark.parametrize("bad", [[], ["no-such-matcher"], [{"preset": "fast"}], ["best-of"], [3]])
 def test_bad_matchers_are_refused(poses, bad):
     a, b = poses

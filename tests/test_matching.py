@@ -138,6 +138,22 @@ def test_fmap_operators_match_their_definitions(small_basis):
     np.testing.assert_allclose(c @ fz._commutativity_hessian(Xs, Xt) @ c, energy, rtol=1e-12)
 
 
+def test_fmap_fit_takes_the_leading_blocks_of_operators_kept_at_a_larger_k(small_basis):
+    """``fmap-zoomout`` computes the multiplication operators once per band at its largest k and hands them to every
+    fit: the leading ``k x k`` block is the operator in ``k`` functions, so each fit is the one it computes alone."""
+    from shape_toolkit.features import basis as fz
+
+    A, b, desc = small_basis
+    X10 = fz.multiplication_operators(b, 10, desc)
+    np.testing.assert_allclose(X10[:, :6, :6], fz.multiplication_operators(b, 6, desc), rtol=0, atol=1e-14)
+    alone = fz.fit_functional_map(b, b, desc, 2 * desc, 6)
+    kept = fz.fit_functional_map(b, b, desc, 2 * desc, 6, mult_src=X10, mult_tgt=2 * X10)
+    np.testing.assert_allclose(kept, alone, rtol=0, atol=1e-10)
+    # operators of too few functions are not used (computed afresh)
+    np.testing.assert_allclose(fz.fit_functional_map(b, b, desc, 2 * desc, 6, mult_src=X10[:, :4, :4]), alone,
+                               rtol=0, atol=1e-10)
+
+
 def test_fmap_descriptor_compression_leaves_the_fit_unchanged(small_basis):
     """The energy sums over descriptor columns: one orthogonal mixing of the columns on both shapes
     changes nothing, and dropping the directions with a negligible share changes (almost) nothing."""

@@ -394,9 +394,14 @@ def multiplication_operators(basis: Basis, k: int, descriptors: np.ndarray) -> n
     # all at once they are n x k(k+1)/2, 86 MB for k = 30 at 23k vertices
     step = max(1, 2**21 // len(iu))
     vals = np.zeros((len(iu), descriptors.shape[1]))  # (k(k+1)/2, d)
+    prod = np.empty((min(step, len(phi)), len(iu)))
     for a in range(0, len(phi), step):
-        p = phi[a : a + step]
-        vals += (p[:, iu] * p[:, ju]).T @ W[a : a + step]
+        p, P = phi[a : a + step], prod[: len(phi[a : a + step])]
+        o = 0
+        for i in range(k):  # the columns phi_i phi_j, j >= i, in triu_indices order (slices: no gathers)
+            np.multiply(p[:, i : i + 1], p[:, i:], out=P[:, o : o + k - i])
+            o += k - i
+        vals += P.T @ W[a : a + step]
     ops = np.empty((descriptors.shape[1], k, k))
     ops[:, iu, ju] = vals.T
     ops[:, ju, iu] = vals.T
@@ -453,13 +458,17 @@ def fit_functional_map(
     orient_tgt: np.ndarray | None = None,
     k_target: int | None = None,
     eval_scale: float = 1.0,
+    mult_src: np.ndarray | None = None,
+    mult_tgt: np.ndarray | None = None,
 ) -> np.ndarray:
     """The ``(k, kt)`` functional map ``C_ts`` (target functions -> source functions; ``kt = k_target``,
     default ``k``) minimizing ``w_descr ||C A_t - A_s||^2 + w_lap ||C L_t - L_s C||^2 + w_dcomm sum_f
     ||C X_t(f) - X_s(f) C||^2 + w_orient sum_f ||C O_t(f) - O_s(f) C||^2``, each term divided by its size at
     ``C = 0`` or ``C = I`` so the weights are relative; solved exactly through its normal equations.
     ``eval_scale`` multiplies the source eigenvalues into the target's units (a part of the target:
-    ``area_t / area_s``, see :func:`~shape_toolkit.features.basis.slanted_size`)."""
+    ``area_t / area_s``, see :func:`~shape_toolkit.features.basis.slanted_size`). ``mult_src``/``mult_tgt``: the
+    :func:`multiplication_operators` of ``desc_src``/``desc_tgt`` in at least ``k``/``kt`` functions, when the
+    caller keeps them for several fits (their leading blocks are used); None: computed here."""
     kt = k if k_target is None else int(k_target)
     A_s = src.project(desc_src, k)
     A_t = tgt.project(desc_tgt, kt)
@@ -482,8 +491,12 @@ def fit_functional_map(
         H[:] += w / scale * _commutativity_hessian(Xs, Xt)
 
     if w_dcomm > 0:
-        Xs, Xt = multiplication_operators(src, k, desc_src), multiplication_operators(tgt, kt, desc_tgt)
-        add_commutativity(Xs, Xt, w_dcomm)
+        def leading(ops: np.ndarray | None, basis: Basis, size: int, desc: np.ndarray) -> np.ndarray:
+            if ops is None or ops.shape[1] < size:
+                return multiplication_operators(basis, size, desc)
+            return ops if ops.shape[1] == size else np.ascontiguousarray(ops[:, :size, :size])
+
+        add_commutativity(leading(mult_src, src, k, desc_src), leading(mult_tgt, tgt, kt, desc_tgt), w_dcomm)
     if w_orient > 0 and orient_src is not None and orient_tgt is not None:
         add_commutativity(orient_src[:, :k, :k], orient_tgt[:, :kt, :kt], w_orient)
     H[np.diag_indices(kk)] += 1e-9 * np.trace(H) / kk

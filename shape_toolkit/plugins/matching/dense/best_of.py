@@ -193,10 +193,11 @@ class BestOfMatcher(DenseMatcher):
     each extrinsic map is also refined by ZoomOut from 20 to ``polish`` eigenfunctions (0 or None: not),
     ``polish_step`` at a time, its iterations querying ``polish_samples`` farthest-point samples of the source (each
     fitted with its Voronoi cell's area) and then every vertex once (0 or None: every vertex throughout).
-    ``canonical``: each extrinsic matcher also runs on the canonical forms (module
-    docstring). ``info["candidates"]`` lists each map's residual and its disagreement with the kept map
-    (``NAME@frame``: in the estimated frame, ``NAME@canonical``: on the canonical forms, ``NAME+zoomout``:
-    polished), ``info["chosen"]`` the one kept, ``info["ambiguity"]`` its rival (:func:`map_ambiguity`),
+    ``canonical``: each extrinsic matcher also runs on the canonical forms (module docstring).
+    ``info["candidates"]`` lists each map's residual and its disagreement with the kept map (``NAME@frame``: in the
+    estimated frame, ``NAME@canonical``: on the canonical forms, ``NAME+zoomout``: polished; a matcher listed twice
+    is ``NAME#2`` the second time), ``info["chosen"]`` the one kept, ``info["ambiguity"]`` its rival
+    (:func:`map_ambiguity`),
     ``info["estimated_frame"]`` the estimated frame's rotation in degrees and the verdict it rests on,
     ``info["canonical_frame"]`` the canonical forms' rotation and the map it came from. ``reorient``: where the kept
     map mirrors a part, it is also refitted from a ``reorient x reorient`` functional map fitted on the rest (0 or
@@ -256,8 +257,10 @@ class BestOfMatcher(DenseMatcher):
         return [_matcher(m) for m in self.matchers]
 
     def _names(self) -> list[str]:
-        return [m if isinstance(m, str) else str(m["plugin"]) if isinstance(m, dict) else type(m).__name__
-                for m in self.matchers]
+        """Each matcher's label in ``info``: its plugin name, ``NAME#2``, ``NAME#3``, ... when the name repeats."""
+        names = [m if isinstance(m, str) else str(m["plugin"]) if isinstance(m, dict) else type(m).__name__
+                 for m in self.matchers]
+        return [n if names[:i].count(n) == 0 else f"{n}#{names[:i].count(n) + 1}" for i, n in enumerate(names)]
 
     def _nested_plugins(self) -> list:
         return self._matchers()

@@ -27,6 +27,7 @@ from shape_toolkit.features.basis import (
     SharedPairWork,
     compress_descriptors,
     fit_functional_map,
+    multiplication_operators,
     orientation_operators,
     part_support,
     point_map_within,
@@ -378,10 +379,13 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                 ds = normalize_columns(ds, bs.mass)
                 dt = ds if same else normalize_columns(dt, bt.mass)
                 ds, dt = compress_descriptors(ds, dt, bs.mass, bt.mass)
-                Os = Ot = None
+                Os = Ot = Xs = Xt = None
+                # the operators of the largest k of the band: fit_functional_map uses their leading blocks
+                k_max = max(int(min(h.get("k", self.k), k_final)) for h in hyps)
+                if any(float(h.get("w_dcomm", self.w_dcomm)) > 0 for h in hyps):
+                    Xs = multiplication_operators(bs, k_max, ds)
+                    Xt = Xs if same else multiplication_operators(bt, slanted_size(bs, bt, k_max, scale), dt)
                 if self.orientation != "none" and any(float(h.get("w_orient", self.w_orient)) > 0 for h in hyps):
-                    # the operators of the largest k of the band: fit_functional_map uses their leading blocks
-                    k_max = max(int(min(h.get("k", self.k), k_final)) for h in hyps)
                     surf_s = shared.surface(source)
                     Os = orientation_operators(surf_s, bs, k_max, ds, frame=shared.frame(surf_s, bs, k_max))
                     # compress_descriptors mixes equal inputs into equal outputs
@@ -391,18 +395,18 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
                                                                frame=shared.frame(surf_t, bt, kt_max))
                     if self.orientation == "reversing":
                         Ot = -Ot
-                prepared[band] = (ds, dt, Os, Ot)
+                prepared[band] = (ds, dt, Os, Ot, Xs, Xt)
             return prepared[band]
 
         def fit(h: dict) -> np.ndarray:
-            ds, dt, Os, Ot = prepare(None if None in descs else float(h.get("band", 1.0)))
+            ds, dt, Os, Ot, Xs, Xt = prepare(None if None in descs else float(h.get("band", 1.0)))
             k0 = int(min(h.get("k", self.k), k_final))
             w = {name: float(h.get(name, getattr(self, name))) for name in ("w_descr", "w_lap", "w_dcomm", "w_orient")}
             if self.orientation == "none":
                 w["w_orient"] = 0.0
             if progress is not None:
                 progress(f"fmap-zoomout: functional map fit (k = {k0}, {ds.shape[1]} descriptor directions)")
-            return fit_functional_map(bs, bt, ds, dt, k0, **w, orient_src=Os, orient_tgt=Ot,
+            return fit_functional_map(bs, bt, ds, dt, k0, **w, orient_src=Os, orient_tgt=Ot, mult_src=Xs, mult_tgt=Xt,
                                       k_target=slanted_size(bs, bt, k0, scale), eval_scale=scale or 1.0)
 
         # every source vertex queries, so each functional map is the exact projection of the point map;
