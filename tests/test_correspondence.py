@@ -114,6 +114,10 @@ def test_nearest_neighbors_matches_brute_force(dim):
     d2k, jk = nearest_neighbors(X, Q, 3)
     np.testing.assert_array_equal(jk[:, 0], full.argmin(1))
     assert np.all(np.diff(d2k, axis=1) >= -1e-12)
+    # single precision, k > 1, blocks of 7 queries (the last one short) sharing one score buffer
+    d2f, jf = nearest_neighbors(X, Q, 3, chunk=7, dtype=np.float32)
+    np.testing.assert_array_equal(jf, np.argsort(full, axis=1)[:, :3])
+    np.testing.assert_allclose(d2f, np.sort(full, axis=1)[:, :3], rtol=1e-4)
 
 
 def test_identity_map_has_zero_error_and_full_curve(ico):
