@@ -11,6 +11,7 @@ from shape_toolkit.errors import ParameterError, PluginError
 from shape_toolkit.features.geodesics import paired_geodesic_distances
 from shape_toolkit.pipeline import load_pipeline, run_pipeline
 from shape_toolkit.plugins.matching.dense.best_of import BestOfMatcher
+from shape_toolkit.plugins.matching.frames import canonical_pair
 
 
 @pytest.fixture(scope="module")
@@ -313,7 +314,7 @@ def test_canonical_forms_remove_the_pose_and_the_turn(unequal_limbs):
     a, b = unequal_limbs
     bt = _turned(b, 120.0)
     ids = np.arange(a.n_vertices)
-    (ca, cb), info = BestOfMatcher._canonical(a, bt, ids, np.ones(a.n_vertices), "truth")
+    (ca, cb), info = canonical_pair(a, bt, ids, np.ones(a.n_vertices), "truth")
     assert info["from"] == "truth"
     corr = create_plugin("dense_matchers", "shell-alignment").match(ca, cb)
     assert _error(bt, corr.target_of) < 0.03

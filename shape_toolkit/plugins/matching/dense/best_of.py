@@ -104,15 +104,14 @@ import numpy as np
 
 from shape_toolkit.api.interfaces import DenseMatcher
 from shape_toolkit.api.params import InstanceOf, Interval, ListOf, Options, Param
-from shape_toolkit.core.geometry import edge_components, farthest_point_sampling, rigid_rotation, sample_weights
+from shape_toolkit.core.geometry import farthest_point_sampling, sample_weights
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.core.surface import cloud_surface, sheet_surface
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.features.basis import POLISH_START, Basis, basis_of, map_residual, polish_map
-from shape_toolkit.features.canonical import canonical_form
 from shape_toolkit.plugins.matching.descriptors import resolve_plugin, shared_spectra
-from shape_toolkit.plugins.matching.orientation import orientation_verdict, reversing_region
+from shape_toolkit.plugins.matching.frames import canonical_pair, estimated_frame
+from shape_toolkit.plugins.matching.orientation import reversing_region
 from shape_toolkit.plugins.matching.selection import (
     AMBIGUOUS_RATIO,
     RIVAL_DISTANCE,
@@ -138,39 +137,6 @@ POLISH_SAMPLES = 1000
 #: given one to the shells, whose coarse-to-fine start absorbs the turn (tuning pairs turned by 2-22 degrees: the
 #: two maps within 0.0007), so the extrinsic matchers are not run twice
 SAME_FRAME_DEGREES = 15.0
-
-
-def _one_piece(surface: Shape) -> bool:
-    """Whether the triangles of ``surface`` (a mesh) join all its vertices in one piece."""
-    F = np.asarray(surface.faces, dtype=np.int64)
-    return edge_components(surface.n_vertices, np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]))[0] == 1
-
-
-def _degrees(R: np.ndarray) -> float:
-    """The angle of the rotation ``R`` ``(3, 3)``, in degrees."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
-
-
-def estimated_frame(source: Shape, target: Shape, target_of: np.ndarray, mass: np.ndarray, name: str,
-                    same: float = 0.0) -> tuple[Shape | None, dict[str, Any]]:
-    """The source turned into the frame a map ``target_of`` ``(n_s,)`` estimates: the rigid rotation that best
-    carries the source's vertices (weights ``mass`` ``(n_s,)``) onto their images, when the map is judged to keep
-    orientation (:func:`~shape_toolkit.plugins.matching.orientation.orientation_verdict`), and what was decided
-    (``name``: the map's origin, for ``info``). None instead of a shape when the map is not judged to keep
-    orientation, or when the frame is turned by less than ``same`` degrees from the given one."""
-    t = np.asarray(target_of)
-    verdict = orientation_verdict(source, target, t)
-    frame: dict[str, Any] = {"from": name, "verdict": verdict["verdict"], "z": verdict["z"]}
-    ok = np.flatnonzero(t >= 0)
-    if verdict["verdict"] != "preserving" or len(ok) < 3:
-        return None, frame
-    X = np.asarray(source.vertices, dtype=np.float64)
-    R = rigid_rotation(X[ok], np.asarray(target.vertices, dtype=np.float64)[t[ok]], mass[ok])
-    frame["rotation_degrees"] = _degrees(R)
-    if frame["rotation_degrees"] < same:
-        frame["same_as_given"] = True
-        return None, frame
-    return source.with_vertices(X @ R.T), frame
 
 
 def _matcher(spec: Any) -> Any:
@@ -374,7 +340,7 @@ class BestOfMatcher(DenseMatcher):
         extrinsic = [(name, m) for name, m in order if getattr(m, "extrinsic", False)]
         if self.canonical and extrinsic and best is not None:
             try:
-                pair, canon = self._canonical(source, target, np.asarray(best[2].target_of), bs.mass, best[1])
+                pair, canon = canonical_pair(source, target, np.asarray(best[2].target_of), bs.mass, best[1])
             except InvalidShapeError as exc:  # e.g. a shape in several pieces
                 skipped.append({"matcher": "canonical forms", "reason": str(exc)})
                 pair = None
@@ -420,23 +386,6 @@ class BestOfMatcher(DenseMatcher):
         if switched:
             info["orientation_switch"] = switched
         return Correspondence(best[2].target_of, target.n_vertices, best[2].confidence, best[2].posteriors, info)
-
-    @staticmethod
-    def _canonical(source: Shape, target: Shape, t: np.ndarray, mass: np.ndarray,
-                   name: str) -> tuple[tuple[Shape, Shape], dict[str, Any]]:
-        """The two shapes' canonical forms (:func:`~shape_toolkit.features.canonical.canonical_form`), the
-        source's turned onto the target's by the rigid rotation that best carries it along the map ``t``
-        ``(n_s,)`` (the best so far, from matcher ``name``), and what was decided."""
-        ok = np.flatnonzero(t >= 0)
-        if len(ok) < 3:
-            raise InvalidShapeError("canonical forms: the best map so far matches fewer than 3 vertices")
-        surfaces = [cloud_surface(source), cloud_surface(target)]
-        if not all(_one_piece(s) for s in surfaces):  # the fans fell apart (an uneven cloud): the sheet triangles
-            surfaces = [sheet_surface(source), sheet_surface(target)]
-        Ys, Yt = canonical_form(surfaces[0]), canonical_form(surfaces[1])
-        R = rigid_rotation(Ys[ok], Yt[t[ok]], mass[ok])
-        return ((source.with_vertices(Ys @ R.T), target.with_vertices(Yt)),
-                {"from": name, "rotation_degrees": _degrees(R)})
 
     def _polished(self, corr: Correspondence, bs: Basis, bt: Basis, seeds: np.ndarray | None,
                   sampled: dict[str, np.ndarray]) -> Correspondence:

@@ -206,13 +206,13 @@ def with_part_shells(
     """The map ``found`` of :func:`match_over_area_ratios` against the part's smooth shells placed on the whole
     from it (:meth:`~shape_toolkit.plugins.matching.dense.shell_alignment.ShellAlignmentMatcher.match_part` at
     its area ratio): in the given frame and, when ``found`` keeps orientation, in the frame it estimates (the
-    rotation of the ``best-of`` pipeline, :func:`~shape_toolkit.plugins.matching.dense.best_of.estimated_frame`),
+    rotation of the ``best-of`` pipeline, :func:`~shape_toolkit.plugins.matching.frames.estimated_frame`),
     each also refined on its support (:data:`SUPPORT_GROWTH`'s first growth); the map of least
     :func:`geodesic_distortion` (``part_distances`` ``(q, q)`` between the part's ``samples``) kept.
     ``info["partial"]["shells"]`` lists every shells map's distortion and which map was kept
     (``"search"``: ``found``); ``bs``, ``bt``: the full bases of the two spectra."""
-    from shape_toolkit.plugins.matching.dense.best_of import estimated_frame
     from shape_toolkit.plugins.matching.dense.shell_alignment import ShellAlignmentMatcher
+    from shape_toolkit.plugins.matching.frames import estimated_frame
 
     part = found.info["partial"]
     d, ratio, T, support, chosen = part["search"]["distortion"], part["area_ratio"], found.target_of, None, "search"
