@@ -116,8 +116,8 @@ PRESETS: dict[str, dict[str, Any]] = {
         "description": "zoomout and shells on the same pair, the map of least ZoomOut residual kept (best-of): "
         "isometric pairs across poses go to the functional maps, non-isometric and merged pairs to the shells; "
         "the shells also run in the frame of the functional map when it keeps orientation (scans turned "
-        "between captures) and on the two shapes' canonical forms (pose removed), and their maps are also "
-        "polished by ZoomOut",
+        "between captures) and on the two shapes' canonical forms (pose removed), unless their map in the given "
+        "frame already agrees with the functional map, and their maps are also polished by ZoomOut",
         "dense": {"plugin": "best-of"},
     },
     "shells": {

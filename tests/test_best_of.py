@@ -176,15 +176,38 @@ def test_extrinsic_matchers_also_run_in_the_frame_of_the_intrinsic_map(unequal_l
     assert "estimated_frame" not in off.info
 
 
+def test_two_methods_that_agree_settle_the_pair(unequal_limbs):
+    """``settle``: when the intrinsic map and the shells' polished map in the given frame send the source to the same
+    places (the pair in one frame and one pose here), the estimated frame and the canonical forms are not run; when
+    they disagree (the target turned by 120 degrees: the shells in the given frame fail), everything runs."""
+    a, b = unequal_limbs
+    corr = create_plugin("dense_matchers", "best-of", settle=0.03, same_frame=0.0).match(a, b)
+    names = [c["matcher"] for c in corr.info["candidates"] if not c["matcher"].endswith("+reoriented")]
+    assert names == ["fmap-zoomout", "shell-alignment", "shell-alignment+zoomout"]
+    settled = corr.info["settled"]
+    assert settled["intrinsic"] == "fmap-zoomout" and settled["extrinsic"] == "shell-alignment+zoomout"
+    assert 0.0 <= settled["distance"] < 0.03 and "canonical_frame" not in corr.info
+    assert _error(b, corr.target_of) < 0.01
+    # off: the same pair runs every frame
+    full = create_plugin("dense_matchers", "best-of", settle=0.0, same_frame=0.0).match(a, b)
+    assert "settled" not in full.info
+    assert {"shell-alignment@frame", "shell-alignment@canonical"} <= {c["matcher"] for c in full.info["candidates"]}
+    # disagreement: the frames run
+    bt = _turned(b, 120.0)
+    turned = create_plugin("dense_matchers", "best-of", settle=0.03).match(a, bt)
+    assert "settled" not in turned.info and turned.info["chosen"].startswith("shell-alignment@frame")
+    assert _error(bt, turned.target_of) < 0.01
+
+
 def test_a_frame_estimate_of_a_small_turn_does_not_run_the_shells_twice(unequal_limbs):
     """The target turned by 5 degrees: the estimated frame is that turn, below SAME_FRAME_DEGREES, so the shells
     run in the given frame only (the same shells twice would cost a run and a polish for the same map); two point
-    clouds run again."""
+    clouds run again. (``settle = 0``: the two maps agree here, and would settle the pair before any frame.)"""
     from shape_toolkit.plugins.matching.dense.best_of import SAME_FRAME_DEGREES
 
     a, b = unequal_limbs
     bt = _turned(b, 5.0)
-    corr = create_plugin("dense_matchers", "best-of", canonical=False, reorient=0).match(a, bt)
+    corr = create_plugin("dense_matchers", "best-of", canonical=False, reorient=0, settle=0.0).match(a, bt)
     frame = corr.info["estimated_frame"]
     assert frame["verdict"] == "preserving" and frame["same_as_given"] and frame["from"] == "fmap-zoomout"
     assert frame["rotation_degrees"] < SAME_FRAME_DEGREES
@@ -192,13 +215,13 @@ def test_a_frame_estimate_of_a_small_turn_does_not_run_the_shells_twice(unequal_
     assert names == ["fmap-zoomout", "shell-alignment", "shell-alignment+zoomout"]
     assert _error(bt, corr.target_of) < 0.01
     # same_frame = 0: every estimated frame is run again ...
-    again = create_plugin("dense_matchers", "best-of", canonical=False, same_frame=0.0).match(a, bt)
+    again = create_plugin("dense_matchers", "best-of", canonical=False, same_frame=0.0, settle=0.0).match(a, bt)
     assert "same_as_given" not in again.info["estimated_frame"]
     assert "shell-alignment@frame" in [c["matcher"] for c in again.info["candidates"]]
     assert "not_run" not in again.info["estimated_frame"]
     # ... unless given_frame_first (not the default): the shells' map in the given frame already has a lower
     # residual than the intrinsic map the frame came from, so they are not run in it
-    first = create_plugin("dense_matchers", "best-of", canonical=False, same_frame=0.0,
+    first = create_plugin("dense_matchers", "best-of", canonical=False, same_frame=0.0, settle=0.0,
                           given_frame_first=True).match(a, bt)
     not_run = first.info["estimated_frame"]["not_run"]
     assert not_run["matcher"] == "shell-alignment" and not_run["given_residual"] < not_run["from_residual"]
@@ -206,8 +229,8 @@ def test_a_frame_estimate_of_a_small_turn_does_not_run_the_shells_twice(unequal_
     # two point clouds always run again (on clouds the second run is not the same map)
     from shape_toolkit.core.shape import Shape
 
-    clouds = create_plugin("dense_matchers", "best-of", canonical=False).match(Shape(np.asarray(a.vertices)),
-                                                                               Shape(np.asarray(bt.vertices)))
+    clouds = create_plugin("dense_matchers", "best-of", canonical=False, settle=0.0).match(
+        Shape(np.asarray(a.vertices)), Shape(np.asarray(bt.vertices)))
     assert clouds.info["estimated_frame"]["verdict"] == "preserving"
     assert "same_as_given" not in clouds.info["estimated_frame"]
     assert "shell-alignment@frame" in [c["matcher"] for c in clouds.info["candidates"]]
@@ -222,7 +245,8 @@ def test_frame_from_best_takes_the_frame_of_the_most_plausible_map_so_far(unequa
     a, b = unequal_limbs
     for degrees, origin in [(120.0, "fmap-zoomout"), (5.0, None)]:
         bt = _turned(b, degrees)
-        corr = create_plugin("dense_matchers", "best-of", canonical=False, reorient=0, frame_from="best").match(a, bt)
+        corr = create_plugin("dense_matchers", "best-of", canonical=False, reorient=0, frame_from="best",
+                             settle=0.0).match(a, bt)
         frame, cands = corr.info["estimated_frame"], corr.info["candidates"]
         before = [c for c in cands if "@" not in c["matcher"]]  # the candidates there were when it was estimated
         assert frame["from"] == min(before, key=lambda c: c["residual"])["matcher"]
@@ -255,8 +279,8 @@ def test_the_polish_parameters_reach_the_polish(unequal_limbs, name, values):
 
 
 @pytest.mark.parametrize("bad", [{"polish": 10}, {"polish": -1}, {"reframe": "yes"}, {"same_frame": -1.0},
-                                 {"same_frame": 200.0}, {"polish_step": 1.5}, {"polish_step": 0}, {"reorient": -1},
-                                 {"reorient": 2.5}, {"polish_samples": -1}, {"polish_samples": 2.5},
+                                 {"settle": -0.1}, {"same_frame": 200.0}, {"polish_step": 1.5}, {"polish_step": 0},
+                                 {"reorient": -1}, {"reorient": 2.5}, {"polish_samples": -1}, {"polish_samples": 2.5},
                                  {"polish_samples": 50}, {"given_frame_first": "yes"},
                                  {"frame_from": "first"}])
 def test_bad_reframe_and_polish_are_refused(unequal_limbs, bad):

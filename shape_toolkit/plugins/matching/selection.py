@@ -18,7 +18,7 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.plugins.matching.orientation import orientation_verdict
 
-__all__ = ["map_ambiguity", "preserving_alternative", "RIVAL_DISTANCE", "AMBIGUOUS_RATIO"]
+__all__ = ["map_ambiguity", "map_distance", "preserving_alternative", "RIVAL_DISTANCE", "AMBIGUOUS_RATIO"]
 
 #: ``info["ambiguity"]``: a candidate is a rival of the kept map when its images lie on average at least this far from
 #: the kept map's (Euclidean, in sqrt(area) of the target): 7 times a sound FAUST map's error; the FAUST rivals that
@@ -29,19 +29,29 @@ RIVAL_DISTANCE = 0.15
 AMBIGUOUS_RATIO = 1.1
 
 
+def map_distance(a: np.ndarray, b: np.ndarray, target: Shape, mass: np.ndarray, area: float) -> float:
+    """How far apart two maps ``a``, ``b`` ``(n_s,)`` of one source into ``target`` send the source: the mean distance
+    between the two images of each source vertex matched by both (Euclidean, weights ``mass`` ``(n_s,)``), over
+    sqrt(``area``) of the target (unitless); 0.0 when no vertex is matched by both."""
+    X = np.asarray(target.vertices, dtype=np.float64)
+    a, b = np.asarray(a), np.asarray(b)
+    ok = (a >= 0) & (b >= 0)
+    if not ok.any():
+        return 0.0
+    w = mass[ok] / max(float(mass[ok].sum()), 1e-300)
+    return float(w @ np.linalg.norm(X[a[ok]] - X[b[ok]], axis=1) / np.sqrt(area))
+
+
 def map_ambiguity(candidates: list[dict[str, Any]], maps: list[np.ndarray], kept: str, target: Shape,
                   mass: np.ndarray, area: float) -> dict[str, Any]:
     """How far each candidate's map ``(n_s,)`` lies from the kept one's (``candidates[i]["disagreement"]``, set here:
-    the ``mass``-weighted mean distance between the two images on ``target``, over sqrt(``area``)), and the
-    rival of least residual among those at least :data:`RIVAL_DISTANCE` away: ``{"rival", "residual_ratio",
-    "disagreement", "ambiguous"}``, ambiguous when its residual is within :data:`AMBIGUOUS_RATIO` of the kept map's
-    (two different maps explain the pair about as well: a half turn or a swapped part may have been kept)."""
+    :func:`map_distance`), and the rival of least residual among those at least :data:`RIVAL_DISTANCE` away:
+    ``{"rival", "residual_ratio", "disagreement", "ambiguous"}``, ambiguous when its residual is within
+    :data:`AMBIGUOUS_RATIO` of the kept map's (two different maps explain the pair about as well: a half turn or a
+    swapped part may have been kept)."""
     i = next(j for j, c in enumerate(candidates) if c["matcher"] == kept)
-    X, t = np.asarray(target.vertices, dtype=np.float64), maps[i]
     for c, T in zip(candidates, maps):
-        ok = (T >= 0) & (t >= 0)
-        w = mass[ok] / max(float(mass[ok].sum()), 1e-300)
-        c["disagreement"] = float(w @ np.linalg.norm(X[T[ok]] - X[t[ok]], axis=1) / np.sqrt(area)) if ok.any() else 0.0
+        c["disagreement"] = map_distance(T, maps[i], target, mass, area)
     rivals = [c for c in candidates if c["disagreement"] >= RIVAL_DISTANCE]
     if not rivals:
         return {"rival": None, "ambiguous": False}

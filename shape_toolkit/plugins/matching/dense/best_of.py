@@ -46,7 +46,15 @@ were within 0.0007; the choice among candidates, simulated on 27 + 30 tuning pai
 0.0001), and it saves a shells run and a polish, about 0.8 s of 5 s CPU at 5k, on most pairs of a capture set-up.
 Meshes only: on point clouds the two runs are not interchangeable (tuning half's clouds, 16 pairs x 4 kinds: the
 second run was better on 2 of 64 -- 0.194 -> 0.157, 0.118 -> 0.041 -- and worse on none, for 0.1-0.5 s CPU), so
-clouds always run again. ``given_frame_first`` (off by default) also leaves the frame's run out when the extrinsic
+clouds always run again. When the first intrinsic map and the extrinsic matcher's polished map in the given frame send
+the source within ``settle`` (0.03 sqrt(area), :func:`~shape_toolkit.plugins.matching.selection.map_distance`) of
+each other, two independent methods (one blind to frames, one to intrinsic symmetries) agree, and the estimated frame
+and the canonical forms, there to repair a wrong map, are not run (``info["settled"]``). Session 37
+(``auto_speed_notes.md``): on the tuning half no map worse (48 mesh pairs, 64 clouds; 4 meshes better by up to
+0.0006, a cloud 0.0201 -> 0.0204), 24-30 % less CPU on FAUST and TOSCA; on the report half, run once, FAUST 0.0270 ->
+0.0271 (five pairs within 0.002 either way), glued 0.0440 -> 0.0437 and 0.0339 -> 0.0331, TOSCA and gorillas
+unchanged, two clouds within 0.0025; 25 % less CPU on FAUST, 8-14 % on TOSCA and glued pairs, none on gorillas (whose
+maps disagree). ``given_frame_first`` (off by default) also leaves the frame's run out when the extrinsic
 matcher's map in the given frame (raw or polished) already has a lower residual than the intrinsic map the frame was
 estimated from (meshes only; ``info["estimated_frame"]["not_run"]``). Tried for the CPU and not adopted
 (``auto_speed_notes.md``): on the tuning half it changed no kept map but three glued dog pairs' (0.0366 -> 0.0355);
@@ -116,6 +124,7 @@ from shape_toolkit.plugins.matching.selection import (
     AMBIGUOUS_RATIO,
     RIVAL_DISTANCE,
     map_ambiguity,
+    map_distance,
     preserving_alternative,
 )
 from shape_toolkit.plugins.matching.validation import check_seeds
@@ -137,6 +146,13 @@ POLISH_SAMPLES = 1000
 #: given one to the shells, whose coarse-to-fine start absorbs the turn (tuning pairs turned by 2-22 degrees: the
 #: two maps within 0.0007), so the extrinsic matchers are not run twice
 SAME_FRAME_DEGREES = 15.0
+
+#: the default of ``settle``: when the first intrinsic map and an extrinsic matcher's (polished) map in the given frame
+#: lie within this distance of each other (:func:`~shape_toolkit.plugins.matching.selection.map_distance`, sqrt(area)
+#: of the target), two independent methods agree and the further frames are not run (0: always run them). 1.5x the
+#: error of a sound FAUST map (0.02), a fifth of ``RIVAL_DISTANCE``; on the tuning half the simulated choice was the
+#: same for any value from 0.01 to 0.05 (``auto_speed_notes.md``, session 37)
+SETTLE_DISTANCE = 0.03
 
 
 def _matcher(spec: Any) -> Any:
@@ -197,6 +213,9 @@ class BestOfMatcher(DenseMatcher):
         "frame_from": Param(Options("intrinsic", "best"), doc="the map the estimated frame is taken from: the "
                             "first intrinsic matcher's, or the least residual once the first extrinsic matcher ran in "
                             "the given frame"),
+        "settle": Param(None, Interval(float, 0.0), doc="when the first intrinsic map and an extrinsic matcher's map "
+                        "in the given frame lie within this distance (sqrt(area)), the estimated frame and the "
+                        "canonical forms are not run (0 or None: always run)"),
         "keep_orientation": Param(InstanceOf(bool), doc="when the map of least residual reverses orientation, keep "
                                   "a candidate that does not, of residual within AMBIGUOUS_RATIO of it"),
     }
@@ -205,7 +224,7 @@ class BestOfMatcher(DenseMatcher):
                  reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
                  same_frame: float = SAME_FRAME_DEGREES, reorient: int | None = REORIENT_START,
                  polish_samples: int | None = POLISH_SAMPLES, given_frame_first: bool = False,
-                 keep_orientation: bool = True, frame_from: str = "intrinsic"):
+                 keep_orientation: bool = True, frame_from: str = "intrinsic", settle: float | None = SETTLE_DISTANCE):
         self.matchers = matchers
         self.k = k
         self.reframe = reframe
@@ -218,6 +237,7 @@ class BestOfMatcher(DenseMatcher):
         self.given_frame_first = given_frame_first
         self.keep_orientation = keep_orientation
         self.frame_from = frame_from
+        self.settle = settle
 
     def _matchers(self) -> list:
         return [_matcher(m) for m in self.matchers]
@@ -278,6 +298,8 @@ class BestOfMatcher(DenseMatcher):
         best, candidates, skipped, first_error = None, [], [], None
         frame: dict[str, Any] = {}
         turned: Shape | None = None
+        first: tuple[str, np.ndarray] | None = None  # the first intrinsic map, for settle
+        settled: dict[str, Any] = {}
 
         maps: list[np.ndarray] = []  # each candidate's map, for info["ambiguity"]
         corrs: list[Correspondence] = []  # each candidate, in the order of candidates and maps
@@ -309,11 +331,14 @@ class BestOfMatcher(DenseMatcher):
                 corr = run(name, m, source)
                 if corr is not None:
                     consider(name, corr)
+                    first = first or (name, np.asarray(corr.target_of))
                     if self.reframe and self.frame_from == "intrinsic" and turned is None and not frame:
                         turned, frame = estimated_frame(source, target, np.asarray(corr.target_of), bs.mass, name,
                                                         same)
                 continue
             for label in (name, f"{name}@frame"):
+                if label != name and settled:
+                    continue
                 if label != name and self.reframe and self.frame_from == "best" and not frame and best is not None:
                     turned, frame = estimated_frame(source, target, np.asarray(best[2].target_of), bs.mass, best[1],
                                                     same)
@@ -336,9 +361,13 @@ class BestOfMatcher(DenseMatcher):
                 consider(label, corr)
                 if bps is not None and np.all(np.asarray(corr.target_of) >= 0):
                     consider(f"{label}+zoomout", self._polished(corr, bps, bpt, seeds, sampled()))
+                if label == name and self.settle and first is not None and not settled:
+                    d = map_distance(first[1], maps[-1], target, bs.mass, spec_t.area)
+                    if d < self.settle:  # two independent methods agree: no frame left to repair
+                        settled = {"intrinsic": first[0], "extrinsic": candidates[-1]["matcher"], "distance": d}
         canon: dict[str, Any] = {}
         extrinsic = [(name, m) for name, m in order if getattr(m, "extrinsic", False)]
-        if self.canonical and extrinsic and best is not None:
+        if self.canonical and extrinsic and best is not None and not settled:
             try:
                 pair, canon = canonical_pair(source, target, np.asarray(best[2].target_of), bs.mass, best[1])
             except InvalidShapeError as exc:  # e.g. a shape in several pieces
@@ -383,6 +412,8 @@ class BestOfMatcher(DenseMatcher):
             info["canonical_frame"] = canon
         if mirrored:
             info["mirrored_part"] = mirrored
+        if settled:
+            info["settled"] = settled
         if switched:
             info["orientation_switch"] = switched
         return Correspondence(best[2].target_of, target.n_vertices, best[2].confidence, best[2].posteriors, info)
