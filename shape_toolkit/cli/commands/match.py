@@ -101,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
         "n_seeds": corr.info.get("n_seeds", 0),
         "orientation": corr.info.get("orientation"),
         "ambiguity": corr.info.get("ambiguity"),
+        "settled": corr.info.get("settled"),
         # the proxies' functional map (a k x k array) is for the API, not the summary
         "proxy": {k: v for k, v in corr.info["proxy"].items() if k != "C"} if corr.info.get("proxy") else None,
         "open_boundary": _open_boundary(source, target),
