@@ -50,8 +50,8 @@ clouds always run again. When the first intrinsic map and the extrinsic matcher'
 the source within ``settle`` (0.03 sqrt(area), :func:`~shape_toolkit.plugins.matching.selection.map_distance`) of
 each other, two independent methods (one blind to frames, one to intrinsic symmetries) agree, and the estimated frame
 and the canonical forms, there to repair a wrong map, are not run (``info["settled"]``). Session 37
-(``auto_speed_notes.md``): on the tuning half no map worse (48 mesh pairs, 64 clouds; 4 meshes better by up to
-0.0006, a cloud 0.0201 -> 0.0204), 24-30 % less CPU on FAUST and TOSCA; on the report half, run once, FAUST 0.0270 ->
+(``auto_speed_notes.md``): on the tuning half no mesh map worse (48 pairs, 4 better by up to 0.0006) and one of 64
+clouds worse by 0.0003, 24-30 % less CPU on FAUST and TOSCA; on the report half, run once, FAUST 0.0270 ->
 0.0271 (five pairs within 0.002 either way), glued 0.0440 -> 0.0437 and 0.0339 -> 0.0331, TOSCA and gorillas
 unchanged, two clouds within 0.0025; 25 % less CPU on FAUST, 8-14 % on TOSCA and glued pairs, none on gorillas (whose
 maps disagree). ``given_frame_first`` (off by default) also leaves the frame's run out when the extrinsic
