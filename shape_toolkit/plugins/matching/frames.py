@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from shape_toolkit.core.geometry import edge_components, rigid_rotation
+from shape_toolkit.core.geometry import rigid_rotation
+from shape_toolkit.core.inspect import connected_components
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.surface import cloud_surface, sheet_surface
 from shape_toolkit.errors import InvalidShapeError
@@ -23,12 +24,6 @@ from shape_toolkit.features.canonical import canonical_form
 from shape_toolkit.plugins.matching.orientation import orientation_verdict
 
 __all__ = ["estimated_frame", "canonical_pair"]
-
-
-def _one_piece(surface: Shape) -> bool:
-    """Whether the triangles of ``surface`` (a mesh) join all its vertices in one piece."""
-    F = np.asarray(surface.faces, dtype=np.int64)
-    return edge_components(surface.n_vertices, np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]))[0] == 1
 
 
 def _degrees(R: np.ndarray) -> float:
@@ -67,7 +62,7 @@ def canonical_pair(source: Shape, target: Shape, t: np.ndarray, mass: np.ndarray
     if len(ok) < 3:
         raise InvalidShapeError("canonical forms: the best map so far matches fewer than 3 vertices")
     surfaces = [cloud_surface(source), cloud_surface(target)]
-    if not all(_one_piece(s) for s in surfaces):  # the fans fell apart (an uneven cloud): the sheet triangles
+    if not all(connected_components(s)[0] == 1 for s in surfaces):  # the fans fell apart: the sheet triangles
         surfaces = [sheet_surface(source), sheet_surface(target)]
     Ys, Yt = canonical_form(surfaces[0]), canonical_form(surfaces[1])
     R = rigid_rotation(Ys[ok], Yt[t[ok]], mass[ok])
