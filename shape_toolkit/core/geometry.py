@@ -227,7 +227,7 @@ def nearest_neighbors(
     del X
     Qa = np.ones((min(chunk, len(Q)), Q.shape[1] + 1), dtype=dtype)
     # one score buffer for every block: a fresh (chunk, n) array per block costs its page faults, ~30 % of a search
-    buf = np.empty((len(Qa), len(XaT[0])), dtype=dtype)
+    buf = np.empty((len(Qa), XaT.shape[1]), dtype=dtype)
     D = np.empty((len(Q), k))
     I = np.empty((len(Q), k), dtype=np.int64)
     for s in range(0, len(Q), chunk):

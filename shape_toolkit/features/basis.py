@@ -396,7 +396,8 @@ def multiplication_operators(basis: Basis, k: int, descriptors: np.ndarray) -> n
     vals = np.zeros((len(iu), descriptors.shape[1]))  # (k(k+1)/2, d)
     prod = np.empty((min(step, len(phi)), len(iu)))
     for a in range(0, len(phi), step):
-        p, P = phi[a : a + step], prod[: len(phi[a : a + step])]
+        p = phi[a : a + step]
+        P = prod[: len(p)]
         o = 0
         for i in range(k):  # the columns phi_i phi_j, j >= i, in triu_indices order (slices: no gathers)
             np.multiply(p[:, i : i + 1], p[:, i:], out=P[:, o : o + k - i])
