@@ -82,6 +82,8 @@ def main(argv: list[str] | None = None) -> int:
         f"Regenerate: `python benchmarks/time_limits.py --limit {args.limit:g}`. Each command as a subprocess on a",
         f"{n:,}-vertex sphere with `--time-limit {args.limit:g}`; wall time from launch to exit, Python start-up",
         f"included. Target: every command stops within the limit + 5 s: **{'met' if ok else 'NOT met'}**.",
+        "A command is killed at the limit, except `geodesics` and `evaluate-map`, which stop themselves between",
+        "geodesic sources (saying how far they got) and are killed only 2 s later (`cli/supervise.py`, `GRACE`).",
         "",
         *markdown_table(["command", "exit", "wall (s)", "stderr lines", "last stderr line"],
                         [[name, code, f"{wall:.1f}", nerr, last[:150]] for name, code, wall, nerr, last in rows]),

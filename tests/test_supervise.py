@@ -18,7 +18,6 @@ pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="supervision nee
 
 
 def test_a_time_limit_stops_one_blocking_call_and_its_workers(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(supervise, "GRACE", 0.2)  # the grace a cooperative limit gets (2 s) is not tested here
     pidfile = tmp_path / "grandchild"
 
     def work() -> int:
@@ -74,6 +73,38 @@ def test_every_computing_command_has_a_time_limit():
                  "geodesics", "evaluate-map", "demo", "bench run"):
         args = parser.parse_args([*path.split(), *_required(path), "--time-limit", "7"])
         assert args.time_limit == 7 and args.supervised == path, path
+
+
+def test_only_a_cooperative_limit_gets_a_grace(monkeypatch):
+    """A command that cannot stop itself is killed at its --time-limit; geodesics and evaluate-map, which stop
+    themselves and say how far they got, get GRACE seconds more first."""
+    monkeypatch.setattr(supervise, "GRACE", 30.0)
+
+    def work() -> int:
+        time.sleep(1.5)  # past the limit, well within the grace
+        return 0
+
+    assert supervise.run_supervised("match", work, time_limit=0.3) == 2  # killed at the limit, not 30 s later
+    assert supervise.run_supervised("geodesics", work, time_limit=0.3, cooperative=True) == 0
+
+
+def test_the_cli_gives_the_grace_to_the_commands_with_their_own_limit(monkeypatch):
+    from shape_toolkit import cli
+
+    seen = {}
+
+    def fake(path, work, time_limit, started=None, cooperative=False):
+        seen[path] = (time_limit, cooperative)
+        return 0
+
+    monkeypatch.setattr(supervise, "run_supervised", fake)
+    monkeypatch.setattr(supervise, "can_supervise", lambda: True)
+    parser = build_parser()
+    for path in ("match", "segment", "spectrum", "geodesics", "evaluate-map"):
+        args = parser.parse_args([*path.split(), *_required(path), "--time-limit", "7"])
+        assert cli._run(parser, args, time.monotonic()) == 0
+    assert seen == {"match": (7, False), "segment": (7, False), "spectrum": (7, False), "geodesics": (7, True),
+                    "evaluate-map": (7, True)}
 
 
 def _required(path: str) -> list[str]:

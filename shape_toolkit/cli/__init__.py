@@ -43,7 +43,8 @@ def _subparser(parser: argparse.ArgumentParser, path: str) -> argparse.ArgumentP
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every discovered subcommand; each supervised command gets
     ``--time-limit`` unless it declares its own (geodesics, evaluate-map: a cooperative limit with
-    a default, which the hard one backs up)."""
+    a default, which the hard one backs up :data:`~shape_toolkit.cli.supervise.GRACE` seconds later;
+    the others are stopped at the limit)."""
     from shape_toolkit.cli.commands._common import time_limit_arg
 
     parser = _Parser(prog="shape-toolkit", description="Spectral shape analysis toolkit")
@@ -57,7 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
         p = _subparser(parser, path)
         if p is not None:
             p.set_defaults(supervised=path)
-            if not any("--time-limit" in a.option_strings for a in p._actions):
+            if any("--time-limit" in a.option_strings for a in p._actions):
+                p.set_defaults(cooperative_limit=True)  # its own limit says how far it got: a grace before the kill
+            else:
                 p.add_argument("--time-limit", type=time_limit_arg, default=None, metavar="SECONDS",
                                help="stop (one line, exit 2) past this many seconds, even inside one long "
                                "native call (default: no limit)")
@@ -102,7 +105,8 @@ def _run(parser: argparse.ArgumentParser, args: argparse.Namespace, started: flo
         from shape_toolkit.cli import supervise
 
         if supervise.can_supervise():
-            return supervise.run_supervised(path, lambda: _call(args), getattr(args, "time_limit", None), started)
+            return supervise.run_supervised(path, lambda: _call(args), getattr(args, "time_limit", None), started,
+                                            cooperative=getattr(args, "cooperative_limit", False))
     return _call(args)
 
 

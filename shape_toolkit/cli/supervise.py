@@ -4,8 +4,9 @@ Python cannot catch.
 A cooperative limit (checked between geodesic sources, say) cannot stop one long native call,
 and a process killed for memory or crashed in native code leaves no message. So the commands
 that compute run in a forked child, in its own process group (with its Dask workers, if any),
-while the parent waits: past the limit (plus :data:`GRACE` seconds, so that a cooperative limit
-fires first and says how far it got) the parent kills the group and prints one line, exit 2; a
+while the parent waits: past the limit the parent kills the group and prints one line, exit 2 (a
+command with a cooperative limit of its own, ``geodesics`` and ``evaluate-map``, gets :data:`GRACE`
+seconds more, so that its limit fires first and says how far it got); a
 child killed by the system (SIGKILL: the out-of-memory killer) or crashed (SIGSEGV, SIGABRT,
 SIGBUS) becomes one line too. Ctrl-C reaches the child as SIGINT.
 
@@ -23,7 +24,8 @@ from collections.abc import Callable
 
 __all__ = ["GRACE", "can_supervise", "run_supervised", "MEMORY_HINTS"]
 
-#: seconds past ``--time-limit`` (counted from the command's start) before the child is killed
+#: seconds past ``--time-limit`` (counted from the command's start) before the child of a command with a
+#: cooperative limit of its own is killed (the others are killed at the limit)
 GRACE = 2.0
 #: per command, what reduces its memory (named in the out-of-memory line)
 MEMORY_HINTS = {
@@ -57,12 +59,13 @@ def memory_hint(command: str) -> str:
 
 
 def run_supervised(
-    command: str, work: Callable[[], int], time_limit: float | None, started: float | None = None
+    command: str, work: Callable[[], int], time_limit: float | None, started: float | None = None,
+    cooperative: bool = False,
 ) -> int:
     """Run ``work()`` (returning an exit code) in a forked child; returns its exit code, or 2 past
-    ``time_limit`` seconds (+ :data:`GRACE`) from ``started`` (a ``time.monotonic()`` value;
-    default now), 3 when the system killed it, 1 when it crashed, 130 on Ctrl-C. Each of those
-    prints one line on stderr."""
+    ``time_limit`` seconds from ``started`` (a ``time.monotonic()`` value; default now; ``cooperative``:
+    ``work`` stops itself at the limit, and is killed :data:`GRACE` seconds later), 3 when the system
+    killed it, 1 when it crashed, 130 on Ctrl-C. Each of those prints one line on stderr."""
     started = time.monotonic() if started is None else started
     sys.stdout.flush()
     sys.stderr.flush()
@@ -91,7 +94,7 @@ def run_supervised(
         os.setpgid(pid, pid)  # also here: whichever runs first, the group exists before a kill
     except OSError:
         pass
-    deadline = None if not time_limit else started + time_limit + GRACE
+    deadline = None if not time_limit else started + time_limit + (GRACE if cooperative else 0.0)
     try:
         status = _wait(pid, deadline)
     except KeyboardInterrupt:
