@@ -154,3 +154,38 @@ def test_an_error_message_with_newlines_is_one_line(capsys, monkeypatch):
     assert main(["info", "x.off"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "first line second line third" in err
+
+
+def test_a_terminated_command_takes_its_child_and_workers_with_it(tmp_path):
+    """`timeout` (SIGTERM) on the command: the supervised child and its workers stop too, no orphan runs on."""
+    pidfile = tmp_path / "worker"
+    script = tmp_path / "cmd.py"
+    script.write_text(
+        "import subprocess, sys, time\n"
+        "from shape_toolkit.cli import supervise\n"
+        "def work():\n"
+        "    p = subprocess.Popen(['sleep', '300'])\n"
+        f"    open({str(pidfile)!r}, 'w').write(str(p.pid))\n"
+        "    time.sleep(300)\n"
+        "    return 0\n"
+        "sys.exit(supervise.run_supervised('match', work, time_limit=None))\n"
+    )
+    proc = subprocess.Popen([sys.executable, str(script)], stderr=subprocess.PIPE, text=True)
+    for _ in range(200):  # the worker has started
+        if pidfile.exists() and pidfile.read_text():
+            break
+        time.sleep(0.05)
+    worker = int(pidfile.read_text())
+    proc.send_signal(signal.SIGTERM)
+    err = proc.communicate(timeout=30)[1]
+    assert proc.returncode == 128 + signal.SIGTERM
+    assert err.strip().splitlines() == ["shape-toolkit match: stopped by SIGTERM"]
+    for _ in range(100):
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(worker, signal.SIGKILL)
+        pytest.fail("the command's worker survived the SIGTERM of the command")

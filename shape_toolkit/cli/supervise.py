@@ -8,7 +8,8 @@ while the parent waits: past the limit the parent kills the group and prints one
 command with a cooperative limit of its own, ``geodesics`` and ``evaluate-map``, gets :data:`GRACE`
 seconds more, so that its limit fires first and says how far it got); a
 child killed by the system (SIGKILL: the out-of-memory killer) or crashed (SIGSEGV, SIGABRT,
-SIGBUS) becomes one line too. Ctrl-C reaches the child as SIGINT.
+SIGBUS) becomes one line too. Ctrl-C reaches the child as SIGINT; SIGTERM or SIGHUP to the parent (``timeout``,
+a job scheduler, a closed terminal) kills the child's group before the parent exits, so no orphan runs on.
 
 The child is used only where it can be: POSIX ``fork``, and stdout/stderr that are real file
 descriptors (not a test's in-memory capture); ``SHAPE_TOOLKIT_IN_PROCESS=1`` turns it off.
@@ -65,14 +66,23 @@ def run_supervised(
     """Run ``work()`` (returning an exit code) in a forked child; returns its exit code, or 2 past
     ``time_limit`` seconds from ``started`` (a ``time.monotonic()`` value; default now; ``cooperative``:
     ``work`` stops itself at the limit, and is killed :data:`GRACE` seconds later), 3 when the system
-    killed it, 1 when it crashed, 130 on Ctrl-C. Each of those prints one line on stderr."""
+    killed it, 1 when it crashed, 130 on Ctrl-C, ``128 + signal`` when this process gets SIGTERM or SIGHUP
+    (the child's group is killed with it). Each of those prints one line on stderr."""
     started = time.monotonic() if started is None else started
     sys.stdout.flush()
     sys.stderr.flush()
-    pid = os.fork()
+    # the parent stopped by a signal (`timeout`, a scheduler, a closed terminal) stops the child's group with it:
+    # otherwise the child, in a group of its own, would run on as an orphan (installed before the fork: no gap)
+    previous = _install(dict.fromkeys(_TERMINATING, _raise_terminated))
+    try:
+        pid = os.fork()
+    except OSError:
+        _install(previous)
+        raise
     if pid == 0:  # the child: its own group, so that the parent can stop it with its workers
         code = 1
         try:
+            _install(previous)  # the child ends on SIGTERM as any process does
             os.setpgid(0, 0)
             if not os.environ.get("TOOLKIT_DEBUG"):  # a crash is the parent's one line, not a dump
                 import faulthandler
@@ -90,12 +100,12 @@ def run_supervised(
                 sys.stderr.flush()
             finally:
                 os._exit(code)
-    try:
-        os.setpgid(pid, pid)  # also here: whichever runs first, the group exists before a kill
-    except OSError:
-        pass
     deadline = None if not time_limit else started + time_limit + (GRACE if cooperative else 0.0)
     try:
+        try:
+            os.setpgid(pid, pid)  # also here: whichever runs first, the group exists before a kill
+        except OSError:
+            pass
         status = _wait(pid, deadline)
     except KeyboardInterrupt:
         _signal_group(pid, signal.SIGINT)  # the child prints its own 'interrupted'
@@ -103,6 +113,12 @@ def run_supervised(
         if status is None:
             _stop(pid)
         return 130
+    except _Terminated as stop:
+        _stop(pid)
+        print(f"shape-toolkit {command}: stopped by {signal.Signals(stop.signum).name}", file=sys.stderr)
+        return 128 + stop.signum
+    finally:
+        _install(previous)
     if status is None:
         _stop(pid)
         print(
@@ -131,6 +147,30 @@ def run_supervised(
         file=sys.stderr,
     )
     return 1
+
+
+class _Terminated(Exception):
+    """The parent received SIGTERM or SIGHUP while it waited for the child."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum: int, frame: object) -> None:  # noqa: ARG001
+    raise _Terminated(signum)
+
+
+_TERMINATING = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+def _install(handlers: dict[int, object]) -> dict[int, object]:
+    """Install signal ``handlers`` (signal number -> handler); returns the ones they replace. Nothing is changed
+    outside the main thread, where Python cannot set handlers."""
+    try:
+        return {sig: signal.signal(sig, h) for sig, h in handlers.items()}
+    except ValueError:  # not the main thread
+        return {}
 
 
 def _wait(pid: int, deadline: float | None) -> int | None:
