@@ -62,6 +62,17 @@ def test_bad_hypotheses_are_refused(poses, bad):
         create_plugin("dense_matchers", "fmap-zoomout", hypotheses=bad).match(a, b)
 
 
+def test_a_fit_too_large_for_its_normal_equations_is_refused_before_they_are_allocated(poses):
+    """A 200 x 200 map's exact fit would hold 12.8 GB (found by fuzzing: k = 200 on 162 vertices ran the machine out
+    of memory); refused by the parameter's range, and by the fit itself where a hypothesis asks for it."""
+    a, b = poses
+    with pytest.raises(ParameterError, match=r"k must be an int in \[2, 100\]"):
+        create_plugin("dense_matchers", "fmap-zoomout", k=200).match(a, b)
+    m = create_plugin("dense_matchers", "fmap-zoomout", hypotheses=[{"k": 150}], zoomout_iters=20, zoomout_step=5)
+    with pytest.raises(ParameterError, match="unknowns"):
+        m.match(a, b)
+
+
 @pytest.mark.slow
 def test_hypotheses_undo_a_part_swap_on_faust(shared_data):
     """FAUST tr_reg_002 -> tr_reg_007 (a tuning pair of the field benchmark's split by subject): the single fit of

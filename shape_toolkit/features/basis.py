@@ -444,6 +444,11 @@ def _commutativity_hessian(Xs: np.ndarray, Xt: np.ndarray) -> np.ndarray:
     return np.kron(XtXt, np.eye(ks)) + np.kron(np.eye(kt), XsXs) - cross - cross.T
 
 
+#: the most unknowns (``k kt``) :func:`fit_functional_map` solves for: its dense normal equations hold ``(k kt)^2``
+#: doubles, 800 MB at 10,000 (a 100 x 100 map; the fits of the matchers start at 20-30 and ZoomOut grows them)
+FIT_MAX_UNKNOWNS = 10_000
+
+
 def fit_functional_map(
     src: Basis,
     tgt: Basis,
@@ -471,6 +476,11 @@ def fit_functional_map(
     :func:`multiplication_operators` of ``desc_src``/``desc_tgt`` in at least ``k``/``kt`` functions, when the
     caller keeps them for several fits (their leading blocks are used); None: computed here."""
     kt = k if k_target is None else int(k_target)
+    if k * kt > FIT_MAX_UNKNOWNS:  # before the (k kt)^2 normal equations are allocated
+        raise ParameterError(
+            f"a {k} x {kt} functional map has {k * kt:,} unknowns; its exact fit solves dense normal equations of "
+            f"{8 * (k * kt) ** 2 / 1e9:.1f} GB, so at most {FIT_MAX_UNKNOWNS:,} (100 x 100) are fitted: lower k "
+            "(ZoomOut then grows the map)")
     A_s = src.project(desc_src, k)
     A_t = tgt.project(desc_tgt, kt)
     kk = k * kt

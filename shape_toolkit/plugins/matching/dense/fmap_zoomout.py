@@ -119,7 +119,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     }
 
     parameter_constraints = {
-        "k": Param(Interval(int, 2), doc="size of the fitted functional map"),
+        "k": Param(Interval(int, 2, 100), doc="size of the fitted functional map (its fit holds k^4 doubles)"),
         "descriptor": Param(None, *DESCRIPTOR.constraints, doc="descriptor plugin (None: WKS on the own basis)"),
         "descriptor_params": DESCRIPTOR_PARAMS,
         "n_descriptors": Param(POSITIVE_INT, doc="evenly spaced descriptor columns kept"),
