@@ -891,3 +891,13 @@ def test_an_unwelded_mesh_is_segmented_piece_by_piece_with_a_warning():
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             create_plugin("segmenters", "ncut", n_segments=4).segment(shape)
+
+
+def test_constraints_drawn_whatever_the_label_values(body):
+    """Label values are names: 2**62 and 7 draw the same links as 1 and 0 (found by fuzzing: a bincount over the
+    label range asked for 2**62 counts, an internal error in `shape-toolkit constraints`)."""
+    b, _ = body
+    small = draw_constraints(b.labels, b.shape.edges, random_state=0)
+    renamed = np.where(b.labels == b.labels.max(), 2**62, b.labels + 7)
+    big = draw_constraints(renamed, b.shape.edges, random_state=0)
+    assert np.array_equal(small.must_link, big.must_link) and np.array_equal(small.cannot_link, big.cannot_link)

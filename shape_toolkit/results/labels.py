@@ -450,8 +450,8 @@ def draw_constraints(
         raise ParameterError(f"edge vertex ids must be in [0, {n - 1}]")
     rng = np.random.default_rng(random_state)
     interior = _interior(labels, e, boundary_rings)
-    sizes = np.bincount(labels - labels.min())
-    big = {int(lab) for lab in np.unique(labels) if sizes[lab - labels.min()] >= min_segment_size}
+    values, sizes = np.unique(labels, return_counts=True)  # any label values (a bincount of 2**62 would not fit)
+    big = {int(lab) for lab, size in zip(values, sizes) if size >= min_segment_size}
     must = []
     for lab in sorted(big):
         ids = np.flatnonzero(labels == lab)
