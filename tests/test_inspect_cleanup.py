@@ -373,8 +373,10 @@ def test_extent_rule_bounds():
 
     s = icosphere(2)
     assert check_extent(s.vertices) == pytest.approx(s.diagonal)
-    assert check_extent(np.ones((4, 3))) == 0.0  # coincident vertices pass: degeneracy is judged elsewhere
-    Shape(np.ones((4, 3)))
+    assert check_extent(np.ones((4, 3))) == 0.0  # coincident vertices pass the rule; the shape refuses them
+    with pytest.raises(InvalidShapeError, match="all 4 vertices are at one point"):
+        Shape(np.ones((4, 3)))
+    Shape(np.ones((1, 3)))  # one vertex: a point, not a degenerate shape
     Shape(s.vertices * 1e152, s.faces)  # just inside: 320 faces of squared diagonal ~1e305
     assert np.isfinite(Shape(s.vertices * 1e152, s.faces).area)
     with pytest.raises(InvalidShapeError, match="for 320 vertices or faces"):

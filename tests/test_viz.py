@@ -201,8 +201,8 @@ def test_both_renderers_share_one_lambert_shading(body, tmp_path, monkeypatch):
     assert len(calls) == 3  # one panel, two frames
 
 
-def test_a_cloud_of_one_repeated_point_renders(tmp_path):
-    """Every point the same (the bad-input corpus's all_same_point.xyz): the panel's box had zero extent
-    and its aspect ratio was NaN."""
-    s = Shape(np.ones((50, 3)))
-    assert render_shape(s, tmp_path / "same.png", title="all_same_point").stat().st_size > 0
+def test_a_shape_of_no_extent_renders(tmp_path):
+    """A box of zero extent (a single point; a cloud of one repeated point, the bad-input corpus's
+    all_same_point.xyz, is now refused when loaded): the panel's aspect ratio was NaN."""
+    s = Shape(np.ones((1, 3)))
+    assert render_shape(s, tmp_path / "same.png", title="one point").stat().st_size > 0

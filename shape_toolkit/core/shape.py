@@ -177,7 +177,8 @@ class Shape:
     vertex indices. Both are validated and made read-only on construction: a Shape never holds
     NaN/inf coordinates or out-of-range face indices, so native code (libigl) is safe to call, nor
     coordinates whose squared lengths and areas overflow or underflow float64 (:func:`check_extent`:
-    1e200 or 1e-300 coordinates are refused with the advice to rescale).
+    1e200 or 1e-300 coordinates are refused with the advice to rescale), nor two or more vertices all at one
+    point (no geometry to analyse).
     ``colors`` (optional) are per-vertex RGB, stored as a read-only float64 ``(n, 3)`` array in
     [0, 1] (see :func:`check_colors`: uint8 input is divided by 255, out-of-range values refused).
     Colours are appearance, not geometry: :attr:`content_hash` ignores them, so spectra and other
@@ -203,7 +204,8 @@ class Shape:
             bad = int((~np.isfinite(v)).any(axis=1).sum())
             raise InvalidShapeError(f"{bad} vertices have NaN or infinite coordinates{where}")
         n_faces = 0 if self.faces is None else int(np.shape(self.faces)[0]) if np.ndim(self.faces) else 0
-        check_extent(v, max(v.shape[0], n_faces), where)
+        if check_extent(v, max(v.shape[0], n_faces), where) == 0.0 and v.shape[0] > 1:
+            raise InvalidShapeError(f"all {v.shape[0]} vertices are at one point{where}: the shape has no extent")
         object.__setattr__(self, "vertices", _readonly(v))
         if self.faces is not None:
             f = np.asarray(self.faces)
