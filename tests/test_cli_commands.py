@@ -490,6 +490,18 @@ def test_outputs_never_replace_an_input(pose, capsys, tmp_path):
     assert code == 2 and "must differ from the input" in err and (src.read_bytes(), tgt.read_bytes()) == kept
 
 
+def test_two_outputs_of_one_command_on_one_path_are_named_as_outputs(pose, capsys, tmp_path):
+    """segment -o s.ply --ply s.ply: refused, and the message says the clash is with the other output, not an input
+    (found by fuzzing: it called s.ply 'the input file')."""
+    d, _, _ = pose
+    out = tmp_path / "s.ply"
+    code, _, err = run_cli(capsys, "segment", d / "a.off", "-k", "2", "-o", out, "--ply", out, "--quiet")
+    assert code == 2 and "must differ from the command's other output" in err and not out.exists()
+    code, _, err = run_cli(capsys, "match", d / "a.off", d / "b.off", "-o", tmp_path / "m.target.ply",
+                           "--ply", tmp_path / "m.ply", "--quiet")
+    assert code == 2 and "must differ from the command's other output" in err
+
+
 def test_match_names_a_target_whose_faces_are_not_consistently_oriented(pose, capsys, tmp_path):
     """Half the target's faces flipped: the orientation verdict, read from the faces' normals, cannot decide; the
     warning names the shape whose faces disagree and the cleanup that orients them (after which it is gone)."""

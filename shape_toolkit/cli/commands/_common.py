@@ -69,12 +69,15 @@ def check_output_path(
     return p
 
 
-def check_distinct(output: str | os.PathLike, *inputs: str | os.PathLike | None) -> None:
-    """Refuse an output path that is one of the input files (it would be overwritten)."""
+def check_distinct(output: str | os.PathLike, *inputs: str | os.PathLike | None,
+                   outputs: tuple[str | os.PathLike | None, ...] = ()) -> None:
+    """Refuse an output path that is one of the input files (it would be overwritten) or one of the command's
+    other ``outputs`` (one would overwrite the other)."""
     out = Path(output).resolve()
-    for i in inputs:
-        if i is not None and Path(i).resolve() == out:
-            raise ParameterError(f"the output {str(output)!r} must differ from the input file {str(i)!r}")
+    for what, paths in (("the input file", inputs), ("the command's other output", outputs)):
+        for i in paths:
+            if i is not None and Path(i).resolve() == out:
+                raise ParameterError(f"the output {str(output)!r} must differ from {what} {str(i)!r}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -521,11 +524,11 @@ def write_ply(path: str | os.PathLike | None, shape: Any, colors: np.ndarray) ->
     return str(path)
 
 
-def check_ply(path: str | None, *inputs: str | None) -> None:
-    """Check a ``--ply`` output before any work."""
+def check_ply(path: str | None, *inputs: str | None, output: str | None = None) -> None:
+    """Check a ``--ply`` output before any work: not one of the ``inputs``, nor the command's main ``output``."""
     if path is not None:
         check_output_path(path, "--ply", suffixes=(".ply",))
-        check_distinct(path, *inputs)
+        check_distinct(path, *inputs, outputs=(output,))
 
 
 def missing_extra(feature: str, module: str, extra: str = "viz") -> ParameterError:

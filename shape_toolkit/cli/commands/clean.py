@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(args.map, "--map", suffixes=(".npy",))
     check_distinct(args.output, args.shape)
     if args.map:
-        check_distinct(args.map, args.shape, args.output)
+        check_distinct(args.map, args.shape, outputs=(args.output,))
     shape = load_shape(args.shape, duplicate_faces="keep")  # removing them is clean's job
     cleaned, report = clean_shape(
         shape,

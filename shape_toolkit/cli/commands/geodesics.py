@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     out = default_output(args.output, args.shape, "geodesics.npz")
     check_output_path(out, suffixes=(".npz",))
     check_distinct(out, args.shape)
-    check_ply(args.ply, args.shape, str(out))
+    check_ply(args.ply, args.shape, output=str(out))
     src = parse_sources(args.sources)  # (a bad list is refused before the mesh is read)
     count = src.size
     check_memory(args, [args.shape], lambda n: geodesic_memory(n, count, args.method),

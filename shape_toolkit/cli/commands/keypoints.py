@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(args.output)
     if args.output:
         check_distinct(args.output, args.shape)
-    check_ply(args.ply, args.shape, args.output)
+    check_ply(args.ply, args.shape, output=args.output)
     params = parse_params(args.param, plugin_class("keypoints", args.detector))
     detector = create_plugin("keypoints", args.detector, preset=args.preset, **params)
     from shape_toolkit.core.spectrum import spectrum_memory

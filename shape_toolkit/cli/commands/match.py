@@ -63,10 +63,10 @@ def run(args: argparse.Namespace) -> int:
     out = default_output(args.output, args.source, f"to-{Path(args.target).stem}.map.txt")
     check_output_path(out)
     check_distinct(out, args.source, args.target, args.seeds)
-    check_ply(args.ply, args.source, args.target, args.seeds, str(out))
+    check_ply(args.ply, args.source, args.target, args.seeds, output=str(out))
     if args.ply:  # the two files --ply writes must not be an input either
         for written in ply_pair(args.ply):
-            check_distinct(written, args.source, args.target, args.seeds, str(out))
+            check_distinct(written, args.source, args.target, args.seeds, outputs=(str(out),))
     pipe = load_pipeline(args.pipeline)
     check_memory(args, [args.source, args.target], lambda n: match_memory(n, args.proxy),
                  "matching them" if args.proxy else "matching them at full resolution (--proxy 0)",

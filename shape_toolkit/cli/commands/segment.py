@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     )
     check_output_path(out)
     check_distinct(out, args.shape, args.constraints)
-    check_ply(args.ply, args.shape, args.constraints, str(out))
+    check_ply(args.ply, args.shape, args.constraints, output=str(out))
     if args.n_segments is not None:
         params["n_segments"] = args.n_segments
     if args.random_state is not None:  # the flag wins over --param random_state=...

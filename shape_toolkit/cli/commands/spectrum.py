@@ -53,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_output_path(args.output, suffixes=(".npz",))
-    check_ply(args.ply, args.shape, args.output)
+    check_ply(args.ply, args.shape, output=args.output)
     if args.ply and not 0 <= args.eigenvector < args.k:
         raise ParameterError(f"--eigenvector {args.eigenvector}: must be in [0, {args.k - 1}] (-k {args.k})")
     params = parse_params(args.param, plugin_class("weightings", args.weighting))

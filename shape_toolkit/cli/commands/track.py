@@ -207,7 +207,7 @@ def _check_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | N
         check_output_path(png.with_suffix(".pdf"), "--png (its PDF copy)", suffixes=(".pdf",))
     for extra in (png, png.with_suffix(".pdf") if png is not None else None, gif):
         if extra is not None:
-            check_distinct(extra, *args.frames, out)
+            check_distinct(extra, *args.frames, outputs=(out,))
     ply_dir = None
     if args.ply_dir is not None:
         ply_dir = Path(args.ply_dir)
@@ -216,7 +216,7 @@ def _check_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | N
         if not ply_dir.exists() and not (ply_dir.parent if str(ply_dir.parent) else Path(".")).is_dir():
             raise ParameterError(f"--ply-dir: the parent folder of {args.ply_dir!r} does not exist")
         for t in range(len(args.frames)):  # the files it will write (frame_000.ply, ...) must not be inputs
-            check_distinct(ply_dir / f"frame_{t:03d}.ply", *args.frames, out, *(args.seeds or []))
+            check_distinct(ply_dir / f"frame_{t:03d}.ply", *args.frames, *(args.seeds or []), outputs=(out,))
     if args.seeds is not None and len(args.seeds) != len(args.frames) - 1:
         raise ParameterError(f"--seeds needs one file per frame pair ({len(args.frames) - 1}), got {len(args.seeds)}")
     return out, png, gif, ply_dir

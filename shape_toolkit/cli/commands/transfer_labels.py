@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     output = default_output(args.output, args.test, "seg" if args.faces else "labels.txt")
     check_output_path(output)
     check_distinct(output, args.train, args.train_labels, args.test, args.truth, args.seeds)
-    check_ply(args.ply, args.train, args.train_labels, args.test, args.truth, args.seeds, str(output))
+    check_ply(args.ply, args.train, args.train_labels, args.test, args.truth, args.seeds, output=str(output))
     params = parse_params(args.param, plugin_class("dense_matchers", args.matcher))
     check_memory(args, [args.train, args.test], lambda n: label_transfer_memory(n, args.proxy),
                  "transferring the labels" if args.proxy else "transferring the labels at full resolution (--proxy 0)",
