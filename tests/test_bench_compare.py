@@ -83,3 +83,24 @@ def test_a_folder_that_is_not_a_run_is_refused(runs, tmp_path, capsys):
     capsys.readouterr()
     assert main(["bench", "compare", str(runs[0]), str(tmp_path)]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("content", ["", "not json {\n"])
+def test_a_run_folder_without_a_valid_row_is_neither_reported_nor_compared(runs, tmp_path, capsys, content):
+    """An empty results.jsonl, or one whose every line is invalid: one line and exit 2, no empty page or table
+    that would read as 'no change' (found by fuzzing: both exited 0)."""
+    from shape_toolkit.bench.report import write_report
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "results.jsonl").write_text(content)
+    with pytest.raises(ParameterError, match="holds no valid row"):
+        compare_runs(runs[0], empty)
+    with pytest.raises(ParameterError, match="holds no valid row"):
+        write_report(empty)
+    assert not (empty / "report").exists()
+    capsys.readouterr()
+    assert main(["bench", "report", str(empty), "--quiet"]) == 2
+    assert main(["bench", "compare", str(empty), str(runs[0])]) == 2
+    err = [x for x in capsys.readouterr().err.strip().splitlines() if "warning:" not in x]
+    assert len(err) == 2 and all("holds no valid row" in x for x in err)

@@ -139,7 +139,7 @@ def test_bench_report_says_each_figure(tmp_path, capsys):
     code, out, err = run_cli(capsys, "bench", "report", tmp_path / "run", "--renders", "0")
     assert code == 0, err
     lines = err.splitlines()
-    assert lines[0].startswith("report: reading ") and any(x.startswith("report: figure 1: ") for x in lines)
+    assert lines[0].startswith("report: read ") and any(x.startswith("report: figure 1: ") for x in lines)
     for flag in ("--quiet", "--json"):
         code, out, err = run_cli(capsys, "bench", "report", tmp_path / "run", "--renders", "0", flag)
         assert code == 0 and err == ""

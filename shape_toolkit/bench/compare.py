@@ -113,8 +113,11 @@ def _verdict(mean: float, se: float | None, direction: str | None) -> str:
 
 def compare_runs(run_a: str | os.PathLike, run_b: str | os.PathLike) -> Comparison:
     """Compare the rows of two run folders (see the module docstring); ``ParameterError`` when
-    either is not a run folder."""
+    either is not a run folder or holds no valid row."""
     rows_a, rows_b = _rows(run_a), _rows(run_b)
+    for run, rows in ((run_a, rows_a), (run_b, rows_b)):
+        if not rows:  # empty, or every line invalid: an empty table would read as "no change"
+            raise ParameterError(f"{run} holds no valid row: nothing to compare (run 'bench run' first)")
     by_a = {_identity(r): r for r in rows_a}
     by_b = {_identity(r): r for r in rows_b}
     common = sorted(set(by_a) & set(by_b))

@@ -1442,10 +1442,12 @@ def write_report(
         raise ParameterError(f"{run} is not a run folder: {RESULTS} not found (run 'bench run' first)")
     out = Path(output) if output else run / "report"
     owned = check_report_output(out)  # before any work
+    every = read_rows(run)  # read once: the rows an earlier config left are counted, not shown
+    if not every:  # an empty folder, or every line invalid (skipped with a warning): no empty page
+        raise ParameterError(f"{run / RESULTS} holds no valid row: nothing to report (run 'bench run' first)")
+    say(f"read {len(every)} rows of {run / RESULTS}")
     (out / "figures").mkdir(parents=True, exist_ok=True)
     (out / "tables").mkdir(exist_ok=True)
-    say(f"reading {run / RESULTS}")
-    every = read_rows(run)  # read once: the rows an earlier config left are counted, not shown
     rows = [_normalized(r) for r in only_planned(every, run)]
     stale = len(every) - len(rows)
     if stale:
