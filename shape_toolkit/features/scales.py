@@ -17,6 +17,7 @@ from shape_toolkit.features.basis import shifted_weights, spectral_basis
 
 __all__ = [
     "check_times",
+    "check_heat_times",
     "scalar_time",
     "default_times",
     "scree_alpha",
@@ -47,6 +48,24 @@ def check_times(times: float | Sequence[float] | np.ndarray) -> np.ndarray:
         raise ParameterError(f"diffusion times must be non-negative and finite, got {float(bad)!r}")
     return t
 
+
+
+def check_heat_times(times: float | Sequence[float] | np.ndarray, spectrum: Spectrum, K: int | None,
+                     who: str) -> np.ndarray:
+    """:func:`check_times`, and no time at which the heat ``exp(-t lambda)`` of every eigenpair a kernel uses (the
+    first ``K`` non-null ones of ``spectrum``; None: all) underflows below the smallest normal double
+    (``t lambda_min > -ln tiny``, about 708): its column would be zero, or NaN once divided by the vanished heat
+    trace. ``who`` names the descriptor in the :class:`ParameterError`."""
+    t = check_times(times)
+    vals, _ = spectral_basis(spectrum, K, deflate=True)
+    lam = float(vals.min()) if vals.size else 0.0
+    if lam > 0:
+        limit = -np.log(np.finfo(float).tiny) / lam
+        if np.any(t > limit):
+            raise ParameterError(
+                f"{who}: times must be at most {limit:.6g} on this shape (beyond it the heat exp(-t lambda) of "
+                f"every eigenpair underflows), got {float(t[t > limit][0]):g}")
+    return t
 
 def scalar_time(t: float) -> float:
     """One diffusion time, validated by :func:`check_times`."""

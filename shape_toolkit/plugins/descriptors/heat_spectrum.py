@@ -12,7 +12,7 @@ from shape_toolkit.api.params import Interval, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum, null_count
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.features.scales import check_times, descriptor_times
+from shape_toolkit.features.scales import check_heat_times, check_times, descriptor_times
 from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE_INT, TIMES, WEIGHTING
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 from shape_toolkit.validation import check_vertex_ids
@@ -78,10 +78,10 @@ def keypoint_heat_inputs(
     kp = check_vertex_ids(keypoints, shape.n_vertices, "keypoints")
     if kp.size == 0:
         raise ParameterError(f"the {who!r} descriptor needs at least one keypoint")
-    if times is not None:
-        check_times(times)
     avail = spectrum.k - null_count(spectrum.eigenvalues)
     kk = min(check_K(K, DEFAULT_K), avail)
+    if times is not None:
+        check_heat_times(times, spectrum, kk, who)
     K_used, t = descriptor_times(spectrum, kk, times, n_times=n_times, alpha=alpha, ratio=time_ratio)
     return K_used, t, kp
 
@@ -108,7 +108,9 @@ class KeypointHeatMixin:
 
     def n_times_out(self) -> int:
         """``tau``, the number of times (given, or the scree rule's ``n_times``)."""
-        return len(self.times) if self.times is not None else int(self.n_times)  # type: ignore[attr-defined]
+        if self.times is None:  # type: ignore[attr-defined]
+            return int(self.n_times)  # type: ignore[attr-defined]
+        return int(np.size(self.times))  # type: ignore[attr-defined]  # one number is one time
 
     def inputs(
         self, shape: Shape, spectrum: Spectrum | None, keypoints: np.ndarray | Sequence[int] | None

@@ -9,7 +9,7 @@ from shape_toolkit.api.params import Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.features.heat import heat_kernel_signature
-from shape_toolkit.features.scales import default_times
+from shape_toolkit.features.scales import check_heat_times, default_times
 from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE_INT, TIMES, WEIGHTING
 from shape_toolkit.plugins.descriptors.heat_spectrum import K_PARAM, SignatureSpectrumMixin, own_spectrum
 
@@ -21,13 +21,15 @@ class HKSDescriptor(SignatureSpectrumMixin, Descriptor):
     at the vertex count) of the combinatorial Laplacian of the Gaussian-weighted graph; a longer
     spectrum given by the caller is truncated to it. ``times=None`` spans
     ``[4 ln10 / lambda_K, 4 ln10 / lambda_2]`` (:func:`shape_toolkit.features.scales.default_times`).
-    ``scale='trace'`` divides by the heat trace (scale-normalised HKS); ``log`` takes the log.
-    Output ``(n, n_times)``; ``keypoints`` are ignored.
+    ``times`` may also be one number (one time). A time so large that ``exp(-t lambda)`` falls below the
+    smallest normal double for every eigenpair used (``t lambda_min > 708``) is refused: the column would be
+    zero (NaN once divided by the vanished heat trace). ``scale='trace'`` divides by the heat trace
+    (scale-normalised HKS); ``log`` takes the log. Output ``(n, n_times)``; ``keypoints`` are ignored.
     """
 
     parameter_constraints = {
         "n_times": Param(POSITIVE_INT, doc="number of log-spaced times when times is None"),
-        "times": Param(None, *TIMES, doc="diffusion times (None: n_times spanning the spectrum)"),
+        "times": Param(None, *TIMES, doc="diffusion times, one or a list (None: n_times spanning the spectrum)"),
         "K": K_PARAM,
         "scale": Param(Options("none", "trace"), doc="'trace': divide by the heat trace (scale-normalised HKS)"),
         "log": Param(bool, doc="take the logarithm"),
@@ -54,8 +56,10 @@ class HKSDescriptor(SignatureSpectrumMixin, Descriptor):
         self.laplacian = laplacian
 
     def output_width(self, n_keypoints: int | None = None) -> int | None:
-        """One column per time."""
-        return len(self.times) if self.times is not None else int(self.n_times)
+        """One column per time (a single number is one time)."""
+        if self.times is None:
+            return int(self.n_times)
+        return int(np.size(self.times))
 
     def compute(
         self, shape: Shape, *, spectrum: Spectrum | None = None, keypoints: np.ndarray | None = None
@@ -63,7 +67,8 @@ class HKSDescriptor(SignatureSpectrumMixin, Descriptor):
         """HKS ``(n, T)`` float64 of ``shape``."""
         spectrum = own_spectrum(self, shape, spectrum)
         K = self.K  # None: every non-null eigenpair of the declared spectrum (K capped at n - 1)
-        times = default_times(spectrum, self.n_times, K) if self.times is None else self.times
+        times = (default_times(spectrum, self.n_times, K) if self.times is None
+                 else check_heat_times(self.times, spectrum, K, type(self).__name__))
         out = heat_kernel_signature(spectrum, times, K=K, scale=self.scale)
         if self.log:
             out = np.log(np.maximum(out, np.finfo(float).tiny))
