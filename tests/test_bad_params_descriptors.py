@@ -98,3 +98,18 @@ def test_keypoint_heat_descriptors_take_one_time_and_refuse_vanished_heat(ellips
     for times in (1e300, [1.0, 1e4]):
         with pytest.raises(ParameterError, match="times must be at most"):
             create_plugin("descriptors", name, times=times).compute(ellipsoid, keypoints=kp)
+
+
+def test_describe_refuses_keypoints_a_descriptor_would_ignore(off_file, tmp_path, capsys):
+    """hks and wks read no keypoints: --keypoints is refused with one line, as segment refuses constraints an
+    unsupervised method would ignore (found by fuzzing: silently ignored); the keypoint descriptors take them."""
+    kp = tmp_path / "kp.txt"
+    kp.write_text("0\n5\n50\n")
+    for name in ("hks", "wks"):
+        code, _, err = run_cli(capsys, "describe", off_file, "--descriptor", name, "--keypoints", kp,
+                               "-o", tmp_path / f"{name}.npz")
+        assert code == 2 and err.count("\n") == 1 and "would ignore them" in err, err
+    code, _, err = run_cli(capsys, "describe", off_file, "--descriptor", "heat-distance", "--keypoints", kp,
+                           "-o", tmp_path / "hd.npz")
+    assert code == 0, err
+    assert np.load(tmp_path / "hd.npz")["descriptor"].shape[0] == 162

@@ -206,6 +206,8 @@ class Descriptor(BasePlugin, ABC):
     """Per-vertex feature vectors."""
 
     family = "descriptors"
+    #: whether :meth:`compute` reads its ``keypoints`` (False: they are ignored, and the CLI refuses them)
+    uses_keypoints = False
     _validated_methods = ("compute", "spectrum_spec")
 
     @abstractmethod

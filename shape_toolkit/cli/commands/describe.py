@@ -67,6 +67,9 @@ def run(args: argparse.Namespace) -> int:
     desc = create_plugin("descriptors", args.descriptor, preset=args.preset, **params)
     from shape_toolkit.spectra import declared_specs
 
+    if args.keypoints and not desc.uses_keypoints:  # before reading anything: they would be ignored
+        raise ParameterError(f"--keypoints: the {args.descriptor!r} descriptor takes no keypoints and would ignore "
+                             "them; heat-diffusion and heat-distance measure from keypoints")
     kp = read_vertex_ids(args.keypoints, one_based=False) if args.keypoints else None
     k = sum(spec.k for spec in declared_specs(desc))
     width = desc.output_width(None if kp is None else kp.size)

@@ -91,6 +91,8 @@ class KeypointHeatMixin:
     descriptors (parameters ``times``, ``n_times``, ``K``, ``alpha``, ``time_ratio``, ``weighting``,
     ``laplacian``)."""
 
+    uses_keypoints = True  # each column is the heat from one keypoint
+
     _who = "heat descriptor"
     parameter_constraints = {
         "times": Param(None, *TIMES, doc="diffusion times (None: n_times scales from the scree rule)"),
