@@ -15,6 +15,16 @@ Methods of :func:`geodesic_distances`:
 Distances are in the shape's length units. Rows (one per source vertex) are cached by shape
 content and method (:data:`GEODESIC_ROWS_CACHE`), so a benchmark that asks twice computes once.
 
+The native solvers cannot take every mesh a :class:`Shape` may hold, and fail badly where they cannot (measured with
+libigl and potpourri3d on small meshes, every source vertex tried): libigl's exact geodesics crash (SIGSEGV) on a
+face with a repeated vertex or an edge on more than two faces, and can loop forever on a face of zero or near-zero
+area (a sliver) or one too small for the coordinates to resolve; fast marching raises an untyped error on a repeated
+vertex, a non-manifold edge or a non-manifold vertex (pieces touching at a vertex). The heat method ("robust"
+Laplacian) copes with all of these, as Dijkstra does. So the solver of a shape is prepared only after
+:func:`solver_defects` found none of the defects its method fails on (:data:`METHOD_DEFECTS`); otherwise
+:class:`~shape_toolkit.errors.InvalidShapeError` names them, the repair (``shape-toolkit clean``) and the methods that
+work. The check runs once per shape and method, with the prepared solver it guards (:data:`GEODESIC_SOLVERS_CACHE`).
+
 Long solves (exact geodesics take about a second per source on a 5,000-vertex mesh) take a
 :class:`GeodesicBudget`: a time limit, checked after every source, that raises
 :class:`~shape_toolkit.errors.TimeLimitError` when it is passed or when the projected total is
@@ -35,13 +45,22 @@ from scipy.sparse.csgraph import dijkstra as _csgraph_dijkstra
 
 from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.graph import edge_length_graph
+from shape_toolkit.core.inspect import (
+    _non_manifold_vertices,
+    degenerate_face_mask,
+    degenerate_index_faces,
+    edge_face_counts,
+)
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError, SolverError, TimeLimitError
 from shape_toolkit.validation import check_vertex_ids
 
 __all__ = [
     "GEODESIC_METHODS",
+    "METHOD_DEFECTS",
     "GeodesicBudget",
+    "solver_defects",
+    "check_solver_input",
     "fill_from_nearest",
     "geodesic_distances",
     "paired_geodesic_distances",
@@ -77,6 +96,45 @@ GEODESIC_MEMORY = {"dijkstra": (85e6, 380.0), "fmm": (60e6, 1260.0), "heat": (0.
 GEODESIC_ROW_BYTES = 32.0
 #: sources solved in one call of scipy's Dijkstra between two budget checks
 _DIJKSTRA_BLOCK = 256
+
+#: the mesh defects each method's native solver cannot take (crash, endless loop or untyped error), checked by
+#: :func:`check_solver_input` before the solver is prepared: ``"repeated"`` faces with a repeated vertex index,
+#: ``"non_manifold_edges"`` edges on more than two faces (a duplicated face makes them too), ``"non_manifold_vertices"``
+#: vertices where pieces of surface touch (bow-ties), ``"thin_faces"`` and ``"tiny_faces"`` faces exact geodesics cannot
+#: resolve (:data:`EXACT_MIN_ALTITUDE`, :data:`EXACT_MIN_EDGE`). Exact geodesics take non-manifold vertices, fast
+#: marching zero-area faces, the heat method all of them.
+METHOD_DEFECTS: dict[str, tuple[str, ...]] = {
+    "exact": ("repeated", "non_manifold_edges", "thin_faces", "tiny_faces"),
+    "fmm": ("repeated", "non_manifold_edges", "non_manifold_vertices"),
+    "heat": (),
+    "dijkstra": (),
+}
+#: libigl's exact geodesics (Kirsanov's MMP code) drop every window shorter than this fraction of its edge
+#: (``SMALLEST_INTERVAL_RATIO``): the relative resolution of the solver
+EXACT_RESOLUTION = 1e-6
+#: a face is too thin for exact geodesics when its smallest altitude (2 area / longest edge) is below this fraction
+#: of its longest edge (zero area included): ten times the solver's resolution, as slivers made it loop forever
+#: from some sources up to 2.3e-6 (never seen at 4e-6 or more)
+EXACT_MIN_ALTITUDE = 10 * EXACT_RESOLUTION
+#: ... or too small when its longest edge is below this fraction of the coordinate scale (a power of two near the
+#: largest coordinate, :attr:`Shape.scale`): float64 then holds its edge vectors to less than the solver's resolution
+#: (machine epsilon / EXACT_RESOLUTION, about 2.2e-10; well-shaped faces 1.5e-11 of it, next to large ones, made the
+#: solver loop forever)
+EXACT_MIN_EDGE = float(np.finfo(np.float64).eps) / EXACT_RESOLUTION
+#: (singular, plural) words of each defect of :data:`METHOD_DEFECTS`
+_DEFECT_WORDS = {
+    "repeated": ("face with a repeated vertex", "faces with a repeated vertex"),
+    "non_manifold_edges": ("non-manifold edge", "non-manifold edges"),
+    "non_manifold_vertices": ("non-manifold vertex", "non-manifold vertices"),
+    "thin_faces": (
+        f"face of zero or near-zero area (altitude under {EXACT_MIN_ALTITUDE:g} of its longest edge)",
+        f"faces of zero or near-zero area (altitude under {EXACT_MIN_ALTITUDE:g} of their longest edge)",
+    ),
+    "tiny_faces": (
+        f"face too small for its coordinates (longest edge under {EXACT_MIN_EDGE:.2g} of the largest coordinate)",
+        f"faces too small for their coordinates (longest edge under {EXACT_MIN_EDGE:.2g} of the largest coordinate)",
+    ),
+}
 
 
 class GeodesicBudget:
@@ -167,7 +225,92 @@ def _dijkstra(G: sp.csr_matrix, **kwargs: Any) -> Any:
     return _csgraph_dijkstra(G, directed=True, **kwargs)
 
 
+def _face_resolution(shape: Shape) -> tuple[np.ndarray, np.ndarray]:
+    """``(altitude, size)`` of every face, float64 ``(m,)`` each: its smallest altitude (2 area / longest edge) over
+    its longest edge (0 for zero area, a repeated vertex or a face collapsed to a point), and its longest edge over
+    the coordinate scale :attr:`Shape.scale`. Both scale-free, computed on coordinates rescaled by that power of two
+    (exact), so 1e-100 and 1e100 coordinates give the same answer as 1.0."""
+    v = shape.vertices / shape.scale
+    f = shape.faces
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)  # twice the area
+    longest2 = np.maximum.reduce([((b - a) ** 2).sum(1), ((c - b) ** 2).sum(1), ((a - c) ** 2).sum(1)])
+    altitude = np.divide(area2, longest2, out=np.zeros_like(area2), where=longest2 > 0)
+    return altitude, np.sqrt(longest2)
+
+
+def solver_defects(shape: Shape, kinds: Sequence[str] | None = None) -> dict[str, tuple[int, str]]:
+    """The defects of the mesh ``shape`` that geodesic solvers fail on, among ``kinds`` (those named in
+    :data:`METHOD_DEFECTS`; default all): ``{kind: (count, first example)}`` for each kind found, empty for a clean
+    mesh. A face counts once: a face with a repeated vertex is not thin too, a thin face not tiny too. Vectorized
+    numpy, O(m log m) in the number of faces."""
+    f = shape.require_faces("geodesic solver checks")
+    kinds = tuple(_DEFECT_WORDS) if kinds is None else tuple(kinds)
+    found: dict[str, tuple[int, str]] = {}
+    rep = degenerate_index_faces(f)
+    if "repeated" in kinds and rep.any():
+        i = int(np.flatnonzero(rep)[0])
+        found["repeated"] = (int(rep.sum()), f"face {i}: {f[i].tolist()}")
+    if "non_manifold_edges" in kinds:
+        edges, counts = edge_face_counts(f)
+        nm = np.flatnonzero(counts > 2)
+        if nm.size:
+            found["non_manifold_edges"] = (
+                int(nm.size), f"edge {edges[nm[0]].tolist()} on {int(counts[nm[0]])} faces"
+            )
+    if "non_manifold_vertices" in kinds:
+        nmv = _non_manifold_vertices(f)
+        if len(nmv):
+            found["non_manifold_vertices"] = (len(nmv), f"vertex {int(nmv[0])}, where pieces of surface touch")
+    if "thin_faces" in kinds or "tiny_faces" in kinds:
+        altitude, size = _face_resolution(shape)
+        thin = (altitude <= EXACT_MIN_ALTITUDE) & ~rep
+        tiny = (size <= EXACT_MIN_EDGE) & ~thin & ~rep
+        for kind, mask, what, value in (("thin_faces", thin, "altitude", altitude), ("tiny_faces", tiny, "edge", size)):
+            if kind in kinds and mask.any():
+                i = int(np.flatnonzero(mask)[0])
+                found[kind] = (int(mask.sum()), f"face {i}, {what} {value[i]:.2g}")
+    return found
+
+
+def check_solver_input(shape: Shape, method: str) -> None:
+    """Raise :class:`~shape_toolkit.errors.InvalidShapeError` when the mesh ``shape`` has a defect that the solver
+    of ``method`` crashes on, loops forever on or refuses (:data:`METHOD_DEFECTS`, :func:`solver_defects`); the one-line
+    message counts them, names the repair and the methods that take the mesh as it is. Nothing for a clean mesh, the
+    heat method and Dijkstra."""
+    kinds = METHOD_DEFECTS[method]
+    if not kinds or not shape.is_mesh:
+        return
+    found = solver_defects(shape, kinds)
+    if not found:
+        return
+    listed = "; ".join(f"{n} {_DEFECT_WORDS[k][n != 1]} (first: {ex})" for k, (n, ex) in found.items())
+    works = [m for m in GEODESIC_METHODS if m != method and not set(found) & set(METHOD_DEFECTS[m])]
+    others = ", ".join(works[:-1]) + (" or " if len(works) > 1 else "") + works[-1]
+    if method == "fmm":
+        effect = "fast marching (geometry-central) refuses them"
+    else:
+        does = [w for w, on in (("crash", {"repeated", "non_manifold_edges"}), ("can loop forever", {"thin_faces",
+                "tiny_faces"})) if on & set(found)]
+        effect = f"libigl's exact geodesics {' or '.join(does)} on them"
+    fix = "repair it with `shape-toolkit clean` (shape_toolkit.core.cleanup.clean_shape)"
+    if "thin_faces" in found or "tiny_faces" in found:
+        # clean drops zero-area faces only (degenerate_face_mask); slivers and tiny faces need a remesh
+        altitude, size = _face_resolution(shape)
+        bad = ((altitude <= EXACT_MIN_ALTITUDE) | (size <= EXACT_MIN_EDGE)) & ~degenerate_index_faces(shape.faces)
+        n_bad = int(bad.sum())
+        removed = int(degenerate_face_mask(shape.vertices, shape.faces[bad]).sum())
+        if removed < n_bad:
+            fix = (f"remesh it with `shape-toolkit clean --remesh EDGE_LEN` (plain clean drops only the {removed} of "
+                   "zero area)" + (" or move it to the origin" if "tiny_faces" in found else ""))
+    raise InvalidShapeError(
+        f"{method} geodesics need a clean manifold mesh, but {shape!r} has {listed}: {effect}; {fix}, "
+        f"or use the {others} method"
+    )
+
+
 def _make_solver(shape: Shape, method: str) -> Any:
+    check_solver_input(shape, method)  # before any native call: once per shape, cached with the solver
     V = np.ascontiguousarray(shape.vertices, dtype=np.float64)
     if method == "dijkstra":
         solver = _edge_graph(shape)
@@ -185,6 +328,14 @@ def _make_solver(shape: Shape, method: str) -> Any:
         except (RuntimeError, ValueError) as exc:
             raise SolverError(f"{method} geodesic solver failed on {shape!r}: {exc}") from None
     return solver
+
+
+def _solve_failed(shape: Shape, method: str, exc: Exception) -> SolverError:
+    """The one-line :class:`SolverError` for a native solve of ``method`` that raised ``exc``."""
+    return SolverError(
+        f"{method} geodesics failed on {shape!r}: {' '.join(str(exc).split())}; try `shape-toolkit clean` on the mesh "
+        "or use the dijkstra method"
+    )
 
 
 def _edge_graph(shape: Shape) -> sp.csr_matrix:
@@ -214,18 +365,21 @@ def _compute_rows(
         return out
     labels = _components(shape)
     for r, s in enumerate(sources):
-        if method == "exact":
-            V, F = solver
-            d = np.asarray(
-                __import__("igl").exact_geodesic(
-                    V, F, VS=np.array([s], dtype=np.int64), VT=np.arange(n, dtype=np.int64)
-                ),
-                dtype=np.float64,
-            ).ravel()
-        elif method == "fmm":
-            d = np.asarray(solver.compute_distance([[(int(s), [])]]), dtype=np.float64).ravel()
-        else:
-            d = np.asarray(solver.compute_distance(int(s)), dtype=np.float64).ravel()
+        try:
+            if method == "exact":
+                V, F = solver
+                d = np.asarray(
+                    __import__("igl").exact_geodesic(
+                        V, F, VS=np.array([s], dtype=np.int64), VT=np.arange(n, dtype=np.int64)
+                    ),
+                    dtype=np.float64,
+                ).ravel()
+            elif method == "fmm":
+                d = np.asarray(solver.compute_distance([[(int(s), [])]]), dtype=np.float64).ravel()
+            else:
+                d = np.asarray(solver.compute_distance(int(s)), dtype=np.float64).ravel()
+        except RuntimeError as exc:  # a failure check_solver_input did not foresee: typed, one line
+            raise _solve_failed(shape, method, exc) from None
         if d.shape != (n,):
             raise SolverError(f"{method} geodesics returned {d.shape[0]} values for {n} vertices")
         d[labels != labels[s]] = np.inf  # libigl says 0 and the heat method guesses there
@@ -367,15 +521,18 @@ def geodesic_distance_to_set(
     d = np.full(n, np.inf)
     for comp in np.unique(labels[src]):  # one solve per component that holds sources
         group = src[labels[src] == comp]
-        if method == "fmm":
-            part = solver.compute_distance([[(int(s), [])] for s in group])
-        elif method == "heat":
-            part = solver.compute_distance_multisource([int(s) for s in group])
-        else:
-            import igl
+        try:
+            if method == "fmm":
+                part = solver.compute_distance([[(int(s), [])] for s in group])
+            elif method == "heat":
+                part = solver.compute_distance_multisource([int(s) for s in group])
+            else:
+                import igl
 
-            V, F = solver
-            part = igl.exact_geodesic(V, F, VS=group, VT=np.arange(n, dtype=np.int64))
+                V, F = solver
+                part = igl.exact_geodesic(V, F, VS=group, VT=np.arange(n, dtype=np.int64))
+        except RuntimeError as exc:
+            raise _solve_failed(shape, method, exc) from None
         part = np.asarray(part, dtype=np.float64).ravel()
         inside = labels == comp
         d[inside] = np.minimum(d[inside], part[inside])
@@ -424,7 +581,8 @@ def k_ring(shape: Shape, vertex: int, k: int) -> np.ndarray:
 
 def k_ring_all(shape_or_adjacency: Shape | sp.spmatrix, k: int) -> sp.csr_matrix:
     """``(n, n)`` boolean CSR whose row ``i`` marks the ``k``-ring of ``i`` (itself included);
-    memory grows with the ring sizes, keep ``k`` small."""
+    memory grows with the ring sizes, keep ``k`` small. The rings stop growing once none adds a vertex (after at
+    most the largest component's diameter in edges): any larger ``k`` gives that saturated matrix, at its cost."""
     A = adjacency(shape_or_adjacency) if isinstance(shape_or_adjacency, Shape) else sp.csr_matrix(
         shape_or_adjacency
     )
@@ -433,8 +591,11 @@ def k_ring_all(shape_or_adjacency: Shape | sp.spmatrix, k: int) -> sp.csr_matrix
     R = _ring_matrix(A)
     B = sp.identity(A.shape[0], format="csr")
     for _ in range(int(k)):
-        B = B @ R
-        B.data[:] = 1.0
+        grown = B @ R
+        grown.data[:] = 1.0
+        if grown.nnz == B.nnz:  # rings only grow: as many entries is the same pattern, and so it stays
+            break
+        B = grown
     return sp.csr_matrix(B, dtype=bool)
 
 
@@ -443,7 +604,8 @@ def ring_maxima(
 ) -> np.ndarray:
     """Vertices whose value is the strict maximum of their ``ring``-ring (ties broken by the
     smaller vertex id), ordered by decreasing value: int64 ``(p,)``. Uses ``ring`` max-dilations
-    over the adjacency, so memory stays linear in ``n``."""
+    over the adjacency, so memory stays linear in ``n``; they stop once one changes nothing (a ring wider than
+    every component), so a huge ``ring`` costs no more than that."""
     v = np.asarray(values, dtype=np.float64).ravel()
     A = adjacency(shape_or_adjacency) if isinstance(shape_or_adjacency, Shape) else sp.csr_matrix(
         shape_or_adjacency
@@ -460,7 +622,10 @@ def ring_maxima(
     R = _ring_matrix(A)
     m = rank.copy()
     for _ in range(int(ring)):
-        m = np.maximum.reduceat(m[R.indices], R.indptr[:-1])
+        grown = np.maximum.reduceat(m[R.indices], R.indptr[:-1])
+        if np.array_equal(grown, m):  # every vertex already sees the maximum of its component
+            break
+        m = grown
     peaks = np.flatnonzero(m == rank)
     return peaks[np.argsort(-rank[peaks], kind="stable")].astype(np.int64)
 

@@ -14,6 +14,11 @@ from shape_toolkit.plugins._params import POSITIVE, POSITIVE_INT
 
 _MIN_POINTS = 10  # enough points for a well-posed 6-parameter quadratic fit
 
+#: ``k`` of the response: the matrix ``[[A, C], [C, B]]`` is the Gram matrix of ``(p4, sqrt2 p1, sqrt2 p2)`` and
+#: ``(p5, sqrt2 p2, sqrt2 p3)``, so ``0 <= AB - C^2 <= (A + B)^2 / 4``: with ``k >= 1/4`` no response is positive,
+#: with ``k <= 0`` none is negative (corners and edges are no longer told apart)
+HARRIS_K = Interval(float, 0, 0.25, closed="neither")
+
 
 def harris_response(shape: Shape, neighbourhoods: list[np.ndarray], k: float = 0.04) -> np.ndarray:
     """Harris 3D response ``(n,)``: per vertex, PCA frame of its neighbourhood (normal = least
@@ -69,9 +74,12 @@ class Harris3D(KeypointDetector):
 
     parameter_constraints = {
         "neighbourhood": Param(Options("adaptive", "rings"), doc="Euclidean radius within the mesh, or k-rings"),
-        "neighbourhood_param": Param(POSITIVE, doc="radius (x bounding-box diagonal), or the ring count for 'rings'"),
-        "k": Param(Interval(float), doc="Harris parameter of R = AB - C^2 - k (A + B)^2"),
-        "ring": Param(POSITIVE_INT, doc="candidates are strict maxima over their ring-ring"),
+        "neighbourhood_param": Param(
+            POSITIVE, doc="radius (x bounding-box diagonal), or for 'rings' a whole ring count >= 1 (saturates)"
+        ),
+        "k": Param(HARRIS_K, doc="Harris parameter of R = AB - C^2 - k (A + B)^2; 0 <= AB - C^2 <= (A + B)^2 / 4, "
+                                 "so k >= 1/4 leaves no positive response and k <= 0 no negative one"),
+        "ring": Param(POSITIVE_INT, doc="candidates are strict maxima over their ring-ring (saturates)"),
         "selection": Param(Options("fraction", "clustering"), doc="keep the strongest fraction, or spread them"),
         "selection_param": Param(POSITIVE, doc="fraction of the vertices, or min distance (x diagonal)"),
         "max_rings": Param(POSITIVE_INT, doc="rings searched for the adaptive neighbourhood"),
@@ -98,7 +106,10 @@ class Harris3D(KeypointDetector):
     def _validate(self) -> None:
         self._validate_params()
         if self.neighbourhood == "rings" and int(self.neighbourhood_param) != self.neighbourhood_param:
-            raise ParameterError("with neighbourhood='rings', neighbourhood_param is a ring count")
+            raise ParameterError(
+                f"{type(self).__name__}: with neighbourhood='rings', neighbourhood_param must be a whole ring count "
+                f">= 1, got {self.neighbourhood_param!r}"
+            )
 
     def neighbourhoods(self, shape: Shape) -> list[np.ndarray]:
         """Per-vertex neighbourhood ids (each includes the vertex)."""
@@ -106,7 +117,7 @@ class Harris3D(KeypointDetector):
         V = shape.vertices
         n = shape.n_vertices
         if self.neighbourhood == "rings":
-            R = k_ring_all(A, int(self.neighbourhood_param)).tocsr()
+            R = k_ring_all(A, int(self.neighbourhood_param))  # saturates: a huge count costs no more
             return [R.indices[R.indptr[i] : R.indptr[i + 1]] for i in range(n)]
         radius = float(self.neighbourhood_param) * shape.diagonal
         out: list[np.ndarray] = []
