@@ -113,3 +113,22 @@ def test_describe_refuses_keypoints_a_descriptor_would_ignore(off_file, tmp_path
                            "-o", tmp_path / "hd.npz")
     assert code == 0, err
     assert np.load(tmp_path / "hd.npz")["descriptor"].shape[0] == 162
+
+
+@pytest.mark.parametrize("variance", [1e-308, 1e308, 1e160])
+def test_wks_variance_float64_cannot_hold_is_refused(ellipsoid, variance):
+    """Filters whose squared width under- or overflows (found by fuzzing: exit 0 with a NaN/inf descriptor and a
+    numpy warning); an ordinary width still works."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ParameterError, match="variance"):
+            create_plugin("descriptors", "wks", variance=variance).compute(ellipsoid)
+        assert np.all(np.isfinite(create_plugin("descriptors", "wks", variance=26.0).compute(ellipsoid)))
+
+
+@pytest.mark.parametrize("params", [{"time_ratio": 1e300}, {"n_times": 100000}])
+def test_scree_times_that_overflow_are_refused_without_warnings(ellipsoid, params):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ParameterError, match="overflow float64"):
+            create_plugin("descriptors", "heat-diffusion", **params).compute(ellipsoid, keypoints=np.array([0, 5]))

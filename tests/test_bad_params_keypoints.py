@@ -153,3 +153,12 @@ def test_cli_harris3d_bad_k_is_one_line(ellipsoid, tmp_path, capsys, value):
     code, _, err = run_cli(capsys, "keypoints", path, "--detector", "harris3d", "--param", f"k={value}",
                            "-o", tmp_path / "kp.txt")
     assert code == 2 and err.count("\n") == 1 and "k must be" in err, err
+
+
+@pytest.mark.parametrize("value", [1e308, 1.5])
+def test_harris3d_selection_param_is_a_fraction_or_a_distance_within_the_diagonal(ellipsoid, value):
+    """Above 1 a fraction of the vertices means every vertex and a distance past the diagonal one keypoint (found
+    by fuzzing: 1e308 was an internal OverflowError)."""
+    with pytest.raises(ParameterError, match="selection_param"):
+        create_plugin("keypoints", "harris3d", selection_param=value).detect(ellipsoid)
+    assert len(create_plugin("keypoints", "harris3d", selection_param=1.0).detect(ellipsoid)) >= 1

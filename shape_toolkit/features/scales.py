@@ -218,6 +218,9 @@ def multiscale_times(
     vals, _ = spectral_basis(spectrum)
     K = vals.size if K is None else K
     t1 = min_time_for_dimension(spectrum, K, alpha)
+    if np.log(t1) + (int(n_times) - 1) * np.log(float(ratio)) > np.log(np.finfo(np.float64).max):
+        raise ParameterError(f"the times t_1 ratio^(n_times - 1) overflow float64 (t_1 = {t1:.3g}, ratio {ratio:g}, "
+                             f"n_times {n_times}): fewer times or a smaller ratio")
     return t1 * float(ratio) ** np.arange(int(n_times))
 
 

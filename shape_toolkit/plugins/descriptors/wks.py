@@ -32,7 +32,12 @@ def wave_kernel_signature(
         raise ParameterError("the WKS needs at least two positive eigenvalues")
     loge = np.log(vals)
     lo, hi = (loge[0], loge[-1]) if log_range is None else (float(log_range[0]), float(log_range[1]))
-    sigma = variance * (hi - lo) / n_energies
+    with np.errstate(over="ignore", under="ignore"):
+        sigma = variance * (hi - lo) / n_energies
+        width2 = 2 * sigma**2
+    if not variance > 0 or (sigma != 0 and not 0 < width2 < np.inf):  # the filters' squared width in float64
+        raise ParameterError(f"the WKS variance {variance!r} gives filters float64 cannot hold (their squared width "
+                             f"{'overflows' if variance > 1 else 'underflows'}): a few energy spacings, e.g. 7")
     e = np.linspace(lo + 2 * sigma, hi - 2 * sigma, int(n_energies))
     if sigma == 0:
         sigma = 1.0

@@ -81,7 +81,8 @@ class Harris3D(KeypointDetector):
                                  "so k >= 1/4 leaves no positive response and k <= 0 no negative one"),
         "ring": Param(POSITIVE_INT, doc="candidates are strict maxima over their ring-ring (saturates)"),
         "selection": Param(Options("fraction", "clustering"), doc="keep the strongest fraction, or spread them"),
-        "selection_param": Param(POSITIVE, doc="fraction of the vertices, or min distance (x diagonal)"),
+        "selection_param": Param(Interval(float, 0, 1, closed="right"), doc="fraction of the vertices, or min "
+                                 "distance (x diagonal); at most 1: every vertex, or one keypoint"),
         "max_rings": Param(POSITIVE_INT, doc="rings searched for the adaptive neighbourhood"),
     }
 
