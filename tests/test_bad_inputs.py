@@ -32,7 +32,6 @@ def _ints(path: Path, values) -> Path:
 # ------------------------------------------------------------------------------------------------
 DEGENERATE = {
     "zero_area": ([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]]),
-    "identical_vertices": ([[1, 1, 1]] * 3, [[0, 1, 2]]),
     "repeated_index": ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 1, 2]]),
     "collinear_fan": ([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], [[0, 1, 2], [0, 2, 3]]),
 }
@@ -65,6 +64,17 @@ def test_evaluate_map_on_a_degenerate_mesh_is_a_one_line_rejection(tmp_path, cap
     code, out, err = run_cli(capsys, "evaluate-map", p, p, m, "--truth-src", t, "--truth-dst", t,
                           "--geodesics", "dijkstra", "--json", *extra)
     _one_line_rejection(code, out, err, "zero surface area")
+    assert out == ""
+
+
+def test_evaluate_map_on_a_mesh_of_one_point_is_a_one_line_rejection(tmp_path, capsys):
+    """Every vertex at one place: refused when the shape is read (no extent), before any metric."""
+    p = tmp_path / "m.off"
+    p.write_text("OFF\n3 1 0\n1 1 1\n1 1 1\n1 1 1\n3 0 1 2\n")
+    m, t = _ints(tmp_path / "id.map", range(3)), _ints(tmp_path / "t.vts", range(1, 4))
+    code, out, err = run_cli(capsys, "evaluate-map", p, p, m, "--truth-src", t, "--truth-dst", t,
+                             "--geodesics", "dijkstra", "--json")
+    _one_line_rejection(code, out, err, "all 3 vertices are at one point")
     assert out == ""
 
 

@@ -16,6 +16,7 @@ from shape_toolkit.bench import load_config, read_rows, run_benchmark, write_rep
 from shape_toolkit.bench.store import LOCK, BenchWarning
 from shape_toolkit.cli import main
 from shape_toolkit.core.spectrum import Spectrum
+from shape_toolkit.errors import ParameterError
 from shape_toolkit.results.segmentation import Segmentation
 from shape_toolkit.spectra import SpectrumSpec
 
@@ -103,12 +104,13 @@ def test_garbage_lines_are_skipped_with_a_warning_and_recomputed(tmp_path, capsy
     (run / "results.jsonl").write_text("\n".join(garbage + ["[" + good[0] + "]"]) + "\n")
     with pytest.warns(BenchWarning, match="skipped 5 invalid line"):
         assert read_rows(run) == []
-    with pytest.warns(BenchWarning, match="invalid line"):
-        write_report(run, renders=0)
+    with pytest.warns(BenchWarning, match="invalid line"), pytest.raises(ParameterError, match="no valid row"):
+        write_report(run, renders=0)  # nothing valid to report: refused, not an empty page
     capsys.readouterr()
-    assert main(["bench", "report", str(run)]) == 0
+    assert main(["bench", "report", str(run)]) == 2
     err = capsys.readouterr().err
     assert "warning:" in err and "skipped 5 invalid line" in err and "Traceback" not in err
+    assert "holds no valid row" in err
     assert bench_run(config, run, "--json") == 0
     captured = capsys.readouterr()
     assert json.loads(captured.out)["rows"] == N_ROWS  # the row hidden in garbage is recomputed
