@@ -104,7 +104,8 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import DisconnectedGraphError, ParameterError
 from shape_toolkit.features.embedding import commute_time_embedding
-from shape_toolkit.plugins._params import CONVEX_FACTOR, N_INIT, N_SEGMENTS, POSITIVE, POSITIVE_INT, WEIGHTING
+from shape_toolkit.plugins._params import N_INIT, N_SEGMENTS, POSITIVE, POSITIVE_INT, WEIGHTING
+from shape_toolkit.plugins.segmenters._bounds import CONVEX_FACTOR
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter, segmenter_spec
 from shape_toolkit.plugins.segmenters.constraints import must_link_groups
 from shape_toolkit.plugins.segmenters.embedding import laplacian_embedding_of

@@ -91,7 +91,9 @@ class EigvecGMMSegmenter(BaseSegmenter):
         "n_segments": N_SEGMENTS,
         "n_eigenvectors": Param(POSITIVE_INT, doc="eigenvectors u_2 .. u_{p+1} clustered"),
         "zero_threshold": Param(Interval(float, 0, 1, closed="left"), doc="eigenvector values treated as zero"),
-        "max_components_1d": Param(POSITIVE_INT, doc="GMM components tried per eigenvector"),
+        "max_components_1d": Param(Interval(int, 1, 20),
+                                   doc="GMM components tried per eigenvector; <= 20: only the two outer ones are used, "
+                                       "MCLUST (the thesis's tool) tries 1 to 9, and each size is one more EM fit"),
         "min_component_fraction": Param(Interval(float, 0, 1, closed="right"), doc="smallest component kept"),
         "max_segments": Param(POSITIVE_INT, doc="most segments when n_segments is None"),
         "laplacian": LAPLACIAN,

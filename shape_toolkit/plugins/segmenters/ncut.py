@@ -65,7 +65,8 @@ import numpy as np
 from shape_toolkit.api.params import Interval, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.features.smoothing import concavity_weights, dual_adjacency
-from shape_toolkit.plugins._params import CONVEX_FACTOR, N_SEGMENTS, NON_NEGATIVE, POSITIVE_INT
+from shape_toolkit.plugins._params import N_SEGMENTS, NON_NEGATIVE, POSITIVE_INT
+from shape_toolkit.plugins.segmenters._bounds import CONCAVITY_SCALE, CONVEX_FACTOR
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter
 from shape_toolkit.plugins.segmenters.merging import merge_to_segments
 from shape_toolkit.plugins.segmenters.n_segments import check_n_segments
@@ -93,7 +94,7 @@ class NormalizedCutSegmenter(BaseSegmenter):
     requires_n_segments = True
     parameter_constraints = {
         "n_segments": N_SEGMENTS,
-        "concavity_scale": Param(NON_NEGATIVE, doc="how strongly concave edges are weakened"),
+        "concavity_scale": CONCAVITY_SCALE,
         "convex_factor": CONVEX_FACTOR,
         "min_weight": Param(NON_NEGATIVE, doc="floor of the dual-graph weights"),
         "n_vectors": Param(POSITIVE_INT, doc="eigenvectors tried per two-way cut"),

@@ -42,7 +42,8 @@ from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, dual_adjacency, dual_graph, relative_affinities, smooth_labels
-from shape_toolkit.plugins._params import CONVEX_FACTOR, N_INIT, N_SEGMENTS, NON_NEGATIVE, POSITIVE, POSITIVE_INT
+from shape_toolkit.plugins._params import N_INIT, N_SEGMENTS, POSITIVE
+from shape_toolkit.plugins.segmenters._bounds import GRAPH_CUT_CONVEX_FACTOR, smoothing_lambda
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter
 from shape_toolkit.plugins.segmenters.kmeans import single_thread
 from shape_toolkit.plugins.segmenters.merging import merge_to_segments
@@ -50,6 +51,12 @@ from shape_toolkit.results.segmentation import Segmentation
 from shape_toolkit.validation import seed_of
 
 _GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
+#: most rays per face (n_rays): sqrt(pi sr / 10,000) = 1 degree between rays over the default cone
+MAX_RAYS = 10_000
+#: most bilateral steps (filter_iterations)
+MAX_FILTER_ITERATIONS = 1_000
+#: most rings of label spreading (smoothed's spread)
+MAX_SPREAD = 1_000
 
 
 def _cone_directions(n_rays: int, cone_angle: float) -> tuple[np.ndarray, np.ndarray]:
@@ -143,7 +150,10 @@ def _fill_and_filter(x: np.ndarray, A: sp.csr_matrix, areas: np.ndarray, iterati
         w = areas[c] * np.exp(-((x[r] - x[c]) ** 2) / (2.0 * sigma * sigma))
         num = np.bincount(r, weights=w * x[c], minlength=len(x))
         den = np.bincount(r, weights=w, minlength=len(x))
-        x = np.where(den > 0, num / np.maximum(den, 1e-300), x)
+        new = np.where(den > 0, num / np.maximum(den, 1e-300), x)
+        if np.array_equal(new, x):  # a fixed point: every further step returns it unchanged
+            break
+        x = new
     return x
 
 
@@ -209,12 +219,17 @@ class SDFSegmenter(BaseSegmenter):
     parameter_constraints = {
         "n_segments": N_SEGMENTS,
         "n_clusters": Param(None, Interval(int, 2), doc="GMM clusters of the SDF (None: n_segments)"),
-        "n_rays": Param(POSITIVE_INT, doc="rays per face of the SDF"),
+        "n_rays": Param(Interval(int, 1, MAX_RAYS),
+                        doc=f"rays per face of the SDF; <= {MAX_RAYS:,} (CGAL: 25): they are then about 1 degree "
+                            "apart over the 120-degree cone, time and the ray blocks' memory grow linearly"),
         "cone_angle": Param(POSITIVE, doc="opening of the ray cone (radians)"),
-        "filter_iterations": Param(Interval(int, 0), doc="bilateral smoothing steps of the SDF"),
+        "filter_iterations": Param(Interval(int, 0, MAX_FILTER_ITERATIONS),
+                                   doc=f"bilateral smoothing steps of the SDF; <= {MAX_FILTER_ITERATIONS:,}: each is "
+                                       "a pass over the dual graph (CGAL: 1 to 3); they stop early, exactly, once a "
+                                       "step changes nothing"),
         "log_alpha": Param(POSITIVE, doc="log normalisation of the SDF"),
-        "smoothing_lambda": Param(NON_NEGATIVE, doc="boundary cost of the graph cut (0: plain GMM labels)"),
-        "convex_factor": CONVEX_FACTOR,
+        "smoothing_lambda": smoothing_lambda("boundary cost of the graph cut (0: plain GMM labels)"),
+        "convex_factor": GRAPH_CUT_CONVEX_FACTOR,
         "geometric": Param(bool, doc="area and edge-length weights"),
         "n_init": N_INIT,
         "random_state": RANDOM_STATE,
@@ -313,9 +328,12 @@ class SmoothedSegmenter(BaseSegmenter):
     parameter_constraints = {
         "base": Param(PluginRef("segmenters"), doc="the segmenter whose labels are smoothed"),
         "n_segments": N_SEGMENTS,
-        "smoothing_lambda": Param(NON_NEGATIVE, doc="boundary cost of the graph cut"),
-        "spread": Param(Interval(int, 0), doc="rings the boundaries may move"),
-        "convex_factor": CONVEX_FACTOR,
+        "smoothing_lambda": smoothing_lambda("boundary cost of the graph cut"),
+        "spread": Param(Interval(int, 0, MAX_SPREAD),
+                        doc=f"rings the boundaries may move; <= {MAX_SPREAD:,}: each ring is a pass of label "
+                            "averaging over the dual graph, and a boundary that may slide 1,000 rings is no "
+                            "longer smoothed locally but re-placed"),
+        "convex_factor": GRAPH_CUT_CONVEX_FACTOR,
         "geometric": Param(bool, doc="area and edge-length weights"),
     }
 

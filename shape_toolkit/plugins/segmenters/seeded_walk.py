@@ -39,7 +39,8 @@ from shape_toolkit.api.params import Interval, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.smoothing import EPS, concavity_weights, dual_adjacency, smooth_labels
-from shape_toolkit.plugins._params import CONVEX_FACTOR, NON_NEGATIVE
+from shape_toolkit.plugins._params import NON_NEGATIVE
+from shape_toolkit.plugins.segmenters._bounds import CONCAVITY_SCALE, CONVEX_FACTOR, smoothing_lambda
 from shape_toolkit.plugins.segmenters.base import BaseSegmenter
 from shape_toolkit.plugins.segmenters.constraints import must_link_groups
 from shape_toolkit.plugins.segmenters.per_component import MIN_SPLIT_SIZE, nearest_label_per_piece
@@ -61,11 +62,11 @@ class SeededWalkSegmenter(BaseSegmenter):
     takes_constraints = True
 
     parameter_constraints = {
-        "concavity_scale": Param(NON_NEGATIVE, doc="how strongly concave edges are weakened"),
+        "concavity_scale": CONCAVITY_SCALE,
         "convex_factor": CONVEX_FACTOR,
         "min_weight": Param(NON_NEGATIVE, doc="floor of the dual-graph weights"),
         "cannot_rounds": Param(Interval(int, 0), doc="rounds of separating cannot-linked clicks"),
-        "smoothing_lambda": Param(NON_NEGATIVE, doc="boundary smoothing by graph cut (0: off)"),
+        "smoothing_lambda": smoothing_lambda("boundary smoothing by graph cut (0: off)"),
     }
 
     def __init__(
