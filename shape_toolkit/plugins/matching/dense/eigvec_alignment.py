@@ -37,7 +37,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from shape_toolkit.api.params import Options, Param
+from shape_toolkit.api.params import Interval, Options, Param
 from shape_toolkit.core.geometry import farthest_point_sampling
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
@@ -52,6 +52,8 @@ __all__ = ["EigvecAlignmentMatcher", "fmap_alignment", "histogram_alignment", "j
 
 #: target points the EM of each candidate alignment is fitted to (the final EM uses every point)
 SEARCH_SAMPLES = 1000
+#: most eigenvectors of the search alignment, histogram bins and search beam (the parameters' docs)
+MAX_SEARCH_K, MAX_BINS, MAX_BEAM = 30, 1000, 50
 #: angles (degrees) and most rounds of the greedy rotations that refine the kept alignment (``rotations``)
 ROTATION_ANGLES, ROTATION_ROUNDS = (30.0, -30.0, 60.0, -60.0, 90.0), 8
 
@@ -164,11 +166,21 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         **{p: c for p, c in EMRegistrationMatcher.parameter_constraints.items()
            if p in ("k", "outlier_weight", "n_neighbors", "max_iter", "tol", "threshold", "one_to_one",
                     "fill_unmatched", "spectrum", "weighting", "scaling", "random_state")},
-        "bins": Param(POSITIVE_INT, doc="histogram bins of the eigenvector alignment"),
+        "k": Param(Interval(int, 1, 100), doc="embedding dimension (alignment 'search': at most 30, checked when "
+                   "matching: the beam search fits k x beam x 2 (2 window + 1) point sets in up to k dimensions and "
+                   "each rotation round runs ~5 k window EMs of k x k SVDs, ~k^4 in all (k = 100: 100 s on 162 "
+                   "vertices); eigenvectors that far up come mixed in near-degenerate groups that signed "
+                   "permutations cannot align, the thesis's range ends at 10)"),
+        "bins": Param(Interval(int, 1, MAX_BINS), doc="histogram bins of the eigenvector alignment (at most 1000: "
+                      "finer bins hold single vertices, so the L1 distance compares samplings, not shapes, and the "
+                      "k x k x bins cost arrays take 80 MB each at k = 100)"),
         "alignment": Param(Options("histogram", "search"), doc="eigenvector alignment: histograms (the text) or "
                            "the search over joint-distribution candidates scored by their maps' distortion"),
         "window": Param(POSITIVE_INT, doc="search: places an eigenvector may move in the spectrum"),
-        "beam": Param(POSITIVE_INT, doc="search: candidate alignments kept (each gets a sampled EM)"),
+        "beam": Param(Interval(int, 1, MAX_BEAM), doc="search: candidate alignments kept (each gets a sampled EM "
+                      "and a distortion measure, and each grows 2 (2 window + 1) scored extensions per eigenvector; "
+                      "at most 50: the candidates differ then only in late, near-degenerate eigenvectors, which "
+                      "the EM and the rotations re-fit anyway; k = 30, window 30, beam 50 take 30 s on 162 vertices)"),
         "holes": Param(Options("keep", "close"), doc="spectra of the shapes as they are, or with every hole "
                        "closed by a fan (core.cleanup.close_holes) and the eigenvectors read on the original vertices"),
         "rotations": Param(Options("greedy", "none"), doc="search: refine the kept alignment by greedy Givens "
@@ -216,6 +228,12 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
         self.holes = holes
         self.rotations = rotations
         self.fmap_candidate = fmap_candidate
+
+    def _check(self) -> None:
+        super()._check()
+        if self.alignment == "search" and self.k > MAX_SEARCH_K:
+            raise ParameterError(f"{type(self).__name__}: k must be at most {MAX_SEARCH_K} with alignment 'search' "
+                                 f"(its cost grows as k^4; see plugins show eigvec-alignment), got {self.k!r}")
 
     def _bases(self, source, target, source_spectrum, target_spectrum, min_dim: int = 0):
         """The embedding bases; with ``holes="close"`` a shape with a boundary gets the basis of its closed copy

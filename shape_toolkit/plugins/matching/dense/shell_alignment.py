@@ -60,12 +60,15 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.features.basis import Basis, basis_of, part_support, slanted_size
-from shape_toolkit.plugins._params import NON_NEGATIVE, POSITIVE_INT
+from shape_toolkit.plugins._params import POSITIVE_INT
 from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec, default_spec
 
 __all__ = ["ShellAlignmentMatcher", "shell_coordinates"]
+
+#: largest alpha, beta (parameter docs), mu and iters
+MAX_WEIGHT, MAX_DAMPING, MAX_ITERS = 1e3, 1e6, 1000
 
 
 def _centred(shape: Shape, basis: Basis, area: float) -> np.ndarray:
@@ -96,10 +99,20 @@ class ShellAlignmentMatcher(DenseMatcher):
     presets = {"fast": {"k_schedule": (6, 12, 24, 48), "iters": 3}}
     parameter_constraints = {
         "k_schedule": Param(ListOf(Interval(int, 2)), doc="increasing shell resolutions (eigenfunctions)"),
-        "alpha": Param(NON_NEGATIVE, doc="weight of the spectral coordinates against positions"),
-        "beta": Param(NON_NEGATIVE, doc="weight of the shells' unit normals"),
-        "mu": Param(NON_NEGATIVE, doc="damping of eigenfunction k's displacement by mu lambda_k^2"),
-        "iters": Param(POSITIVE_INT, doc="alignment steps per resolution"),
+        "alpha": Param(Interval(float, 0, MAX_WEIGHT), doc="weight of the spectral coordinates against positions "
+                       "(both O(1); above 1e3 the positions fall below the float32 resolution of the search's "
+                       "squared distances, 1.2e-7 of 4 alpha^2: spectral matching alone, as for any larger alpha, "
+                       "until the products overflow)"),
+        "beta": Param(Interval(float, 0, MAX_WEIGHT), doc="weight of the shells' unit normals (positions are O(1): "
+                      "above 1e3 they fall below the float32 resolution of the search's squared distances, 1.2e-7 "
+                      "of 4 beta^2: matching by normals alone, as for any larger beta, until float32 overflows)"),
+        "mu": Param(Interval(float, 0, MAX_DAMPING), doc="damping of eigenfunction k's displacement by mu lambda_k^2 "
+                    "(the data terms are at most the unit area and lambda_1 of a unit-area surface is O(10): at 1e6 "
+                    "the shells stay undeformed to 1e-8, as for any larger mu, which would only overflow mu "
+                    "lambda_k^2)"),
+        "iters": Param(Interval(int, 1, MAX_ITERS), doc="alignment steps per resolution (a resolution stops early, "
+                       "exactly, once both maps repeat; at most 1000: a step costs two nearest-neighbour searches "
+                       "of the samples, and maps that still change after 1000 steps cycle)"),
         "samples": Param(None, POSITIVE_INT, doc="farthest-point samples per shape inside the alignment "
                          "(None: every vertex)"),
         "partial": Param(InstanceOf(bool), doc="the source is a part of the target: only the part pulls, its shell "
@@ -268,6 +281,7 @@ class ShellAlignmentMatcher(DenseMatcher):
             damp = self.mu * np.diag(bs.evals[:K] ** 2)
             use_normals = self.beta > 0 and source.is_mesh and target.is_mesh  # the shells' normals (front, back)
             Nt = self.beta * vertex_normals(Xt, target.faces)[cols] if use_normals else None  # fixed at this K
+            last = None  # the maps of the previous step: the same maps again give the same tau and C (a fixed point)
             for _ in range(int(self.iters)):
                 if use_normals:  # the normals need the whole deformed shell
                     P = Xs + Ps @ tau
@@ -283,9 +297,13 @@ class ShellAlignmentMatcher(DenseMatcher):
                 if use_normals:
                     qs, qt = np.hstack([qs, Ns]), np.hstack([qt, Nt])
                 T = cols[nn(qt, qs)]  # target vertex of each row
+                Tr = rows[nn(qs, qt)] if part is None else None  # source vertex of each col
+                maps = (T.copy(), Tr)
+                if last is not None and all(np.array_equal(a, b) for a, b in zip(last, maps)):
+                    break
+                last = maps
                 # least squares on both maps: source x -> T(x), and T'(y) -> target y (a part: the first only)
                 if part is None:
-                    Tr = rows[nn(qs, qt)]  # source vertex of each col
                     H = Psr.T @ (wr[:, None] * Psr) + Ps[Tr].T @ (wc[:, None] * Ps[Tr]) + damp
                     g = Psr.T @ (wr[:, None] * (Xt[T] - Xsr)) + Ps[Tr].T @ (wc[:, None] * (Xtc - Xs[Tr]))
                 else:

@@ -27,6 +27,9 @@ from shape_toolkit.plugins.matching.validation import check_keypoints
 
 __all__ = ["PhotometricMatcher", "ring_color_descriptors", "geometric_texture"]
 
+#: most rings of the colour descriptor (``n_rings``'s doc)
+MAX_RINGS = 100
+
 
 def geometric_texture(shape: Shape) -> np.ndarray:
     """One-channel stand-in for colours, ``(n, 1)``: the length of the umbrella Laplacian of the
@@ -69,11 +72,14 @@ def _balls(shape: Shape, vertices: np.ndarray, radii: list[int]) -> list[sp.csr_
     R.data[:] = 1.0
     q = len(vertices)
     F = sp.csr_matrix((np.ones(q), (np.arange(q), vertices)), shape=(q, n))
-    out, hops = [], 0
+    out, hops, full = [], 0, False
     for r in radii:
         for _ in range(r - hops):
-            F = F @ R
-            F.data[:] = 1.0
+            if full:  # every ball holds its connected component: more hops change nothing (exact)
+                break
+            G = F @ R
+            G.data[:] = 1.0
+            full, F = G.nnz == F.nnz, G
         hops = r
         out.append(F.copy())
     return out
@@ -124,8 +130,12 @@ class PhotometricMatcher(SparseMatcher):
     one-to-one (a target vertex reached twice keeps the closer descriptor)."""
 
     parameter_constraints = {
-        "n_rings": Param(POSITIVE_INT, doc="rings of the colour descriptor"),
-        "ring_width": Param(POSITIVE_INT, doc="mesh edges per ring"),
+        "n_rings": Param(Interval(int, 1, MAX_RINGS), doc="rings of the colour descriptor (at most 100: each adds "
+                         "2 x channels columns to the (source keypoints, target keypoints, columns) distance array, "
+                         "100 rings of RGB at 200 keypoints a side take 190 MB; rings past the mesh's extent are "
+                         "empty and only repeat the keypoint's own colour)"),
+        "ring_width": Param(POSITIVE_INT, doc="mesh edges per ring (any: the growth of the rings stops, exactly, "
+                            "once they cover the mesh)"),
         "ratio": Param(Interval(float, 0, 1, closed="right"), doc="Lowe's ratio test"),
         "require_colors": Param(bool, doc="raise when neither shape has colours (else geometric texture)"),
         "refine_rings": Param(None, Interval(int, 0), doc="rings searched to move a matched target keypoint"),
