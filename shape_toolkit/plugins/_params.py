@@ -20,11 +20,22 @@ FRACTION = Interval(float, 0, 1)
 #: diffusion times: one number >= 0 or a list of them (t = 0, the identity kernel, is in the thesis's tables)
 TIMES = (NON_NEGATIVE, ListOf(NON_NEGATIVE))
 
+#: the consistency kernel's width: unit-sphere heat distances lie in [0, pi] and their differences carry the
+#: rounding of arccos, ~sqrt(eps) = 1.5e-8 radians, so a narrower kernel measures rounding (and sigma^2 underflows
+#: towards 1e-154); above 1e8, Delta^2 / (2 sigma^2) <= 5e-16 is below eps and every weight is exactly 1
+SIGMA = Param(Interval(float, 1e-8, 1e8), doc="width of the pairwise consistency kernel in radians of unit-sphere "
+              "heat distance (in [1e-8, 1e8]: distances lie in [0, pi] with rounding ~1.5e-8; from 1e8 on every "
+              "weight is exactly 1, as for any larger sigma, which would only overflow sigma^2)")
+#: the heat kernels' diffusion time (t lambda_k must stay finite)
+TIME = Param(None, Interval(float, 0, 1e100, closed="right"), doc="diffusion time of the heat-kernel affinities "
+             "(None: from the spectrum; at most 1e100: once t lambda_1 > 745 every non-constant term exp(-t lambda) "
+             "is 0 in float64, so larger times change nothing unless lambda_1 < 1e-97, while t lambda_k must stay "
+             "finite, below 1.8e308)")
 #: the association-graph matchers (replicator, spectral, rrwm; umeyama shares k, time, sigma)
 ASSOCIATION = {
     "k": Param(POSITIVE_INT, doc="non-null eigenpairs of the heat kernel"),
-    "time": Param(None, POSITIVE, doc="diffusion time of the heat-kernel affinities (None: from the spectrum)"),
-    "sigma": Param(POSITIVE, doc="width of the pairwise consistency kernel"),
+    "time": TIME,
+    "sigma": SIGMA,
     "adf_ratio": Param(Interval(float, 1, None, closed="neither"), doc="max ratio of two candidates' ADF values"),
     "max_candidates": Param(POSITIVE_INT, doc="target candidates per source keypoint"),
     "min_score": Param(FRACTION, doc="drop matches scoring below this fraction of the best"),

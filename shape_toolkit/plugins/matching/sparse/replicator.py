@@ -8,23 +8,12 @@ from __future__ import annotations
 import numpy as np
 
 from shape_toolkit.api.interfaces import SparseMatcher
-from shape_toolkit.api.params import Interval, Param
+from shape_toolkit.api.params import Param
 from shape_toolkit.plugins._params import ASSOCIATION, POSITIVE_INT
 from shape_toolkit.plugins.matching.association import THESIS_SPARSE, AssociationGraph, AssociationMatcherBase
 
-__all__ = ["ReplicatorMatcher", "replicator_dynamics", "SIGMA", "TIME"]
+__all__ = ["ReplicatorMatcher", "replicator_dynamics"]
 
-#: the consistency kernel's width: unit-sphere heat distances lie in [0, pi] and their differences carry the
-#: rounding of arccos, ~sqrt(eps) = 1.5e-8 radians, so a narrower kernel measures rounding (and sigma^2 underflows
-#: towards 1e-154); above 1e8, Delta^2 / (2 sigma^2) <= 5e-16 is below eps and every weight is exactly 1
-SIGMA = Param(Interval(float, 1e-8, 1e8), doc="width of the pairwise consistency kernel in radians of unit-sphere "
-              "heat distance (in [1e-8, 1e8]: distances lie in [0, pi] with rounding ~1.5e-8; from 1e8 on every "
-              "weight is exactly 1, as for any larger sigma, which would only overflow sigma^2)")
-#: the heat kernels' diffusion time (t lambda_k must stay finite)
-TIME = Param(None, Interval(float, 0, 1e100, closed="right"), doc="diffusion time of the heat-kernel affinities "
-             "(None: from the spectrum; at most 1e100: once t lambda_1 > 745 every non-constant term exp(-t lambda) "
-             "is 0 in float64, so larger times change nothing unless lambda_1 < 1e-97, while t lambda_k must stay "
-             "finite, below 1.8e308)")
 
 
 def replicator_dynamics(
@@ -54,8 +43,7 @@ class ReplicatorMatcher(AssociationMatcherBase, SparseMatcher):
     from the support of the limit (``x > min_score * max(x)``), one-to-one, most weight first."""
 
     presets = {"thesis": dict(THESIS_SPARSE)}
-    parameter_constraints = {**ASSOCIATION, "time": TIME, "sigma": SIGMA,
-                             "max_iter": Param(POSITIVE_INT, doc="replicator iterations")}
+    parameter_constraints = {**ASSOCIATION, "max_iter": Param(POSITIVE_INT, doc="replicator iterations")}
 
     def __init__(
         self,

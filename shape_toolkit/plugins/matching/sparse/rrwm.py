@@ -10,7 +10,6 @@ from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.api.params import Interval, Param
 from shape_toolkit.plugins._params import ASSOCIATION, FRACTION, POSITIVE_INT
 from shape_toolkit.plugins.matching.association import THESIS_SPARSE, AssociationGraph, AssociationMatcherBase
-from shape_toolkit.plugins.matching.sparse.replicator import SIGMA, TIME
 
 __all__ = ["RRWMMatcher", "sinkhorn"]
 
@@ -32,8 +31,6 @@ class RRWMMatcher(AssociationMatcherBase, SparseMatcher):
     presets = {"thesis": dict(THESIS_SPARSE)}
     parameter_constraints = {
         **ASSOCIATION,
-        "time": TIME,
-        "sigma": SIGMA,
         "alpha": Param(FRACTION, doc="weight of the random walk against the reweighting jump"),
         "inflation": Param(Interval(float, 0, 600, closed="right"), doc="sharpness of the reweighting jump "
                            "exp(inflation x / max x) (at most 600: e^600 = 4e260 leaves the Sinkhorn sums of up to "

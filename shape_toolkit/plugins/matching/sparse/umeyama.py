@@ -13,7 +13,6 @@ from shape_toolkit.features.basis import normalized_spectrum
 from shape_toolkit.features.heat import heat_distances
 from shape_toolkit.plugins._params import ASSOCIATION
 from shape_toolkit.plugins.matching.association import association_spec
-from shape_toolkit.plugins.matching.sparse.replicator import SIGMA, TIME
 from shape_toolkit.plugins.matching.validation import check_keypoints
 from shape_toolkit.spectra import SpectrumSpec
 
@@ -37,8 +36,7 @@ class UmeyamaMatcher(SparseMatcher):
     Pairs scoring below ``min_score`` times the best are dropped."""
 
     presets = {"thesis": {"spectrum": "graph"}}  # 2.4.4 on the Gaussian graph's D - W, no mass
-    parameter_constraints = {**{p: ASSOCIATION[p] for p in ("k", "min_score", "spectrum")}, "time": TIME,
-                             "sigma": SIGMA}
+    parameter_constraints = {p: ASSOCIATION[p] for p in ("k", "time", "sigma", "min_score", "spectrum")}
 
     def __init__(
         self, k: int = 20, time: float | None = None, sigma: float = 0.5, min_score: float = 0.0,
