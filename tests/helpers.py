@@ -6,6 +6,7 @@ pytest collects ``test_*.py`` only."""
 from __future__ import annotations
 
 import importlib.util
+import signal
 import sys
 import textwrap
 from collections.abc import Iterator
@@ -195,3 +196,20 @@ def panel_empty_fractions(png: str | Path) -> list[float]:
     ``render_trajectories``) recorded in its PNG."""
     img, boxes = read_render(png)
     return [empty_fraction(img, b) for b in boxes]
+
+
+@contextmanager
+def time_budget(seconds: int = 60) -> Iterator[None]:
+    """Fail (TimeoutError) instead of hanging when the block runs longer than ``seconds`` (a test of a parameter that
+    once hung; SIGALRM, main thread only)."""
+
+    def _expired(signum: int, frame: object) -> None:
+        raise TimeoutError(f"still running after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, _expired)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)

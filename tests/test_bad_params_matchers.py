@@ -5,14 +5,11 @@ that saturate stop early with the saturated result."""
 
 from __future__ import annotations
 
-import signal
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
-from helpers import run_cli
+from helpers import run_cli, time_budget
 
 from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.core.shape import Shape
@@ -24,20 +21,6 @@ from shape_toolkit.io.mesh import save_shape
 BUDGET = 60
 
 
-@contextmanager
-def time_budget(seconds: int = BUDGET) -> Iterator[None]:
-    """Fail (instead of hanging) when the block runs longer than ``seconds``."""
-
-    def _expired(signum: int, frame: object) -> None:
-        raise TimeoutError(f"still running after {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, _expired)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 @pytest.fixture(scope="module")

@@ -4,13 +4,10 @@ Every case that hung or ran for long before the bounds is guarded by an alarm, s
 
 from __future__ import annotations
 
-import signal
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 import pytest
-from helpers import run_cli
+from helpers import run_cli, time_budget
 
 from shape_toolkit.api.registry import create_plugin
 from shape_toolkit.data.generate import icosphere
@@ -42,20 +39,6 @@ BAD = [
 ]
 
 
-@contextmanager
-def deadline(seconds: int) -> Iterator[None]:
-    """Fail (TimeoutError) instead of hanging when the block runs longer than ``seconds``."""
-
-    def _fail(signum, frame):
-        raise TimeoutError(f"still running after {seconds} s")
-
-    old = signal.signal(signal.SIGALRM, _fail)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +53,7 @@ def _kwargs(name: str) -> dict:
 @pytest.mark.parametrize(("name", "key", "value"), BAD, ids=[f"{n}-{k}-{v:g}" for n, k, v in BAD])
 def test_bad_value_refused(ico, name, key, value):
     seg = create_plugin("segmenters", name, **_kwargs(name), **{key: value})
-    with deadline(20), warnings.catch_warnings():
+    with time_budget(20), warnings.catch_warnings():
         warnings.simplefilter("error")  # an overflow warning before the error fails the test
         with pytest.raises(ParameterError, match=key) as info:
             seg.segment(ico)
@@ -90,7 +73,7 @@ def test_bad_value_refused(ico, name, key, value):
 def test_bound_value_runs_quietly(ico, name, key, value):
     """The bounds themselves are accepted, run in reasonable time and warn nothing."""
     seg = create_plugin("segmenters", name, n_segments=3, **{key: value})
-    with deadline(60), warnings.catch_warnings():
+    with time_budget(60), warnings.catch_warnings():
         warnings.simplefilter("error")
         labels = seg.segment(ico).face_labels
     assert len(labels) == ico.n_faces
@@ -98,7 +81,7 @@ def test_bound_value_runs_quietly(ico, name, key, value):
 
 def test_cli_one_line_exit_2(tmp_path, capsys, ico):
     save_shape(ico, tmp_path / "s.off")
-    with deadline(20):
+    with time_budget(20):
         code, out, err = run_cli(capsys, "segment", tmp_path / "s.off", "--method", "sdf", "-k", "3",
                                  "--param", "n_rays=1000000000", "-o", tmp_path / "o.txt", "-q")
     assert code == 2
