@@ -19,6 +19,7 @@ __all__ = [
     "edge_face_counts",
     "face_fans",
     "inconsistent_edges",
+    "non_manifold_vertices",
     "largest_face_piece",
     "mesh_info",
 ]
@@ -193,7 +194,9 @@ def face_fans(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return f.ravel(), labels
 
 
-def _non_manifold_vertices(faces: np.ndarray) -> np.ndarray:
+def non_manifold_vertices(faces: np.ndarray) -> np.ndarray:
+    """Sorted int64 ids of the vertices where pieces of surface touch (more than one fan of faces around them:
+    bow-ties), from the faces ``(m, 3)``."""
     corner_v, fan = face_fans(faces)
     ok = fan >= 0
     pairs = np.stack([corner_v[ok], fan[ok]], 1)
@@ -264,7 +267,7 @@ def mesh_info(shape: Shape) -> dict:
     n_comp, _ = edge_components(shape.n_vertices, all_edges)
     n_bnd = int((counts == 1).sum())
     n_nme = int((counts > 2).sum())
-    n_nmv = len(_non_manifold_vertices(f))
+    n_nmv = len(non_manifold_vertices(f))
     n_unref = int(shape.n_vertices - np.unique(f).size)
     chi = shape.n_vertices - len(all_edges) + shape.n_faces
     closed_manifold = n_bnd == 0 and n_nme == 0 and n_nmv == 0 and n_comp == 1

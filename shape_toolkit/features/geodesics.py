@@ -46,10 +46,10 @@ from scipy.sparse.csgraph import dijkstra as _csgraph_dijkstra
 from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.graph import edge_length_graph
 from shape_toolkit.core.inspect import (
-    _non_manifold_vertices,
     degenerate_face_mask,
     degenerate_index_faces,
     edge_face_counts,
+    non_manifold_vertices,
 )
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError, SolverError, TimeLimitError
@@ -259,7 +259,7 @@ def solver_defects(shape: Shape, kinds: Sequence[str] | None = None) -> dict[str
                 int(nm.size), f"edge {edges[nm[0]].tolist()} on {int(counts[nm[0]])} faces"
             )
     if "non_manifold_vertices" in kinds:
-        nmv = _non_manifold_vertices(f)
+        nmv = non_manifold_vertices(f)
         if len(nmv):
             found["non_manifold_vertices"] = (len(nmv), f"vertex {int(nmv[0])}, where pieces of surface touch")
     if "thin_faces" in kinds or "tiny_faces" in kinds:
