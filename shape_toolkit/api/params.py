@@ -33,6 +33,14 @@ __all__ = [
 ]
 
 
+def _finite(value: Any) -> bool:
+    """Whether ``value`` is a finite float: an int beyond float's range (> 1.8e308) is not one."""
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
 def _fmt(x: float) -> str:
     return f"{x:g}" if isinstance(x, float) else str(x)
 
@@ -78,7 +86,7 @@ class Interval(Constraint):
         if self.kind is int:
             if not isinstance(value, (int, np.integer)):
                 return False
-        elif not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
+        elif not isinstance(value, (int, float, np.integer, np.floating)) or not _finite(value):
             return False
         if self.low is not None and (value < self.low or (value == self.low and self.closed in ("right", "neither"))):
             return False
@@ -216,7 +224,10 @@ RANDOM_STATE = Param(
 
 
 def _shown(value: Any) -> str:
-    text = " ".join(repr(value).split())
+    try:
+        text = " ".join(repr(value).split())
+    except ValueError:  # an int of more than 4300 digits, which Python refuses to print
+        text = f"an int of {int(value).bit_length()} bits"
     return text if len(text) <= 60 else text[:57] + "..."
 
 

@@ -13,6 +13,7 @@ from shape_toolkit.cli.commands._common import (
     check_memory,
     check_output_path,
     check_ply,
+    machine_memory,
     parse_params,
     plugin_class,
     positive_float_arg,
@@ -21,10 +22,18 @@ from shape_toolkit.cli.commands._common import (
     status,
     write_ply,
 )
+from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import LAPLACIANS, compute_spectrum, spectrum_memory
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.spectra import build_graph
+
+#: weighting parameters that are also build_graph's keywords (intrinsic-delaunay's n_neighbors), and their options
+_GRAPH_OPTIONS = {"n_neighbors": "--neighbors"}
+#: peak bytes per edge of an epsilon or kNN graph (the pairs, their weights, the sparse Laplacian and its eigensolve)
+#: above spectrum_memory: measured 115 and 117 B on the complete epsilon graphs of 2,562 and 5,000 points (0.46 and
+#: 1.56 GB), 126 B on the complete kNN graph of 2,562 points (0.49 GB)
+GRAPH_EDGE_BYTES = 125.0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -57,9 +66,14 @@ def run(args: argparse.Namespace) -> int:
     if args.ply and not 0 <= args.eigenvector < args.k:
         raise ParameterError(f"--eigenvector {args.eigenvector}: must be in [0, {args.k - 1}] (-k {args.k})")
     params = parse_params(args.param, plugin_class("weightings", args.weighting))
+    for key, option in _GRAPH_OPTIONS.items():
+        if key in params:  # build_graph's own keyword: passed on it would collide (a TypeError)
+            raise ParameterError(f"--param {key}: give it as {option} N (the graph's kNN size, which also sets the "
+                                 f"{args.weighting} weighting's {key} where it triangulates a point cloud)")
     check_memory(args, [args.shape], lambda n: spectrum_memory(n, args.k), f"computing {args.k} eigenpairs (-k)",
                  "memory_models.md")
     shape = load_shape(args.shape)
+    _check_graph_memory(args, shape)
     with status(args, f"spectrum: {args.k} eigenpairs of {shape.n_vertices} vertices"):
         graph = build_graph(
             shape, args.weighting, connectivity=args.connectivity, n_neighbors=args.neighbors,
@@ -96,3 +110,31 @@ def run(args: argparse.Namespace) -> int:
         print(f"{shape!r}: {spec.k} smallest eigenvalues ({args.laplacian}, {args.weighting}):")
         print(np.array2string(spec.eigenvalues, precision=6, max_line_width=100))
     return 0
+
+
+def _check_graph_memory(args: argparse.Namespace, shape: Shape) -> None:
+    """Refuse a ``--radius`` or ``--neighbors`` whose graph would need more than the memory limit: a radius near the
+    shape's size, or neighbours near its vertex count, link every pair of points (n^2 / 2 edges: 25 GB at 20,000
+    points). The epsilon graph's pairs are counted (a k-d tree count), not built; a kNN graph has n k / 2 to n k."""
+    cls = plugin_class("weightings", args.weighting)
+    if not getattr(cls, "uses_edges", not getattr(cls, "needs_faces", False)):
+        return  # the weighting makes its own edges (and refuses an epsilon graph itself)
+    n = shape.n_vertices
+    knn = args.connectivity == "knn" or (args.connectivity == "auto" and not shape.is_mesh)
+    if args.connectivity == "epsilon" and args.radius is not None:
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(shape.vertices)
+        edges, what = (int(tree.count_neighbors(tree, args.radius)) - n) // 2, f"--radius {args.radius:g}"
+    elif knn:  # the query holds all n k neighbours (63 B each measured, i.e. 125 B per n k / 2)
+        edges, what = n * min(args.neighbors, n - 1) // 2, f"--neighbors {args.neighbors}"
+    else:
+        return
+    limit = args.memory_limit if args.memory_limit is not None else machine_memory()
+    need = spectrum_memory(n, args.k) + GRAPH_EDGE_BYTES * edges
+    if limit is not None and need > limit:
+        default = "" if args.memory_limit is not None else ", this machine's memory"
+        raise ParameterError(
+            f"{what} links about {edges:,} pairs of the {n:,} points, a graph that would need about "
+            f"{need / 1e9:.3g} GB, above the memory limit of {limit / 1e9:.3g} GB (--memory-limit{default}); give a "
+            f"smaller {'radius' if 'radius' in what else 'number of neighbours'} or raise --memory-limit")

@@ -87,10 +87,14 @@ class GaussianWeighting(Weighting):
             sigma_v = np.zeros(n)
             np.maximum.at(sigma_v, edges[:, 0], length)
             np.maximum.at(sigma_v, edges[:, 1], length)
-            sigma = float(self.bandwidth_scale) * np.sqrt(sigma_v[edges[:, 0]] * sigma_v[edges[:, 1]])
+            scale = np.float64(self.bandwidth_scale)
+            # numpy, not Python floats: a scale whose square underflows (< 1e-154) or overflows (> 1e154) gives the
+            # bound 0 or 1 (vanishing weights are then refused below; huge scales weigh every edge 1, a binary graph)
+            with np.errstate(under="ignore", over="ignore", divide="ignore"):
+                sigma = scale * np.sqrt(sigma_v[edges[:, 0]] * sigma_v[edges[:, 1]])
+                lower = float(np.exp(-0.5 / scale**2))
             info.update(bandwidth="local", bandwidth_median=float(np.median(sigma)),
-                        bandwidth_range=[float(sigma.min()), float(sigma.max())],
-                        weight_lower_bound=float(np.exp(-0.5 / float(self.bandwidth_scale) ** 2)))
+                        bandwidth_range=[float(sigma.min()), float(sigma.max())], weight_lower_bound=lower)
         else:
             if bw == "auto":
                 floor_sigma = float(length.max()) / np.sqrt(2.0 * np.log(1.0 / MIN_WEIGHT))

@@ -11,7 +11,6 @@ from shape_toolkit.api.params import Interval, Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.surface import jet_projected, local_delaunay_triangles, outward_normals
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.plugins._params import NON_NEGATIVE
 
 
 def centred(points: np.ndarray) -> np.ndarray:
@@ -56,7 +55,13 @@ class IntrinsicDelaunayWeighting(Weighting):
     uses_edges = False
 
     parameter_constraints = {
-        "mollify_factor": Param(NON_NEGATIVE, doc="mollification against degenerate triangles, x mean edge length"),
+        "mollify_factor": Param(
+            Interval(float, 0, 1),
+            doc="mollification against degenerate triangles, x mean edge length (at most 1: every edge is lengthened "
+                "until each triangle's slack a + b - c reaches this margin, and an equilateral triangle of mean size "
+                "has a slack of exactly 1, so from 1 on even the best meshes are inflated, their eigenvalues falling "
+                "as 1/factor^2: 2e-18 at 1e9 on a unit sphere, not a repair but another shape)",
+        ),
         "n_neighbors": Param(Interval(int, 3), doc="neighbours of the local triangulations (point clouds only)"),
         "cloud_neighbors": Param(
             Options("sheet", "all"),

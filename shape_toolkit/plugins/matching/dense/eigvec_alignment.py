@@ -41,7 +41,6 @@ from shape_toolkit.api.params import Interval, Options, Param
 from shape_toolkit.core.geometry import farthest_point_sampling
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
-from shape_toolkit.plugins._params import POSITIVE_INT
 from shape_toolkit.plugins.matching.dense.em_registration import Embedding, EMRegistrationMatcher
 from shape_toolkit.plugins.matching.distortion import map_distortion
 from shape_toolkit.plugins.matching.em import em_register, procrustes
@@ -54,6 +53,8 @@ __all__ = ["EigvecAlignmentMatcher", "fmap_alignment", "histogram_alignment", "j
 SEARCH_SAMPLES = 1000
 #: most eigenvectors of the search alignment, histogram bins and search beam (the parameters' docs)
 MAX_SEARCH_K, MAX_BINS, MAX_BEAM = 30, 1000, 50
+#: the arguments of :func:`joint_alignment_candidates` (window 0: signs only)
+_WINDOW_ARG, _BEAM_ARG = Interval(int, 0), Interval(int, 1)
 #: angles (degrees) and most rounds of the greedy rotations that refine the kept alignment (``rotations``)
 ROTATION_ANGLES, ROTATION_ROUNDS = (30.0, -30.0, 60.0, -60.0, 90.0), 8
 
@@ -114,8 +115,12 @@ def joint_alignment_candidates(
     :func:`histogram_alignment` compare one coordinate at a time; this compares them together."""
     if X.ndim != 2 or Y.ndim != 2 or X.shape[1] != Y.shape[1]:
         raise ParameterError(f"X and Y must be (n, k) and (n', k) with one k, got {X.shape} and {Y.shape}")
+    if not _WINDOW_ARG.accepts(window) or not _BEAM_ARG.accepts(beam):  # a negative window or beam kept nothing
+        raise ParameterError(f"window must be {_WINDOW_ARG.describe()} and beam {_BEAM_ARG.describe()}, got "
+                             f"{window!r} and {beam!r}")
     rng = check_random_state(random_state)
     k = X.shape[1]
+    window = min(int(window), k)  # a wider window moves nothing further (and a numpy int64 could overflow)
     Xs = X[np.sort(rng.choice(len(X), min(n_samples, len(X)), replace=False))]
     Ys = Y[np.sort(rng.choice(len(Y), min(n_samples, len(Y)), replace=False))]
     states: list[tuple[tuple[int, ...], tuple[float, ...], float]] = [((), (), 0.0)]
@@ -176,11 +181,13 @@ class EigvecAlignmentMatcher(EMRegistrationMatcher):
                       "k x k x bins cost arrays take 80 MB each at k = 100)"),
         "alignment": Param(Options("histogram", "search"), doc="eigenvector alignment: histograms (the text) or "
                            "the search over joint-distribution candidates scored by their maps' distortion"),
-        "window": Param(POSITIVE_INT, doc="search: places an eigenvector may move in the spectrum"),
+        "window": Param(Interval(int, 1, MAX_SEARCH_K - 1), doc="search: places an eigenvector may move in the "
+                        "spectrum (at most 29: the search takes k <= 30 eigenvectors, so from k - 1 <= 29 on any of "
+                        "them may go to any place, as with any wider window)"),
         "beam": Param(Interval(int, 1, MAX_BEAM), doc="search: candidate alignments kept (each gets a sampled EM "
                       "and a distortion measure, and each grows 2 (2 window + 1) scored extensions per eigenvector; "
                       "at most 50: the candidates differ then only in late, near-degenerate eigenvectors, which "
-                      "the EM and the rotations re-fit anyway; k = 30, window 30, beam 50 take 30 s on 162 vertices)"),
+                      "the EM and the rotations re-fit anyway; k = 30, window 29, beam 50 take 30 s on 162 vertices)"),
         "holes": Param(Options("keep", "close"), doc="spectra of the shapes as they are, or with every hole "
                        "closed by a fan (core.cleanup.close_holes) and the eigenvectors read on the original vertices"),
         "rotations": Param(Options("greedy", "none"), doc="search: refine the kept alignment by greedy Givens "

@@ -35,6 +35,9 @@ from shape_toolkit.validation import check_random_state
 
 __all__ = ["EMFit", "EMRegistrationMatcher", "Embedding", "em_register", "hard_map", "procrustes"]
 
+#: most EM iterations (``max_iter``'s doc)
+MAX_ITER = 1000
+
 
 def _nearest(points: np.ndarray, queries: np.ndarray) -> np.ndarray:
     """Index of the nearest of ``points`` ``(m, d)`` for each query ``(q, d)``: int64 ``(q,)``; in
@@ -124,7 +127,10 @@ class EMRegistrationMatcher(DenseMatcher):
         "k": Param(Interval(int, 1, 100), doc="embedding dimension"),
         "outlier_weight": Param(Interval(float, 0, 1, closed="left"), doc="weight of the uniform outlier class"),
         "n_neighbors": Param(POSITIVE_INT, doc="target neighbours of each source point in the E-step"),
-        "max_iter": Param(POSITIVE_INT, doc="EM iterations"),
+        "max_iter": Param(Interval(int, 1, MAX_ITER), doc="EM iterations (at most 1000, 20x the default: EM "
+                          "converges linearly, to rounding (changes ~1e-15) within 100-200 iterations on TOSCA cats "
+                          "and spheres, after which the iterations only repeat rounding, and tol 0 never stops them; "
+                          "each is a k-d tree query of every target point, 25 ms on 5,000 vertices)"),
         "tol": Param(NON_NEGATIVE, doc="stop when the variance changes less than this"),
         "threshold": Param(FRACTION, doc="posterior below which a vertex stays unmatched"),
         "one_to_one": Param(bool, doc="keep one source vertex per target vertex"),
