@@ -68,6 +68,7 @@ __all__ = [
     "adjacency",
     "k_ring",
     "k_ring_all",
+    "k_rings",
     "ring_maxima",
     "relative_geodesic_neighbourhood",
     "relative_neighbourhood_size",
@@ -583,20 +584,41 @@ def k_ring_all(shape_or_adjacency: Shape | sp.spmatrix, k: int) -> sp.csr_matrix
     """``(n, n)`` boolean CSR whose row ``i`` marks the ``k``-ring of ``i`` (itself included);
     memory grows with the ring sizes, keep ``k`` small. The rings stop growing once none adds a vertex (after at
     most the largest component's diameter in edges): any larger ``k`` gives that saturated matrix, at its cost."""
+    return k_rings(shape_or_adjacency, [k])[0]
+
+
+def k_rings(shape_or_adjacency: Shape | sp.spmatrix, radii: Sequence[int],
+            rows: np.ndarray | None = None) -> list[sp.csr_matrix]:
+    """For each ``k`` of the non-decreasing ``radii``, a boolean CSR ``(len(rows), n)`` whose row ``i`` marks the
+    ``k``-ring of vertex ``rows[i]`` (itself included; ``rows`` None: every vertex, ``(n, n)``). The rings grow one
+    edge at a time and stop once none adds a vertex (exact: rings only grow), so a ``k`` beyond the largest
+    component's diameter costs no more than that diameter."""
     A = adjacency(shape_or_adjacency) if isinstance(shape_or_adjacency, Shape) else sp.csr_matrix(
         shape_or_adjacency
     )
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
-        raise ParameterError(f"k must be a non-negative integer, got {k!r}")
+    ks = list(radii)
+    if any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0 for k in ks) or ks != sorted(ks):
+        raise ParameterError(f"radii must be non-negative integers in increasing order, got {radii!r}")
+    n = A.shape[0]
     R = _ring_matrix(A)
-    B = sp.identity(A.shape[0], format="csr")
-    for _ in range(int(k)):
-        grown = B @ R
-        grown.data[:] = 1.0
-        if grown.nnz == B.nnz:  # rings only grow: as many entries is the same pattern, and so it stays
-            break
-        B = grown
-    return sp.csr_matrix(B, dtype=bool)
+    if rows is None:
+        B = sp.identity(n, format="csr")
+    else:
+        ids = check_vertex_ids(rows, n, "rows")
+        B = sp.csr_matrix((np.ones(len(ids)), (np.arange(len(ids)), ids)), shape=(len(ids), n))
+    out, hops, full = [], 0, False
+    for k in ks:
+        for _ in range(int(k) - hops):
+            if full:
+                break
+            grown = B @ R
+            grown.data[:] = 1.0
+            full = grown.nnz == B.nnz  # rings only grow: as many entries is the same pattern, and so it stays
+            if not full:
+                B = grown
+        hops = max(hops, int(k))
+        out.append(sp.csr_matrix(B, dtype=bool))
+    return out
 
 
 def ring_maxima(

@@ -16,12 +16,12 @@ precedence. A pipeline uses it as its seed stage with ``[sparse] plugin = "photo
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 from shape_toolkit.api.interfaces import SparseMatcher
 from shape_toolkit.api.params import Interval, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.features.geodesics import k_rings
 from shape_toolkit.plugins._params import POSITIVE_INT
 from shape_toolkit.plugins.matching.validation import check_keypoints
 
@@ -62,29 +62,6 @@ def _check_colors(colors: np.ndarray | None, shape: Shape, what: str, required: 
     return c
 
 
-def _balls(shape: Shape, vertices: np.ndarray, radii: list[int]) -> list[sp.csr_matrix]:
-    """For each radius ``r`` of the increasing ``radii``, a boolean ``(len(vertices), n)`` CSR whose
-    row ``i`` marks the vertices at most ``r`` edges from ``vertices[i]`` (itself included)."""
-    from shape_toolkit.features.geodesics import adjacency
-
-    n = shape.n_vertices
-    R = (adjacency(shape) + sp.identity(n, format="csr")).tocsr()
-    R.data[:] = 1.0
-    q = len(vertices)
-    F = sp.csr_matrix((np.ones(q), (np.arange(q), vertices)), shape=(q, n))
-    out, hops, full = [], 0, False
-    for r in radii:
-        for _ in range(r - hops):
-            if full:  # every ball holds its connected component: more hops change nothing (exact)
-                break
-            G = F @ R
-            G.data[:] = 1.0
-            full, F = G.nnz == F.nnz, G
-        hops = r
-        out.append(F.copy())
-    return out
-
-
 def ring_color_descriptors(
     shape: Shape, colors: np.ndarray, vertices: np.ndarray, n_rings: int = 4, ring_width: int = 2
 ) -> np.ndarray:
@@ -96,7 +73,8 @@ def ring_color_descriptors(
     c = np.asarray(colors, dtype=np.float64)
     if v.size == 0:
         return np.zeros((0, 2 * int(n_rings) * c.shape[1]))
-    balls = _balls(shape, v, [(r + 1) * int(ring_width) for r in range(int(n_rings))])
+    radii = [(r + 1) * int(ring_width) for r in range(int(n_rings))]
+    balls = [b.astype(np.float64) for b in k_rings(shape, radii, v)]
     feats, inner = [], None
     for ball in balls:
         shell = ball if inner is None else ball - inner
@@ -202,7 +180,7 @@ class PhotometricMatcher(SparseMatcher):
                 rings: int) -> tuple[np.ndarray, np.ndarray]:
         """Move each target vertex to the vertex of its ``rings``-ring whose descriptor is nearest
         the matching row of ``desc``; the new vertices and their descriptor distances."""
-        ball = _balls(target, tgt, [rings])[0].tocsr()
+        ball = k_rings(target, [rings], tgt)[0]
         cand = np.unique(ball.indices)
         dc = ring_color_descriptors(target, colors, cand, int(self.n_rings), int(self.ring_width))
         where = np.searchsorted(cand, ball.indices)
