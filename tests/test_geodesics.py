@@ -120,6 +120,14 @@ def test_k_rings_on_icosphere(sphere3):
         np.testing.assert_array_equal(R[v].indices[np.argsort(R[v].indices)], g.k_ring(sphere3, v, 2))
     # the k-ring of k >= diameter is everything
     assert g.k_ring(sphere3, 0, 100).size == sphere3.n_vertices
+    # the rings of some vertices at several radii: each row the BFS ring of its vertex, repeats and order kept
+    rows = np.array([regular, corner, regular, 7])
+    for k, B in zip((0, 1, 3, 3, 1000), g.k_rings(sphere3, [0, 1, 3, 3, 1000], rows)):
+        assert B.shape == (4, sphere3.n_vertices) and B.dtype == bool
+        for i, v in enumerate(rows):
+            np.testing.assert_array_equal(np.sort(B[i].indices), g.k_ring(sphere3, int(v), k))
+    with pytest.raises(ParameterError):
+        g.k_rings(sphere3, [2, 1])  # radii must increase
 
 
 def test_ring_maxima(sphere3):
