@@ -189,3 +189,41 @@ def test_a_terminated_command_takes_its_child_and_workers_with_it(tmp_path):
     else:
         os.kill(worker, signal.SIGKILL)
         pytest.fail("the command's worker survived the SIGTERM of the command")
+
+
+def test_a_killed_command_takes_its_child_and_workers_with_it(tmp_path):
+    """SIGKILL to the command (which no handler sees): the supervised child notices it is orphaned and kills its own
+    group, workers included, within a few polls."""
+    pidfile = tmp_path / "worker"
+    script = tmp_path / "cmd.py"
+    script.write_text(
+        "import os, subprocess, sys, time\n"
+        "from shape_toolkit.cli import supervise\n"
+        "def work():\n"
+        "    p = subprocess.Popen(['sleep', '300'])\n"
+        f"    open({str(pidfile)!r}, 'w').write(f'{{os.getpid()}} {{p.pid}}')\n"
+        "    time.sleep(300)\n"
+        "    return 0\n"
+        "sys.exit(supervise.run_supervised('match', work, time_limit=None))\n"
+    )
+    proc = subprocess.Popen([sys.executable, str(script)], stderr=subprocess.PIPE, text=True)
+    for _ in range(200):  # the child and its worker have started
+        if pidfile.exists() and len(pidfile.read_text().split()) == 2:
+            break
+        time.sleep(0.05)
+    child, worker = map(int, pidfile.read_text().split())
+    proc.kill()
+    proc.communicate(timeout=30)
+    alive = {child, worker}
+    for _ in range(200):
+        for pid in list(alive):
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                alive.discard(pid)
+        if not alive:
+            break
+        time.sleep(0.05)
+    for pid in alive:
+        os.kill(pid, signal.SIGKILL)
+    assert not alive, "the supervised child or its worker survived the SIGKILL of the command"

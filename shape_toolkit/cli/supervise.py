@@ -9,7 +9,9 @@ command with a cooperative limit of its own, ``geodesics`` and ``evaluate-map``,
 seconds more, so that its limit fires first and says how far it got); a
 child killed by the system (SIGKILL: the out-of-memory killer) or crashed (SIGSEGV, SIGABRT,
 SIGBUS) becomes one line too. Ctrl-C reaches the child as SIGINT; SIGTERM or SIGHUP to the parent (``timeout``,
-a job scheduler, a closed terminal) kills the child's group before the parent exits, so no orphan runs on.
+a job scheduler, a closed terminal) kills the child's group before the parent exits, so no orphan runs on; a
+parent killed outright (SIGKILL, which it cannot see) is noticed by the child, which kills its own group within
+:data:`ORPHAN_POLL` seconds (not while one native call holds Python's lock, e.g. a single libigl solve).
 
 The child is used only where it can be: POSIX ``fork``, and stdout/stderr that are real file
 descriptors (not a test's in-memory capture); ``SHAPE_TOOLKIT_IN_PROCESS=1`` turns it off.
@@ -23,11 +25,13 @@ import sys
 import time
 from collections.abc import Callable
 
-__all__ = ["GRACE", "can_supervise", "run_supervised", "MEMORY_HINTS"]
+__all__ = ["GRACE", "ORPHAN_POLL", "can_supervise", "run_supervised", "MEMORY_HINTS"]
 
 #: seconds past ``--time-limit`` (counted from the command's start) before the child of a command with a
 #: cooperative limit of its own is killed (the others are killed at the limit)
 GRACE = 2.0
+#: seconds between the supervised child's checks that its parent still runs
+ORPHAN_POLL = 0.25
 #: per command, what reduces its memory (named in the out-of-memory line)
 MEMORY_HINTS = {
     "bench run": "fewer --workers, or a smaller dataset --limit",
@@ -74,6 +78,7 @@ def run_supervised(
     # the parent stopped by a signal (`timeout`, a scheduler, a closed terminal) stops the child's group with it:
     # otherwise the child, in a group of its own, would run on as an orphan (installed before the fork: no gap)
     previous = _install(dict.fromkeys(_TERMINATING, _raise_terminated))
+    parent = os.getpid()
     try:
         pid = os.fork()
     except OSError:
@@ -84,6 +89,7 @@ def run_supervised(
         try:
             _install(previous)  # the child ends on SIGTERM as any process does
             os.setpgid(0, 0)
+            _die_with(parent)
             if not os.environ.get("TOOLKIT_DEBUG"):  # a crash is the parent's one line, not a dump
                 import faulthandler
 
@@ -147,6 +153,19 @@ def run_supervised(
         file=sys.stderr,
     )
     return 1
+
+
+def _die_with(parent: int) -> None:
+    """In the child: a daemon thread that kills the child's process group (itself and its workers) once its parent
+    ``parent`` is gone, checked every :data:`ORPHAN_POLL` seconds."""
+    import threading
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(ORPHAN_POLL)
+        os.killpg(0, signal.SIGKILL)
+
+    threading.Thread(target=watch, name="shape-toolkit-orphan-watch", daemon=True).start()
 
 
 class _Terminated(Exception):
