@@ -20,7 +20,26 @@ import numpy as np
 
 from shape_toolkit.errors import ParameterError, ShapeFileError
 
-__all__ = ["check_random_state", "check_vertex_ids", "check_seeds", "jsonable", "dumps_json", "atomic_output"]
+__all__ = ["check_random_state", "check_vertex_ids", "check_seeds", "finite_number", "jsonable", "dumps_json",
+           "atomic_output", "shown_value"]
+
+
+def finite_number(value: Any) -> bool:
+    """Whether the number ``value`` is finite as a float: an integer past float's range (> 1.8e308: Python's and
+    TOML's integers have any number of digits) is not, since the numerics compute with floats."""
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
+def shown_value(value: Any, width: int = 60) -> str:
+    """``repr(value)`` on one line for an error message, at most ``width`` characters; an integer of 30 digits or
+    more as its digit count (Python refuses to print one of more than 4,300)."""
+    if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)) and abs(int(value)) >= 10**30:
+        return f"an integer of {len(str(abs(int(value)))) if abs(int(value)) < 10**4000 else 'over 4,000'} digits"
+    text = " ".join(repr(value).split())
+    return text if len(text) <= width else text[: width - 3] + "..."
 
 
 def check_random_state(random_state: Any) -> np.random.RandomState:

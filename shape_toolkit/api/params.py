@@ -19,26 +19,18 @@ the shape, stay as code in the plugin.
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.validation import finite_number, shown_value
 
 __all__ = [
     "Constraint", "Interval", "Options", "InstanceOf", "ListOf", "PluginRef", "Param", "RANDOM_STATE",
     "validate_params", "check_before",
 ]
-
-
-def _finite(value: Any) -> bool:
-    """Whether ``value`` is a finite float: an int beyond float's range (> 1.8e308) is not one."""
-    try:
-        return math.isfinite(value)
-    except OverflowError:
-        return False
 
 
 def _fmt(x: float) -> str:
@@ -86,7 +78,7 @@ class Interval(Constraint):
         if self.kind is int:
             if not isinstance(value, (int, np.integer)):
                 return False
-        elif not isinstance(value, (int, float, np.integer, np.floating)) or not _finite(value):
+        elif not isinstance(value, (int, float, np.integer, np.floating)) or not finite_number(value):
             return False
         if self.low is not None and (value < self.low or (value == self.low and self.closed in ("right", "neither"))):
             return False
@@ -223,20 +215,12 @@ RANDOM_STATE = Param(
 )
 
 
-def _shown(value: Any) -> str:
-    try:
-        text = " ".join(repr(value).split())
-    except ValueError:  # an int of more than 4300 digits, which Python refuses to print
-        text = f"an int of {int(value).bit_length()} bits"
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
 def validate_params(owner: str, constraints: Mapping[str, Param], values: Mapping[str, Any]) -> None:
     """Raise :class:`ParameterError` (one line: ``owner``, parameter, value, what is allowed) for the first of
     ``values`` that its declaration in ``constraints`` refuses; undeclared parameters are not checked."""
     for name, param in constraints.items():
         if name in values and not param.accepts(values[name]):
-            raise ParameterError(f"{owner}: {name} must be {param.describe()}, got {_shown(values[name])}")
+            raise ParameterError(f"{owner}: {name} must be {param.describe()}, got {shown_value(values[name])}")
 
 
 def _checked(fn: Callable) -> Callable:

@@ -99,7 +99,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from shape_toolkit.data.generate import MAX_SUBDIVISIONS
+from shape_toolkit.data.synthetic import MAX_POSE_ANGLE, MAX_SEQUENCE_ANGLE
 from shape_toolkit.errors import ParameterError, ToolkitError
+from shape_toolkit.validation import finite_number, shown_value
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -303,9 +306,9 @@ def _check_kinds(params: dict[str, Any], func: Any, where: str, grid: bool = Tru
             if isinstance(d, bool) and not isinstance(x, bool):
                 raise ConfigError(f"{where}.{k}", f"expects true or false, got {x!r}")
             if isinstance(d, (int, float)) and not isinstance(d, bool) and (
-                isinstance(x, bool) or not isinstance(x, (int, float)) or (math.isfinite(d) and not math.isfinite(x))
+                isinstance(x, bool) or not isinstance(x, (int, float)) or (math.isfinite(d) and not finite_number(x))
             ):
-                raise ConfigError(f"{where}.{k}", f"expects a finite number (default {d!r}), got {x!r}")
+                raise ConfigError(f"{where}.{k}", f"expects a finite number (default {d!r}), got {shown_value(x)}")
 
 
 def resolve_data_path(path: str, base: Path | None = None) -> Path:
@@ -689,6 +692,51 @@ def _check_map_files(m: dict, where: str, datasets: dict[str, DatasetSpec], dsel
                 raise ConfigError(f"{where}.path", f"published map file not found: {f} (for the pair {a}, {b})")
 
 
+def method_id(row: dict) -> str:
+    """Display name of a row's method: its ``method_label`` plus its (short) parameters."""
+    p = row.get("params") if isinstance(row.get("params"), dict) else {}
+    label = str(row.get("method_label"))
+    shown = {k: v for k, v in sorted(p.items()) if not isinstance(v, dict) and len(repr(v)) <= 24}
+    if row.get("family") in ("pipelines", "peers") or not shown:
+        return label
+    return f"{label}({', '.join(f'{k}={v}' for k, v in shown.items())})"
+
+
+def _distinct_methods(w: str, entries: list[list[MethodSpec]], n_listed: int) -> list[MethodSpec]:
+    """The methods of task ``w`` (each entry's grid points; the entries past ``n_listed`` are the rows its options
+    add: human, ground truth), refused when two entries are one method (plugin, preset, parameters, spectrum,
+    keypoints, solver: a row's identity, so its rows would be computed once and shown under one label only) or
+    when two methods would show under one name in the report and be pooled there (:func:`report.method_id`: the
+    label and its short parameters)."""
+    import json
+
+    def where(j: int) -> str:
+        return f"{w}.methods[{j}]" if j < n_listed else f"{w}.options"
+
+    seen: dict[str, int] = {}
+    shown: dict[str, tuple[int, str]] = {}
+    out = []
+    for j, specs in enumerate(entries):
+        for ms in specs:
+            ident = json.dumps([ms.plugin, ms.preset, ms.params, ms.spectrum, ms.keypoints, ms.solver],
+                               sort_keys=True, default=repr)
+            if ident in seen and seen[ident] != j:
+                raise ConfigError(where(j), f"the same method as {where(seen[ident])} ({ms.plugin!r}, same preset and "
+                                  "parameters): its rows would be computed once and shown under one label only; "
+                                  "list it once")
+            seen.setdefault(ident, j)
+            name = method_id({"method_label": ms.method_label, "params": ms.params, "family": ms.family})
+            if name in shown and shown[name][1] != ident:
+                other = shown[name][0]
+                raise ConfigError(f"{where(j)}.label" if j < n_listed else where(j),
+                                  f"shows as {name!r} in the report, as {where(other)} does"
+                                  + (" (a parameter that differs is not shown)" if other == j else "")
+                                  + ": the report would pool the two methods' rows; give each a distinct label")
+            shown.setdefault(name, (j, ident))
+            out.append(ms)
+    return out
+
+
 def _dataset_size(spec: DatasetSpec, limit: int | None) -> int:
     return min(x for x in (spec.limit, limit, len(spec.refs)) if x is not None)
 
@@ -810,7 +858,7 @@ def parse_config(
         n_meth = sum(size for _, size in methods)
         sizes.append((n_items * n_corr * n_meth, w,
                       f"task {tname!r}: {n_items} items x {n_corr} corruption settings x {n_meth} method settings"))
-        pending.append((tname, kind, dsel, csel, spectrum, metrics, options, methods))
+        pending.append((w, len(t["methods"]), tname, kind, dsel, csel, spectrum, metrics, options, methods))
 
     total = sum(n for n, _, _ in sizes)
     if max_rows is not None and total > max_rows:
@@ -822,10 +870,10 @@ def parse_config(
         )
 
     tasks = []  # now the grids are known to be small enough: expand and check each point
-    expanded = {name: c.expand() for name, c in corruptions.items() if any(name in p[3] for p in pending)}
-    for tname, kind, dsel, csel, spectrum, metrics, options, methods in pending:
+    expanded = {name: c.expand() for name, c in corruptions.items() if any(name in p[5] for p in pending)}
+    for w, n_listed, tname, kind, dsel, csel, spectrum, metrics, options, methods in pending:
         cinst = [inst for cn in csel for inst in expanded[cn]]
-        mspecs = [ms for make, _ in methods for ms in make()]
+        mspecs = _distinct_methods(w, [make() for make, _ in methods], n_listed)
         tasks.append(
             TaskSpec(tname, kind, tuple(dsel), tuple(cinst), tuple(mspecs), spectrum, tuple(metrics), options)
         )
@@ -965,6 +1013,7 @@ def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dic
                 raise ConfigError(f"{w}.path", f"dataset folder not found: {p} ({how})")
             path = str(p)
         _check_kinds(params, DATASET_KINDS[kind], f"{w}.params", grid=False)
+        _check_generated(kind, params, f"{w}.params", max_rows)
         try:
             refs = open_dataset(kind, path, **params)
         except (ToolkitError, ValueError, TypeError) as exc:
@@ -984,6 +1033,50 @@ def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dic
             refs = picked
         datasets[dname] = DatasetSpec(dname, kind, path, limit, dict(params), tuple(refs))
     return datasets
+
+
+#: the bounds the generators of generated datasets check when an item is made (``subdivisions``:
+#: :func:`shape_toolkit.data.generate.icosphere`; ``max_angle``: :func:`shape_toolkit.data.synthetic.synthetic_dataset`
+#: and :func:`~shape_toolkit.data.synthetic.pose_sequence`): checked here too, so that a value out of range is refused
+#: before any work instead of failing every row
+GENERATED_RANGES: dict[str, dict[str, tuple[float, float, bool]]] = {
+    "synthetic": {"subdivisions": (0, MAX_SUBDIVISIONS, True), "max_angle": (0.0, MAX_POSE_ANGLE, False)},
+    "sequence": {"subdivisions": (0, MAX_SUBDIVISIONS, True), "max_angle": (0.0, MAX_SEQUENCE_ANGLE, False)},
+}
+
+
+def _check_generated(kind: str, params: dict[str, Any], where: str, max_rows: int | None) -> None:
+    """A generated dataset's parameters within the generator's bounds (:data:`GENERATED_RANGES`, named with the
+    reason); a sequence's ``frames`` (each frame is matched, as a row is) at most ``max_rows``."""
+    for key, (lo, hi, integral) in GENERATED_RANGES.get(kind, {}).items():
+        v = params.get(key)
+        if v is None:
+            continue
+        if integral and (isinstance(v, float) and not v.is_integer() or not lo <= v <= hi):
+            raise ConfigError(f"{where}.{key}", f"must be an integer in [{lo}, {hi}] (the icosphere's subdivisions: "
+                                                f"10 * 4**s + 2 vertices per sphere), got {shown_value(v)}")
+        if not integral and not lo <= v <= hi:
+            raise ConfigError(f"{where}.{key}", f"must be in [{lo:g}, {hi:g}] rad (the {kind} generator's joint "
+                                                f"angles), got {shown_value(v)}")
+    if kind != "sequence":
+        return
+    frames = params.get("frames")
+    if max_rows is not None and isinstance(frames, int) and frames > max_rows:
+        raise ConfigError(f"{where}.frames", f"{frames:,} frames (each matched to the next) are more than the cap "
+                          f"of {max_rows:,} rows; use fewer, or raise the cap with --max-rows N")
+    seeds = params.get("seeds")
+    for j, sd in enumerate(seeds if isinstance(seeds, list) else [seeds]):
+        if isinstance(sd, int) and not isinstance(sd, bool) and sd > 2**32 - 1:
+            at = f"[{j}]" if isinstance(seeds, list) else ""
+            raise ConfigError(f"{where}.seeds{at}", f"must be at most 2**32 - 1 (each seed is the random_state of "
+                                                    f"its sequence), got {shown_value(sd)}")
+    remesh, sub = params.get("remesh"), params.get("subdivisions", 3)
+    if isinstance(remesh, int) and not isinstance(remesh, bool) and isinstance(sub, (int, float)):
+        most = 20 * (10 * 4 ** int(sub) + 2)  # as the remesh corruption: at most 20 times the clean frame's vertices
+        if remesh > most:
+            raise ConfigError(f"{where}.remesh", f"must be a vertex count of at most {most:,} (20 times the "
+                                                 f"{10 * 4 ** int(sub) + 2:,} vertices of a clean frame at "
+                                                 f"subdivisions = {int(sub)}), got {shown_value(remesh)}")
 
 
 def _validate_options(adapter: Any, options: Any, where: str) -> dict[str, Any]:

@@ -41,7 +41,7 @@ from shape_toolkit.bench.store import (
 )
 from shape_toolkit.bench.worker import execute_job, lost_row, prepare_job
 from shape_toolkit.errors import ParameterError, ShapeFileError
-from shape_toolkit.validation import atomic_output, dumps_json
+from shape_toolkit.validation import atomic_output, dumps_json, shown_value
 
 __all__ = ["RunSummary", "run_benchmark", "run_local", "run_dask", "dask_client"]
 
@@ -82,6 +82,12 @@ def _open_run_dir(run_dir: str | os.PathLike) -> Path:
     return run
 
 
+def max_local_workers() -> int:
+    """The most local Dask workers ``bench run --workers`` starts: 4 per core, at least 8 (each is a process with
+    its own memory; thousands would exhaust the machine before the first row)."""
+    return max(8, 4 * (os.cpu_count() or 1))
+
+
 def run_benchmark(
     config: BenchConfig,
     run_dir: str | os.PathLike,
@@ -101,8 +107,10 @@ def run_benchmark(
     or not writable; :class:`~shape_toolkit.bench.store.RunStoppedError` when a transient fault
     (an unwritable folder, a lost worker or scheduler, ``worker_timeout`` seconds without a Dask
     worker) stopped it: the rows it did not finish are not recorded."""
-    if workers < 1:
-        raise ParameterError(f"workers must be >= 1, got {workers}")
+    most = max_local_workers()
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= most:
+        raise ParameterError(f"workers must be an integer in [1, {most}] (local worker processes: up to 4 per core, "
+                             f"this machine has {os.cpu_count() or 1}; 8 always allowed), got {shown_value(workers)}")
     if limit is not None and limit < 1:
         raise ParameterError(f"limit must be >= 1, got {limit}")
     if not worker_timeout > 0:

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from shape_toolkit.bench.config import method_id
 from shape_toolkit.bench.store import (
     RESULTS,
     SPLIT,
@@ -118,16 +119,6 @@ def _header_text(name: str) -> str:
     unit = _unit(name)
     d = {"higher": " \u2191", "lower": " \u2193"}.get(metric_direction(name) or "", "")
     return name + (f" ({unit})" if unit else "") + d + (" \u2020" if rewards_under_segmentation(name) else "")
-
-
-def method_id(row: dict) -> str:
-    """Display name of a row's method: its ``method_label`` plus its (short) parameters."""
-    p = row.get("params") if isinstance(row.get("params"), dict) else {}
-    label = str(row.get("method_label"))
-    shown = {k: v for k, v in sorted(p.items()) if not isinstance(v, dict) and len(repr(v)) <= 24}
-    if row.get("family") in ("pipelines", "peers") or not shown:
-        return label
-    return f"{label}({', '.join(f'{k}={v}' for k, v in shown.items())})"
 
 
 def _is_num(v: Any) -> bool:
@@ -1437,6 +1428,8 @@ def write_report(
 
     if up not in UP_RULES:
         raise ParameterError(f"up must be one of {', '.join(UP_RULES)}, got {up!r}")
+    if isinstance(renders, bool) or not isinstance(renders, int) or renders < 0:
+        raise ParameterError(f"renders must be an integer >= 0 (shapes rendered per task; 0: none), got {renders!r}")
     run = Path(run_dir)
     if not (run / RESULTS).exists():
         raise ParameterError(f"{run} is not a run folder: {RESULTS} not found (run 'bench run' first)")

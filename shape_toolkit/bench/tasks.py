@@ -32,6 +32,7 @@ from shape_toolkit.data.datasets import DatasetItem
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.spectra import SpectrumSpec, merge_specs
+from shape_toolkit.validation import finite_number, shown_value
 
 __all__ = [
     "Prepared",
@@ -288,6 +289,27 @@ COMMON_OPTIONS: dict[str, Any] = {"repeats": 1, "blas_threads": None, "memory": 
 MEMORY_PROBES = ("rss", "traced")
 
 
+#: the most runs of one row (common option ``repeats``, best of N) and BLAS threads of one method call
+#: (``blas_threads``): past these a config's row would run for ever, or BLAS refuses the count (a C int)
+MAX_REPEATS = 100
+MAX_BLAS_THREADS = 1024
+
+
+def check_number_lists(options: dict[str, Any], keys: Sequence[str], lo: float, hi: float, *,
+                       open_low: bool = False, what: str = "") -> None:
+    """Each option of ``keys`` is a non-empty list of finite numbers in ``[lo, hi]`` (``open_low``: ``(lo, hi]``),
+    else :class:`ParameterError` naming it (``what``: what the numbers are, in the message)."""
+    for key in keys:
+        v = options[key]
+        ok = isinstance(v, list) and bool(v) and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and finite_number(x)
+            and (lo < x if open_low else lo <= x) and x <= hi for x in v)
+        if not ok:
+            shown = v if not isinstance(v, list) else [shown_value(x) if isinstance(x, int) else x for x in v]
+            raise ParameterError(f"{key} must be a non-empty list of {what}numbers in {'(' if open_low else '['}"
+                                 f"{lo:g}, {hi:g}], got {shown!r}")
+
+
 def check_positive_ints(options: dict[str, Any], keys: Sequence[str], *, optional: bool = False,
                         note: str = "") -> None:
     """Each option of ``keys`` is an integer >= 1 (``optional``: or None), else :class:`ParameterError` naming it
@@ -351,10 +373,12 @@ class TaskAdapter:
         o = {**self.option_defaults, **options}
         common = {k: o.pop(k, default) for k, default in COMMON_OPTIONS.items()}
         r, b = common["repeats"], common["blas_threads"]
-        if isinstance(r, bool) or not isinstance(r, int) or r < 1:
-            raise ParameterError(f"repeats must be an integer >= 1, got {r!r}")
-        if b is not None and (isinstance(b, bool) or not isinstance(b, int) or b < 1):
-            raise ParameterError(f"blas_threads must be an integer >= 1, got {b!r}")
+        if isinstance(r, bool) or not isinstance(r, int) or not 1 <= r <= MAX_REPEATS:
+            raise ParameterError(f"repeats must be an integer in [1, {MAX_REPEATS}] (each row runs its method that "
+                                 f"often, one run after the other), got {shown_value(r)}")
+        if b is not None and (isinstance(b, bool) or not isinstance(b, int) or not 1 <= b <= MAX_BLAS_THREADS):
+            raise ParameterError(f"blas_threads must be an integer in [1, {MAX_BLAS_THREADS}] (threads of one "
+                                 f"method call), got {shown_value(b)}")
         if common["memory"] not in MEMORY_PROBES:
             known_probes = ", ".join(map(repr, MEMORY_PROBES))
             raise ParameterError(f"memory must be one of {known_probes}, got {common['memory']!r}")
@@ -466,6 +490,14 @@ class SpectrumTask(TaskAdapter):
         "scree_times_for_K": [1.0, 10.0],
     }
     default_metrics = ("eigenvalues", "lambda2")
+
+    def check_options(self, options: dict[str, Any]) -> dict[str, Any]:
+        """``scree_fractions``: fractions in (0, 1] of the computed eigenpairs; ``scree_times`` and
+        ``scree_times_for_K``: diffusion times, finite and >= 0 (:func:`shape_toolkit.features.scales.scree_alpha`)."""
+        o = super().check_options(options)
+        check_number_lists(o, ("scree_fractions",), 0.0, 1.0, open_low=True, what="fractions of the eigenpairs: ")
+        check_number_lists(o, ("scree_times", "scree_times_for_K"), 0.0, 1e12, what="diffusion times: ")
+        return o
     metrics = {
         "eigenvalues": (_m_eigenvalues, ()),
         "lambda2": (_m_fiedler, ()),

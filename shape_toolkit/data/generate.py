@@ -32,13 +32,17 @@ def _icosahedron() -> tuple[np.ndarray, np.ndarray]:
     return v / np.linalg.norm(v, axis=1, keepdims=True), f
 
 
+#: most subdivisions of :func:`icosphere` (10 * 4**7 + 2 = 163,842 vertices)
+MAX_SUBDIVISIONS = 7
+
+
 def icosphere(subdivisions: int = 3, radius: float = 1.0) -> Shape:
     """Icosphere of the given radius centred at the origin, outward-oriented triangles.
 
     ``subdivisions`` midpoint subdivisions of the icosahedron: ``10 * 4**s + 2`` vertices and
     ``20 * 4**s`` faces (s=3: 642 vertices, 1280 faces). Vertices lie exactly on the sphere.
     """
-    if int(subdivisions) != subdivisions or subdivisions < 0 or subdivisions > 7:
+    if int(subdivisions) != subdivisions or subdivisions < 0 or subdivisions > MAX_SUBDIVISIONS:
         raise ParameterError(f"subdivisions must be an integer in [0, 7], got {subdivisions!r}")
     if not radius > 0:
         raise ParameterError(f"radius must be positive, got {radius!r}")

@@ -208,8 +208,8 @@ def synthetic_dataset(
     lengths = 1.4 if limb_lengths is None else np.asarray(limb_lengths, dtype=np.float64)
     if limb_lengths is not None and lengths.shape != (len(DEFAULT_LIMBS),):
         raise ParameterError(f"limb_lengths must hold {len(DEFAULT_LIMBS)} lengths, got shape {lengths.shape}")
-    if not 0 <= max_angle <= 2.5:
-        raise ParameterError(f"max_angle must be in [0, 2.5] rad, got {max_angle}")
+    if not 0 <= max_angle <= MAX_POSE_ANGLE:
+        raise ParameterError(f"max_angle must be in [0, {MAX_POSE_ANGLE}] rad, got {max_angle}")
     rng = np.random.default_rng(random_state)
     out = []
     for i in range(int(n_poses)):
@@ -223,6 +223,8 @@ def synthetic_dataset(
 
 #: distinct limb lengths of :func:`pose_sequence` (right arm, left arm, right leg, left leg, head):
 #: identical limbs would make limb swaps as good as the truth for an intrinsic matcher
+#: the largest joint angles (rad) of :func:`synthetic_dataset`'s poses and of :func:`pose_sequence`'s frames
+MAX_POSE_ANGLE, MAX_SEQUENCE_ANGLE = 2.5, 1.5
 SEQUENCE_LIMB_LENGTHS = np.array([1.4, 1.2, 1.55, 1.35, 0.8])
 
 
@@ -373,8 +375,8 @@ def pose_sequence(
 
     if not isinstance(n_frames, (int, np.integer)) or isinstance(n_frames, bool) or n_frames < 2:
         raise ParameterError(f"n_frames must be an integer >= 2, got {n_frames!r}")
-    if not 0 <= max_angle <= 1.5:
-        raise ParameterError(f"max_angle must be in [0, 1.5] rad, got {max_angle}")
+    if not 0 <= max_angle <= MAX_SEQUENCE_ANGLE:
+        raise ParameterError(f"max_angle must be in [0, {MAX_SEQUENCE_ANGLE}] rad, got {max_angle}")
     merges = sorted({int(m) for m in merge_frames})
     if merges and (merges[0] < 0 or merges[-1] >= n_frames):
         raise ParameterError(f"merge_frames must lie in [0, {n_frames - 1}], got {list(merge_frames)}")
