@@ -157,3 +157,24 @@ def test_sequence_seeds_and_remesh_are_bounded(params, key, words):
     raw["datasets"][0] = {"name": "seq", "kind": "sequence", "params": params}
     raw["tasks"] = [{"task": "sequence", "methods": [{"pipeline": "zoomout"}]}]
     _refused(raw, key, words)
+
+
+def test_corruption_attempts_and_heat_times_are_bounded():
+    """A centre-drawing corruption with an absurd ``attempts`` and a heat descriptor with an absurd ``n_times`` are
+    refused up front (before: crop with attempts 1e9 on a shape no centre fits ran for hours, and hks with n_times
+    1e9 asked for gigabytes)."""
+    from shape_toolkit.api.registry import create_plugin
+    from shape_toolkit.data.corruptions import MAX_ATTEMPTS, crop, holes
+    from shape_toolkit.data.generate import icosphere
+    from shape_toolkit.errors import ParameterError
+    from shape_toolkit.plugins.descriptors.heat_spectrum import MAX_TIMES
+
+    s = icosphere(2)
+    for f in (crop, holes):
+        with pytest.raises(ParameterError, match="attempts"):
+            f(s, strength=0.3 if f is crop else 1, attempts=MAX_ATTEMPTS + 1)
+    crop(s, strength=0.3, attempts=MAX_ATTEMPTS)  # the bound itself is accepted (the first centre fits)
+    for name in ("hks", "heat-diffusion", "heat-distance"):  # parameters are checked when the plugin computes
+        with pytest.raises(ParameterError, match="n_times"):
+            create_plugin("descriptors", name, n_times=MAX_TIMES + 1).compute(s)
+    assert create_plugin("descriptors", "hks", n_times=MAX_TIMES).compute(s).shape == (s.n_vertices, MAX_TIMES)

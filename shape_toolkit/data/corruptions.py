@@ -231,8 +231,7 @@ def holes(
     k = int(round(_check_strength(strength, 0, 1000)))
     if not radius > 0:
         raise ParameterError(f"holes: radius must be positive, got {radius!r}")
-    if isinstance(attempts, bool) or not isinstance(attempts, (int, np.integer)) or attempts < 1:
-        raise ParameterError(f"holes: attempts must be a positive integer, got {attempts!r}")
+    _check_attempts(attempts, "holes")
     max_piece = int(np.floor(_check_strength(sliver, 0.0, 0.5, "holes: sliver") * shape.n_vertices))
     if k == 0:
         return shape, _identity(shape)
@@ -433,6 +432,18 @@ def partial(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Co
     return _keep(shape, keep)
 
 
+#: most centres a corruption that draws them until one fits tries (``holes``, ``crop``: each is one Dijkstra run)
+MAX_ATTEMPTS = 10_000
+
+
+def _check_attempts(attempts: object, what: str) -> None:
+    """``attempts`` an integer in [1, :data:`MAX_ATTEMPTS`]: past it the draws repeat centres already tried (as many
+    as the vertices of a 10k mesh) and a shape none of them fits would run for hours."""
+    if isinstance(attempts, bool) or not isinstance(attempts, (int, np.integer)) or not 1 <= attempts <= MAX_ATTEMPTS:
+        raise ParameterError(f"{what}: attempts must be an integer in [1, {MAX_ATTEMPTS:,}] (centres drawn until one "
+                             f"fits; more only repeat centres), got {attempts!r}")
+
+
 def crop(shape: Shape, *, strength: float = 0.3, random_state: int = 0, attempts: int = 1) -> Corruption:
     """A partial shape: cut away one connected region holding the fraction ``strength`` of the surface area, a
     geodesic ball (along the mesh edges) around a random centre vertex; every vertex keeps its back-map, so the
@@ -443,8 +454,7 @@ def crop(shape: Shape, *, strength: float = 0.3, random_state: int = 0, attempts
     :class:`InvalidShapeError` asks for another ``random_state`` (or more ``attempts``)."""
     shape.require_faces("crop")
     s = _check_strength(strength, 0.0, 0.9)
-    if isinstance(attempts, bool) or not isinstance(attempts, (int, np.integer)) or attempts < 1:
-        raise ParameterError(f"crop: attempts must be a positive integer, got {attempts!r}")
+    _check_attempts(attempts, "crop")
     if s == 0:
         return shape, _identity(shape)
     n, e = shape.n_vertices, shape.edges

@@ -26,6 +26,8 @@ SIGNATURE_K = 100
 
 #: ``K`` of a spectral descriptor: None (the plugin's default) or a count of non-null eigenpairs
 K_PARAM = Param(None, POSITIVE_INT, doc="non-null eigenpairs used (None: the plugin's default)")
+#: most diffusion times a heat descriptor takes from its ``n_times`` (hks, heat-diffusion, heat-distance)
+MAX_TIMES = 1000
 
 
 def check_K(K: object, default: int) -> int:
@@ -96,7 +98,8 @@ class KeypointHeatMixin:
     _who = "heat descriptor"
     parameter_constraints = {
         "times": Param(None, *TIMES, doc="diffusion times (None: n_times scales from the scree rule)"),
-        "n_times": Param(POSITIVE_INT, doc="number of times when times is None"),
+        "n_times": Param(Interval(int, 1, MAX_TIMES), doc=f"number of times when times is None (at most {MAX_TIMES}: "
+                         "heat at more times than eigenpairs repeats information, at 8 bytes a vertex each)"),
         "K": K_PARAM,
         "alpha": Param(Interval(float, 0, 1, closed="neither"), doc="scree-rule level of the first time"),
         "time_ratio": Param(Interval(float, 1, None, closed="neither"), doc="ratio of consecutive times"),

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from shape_toolkit.api.interfaces import Descriptor
-from shape_toolkit.api.params import Options, Param
+from shape_toolkit.api.params import Interval, Options, Param
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
 from shape_toolkit.features.heat import heat_kernel_signature
 from shape_toolkit.features.scales import check_heat_times, default_times
-from shape_toolkit.plugins._params import LAPLACIAN, POSITIVE_INT, TIMES, WEIGHTING
-from shape_toolkit.plugins.descriptors.heat_spectrum import K_PARAM, SignatureSpectrumMixin, own_spectrum
+from shape_toolkit.plugins._params import LAPLACIAN, TIMES, WEIGHTING
+from shape_toolkit.plugins.descriptors.heat_spectrum import K_PARAM, MAX_TIMES, SignatureSpectrumMixin, own_spectrum
 
 
 class HKSDescriptor(SignatureSpectrumMixin, Descriptor):
@@ -28,7 +28,9 @@ class HKSDescriptor(SignatureSpectrumMixin, Descriptor):
     """
 
     parameter_constraints = {
-        "n_times": Param(POSITIVE_INT, doc="number of log-spaced times when times is None"),
+        "n_times": Param(Interval(int, 1, MAX_TIMES), doc="number of log-spaced times when times is None (at most "
+                         "1000: the HKS is a combination of the K eigenpairs' exp(-lambda t) phi^2, so past K times "
+                         "its columns repeat information, and each takes 8 bytes a vertex)"),
         "times": Param(None, *TIMES, doc="diffusion times, one or a list (None: n_times spanning the spectrum)"),
         "K": K_PARAM,
         "scale": Param(Options("none", "trace"), doc="'trace': divide by the heat trace (scale-normalised HKS)"),
