@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.errors import ParameterError, ShapeFileError, TimeLimitError
-from shape_toolkit.validation import check_random_state, dumps_json
+from shape_toolkit.validation import check_random_state, dumps_json, shown_value
 
 
 def print_json(obj: Any) -> None:
@@ -120,14 +120,24 @@ def dask_target(text: str) -> str:
     return text if text == "local" else scheduler_address(text)
 
 
-def _int_at_least(text: str, lowest: int, what: str) -> int:
+def _int_at_least(text: str, lowest: int, what: str, highest: int | None = None) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
-    if value < lowest:
-        raise argparse.ArgumentTypeError(f"must be {what}, got {value}")
+        raise argparse.ArgumentTypeError(f"must be {what}, got {shown_value(text)}") from None
+    if value < lowest or highest is not None and value > highest:
+        raise argparse.ArgumentTypeError(f"must be {what}, got {shown_value(value)}")
     return value
+
+
+def int_arg(what: str, low: int, high: int | None = None) -> Callable[[str], int]:
+    """An argparse ``type=`` for an integer in ``[low, high]`` (no upper end: None); anything else is refused as
+    ``must be {what}, got ...``."""
+
+    def parse(text: str) -> int:
+        return _int_at_least(text, low, what, high)
+
+    return parse
 
 
 def positive_int_arg(text: str) -> int:
@@ -141,11 +151,27 @@ def count_arg(text: str) -> int:
 
 
 def proxy_arg(text: str) -> int:
-    """argparse ``type=`` for ``--proxy N``: 0 (no proxy) or a vertex count of at least 100 (a proxy's least)."""
-    value = _int_at_least(text, 0, "0 (no proxy) or an integer >= 100")
+    """argparse ``type=`` for ``--proxy N``: 0 (no proxy) or a vertex count of at least 100 (a proxy's least) and
+    at most :data:`~shape_toolkit.io.mesh.MAX_VERTICES` (no shape has more: a larger proxy is no proxy; an integer
+    past float range had raised an internal OverflowError)."""
+    from shape_toolkit.io.mesh import MAX_VERTICES
+
+    what = f"0 (no proxy) or an integer in [100, {MAX_VERTICES}]"
+    value = _int_at_least(text, 0, what, MAX_VERTICES)
     if 0 < value < 100:
-        raise argparse.ArgumentTypeError(f"must be 0 (no proxy) or an integer >= 100, got {value}")
+        raise argparse.ArgumentTypeError(f"must be {what}, got {value}")
     return value
+
+
+def local_workers_arg(text: str) -> int:
+    """argparse ``type=`` for a number of local worker processes: 1 to
+    :func:`~shape_toolkit.bench.executors.max_local_workers` (4 per core, 8 always), the bound of ``bench run``
+    (each is a process with its own memory; thousands would exhaust the machine)."""
+    from shape_toolkit.bench.executors import max_local_workers
+
+    most = max_local_workers()
+    return _int_at_least(text, 1, f"an integer in [1, {most}] (local worker processes: up to 4 per core, 8 always "
+                         "allowed)", most)
 
 
 def number_arg(

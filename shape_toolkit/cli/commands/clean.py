@@ -8,12 +8,21 @@ from shape_toolkit.cli.commands._common import (
     check_distinct,
     check_output_path,
     default_output,
+    int_arg,
     positive_float_arg,
-    positive_int_arg,
     print_json,
 )
 from shape_toolkit.core.cleanup import clean_shape
+from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import _WRITERS, load_shape, save_shape
+
+#: the most ``--remesh-iterations``: isotropic remeshing settles in a few (pymeshlab's default is 10); 1e9 ran for
+#: hours, and an integer past C++ int range raised an internal error in pymeshlab
+MAX_REMESH_ITERATIONS = 100
+#: ``--remesh-iterations`` without a value
+DEFAULT_REMESH_ITERATIONS = 3
+#: the output formats with a binary variant (``--binary``); the others are always text
+BINARY_FORMATS = (".ply", ".stl")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,9 +37,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--keep-largest", action="store_true", help="keep only the largest component")
     p.add_argument("--remesh", type=positive_float_arg, metavar="EDGE_LEN", default=None,
                    help="isotropic remeshing to this target edge length (file units)")
-    p.add_argument("--remesh-iterations", type=positive_int_arg, default=3, help="remeshing iterations")
+    p.add_argument("--remesh-iterations", default=None, metavar="N",
+                   type=int_arg(f"an integer in [1, {MAX_REMESH_ITERATIONS}]", 1, MAX_REMESH_ITERATIONS),
+                   help=f"remeshing iterations, with --remesh (default {DEFAULT_REMESH_ITERATIONS}, at most "
+                        f"{MAX_REMESH_ITERATIONS})")
     p.add_argument("--no-repair", action="store_true", help="do not repair non-manifold parts")
-    p.add_argument("--binary", action="store_true", help="write binary PLY/STL")
+    p.add_argument("--binary", action="store_true", help="write binary PLY/STL (other formats are text only)")
     p.add_argument("--map", metavar="NPY", default=None,
                    help="also save the new->old vertex map (int64, -1 = new vertex) to this .npy")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
@@ -43,6 +55,10 @@ def run(args: argparse.Namespace) -> int:
     ext = Path(args.shape).suffix.lower()
     args.output = str(default_output(args.output, args.shape, f"clean{ext if ext in _WRITERS else '.ply'}"))
     check_output_path(args.output, suffixes=tuple(sorted(_WRITERS)))
+    if args.remesh_iterations is not None and args.remesh is None:  # it would be ignored
+        raise ParameterError("--remesh-iterations applies to remeshing; give --remesh EDGE_LEN too")
+    if args.binary and not args.output.lower().endswith(BINARY_FORMATS):
+        raise ParameterError(f"--binary applies to PLY and STL output; {args.output!r} is written as text")
     check_output_path(args.map, "--map", suffixes=(".npy",))
     check_distinct(args.output, args.shape)
     if args.map:
@@ -53,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         repair_non_manifold=not args.no_repair,
         keep_largest_component=args.keep_largest,
         remesh_target_edge=args.remesh,
-        remesh_iterations=args.remesh_iterations,
+        remesh_iterations=args.remesh_iterations or DEFAULT_REMESH_ITERATIONS,
     )
     save_shape(cleaned, args.output, binary=args.binary)
     if args.map:

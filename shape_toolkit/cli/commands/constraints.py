@@ -16,6 +16,7 @@ from shape_toolkit.cli.commands._common import (
     count_arg,
     default_output,
     emit,
+    number_arg,
     positive_int_arg,
     random_state_arg,
     read_labels_as_given,
@@ -23,6 +24,7 @@ from shape_toolkit.cli.commands._common import (
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.results.labels import clicks_from_segmentation, save_constraints
+from shape_toolkit.validation import shown_value
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,10 +37,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--must-per-segment", type=positive_int_arg, default=1,
                    help="must-links per segment, chained between random vertices inside it (default 1)")
     p.add_argument("--cannot-per-boundary", type=count_arg, default=3,
-                   help="cannot-links across each boundary between two segments (default 3; 0: none)")
+                   help="cannot-links across each boundary between two segments (default 3; 0: none; at most the "
+                   "mesh's edge count)")
     p.add_argument("--cannot-offset", type=count_arg, default=8,
                    help="edges each cannot-link end lies inside its segment (default 8)")
-    p.add_argument("--min-segment-fraction", type=float, default=0.01,
+    p.add_argument("--min-segment-fraction", type=number_arg("a fraction in [0, 1]", 0.0, 1.0), default=0.01,
                    help="segments with fewer vertices than this fraction get no click (default 0.01)")
     p.add_argument("--random-state", type=random_state_arg, default=0, help="seed of the draw (default 0)")
     p.add_argument("--json", action="store_true", help="print JSON")
@@ -52,6 +55,10 @@ def run(args: argparse.Namespace) -> int:
     shape = load_shape(args.shape)
     shape.require_faces("constraints")
     labels = read_labels_as_given(args.labels, shape, args.faces, "LABELS")
+    n_edges = len(shape.edges)
+    if args.cannot_per_boundary > n_edges:  # a boundary has fewer cut edges: they would repeat (1e9 ran for hours)
+        raise ParameterError(f"--cannot-per-boundary {shown_value(args.cannot_per_boundary)}: more than the mesh's "
+                             f"{n_edges} edges, so the links across a boundary would repeat; give at most {n_edges}")
     try:
         cons = clicks_from_segmentation(
             shape, labels, n_must_per_segment=args.must_per_segment, n_cannot_per_boundary=args.cannot_per_boundary,

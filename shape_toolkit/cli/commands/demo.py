@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shape_toolkit.cli.commands._common import add_quiet, positive_int_arg, random_state_arg, status
+from shape_toolkit.cli.commands._common import add_quiet, int_arg, local_workers_arg, random_state_arg, status
 from shape_toolkit.core.spectrum import compute_spectrum
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import ParameterError
@@ -24,13 +24,18 @@ from shape_toolkit.features.embedding import choose_dimension
 from shape_toolkit.io.mesh import save_shape
 from shape_toolkit.spectra import build_graph
 
+#: the fewest eigenpairs: ``eigenvectors.png`` draws eigenvectors 1, 2 and 3 (fewer raised an IndexError)
+MIN_K = 4
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="run the toolkit on a generated articulated shape")
     p.add_argument("-o", "--output", default="shape-toolkit-demo", help="output folder")
-    p.add_argument("-k", type=positive_int_arg, default=30, help="number of eigenpairs (default 30)")
+    p.add_argument("-k", type=int_arg(f"an integer >= {MIN_K}", MIN_K), default=30,
+                   help=f"number of eigenpairs (default 30; at least {MIN_K}: eigenvectors 1-3 are drawn)")
     p.add_argument("--random-state", type=random_state_arg, default=0, help="seed of the generated pose")
-    p.add_argument("--workers", type=positive_int_arg, default=1, help="parallel workers of the showcase benchmark")
+    p.add_argument("--workers", type=local_workers_arg, default=None,
+                   help="parallel workers of the showcase benchmark (default 1; at most 4 per core, 8 always)")
     p.add_argument(
         "--no-bench",
         action="store_true",
@@ -181,6 +186,8 @@ def _match_demo(out: Path, random_state: int, args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.workers is not None and args.no_bench:
+        raise ParameterError("--workers applies to the benchmark showcase, which --no-bench skips")
     out = Path(args.output).resolve()
     if out.exists() and not out.is_dir():
         raise ParameterError(f"--output {args.output!r} is a file; the demo writes a folder")
@@ -216,7 +223,7 @@ def run(args: argparse.Namespace) -> int:
     }
     if not args.no_bench:
         print("benchmark showcase: spectra, keypoints, segmentation, matching on generated poses ...")
-        summary["benchmark"] = _showcase(out, args.random_state, args.workers, args.quiet)
+        summary["benchmark"] = _showcase(out, args.random_state, args.workers or 1, args.quiet)
         b = summary["benchmark"]
         print(f"{b['rows'] + b['reused']} result rows ({b['failed']} failed): {b['results']}")
         print(f"report: {b['report']}")

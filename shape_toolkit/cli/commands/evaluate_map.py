@@ -79,6 +79,10 @@ def evaluate_map_memory(n_source: int, n_target: int, method: str, n_truth: int,
     return max(need)
 
 
+#: ``--geodesics`` and ``--r-theta`` when not given
+DEFAULT_GEODESICS = "heat"
+DEFAULT_R_THETA = 0.9
+
 _percent_arg = number_arg("a percent of the vertices in (0, 100]", 0.0, 100.0, open_low=True)
 _theta_arg = number_arg("a fraction in (0, 1]", 0.0, 1.0, open_low=True)
 
@@ -98,18 +102,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--truth-dst", help="ground-truth target vertex ids, same length")
     p.add_argument("--truth-dst-sym", help="symmetric ground truth on the target (.sym.vts)")
     p.add_argument("--zero-based", action="store_true", help="truth files count from 0 (default: 1, .vts)")
-    p.add_argument("--geodesics", default="heat", choices=["exact", "heat", "fmm", "dijkstra"],
-                   help="geodesic distance method of the error (default heat)")
+    p.add_argument("--geodesics", default=None, choices=["exact", "heat", "fmm", "dijkstra"],
+                   help=f"geodesic distance method of the error against the truth (default {DEFAULT_GEODESICS})")
     add_time_limit(p, "; exact geodesics take about 1 s per ground-truth point on a 5,000-vertex mesh")
     p.add_argument("--r-smoothness", nargs="*", type=_percent_arg, metavar="R",
                    help="percent of r-smooth source vertices (thesis eq. 7.4-7.5, Table 7.2) for "
                    "neighbourhoods of R percent of the vertices (no R: "
                    f"{' '.join(f'{r:g}' for r in R_SMOOTH_RS)}, the thesis's)")
-    p.add_argument("--r-theta", type=_theta_arg, default=0.9,
-                   help="fraction of a neighbourhood that must land in the image's neighbourhood (default 0.9)")
+    p.add_argument("--r-theta", type=_theta_arg, default=None,
+                   help=f"with --r-smoothness: fraction of a neighbourhood that must land in the image's neighbourhood "
+                   f"(default {DEFAULT_R_THETA:g})")
     p.add_argument("--r-sample", type=positive_int_arg, default=None, metavar="N",
                    help="evaluate r-smoothness on N random source vertices (default: all of them)")
-    p.add_argument("--random-state", type=random_state_arg, default=0, help="seed of --r-sample (default 0)")
+    p.add_argument("--random-state", type=random_state_arg, default=None, help="seed of --r-sample (default 0)")
     p.add_argument("--labels", nargs=2, metavar=("SRC_LABELS", "TGT_LABELS"),
                    help="segmentations of both shapes (same label = same part): mean recall and precision "
                    "of the source's labels carried onto the target through the map (Table 7.3)")
@@ -139,6 +144,16 @@ def _check_args(args: argparse.Namespace) -> None:
         raise ParameterError(
             "nothing to evaluate: give --truth-src/--truth-dst (geodesic error), --r-smoothness or --labels"
         )
+    truth, smooth = args.truth_src is not None, args.r_smoothness is not None
+    for given, option, needs, has in (  # an option of an evaluation not asked for would be ignored
+        (args.zero_based, "--zero-based", "--truth-src and --truth-dst", truth),
+        (args.geodesics is not None, "--geodesics", "--truth-src and --truth-dst", truth),
+        (args.r_theta is not None, "--r-theta", "--r-smoothness", smooth),
+        (args.r_sample is not None, "--r-sample", "--r-smoothness", smooth),
+        (args.random_state is not None, "--random-state", "--r-sample", args.r_sample is not None),
+    ):
+        if given and not has:
+            raise ParameterError(f"{option} applies to {needs}, not given here: it would be ignored")
 
 
 def _read_truths(args: argparse.Namespace) -> tuple[np.ndarray, ...] | None:
@@ -196,6 +211,9 @@ def _geodesic_error(args, source, target, corr, st, truths: tuple[np.ndarray, ..
 
 def run(args: argparse.Namespace) -> int:
     _check_args(args)
+    args.geodesics = args.geodesics or DEFAULT_GEODESICS
+    args.r_theta = DEFAULT_R_THETA if args.r_theta is None else args.r_theta
+    args.random_state = 0 if args.random_state is None else args.random_state
     truths = _read_truths(args)
     n_truth = truths[0].size if truths else 0
     rs = None if args.r_smoothness is None else (tuple(args.r_smoothness) or R_SMOOTH_RS)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from shape_toolkit.cli.commands._common import print_json, read_labels_as_given, read_labels_file
-from shape_toolkit.errors import ShapeFileError
+from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.metrics.segmentation import SEGMENTATION_METRICS, segmentation_scores
 from shape_toolkit.results.labels import vertex_to_face_labels
@@ -60,11 +60,18 @@ def _face_labels(path: Path, shape, what: str) -> np.ndarray:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.truth:  # Path("") is the current folder: an empty argument must not mean it
+        raise ParameterError("--truth: give a ground-truth file or folder, got an empty name")
+    files = _truth_files(Path(args.truth))
+    pred_path = Path(args.prediction).resolve()
+    if Path(args.truth).is_dir() and any(f.resolve() == pred_path for f in files):
+        # one of the truths would be the prediction itself, silently averaged in as a perfect score
+        raise ParameterError(f"--truth folder {args.truth} holds the prediction {args.prediction} itself; keep the "
+                             "prediction out of the ground-truth folder")
     shape = load_shape(args.shape)
     shape.require_faces("evaluate-segmentation")
     pred = read_labels_as_given(args.prediction, shape, args.faces, "PRED")
     pred_faces = pred if args.faces else vertex_to_face_labels(shape.faces, pred)
-    files = _truth_files(Path(args.truth))
     truths = [_face_labels(f, shape, "ground truth") for f in files]
     scores = segmentation_scores(pred_faces, truths, mesh=shape)
     result = {name: (None if math.isnan(scores[name]) else scores[name]) for name in SEGMENTATION_METRICS}

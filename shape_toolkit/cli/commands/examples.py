@@ -51,6 +51,8 @@ def list_cmd(args: argparse.Namespace) -> int:
 
 def copy_cmd(args: argparse.Namespace) -> int:
     root = examples_dir()
+    if not args.dir:  # Path("") is the current folder: an empty argument must not mean it
+        raise ParameterError("examples copy: give a destination folder, got an empty name")
     dest = Path(args.dir)
     if dest.exists() and not dest.is_dir():
         raise ParameterError(f"{args.dir!r} is a file; give a folder")

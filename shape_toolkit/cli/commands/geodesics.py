@@ -28,8 +28,9 @@ from shape_toolkit.cli.commands._common import (
 )
 from shape_toolkit.errors import ParameterError, TimeLimitError
 from shape_toolkit.features.geodesics import geodesic_distances, geodesic_memory
-from shape_toolkit.io.mesh import load_shape
+from shape_toolkit.io.mesh import MAX_VERTICES, load_shape
 from shape_toolkit.results.labels import read_vertex_ids, vertex_ids_within
+from shape_toolkit.validation import shown_value
 
 METHODS = ("exact", "heat", "fmm", "dijkstra")
 
@@ -37,13 +38,18 @@ METHODS = ("exact", "heat", "fmm", "dijkstra")
 def parse_sources(text: str, n_vertices: int | None = None) -> np.ndarray:
     """``--sources``: comma-separated 0-based ids (``0,15,200``) or a file of one id per line;
     int64 ``(s,)``, checked against ``n_vertices`` when given (:func:`sources_within`)."""
-    if Path(text).is_file():
+    if _is_file(text):
         ids = read_vertex_ids(text, one_based=False)
     else:
         try:
-            ids = np.array([int(t) for t in text.replace(" ", "").split(",") if t != ""], dtype=np.int64)
+            values = [int(t) for t in text.replace(" ", "").split(",") if t != ""]
         except ValueError:
             raise ParameterError(f"--sources expects comma-separated vertex ids or a file, got {text[:40]!r}") from None
+        huge = [v for v in values if v > MAX_VERTICES]  # no shape has more vertices; past int64 numpy had overflowed
+        if huge:
+            raise ParameterError(f"--sources: vertex id {shown_value(huge[0], 40)} is out of range (no shape has "
+                                 f"more than {MAX_VERTICES} vertices)")
+        ids = np.array(values, dtype=np.int64)
         if ids.size == 0:
             raise ParameterError("--sources: give at least one vertex id")
         if (ids < 0).any():
@@ -51,10 +57,18 @@ def parse_sources(text: str, n_vertices: int | None = None) -> np.ndarray:
     return ids if n_vertices is None else sources_within(ids, text, n_vertices)
 
 
+def _is_file(text: str) -> bool:
+    """Whether ``text`` names a file; a text no file can have (too long a name) is not one."""
+    try:
+        return Path(text).is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def sources_within(ids: np.ndarray, text: str, n_vertices: int) -> np.ndarray:
     """The ids :func:`parse_sources` read from ``text`` (before the mesh, for the memory estimate), checked against a
     mesh of ``n_vertices`` vertices, in the words of the file's or the list's own errors."""
-    if Path(text).is_file():
+    if _is_file(text):
         return vertex_ids_within(ids, text, n_vertices, one_based=False)
     bad = ids[ids >= n_vertices]
     if bad.size:

@@ -28,6 +28,7 @@ from shape_toolkit.cli.commands._common import (
     check_output_path,
     dask_target,
     default_output,
+    local_workers_arg,
     positive_int_arg,
     print_json,
     proxy_arg,
@@ -40,6 +41,9 @@ from shape_toolkit.results.correspondence import Correspondence
 from shape_toolkit.results.trajectories import Trajectories, chain_maps, compose_maps
 
 __all__ = ["match_pairs", "track_frames", "pullback_sequence_colors", "track_memory", "FRAME_BYTES", "register", "run"]
+
+#: ``--tracks``, ``--tail`` and ``--workers`` when not given
+DEFAULT_TRACKS, DEFAULT_TAIL, DEFAULT_WORKERS = 150, 5, 2
 
 #: bytes a frame holds per vertex while the others are matched (the loaded shape, its cached areas and normals, its
 #: trajectory entries; one 244,904-vertex mesh loaded: 150 B, with its areas 250 B, 2026-12-06)
@@ -180,11 +184,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     vis.add_argument("--gif", metavar="ANIM.gif", help="animated GIF of the frames with trajectory tails")
     vis.add_argument("--ply-dir", metavar="DIR",
                      help="write DIR/frame_NNN.ply, each frame with pull-back colours of the last frame")
-    p.add_argument("--tracks", type=positive_int_arg, default=150, help="trajectories drawn (default 150)")
-    p.add_argument("--tail", type=positive_int_arg, default=5, help="frames of trajectory drawn (default 5)")
+    p.add_argument("--tracks", type=positive_int_arg, default=None,
+                   help=f"trajectories drawn by --png / --gif (default {DEFAULT_TRACKS})")
+    p.add_argument("--tail", type=positive_int_arg, default=None,
+                   help=f"frames of trajectory drawn by --png / --gif (default {DEFAULT_TAIL})")
     p.add_argument("--dask", metavar="SCHEDULER", type=dask_target,
                    help="match frame pairs in parallel on Dask: 'local' (a local cluster) or tcp://host:port")
-    p.add_argument("--workers", type=positive_int_arg, default=2, help="local Dask workers (default 2)")
+    p.add_argument("--workers", type=local_workers_arg, default=None,
+                   help=f"local Dask workers of --dask local (default {DEFAULT_WORKERS}; at most 4 per core, 8 always)")
     p.add_argument("--proxy", type=proxy_arg, default=PROXY_VERTICES, metavar="N",
                    help=f"frames above 1.5 N vertices are matched through proxies of N vertices and the maps lifted to "
                         f"full resolution, as match's (N >= 100; default {PROXY_VERTICES}; 0: always at full "
@@ -217,6 +224,15 @@ def _check_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | N
             raise ParameterError(f"--ply-dir: the parent folder of {args.ply_dir!r} does not exist")
         for t in range(len(args.frames)):  # the files it will write (frame_000.ply, ...) must not be inputs
             check_distinct(ply_dir / f"frame_{t:03d}.ply", *args.frames, *(args.seeds or []), outputs=(out,))
+    # options of a step not asked for would be ignored
+    if args.workers is not None and args.dask != "local":
+        raise ParameterError("--workers applies to --dask local (a local cluster of that many workers)")
+    for option, value in (("--tracks", args.tracks), ("--tail", args.tail)):
+        if value is not None and png is None and gif is None:
+            raise ParameterError(f"{option} applies to the drawings; give --png FIG.png or --gif ANIM.gif")
+    args.workers = args.workers or DEFAULT_WORKERS
+    args.tracks = args.tracks or DEFAULT_TRACKS
+    args.tail = args.tail or DEFAULT_TAIL
     if args.seeds is not None and len(args.seeds) != len(args.frames) - 1:
         raise ParameterError(f"--seeds needs one file per frame pair ({len(args.frames) - 1}), got {len(args.seeds)}")
     return out, png, gif, ply_dir

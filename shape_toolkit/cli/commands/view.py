@@ -21,6 +21,7 @@ import numpy as np
 from shape_toolkit.cli.commands._common import (
     check_distinct,
     check_output_path,
+    count_arg,
     missing_extra,
     print_json,
     read_labels_arg,
@@ -43,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--scalar", metavar="FILE",
                    help="per-vertex values: text (one per line), .npy, or .npz (first array; --column)")
     p.add_argument("--faces", action="store_true", help="--labels holds one label per face (PSB .seg)")
-    p.add_argument("--column", type=int, default=0, help="column of a 2D --scalar array (default 0)")
+    p.add_argument("--column", type=count_arg, default=None,
+                   help="column of a 2D --scalar array (default 0)")
     p.add_argument("--points", metavar="FILE", help="vertex ids (0-based, one per line) to mark, e.g. keypoints")
     p.add_argument("--png", metavar="OUT.png", default=None,
                    help="draw the view into this PNG instead of opening a window (matplotlib; no display "
@@ -52,9 +54,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def read_scalar(path: str, n: int, column: int = 0) -> np.ndarray:
+def read_scalar(path: str, n: int, column: int | None = None) -> np.ndarray:
     """Per-vertex values ``(n,)`` float64 from text, ``.npy`` or ``.npz`` (first array, or the row /
-    column ``column`` of a 2D one whose other side has ``n`` entries)."""
+    column ``column`` of a 2D one whose other side has ``n`` entries; None: 0). A column past 0 asked of
+    a 1D array, which has only that one, is a :class:`ParameterError` (it would be ignored)."""
     p = Path(path)
     try:
         if p.suffix == ".npy":
@@ -70,7 +73,10 @@ def read_scalar(path: str, n: int, column: int = 0) -> np.ndarray:
     except (OSError, ValueError) as exc:
         raise ShapeFileError(path, f"cannot read per-vertex values ({' '.join(str(exc).split())[:80]})") from None
     x = np.asarray(x, dtype=np.float64)
+    if column and x.ndim != 2:
+        raise ParameterError(f"--column {column}: {path} holds one value per vertex, no columns to choose from")
     if x.ndim == 2:
+        column = column or 0
         x = x if x.shape[0] == n else x.T
         if not 0 <= column < x.shape[1]:
             raise ParameterError(f"--column {column}: the array has {x.shape[1]} columns")
@@ -85,6 +91,8 @@ def view_items(args: argparse.Namespace) -> list[dict[str, Any]]:
     [0, 1], "points"}]``; every input problem raises a typed one-line error."""
     from shape_toolkit.viz import label_colors, pullback_colors, scalar_colors
 
+    if args.column and not args.scalar:  # (0, the default column, is no choice to ignore)
+        raise ParameterError("--column applies to a 2D --scalar array; give --scalar FILE")
     shape = load_shape(args.shape)
     points = None
     if args.points:
