@@ -246,3 +246,28 @@ def test_clean_remesh_to_a_vanishing_edge_is_one_line(files, tmp_path):
     warning had printed a second line first."""
     _refused(*_child("clean", files / "s.ply", "-o", tmp_path / "c.ply", "--remesh", "1e-300"), "remeshing",
              "vertices")
+
+
+def test_seed_files_with_a_source_vertex_matched_twice(files, tmp_path, capsys):
+    """A seed file giving one source vertex two targets is refused naming both lines; a pair repeated as it is counts
+    once (both had been accepted silently)."""
+    from shape_toolkit.errors import ShapeFileError
+    from shape_toolkit.results.correspondence import read_seeds
+
+    bad = tmp_path / "bad.txt"
+    bad.write_text("0 1\n5 5\n0 2\n")
+    with pytest.raises(ShapeFileError, match="line 3: source vertex 0 is matched to 2 here and to 1 on line 1"):
+        read_seeds(bad, 162, 162)
+    again = tmp_path / "again.txt"
+    again.write_text("0 1\n5 5\n0 1\n")
+    assert read_seeds(again, 162, 162).tolist() == [[0, 1], [5, 5]]
+    code, out, err = run_cli(capsys, "match", files / "s.ply", files / "t.ply", "--seeds", bad,
+                             "-o", tmp_path / "m.txt")
+    _refused(code, out, err, "source vertex 0")
+
+
+def test_ncut_names_faces_when_too_many_segments(files, tmp_path, capsys):
+    """ncut segments faces: its bound is the face count, and the message says so (it said vertices)."""
+    code, out, err = run_cli(capsys, "segment", files / "s.ply", "--method", "ncut", "-k", "100000",
+                             "-o", tmp_path / "l.txt")
+    _refused(code, out, err, "number of faces (320)")

@@ -284,10 +284,11 @@ def read_seeds(
 ) -> np.ndarray:
     """Seed matches from a text file: one ``source target`` pair of 0-based vertex ids per line
     (``#`` comments, commas allowed), int64 ``(q, 2)``, checked against the vertex counts when
-    given. Every problem (not text, a token that is not a plain integer, out of range, empty)
-    raises :class:`ShapeFileError` naming the line."""
+    given. Every problem (not text, a token that is not a plain integer, out of range, empty, one source vertex
+    given two targets) raises :class:`ShapeFileError` naming the line; a pair repeated as it is counts once."""
     p = Path(path)
-    rows = []
+    rows: list[tuple[int, int]] = []
+    seen: dict[int, tuple[int, int]] = {}  # source vertex -> (its target, the line that gave it)
     for ln, line in enumerate(_read_small_text(p, "seed").splitlines(), 1):
         parts = line.split("#", 1)[0].replace(",", " ").split()
         if not parts:
@@ -297,7 +298,14 @@ def read_seeds(
         for tok in parts:
             if not _INT_TOKEN.match(tok) or abs(int(tok)) > _MAX_ABS_INT:
                 raise ShapeFileError(p, f"line {ln}: vertex ids must be integers in range, got {tok[:40]!r}")
-        rows.append((int(parts[0]), int(parts[1])))
+        pair = (int(parts[0]), int(parts[1]))
+        if pair[0] in seen and seen[pair[0]][0] != pair[1]:  # one source vertex, two places: which is meant?
+            other, at = seen[pair[0]]
+            raise ShapeFileError(p, f"line {ln}: source vertex {pair[0]} is matched to {pair[1]} here and to {other} "
+                                    f"on line {at}; keep one")
+        if pair[0] not in seen:  # a pair repeated as it is adds nothing
+            seen[pair[0]] = (pair[1], ln)
+            rows.append(pair)
     if not rows:
         raise ShapeFileError(p, "no seed pairs in the file")
     s = np.asarray(rows, dtype=np.int64)

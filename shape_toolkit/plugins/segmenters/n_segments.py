@@ -9,8 +9,9 @@ import numpy as np
 from shape_toolkit.errors import ParameterError
 
 
-def check_n_segments(k: Any, n: int, *, allow_none: bool) -> int | None:
-    """Validate the number of segments: an int in ``[2, n]`` (or None when the method can choose)."""
+def check_n_segments(k: Any, n: int, *, allow_none: bool, elements: str = "vertices") -> int | None:
+    """Validate the number of segments: an int in ``[2, n]`` (or None when the method can choose); ``elements``:
+    what the ``n`` segmented elements are, for the message."""
     if k is None:
         if allow_none:
             return None
@@ -20,5 +21,5 @@ def check_n_segments(k: Any, n: int, *, allow_none: bool) -> int | None:
     if k < 2:
         raise ParameterError(f"n_segments must be >= 2, got {k}")
     if k > n:
-        raise ParameterError(f"n_segments = {k} exceeds the number of vertices ({n})")
+        raise ParameterError(f"n_segments = {k} exceeds the number of {elements} ({n})")
     return int(k)

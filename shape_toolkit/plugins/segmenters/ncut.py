@@ -132,7 +132,7 @@ class NormalizedCutSegmenter(BaseSegmenter):
         self._check(len(shape.require_faces("normalized-cut segmentation")))
 
     def _check(self, m: int) -> tuple[int, int, float]:
-        k = check_n_segments(self.n_segments, m, allow_none=False)
+        k = check_n_segments(self.n_segments, m, allow_none=False, elements="faces")
         nv = self.n_vectors
         mf = float(self.min_fraction)
         return int(k), int(nv), mf
