@@ -483,8 +483,12 @@ def load_pipeline(spec_or_name: str | os.PathLike | dict[str, Any] | Pipeline) -
     key = str(spec_or_name)
     if key in PRESETS:
         return Pipeline(PRESETS[key], name=key)
+    if not key.strip():
+        raise ParameterError(f"an empty pipeline name: give a preset ({', '.join(sorted(PRESETS))}) or a .toml file")
     p = Path(key)
     if p.suffix.lower() == ".toml" or p.exists():
+        if p.is_dir():
+            raise ShapeFileError(p, "is a folder, not a pipeline file (a .toml file or a preset name)")
         if not p.is_file():
             raise ShapeFileError(p, "no such pipeline file")
         try:

@@ -271,3 +271,11 @@ def test_ncut_names_faces_when_too_many_segments(files, tmp_path, capsys):
     code, out, err = run_cli(capsys, "segment", files / "s.ply", "--method", "ncut", "-k", "100000",
                              "-o", tmp_path / "l.txt")
     _refused(code, out, err, "number of faces (320)")
+
+
+def test_an_empty_or_folder_pipeline_is_named_as_such(files, tmp_path, capsys):
+    """`--pipeline ""` was read as the current folder ('.: no such pipeline file'), and a folder as a missing file."""
+    for value, words in (("", ("empty pipeline name", "auto")), (str(tmp_path), ("is a folder",))):
+        code, out, err = run_cli(capsys, "match", files / "s.ply", files / "t.ply", "--pipeline", value,
+                                 "-o", tmp_path / "m.txt")
+        _refused(code, out, err, *words)
