@@ -230,7 +230,7 @@ def test_cli_proxy_under_100_is_refused_by_the_parser(capsys, tmp_path, command)
     save_shape(icosphere(1), tmp_path / "s.off")  # 42 vertices: no proxy would be made
     files = [tmp_path / "s.off"] * (2 if command == "match" else 1)
     code, out, err = run_cli(capsys, command, *files, "--proxy", "50", "-o", tmp_path / "o.txt")
-    assert code == 2 and err.count("\n") == 1 and "0 (no proxy) or an integer >= 100, got 50" in err, err
+    assert code == 2 and err.count("\n") == 1 and "0 (no proxy) or an integer in [100, " in err and "got 50" in err, err
 
 
 def test_lift_map_refuses_ids_and_proxy_maps_that_are_not_vertex_ids():
