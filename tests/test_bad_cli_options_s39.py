@@ -279,3 +279,22 @@ def test_an_empty_or_folder_pipeline_is_named_as_such(files, tmp_path, capsys):
         code, out, err = run_cli(capsys, "match", files / "s.ply", files / "t.ply", "--pipeline", value,
                                  "-o", tmp_path / "m.txt")
         _refused(code, out, err, *words)
+
+
+def test_spectrum_of_a_cloud_is_the_one_match_uses(tmp_path, capsys):
+    """`spectrum CLOUD` with the defaults: cotangent needs faces, so the cloud takes its point-cloud counterpart as
+    match's spectra do (SpectrumSpec.for_shape), with that weighting's own neighbours (before: refused, and with
+    --weighting intrinsic-delaunay a 10-neighbour graph where match's has 30)."""
+    from shape_toolkit.spectra import SpectrumSpec
+
+    cloud = Shape(icosphere(3).vertices, None, "cloud")
+    save_shape(cloud, tmp_path / "c.xyz")
+    want = SpectrumSpec(6, "cotangent").for_shape(cloud).compute(cloud).eigenvalues
+    for extra in ([], ["--weighting", "intrinsic-delaunay"]):
+        code, out, err = run_cli(capsys, "spectrum", tmp_path / "c.xyz", "-k", "6", "--json", *extra)
+        assert code == 0, err
+        got = json.loads(out)
+        assert got["weighting"] == "intrinsic-delaunay"
+        np.testing.assert_allclose(got["eigenvalues"], want, rtol=1e-8, atol=1e-10)
+    code, out, err = run_cli(capsys, "spectrum", tmp_path / "c.xyz", "--param", "clamp_negative=true")
+    _refused(code, out, err, "--weighting intrinsic-delaunay")

@@ -90,6 +90,10 @@ def edge_length_graph(shape: Shape, n_neighbors: int = 8) -> sp.csr_matrix:
     return sp.csr_matrix((np.r_[w, w], ij), shape=(n, n))
 
 
+#: neighbours of a kNN graph when none are given (``build_graph``'s ``connectivity='knn'``)
+KNN_NEIGHBORS = 10
+
+
 def knn_edges(points: np.ndarray, n_neighbors: int) -> np.ndarray:
     """Symmetrised k-nearest-neighbour edges of ``(n, 3)`` points as ``(e, 2)`` int64, ``i < j``."""
     n = len(points)
@@ -169,7 +173,7 @@ def build_graph(
     if not getattr(scheme, "uses_edges", not needs_faces):
         return _build_own_connectivity(shape, scheme, weighting, requested, connectivity, n_neighbors)
     if n_neighbors is None:
-        n_neighbors = 10
+        n_neighbors = KNN_NEIGHBORS
     if connectivity == "mesh":
         shape.require_faces("connectivity='mesh'")
         edges = shape.edges

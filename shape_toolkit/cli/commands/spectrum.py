@@ -22,11 +22,12 @@ from shape_toolkit.cli.commands._common import (
     status,
     write_ply,
 )
+from shape_toolkit.core.graph import KNN_NEIGHBORS
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import LAPLACIANS, compute_spectrum, spectrum_memory
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import load_shape
-from shape_toolkit.spectra import build_graph
+from shape_toolkit.spectra import build_graph, point_cloud_weighting
 
 #: weighting parameters that are also build_graph's keywords (intrinsic-delaunay's n_neighbors), and their options
 _GRAPH_OPTIONS = {"n_neighbors": "--neighbors"}
@@ -44,7 +45,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--laplacian", default="combinatorial", choices=LAPLACIANS)
     p.add_argument("--no-mass", action="store_true", help="ignore the weighting's mass matrix")
     p.add_argument("--connectivity", default="auto", choices=["auto", "mesh", "knn", "epsilon"])
-    p.add_argument("--neighbors", type=positive_int_arg, default=10, help="k of the kNN graph (point clouds)")
+    p.add_argument("--neighbors", type=positive_int_arg, default=None,
+                   help=f"k of the kNN graph (point clouds; default {KNN_NEIGHBORS}, or the weighting's own where it "
+                   "triangulates the cloud: intrinsic-delaunay's 30)")
     p.add_argument("--radius", type=positive_float_arg, default=None, help="radius of the epsilon graph")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="weighting parameter")
     p.add_argument("--largest-component", action="store_true",
@@ -73,10 +76,15 @@ def run(args: argparse.Namespace) -> int:
     check_memory(args, [args.shape], lambda n: spectrum_memory(n, args.k), f"computing {args.k} eigenpairs (-k)",
                  "memory_models.md")
     shape = load_shape(args.shape)
-    _check_graph_memory(args, shape)
+    # a weighting that needs faces takes its point-cloud counterpart on a cloud, as match's spectra do
+    weighting = args.weighting if shape.is_mesh else point_cloud_weighting(args.weighting)
+    if weighting != args.weighting and params:
+        raise ParameterError(f"--param applies to {args.weighting}, which needs faces; on this point cloud the "
+                             f"weighting is {weighting}: give --weighting {weighting} with its parameters")
+    _check_graph_memory(args, shape, weighting)
     with status(args, f"spectrum: {args.k} eigenpairs of {shape.n_vertices} vertices"):
         graph = build_graph(
-            shape, args.weighting, connectivity=args.connectivity, n_neighbors=args.neighbors,
+            shape, weighting, connectivity=args.connectivity, n_neighbors=args.neighbors,
             radius=args.radius, **params,
         )
         spec = compute_spectrum(
@@ -96,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         "eigenvalues": spec.eigenvalues.tolist(),
         "n_vertices": shape.n_vertices,
         "k": spec.k,
-        "weighting": args.weighting,
+        "weighting": weighting,
         "laplacian": args.laplacian,
         "generalized": spec.generalized,
         "graph": {"edges": graph.n_edges, **graph.info},
@@ -107,16 +115,16 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(result)
     else:
-        print(f"{shape!r}: {spec.k} smallest eigenvalues ({args.laplacian}, {args.weighting}):")
+        print(f"{shape!r}: {spec.k} smallest eigenvalues ({args.laplacian}, {weighting}):")
         print(np.array2string(spec.eigenvalues, precision=6, max_line_width=100))
     return 0
 
 
-def _check_graph_memory(args: argparse.Namespace, shape: Shape) -> None:
+def _check_graph_memory(args: argparse.Namespace, shape: Shape, weighting: str) -> None:
     """Refuse a ``--radius`` or ``--neighbors`` whose graph would need more than the memory limit: a radius near the
     shape's size, or neighbours near its vertex count, link every pair of points (n^2 / 2 edges: 25 GB at 20,000
     points). The epsilon graph's pairs are counted (a k-d tree count), not built; a kNN graph has n k / 2 to n k."""
-    cls = plugin_class("weightings", args.weighting)
+    cls = plugin_class("weightings", weighting)
     if not getattr(cls, "uses_edges", not getattr(cls, "needs_faces", False)):
         return  # the weighting makes its own edges (and refuses an epsilon graph itself)
     n = shape.n_vertices
@@ -127,7 +135,8 @@ def _check_graph_memory(args: argparse.Namespace, shape: Shape) -> None:
         tree = cKDTree(shape.vertices)
         edges, what = (int(tree.count_neighbors(tree, args.radius)) - n) // 2, f"--radius {args.radius:g}"
     elif knn:  # the query holds all n k neighbours (63 B each measured, i.e. 125 B per n k / 2)
-        edges, what = n * min(args.neighbors, n - 1) // 2, f"--neighbors {args.neighbors}"
+        k = args.neighbors or KNN_NEIGHBORS
+        edges, what = n * min(k, n - 1) // 2, f"--neighbors {k}"
     else:
         return
     limit = args.memory_limit if args.memory_limit is not None else machine_memory()
