@@ -374,7 +374,8 @@ class Pipeline:
             info["n_keypoints"] = [int(len(kps[0])), int(len(kps[1]))]
             matcher = plugins["sparse"]
             seeds = timed("sparse", lambda: matcher.match(source, target, kps[0], kps[1], **sides))
-            seeds = np.asarray(seeds, dtype=np.int64).reshape(-1, 2)
+            # one target per source vertex, inside both shapes: as the caller's seeds, before any stage uses them
+            seeds = check_seeds(np.asarray(seeds).reshape(-1, 2), source.n_vertices, target.n_vertices)
             if len(seeds) == 0:
                 raise ParameterError(
                     f"pipeline {self.name!r}: the sparse matcher found no keypoint matches "

@@ -68,13 +68,16 @@ def build_graph(
     connectivity: str = "auto",
     n_neighbors: int | None = None,
     radius: float | None = None,
+    memory_limit: float | None = None,
     **params: Any,
 ) -> ShapeGraph:
     """The shape graph of ``shape`` with a weighting plugin named ``weighting`` (made with ``params``) or a
-    weighting object; the arguments of :func:`shape_toolkit.core.graph.build_graph`."""
+    weighting object; the arguments of :func:`shape_toolkit.core.graph.build_graph` (``memory_limit``: bytes a kNN
+    or epsilon graph may need, None: this machine's memory)."""
     scheme, name = weighting_object(weighting, **params)
     return _graph.build_graph(
-        shape, scheme, name=name, connectivity=connectivity, n_neighbors=n_neighbors, radius=radius
+        shape, scheme, name=name, connectivity=connectivity, n_neighbors=n_neighbors, radius=radius,
+        memory_limit=memory_limit,
     )
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from shape_toolkit.errors import ParameterError, ShapeFileError
 
 __all__ = ["check_random_state", "check_vertex_ids", "check_seeds", "finite_number", "jsonable", "dumps_json",
-           "atomic_output", "shown_value"]
+           "atomic_output", "shown_value", "machine_memory"]
 
 
 def finite_number(value: Any) -> bool:
@@ -86,7 +86,10 @@ def check_vertex_ids(
 
 
 def check_seeds(seeds: object, n_source: int, n_target: int, *, allow_empty: bool = True) -> np.ndarray:
-    """Seed matches as int64 ``(q, 2)`` ``[source vertex, target vertex]`` inside both shapes."""
+    """Seed matches as int64 ``(q, 2)`` ``[source vertex, target vertex]`` inside both shapes, one target per
+    source vertex: a pair repeated as it is counts once (the later copies are dropped, the order kept), one source
+    vertex given two different targets is refused (:class:`ParameterError` naming the vertex and both targets), as
+    :func:`~shape_toolkit.results.correspondence.read_seeds` refuses it in a file."""
     s = np.asarray(seeds)
     if s.size == 0:
         if not allow_empty:
@@ -99,6 +102,15 @@ def check_seeds(seeds: object, n_source: int, n_target: int, *, allow_empty: boo
         lo, hi = int(s[:, col].min()), int(s[:, col].max())
         if lo < 0 or hi >= n:
             raise ParameterError(f"seed {side} ids must lie in [0, {n - 1}] (0-based), found [{lo}, {hi}]")
+    _, first = np.unique(s, axis=0, return_index=True)
+    if len(first) < len(s):  # a pair repeated as it is adds nothing
+        s = s[np.sort(first)]
+    order = np.argsort(s[:, 0], kind="stable")
+    same = np.flatnonzero(s[order[1:], 0] == s[order[:-1], 0])
+    if same.size:  # one source vertex, two places: which is meant?
+        a, b = s[order[same[0]]], s[order[same[0] + 1]]
+        raise ParameterError(f"seed source vertex {int(a[0])} is given two targets, {int(a[1])} and {int(b[1])}; "
+                             "keep one pair per source vertex")
     return s
 
 
@@ -187,3 +199,20 @@ def _fsync(path: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def machine_memory() -> int | None:
+    """Bytes of memory this process may use: the machine's physical memory, or the container's limit (cgroup v2
+    ``memory.max``, v1 ``memory.limit_in_bytes``) when lower; None when neither can be read."""
+    found = []
+    try:
+        found.append(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        pass
+    for f in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            found.append(int(Path(f).read_text().strip()))  # "max" (no limit): ValueError
+        except (OSError, ValueError):
+            pass
+    found = [v for v in found if v > 0]
+    return min(found) if found else None

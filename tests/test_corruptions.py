@@ -374,7 +374,7 @@ def test_a_composed_corruption_names_the_step_that_failed(body):
     with pytest.raises(InvalidShapeError, match=r"step 2 of 2 of 'gaussian-noise\+color-noise' \(color-noise\): "
                                                 r".*no vertex colours"):
         apply_corruption(s, "gaussian-noise+color-noise", steps=[{}, {"strength": 0.1}])
-    with pytest.raises(ParameterError, match=r"step 1 of 2 .*strength must be in"):
+    with pytest.raises(ParameterError, match=r"step 1 of 2 .*strength must be a float in \[0, 100\]"):
         apply_corruption(s, "glue+gaussian-noise", steps=[{"strength": -1}, {}])
     with pytest.raises(ParameterError, match="unknown step 'melt'"):
         apply_corruption(s, "glue+melt", steps=[{}, {}])

@@ -100,7 +100,7 @@ from pathlib import Path
 from typing import Any
 
 from shape_toolkit.data.generate import MAX_SUBDIVISIONS
-from shape_toolkit.data.synthetic import MAX_POSE_ANGLE, MAX_SEQUENCE_ANGLE
+from shape_toolkit.data.synthetic import MAX_FRAMES, MAX_POSE_ANGLE, MAX_POSES, MAX_SEQUENCE_ANGLE
 from shape_toolkit.errors import ParameterError, ToolkitError
 from shape_toolkit.validation import finite_number, shown_value
 
@@ -505,8 +505,10 @@ class _Corruption:
 
 def _check_corruption_params(kind: Any, prm: Any, w: str) -> tuple[str, dict[str, Any]]:
     """One corruption's ``kind`` (at ``w.kind``) and ``params`` (at ``w.params``) checked: a known
-    kind, parameters it has, each (grid) value of the right kind."""
-    from shape_toolkit.data.corruptions import CORRUPTIONS
+    kind, parameters it has, each (grid) value of the right kind and within the corruption's own declared bounds
+    (:func:`~shape_toolkit.data.corruptions.check_corruption_params`), so a bad value is refused here, not by every
+    row at run time."""
+    from shape_toolkit.data.corruptions import CORRUPTIONS, check_corruption_params
 
     kind = _str(kind, f"{w}.kind")
     if kind not in CORRUPTIONS:
@@ -521,6 +523,12 @@ def _check_corruption_params(kind: Any, prm: Any, w: str) -> tuple[str, dict[str
                 f"{w}.params.{k}", f"corruption {kind!r} has no such parameter; valid: {', '.join(valid)}"
             )
     _check_kinds(prm, CORRUPTIONS[kind], f"{w}.params")
+    for k, v in prm.items():
+        for x in _axis(v):
+            try:
+                check_corruption_params(kind, {k: x})
+            except ParameterError as exc:
+                raise ConfigError(f"{w}.params.{k}", str(exc)) from None
     return kind, dict(prm)
 
 
@@ -1036,34 +1044,44 @@ def _validate_datasets(raw: Any, base: Path | None, max_rows: int | None) -> dic
 
 
 #: the bounds the generators of generated datasets check when an item is made (``subdivisions``:
-#: :func:`shape_toolkit.data.generate.icosphere`; ``max_angle``: :func:`shape_toolkit.data.synthetic.synthetic_dataset`
-#: and :func:`~shape_toolkit.data.synthetic.pose_sequence`): checked here too, so that a value out of range is refused
-#: before any work instead of failing every row
+#: :func:`shape_toolkit.data.generate.icosphere`; ``max_angle``, ``n_poses`` and ``frames``:
+#: :func:`shape_toolkit.data.synthetic.synthetic_dataset` and :func:`~shape_toolkit.data.synthetic.pose_sequence`):
+#: checked here too, so that a value out of range is refused before any work (with or without ``max_rows``: a
+#: billion poses are never listed) instead of failing every row
 GENERATED_RANGES: dict[str, dict[str, tuple[float, float, bool]]] = {
-    "synthetic": {"subdivisions": (0, MAX_SUBDIVISIONS, True), "max_angle": (0.0, MAX_POSE_ANGLE, False)},
-    "sequence": {"subdivisions": (0, MAX_SUBDIVISIONS, True), "max_angle": (0.0, MAX_SEQUENCE_ANGLE, False)},
+    "synthetic": {"subdivisions": (0, MAX_SUBDIVISIONS, True), "max_angle": (0.0, MAX_POSE_ANGLE, False),
+                  "n_poses": (1, MAX_POSES, True)},
+    "sequence": {"subdivisions": (0, MAX_SUBDIVISIONS, True), "max_angle": (0.0, MAX_SEQUENCE_ANGLE, False),
+                 "frames": (2, MAX_FRAMES, True)},
+}
+#: why each bound of :data:`GENERATED_RANGES` is there (named by the refusal)
+_RANGE_REASONS = {
+    "subdivisions": "the icosphere's subdivisions: 10 * 4**s + 2 vertices per sphere",
+    "n_poses": "each item makes every pose of the dataset",
+    "frames": "each item makes and keeps every frame of its sequence",
 }
 
 
 def _check_generated(kind: str, params: dict[str, Any], where: str, max_rows: int | None) -> None:
     """A generated dataset's parameters within the generator's bounds (:data:`GENERATED_RANGES`, named with the
-    reason); a sequence's ``frames`` (each frame is matched, as a row is) at most ``max_rows``."""
+    reason); a sequence's ``frames`` (each frame is matched, as a row is) at most ``max_rows`` (checked first: the
+    cap named, as the rows past it are)."""
+    frames = params.get("frames")
+    if kind == "sequence" and max_rows is not None and isinstance(frames, int) and frames > max_rows:
+        raise ConfigError(f"{where}.frames", f"{frames:,} frames (each matched to the next) are more than the cap "
+                          f"of {max_rows:,} rows; use fewer, or raise the cap with --max-rows N")
     for key, (lo, hi, integral) in GENERATED_RANGES.get(kind, {}).items():
         v = params.get(key)
         if v is None:
             continue
         if integral and (isinstance(v, float) and not v.is_integer() or not lo <= v <= hi):
-            raise ConfigError(f"{where}.{key}", f"must be an integer in [{lo}, {hi}] (the icosphere's subdivisions: "
-                                                f"10 * 4**s + 2 vertices per sphere), got {shown_value(v)}")
+            raise ConfigError(f"{where}.{key}", f"must be an integer in [{lo}, {hi}] ({_RANGE_REASONS[key]}), got "
+                                                f"{shown_value(v)}")
         if not integral and not lo <= v <= hi:
             raise ConfigError(f"{where}.{key}", f"must be in [{lo:g}, {hi:g}] rad (the {kind} generator's joint "
                                                 f"angles), got {shown_value(v)}")
     if kind != "sequence":
         return
-    frames = params.get("frames")
-    if max_rows is not None and isinstance(frames, int) and frames > max_rows:
-        raise ConfigError(f"{where}.frames", f"{frames:,} frames (each matched to the next) are more than the cap "
-                          f"of {max_rows:,} rows; use fewer, or raise the cap with --max-rows N")
     seeds = params.get("seeds")
     for j, sd in enumerate(seeds if isinstance(seeds, list) else [seeds]):
         if isinstance(sd, int) and not isinstance(sd, bool) and sd > 2**32 - 1:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -18,8 +19,10 @@ from scipy.spatial import cKDTree
 
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
+from shape_toolkit.validation import machine_memory, shown_value
 
-__all__ = ["ShapeGraph", "build_graph", "knn_edges", "epsilon_edges", "weights_from_edges", "edge_length_graph"]
+__all__ = ["ShapeGraph", "build_graph", "knn_edges", "epsilon_edges", "weights_from_edges", "edge_length_graph",
+           "GRAPH_EDGE_BYTES", "graph_edge_count", "check_graph_memory"]
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -126,6 +129,86 @@ def weights_from_edges(n: int, edges: np.ndarray, w: np.ndarray) -> sp.csr_matri
     return W
 
 
+#: peak bytes per edge of an epsilon or kNN graph (the pairs, their weights, the sparse Laplacian and its eigensolve)
+#: above the spectrum's own memory (``core.spectrum.spectrum_memory``): measured 115 and 117 B on the complete epsilon
+#: graphs of 2,562 and 5,000 points (0.46 and 1.56 GB), 126 B on the complete kNN graph of 2,562 points (0.49 GB)
+GRAPH_EDGE_BYTES = 125.0
+
+#: how :func:`check_graph_memory` names the arguments by default (the Python keywords)
+_API_NAMES = {"radius": "radius", "n_neighbors": "n_neighbors", "memory_limit": "memory_limit"}
+
+
+def _check_radius(radius: Any) -> None:
+    if isinstance(radius, (bool, np.bool_)) or not isinstance(radius, (int, float, np.integer, np.floating)) or (
+        not radius > 0
+    ):
+        raise ParameterError(f"radius must be a positive number (in the shape's length units), got "
+                             f"{shown_value(radius)}")
+
+
+def graph_edge_count(
+    shape: Shape, *, connectivity: str = "auto", n_neighbors: int | None = None, radius: float | None = None
+) -> int | None:
+    """About how many edges the kNN or epsilon graph of ``shape`` would have, without building it: an epsilon
+    graph's pairs within ``radius`` counted by a k-d tree (its memory is the tree's), a kNN graph's ``n k / 2`` (its
+    query holds all ``n k`` neighbours); None for mesh edges, or for a ``radius`` or ``n_neighbors`` that
+    :func:`build_graph` refuses anyway."""
+    n = shape.n_vertices
+    if connectivity == "auto":
+        connectivity = "mesh" if shape.is_mesh else "knn"
+    if connectivity == "epsilon" and radius is not None:
+        _check_radius(radius)
+        tree = cKDTree(shape.vertices)
+        return (int(tree.count_neighbors(tree, float(radius))) - n) // 2
+    if connectivity == "knn":
+        k = KNN_NEIGHBORS if n_neighbors is None else n_neighbors
+        if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 1 <= k < n:
+            return None  # knn_edges says what is wrong
+        return n * int(k) // 2
+    return None
+
+
+def check_graph_memory(
+    shape: Shape,
+    *,
+    connectivity: str = "auto",
+    n_neighbors: int | None = None,
+    radius: float | None = None,
+    memory_limit: float | None = None,
+    reserve: float = 0.0,
+    names: dict[str, str] | None = None,
+) -> None:
+    """Refuse a ``radius`` or ``n_neighbors`` whose graph (:func:`graph_edge_count` edges, :data:`GRAPH_EDGE_BYTES`
+    each) and ``reserve`` bytes (what the caller needs besides, e.g. the spectrum's) would need more than
+    ``memory_limit`` bytes (None: :func:`~shape_toolkit.validation.machine_memory`; infinite: no check): a radius
+    near the shape's size, or neighbours near its vertex count, link every pair of points (n^2 / 2 edges: 25 GB at
+    20,000 points). One-line :class:`ParameterError` naming the value, the sizes and the way out; ``names`` maps
+    ``radius``, ``n_neighbors`` and ``memory_limit`` to how the caller calls them (the CLI: ``--radius``...)."""
+    given = memory_limit is not None
+    limit = memory_limit if given else machine_memory()
+    if limit is None or limit == math.inf:
+        return
+    if connectivity == "epsilon" and radius is None:
+        return  # build_graph asks for one
+    edges = graph_edge_count(shape, connectivity=connectivity, n_neighbors=n_neighbors, radius=radius)
+    if edges is None:
+        return
+    need = float(reserve) + GRAPH_EDGE_BYTES * edges
+    if need <= limit:
+        return
+    label = {**_API_NAMES, **(names or {})}
+    key = "radius" if connectivity == "epsilon" else "n_neighbors"
+    value = radius if key == "radius" else (KNN_NEIGHBORS if n_neighbors is None else n_neighbors)
+    shown = f"{float(value):g}" if key == "radius" else str(int(value))
+    what = f"{label[key]} {shown}" if label[key].startswith("-") else f"{label[key]}={shown}"
+    mem = label["memory_limit"]
+    default = "" if given else ", this machine's memory"
+    raise ParameterError(
+        f"{what} links about {edges:,} pairs of the {shape.n_vertices:,} points, a graph that would need about "
+        f"{need / 1e9:.3g} GB, above the memory limit of {limit / 1e9:.3g} GB ({mem}{default}); give a smaller "
+        f"{'radius' if key == 'radius' else 'number of neighbours'} or raise {mem}")
+
+
 def build_graph(
     shape: Shape,
     weighting: Any,
@@ -134,6 +217,7 @@ def build_graph(
     connectivity: str = "auto",
     n_neighbors: int | None = None,
     radius: float | None = None,
+    memory_limit: float | None = None,
 ) -> ShapeGraph:
     """Build the shape graph of ``shape`` with a weighting object (``weigh(shape, edges)``, e.g. a
     weighting plugin); ``name`` labels the graph (its ``weighting``, part of the spectrum cache key;
@@ -148,6 +232,9 @@ def build_graph(
     one that triangulates points itself (intrinsic Delaunay) honours ``"knn"`` on a mesh by treating its
     vertices as a point cloud (local Delaunay triangulations of ``n_neighbors`` neighbours, default the
     weighting's own ``n_neighbors``) and refuses ``"epsilon"``.
+
+    A kNN or epsilon graph that would need more than ``memory_limit`` bytes (None: this machine's memory; an
+    infinite limit: no check) is refused before it is built (:func:`check_graph_memory`, which counts its pairs).
     """
     if not callable(getattr(weighting, "weigh", None)) or isinstance(weighting, type):
         shown = repr(weighting) if len(repr(weighting)) <= 60 else repr(weighting)[:57] + "..."
@@ -162,6 +249,14 @@ def build_graph(
         isinstance(n_neighbors, bool) or not isinstance(n_neighbors, (int, np.integer))
     ):
         raise ParameterError(f"n_neighbors must be an integer, got {n_neighbors!r}")
+    if radius is not None:
+        _check_radius(radius)
+    number = (int, float, np.integer, np.floating)
+    if memory_limit is not None and (
+        isinstance(memory_limit, (bool, np.bool_)) or not isinstance(memory_limit, number) or not memory_limit > 0
+    ):
+        raise ParameterError(f"memory_limit must be a number of bytes > 0 (or None: this machine's memory), got "
+                             f"{shown_value(memory_limit)}")
     scheme = weighting
     weighting = type(scheme).__name__ if name is None else str(name)
     requested = connectivity
@@ -174,6 +269,8 @@ def build_graph(
         return _build_own_connectivity(shape, scheme, weighting, requested, connectivity, n_neighbors)
     if n_neighbors is None:
         n_neighbors = KNN_NEIGHBORS
+    check_graph_memory(shape, connectivity=connectivity, n_neighbors=n_neighbors, radius=radius,
+                       memory_limit=memory_limit)
     if connectivity == "mesh":
         shape.require_faces("connectivity='mesh'")
         edges = shape.edges

@@ -22,6 +22,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from shape_toolkit.api.params import Interval, Param, validate_params
 from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.inspect import largest_face_piece
 from shape_toolkit.core.shape import Shape
@@ -29,6 +30,9 @@ from shape_toolkit.errors import InvalidShapeError, ParameterError
 
 __all__ = [
     "CORRUPTIONS",
+    "CORRUPTION_PARAMS",
+    "check_corruption_params",
+    "MAX_ATTEMPTS",
     "rigid_motion",
     "scaling",
     "gaussian_noise",
@@ -63,14 +67,10 @@ def _identity(shape: Shape) -> np.ndarray:
     return np.arange(shape.n_vertices, dtype=np.int64)
 
 
-def _check_strength(strength: float, lo: float = 0.0, hi: float = np.inf, what: str = "strength") -> float:
-    try:
-        s = float(strength)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{what} must be a number, got {strength!r}") from None
-    if not lo <= s <= hi:
-        raise ParameterError(f"{what} must be in [{lo}, {hi}], got {strength!r}")
-    return s
+def _checked(name: str, **values: Any) -> None:
+    """The parameters ``values`` of the corruption ``name`` within their declarations (:data:`CORRUPTION_PARAMS`):
+    the first check of every corruption."""
+    validate_params(f"corruption {name!r}", CORRUPTION_PARAMS[name], values)
 
 
 def _random_rotation(rng: np.random.Generator, angle: float) -> np.ndarray:
@@ -85,9 +85,8 @@ def rigid_motion(
 ) -> Corruption:
     """Rotate by ``strength * pi`` rad about a random axis, translate by ``strength`` bounding-box
     diagonals in a random direction and scale by ``scale``; the vertex map is the identity."""
-    s = _check_strength(strength)
-    if not scale > 0:
-        raise ParameterError(f"scale must be positive, got {scale!r}")
+    _checked("rigid", strength=strength, scale=scale)
+    s = float(strength)
     rng = np.random.default_rng(random_state)
     R = _random_rotation(rng, s * np.pi)
     t = rng.normal(size=3)
@@ -99,7 +98,8 @@ def rigid_motion(
 
 def scaling(shape: Shape, *, strength: float = 0.5, random_state: int = 0) -> Corruption:
     """Scale about the centroid by ``1 + strength`` (uniform); the vertex map is the identity."""
-    s = _check_strength(strength, -0.99, 1e6)
+    _checked("scale", strength=strength)
+    s = float(strength)
     c = shape.vertices.mean(axis=0)
     return shape.with_vertices((1.0 + s) * (shape.vertices - c) + c), _identity(shape)
 
@@ -111,7 +111,8 @@ def _length_unit(shape: Shape) -> float:
 def gaussian_noise(shape: Shape, *, strength: float = 0.1, random_state: int = 0) -> Corruption:
     """Add isotropic Gaussian noise of standard deviation ``strength`` mean edge lengths to every
     coordinate (1 % of the diagonal for point clouds); the vertex map is the identity."""
-    s = _check_strength(strength)
+    _checked("gaussian-noise", strength=strength)
+    s = float(strength)
     rng = np.random.default_rng(random_state)
     v = shape.vertices + rng.normal(scale=s * _length_unit(shape), size=shape.vertices.shape)
     return shape.with_vertices(v), _identity(shape)
@@ -122,7 +123,8 @@ def shot_noise(
 ) -> Corruption:
     """Displace a fraction ``strength`` of the vertices by ``magnitude`` mean edge lengths in
     random directions (impulse noise); the vertex map is the identity."""
-    s = _check_strength(strength, 0.0, 1.0)
+    _checked("shot-noise", strength=strength, magnitude=magnitude)
+    s = float(strength)
     rng = np.random.default_rng(random_state)
     n = shape.n_vertices
     ids = rng.choice(n, size=int(round(s * n)), replace=False)
@@ -139,8 +141,8 @@ def color_noise(
     """The surface's colours as another capture would see them: each channel times ``gain`` (lighting) plus
     Gaussian noise of standard deviation ``strength`` (colour units: colours are in [0, 1]), clipped to [0, 1].
     Geometry is unchanged and the vertex map is the identity. A shape without colours is refused."""
-    s = _check_strength(strength, 0.0, 1.0)
-    g = _check_strength(gain, 0.0, np.inf, "gain")
+    _checked("color-noise", strength=strength, gain=gain)
+    s, g = float(strength), float(gain)
     if shape.colors is None:
         raise InvalidShapeError(f"{shape!r} has no vertex colours for 'color-noise' to change "
                                 "(read a coloured file, or give Shape(..., colors=...))")
@@ -170,8 +172,9 @@ def remesh(
     """Independent isotropic remeshing (pymeshlab) to about ``n_vertices`` vertices (default:
     ``strength`` times the original count). Every new vertex maps to its nearest original vertex.
     ``random_state`` jitters the input slightly so the new connectivity is unrelated to the old."""
+    _checked("remesh", strength=strength, n_vertices=n_vertices)
     f = shape.require_faces("remesh")
-    s = _check_strength(strength, 0.05, 20.0)
+    s = float(strength)
     target = int(n_vertices) if n_vertices is not None else int(round(s * shape.n_vertices))
     if target < 20:
         raise ParameterError(f"remesh target must be at least 20 vertices, got {target}")
@@ -227,12 +230,10 @@ def holes(
     rim are dropped with it, so the number of connected components never changes. After ``attempts`` centres
     for one hole without a fit, :class:`InvalidShapeError` asks for a smaller ``radius`` or fewer holes. The
     map lists the kept original ids (vertices on no triangle are dropped)."""
+    _checked("holes", strength=strength, radius=radius, attempts=attempts, sliver=sliver)
     f = shape.require_faces("holes")
-    k = int(round(_check_strength(strength, 0, 1000)))
-    if not radius > 0:
-        raise ParameterError(f"holes: radius must be positive, got {radius!r}")
-    _check_attempts(attempts, "holes")
-    max_piece = int(np.floor(_check_strength(sliver, 0.0, 0.5, "holes: sliver") * shape.n_vertices))
+    k = int(round(float(strength)))
+    max_piece = int(np.floor(float(sliver) * shape.n_vertices))
     if k == 0:
         return shape, _identity(shape)
     n = shape.n_vertices
@@ -285,8 +286,9 @@ def holes(
 def micro_holes(shape: Shape, *, strength: float = 0.02, random_state: int = 0) -> Corruption:
     """Remove a fraction ``strength`` of single vertices at random (each leaves a one-ring
     hole); the largest remaining component is kept."""
+    _checked("micro-holes", strength=strength)
     shape.require_faces("micro_holes")
-    s = _check_strength(strength, 0.0, 0.5)
+    s = float(strength)
     rng = np.random.default_rng(random_state)
     keep = np.ones(shape.n_vertices, dtype=bool)
     keep[rng.choice(shape.n_vertices, size=int(round(s * shape.n_vertices)), replace=False)] = False
@@ -300,8 +302,9 @@ def shortcut(
     that are close in space but far along the surface (the largest geodesic / Euclidean ratios
     from random seeds, at least ``min_ratio``) with a bridge of two triangles. Vertices are
     unchanged: the map is the identity."""
+    _checked("shortcut", strength=strength, min_ratio=min_ratio)
     f = shape.require_faces("shortcut")
-    k = int(round(_check_strength(strength, 0, 100)))
+    k = int(round(float(strength)))
     rng = np.random.default_rng(random_state)
     v, e, n = shape.vertices, shape.edges, shape.n_vertices
     G = sp.coo_matrix((shape.edge_lengths, (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
@@ -363,12 +366,11 @@ def glue(
     names, for every kept vertex, its original id; welded vertices are gone, so ground truth on
     them is moved with :func:`carry_correspondence` (``resampled=True`` sends them to the
     vertex they were welded onto) or scored on the clean shape through the map."""
+    _checked("glue", strength=strength, radius=radius, min_geodesic=min_geodesic, max_gap=max_gap)
     f = shape.require_faces("glue")
-    k = int(round(_check_strength(strength, 0, 100)))
+    k = int(round(float(strength)))
     if k == 0:
         return shape, _identity(shape)
-    if not radius > 0 or not min_geodesic > 0:
-        raise ParameterError("glue needs radius > 0 and min_geodesic > 0")
     v, e, n = np.asarray(shape.vertices), shape.edges, shape.n_vertices
     unit = float(np.sqrt(shape.area))
     G = sp.coo_matrix((shape.edge_lengths, (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
@@ -421,7 +423,8 @@ def glue(
 def partial(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Corruption:
     """Partiality: cut away the fraction ``strength`` of the vertices lying furthest along a
     random direction; the largest remaining component is kept."""
-    s = _check_strength(strength, 0.0, 0.95)
+    _checked("partial", strength=strength)
+    s = float(strength)
     rng = np.random.default_rng(random_state)
     d = rng.normal(size=3)
     proj = shape.vertices @ (d / np.linalg.norm(d))
@@ -436,14 +439,6 @@ def partial(shape: Shape, *, strength: float = 0.3, random_state: int = 0) -> Co
 MAX_ATTEMPTS = 10_000
 
 
-def _check_attempts(attempts: object, what: str) -> None:
-    """``attempts`` an integer in [1, :data:`MAX_ATTEMPTS`]: past it the draws repeat centres already tried (as many
-    as the vertices of a 10k mesh) and a shape none of them fits would run for hours."""
-    if isinstance(attempts, bool) or not isinstance(attempts, (int, np.integer)) or not 1 <= attempts <= MAX_ATTEMPTS:
-        raise ParameterError(f"{what}: attempts must be an integer in [1, {MAX_ATTEMPTS:,}] (centres drawn until one "
-                             f"fits; more only repeat centres), got {attempts!r}")
-
-
 def crop(shape: Shape, *, strength: float = 0.3, random_state: int = 0, attempts: int = 1) -> Corruption:
     """A partial shape: cut away one connected region holding the fraction ``strength`` of the surface area, a
     geodesic ball (along the mesh edges) around a random centre vertex; every vertex keeps its back-map, so the
@@ -453,8 +448,8 @@ def crop(shape: Shape, *, strength: float = 0.3, random_state: int = 0, attempts
     of ``attempts`` centres (drawn in turn from ``random_state``) is tried, and after the last
     :class:`InvalidShapeError` asks for another ``random_state`` (or more ``attempts``)."""
     shape.require_faces("crop")
-    s = _check_strength(strength, 0.0, 0.9)
-    _check_attempts(attempts, "crop")
+    _checked("crop", strength=strength, attempts=attempts)
+    s = float(strength)
     if s == 0:
         return shape, _identity(shape)
     n, e = shape.n_vertices, shape.edges
@@ -538,9 +533,8 @@ def subdivide(shape: Shape, *, splits: int = 2, random_state: int = 0) -> Corrup
     and the Laplacian's continuum limit are unchanged; ``splits^2`` times the triangles). The original
     vertices keep their ids and positions; every new vertex maps to the nearest original vertex.
     ``random_state`` is unused (the split is deterministic)."""
+    _checked("subdivide", splits=splits)
     f = shape.require_faces("subdivide")
-    if isinstance(splits, bool) or not isinstance(splits, (int, np.integer)) or not 1 <= splits <= 64:
-        raise ParameterError(f"subdivide splits must be an integer in [1, 64], got {splits!r}")
     v, nf = split_triangles(shape.vertices, f, int(splits))
     n = shape.n_vertices
     vmap = np.arange(len(v), dtype=np.int64)
@@ -557,9 +551,8 @@ def point_cloud(shape: Shape, *, strength: float = 0.0, points: int = 0, random_
     of standard deviation ``strength`` bounding-box diagonals per coordinate (0.005: 0.5 % of the diagonal).
     The vertex map names, for each point, its vertex (the first of coincident ones) or the vertex nearest to
     where it was sampled (before the noise), so a map to the cloud is scored on the mesh it came from."""
-    s = _check_strength(strength, 0.0, 1.0)
-    if isinstance(points, bool) or not isinstance(points, (int, np.integer)) or points < 0 or points == 1:
-        raise ParameterError(f"point_cloud points must be 0 (the vertices) or an integer >= 2, got {points!r}")
+    _checked("point-cloud", strength=strength, points=points)
+    s = float(strength)
     rng = np.random.default_rng(random_state)
     V = np.asarray(shape.vertices, dtype=np.float64)
     if points == 0:
@@ -601,6 +594,68 @@ CORRUPTIONS: dict[str, Callable[..., Corruption]] = {
     "subdivide": subdivide,
     "point-cloud": point_cloud,
 }
+
+
+def _strength(low: float, high: float | None, doc: str) -> Param:
+    return Param(Interval(float, low, high), doc=f"strength: {doc}")
+
+
+_POSITIVE = Interval(float, 0, None, closed="neither")
+
+#: every corruption's declared parameters (those besides ``shape`` and ``random_state`` that take a bounded value):
+#: checked first thing when it is applied, and when a benchmark config is read (:func:`check_corruption_params`), so a
+#: bad value is refused before any row runs; the one place their bounds are written
+CORRUPTION_PARAMS: dict[str, dict[str, Param]] = {
+    "rigid": {"strength": _strength(0, None, "rotation by strength * pi rad, translation by strength diagonals"),
+              "scale": Param(_POSITIVE, doc="scale factor")},
+    "scale": {"strength": _strength(-0.99, 1e6, "scale by 1 + strength")},
+    "gaussian-noise": {"strength": _strength(0, None, "standard deviation in mean edge lengths")},
+    "shot-noise": {"strength": _strength(0, 1, "fraction of the vertices displaced"),
+                   "magnitude": Param(Interval(float), doc="displacement in mean edge lengths")},
+    "color-noise": {"strength": _strength(0, 1, "standard deviation in colour units"),
+                    "gain": Param(Interval(float, 0, None), doc="factor of each colour channel")},
+    "remesh": {"strength": _strength(0.05, 20, "vertex count as a multiple of the original's"),
+               "n_vertices": Param(None, Interval(int, 20, None), doc="vertex count (None: from strength)")},
+    "holes": {"strength": _strength(0, 1000, "number of holes (rounded)"),
+              "radius": Param(_POSITIVE, doc="hole radius in bounding-box diagonals"),
+              "attempts": Param(Interval(int, 1, MAX_ATTEMPTS), doc="centres drawn per hole until one fits (more "
+                                "only repeat centres already tried)"),
+              "sliver": Param(Interval(float, 0, 0.5), doc="largest fraction of the vertices a hole may cut off")},
+    "micro-holes": {"strength": _strength(0, 0.5, "fraction of the vertices removed")},
+    "shortcut": {"strength": _strength(0, 100, "number of shortcuts (rounded)"),
+                 "min_ratio": Param(Interval(float), doc="least geodesic / Euclidean ratio of a shortcut")},
+    "glue": {"strength": _strength(0, 100, "number of contacts (rounded)"),
+             "radius": Param(_POSITIVE, doc="patch radius in sqrt(area)"),
+             "min_geodesic": Param(_POSITIVE, doc="least surface distance of a contact in sqrt(area)"),
+             "max_gap": Param(None, _POSITIVE, doc="widest gap welded in sqrt(area) (None: any)")},
+    "partial": {"strength": _strength(0, 0.95, "fraction of the vertices cut away")},
+    "crop": {"strength": _strength(0, 0.9, "fraction of the area cut away"),
+             "attempts": Param(Interval(int, 1, MAX_ATTEMPTS), doc="centres drawn until one fits (more only repeat "
+                               "centres already tried)")},
+    "subdivide": {"splits": Param(Interval(int, 1, 64), doc="each triangle split splits x splits")},
+    "point-cloud": {"strength": _strength(0, 1, "noise in bounding-box diagonals"),
+                    "points": Param(Interval(int, 0, 0), Interval(int, 2, None),
+                                    doc="points sampled (0: the vertices)")},
+}
+
+
+def check_corruption_params(name: str, params: dict[str, Any]) -> None:
+    """Refuse, before any shape is at hand, a parameter value the corruption ``name`` (one kind of
+    :data:`CORRUPTIONS`) never takes: one-line :class:`ParameterError` naming the corruption, the parameter, the value
+    and what it takes (:data:`CORRUPTION_PARAMS`, the declarations the corruption itself checks first); a parameter
+    it does not have is refused too. Checks against the shape (a remesh target of fewer than 20 vertices, a hole
+    with no place to go) are left to the corruption, as are the values of a corruption added to
+    :data:`CORRUPTIONS` without declarations."""
+    if name not in CORRUPTIONS:
+        raise ParameterError(f"unknown corruption {name!r}; known: none, {', '.join(CORRUPTIONS)}")
+    import inspect
+
+    valid = [p for p in inspect.signature(CORRUPTIONS[name]).parameters if p not in ("shape", "random_state")]
+    bad = sorted(set(params) - set(valid))
+    if bad:
+        raise ParameterError(f"corruption {name!r} has no parameter {', '.join(bad)}; valid: {', '.join(valid)}")
+    # a corruption registered elsewhere (CORRUPTIONS is open to extension) may declare nothing: it checks its own
+    validate_params(f"corruption {name!r}", CORRUPTION_PARAMS.get(name, {}), params)
 
 
 #: joins the kinds of a composed corruption: ``"glue+color-noise"`` is ``glue``, then ``color-noise``

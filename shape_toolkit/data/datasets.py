@@ -18,7 +18,7 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError, ShapeFileError
 from shape_toolkit.results.labels import face_to_vertex_labels, read_int_file, read_vertex_ids
-from shape_toolkit.validation import atomic_output
+from shape_toolkit.validation import atomic_output, shown_value
 
 __all__ = [
     "read_vertex_ids",
@@ -197,8 +197,11 @@ def synthetic_refs(
     """Refs of :func:`shape_toolkit.data.synthetic.synthetic_dataset`: item ``pose{i}`` is pose i, matched to
     pose i + 1 (cyclically) with the identity as exact ground truth; ``limb_lengths``: one per limb (None:
     alike). Any other pair of poses is the item ``pose{i}-pose{j}`` (:func:`find_item`), named as a TOSCA pair."""
-    if not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
-        raise ParameterError(f"n_poses must be a positive integer, got {n_poses!r}")
+    from shape_toolkit.data.synthetic import MAX_POSES
+
+    if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or not 1 <= n_poses <= MAX_POSES:
+        raise ParameterError(f"n_poses must be an integer in [1, {MAX_POSES}] (every pose is made), got "
+                             f"{shown_value(n_poses)}")
     params = {
         "n_poses": int(n_poses), "subdivisions": int(subdivisions),
         "random_state": int(random_state), "max_angle": float(max_angle),
@@ -237,8 +240,11 @@ def sequence_refs(
         isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0 for s in seeds
     ):
         raise ParameterError(f"seeds must be a non-empty list of non-negative integers, got {seeds!r}")
-    if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 2:
-        raise ParameterError(f"frames must be an integer >= 2, got {frames!r}")
+    from shape_toolkit.data.synthetic import MAX_FRAMES
+
+    if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or not 2 <= frames <= MAX_FRAMES:
+        raise ParameterError(f"frames must be an integer in [2, {MAX_FRAMES}] (every frame is made and kept), got "
+                             f"{shown_value(frames)}")
     if not isinstance(merge_frames, (list, tuple)) or not all(
         isinstance(m, (int, np.integer)) and not isinstance(m, bool) and 0 <= m < frames for m in merge_frames
     ):

@@ -21,6 +21,7 @@ from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.data.generate import icosphere
 from shape_toolkit.errors import ParameterError
+from shape_toolkit.validation import shown_value
 
 __all__ = [
     "cached_pose_sequence",
@@ -32,6 +33,8 @@ __all__ = [
     "PoseSequence",
     "pose_sequence",
     "SEQUENCE_LIMB_LENGTHS",
+    "MAX_POSES",
+    "MAX_FRAMES",
 ]
 
 #: unit directions of the limbs of the default "starfish-humanoid" (two arms, two legs, head)
@@ -203,8 +206,9 @@ def synthetic_dataset(
     poses is the identity; ``labels`` are the parts (0 body, 1..5 limbs). ``limb_lengths``: one length
     per limb (5; e.g. :data:`SEQUENCE_LIMB_LENGTHS`, so that no two limbs are alike), or None: every limb 1.4
     (five identical limbs, which an intrinsic matcher may permute)."""
-    if not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
-        raise ParameterError(f"n_poses must be a positive integer, got {n_poses!r}")
+    if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or not 1 <= n_poses <= MAX_POSES:
+        raise ParameterError(f"n_poses must be an integer in [1, {MAX_POSES}] (every pose is made), got "
+                             f"{shown_value(n_poses)}")
     lengths = 1.4 if limb_lengths is None else np.asarray(limb_lengths, dtype=np.float64)
     if limb_lengths is not None and lengths.shape != (len(DEFAULT_LIMBS),):
         raise ParameterError(f"limb_lengths must hold {len(DEFAULT_LIMBS)} lengths, got shape {lengths.shape}")
@@ -225,6 +229,9 @@ def synthetic_dataset(
 #: identical limbs would make limb swaps as good as the truth for an intrinsic matcher
 #: the largest joint angles (rad) of :func:`synthetic_dataset`'s poses and of :func:`pose_sequence`'s frames
 MAX_POSE_ANGLE, MAX_SEQUENCE_ANGLE = 2.5, 1.5
+#: the most poses of :func:`synthetic_dataset` and frames of :func:`pose_sequence`: both make (and hold) every one
+#: of them, so a count is work and memory, not only a length (a thousand frames of 642 vertices: about 0.1 GB)
+MAX_POSES, MAX_FRAMES = 1000, 1000
 SEQUENCE_LIMB_LENGTHS = np.array([1.4, 1.2, 1.55, 1.35, 0.8])
 
 
@@ -373,8 +380,9 @@ def pose_sequence(
     from shape_toolkit.data.corruptions import remesh as remesh_shape
     from shape_toolkit.validation import check_random_state
 
-    if not isinstance(n_frames, (int, np.integer)) or isinstance(n_frames, bool) or n_frames < 2:
-        raise ParameterError(f"n_frames must be an integer >= 2, got {n_frames!r}")
+    if not isinstance(n_frames, (int, np.integer)) or isinstance(n_frames, bool) or not 2 <= n_frames <= MAX_FRAMES:
+        raise ParameterError(f"n_frames must be an integer in [2, {MAX_FRAMES}] (every frame is made and kept), got "
+                             f"{shown_value(n_frames)}")
     if not 0 <= max_angle <= MAX_SEQUENCE_ANGLE:
         raise ParameterError(f"max_angle must be in [0, {MAX_SEQUENCE_ANGLE}] rad, got {max_angle}")
     merges = sorted({int(m) for m in merge_frames})

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.errors import ParameterError, ShapeFileError, TimeLimitError
-from shape_toolkit.validation import check_random_state, dumps_json, shown_value
+from shape_toolkit.validation import check_random_state, dumps_json, machine_memory, shown_value
 
 
 def print_json(obj: Any) -> None:
@@ -83,6 +83,15 @@ def check_distinct(output: str | os.PathLike, *inputs: str | os.PathLike | None,
 # --------------------------------------------------------------------------------------------
 # arguments and parameters
 # --------------------------------------------------------------------------------------------
+def check_applies(option: str, given: object, applies_to: str, present: object, hint: str = "") -> None:
+    """Refuse ``option``, given (``given`` true), without what it applies to (``present`` false, e.g. the option it
+    belongs to missing): the command would silently ignore it. The one rule of every command for such options,
+    checked before any work: a :class:`ParameterError` (one line, exit 2) ``{option} applies to {applies_to}{hint}``,
+    ``hint`` saying how to ask for it, e.g. ``"; give --remesh EDGE_LEN too"``."""
+    if given and not present:
+        raise ParameterError(f"{option} applies to {applies_to}{hint}")
+
+
 def random_state_arg(text: str) -> int:
     """argparse ``type=`` for ``--random-state``: an integer in ``[0, 2**32 - 1]``."""
     try:
@@ -347,23 +356,6 @@ _gigabytes_arg = number_arg("a finite number of gigabytes > 0", 0.0, open_low=Tr
 def memory_limit_arg(text: str) -> float:
     """``--memory-limit GB``: a finite number of gigabytes (10^9 bytes) > 0, returned in bytes."""
     return _gigabytes_arg(text) * 1e9
-
-
-def machine_memory() -> int | None:
-    """Bytes of memory this process may use: the machine's physical memory, or the container's limit (cgroup v2
-    ``memory.max``, v1 ``memory.limit_in_bytes``) when lower; None when neither can be read."""
-    found = []
-    try:
-        found.append(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    except (AttributeError, OSError, ValueError):
-        pass
-    for f in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
-        try:
-            found.append(int(Path(f).read_text().strip()))  # "max" (no limit): ValueError
-        except (OSError, ValueError):
-            pass
-    found = [v for v in found if v > 0]
-    return min(found) if found else None
 
 
 def add_memory_limit(p: argparse.ArgumentParser) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 import numpy as np
 
@@ -13,7 +14,6 @@ from shape_toolkit.cli.commands._common import (
     check_memory,
     check_output_path,
     check_ply,
-    machine_memory,
     parse_params,
     plugin_class,
     positive_float_arg,
@@ -22,7 +22,7 @@ from shape_toolkit.cli.commands._common import (
     status,
     write_ply,
 )
-from shape_toolkit.core.graph import KNN_NEIGHBORS
+from shape_toolkit.core.graph import KNN_NEIGHBORS, check_graph_memory
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import LAPLACIANS, compute_spectrum, spectrum_memory
 from shape_toolkit.errors import ParameterError
@@ -31,10 +31,8 @@ from shape_toolkit.spectra import build_graph, point_cloud_weighting
 
 #: weighting parameters that are also build_graph's keywords (intrinsic-delaunay's n_neighbors), and their options
 _GRAPH_OPTIONS = {"n_neighbors": "--neighbors"}
-#: peak bytes per edge of an epsilon or kNN graph (the pairs, their weights, the sparse Laplacian and its eigensolve)
-#: above spectrum_memory: measured 115 and 117 B on the complete epsilon graphs of 2,562 and 5,000 points (0.46 and
-#: 1.56 GB), 126 B on the complete kNN graph of 2,562 points (0.49 GB)
-GRAPH_EDGE_BYTES = 125.0
+#: how check_graph_memory's messages name build_graph's arguments here: the options
+_CLI_NAMES = {"radius": "--radius", "n_neighbors": "--neighbors", "memory_limit": "--memory-limit"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -85,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     with status(args, f"spectrum: {args.k} eigenpairs of {shape.n_vertices} vertices"):
         graph = build_graph(
             shape, weighting, connectivity=args.connectivity, n_neighbors=args.neighbors,
-            radius=args.radius, **params,
+            radius=args.radius, memory_limit=math.inf, **params,  # checked above, with the spectrum's memory
         )
         spec = compute_spectrum(
             graph, args.k, laplacian=args.laplacian, use_mass=False if args.no_mass else None,
@@ -121,29 +119,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _check_graph_memory(args: argparse.Namespace, shape: Shape, weighting: str) -> None:
-    """Refuse a ``--radius`` or ``--neighbors`` whose graph would need more than the memory limit: a radius near the
-    shape's size, or neighbours near its vertex count, link every pair of points (n^2 / 2 edges: 25 GB at 20,000
-    points). The epsilon graph's pairs are counted (a k-d tree count), not built; a kNN graph has n k / 2 to n k."""
+    """Refuse a ``--radius`` or ``--neighbors`` whose graph, with the spectrum's memory, would need more than the
+    memory limit (:func:`~shape_toolkit.core.graph.check_graph_memory`, the check ``build_graph`` makes from Python,
+    here with the options' names, ``--memory-limit`` and the eigenpairs' memory)."""
     cls = plugin_class("weightings", weighting)
     if not getattr(cls, "uses_edges", not getattr(cls, "needs_faces", False)):
         return  # the weighting makes its own edges (and refuses an epsilon graph itself)
-    n = shape.n_vertices
-    knn = args.connectivity == "knn" or (args.connectivity == "auto" and not shape.is_mesh)
-    if args.connectivity == "epsilon" and args.radius is not None:
-        from scipy.spatial import cKDTree
-
-        tree = cKDTree(shape.vertices)
-        edges, what = (int(tree.count_neighbors(tree, args.radius)) - n) // 2, f"--radius {args.radius:g}"
-    elif knn:  # the query holds all n k neighbours (63 B each measured, i.e. 125 B per n k / 2)
-        k = args.neighbors or KNN_NEIGHBORS
-        edges, what = n * min(k, n - 1) // 2, f"--neighbors {k}"
-    else:
-        return
-    limit = args.memory_limit if args.memory_limit is not None else machine_memory()
-    need = spectrum_memory(n, args.k) + GRAPH_EDGE_BYTES * edges
-    if limit is not None and need > limit:
-        default = "" if args.memory_limit is not None else ", this machine's memory"
-        raise ParameterError(
-            f"{what} links about {edges:,} pairs of the {n:,} points, a graph that would need about "
-            f"{need / 1e9:.3g} GB, above the memory limit of {limit / 1e9:.3g} GB (--memory-limit{default}); give a "
-            f"smaller {'radius' if 'radius' in what else 'number of neighbours'} or raise --memory-limit")
+    check_graph_memory(shape, connectivity=args.connectivity, n_neighbors=args.neighbors, radius=args.radius,
+                       memory_limit=args.memory_limit, reserve=spectrum_memory(shape.n_vertices, args.k),
+                       names=_CLI_NAMES)  # memory_limit None: this machine's memory

@@ -103,7 +103,7 @@ def em_register(
         sigma_new = max(resid / (k * total), 1e-12)
         change = abs(sigma_new - sigma) / sigma + np.abs(Q_new - Q).max()
         Q, sigma = Q_new, sigma_new
-        if change < tol:
+        if change <= tol:  # an exact fixed point stops even with tol = 0
             break
         if attractor is not None and np.abs(Q - attractor).max() < ATTRACTOR_TOL:
             Q = attractor

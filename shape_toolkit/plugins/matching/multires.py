@@ -206,14 +206,17 @@ def values_from_proxy(values: np.ndarray, shape: Shape, proxy: Shape) -> np.ndar
 
 def proxy_seeds(seeds: np.ndarray, source: Shape, target: Shape, ids_s: np.ndarray, ids_t: np.ndarray) -> np.ndarray:
     """Seed pairs ``(s, 2)`` (checked against the shapes) moved to the proxies: each end to the nearest of the proxy
-    vertices ``ids_s`` of ``source`` and ``ids_t`` of ``target`` (ids into the proxies, int64 ``(s, 2)``)."""
+    vertices ``ids_s`` of ``source`` and ``ids_t`` of ``target`` (ids into the proxies, int64 ``(s', 2)``). Seeds
+    whose sources land on one proxy vertex keep the first one's pair: a proxy vertex gets one target."""
     from scipy.spatial import cKDTree
 
     seeds = check_seeds(seeds, source.n_vertices, target.n_vertices, allow_empty=False)
     Vs, Vt = np.asarray(source.vertices), np.asarray(target.vertices)
     ns = cKDTree(Vs[ids_s]).query(Vs[seeds[:, 0]])[1]
     nt = cKDTree(Vt[ids_t]).query(Vt[seeds[:, 1]])[1]
-    return np.column_stack([ns, nt]).astype(np.int64)
+    _, first = np.unique(ns, return_index=True)  # two seeds near one proxy vertex: check_seeds refuses both
+    keep = np.sort(first)
+    return np.column_stack([ns[keep], nt[keep]]).astype(np.int64)
 
 
 def _spread(P: np.ndarray) -> np.ndarray:

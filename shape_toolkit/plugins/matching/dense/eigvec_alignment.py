@@ -44,7 +44,7 @@ from shape_toolkit.errors import ParameterError
 from shape_toolkit.plugins.matching.dense.em_registration import Embedding, EMRegistrationMatcher
 from shape_toolkit.plugins.matching.distortion import map_distortion
 from shape_toolkit.plugins.matching.em import em_register, procrustes
-from shape_toolkit.validation import check_random_state
+from shape_toolkit.validation import check_random_state, shown_value
 
 __all__ = ["EigvecAlignmentMatcher", "fmap_alignment", "histogram_alignment", "joint_alignment_candidates",
            "map_distortion"]
@@ -53,8 +53,9 @@ __all__ = ["EigvecAlignmentMatcher", "fmap_alignment", "histogram_alignment", "j
 SEARCH_SAMPLES = 1000
 #: most eigenvectors of the search alignment, histogram bins and search beam (the parameters' docs)
 MAX_SEARCH_K, MAX_BINS, MAX_BEAM = 30, 1000, 50
-#: the arguments of :func:`joint_alignment_candidates` (window 0: signs only)
-_WINDOW_ARG, _BEAM_ARG = Interval(int, 0), Interval(int, 1)
+#: the arguments of :func:`joint_alignment_candidates` (window 0: signs only; n_samples above a point count: every
+#: point of that set)
+_WINDOW_ARG, _BEAM_ARG, _SAMPLES_ARG = Interval(int, 0), Interval(int, 1), Interval(int, 1)
 #: angles (degrees) and most rounds of the greedy rotations that refine the kept alignment (``rotations``)
 ROTATION_ANGLES, ROTATION_ROUNDS = (30.0, -30.0, 60.0, -60.0, 90.0), 8
 
@@ -111,18 +112,21 @@ def joint_alignment_candidates(
     ``(n', k)`` by their joint distribution: source coordinate ``i`` goes to target coordinate ``j`` with
     ``|i - j| <= window`` and a sign; a beam of ``beam`` partial alignments grows one coordinate at a time, each
     scored by the symmetric trimmed nearest-neighbour fit of the two point sets (``n_samples`` points of each,
-    drawn with ``random_state``) in the coordinates aligned so far. The histograms of
-    :func:`histogram_alignment` compare one coordinate at a time; this compares them together."""
+    drawn with ``random_state``; a positive int, all of a set above its size) in the coordinates aligned so far.
+    The histograms of :func:`histogram_alignment` compare one coordinate at a time; this compares them together."""
     if X.ndim != 2 or Y.ndim != 2 or X.shape[1] != Y.shape[1]:
         raise ParameterError(f"X and Y must be (n, k) and (n', k) with one k, got {X.shape} and {Y.shape}")
     if not _WINDOW_ARG.accepts(window) or not _BEAM_ARG.accepts(beam):  # a negative window or beam kept nothing
         raise ParameterError(f"window must be {_WINDOW_ARG.describe()} and beam {_BEAM_ARG.describe()}, got "
                              f"{window!r} and {beam!r}")
+    if not _SAMPLES_ARG.accepts(n_samples):  # 0 fitted empty point sets, 2.5 a TypeError, -1 a ValueError
+        raise ParameterError(f"n_samples must be {_SAMPLES_ARG.describe()} (points of each set the fit compares; "
+                             f"above a set's size: all of it), got {shown_value(n_samples)}")
     rng = check_random_state(random_state)
     k = X.shape[1]
     window = min(int(window), k)  # a wider window moves nothing further (and a numpy int64 could overflow)
-    Xs = X[np.sort(rng.choice(len(X), min(n_samples, len(X)), replace=False))]
-    Ys = Y[np.sort(rng.choice(len(Y), min(n_samples, len(Y)), replace=False))]
+    Xs = X[np.sort(rng.choice(len(X), int(min(n_samples, len(X))), replace=False))]
+    Ys = Y[np.sort(rng.choice(len(Y), int(min(n_samples, len(Y))), replace=False))]
     states: list[tuple[tuple[int, ...], tuple[float, ...], float]] = [((), (), 0.0)]
     for i in range(k):
         grown = []
