@@ -11,6 +11,7 @@ from pathlib import Path
 
 from shape_toolkit.cli.commands._common import (
     add_quiet,
+    check_applies,
     default_output,
     number_arg,
     positive_int_arg,
@@ -124,8 +125,10 @@ def run_cmd(args: argparse.Namespace) -> int:
     from shape_toolkit.bench.executors import run_benchmark
 
     args.output = str(default_output(args.output, args.config, "run"))
+    check_applies("--markdown", args.markdown is not None, "the report, whose tables it writes", args.report,
+                  "; give --report too")
     if args.markdown is not None:
-        _check_markdown(args.markdown, args.report)
+        _check_markdown(args.markdown)
     with _one_line_warnings():
         # every check happens before any work, the row count before any grid is expanded
         cfg = load_config(args.config, max_rows=args.max_rows or MAX_ROWS, limit=args.limit)
@@ -179,13 +182,11 @@ def _command_line() -> str:
     return " ".join(["shape-toolkit", *(shlex.quote(a) for a in sys.argv[1:])])
 
 
-def _check_markdown(path: str, report: bool = True) -> None:
-    """``--markdown FILE`` usable before any work: with ``--report``, in an existing folder, not a folder."""
+def _check_markdown(path: str) -> None:
+    """``--markdown FILE`` usable before any work: in an existing folder, not a folder."""
     from shape_toolkit.errors import ParameterError
 
     p = Path(path)
-    if not report:
-        raise ParameterError("--markdown writes the report's tables: give --report too")
     if p.is_dir() or not p.parent.is_dir():
         raise ParameterError(f"--markdown {path}: must be a file in an existing folder")
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from shape_toolkit.cli.commands._common import (
+    check_applies,
     check_distinct,
     check_output_path,
     default_output,
@@ -13,7 +14,6 @@ from shape_toolkit.cli.commands._common import (
     print_json,
 )
 from shape_toolkit.core.cleanup import clean_shape
-from shape_toolkit.errors import ParameterError
 from shape_toolkit.io.mesh import _WRITERS, load_shape, save_shape
 
 #: the most ``--remesh-iterations``: isotropic remeshing settles in a few (pymeshlab's default is 10); 1e9 ran for
@@ -55,10 +55,10 @@ def run(args: argparse.Namespace) -> int:
     ext = Path(args.shape).suffix.lower()
     args.output = str(default_output(args.output, args.shape, f"clean{ext if ext in _WRITERS else '.ply'}"))
     check_output_path(args.output, suffixes=tuple(sorted(_WRITERS)))
-    if args.remesh_iterations is not None and args.remesh is None:  # it would be ignored
-        raise ParameterError("--remesh-iterations applies to remeshing; give --remesh EDGE_LEN too")
-    if args.binary and not args.output.lower().endswith(BINARY_FORMATS):
-        raise ParameterError(f"--binary applies to PLY and STL output; {args.output!r} is written as text")
+    check_applies("--remesh-iterations", args.remesh_iterations is not None, "remeshing", args.remesh is not None,
+                  "; give --remesh EDGE_LEN too")
+    check_applies("--binary", args.binary, "PLY and STL output", args.output.lower().endswith(BINARY_FORMATS),
+                  f"; {args.output!r} is written as text")
     check_output_path(args.map, "--map", suffixes=(".npy",))
     check_distinct(args.output, args.shape)
     if args.map:

@@ -16,7 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from shape_toolkit.cli.commands._common import add_quiet, int_arg, local_workers_arg, random_state_arg, status
+from shape_toolkit.cli.commands._common import (
+    add_quiet,
+    check_applies,
+    int_arg,
+    local_workers_arg,
+    random_state_arg,
+    status,
+)
 from shape_toolkit.core.spectrum import compute_spectrum
 from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import ParameterError
@@ -186,8 +193,8 @@ def _match_demo(out: Path, random_state: int, args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.workers is not None and args.no_bench:
-        raise ParameterError("--workers applies to the benchmark showcase, which --no-bench skips")
+    check_applies("--workers", args.workers is not None, "the benchmark showcase", not args.no_bench,
+                  ", which --no-bench skips")
     out = Path(args.output).resolve()
     if out.exists() and not out.is_dir():
         raise ParameterError(f"--output {args.output!r} is a file; the demo writes a folder")

@@ -22,6 +22,7 @@ from shape_toolkit.cli.commands._common import (
     add_memory_limit,
     add_quiet,
     add_time_limit,
+    check_applies,
     check_memory,
     number_arg,
     positive_int_arg,
@@ -136,10 +137,9 @@ def _truth(path: str, one_based: bool) -> np.ndarray:
 def _check_args(args: argparse.Namespace) -> None:
     if (args.truth_src is None) != (args.truth_dst is None):
         raise ParameterError("--truth-src and --truth-dst go together")
-    if args.truth_dst_sym and args.truth_src is None:
-        raise ParameterError("--truth-dst-sym needs --truth-src and --truth-dst")
-    if args.faces and not args.labels:
-        raise ParameterError("--faces applies to --labels files; give --labels SRC_LABELS TGT_LABELS")
+    check_applies("--truth-dst-sym", args.truth_dst_sym, "--truth-src and --truth-dst", args.truth_src is not None,
+                  ", not given here: it would be ignored")
+    check_applies("--faces", args.faces, "--labels files", args.labels, "; give --labels SRC_LABELS TGT_LABELS")
     if args.truth_src is None and args.r_smoothness is None and not args.labels:
         raise ParameterError(
             "nothing to evaluate: give --truth-src/--truth-dst (geodesic error), --r-smoothness or --labels"
@@ -152,8 +152,7 @@ def _check_args(args: argparse.Namespace) -> None:
         (args.r_sample is not None, "--r-sample", "--r-smoothness", smooth),
         (args.random_state is not None, "--random-state", "--r-sample", args.r_sample is not None),
     ):
-        if given and not has:
-            raise ParameterError(f"{option} applies to {needs}, not given here: it would be ignored")
+        check_applies(option, given, needs, has, ", not given here: it would be ignored")
 
 
 def _read_truths(args: argparse.Namespace) -> tuple[np.ndarray, ...] | None:

@@ -23,6 +23,7 @@ import numpy as np
 from shape_toolkit.cli.commands._common import (
     add_memory_limit,
     add_quiet,
+    check_applies,
     check_distinct,
     check_memory,
     check_output_path,
@@ -225,11 +226,11 @@ def _check_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | N
         for t in range(len(args.frames)):  # the files it will write (frame_000.ply, ...) must not be inputs
             check_distinct(ply_dir / f"frame_{t:03d}.ply", *args.frames, *(args.seeds or []), outputs=(out,))
     # options of a step not asked for would be ignored
-    if args.workers is not None and args.dask != "local":
-        raise ParameterError("--workers applies to --dask local (a local cluster of that many workers)")
+    check_applies("--workers", args.workers is not None, "--dask local", args.dask == "local",
+                  " (a local cluster of that many workers)")
     for option, value in (("--tracks", args.tracks), ("--tail", args.tail)):
-        if value is not None and png is None and gif is None:
-            raise ParameterError(f"{option} applies to the drawings; give --png FIG.png or --gif ANIM.gif")
+        check_applies(option, value is not None, "the drawings", png is not None or gif is not None,
+                      "; give --png FIG.png or --gif ANIM.gif")
     args.workers = args.workers or DEFAULT_WORKERS
     args.tracks = args.tracks or DEFAULT_TRACKS
     args.tail = args.tail or DEFAULT_TAIL

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from shape_toolkit.cli.commands._common import (
+    check_applies,
     check_distinct,
     check_output_path,
     count_arg,
@@ -91,16 +92,15 @@ def view_items(args: argparse.Namespace) -> list[dict[str, Any]]:
     [0, 1], "points"}]``; every input problem raises a typed one-line error."""
     from shape_toolkit.viz import label_colors, pullback_colors, scalar_colors
 
-    if args.column and not args.scalar:  # (0, the default column, is no choice to ignore)
-        raise ParameterError("--column applies to a 2D --scalar array; give --scalar FILE")
+    # (--column 0, the default column, is no choice to ignore)
+    check_applies("--column", args.column, "a 2D --scalar array", args.scalar, "; give --scalar FILE")
     shape = load_shape(args.shape)
     points = None
     if args.points:
         from shape_toolkit.results.labels import read_vertex_ids
 
         points = read_vertex_ids(args.points, one_based=False, n_vertices=shape.n_vertices)
-    if args.faces and not args.labels:
-        raise ParameterError("--faces applies to --labels")
+    check_applies("--faces", args.faces, "--labels", args.labels)
     name = Path(args.shape).stem
     if args.labels:
         return [{"name": name, "shape": shape, "points": points,
@@ -201,8 +201,7 @@ def _png(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     if args.png:
         return _png(args)
-    if args.json:
-        raise ParameterError("--json applies to --png (the window prints nothing)")
+    check_applies("--json", args.json, "--png", args.png, " (the window prints nothing)")
     ps = _polyscope()  # before any work: a missing extra is the first thing said
     problem = display_problem()
     if problem:
