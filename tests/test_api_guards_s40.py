@@ -305,3 +305,166 @@ def test_every_built_in_corruption_declares_its_bounded_parameters():
             corruptions.check_corruption_params("added-s40", {"sigma": 1.0})
     finally:
         del corruptions.CORRUPTIONS["added-s40"]
+
+
+# -- 8. every numeric corruption parameter declared and bounded (remesh, glue, point-cloud, subdivide) ------------
+def test_every_corruption_parameter_is_declared():
+    """remesh's iterations and glue's candidates reached pymeshlab / numpy unchecked: no declaration."""
+    import inspect
+
+    from shape_toolkit.data.corruptions import CORRUPTION_PARAMS, CORRUPTIONS
+
+    for kind, fn in CORRUPTIONS.items():
+        params = set(inspect.signature(fn).parameters) - {"shape", "random_state"}
+        assert params == set(CORRUPTION_PARAMS[kind]), kind
+
+
+@pytest.mark.parametrize("kind,params,words", [
+    ("remesh", {"n_vertices": 10**10}, ["n_vertices", "[20, 2000000]", "10000000000"]),
+    ("remesh", {"iterations": 10**9}, ["iterations", "[1, 100]", "1000000000"]),
+    ("remesh", {"iterations": 0}, ["iterations", "[1, 100]"]),
+    ("glue", {"candidates": 0}, ["candidates", "[1, 50000000]"]),
+    ("glue", {"candidates": -5}, ["candidates", "-5"]),
+    ("point-cloud", {"points": 10**12}, ["points", "[2, 50000000]"]),
+])
+def test_unbounded_corruption_counts_are_refused(kind, params, words, monkeypatch):
+    """Refused when a config is read and when the corruption runs, before pymeshlab is asked (a remesh to 1e10
+    vertices, 1e9 passes) or numpy allocates (1e12 points)."""
+    import sys
+
+    from shape_toolkit.data.corruptions import apply_corruption, check_corruption_params
+
+    with pytest.raises(ParameterError) as at_parse:
+        check_corruption_params(kind, params)
+    assert all(w in str(at_parse.value) for w in words) and "\n" not in str(at_parse.value)
+    monkeypatch.setitem(sys.modules, "pymeshlab", None)  # importing it raises: the check comes first
+    with pytest.raises(ParameterError) as at_run:
+        apply_corruption(icosphere(1), kind, **params)
+    assert str(at_run.value) == str(at_parse.value)
+
+
+def test_remesh_strength_target_within_the_remeshing_budget(monkeypatch):
+    """strength * n_vertices (up to 20 times the shape) is held to the same budget as n_vertices."""
+    import sys
+
+    from shape_toolkit.data import corruptions
+
+    monkeypatch.setattr(corruptions, "MAX_REMESH_VERTICES", 100)
+    monkeypatch.setitem(sys.modules, "pymeshlab", None)
+    with pytest.raises(ParameterError) as ei:
+        corruptions.remesh(icosphere(2), strength=1.0)  # 162 vertices
+    msg = str(ei.value)
+    assert "162" in msg and "MAX_REMESH_VERTICES" in msg and "smaller strength" in msg and "\n" not in msg
+
+
+def test_remesh_bounds_are_the_clean_commands():
+    """One constant for the remeshing passes: the CLI's --remesh-iterations and the corruption's iterations."""
+    from shape_toolkit.cli.commands import clean
+    from shape_toolkit.core import cleanup
+    from shape_toolkit.data.corruptions import CORRUPTION_PARAMS
+
+    assert clean.MAX_REMESH_ITERATIONS is cleanup.MAX_REMESH_ITERATIONS
+    assert CORRUPTION_PARAMS["remesh"]["iterations"].constraints[0].high == cleanup.MAX_REMESH_ITERATIONS
+    assert CORRUPTION_PARAMS["remesh"]["n_vertices"].constraints[1].high == cleanup.MAX_REMESH_VERTICES
+
+
+def test_subdivide_refuses_more_vertices_than_any_shape_before_splitting(monkeypatch):
+    """splits up to 64 multiply the vertices by ~2000: the count (split_triangles' formula) is checked first."""
+    from shape_toolkit.data import corruptions
+
+    s = icosphere(1)  # 42 vertices, 120 edges, 80 triangles: 4 x 4 splits make 42 + 3 * 120 + 3 * 80 = 642
+    monkeypatch.setattr(corruptions, "MAX_VERTICES", 642)
+    out, _ = corruptions.subdivide(s, splits=4)
+    assert out.n_vertices == 642  # the formula is the count split_triangles makes
+    monkeypatch.setattr(corruptions, "MAX_VERTICES", 641)
+    monkeypatch.setattr(corruptions, "split_triangles", lambda *a: pytest.fail("split before the check"))
+    with pytest.raises(ParameterError) as ei:
+        corruptions.subdivide(s, splits=4)
+    msg = str(ei.value)
+    assert "splits=4" in msg and "642" in msg and "MAX_VERTICES" in msg and "fewer splits" in msg and "\n" not in msg
+
+
+def test_sequence_remesh_bound_is_the_remeshing_budget(monkeypatch):
+    """At subdivisions 7, 20 times a frame's vertices (3,276,840) passed the config, above the remesh corruption's
+    budget: every row would have failed."""
+    from shape_toolkit.bench.config import ConfigError, parse_config
+    from shape_toolkit.core.cleanup import MAX_REMESH_VERTICES
+    from shape_toolkit.data import datasets
+
+    monkeypatch.setitem(datasets.DATASET_KINDS, "sequence", lambda *a, **k: pytest.fail("the dataset was listed"))
+    raw = _bench()
+    raw["datasets"][0] = {"name": "d", "kind": "sequence", "params": {"remesh": 3_000_000, "subdivisions": 7}}
+    raw["tasks"] = [{"task": "sequence", "methods": [{"pipeline": "zoomout"}]}]
+    with pytest.raises(ConfigError) as ei:
+        parse_config(raw, max_rows=None)
+    assert ei.value.key == "datasets[0].params.remesh" and f"{MAX_REMESH_VERTICES:,}" in str(ei.value)
+    assert "MAX_REMESH_VERTICES" in str(ei.value) and "\n" not in str(ei.value)
+
+
+# -- 9. edge_length_graph's kNN graph of a point cloud: the memory check of build_graph --------------------------
+def test_edge_length_graph_refuses_a_cloud_graph_above_the_memory_limit(sphere, monkeypatch):
+    """The neighbours were capped below n, but n * k pairs were queried whatever the memory."""
+    cloud = Shape(sphere.vertices)
+    monkeypatch.setattr(core_graph, "knn_edges", lambda *a: pytest.fail("neighbours queried"))
+    with pytest.raises(ParameterError) as ei:
+        core_graph.edge_length_graph(cloud, 10**6, memory_limit=1e6)
+    msg = str(ei.value)
+    assert "n_neighbors=641" in msg and "642 points" in msg and "memory_limit" in msg and "\n" not in msg
+    monkeypatch.setattr(core_graph, "machine_memory", lambda: 1e4)
+    with pytest.raises(ParameterError, match=r"n_neighbors=8 .*\(memory_limit, this machine's memory\)"):
+        core_graph.edge_length_graph(cloud)
+
+
+def test_edge_length_graph_within_the_limit_and_on_a_mesh(sphere, monkeypatch):
+    monkeypatch.setattr(core_graph, "machine_memory", lambda: 1.0)  # a mesh's own edges are never refused
+    assert core_graph.edge_length_graph(sphere).nnz == 2 * len(sphere.edges)
+    G = core_graph.edge_length_graph(Shape(sphere.vertices), 8, memory_limit=math.inf)
+    assert G.shape == (642, 642) and G.nnz >= 642 * 8
+    for bad in (dict(memory_limit=0), dict(memory_limit="1e9"), dict(n_neighbors=2.5)):
+        with pytest.raises(ParameterError, match=next(iter(bad))):
+            core_graph.edge_length_graph(Shape(sphere.vertices), **{"n_neighbors": 8, **bad})
+
+
+# -- 10. orient_pairs keeps the preferred pair of a source vertex: the callers pass pairs by decreasing score -------
+def test_orient_pairs_keeps_the_earlier_pair_of_a_source_vertex(monkeypatch):
+    """The contract: pairs in decreasing preference; a source vertex in two matches keeps the earlier one."""
+    from types import SimpleNamespace
+
+    from shape_toolkit.plugins.matching import orientation
+
+    s = icosphere(1)
+    ref = SimpleNamespace(sq_distances=lambda a, b: np.zeros(len(a)), target_of=None, basis=None, k_smooth=0)
+    monkeypatch.setattr(orientation, "side_reference", lambda *a, **k: ref)
+    monkeypatch.setattr(orientation, "symmetry_map", lambda *a, **k: np.arange(s.n_vertices))
+    monkeypatch.setattr(orientation, "symmetry_validity", lambda *a, **k: np.zeros(s.n_vertices, dtype=bool))
+    assert orientation.orient_pairs(s, s, np.array([[3, 5], [0, 7], [3, 9]])).tolist() == [[3, 5], [0, 7]]
+    assert orientation.orient_pairs(s, s, np.array([[3, 9], [0, 7], [3, 5]])).tolist() == [[3, 9], [0, 7]]
+
+
+def test_association_matchers_pass_pairs_to_orient_pairs_by_decreasing_score(monkeypatch):
+    """The one caller honours the contract: scores out of node order reach orient_pairs highest first."""
+    from shape_toolkit.api.registry import create_plugin
+    from shape_toolkit.plugins.matching import association
+
+    s = icosphere(1)
+    nodes = np.array([[0, 0], [1, 1], [2, 2], [3, 3]])
+    graph = association.AssociationGraph(nodes, np.ones((4, 4)) - np.eye(4), np.ones(4))
+    scores = np.array([0.2, 0.9, 0.5, 0.7])
+    seen = []
+    monkeypatch.setattr(association, "association_graph", lambda *a, **k: graph)
+    monkeypatch.setattr(association, "orient_pairs", lambda s_, t_, pairs, *a: seen.append(pairs) or pairs)
+    m = create_plugin("sparse_matchers", "spectral", orientation="preserving")
+    monkeypatch.setattr(type(m), "_spectrum", lambda self, shape, spectrum: None)
+    monkeypatch.setattr(type(m), "_solve", lambda self, g: scores[: len(g.nodes)])
+    kp = np.array([10, 11, 12, 13])
+    m.match(s, s, kp, kp)
+    assert seen[0][:, 0].tolist() == [11, 13, 12, 10]  # scores 0.9, 0.7, 0.5, 0.2
+
+
+@pytest.mark.parametrize("iterations", [0, 101, 10**9, 2.5, True, "3"])
+def test_clean_shape_bounds_remesh_iterations_as_the_clean_command(iterations):
+    """From Python as from `clean --remesh-iterations`: at most MAX_REMESH_ITERATIONS (10**9 had run for hours)."""
+    from shape_toolkit.core.cleanup import clean_shape
+
+    with pytest.raises(ParameterError, match="remesh_iterations must be an integer in"):
+        clean_shape(icosphere(1), remesh_target_edge=0.1, remesh_iterations=iterations)

@@ -99,6 +99,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from shape_toolkit.core.cleanup import MAX_REMESH_VERTICES
 from shape_toolkit.data.generate import MAX_SUBDIVISIONS
 from shape_toolkit.data.synthetic import MAX_FRAMES, MAX_POSE_ANGLE, MAX_POSES, MAX_SEQUENCE_ANGLE
 from shape_toolkit.errors import ParameterError, ToolkitError
@@ -1091,10 +1092,12 @@ def _check_generated(kind: str, params: dict[str, Any], where: str, max_rows: in
     remesh, sub = params.get("remesh"), params.get("subdivisions", 3)
     if isinstance(remesh, int) and not isinstance(remesh, bool) and isinstance(sub, (int, float)):
         most = 20 * (10 * 4 ** int(sub) + 2)  # as the remesh corruption: at most 20 times the clean frame's vertices
+        why = f"20 times the {10 * 4 ** int(sub) + 2:,} vertices of a clean frame at subdivisions = {int(sub)}"
+        if most > MAX_REMESH_VERTICES:  # and within the remeshing budget (the remesh corruption's n_vertices)
+            most, why = MAX_REMESH_VERTICES, "the remeshing budget shape_toolkit.core.cleanup.MAX_REMESH_VERTICES"
         if remesh > most:
-            raise ConfigError(f"{where}.remesh", f"must be a vertex count of at most {most:,} (20 times the "
-                                                 f"{10 * 4 ** int(sub) + 2:,} vertices of a clean frame at "
-                                                 f"subdivisions = {int(sub)}), got {shown_value(remesh)}")
+            raise ConfigError(f"{where}.remesh", f"must be a vertex count of at most {most:,} ({why}), got "
+                                                 f"{shown_value(remesh)}")
 
 
 def _validate_options(adapter: Any, options: Any, where: str) -> dict[str, Any]:

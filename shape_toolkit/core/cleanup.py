@@ -29,12 +29,18 @@ from shape_toolkit.core.inspect import (
 )
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
+from shape_toolkit.validation import shown_value
 
-__all__ = ["CleanupReport", "clean_shape", "close_holes", "MAX_REMESH_VERTICES", "estimate_remesh_vertices"]
+__all__ = ["CleanupReport", "clean_shape", "close_holes", "MAX_REMESH_VERTICES", "MAX_REMESH_ITERATIONS",
+           "estimate_remesh_vertices"]
 
 #: Remeshing targets whose estimated vertex count exceeds this are refused (memory: pymeshlab needs
 #: a few hundred bytes per vertex, so the budget keeps a remesh well under a few GB).
 MAX_REMESH_VERTICES = 2_000_000
+#: the most iterations of an isotropic remeshing (``shape-toolkit clean --remesh-iterations``, the ``remesh``
+#: corruption's ``iterations``): it settles in a few (pymeshlab's default is 10); 1e9 ran for hours, and an integer
+#: past C++ int range raised an internal error in pymeshlab
+MAX_REMESH_ITERATIONS = 100
 
 
 @dataclass
@@ -98,8 +104,10 @@ def clean_shape(
     """
     if remesh_target_edge is not None and not (np.isfinite(remesh_target_edge) and remesh_target_edge > 0):
         raise ParameterError(f"remesh_target_edge must be > 0, got {remesh_target_edge!r}")
-    if int(remesh_iterations) != remesh_iterations or remesh_iterations < 1:
-        raise ParameterError(f"remesh_iterations must be a positive integer, got {remesh_iterations!r}")
+    if (isinstance(remesh_iterations, (bool, np.bool_)) or not isinstance(remesh_iterations, (int, np.integer))
+            or not 1 <= remesh_iterations <= MAX_REMESH_ITERATIONS):
+        raise ParameterError(f"remesh_iterations must be an integer in [1, {MAX_REMESH_ITERATIONS}], got "
+                             f"{shown_value(remesh_iterations)}")
     rep = CleanupReport(n_vertices_before=shape.n_vertices, n_faces_before=shape.n_faces)
     v = np.array(shape.vertices)
     f = None if shape.faces is None else np.array(shape.faces)

@@ -82,12 +82,21 @@ class ShapeGraph:
         return h.hexdigest()
 
 
-def edge_length_graph(shape: Shape, n_neighbors: int = 8) -> sp.csr_matrix:
+def edge_length_graph(shape: Shape, n_neighbors: int = 8, *, memory_limit: float | None = None) -> sp.csr_matrix:
     """Symmetric ``(n, n)`` CSR matrix of Euclidean edge lengths (shape length units) over the mesh
-    edges, or the ``n_neighbors``-nearest-neighbour graph of a point cloud; coincident vertices keep
-    their edge (length 1e-300, not 0)."""
+    edges, or the ``n_neighbors``-nearest-neighbour graph of a point cloud (at most ``n - 1`` neighbours);
+    coincident vertices keep their edge (length 1e-300, not 0). A point cloud's graph that would need more than
+    ``memory_limit`` bytes (None: this machine's memory; infinite: no check) is refused before its neighbours are
+    queried (:func:`check_graph_memory`, as :func:`build_graph`'s)."""
     n = shape.n_vertices
-    e = np.asarray(shape.edges, dtype=np.int64) if shape.is_mesh else knn_edges(shape.vertices, min(n_neighbors, n - 1))
+    if shape.is_mesh:
+        e = np.asarray(shape.edges, dtype=np.int64)
+    else:
+        _check_n_neighbors(n_neighbors)
+        _check_memory_limit(memory_limit)
+        k = min(int(n_neighbors), n - 1)
+        check_graph_memory(shape, connectivity="knn", n_neighbors=k, memory_limit=memory_limit)
+        e = knn_edges(shape.vertices, k)
     w = np.maximum(np.linalg.norm(shape.vertices[e[:, 0]] - shape.vertices[e[:, 1]], axis=1), 1e-300)
     ij = (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])
     return sp.csr_matrix((np.r_[w, w], ij), shape=(n, n))
@@ -144,6 +153,20 @@ def _check_radius(radius: Any) -> None:
     ):
         raise ParameterError(f"radius must be a positive number (in the shape's length units), got "
                              f"{shown_value(radius)}")
+
+
+def _check_n_neighbors(n_neighbors: Any) -> None:
+    if isinstance(n_neighbors, (bool, np.bool_)) or not isinstance(n_neighbors, (int, np.integer)):
+        raise ParameterError(f"n_neighbors must be an integer, got {n_neighbors!r}")
+
+
+def _check_memory_limit(memory_limit: Any) -> None:
+    number = (int, float, np.integer, np.floating)
+    if memory_limit is not None and (
+        isinstance(memory_limit, (bool, np.bool_)) or not isinstance(memory_limit, number) or not memory_limit > 0
+    ):
+        raise ParameterError(f"memory_limit must be a number of bytes > 0 (or None: this machine's memory), got "
+                             f"{shown_value(memory_limit)}")
 
 
 def graph_edge_count(
@@ -245,18 +268,11 @@ def build_graph(
         raise ParameterError(
             f"unknown connectivity {connectivity!r}; choose auto, mesh, knn or epsilon"
         )
-    if n_neighbors is not None and (
-        isinstance(n_neighbors, bool) or not isinstance(n_neighbors, (int, np.integer))
-    ):
-        raise ParameterError(f"n_neighbors must be an integer, got {n_neighbors!r}")
+    if n_neighbors is not None:
+        _check_n_neighbors(n_neighbors)
     if radius is not None:
         _check_radius(radius)
-    number = (int, float, np.integer, np.floating)
-    if memory_limit is not None and (
-        isinstance(memory_limit, (bool, np.bool_)) or not isinstance(memory_limit, number) or not memory_limit > 0
-    ):
-        raise ParameterError(f"memory_limit must be a number of bytes > 0 (or None: this machine's memory), got "
-                             f"{shown_value(memory_limit)}")
+    _check_memory_limit(memory_limit)
     scheme = weighting
     weighting = type(scheme).__name__ if name is None else str(name)
     requested = connectivity

@@ -23,10 +23,12 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from shape_toolkit.api.params import Interval, Param, validate_params
+from shape_toolkit.core.cleanup import MAX_REMESH_ITERATIONS, MAX_REMESH_VERTICES
 from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.inspect import largest_face_piece
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
+from shape_toolkit.io.mesh import MAX_VERTICES
 
 __all__ = [
     "CORRUPTIONS",
@@ -169,15 +171,22 @@ def remesh(
     iterations: int = 5,
     random_state: int = 0,
 ) -> Corruption:
-    """Independent isotropic remeshing (pymeshlab) to about ``n_vertices`` vertices (default:
-    ``strength`` times the original count). Every new vertex maps to its nearest original vertex.
+    """Independent isotropic remeshing (pymeshlab, ``iterations`` passes) to about ``n_vertices`` vertices
+    (default: ``strength`` times the original count), at most :data:`~shape_toolkit.core.cleanup.MAX_REMESH_VERTICES`
+    (the remeshing memory budget). Every new vertex maps to its nearest original vertex.
     ``random_state`` jitters the input slightly so the new connectivity is unrelated to the old."""
-    _checked("remesh", strength=strength, n_vertices=n_vertices)
+    _checked("remesh", strength=strength, n_vertices=n_vertices, iterations=iterations)
     f = shape.require_faces("remesh")
     s = float(strength)
     target = int(n_vertices) if n_vertices is not None else int(round(s * shape.n_vertices))
     if target < 20:
         raise ParameterError(f"remesh target must be at least 20 vertices, got {target}")
+    if target > MAX_REMESH_VERTICES:  # only from strength: n_vertices is declared within the budget
+        raise ParameterError(
+            f"remesh strength {s:g} asks for {target:,} vertices ({s:g} times {shape.n_vertices:,}), above the "
+            f"budget of {MAX_REMESH_VERTICES:,} (shape_toolkit.core.cleanup.MAX_REMESH_VERTICES); give a smaller "
+            "strength or n_vertices"
+        )
     import pymeshlab
 
     edge = float(np.sqrt(2.0 * shape.area / (np.sqrt(3.0) * target)))
@@ -366,7 +375,8 @@ def glue(
     names, for every kept vertex, its original id; welded vertices are gone, so ground truth on
     them is moved with :func:`carry_correspondence` (``resampled=True`` sends them to the
     vertex they were welded onto) or scored on the clean shape through the map."""
-    _checked("glue", strength=strength, radius=radius, min_geodesic=min_geodesic, max_gap=max_gap)
+    _checked("glue", strength=strength, radius=radius, min_geodesic=min_geodesic, max_gap=max_gap,
+             candidates=candidates)
     f = shape.require_faces("glue")
     k = int(round(float(strength)))
     if k == 0:
@@ -532,10 +542,18 @@ def subdivide(shape: Shape, *, splits: int = 2, random_state: int = 0) -> Corrup
     """A finer mesh of the same surface: every triangle split ``splits x splits`` (flat, so the geometry
     and the Laplacian's continuum limit are unchanged; ``splits^2`` times the triangles). The original
     vertices keep their ids and positions; every new vertex maps to the nearest original vertex.
-    ``random_state`` is unused (the split is deterministic)."""
+    ``random_state`` is unused (the split is deterministic). A result of more than
+    :data:`~shape_toolkit.io.mesh.MAX_VERTICES` vertices (more than any shape has) is refused before it is built."""
     _checked("subdivide", splits=splits)
     f = shape.require_faces("subdivide")
-    v, nf = split_triangles(shape.vertices, f, int(splits))
+    k = int(splits)
+    n_new = shape.n_vertices + (k - 1) * len(shape.edges) + (k - 1) * (k - 2) * len(f) // 2  # as split_triangles
+    if n_new > MAX_VERTICES:
+        raise ParameterError(
+            f"subdivide splits={k} would make {n_new:,} vertices from the {len(f):,} triangles of {shape!r}, above "
+            f"the limit of {MAX_VERTICES:,} (shape_toolkit.io.mesh.MAX_VERTICES); give fewer splits"
+        )
+    v, nf = split_triangles(shape.vertices, f, k)
     n = shape.n_vertices
     vmap = np.arange(len(v), dtype=np.int64)
     if len(v) > n:
@@ -615,7 +633,13 @@ CORRUPTION_PARAMS: dict[str, dict[str, Param]] = {
     "color-noise": {"strength": _strength(0, 1, "standard deviation in colour units"),
                     "gain": Param(Interval(float, 0, None), doc="factor of each colour channel")},
     "remesh": {"strength": _strength(0.05, 20, "vertex count as a multiple of the original's"),
-               "n_vertices": Param(None, Interval(int, 20, None), doc="vertex count (None: from strength)")},
+               "n_vertices": Param(None, Interval(int, 20, MAX_REMESH_VERTICES),
+                                   doc="vertex count (None: from strength), at most the remeshing memory budget "
+                                       "shape_toolkit.core.cleanup.MAX_REMESH_VERTICES"),
+               "iterations": Param(Interval(int, 1, MAX_REMESH_ITERATIONS),
+                                   doc="isotropic remeshing passes (it settles in a few), at most "
+                                       "shape_toolkit.core.cleanup.MAX_REMESH_ITERATIONS, as clean's "
+                                       "--remesh-iterations")},
     "holes": {"strength": _strength(0, 1000, "number of holes (rounded)"),
               "radius": Param(_POSITIVE, doc="hole radius in bounding-box diagonals"),
               "attempts": Param(Interval(int, 1, MAX_ATTEMPTS), doc="centres drawn per hole until one fits (more "
@@ -627,15 +651,20 @@ CORRUPTION_PARAMS: dict[str, dict[str, Param]] = {
     "glue": {"strength": _strength(0, 100, "number of contacts (rounded)"),
              "radius": Param(_POSITIVE, doc="patch radius in sqrt(area)"),
              "min_geodesic": Param(_POSITIVE, doc="least surface distance of a contact in sqrt(area)"),
-             "max_gap": Param(None, _POSITIVE, doc="widest gap welded in sqrt(area) (None: any)")},
+             "max_gap": Param(None, _POSITIVE, doc="widest gap welded in sqrt(area) (None: any)"),
+             "candidates": Param(Interval(int, 1, MAX_VERTICES),
+                                 doc="random vertices tried as a contact's first end (the shape's vertex count or "
+                                     "more: every vertex), at most shape_toolkit.io.mesh.MAX_VERTICES as no shape "
+                                     "has more vertices")},
     "partial": {"strength": _strength(0, 0.95, "fraction of the vertices cut away")},
     "crop": {"strength": _strength(0, 0.9, "fraction of the area cut away"),
              "attempts": Param(Interval(int, 1, MAX_ATTEMPTS), doc="centres drawn until one fits (more only repeat "
                                "centres already tried)")},
     "subdivide": {"splits": Param(Interval(int, 1, 64), doc="each triangle split splits x splits")},
     "point-cloud": {"strength": _strength(0, 1, "noise in bounding-box diagonals"),
-                    "points": Param(Interval(int, 0, 0), Interval(int, 2, None),
-                                    doc="points sampled (0: the vertices)")},
+                    "points": Param(Interval(int, 0, 0), Interval(int, 2, MAX_VERTICES),
+                                    doc="points sampled (0: the vertices), at most shape_toolkit.io.mesh.MAX_VERTICES "
+                                        "as no shape has more vertices")},
 }
 
 

@@ -13,12 +13,9 @@ from shape_toolkit.cli.commands._common import (
     positive_float_arg,
     print_json,
 )
-from shape_toolkit.core.cleanup import clean_shape
+from shape_toolkit.core.cleanup import MAX_REMESH_ITERATIONS, clean_shape
 from shape_toolkit.io.mesh import _WRITERS, load_shape, save_shape
 
-#: the most ``--remesh-iterations``: isotropic remeshing settles in a few (pymeshlab's default is 10); 1e9 ran for
-#: hours, and an integer past C++ int range raised an internal error in pymeshlab
-MAX_REMESH_ITERATIONS = 100
 #: ``--remesh-iterations`` without a value
 DEFAULT_REMESH_ITERATIONS = 3
 #: the output formats with a binary variant (``--binary``); the others are always text

@@ -411,8 +411,13 @@ def orient_pairs(
     after this, still disagrees with the reference far more than the others (its excess
     ``d(a, b) - d(a, R(a))`` over the reference's own map is beyond Tukey's fence ``Q3 + 3 IQR`` of
     the matches' excesses) is dropped: neither it nor its mirror image is where the reference puts
-    it. Duplicate source vertices keep their first match. int64 ``(q', 2)``. ``cache``: a
-    :class:`SideCache` the caller owns (None: the symmetry map and reference are computed here)."""
+    it. int64 ``(q', 2)``, in the order of ``pairs``. ``cache``: a :class:`SideCache` the caller owns (None: the
+    symmetry map and reference are computed here).
+
+    Contract: ``pairs`` come in decreasing preference (the association matchers pass them by decreasing score, the
+    order :func:`~shape_toolkit.plugins.matching.association.greedy_discretize` chose them in). A source vertex that
+    ends up in two matches (one mirrored onto another's source vertex, or given twice) keeps the earlier, preferred
+    one: no score is passed here, so a caller with pairs in another order sorts them first."""
     p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if len(p) == 0:
         return p
