@@ -131,6 +131,18 @@ def test_constraints_cannot_per_boundary_past_the_edge_count_is_refused(files, c
     assert code == 0, err
 
 
+def test_constraints_default_cannot_per_boundary_fits_a_mesh_of_fewer_edges(capsys, tmp_path):
+    """The default (3) on a mesh of two edges (two degenerate faces, as the adversarial corpus's
+    repeated_index_faces.off) draws as many as there are; only a value the user gives is refused."""
+    (tmp_path / "m.off").write_text("OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 0 1\n3 1 1 2\n")
+    np.savetxt(tmp_path / "lab.txt", [0, 0, 1], fmt="%d")
+    code, out, err = run_cli(capsys, "constraints", tmp_path / "m.off", tmp_path / "lab.txt", "-o", tmp_path / "c.json")
+    assert code == 0, err
+    code, out, err = run_cli(capsys, "constraints", tmp_path / "m.off", tmp_path / "lab.txt", "--cannot-per-boundary",
+                             "99", "-o", tmp_path / "d.json")
+    assert code == 2 and "at most 2" in err, err
+
+
 # -- evaluate-map: an option of an evaluation not asked for ------------------------------------------------------
 @pytest.mark.parametrize("extra, option", [
     (["--truth-src", "T", "--truth-dst", "T", "--zero-based", "--r-theta", "0.5"], "--r-theta"),

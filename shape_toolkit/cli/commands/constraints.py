@@ -27,6 +27,10 @@ from shape_toolkit.results.labels import clicks_from_segmentation, save_constrai
 from shape_toolkit.validation import shown_value
 
 
+#: cannot-links drawn across each boundary between two segments when ``--cannot-per-boundary`` is not given
+DEFAULT_CANNOT_PER_BOUNDARY = 3
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("constraints", help="draw must-link / cannot-link clicks from a known segmentation "
                                            "(the PSB benchmark's protocol)")
@@ -36,9 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", help="constraints JSON (default MESH_STEM.constraints.json)")
     p.add_argument("--must-per-segment", type=positive_int_arg, default=1,
                    help="must-links per segment, chained between random vertices inside it (default 1)")
-    p.add_argument("--cannot-per-boundary", type=count_arg, default=3,
-                   help="cannot-links across each boundary between two segments (default 3; 0: none; at most the "
-                   "mesh's edge count)")
+    p.add_argument("--cannot-per-boundary", type=count_arg, default=None,
+                   help=f"cannot-links across each boundary between two segments (default {DEFAULT_CANNOT_PER_BOUNDARY}"
+                   ", or the mesh's edge count when it has fewer; 0: none; at most the mesh's edge count)")
     p.add_argument("--cannot-offset", type=count_arg, default=8,
                    help="edges each cannot-link end lies inside its segment (default 8)")
     p.add_argument("--min-segment-fraction", type=number_arg("a fraction in [0, 1]", 0.0, 1.0), default=0.01,
@@ -56,6 +60,8 @@ def run(args: argparse.Namespace) -> int:
     shape.require_faces("constraints")
     labels = read_labels_as_given(args.labels, shape, args.faces, "LABELS")
     n_edges = len(shape.edges)
+    if args.cannot_per_boundary is None:  # the default, on a mesh of fewer edges: as many as there are
+        args.cannot_per_boundary = min(DEFAULT_CANNOT_PER_BOUNDARY, n_edges)
     if args.cannot_per_boundary > n_edges:  # a boundary has fewer cut edges: they would repeat (1e9 ran for hours)
         raise ParameterError(f"--cannot-per-boundary {shown_value(args.cannot_per_boundary)}: more than the mesh's "
                              f"{n_edges} edges, so the links across a boundary would repeat; give at most {n_edges}")
