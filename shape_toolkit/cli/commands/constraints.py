@@ -26,7 +26,6 @@ from shape_toolkit.io.mesh import load_shape
 from shape_toolkit.results.labels import clicks_from_segmentation, save_constraints
 from shape_toolkit.validation import shown_value
 
-
 #: cannot-links drawn across each boundary between two segments when ``--cannot-per-boundary`` is not given
 DEFAULT_CANNOT_PER_BOUNDARY = 3
 
