@@ -140,6 +140,30 @@ plugin = "{plugin}"
 """
 
 
+#: the smallest valid benchmark config as a table (one generated pose pair, a 5-eigenpair spectrum): the base of
+#: :func:`raw_config`
+SMALL_CONFIG: dict[str, Any] = {
+    "run": {"name": "small", "random_state": 0},
+    "datasets": [{"name": "syn", "kind": "synthetic", "limit": 1, "params": {"n_poses": 2, "subdivisions": 1}}],
+    "tasks": [{"task": "spectrum", "spectrum": {"k": 5}, "methods": [{"plugin": "cotangent"}]}],
+}
+
+
+def raw_config(**changes: Any) -> dict[str, Any]:
+    """A copy of :data:`SMALL_CONFIG` with ``changes`` set, each a dotted path (list indices as numbers), e.g.
+    ``raw_config(**{"datasets.0.params.n_poses": 10})``: the table ``parse_config`` reads."""
+    import copy
+
+    raw = copy.deepcopy(SMALL_CONFIG)
+    for path, value in changes.items():
+        node = raw
+        keys = path.split(".")
+        for k in keys[:-1]:
+            node = node[int(k)] if k.isdigit() else node[k]
+        node[keys[-1]] = value
+    return raw
+
+
 def write_config(folder: Path, text: str, name: str = "bench.toml") -> Path:
     """``text`` (dedented) written to ``folder / name``; the path."""
     p = folder / name

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 import pytest
-from helpers import run_cli
+from helpers import raw_config, run_cli
 
 from shape_toolkit.core import graph as core_graph
 from shape_toolkit.core.shape import Shape
@@ -192,24 +192,7 @@ def test_em_register_stops_on_an_exact_fixed_point_at_tol_zero(monkeypatch):
 
 
 # -- 2. a generated dataset's counts are bounded without max_rows ---------------------------------------------
-_BENCH = {
-    "run": {"name": "s40", "random_state": 0},
-    "datasets": [{"name": "syn", "kind": "synthetic", "limit": 1, "params": {"n_poses": 2, "subdivisions": 1}}],
-    "tasks": [{"task": "spectrum", "spectrum": {"k": 5}, "methods": [{"plugin": "cotangent"}]}],
-}
-
-
-def _bench(**changes):
-    import copy
-
-    raw = copy.deepcopy(_BENCH)
-    for path, value in changes.items():
-        node = raw
-        keys = path.split(".")
-        for k in keys[:-1]:
-            node = node[int(k)] if k.isdigit() else node[k]
-        node[keys[-1]] = value
-    return raw
+_bench = raw_config
 
 
 @pytest.mark.parametrize("kind,params,key,bound", [

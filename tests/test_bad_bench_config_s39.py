@@ -3,11 +3,10 @@ before any work, naming the key and the reason (a typed error in Python; one lin
 
 from __future__ import annotations
 
-import copy
 import math
 
 import pytest
-from helpers import time_budget
+from helpers import raw_config, time_budget
 
 from shape_toolkit.bench import executors
 from shape_toolkit.bench.config import ConfigError, parse_config
@@ -17,22 +16,7 @@ from shape_toolkit.errors import ParameterError
 
 BIG = int("9" * 400)  # TOML integers have any number of digits
 
-BASE = {
-    "run": {"name": "s39", "random_state": 0},
-    "datasets": [{"name": "syn", "kind": "synthetic", "limit": 1, "params": {"n_poses": 2, "subdivisions": 1}}],
-    "tasks": [{"task": "spectrum", "spectrum": {"k": 5}, "methods": [{"plugin": "cotangent"}]}],
-}
-
-
-def _cfg(**changes):
-    raw = copy.deepcopy(BASE)
-    for path, value in changes.items():
-        node = raw
-        keys = path.split(".")
-        for k in keys[:-1]:
-            node = node[int(k)] if k.isdigit() else node[k]
-        node[keys[-1]] = value
-    return raw
+_cfg = raw_config
 
 
 def _refused(raw, key, *words, max_rows=1000):
