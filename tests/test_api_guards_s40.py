@@ -451,3 +451,15 @@ def test_clean_shape_bounds_remesh_iterations_as_the_clean_command(iterations):
 
     with pytest.raises(ParameterError, match="remesh_iterations must be an integer in"):
         clean_shape(icosphere(1), remesh_target_edge=0.1, remesh_iterations=iterations)
+
+
+def test_shortcut_min_ratio_is_at_least_one():
+    """A geodesic is never shorter than the straight line: a min_ratio below 1 only lets a pair of ratio 0 (no pair
+    at all) be bridged; refused, in the config as in the corruption, and 1 is accepted."""
+    from shape_toolkit.data.corruptions import apply_corruption, check_corruption_params
+
+    for bad in (0.5, 0.0, -1.0):
+        with pytest.raises(ParameterError, match="min_ratio"):
+            check_corruption_params("shortcut", {"min_ratio": bad})
+    shape, vmap = apply_corruption(icosphere(2), "shortcut", strength=1, min_ratio=1.0)
+    assert shape.n_faces > icosphere(2).n_faces and len(vmap) == shape.n_vertices

@@ -647,7 +647,9 @@ CORRUPTION_PARAMS: dict[str, dict[str, Param]] = {
               "sliver": Param(Interval(float, 0, 0.5), doc="largest fraction of the vertices a hole may cut off")},
     "micro-holes": {"strength": _strength(0, 0.5, "fraction of the vertices removed")},
     "shortcut": {"strength": _strength(0, 100, "number of shortcuts (rounded)"),
-                 "min_ratio": Param(Interval(float), doc="least geodesic / Euclidean ratio of a shortcut")},
+                 "min_ratio": Param(Interval(float, 1, None), doc="least geodesic / Euclidean ratio of a shortcut "
+                                   "(at least 1: a surface path is never shorter than the straight line, and below "
+                                   "1 a pair of ratio 0, a vertex with itself, would be bridged)")},
     "glue": {"strength": _strength(0, 100, "number of contacts (rounded)"),
              "radius": Param(_POSITIVE, doc="patch radius in sqrt(area)"),
              "min_geodesic": Param(_POSITIVE, doc="least surface distance of a contact in sqrt(area)"),
