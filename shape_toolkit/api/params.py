@@ -227,6 +227,10 @@ def _checked(fn: Callable) -> Callable:
     @functools.wraps(fn)
     def wrapper(self: Any, *args: Any, **kwargs: Any) -> Any:
         self._validate_params()
+        for arg in (*args, *kwargs.values()):  # the shapes given: within the computations' range
+            check = getattr(type(arg), "check_computable", None)
+            if callable(check):
+                check(arg)
         return fn(self, *args, **kwargs)
 
     wrapper._validates = True  # type: ignore[attr-defined]
@@ -235,7 +239,9 @@ def _checked(fn: Callable) -> Callable:
 
 def check_before(cls: type, methods: tuple[str, ...]) -> None:
     """Make each of ``methods`` of ``cls`` (its own or a mixin's; abstract ones aside) call
-    ``self._validate_params()`` first: checked at use, as scikit-learn checks at ``fit``, never in ``__init__``."""
+    ``self._validate_params()`` first: checked at use, as scikit-learn checks at ``fit``, never in ``__init__``;
+    and check every argument that can check itself (a ``Shape``'s ``check_computable``: coordinates within the
+    range the computations' products of areas fit in float64)."""
     for name in methods:
         fn = getattr(cls, name, None)
         if callable(fn) and not getattr(fn, "__isabstractmethod__", False) and not hasattr(fn, "_validates"):

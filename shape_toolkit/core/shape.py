@@ -46,9 +46,10 @@ _FLOAT_MAX = float(np.finfo(np.float64).max)
 _FLOAT_TINY = float(np.finfo(np.float64).tiny)
 
 
-def check_extent(vertices: np.ndarray, n_items: int | None = None, where: str = "") -> float:
+def check_extent(vertices: np.ndarray, n_items: int | None = None, where: str = "", *, power: int = 2) -> float:
     """The bounding-box diagonal of finite ``vertices`` ``(n, 3)``, or :class:`InvalidShapeError` when the
-    shape's squared lengths do not fit float64.
+    shape's squared lengths do not fit float64 (``power=4``: when the products of two areas do not, the rule
+    of the computations, :meth:`Shape.check_computable`).
 
     The rule: every area and squared length the toolkit computes (face and vertex areas, Laplacian
     weights and mass matrices, sums of squared distances over all vertices or faces) must be a
@@ -58,7 +59,14 @@ def check_extent(vertices: np.ndarray, n_items: int | None = None, where: str = 
     underflow below the smallest normal number (coordinates near 1e-154 and below: areas of zero).
     A shape whose vertices all coincide (``d == 0``) passes; its degeneracy is judged where it
     matters. The message names the diagonal, the limit and the fix (rescale the coordinates).
+
+    ``power=4`` is the rule of the computations (spectra, segmentations, matches): the Laplacian's weights and
+    masses, norms of area vectors and area-weighted sums multiply two areas, about ``d**4 / n_items**2`` each. So
+    ``n_items * d**4`` must not overflow (coordinates near 1e76 and beyond) and ``d**4 / n_items**2`` must not
+    underflow (near 1e-75 and below); a shape read or cleaned may lie outside (``info`` works at 1e150).
     """
+    if power not in (2, 4):  # pragma: no cover - programming error
+        raise ValueError(f"power must be 2 or 4, got {power}")
     v = np.asarray(vertices, dtype=np.float64)
     if v.size == 0:
         return 0.0
@@ -72,6 +80,17 @@ def check_extent(vertices: np.ndarray, n_items: int | None = None, where: str = 
     p10 = int(np.floor(np.log10(m)))  # the decimal exponent of the coordinates, for the advice
     with np.errstate(over="ignore", under="ignore"):
         d = float(np.ldexp(d_scaled, e))
+        if power == 4:
+            hi, lo = (_FLOAT_MAX / count) ** 0.25, (_FLOAT_TINY * float(count) ** 2) ** 0.25
+            if not np.isfinite(d) or d > hi or 0 < d < lo:
+                big = not np.isfinite(d) or d > hi
+                raise InvalidShapeError(
+                    f"coordinates too {'large' if big else 'small'} for the toolkit's computations{where}: the "
+                    f"bounding-box diagonal is {d:.3g}, so products of two areas (the Laplacian's weights and "
+                    f"masses) {'overflow' if big else 'underflow'} float64 (for {count} vertices or faces the diagonal "
+                    f"must lie in [{lo:.3g}, {hi:.3g}]); rescale the shape, e.g. "
+                    + (f"divide its coordinates by 1e{p10}" if big else f"multiply its coordinates by 1e{-p10}"))
+            return d
         limit = float(np.sqrt(_FLOAT_MAX / count))
         if not np.isfinite(d) or d > limit:
             shown = f"{d:.3g}" if np.isfinite(d) else f"beyond float64 ({_FLOAT_MAX:.3g})"
@@ -317,6 +336,17 @@ class Shape:
         """Total surface area (squared length units; inf when beyond the float64 range)."""
         with np.errstate(over="ignore"):
             return float(self.face_areas.sum())
+
+    def check_computable(self) -> None:
+        """Refuse (:class:`InvalidShapeError`, naming the fix) a shape whose coordinates are too large or too small
+        for the products of two areas that spectra, segmentations and matches form: :func:`check_extent` with
+        ``power=4`` (the diagonal within about [1e-75, 1e76]). A shape outside can still be read, inspected and
+        cleaned; every plugin's work method (``weigh``, ``detect``, ``compute``, ``match``, ``segment``) checks
+        the shapes it is given first."""
+        if "_computable" not in self.__dict__:
+            where = f" ({self.name})" if self.name else ""
+            check_extent(self.vertices, max(self.n_vertices, self.n_faces), where, power=4)
+            object.__setattr__(self, "_computable", True)
 
     @cached_property
     def bounding_box(self) -> np.ndarray:

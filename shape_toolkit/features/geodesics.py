@@ -51,7 +51,7 @@ from shape_toolkit.core.inspect import (
     edge_face_counts,
     non_manifold_vertices,
 )
-from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.shape import Shape, coordinate_scale
 from shape_toolkit.errors import InvalidShapeError, ParameterError, SolverError, TimeLimitError
 from shape_toolkit.validation import check_vertex_ids
 
@@ -311,6 +311,8 @@ def check_solver_input(shape: Shape, method: str) -> None:
 
 
 def _make_solver(shape: Shape, method: str) -> Any:
+    if method in ("heat", "fmm"):  # their operators multiply areas (the heat method's Laplacian and mass)
+        shape.check_computable()
     check_solver_input(shape, method)  # before any native call: once per shape, cached with the solver
     V = np.ascontiguousarray(shape.vertices, dtype=np.float64)
     if method == "dijkstra":
@@ -324,8 +326,10 @@ def _make_solver(shape: Shape, method: str) -> Any:
                 solver = pp3d.MeshFastMarchingDistanceSolver(V, F)
             elif method == "heat":
                 solver = pp3d.MeshHeatMethodDistanceSolver(V, F, use_robust=True)
-            else:
-                solver = (V, F)
+            else:  # libigl's MMP compares lengths with absolute tolerances (it looped at 1e-30 coordinates): it gets
+                # them divided by a power of two near the largest (exact), and its distances are multiplied back
+                scale = coordinate_scale(V)
+                solver = (V / scale, F, scale)
         except (RuntimeError, ValueError) as exc:
             raise SolverError(f"{method} geodesic solver failed on {shape!r}: {exc}") from None
     return solver
@@ -368,8 +372,8 @@ def _compute_rows(
     for r, s in enumerate(sources):
         try:
             if method == "exact":
-                V, F = solver
-                d = np.asarray(
+                V, F, scale = solver
+                d = scale * np.asarray(
                     __import__("igl").exact_geodesic(
                         V, F, VS=np.array([s], dtype=np.int64), VT=np.arange(n, dtype=np.int64)
                     ),
@@ -530,8 +534,9 @@ def geodesic_distance_to_set(
             else:
                 import igl
 
-                V, F = solver
-                part = igl.exact_geodesic(V, F, VS=group, VT=np.arange(n, dtype=np.int64))
+                V, F, scale = solver
+                part = scale * np.asarray(igl.exact_geodesic(V, F, VS=group, VT=np.arange(n, dtype=np.int64)),
+                                          dtype=np.float64)
         except RuntimeError as exc:
             raise _solve_failed(shape, method, exc) from None
         part = np.asarray(part, dtype=np.float64).ravel()
