@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.shape import Shape, coordinate_scale
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.io.mesh import save_shape
 
@@ -287,7 +287,10 @@ def upright_frame(
     deterministic one is taken."""
     if up not in UP_RULES:
         raise ParameterError(f"up must be one of {', '.join(map(repr, UP_RULES))}, got {up!r}")
-    v = np.asarray(vertices, dtype=np.float64)
+    # every step is scale-free: on coordinates divided by a power of two near the largest (exact), so areas and
+    # second moments stay finite whatever the units (1e100 coordinates made the covariance NaN)
+    scale = coordinate_scale(vertices)
+    v = np.asarray(vertices, dtype=np.float64) / scale
     centre, cov = _moments(v, faces)
     _, vec = np.linalg.eigh(cov)
     e1, e2 = vec[:, 2], vec[:, 1]
@@ -302,7 +305,7 @@ def upright_frame(
     upward = -upward if legs <= -_LEGS else upward if legs >= _LEGS else _heavier_end(upward, c)
     right = _heavier_end(right, c)
     depth = np.cross(upward, right)  # (right, depth, up) right-handed: det(R) = +1
-    return np.stack([right, depth, upward]), centre
+    return np.stack([right, depth, upward]), centre * scale
 
 
 def _frame(v: np.ndarray, faces: np.ndarray | None = None, up: str = "auto") -> np.ndarray:
@@ -322,7 +325,8 @@ def _shaded_faces(v: np.ndarray, faces: np.ndarray, colors: np.ndarray) -> tuple
     ``(m, 3)`` in [0, 1]: the mean vertex colour times ``ambient + (1 - ambient) |n . light|``
     (two-sided, so no face goes black when seen from behind)."""
     tri = v[faces]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    t = tri / coordinate_scale(tri)  # the normals' directions on exactly rescaled coordinates: no overflow at 1e100
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     shade = _AMBIENT + (1.0 - _AMBIENT) * np.abs(n @ _LIGHT)
     return tri, np.clip(colors[faces].mean(axis=1) * shade[:, None], 0, 1)

@@ -13,6 +13,7 @@ from helpers import run_cli, time_budget
 
 from shape_toolkit.core.shape import Shape, check_extent
 from shape_toolkit.data.generate import icosphere
+from shape_toolkit.data.synthetic import articulated_shape
 from shape_toolkit.errors import InvalidShapeError
 from shape_toolkit.io.mesh import save_shape
 
@@ -85,3 +86,42 @@ def test_exact_geodesics_are_scale_free(scale):
     with time_budget(60):  # looped forever at 1e-30 before
         far = geodesic_distances(Shape(s.vertices * scale, s.faces), [0, 7], method="exact", cache=False)
     np.testing.assert_allclose(far / scale, ref, rtol=1e-12, atol=1e-12 * ref.max())
+
+
+@pytest.mark.parametrize("scale", [1e100, 1e-100])
+def test_segmentation_metrics_are_scale_free_at_extreme_scales(tmp_path, capsys, scale):
+    """Area-weighted metrics square face areas: at 1e100 they overflowed (ten warning lines, values through
+    infinities), at 1e-100 they underflowed to zero. The weights are divided by a power of two near the largest."""
+    import json
+
+    s = icosphere(2)
+    labels, truth = (s.vertices[:, 2] > 0.3).astype(int), (s.vertices[:, 0] > 0).astype(int)
+    np.savetxt(tmp_path / "l.txt", labels, fmt="%d")
+    np.savetxt(tmp_path / "t.txt", truth, fmt="%d")
+    got = {}
+    for name, k in (("one", 1.0), ("far", scale)):
+        save_shape(Shape(s.vertices * k, s.faces), tmp_path / f"{name}.off")
+        code, out, err = run_cli(capsys, "evaluate-segmentation", tmp_path / f"{name}.off", tmp_path / "l.txt",
+                                 "--truth", tmp_path / "t.txt", "--json")
+        assert code == 0 and err.strip() == "", err
+        got[name] = json.loads(out)
+    for key in ("rand_index_error", "cut_discrepancy", "hamming", "gce", "lce"):
+        assert got["far"][key] == pytest.approx(got["one"][key], rel=1e-9, abs=1e-12), key
+
+
+@pytest.mark.parametrize("scale", [1e100, 1e-100])
+def test_view_png_at_extreme_scales(tmp_path, capsys, scale):
+    """The upright frame's second moments and the shading normals are taken on exactly rescaled coordinates: at
+    1e100 the frame had failed ('Eigenvalues did not converge', an internal error) and the normals overflowed."""
+    from shape_toolkit.viz import upright_frame
+
+    s = icosphere(2)
+    p = tmp_path / "far.off"
+    save_shape(Shape(s.vertices * scale, s.faces), p)
+    code, out, err = run_cli(capsys, "view", p, "--png", tmp_path / "far.png")
+    assert code == 0 and err.strip() == "" and (tmp_path / "far.png").stat().st_size > 0, err
+    body = articulated_shape(subdivisions=2, random_state=3).shape  # a shape with one upright frame (a sphere has none)
+    R1, c1 = upright_frame(body.vertices, body.faces)
+    R2, c2 = upright_frame(body.vertices * scale, body.faces)
+    np.testing.assert_allclose(R2, R1, atol=1e-9)
+    np.testing.assert_allclose(c2 / scale, c1, atol=1e-12)

@@ -27,6 +27,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse.csgraph import dijkstra, min_weight_full_bipartite_matching
 
 from shape_toolkit.core.graph import edge_length_graph
+from shape_toolkit.core.shape import coordinate_scale
 from shape_toolkit.errors import ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -64,9 +65,11 @@ def _prep(
     w = np.ones(a.size) if weights is None else np.asarray(weights, dtype=np.float64).ravel()
     if w.shape != a.shape:
         raise ParameterError(f"{w.size} weights for {a.size} labels")
-    if not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+    if not np.all(np.isfinite(w)) or np.any(w < 0) or not w.max(initial=0.0) > 0:
         raise ParameterError("weights must be finite, non-negative, with a positive sum")
-    return a, b, w
+    # every metric is a ratio of sums of weights or of their products: divided by a power of two near the largest
+    # (exact), so face areas of 1e-200 or 1e200 neither underflow nor overflow when squared
+    return a, b, w / coordinate_scale(w)
 
 
 #: Tables with at most this many cells use the dense Hungarian solver (the historical reference);
