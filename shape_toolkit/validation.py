@@ -21,7 +21,7 @@ import numpy as np
 from shape_toolkit.errors import ParameterError, ShapeFileError
 
 __all__ = ["check_random_state", "check_vertex_ids", "check_seeds", "finite_number", "jsonable", "dumps_json",
-           "atomic_output", "shown_value", "machine_memory"]
+           "atomic_output", "shown_value", "machine_memory", "first_per_source"]
 
 
 def finite_number(value: Any) -> bool:
@@ -199,6 +199,14 @@ def _fsync(path: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def first_per_source(pairs: np.ndarray) -> np.ndarray:
+    """The rows of ``pairs`` ``(q, 2)`` whose first column (the source vertex) has not appeared before, in their
+    order: one target per source vertex, the earlier (preferred) pair kept."""
+    p = np.asarray(pairs)
+    _, first = np.unique(p[:, 0], return_index=True)
+    return p[np.sort(first)]
 
 
 def machine_memory() -> int | None:

@@ -20,7 +20,7 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import ParameterError
 from shape_toolkit.results.correspondence import Correspondence, transfer_labels
-from shape_toolkit.validation import check_seeds
+from shape_toolkit.validation import check_seeds, first_per_source
 
 __all__ = ["probabilistic_label_transfer", "check_train_labels"]
 
@@ -62,8 +62,6 @@ def probabilistic_label_transfer(
         return transfer_labels(corr, lab, to="target", soft=True), corr
     rev = None
     if seeds is not None:  # reversed: a test vertex two train vertices were seeded to keeps the first of them
-        rev = check_seeds(seeds, train.n_vertices, test.n_vertices)[:, ::-1]
-        _, first = np.unique(rev[:, 0], return_index=True)
-        rev = rev[np.sort(first)]
+        rev = first_per_source(check_seeds(seeds, train.n_vertices, test.n_vertices)[:, ::-1])
     corr = m.match(test, train, seeds=rev)
     return transfer_labels(corr, lab, to="source"), corr

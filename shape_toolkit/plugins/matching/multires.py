@@ -36,7 +36,7 @@ import numpy as np
 from shape_toolkit.core.geometry import edge_components, farthest_point_sampling, flat_faces
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
-from shape_toolkit.validation import check_seeds, check_vertex_ids
+from shape_toolkit.validation import check_seeds, check_vertex_ids, first_per_source
 
 __all__ = ["PROXY_VERTICES", "MATCH_MEMORY", "MATCH_FULL_MEMORY", "match_memory", "check_proxy_size", "make_proxy",
            "lift_map", "interpolated_map", "on_surface", "values_from_proxy", "proxy_seeds",
@@ -214,9 +214,8 @@ def proxy_seeds(seeds: np.ndarray, source: Shape, target: Shape, ids_s: np.ndarr
     Vs, Vt = np.asarray(source.vertices), np.asarray(target.vertices)
     ns = cKDTree(Vs[ids_s]).query(Vs[seeds[:, 0]])[1]
     nt = cKDTree(Vt[ids_t]).query(Vt[seeds[:, 1]])[1]
-    _, first = np.unique(ns, return_index=True)  # two seeds near one proxy vertex: check_seeds refuses both
-    keep = np.sort(first)
-    return np.column_stack([ns[keep], nt[keep]]).astype(np.int64)
+    # two seeds near one proxy vertex: check_seeds would refuse both
+    return first_per_source(np.column_stack([ns, nt]).astype(np.int64))
 
 
 def _spread(P: np.ndarray) -> np.ndarray:
