@@ -22,14 +22,16 @@ the viewpoints that see it (hidden point removal, Katz et al. 2007, from directi
 around the cloud: a visible point's outward normal faces the viewer), and the points no viewpoint sees
 (between legs, inside folds) take their sign from their seen neighbours, most parallel normals first,
 along neighbour pairs that lie in each other's tangent plane, so the far side of a thin part never passes
-its sign across. Open3D's minimum-spanning-tree propagation (the former method) links both sides of a
-thin part and got the sign wrong on 5-28 % of the points of TOSCA dogs and FAUST people
-(`benchmarks/results/cloud_matching_notes.md`).
+its sign across. The few that no such pair reaches (noisy patches) take the sign of their nearest signed
+neighbour, and a piece that nothing reaches faces away from the centroid. Open3D's minimum-spanning-tree
+propagation (the former method) links both sides of a thin part and got the sign wrong on 5-28 % of the points of
+TOSCA dogs and FAUST people (`benchmarks/results/cloud_matching_notes.md`).
 """
 
 from __future__ import annotations
 
 import hashlib
+from typing import Any
 
 import numpy as np
 
@@ -39,7 +41,8 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError
 
 __all__ = [
-    "cloud_surface", "sheet_surface", "outward_normals", "local_delaunay_triangles", "jet_projected", "FAN_NEIGHBORS",
+    "cloud_surface", "sheet_surface", "outward_normals", "pca_normals", "visible_points", "local_delaunay_triangles",
+    "jet_projected", "FAN_NEIGHBORS",
 ]
 
 #: neighbours of each point in its fan (a one-ring has about 6)
@@ -81,37 +84,69 @@ def outward_normals(points: np.ndarray, n_neighbors: int = 10) -> np.ndarray:
     return NORMALS_CACHE.get_or_compute(key, lambda: _outward_normals(P, n_neighbors)).copy()
 
 
+def pca_normals(points: np.ndarray, n_neighbors: int, tree: Any = None) -> np.ndarray:
+    """Unit normals ``(n, 3)`` of a point cloud ``points`` ``(n, 3)``, unsigned: the direction of least variance of
+    each point's ``n_neighbors`` nearest points, itself included (Open3D's ``estimate_normals``; the same lines to
+    about 1e-6 degrees, from LAPACK's symmetric eigensolver). ``tree``: a ``cKDTree`` of the points, if built."""
+    from scipy.spatial import cKDTree
+
+    P = np.asarray(points, dtype=np.float64)
+    tree = cKDTree(P) if tree is None else tree
+    N = np.empty_like(P)
+    k = int(n_neighbors)
+    extra = int(min(k + 6, len(P)))  # a few more, so that equidistant neighbours are chosen by their position
+    for s in range(0, len(P), FAN_CHUNK):  # work arrays of (chunk, k, 3), whatever the size of the cloud
+        d, nb = tree.query(P[s : s + FAN_CHUNK], extra)
+        # the k nearest, exact ties broken by the points' coordinates, not by their order in the file
+        Q = P[nb]
+        rows = np.repeat(np.arange(len(nb)), extra)
+        order = np.lexsort((Q[..., 2].ravel(), Q[..., 1].ravel(), Q[..., 0].ravel(), d.ravel(), rows))
+        nb = nb.ravel()[order].reshape(nb.shape)[:, :k]
+        X = P[nb] - P[nb].mean(axis=1, keepdims=True)
+        N[s : s + FAN_CHUNK] = np.linalg.eigh(np.einsum("nki,nkj->nij", X, X))[1][:, :, 0]
+    return N
+
+
+def visible_points(points: np.ndarray, camera: np.ndarray, radius: float) -> np.ndarray:
+    """Indices (increasing) of the ``points`` ``(n, 3)`` seen from ``camera`` ``(3,)`` by hidden point removal
+    (Katz et al. 2007): each point reflected about the sphere of ``radius`` (same units) centred on the camera, the
+    points on the convex hull of those and the camera are the visible ones (Open3D's ``hidden_point_removal``: the
+    same sets, by the same Qhull). ``scipy.spatial.QhullError`` (a ``RuntimeError``) for a degenerate hull."""
+    from scipy.spatial import ConvexHull
+
+    q = np.asarray(points, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
+    norm = np.linalg.norm(q, axis=1, keepdims=True)
+    hull = ConvexHull(np.vstack([q + 2.0 * (radius - norm) * q / norm, np.zeros((1, 3))]))
+    return np.sort(hull.vertices[hull.vertices < len(q)])
+
+
 def _outward_normals(points: np.ndarray, n_neighbors: int) -> np.ndarray:
     """What :func:`outward_normals` returns, computed (not kept)."""
     import heapq
 
-    import open3d as o3d
     from scipy.spatial import cKDTree
 
     P = np.array(points, dtype=np.float64)
     n_pts = len(P)
     k = int(min(max(n_neighbors, 3), n_pts - 1))
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
-    pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=k))
-    N = np.asarray(pc.normals, dtype=np.float64).copy()
-    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+    tree = cKDTree(P)
+    N = pca_normals(P, k, tree)
     centre = P.mean(axis=0)
     diag = float(np.linalg.norm(np.ptp(P, axis=0)))
     vote = np.zeros(n_pts)
     for d in _sphere_directions(VIEWS):
         cam = centre + VIEW_DISTANCE * diag * d
         try:
-            _, seen = pc.hidden_point_removal(cam, HPR_RADIUS * VIEW_DISTANCE * diag)
+            seen = visible_points(P, cam, HPR_RADIUS * VIEW_DISTANCE * diag)
         except RuntimeError:  # a degenerate hull (e.g. too few points): this viewpoint does not vote
             continue
-        seen = np.asarray(seen, dtype=np.int64)
         to_cam = cam - P[seen]
         # grazing views count little: the cosine between the normal line and the line of sight
         vote[seen] += np.einsum("ij,ij->i", N[seen], to_cam) / np.linalg.norm(to_cam, axis=1)
     sign = np.sign(vote)
     if not sign.any():  # nothing seen (a degenerate cloud): one sign for all, fixed by the caller
         return N
-    _, nb = cKDTree(P).query(P, k + 1)
+    _, nb = tree.query(P, k + 1)
     nb = nb[:, 1:]
     off = P[nb] - P[:, None, :]
     off /= np.maximum(np.linalg.norm(off, axis=2, keepdims=True), 1e-300)
@@ -131,7 +166,18 @@ def _outward_normals(points: np.ndarray, n_neighbors: int) -> np.ndarray:
         if sign[j] == 0:
             sign[j] = sign[i] if dots[i, c] >= 0 else -sign[i]
             reach(j)
-    sign[sign == 0] = 1.0  # not reachable along tangent pairs: left to the caller's global sign
+    # not reachable along tangent pairs (all of a point's neighbours off its plane, as in a noisy patch): in rounds,
+    # the sign of its nearest signed neighbour, carried through their normals' agreement (each round reads the last
+    # one's signs only, so the order of the points does not matter); a piece that none reaches: away from the centre
+    while (todo := np.flatnonzero(sign == 0)).size:
+        signed = sign[nb[todo]] != 0
+        has = signed.any(axis=1)
+        if not has.any():
+            break
+        t, c = todo[has], signed[has].argmax(axis=1)
+        sign[t] = np.where(dots[t, c] >= 0, sign[nb[t, c]], -sign[nb[t, c]])
+    rest = sign == 0
+    sign[rest] = np.where(np.einsum("ij,ij->i", P[rest] - centre, N[rest]) >= 0, 1.0, -1.0)
     return N * sign[:, None]
 
 
