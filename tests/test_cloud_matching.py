@@ -399,3 +399,15 @@ def test_vertex_normals_sum_the_faces_in_face_order():
         for c in range(3):
             np.add.at(N, F[:, c], fn)
         np.testing.assert_array_equal(vertex_normals(X, F), N / np.linalg.norm(N, axis=1, keepdims=True))
+
+
+def test_normals_and_visibility_refuse_bad_arguments():
+    points = icosphere(2).vertices
+    with pytest.raises(ParameterError):
+        pca_normals(points, 2)
+    with pytest.raises(ParameterError):
+        pca_normals(points[:, :2], 10)
+    with pytest.raises(ParameterError):
+        visible_points(points, np.array([0.0, 0.0, 30.0]), 10.0)  # a radius inside the cloud: no spherical flip
+    with pytest.raises(ParameterError):
+        visible_points(points, points[0], 3000.0)  # the camera on a point

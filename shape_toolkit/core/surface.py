@@ -38,7 +38,7 @@ import numpy as np
 from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.geometry import edge_components, signed_volume
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.errors import InvalidShapeError
+from shape_toolkit.errors import InvalidShapeError, ParameterError
 
 __all__ = [
     "cloud_surface", "sheet_surface", "outward_normals", "pca_normals", "visible_points", "local_delaunay_triangles",
@@ -91,9 +91,11 @@ def pca_normals(points: np.ndarray, n_neighbors: int, tree: Any = None) -> np.nd
     from scipy.spatial import cKDTree
 
     P = np.asarray(points, dtype=np.float64)
+    k = int(n_neighbors)
+    if P.ndim != 2 or P.shape[1] != 3 or k < 3:
+        raise ParameterError(f"pca_normals: points must be (n, 3) and n_neighbors at least 3, got {P.shape}, {k}")
     tree = cKDTree(P) if tree is None else tree
     N = np.empty_like(P)
-    k = int(n_neighbors)
     extra = int(min(k + 6, len(P)))  # a few more, so that equidistant neighbours are chosen by their position
     for s in range(0, len(P), FAN_CHUNK):  # work arrays of (chunk, k, 3), whatever the size of the cloud
         d, nb = tree.query(P[s : s + FAN_CHUNK], extra)
@@ -116,6 +118,9 @@ def visible_points(points: np.ndarray, camera: np.ndarray, radius: float) -> np.
 
     q = np.asarray(points, dtype=np.float64) - np.asarray(camera, dtype=np.float64)
     norm = np.linalg.norm(q, axis=1, keepdims=True)
+    if q.ndim != 2 or q.shape[1] != 3 or not (np.isfinite(radius) and radius > norm.max(initial=0.0)) or not norm.all():
+        raise ParameterError("visible_points: points (n, 3), a camera off every point and a radius beyond the "
+                             "farthest point are needed")
     hull = ConvexHull(np.vstack([q + 2.0 * (radius - norm) * q / norm, np.zeros((1, 3))]))
     return np.sort(hull.vertices[hull.vertices < len(q)])
 
