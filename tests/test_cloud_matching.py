@@ -408,6 +408,9 @@ def test_normals_and_visibility_refuse_bad_arguments():
     with pytest.raises(ParameterError):
         pca_normals(points[:, :2], 10)
     with pytest.raises(ParameterError):
+        pca_normals(points[:2], 3)
+    assert np.abs(pca_normals(points[:4], 10)).max() <= 1  # fewer points than neighbours: all of them
+    with pytest.raises(ParameterError):
         visible_points(points, np.array([0.0, 0.0, 30.0]), 10.0)  # a radius inside the cloud: no spherical flip
     with pytest.raises(ParameterError):
         visible_points(points, points[0], 3000.0)  # the camera on a point

@@ -92,8 +92,9 @@ def pca_normals(points: np.ndarray, n_neighbors: int, tree: Any = None) -> np.nd
 
     P = np.asarray(points, dtype=np.float64)
     k = int(n_neighbors)
-    if P.ndim != 2 or P.shape[1] != 3 or k < 3:
-        raise ParameterError(f"pca_normals: points must be (n, 3) and n_neighbors at least 3, got {P.shape}, {k}")
+    if P.ndim != 2 or P.shape[1] != 3 or len(P) < 3 or k < 3:
+        raise ParameterError(f"pca_normals: points must be (n, 3) with n >= 3 and n_neighbors at least 3, got "
+                             f"{P.shape}, {k}")
     tree = cKDTree(P) if tree is None else tree
     N = np.empty_like(P)
     extra = int(min(k + 6, len(P)))  # a few more, so that equidistant neighbours are chosen by their position
