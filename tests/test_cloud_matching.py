@@ -106,6 +106,7 @@ def test_points_no_tangent_pair_reaches_take_the_sign_of_their_nearest_signed_ne
 
     points = icosphere(4).vertices
     monkeypatch.setattr(surface, "TANGENT_COS", -1.0)
+
     def seen_from_above(P, cam, radius):  # the near side of the sphere, but never its lower half
         return np.flatnonzero((P[:, 2] > 0) & (P @ (cam / np.linalg.norm(cam)) > 0.2))
 
@@ -409,7 +410,8 @@ def test_normals_and_visibility_refuse_bad_arguments():
         pca_normals(points[:, :2], 10)
     with pytest.raises(ParameterError):
         pca_normals(points[:2], 3)
-    assert np.abs(pca_normals(points[:4], 10)).max() <= 1  # fewer points than neighbours: all of them
+    few = pca_normals(points[:4], 10)  # fewer points than neighbours: all of them
+    assert few.shape == (4, 3) and np.allclose(np.linalg.norm(few, axis=1), 1.0)
     with pytest.raises(ParameterError):
         visible_points(points, np.array([0.0, 0.0, 30.0]), 10.0)  # a radius inside the cloud: no spherical flip
     with pytest.raises(ParameterError):
