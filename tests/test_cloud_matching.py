@@ -416,3 +416,15 @@ def test_normals_and_visibility_refuse_bad_arguments():
         visible_points(points, np.array([0.0, 0.0, 30.0]), 10.0)  # a radius inside the cloud: no spherical flip
     with pytest.raises(ParameterError):
         visible_points(points, points[0], 3000.0)  # the camera on a point
+
+
+def test_a_fan_whose_every_neighbour_falls_on_the_circle_is_kept(shared_data):
+    """PSB's bearing 348 as its vertices: at a crease of the CAD model one point's neighbours on its sheet end on a
+    near line through it, every one on the circle of its two, and the fan lost all of them at once (an IndexError
+    from `match` on the cloud). Such a fan is kept as it is: the triangles are built, and every point is in one."""
+    from shape_toolkit.core.surface import local_delaunay_triangles
+    from shape_toolkit.io.mesh import load_shape
+
+    P = np.unique(load_shape(shared_data / "psb" / "off" / "348.off").vertices, axis=0)
+    F = local_delaunay_triangles(P, outward_normals(P), 30)
+    assert len(F) and np.isin(np.arange(len(P)), F).all()

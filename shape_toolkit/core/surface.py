@@ -308,6 +308,9 @@ def _fan_chunk(P: np.ndarray, N: np.ndarray, nb: np.ndarray, keep: np.ndarray, r
         # other three (their triangle is not Delaunay; this one stays)
         det = lp * (xs * yn - ys * xn) - ls * (xp * yn - yp * xn) + ln * (xp * ys - yp * xs)
         drop = a & ~ends[live] & (det <= 0)
+        # a row would lose every neighbour (all on one circle through the centre, within rounding, so each is "on
+        # the circle" of its two): any fan of them is Delaunay, keep it as it is
+        drop &= (a & ~drop).any(axis=1)[:, None]
         hit = drop.any(axis=1)
         active[live] = a & ~drop
         live = live[hit]
