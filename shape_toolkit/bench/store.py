@@ -499,8 +499,10 @@ def save_prepared(path: Path, prep: Any, *, key: str = "", inputs: str = "") -> 
             arrays[f"{side}_faces"] = np.asarray(shape.faces, np.int64)
         if shape.colors is not None:
             arrays[f"{side}_colors"] = np.asarray(shape.colors, np.float64)
+        if shape.normals is not None:
+            arrays[f"{side}_normals"] = np.asarray(shape.normals, np.float64)
         header["shapes"][side] = {"name": shape.name, "faces": shape.faces is not None,
-                                  "colors": shape.colors is not None}
+                                  "colors": shape.colors is not None, "normals": shape.normals is not None}
     arrays["vertex_map"] = np.asarray(prep.vertex_map)
     for k in _OPTIONAL:
         v = getattr(prep, k)
@@ -554,7 +556,8 @@ def load_prepared(path: Path, *, key: str | None = None, inputs: str | None = No
             if not np.issubdtype(v.dtype, np.floating) or bad_faces:
                 raise ValueError(f"{side}: bad dtypes")
             colors = arrays[f"{side}_colors"] if info.get("colors") else None
-            shapes[side] = Shape(v, faces, name=str(info["name"]), colors=colors)
+            normals = arrays[f"{side}_normals"] if info.get("normals") else None
+            shapes[side] = Shape(v, faces, name=str(info["name"]), colors=colors, normals=normals)
         n_s, n_t = shapes["source"].n_vertices, shapes["target"].n_vertices
         vmap = _int_array(arrays["vertex_map"], "vertex_map", lambda a: a.ndim == 1 and len(a) == n_t)
         if shapes["clean_target"] is not None:  # the ground truth and rows are on the clean target

@@ -282,7 +282,9 @@ def _finish(shape: Shape, v, f, vmap, rep: CleanupReport) -> tuple[Shape, Cleanu
 
             src[new] = cKDTree(shape.vertices).query(v[new])[1]
         colors = shape.colors[src]
-    out = Shape(v, f, shape.name, colors=colors)
+    # a cloud's points keep their normals (a merged duplicate, its first point's); a mesh's come from its faces
+    normals = shape.normals[vmap] if shape.normals is not None and f is None else None
+    out = Shape(v, f, shape.name, colors=colors, normals=normals)
     rep.n_vertices_after, rep.n_faces_after = out.n_vertices, out.n_faces
     rep.vertex_map = vmap.astype(np.int64)
     return out, rep

@@ -228,8 +228,8 @@ def mesh_info(shape: Shape) -> dict:
     """Counts of vertices, faces, components, boundaries and defects as a JSON-ready dict.
 
     Face-based items are None for a point cloud; ``has_colors`` says whether per-vertex colours
-    were read. ``euler_characteristic`` is V - E + F over all
-    vertices; ``genus`` is given only for a closed, connected, manifold mesh. ``total_area`` is in
+    were read, ``has_normals`` whether a point cloud carries its own normals. ``euler_characteristic`` is
+    V - E + F over all vertices; ``genus`` is given only for a closed, connected, manifold mesh. ``total_area`` is in
     squared file units, ``mean_edge_length`` in file units.
     """
     v = shape.vertices
@@ -240,6 +240,7 @@ def mesh_info(shape: Shape) -> dict:
         "n_faces": shape.n_faces,
         "is_mesh": shape.is_mesh,
         "has_colors": shape.colors is not None,
+        "has_normals": shape.normals is not None,
         "connected_components": None,
         "boundary_loops": None,
         "boundary_edges": None,

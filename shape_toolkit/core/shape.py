@@ -1,5 +1,5 @@
-"""The immutable :class:`Shape`: vertices, optional triangle faces, optional per-vertex colours,
-cheap cached properties."""
+"""The immutable :class:`Shape`: vertices, optional triangle faces, optional per-vertex colours, optional
+outward normals of a point cloud, cheap cached properties."""
 
 from __future__ import annotations
 
@@ -14,6 +14,8 @@ from shape_toolkit.errors import InvalidShapeError, MeshRequiredError
 __all__ = [
     "Shape",
     "check_colors",
+    "check_normals",
+    "NormalsWarning",
     "check_extent",
     "coordinate_scale",
     "duplicate_face_pairs",
@@ -182,6 +184,40 @@ def check_colors(colors: np.ndarray, n_vertices: int, where: str = "") -> np.nda
     return np.clip(c, 0.0, 1.0, out=c)
 
 
+class NormalsWarning(UserWarning):
+    """A point cloud's own normals were not used as given: a file's with zero or non-finite ones (PCL writes NaN
+    for a normal it did not compute) or normals without consistent signs are replaced by estimated ones, and
+    normals pointing inwards are turned (:func:`~shape_toolkit.core.surface.cloud_normals`)."""
+
+
+def check_normals(normals: np.ndarray, n_vertices: int, where: str = "") -> np.ndarray:
+    """Per-point normals as unit float64 ``(n_vertices, 3)`` vectors (each divided by its length), or
+    :class:`InvalidShapeError` for another shape, non-real or non-finite values, or a zero vector (a point whose
+    normal the file does not know: read it without normals and they are estimated for every point)."""
+    a = np.asarray(normals)
+    if a.ndim != 2 or a.shape != (n_vertices, 3):
+        raise InvalidShapeError(f"normals must be an ({n_vertices}, 3) array, got shape {a.shape}{where}")
+    if a.dtype == np.bool_ or not np.issubdtype(a.dtype, np.number) or np.iscomplexobj(a):
+        raise InvalidShapeError(f"normals must be real numbers, got {a.dtype}{where}")
+    a = a.astype(np.float64, copy=True)
+    if not np.isfinite(a).all():
+        i = int(np.flatnonzero(~np.isfinite(a).all(axis=1))[0])
+        raise InvalidShapeError(f"normals must be finite (first bad: point {i}, {a[i].tolist()}){where}")
+    with np.errstate(over="ignore", under="ignore"):
+        if np.all(np.abs(np.linalg.norm(a, axis=1) - 1.0) <= 1e-12):
+            return a  # unit already (a shape's own normals passed on): kept bit for bit, so is the content hash
+    scale = np.abs(a).max(axis=1, keepdims=True)  # no overflow or underflow in the lengths
+    np.divide(a, scale, out=a, where=scale > 0)
+    length = np.linalg.norm(a, axis=1, keepdims=True)
+    if not (length > 0).all():
+        i = int(np.flatnonzero(~(length[:, 0] > 0))[0])
+        raise InvalidShapeError(
+            f"{int((~(length > 0)).sum())} normals are zero vectors (first: point {i}): a normal must have a "
+            f"direction; read the cloud without its normals to have them estimated{where}"
+        )
+    return a / length
+
+
 def _readonly(a: np.ndarray) -> np.ndarray:
     a = np.ascontiguousarray(a)
     a.setflags(write=False)
@@ -202,12 +238,18 @@ class Shape:
     [0, 1] (see :func:`check_colors`: uint8 input is divided by 255, out-of-range values refused).
     Colours are appearance, not geometry: :attr:`content_hash` ignores them, so spectra and other
     geometry caches are shared between a shape and its recoloured copies.
+    ``normals`` (optional, point clouds only) are per-point outward normals, as a scanner or a mesh export writes
+    them: a read-only float64 ``(n, 3)`` array of unit vectors (see :func:`check_normals`). A cloud's Laplacian and
+    orientation tests use them instead of estimating normals from the points
+    (:func:`~shape_toolkit.core.surface.cloud_normals`), so they are geometry: :attr:`content_hash` includes them.
+    A mesh takes its normals from its faces and refuses given ones.
     """
 
     vertices: np.ndarray
     faces: np.ndarray | None = None
     name: str = field(default="")
     colors: np.ndarray | None = None
+    normals: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         v = np.asarray(self.vertices)
@@ -248,6 +290,10 @@ class Shape:
             object.__setattr__(self, "faces", _readonly(f))
         if self.colors is not None:
             object.__setattr__(self, "colors", _readonly(check_colors(self.colors, v.shape[0], where)))
+        if self.normals is not None:
+            if self.faces is not None:
+                raise InvalidShapeError(f"normals are given for point clouds only; a mesh's come from its faces{where}")
+            object.__setattr__(self, "normals", _readonly(check_normals(self.normals, v.shape[0], where)))
 
     # -- basic facts -------------------------------------------------------------------------
     @property
@@ -274,6 +320,7 @@ class Shape:
         kind = f"{self.n_faces} faces" if self.is_mesh else "point cloud"
         nm = f"{self.name!r}, " if self.name else ""
         col = ", coloured" if self.colors is not None else ""
+        col += ", with normals" if self.normals is not None else ""
         return f"Shape({nm}{self.n_vertices} vertices, {kind}{col})"
 
     def require_faces(self, what: str) -> np.ndarray:
@@ -375,15 +422,20 @@ class Shape:
 
     @cached_property
     def content_hash(self) -> str:
-        """SHA-1 of the vertex and face bytes: equal geometries share cached spectra.
+        """SHA-1 of the vertex and face bytes (and of a cloud's given normals): equal geometries share cached
+        spectra.
 
         Colours are deliberately left out: nothing keyed by this hash (spectra, geodesics,
-        adjacency, SDF) depends on them, so recolouring a shape keeps its caches."""
+        adjacency, SDF) depends on them, so recolouring a shape keeps its caches. A cloud's normals are in: its
+        Laplacian is built on them."""
         h = hashlib.sha1()
         h.update(self.vertices.tobytes())
         if self.faces is not None:
             h.update(b"F")
             h.update(self.faces.tobytes())
+        if self.normals is not None:
+            h.update(b"N")
+            h.update(self.normals.tobytes())
         return h.hexdigest()
 
     # -- derived shapes ---------------------------------------------------------------------
@@ -399,15 +451,20 @@ class Shape:
         d = float(np.linalg.norm(b[1] - b[0]))
         if d == 0.0:
             d = 1.0
-        return Shape(v / d, self.faces, self.name, self.colors), centre * s, d * s
+        return Shape(v / d, self.faces, self.name, self.colors, self.normals), centre * s, d * s
 
     def with_vertices(self, vertices: np.ndarray) -> Shape:
-        """Same connectivity and colours, new ``(n, 3)`` coordinates."""
+        """Same connectivity and colours, new ``(n, 3)`` coordinates (a cloud's given normals are dropped: they
+        belonged to the former positions)."""
         return Shape(vertices, self.faces, self.name, self.colors)
 
     def with_colors(self, colors: np.ndarray | None) -> Shape:
         """Same geometry, new per-vertex ``(n, 3)`` colours (None drops them); see :func:`check_colors`."""
-        return Shape(self.vertices, self.faces, self.name, colors)
+        return Shape(self.vertices, self.faces, self.name, colors, self.normals)
+
+    def with_normals(self, normals: np.ndarray | None) -> Shape:
+        """The same point cloud with outward normals ``(n, 3)`` (None drops them); see :func:`check_normals`."""
+        return Shape(self.vertices, self.faces, self.name, self.colors, normals)
 
     def submesh(self, vertex_ids: np.ndarray) -> tuple[Shape, np.ndarray]:
         """Keep the given vertices (and the faces entirely inside them).
@@ -425,4 +482,5 @@ class Shape:
             ff = ff[(ff >= 0).all(axis=1)]
             faces = ff if len(ff) else None
         colors = None if self.colors is None else self.colors[keep]
-        return Shape(self.vertices[keep], faces, self.name, colors), keep
+        normals = None if self.normals is None else self.normals[keep]
+        return Shape(self.vertices[keep], faces, self.name, colors, normals), keep

@@ -25,24 +25,27 @@ along neighbour pairs that lie in each other's tangent plane, so the far side of
 its sign across. The few that no such pair reaches (noisy patches) take the sign of their nearest signed
 neighbour, and a piece that nothing reaches faces away from the centroid. Open3D's minimum-spanning-tree
 propagation (the former method) links both sides of a thin part and got the sign wrong on 5-28 % of the points of
-TOSCA dogs and FAUST people (`benchmarks/results/cloud_matching_notes.md`).
+TOSCA dogs and FAUST people (`benchmarks/results/cloud_matching_notes.md`). Where two parts touch closer than the
+points' spacing no estimate can tell the two sheets apart, so a cloud that carries its own outward normals (a
+scanner's, or a mesh export's: ``Shape.normals``) is used with those (:func:`cloud_normals`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import warnings
 from typing import Any
 
 import numpy as np
 
 from shape_toolkit.core.cache import LRUCache
 from shape_toolkit.core.geometry import edge_components, signed_volume
-from shape_toolkit.core.shape import Shape
+from shape_toolkit.core.shape import NormalsWarning, Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 
 __all__ = [
-    "cloud_surface", "sheet_surface", "outward_normals", "pca_normals", "visible_points", "local_delaunay_triangles",
-    "jet_projected", "FAN_NEIGHBORS",
+    "cloud_surface", "sheet_surface", "cloud_normals", "outward_normals", "pca_normals", "visible_points",
+    "local_delaunay_triangles", "jet_projected", "FAN_NEIGHBORS",
 ]
 
 #: neighbours of each point in its fan (a one-ring has about 6)
@@ -61,7 +64,14 @@ NOISE_SIGMAS = 2.0
 #: points of the local triangulations handled at once: bounds the ``(points, n_neighbors, 3)`` work arrays
 FAN_CHUNK = 1 << 15
 #: outward normals of the last 4 clouds (:func:`outward_normals`), keyed by the points' SHA-1, shape and neighbours
+#: (and a cloud's own normals as checked by :func:`cloud_normals`, keyed by its content hash)
 NORMALS_CACHE = LRUCache(4, name="outward normals")
+#: a cloud's own normals are used as given when at least this share of the points seen from :data:`CHECK_VIEWS`
+#: viewpoints around it face the viewer, turned when at most 1 - this share do, else (not oriented) estimated: three
+#: quarters, halfway between outward normals (all seen points face the viewer) and normals of random signs (half)
+ORIENTED_SHARE = 0.75
+#: viewpoints around a cloud whose seen points judge the cloud's own normals
+CHECK_VIEWS = 6
 
 
 def _sphere_directions(m: int) -> np.ndarray:
@@ -82,6 +92,22 @@ def outward_normals(points: np.ndarray, n_neighbors: int = 10) -> np.ndarray:
     P = np.ascontiguousarray(points, dtype=np.float64)
     key = (hashlib.sha1(P.tobytes()).hexdigest(), P.shape, int(n_neighbors))
     return NORMALS_CACHE.get_or_compute(key, lambda: _outward_normals(P, n_neighbors)).copy()
+
+
+def cloud_normals(shape: Shape, n_neighbors: int = 10) -> np.ndarray:
+    """Unit outward normals ``(n, 3)`` of a point cloud: its own (``shape.normals``, read from its file or given),
+    else estimated from the points (:func:`outward_normals` of ``n_neighbors`` neighbours). Every use of a
+    cloud's normals (its Laplacian's sheets, its local surface, the orientation of maps) goes through here.
+
+    Given normals are checked first, once per cloud (kept in :data:`NORMALS_CACHE`), by the points seen from
+    :data:`CHECK_VIEWS` viewpoints around the cloud (a seen point's outward normal faces the viewer): used as given
+    when at least :data:`ORIENTED_SHARE` of them face the viewers, turned when most face away (normals pointing
+    inwards), else estimated (normals without consistent signs, as PCA lines: half face away). The last two say so
+    with a :class:`~shape_toolkit.core.shape.NormalsWarning`."""
+    if shape.normals is None:
+        return outward_normals(shape.vertices, n_neighbors)
+    key = ("given", shape.content_hash, int(n_neighbors))
+    return NORMALS_CACHE.get_or_compute(key, lambda: _given_normals(shape, n_neighbors)).copy()
 
 
 def pca_normals(points: np.ndarray, n_neighbors: int, tree: Any = None) -> np.ndarray:
@@ -126,6 +152,56 @@ def visible_points(points: np.ndarray, camera: np.ndarray, radius: float) -> np.
     return np.sort(hull.vertices[hull.vertices < len(q)])
 
 
+def _visibility_vote(P: np.ndarray, N: np.ndarray, views: int) -> np.ndarray:
+    """Each point's vote ``(n,)`` for its normal ``N`` ``(n, 3)`` facing outwards: over ``views`` viewpoints spread on
+    a sphere around the cloud ``P`` ``(n, 3)``, the sum of the cosines between the normal and the line of sight to
+    each viewpoint that sees the point (:func:`visible_points`; grazing views count little); 0 for unseen points."""
+    centre = P.mean(axis=0)
+    diag = float(np.linalg.norm(np.ptp(P, axis=0)))
+    vote = np.zeros(len(P))
+    for d in _sphere_directions(views):
+        cam = centre + VIEW_DISTANCE * diag * d
+        try:
+            seen = visible_points(P, cam, HPR_RADIUS * VIEW_DISTANCE * diag)
+        except RuntimeError:  # a degenerate hull (e.g. too few points): this viewpoint does not vote
+            continue
+        to_cam = cam - P[seen]
+        vote[seen] += np.einsum("ij,ij->i", N[seen], to_cam) / np.linalg.norm(to_cam, axis=1)
+    return vote
+
+
+def _tangent_pairs(P: np.ndarray, N: np.ndarray, tree: Any, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's ``k`` nearest neighbours ``(n, k)``, whether each pair lies in both points' tangent planes
+    (``TANGENT_COS``; the pairs along which a sign may pass) and the dot products of their normals ``(n, k)``."""
+    _, nb = tree.query(P, k + 1)
+    nb = nb[:, 1:]
+    off = P[nb] - P[:, None, :]
+    off /= np.maximum(np.linalg.norm(off, axis=2, keepdims=True), 1e-300)
+    tangent = (np.abs(np.einsum("ikc,ic->ik", off, N)) < TANGENT_COS) & (
+        np.abs(np.einsum("ikc,ikc->ik", off, N[nb])) < TANGENT_COS)
+    return nb, tangent, np.einsum("ikc,ic->ik", N[nb], N)
+
+
+def _given_normals(shape: Shape, n_neighbors: int) -> np.ndarray:
+    """What :func:`cloud_normals` returns for a cloud with its own normals, checked (not kept)."""
+    P, N = np.asarray(shape.vertices, dtype=np.float64), np.array(shape.normals, dtype=np.float64)
+    vote = _visibility_vote(P, N, CHECK_VIEWS)
+    seen = int(np.count_nonzero(vote))
+    if seen < 5:  # too few points, or a degenerate cloud: nothing to judge by
+        return N
+    facing = float((vote > 0).sum()) / seen
+    if facing >= ORIENTED_SHARE:
+        return N
+    if facing <= 1.0 - ORIENTED_SHARE:
+        warnings.warn(f"{shape!r}: its normals point inwards ({1 - facing:.0%} of the points seen from outside face "
+                      "away), so they are used turned outwards", NormalsWarning, stacklevel=3)
+        return -N
+    warnings.warn(f"{shape!r}: its normals are not oriented (of the points seen from outside, {facing:.0%} face the "
+                  "viewer and the others away), so they are estimated from the points instead", NormalsWarning,
+                  stacklevel=3)
+    return outward_normals(P, n_neighbors)
+
+
 def _outward_normals(points: np.ndarray, n_neighbors: int) -> np.ndarray:
     """What :func:`outward_normals` returns, computed (not kept)."""
     import heapq
@@ -138,27 +214,10 @@ def _outward_normals(points: np.ndarray, n_neighbors: int) -> np.ndarray:
     tree = cKDTree(P)
     N = pca_normals(P, k, tree)
     centre = P.mean(axis=0)
-    diag = float(np.linalg.norm(np.ptp(P, axis=0)))
-    vote = np.zeros(n_pts)
-    for d in _sphere_directions(VIEWS):
-        cam = centre + VIEW_DISTANCE * diag * d
-        try:
-            seen = visible_points(P, cam, HPR_RADIUS * VIEW_DISTANCE * diag)
-        except RuntimeError:  # a degenerate hull (e.g. too few points): this viewpoint does not vote
-            continue
-        to_cam = cam - P[seen]
-        # grazing views count little: the cosine between the normal line and the line of sight
-        vote[seen] += np.einsum("ij,ij->i", N[seen], to_cam) / np.linalg.norm(to_cam, axis=1)
-    sign = np.sign(vote)
+    sign = np.sign(_visibility_vote(P, N, VIEWS))
     if not sign.any():  # nothing seen (a degenerate cloud): one sign for all, fixed by the caller
         return N
-    _, nb = tree.query(P, k + 1)
-    nb = nb[:, 1:]
-    off = P[nb] - P[:, None, :]
-    off /= np.maximum(np.linalg.norm(off, axis=2, keepdims=True), 1e-300)
-    tangent = (np.abs(np.einsum("ikc,ic->ik", off, N)) < TANGENT_COS) & (
-        np.abs(np.einsum("ikc,ikc->ik", off, N[nb])) < TANGENT_COS)
-    dots = np.einsum("ikc,ic->ik", N[nb], N)
+    nb, tangent, dots = _tangent_pairs(P, N, tree, k)
     heap: list[tuple[float, int, int, int]] = []
 
     def reach(i: int) -> None:
@@ -200,7 +259,7 @@ def cloud_surface(shape: Shape, n_neighbors: int = FAN_NEIGHBORS) -> Shape:
     k = int(min(n_neighbors, n - 1))
     if k < 3:
         raise InvalidShapeError(f"{shape!r}: a local surface needs at least 4 points")
-    normals = outward_normals(P, max(k, 10))
+    normals = cloud_normals(shape, max(k, 10))
     _, nb = cKDTree(P).query(P, k + 1)
     nb = nb[:, 1:]  # (n, k), self excluded
     e1, e2 = _tangent_frames(normals)  # neighbours' angles about the normal
@@ -238,7 +297,7 @@ def sheet_surface(shape: Shape, n_neighbors: int = 30) -> Shape:
     P = np.asarray(shape.vertices, dtype=np.float64)
     if len(P) < 5:
         raise InvalidShapeError(f"{shape!r}: a local surface needs at least 5 points")
-    F = local_delaunay_triangles(P, outward_normals(P), min(int(n_neighbors), len(P) - 1))
+    F = local_delaunay_triangles(P, cloud_normals(shape), min(int(n_neighbors), len(P) - 1))
     if len(F) == 0:
         raise InvalidShapeError(f"{shape!r}: the points span no surface (all collinear?)")
     return Shape(P, F, name=shape.name)

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from shape_toolkit.api.params import Interval, Param, validate_params
+from shape_toolkit.api.params import InstanceOf, Interval, Param, validate_params
 from shape_toolkit.core.cleanup import MAX_REMESH_ITERATIONS, MAX_REMESH_VERTICES
 from shape_toolkit.core.geometry import edge_components
 from shape_toolkit.core.inspect import largest_face_piece
@@ -563,19 +563,31 @@ def subdivide(shape: Shape, *, splits: int = 2, random_state: int = 0) -> Corrup
     return Shape(v, nf, shape.name, _carried_colors(shape, vmap)), vmap
 
 
-def point_cloud(shape: Shape, *, strength: float = 0.0, points: int = 0, random_state: int = 0) -> Corruption:
+def point_cloud(
+    shape: Shape, *, strength: float = 0.0, points: int = 0, normals: bool = False, random_state: int = 0
+) -> Corruption:
     """The shape as a point cloud (no faces): its distinct vertices (``points = 0``; coincident vertices are
     one point) or ``points`` samples uniform in area on its triangles, each moved by isotropic Gaussian noise
     of standard deviation ``strength`` bounding-box diagonals per coordinate (0.005: 0.5 % of the diagonal).
     The vertex map names, for each point, its vertex (the first of coincident ones) or the vertex nearest to
-    where it was sampled (before the noise), so a map to the cloud is scored on the mesh it came from."""
-    _checked("point-cloud", strength=strength, points=points)
+    where it was sampled (before the noise), so a map to the cloud is scored on the mesh it came from.
+    ``normals``: the cloud carries the mesh's outward normals, as a scanner's or a mesh export's cloud does
+    (``Shape.normals``): a vertex's own, or at a sample the normals of its triangle's corners interpolated
+    barycentrically (where the point was sampled, before the noise)."""
+    _checked("point-cloud", strength=strength, points=points, normals=normals)
     s = float(strength)
     rng = np.random.default_rng(random_state)
     V = np.asarray(shape.vertices, dtype=np.float64)
+    N = None
+    if normals:
+        from shape_toolkit.core.geometry import outward_vertex_normals
+
+        VN = outward_vertex_normals(shape.normalized()[0])  # unit normals, whatever the units
     if points == 0:
         first = np.sort(np.unique(V, axis=0, return_index=True)[1]).astype(np.int64)
         P, vmap = V[first], first
+        if normals:
+            N = VN[first]
     else:
         f = shape.require_faces("point_cloud with points > 0")
         area = np.asarray(shape.face_areas, dtype=np.float64)
@@ -588,11 +600,14 @@ def point_cloud(shape: Shape, *, strength: float = 0.0, points: int = 0, random_
         T = V[f[tri]]
         P = T[:, 0] + u[:, :1] * (T[:, 1] - T[:, 0]) + u[:, 1:] * (T[:, 2] - T[:, 0])
         vmap = cKDTree(V).query(P)[1].astype(np.int64)
+        if normals:
+            Nf = VN[f[tri]]
+            N = Nf[:, 0] + u[:, :1] * (Nf[:, 1] - Nf[:, 0]) + u[:, 1:] * (Nf[:, 2] - Nf[:, 0])
     if s > 0:
         P = P + rng.normal(scale=s * shape.diagonal, size=P.shape)
     if len(np.unique(P, axis=0)) < len(P):
         raise InvalidShapeError(f"{shape!r}: the cloud has coincident points; use another random_state")
-    return Shape(P, None, shape.name, _carried_colors(shape, vmap)), vmap
+    return Shape(P, None, shape.name, _carried_colors(shape, vmap), N), vmap
 
 
 #: corruption name (as used in configs) -> function
@@ -666,7 +681,8 @@ CORRUPTION_PARAMS: dict[str, dict[str, Param]] = {
     "point-cloud": {"strength": _strength(0, 1, "noise in bounding-box diagonals"),
                     "points": Param(Interval(int, 0, 0), Interval(int, 2, MAX_VERTICES),
                                     doc="points sampled (0: the vertices), at most shape_toolkit.io.mesh.MAX_VERTICES "
-                                        "as no shape has more vertices")},
+                                        "as no shape has more vertices"),
+                    "normals": Param(InstanceOf(bool), doc="the cloud carries the mesh's outward normals")},
 }
 
 

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shape_toolkit.core.shape import Shape, check_no_duplicate_faces, duplicate_face_pairs
+from shape_toolkit.core.shape import NormalsWarning, Shape, check_no_duplicate_faces, duplicate_face_pairs
 from shape_toolkit.errors import InvalidShapeError, ParameterError, ShapeFileError
 from shape_toolkit.validation import atomic_output
 
@@ -56,6 +56,7 @@ __all__ = [
     "MAX_FILE_BYTES",
     "MAX_VERTICES",
     "MESH_FORMATS",
+    "NormalsWarning",
     "POINT_FORMATS",
     "declared_vertices",
     "load_shape",
@@ -81,6 +82,8 @@ MAX_TEXTURE_PIXELS = 2**27
 _Parsed = tuple[np.ndarray, "np.ndarray | None"]
 #: vertices, faces, colours (float64 ``(n, 3)`` in [0, 1], or integer 8-bit / uint16 values)
 _ParsedColors = tuple[np.ndarray, "np.ndarray | None", "np.ndarray | None"]
+#: the same and a point cloud's normals as the file gives them (``(n, 3)``, or None)
+_ParsedNormals = tuple[np.ndarray, "np.ndarray | None", "np.ndarray | None", "np.ndarray | None"]
 
 
 class _Err(Exception):
@@ -101,7 +104,8 @@ class ColorWarning(UserWarning):
 # public API
 # --------------------------------------------------------------------------------------------
 def load_shape(
-    path: str | Path, *, kind: str = "auto", duplicate_faces: str = "error", colors: bool = True
+    path: str | Path, *, kind: str = "auto", duplicate_faces: str = "error", colors: bool = True,
+    normals: bool = True,
 ) -> Shape:
     """Read a mesh or point cloud file into a :class:`Shape` (vertices in file units).
 
@@ -110,8 +114,13 @@ def load_shape(
     spectrum): "error" (default: refuse, naming ``shape-toolkit clean``), "drop" (keep the first of
     each, with a :class:`DuplicateFacesWarning`) or "keep" (for inspection and repair: ``info``,
     ``clean``). ``colors``: read per-vertex colours (and sample OBJ textures) into
-    ``Shape.colors`` when the file has them; False reads the geometry alone. Raises
-    :class:`ShapeFileError` naming the file (or the texture / material file) for any problem.
+    ``Shape.colors`` when the file has them; False reads the geometry alone. ``normals``: a point
+    cloud keeps the per-point normals of its file (PLY ``nx ny nz``, PCD ``normal_x normal_y normal_z``, XYZ
+    normal columns) in ``Shape.normals``, where the cloud's Laplacian and orientation tests take them as the
+    outward normals instead of estimating them (:func:`~shape_toolkit.core.surface.cloud_normals`); False, or
+    a mesh, ignores them, and a file with a zero or non-finite normal has them all estimated instead (a
+    :class:`NormalsWarning` says so). Raises :class:`ShapeFileError` naming the file (or the texture /
+    material file) for any problem.
     """
     if kind not in ("auto", "mesh", "points"):
         raise ParameterError(f"kind must be 'auto', 'mesh' or 'points', got {kind!r}")
@@ -142,7 +151,9 @@ def load_shape(
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")  # numpy's loadtxt warnings are dropped; problems are raised below
-            vertices, faces, vcolors = reader(p, bool(colors))
+            parsed = reader(p, bool(colors))
+            vertices, faces, vcolors = parsed[:3]
+            vnormals = parsed[3] if len(parsed) > 3 else None
     except _Err as e:
         raise ShapeFileError(p, str(e)) from None
     except OSError as e:
@@ -194,8 +205,18 @@ def load_shape(
                     DuplicateFacesWarning,
                     stacklevel=2,
                 )
+    if vnormals is not None and (faces is not None or not normals):
+        vnormals = None  # a mesh's normals come from its faces
+    if vnormals is not None:
+        length = np.linalg.norm(np.nan_to_num(np.asarray(vnormals, dtype=np.float64), posinf=0.0, neginf=0.0), axis=1)
+        bad = ~(np.isfinite(vnormals).all(axis=1) & (length > 0))
+        if bad.any():
+            warnings.warn(f"{p}: {int(bad.sum())} points have a zero or non-finite normal (first: point "
+                          f"{int(np.flatnonzero(bad)[0])}), so the file's normals are not used: every normal is "
+                          "estimated from the points", NormalsWarning, stacklevel=2)
+            vnormals = None
     try:
-        return Shape(vertices, faces, name=p.stem, colors=vcolors)
+        return Shape(vertices, faces, name=p.stem, colors=vcolors, normals=vnormals)
     except InvalidShapeError as e:
         raise ShapeFileError(p, str(e)) from None
 
@@ -208,7 +229,8 @@ def save_shape(shape: Shape, path: str | Path, *, binary: bool = False) -> None:
     are written with full float64 precision (except STL, which stores float32). Colours are written
     to PLY (``uchar red green blue``, rounded to 8 bits), OFF (as COFF, RGBA floats, exact), OBJ
     (``v x y z r g b``, exact), XYZ (``x y z r g b``, exact) and PCD (packed ``rgb``, 8 bits); STL
-    stores geometry only.
+    stores geometry only. A point cloud's normals (``Shape.normals``) are written exactly to PLY (``double nx ny
+    nz``), XYZ (``x y z nx ny nz [r g b]``) and PCD (``normal_x normal_y normal_z``), and left out of OFF and OBJ.
     """
     p = Path(path)
     ext = p.suffix.lower()
@@ -689,14 +711,14 @@ def _obj_texture_colors(p: Path, libs: list[str], corners: np.ndarray, uv_rows: 
 # --------------------------------------------------------------------------------------------
 # XYZ
 # --------------------------------------------------------------------------------------------
-def _read_xyz(p: Path, want_colors: bool = True) -> _ParsedColors:
+def _read_xyz(p: Path, want_colors: bool = True) -> _ParsedNormals:
     """``x y z`` rows (spaces or commas). The first line's column count sets the layout of every row (a row
     with another count is an error): six columns are ``x y z r g b`` (8-bit or [0, 1], see
     :func:`_text_colors`), unless the last three columns are unit vectors with a negative entry: ``x
-    y z nx ny nz`` normals, which are ignored. Nine columns are ``x y z nx ny nz r g b``
+    y z nx ny nz`` normals. Nine columns are ``x y z nx ny nz r g b``
     (CloudCompare / Open3D exports) or ``x y z r g b nx ny nz``: the triple that is a unit vector on
-    every row is the normals (ignored; the first layout when both are), the other the colour; when
-    neither is, the points are read without colour and a :class:`ColorWarning` says so."""
+    every row is the normals (the first layout when both are), the other the colour; when
+    neither is, the points are read without colour or normals and a :class:`ColorWarning` says so."""
     text = _read_text(p)
     rows = _content(text.replace(",", " ") if "," in text else text)
     _check_count(len(rows), "points")
@@ -705,17 +727,17 @@ def _read_xyz(p: Path, want_colors: bool = True) -> _ParsedColors:
         table = _floats(rows, 6, "point with colour (x y z r g b)", exact=True)
         extra = table[:, 3:]
         if (extra < 0).any() and _unit_rows(extra):
-            return table[:, :3], None, None  # normals
-        return table[:, :3], None, _text_colors(extra, "XYZ point")
+            return table[:, :3], None, None, extra
+        return table[:, :3], None, _text_colors(extra, "XYZ point"), None
     if ncols == 9:
         table = _floats(rows, 9, "point with normal and colour (x y z nx ny nz r g b)", exact=True)
         for normals, colors in ((table[:, 3:6], table[:, 6:]), (table[:, 6:], table[:, 3:6])):
             if _unit_rows(normals):
-                return table[:, :3], None, _text_colors(colors, "XYZ point")
+                return table[:, :3], None, _text_colors(colors, "XYZ point"), normals
         warnings.warn("nine columns, but neither columns 4-6 nor 7-9 are unit normals on every row, so "
                       "the colour columns are unknown: points read without colour", ColorWarning, stacklevel=2)
-        return table[:, :3], None, None
-    return _floats(rows, 3, "point"), None, None
+        return table[:, :3], None, None, None
+    return _floats(rows, 3, "point"), None, None, None
 
 
 def _unit_rows(a: np.ndarray) -> bool:
@@ -763,7 +785,7 @@ def _ply_colors(vert: dict, types: dict[str, str]) -> np.ndarray | None:
     return np.stack(cols, axis=1)
 
 
-def _read_ply(p: Path, want_colors: bool = True) -> _ParsedColors:
+def _read_ply(p: Path, want_colors: bool = True) -> _ParsedNormals:
     data = p.read_bytes()
     end = data.find(b"end_header")
     if not data.startswith(b"ply") or end < 0:
@@ -812,6 +834,9 @@ def _read_ply(p: Path, want_colors: bool = True) -> _ParsedColors:
         if c not in vert:
             raise _Err(f"PLY vertex element has no '{c}' property")
     vertices = np.stack([np.asarray(vert[c], dtype=np.float64) for c in "xyz"], axis=1)
+    normals = None
+    if all(c in vert for c in ("nx", "ny", "nz")):
+        normals = np.stack([np.asarray(vert[c], dtype=np.float64) for c in ("nx", "ny", "nz")], axis=1)
     colors = None
     if want_colors:
         vprops = next(props for name, _, props in elements if name == "vertex")
@@ -825,7 +850,7 @@ def _read_ply(p: Path, want_colors: bool = True) -> _ParsedColors:
         faces = face[key]
         if isinstance(faces, list):
             faces = _fan(faces)
-    return vertices, faces, colors
+    return vertices, faces, colors, normals
 
 
 def _check_ply_size(elements: list, fmt: str, n_bytes: int) -> None:
@@ -1028,6 +1053,15 @@ def _unpack_rgb(bits: np.ndarray) -> np.ndarray:
     return np.stack([(b >> 16) & 255, (b >> 8) & 255, b & 255], axis=1)
 
 
+#: PCD normal fields (PCL's ``PointNormal``)
+_PCD_NORMALS = ("normal_x", "normal_y", "normal_z")
+
+
+def _has_normals(names: list[str], counts: list[int]) -> bool:
+    """Whether a PCD file has the three normal fields, one value each."""
+    return all(c in names and counts[names.index(c)] == 1 for c in _PCD_NORMALS)
+
+
 def _pcd_colors(names: list[str], sizes: list[int], types: list[str], counts: list[int],
                 column: Callable[[str], np.ndarray]) -> np.ndarray | None:
     """Colours of a PCD file: a packed ``rgb``/``rgba`` field (4 bytes; float fields are
@@ -1049,7 +1083,7 @@ def _pcd_colors(names: list[str], sizes: list[int], types: list[str], counts: li
     return _ply_colors(vert, typ)
 
 
-def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedColors:
+def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedNormals:
     data = p.read_bytes()
     fields: dict[str, list[str]] = {}
     pos = 0
@@ -1103,7 +1137,8 @@ def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedColors:
         colors = None
         if want_colors:
             colors = _pcd_colors(names, sizes, types, counts, lambda nm: _floats(rows, [at(nm)], nm)[:, 0])
-        return table, None, colors
+        normals = _floats(rows, [at(c) for c in _PCD_NORMALS], "normal") if _has_normals(names, counts) else None
+        return table, None, colors, normals
     if mode == "binary":
         try:
             dt = np.dtype([(nm, f"<{_PCD_KINDS[t.upper()]}{sz}", (c,) if c > 1 else ())
@@ -1116,7 +1151,10 @@ def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedColors:
         colors = None
         if want_colors:
             colors = _pcd_colors(names, sizes, types, counts, lambda nm: np.ascontiguousarray(arr[nm]))
-        return np.stack([arr[c].astype(np.float64) for c in "xyz"], axis=1), None, colors
+        normals = None
+        if _has_normals(names, counts):
+            normals = np.stack([arr[c].astype(np.float64) for c in _PCD_NORMALS], axis=1)
+        return np.stack([arr[c].astype(np.float64) for c in "xyz"], axis=1), None, colors, normals
     if mode != "binary_compressed":
         raise _Err(f"unknown PCD DATA mode {mode!r}")
     del data
@@ -1128,7 +1166,8 @@ def _read_pcd(p: Path, want_colors: bool = True) -> _ParsedColors:
     if pts.shape[0] != n:  # Open3D returns an empty cloud instead of raising
         raise _Err(f"header declares {n} points but Open3D could read {pts.shape[0]}")
     colors = np.asarray(pc.colors, dtype=np.float64) if want_colors and pc.has_colors() else None
-    return pts, None, colors
+    normals = np.asarray(pc.normals, dtype=np.float64) if pc.has_normals() else None
+    return pts, None, colors, normals
 
 
 # --------------------------------------------------------------------------------------------
@@ -1158,31 +1197,39 @@ def _write_obj(fh, shape: Shape, binary: bool) -> None:
 
 
 def _write_xyz(fh, shape: Shape, binary: bool) -> None:
-    fh.write(_fmt_rows(shape.vertices, *([] if shape.colors is None else [shape.colors])))
+    # x y z [nx ny nz] [r g b]: the layouts the reader tells apart (normals are unit rows)
+    blocks = [b for b in (shape.vertices, shape.normals, shape.colors) if b is not None]
+    fh.write(_fmt_rows(*blocks))
 
 
 def _write_pcd(fh, shape: Shape, binary: bool) -> None:
     n, rgb = shape.n_vertices, shape.colors is not None  # colours: PCL's packed float rgb (bits 0x00RRGGBB)
+    nrm = shape.normals is not None
     fh.write(
         (
-            f"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z{' rgb' * rgb}\n"
-            f"SIZE 8 8 8{' 4' * rgb}\nTYPE F F F{' F' * rgb}\nCOUNT 1 1 1{' 1' * rgb}\nWIDTH {n}\nHEIGHT 1\n"
+            f"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
+            f"FIELDS x y z{' normal_x normal_y normal_z' * nrm}{' rgb' * rgb}\n"
+            f"SIZE 8 8 8{' 8 8 8' * nrm}{' 4' * rgb}\nTYPE F F F{' F F F' * nrm}{' F' * rgb}\n"
+            f"COUNT 1 1 1{' 1 1 1' * nrm}{' 1' * rgb}\nWIDTH {n}\nHEIGHT 1\n"
             f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA ascii\n"
         ).encode()
     )
+    geometry = [shape.vertices] + ([shape.normals] if nrm else [])
     if not rgb:
-        fh.write(_fmt_rows(shape.vertices))
+        fh.write(_fmt_rows(*geometry))
         return
     c = np.round(shape.colors * 255.0).astype(np.uint32)
     packed = ((c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]).view(np.float32)
     # the float32 value as a double prints exactly, and reads back to the same 32 bits
-    fh.write(_fmt_rows(shape.vertices, packed[:, None].astype(np.float64)))
+    fh.write(_fmt_rows(*geometry, packed[:, None].astype(np.float64)))
 
 
 def _write_ply(fh, shape: Shape, binary: bool) -> None:
     fmt = f"binary_{sys.byteorder}_endian" if binary else "ascii"
     head = f"ply\nformat {fmt} 1.0\nelement vertex {shape.n_vertices}\n"
     head += "property double x\nproperty double y\nproperty double z\n"
+    if shape.normals is not None:
+        head += "property double nx\nproperty double ny\nproperty double nz\n"
     rgb = None
     if shape.colors is not None:  # 8-bit, as viewers expect
         rgb = np.round(shape.colors * 255.0).astype(np.uint8)
@@ -1190,17 +1237,18 @@ def _write_ply(fh, shape: Shape, binary: bool) -> None:
     if shape.faces is not None:
         head += f"element face {shape.n_faces}\nproperty list uchar int vertex_indices\n"
     fh.write((head + "end_header\n").encode())
+    geometry = [shape.vertices] + ([] if shape.normals is None else [shape.normals])
     if not binary:
-        fh.write(_fmt_rows(shape.vertices, *([] if rgb is None else [rgb])))
+        fh.write(_fmt_rows(*geometry, *([] if rgb is None else [rgb])))
         if shape.faces is not None:
             fh.write(_fmt_rows(shape.faces, prefix="3 "))
         return
-    if rgb is None:
-        fh.write(np.ascontiguousarray(shape.vertices, dtype="=f8").tobytes())
-    else:
-        rec = np.empty(shape.n_vertices, dtype=[("v", "=f8", (3,)), ("c", "u1", (3,))])
-        rec["v"], rec["c"] = shape.vertices, rgb
-        fh.write(rec.tobytes())
+    rec = np.empty(shape.n_vertices, dtype=[("v", "=f8", (3 * len(geometry),))]
+                   + ([] if rgb is None else [("c", "u1", (3,))]))
+    rec["v"] = np.hstack(geometry)
+    if rgb is not None:
+        rec["c"] = rgb
+    fh.write(rec.tobytes())
     if shape.faces is not None:
         rec = np.empty(shape.n_faces, dtype=[("n", "u1"), ("i", "=i4", (3,))])
         rec["n"], rec["i"] = 3, shape.faces
@@ -1227,7 +1275,7 @@ def _write_stl(fh, shape: Shape, binary: bool) -> None:
     fh.write("".join(parts).encode())
 
 
-_READERS: dict[str, Callable[[Path, bool], _ParsedColors]] = {
+_READERS: dict[str, Callable[[Path, bool], _ParsedColors | _ParsedNormals]] = {
     ".off": _read_off, ".obj": _read_obj, ".ply": _read_ply, ".stl": _read_stl, ".xyz": _read_xyz, ".pcd": _read_pcd
 }
 _WRITERS = {".off": _write_off, ".obj": _write_obj, ".ply": _write_ply, ".stl": _write_stl, ".xyz": _write_xyz,

@@ -119,12 +119,13 @@ def check_proxy_size(n_vertices: object) -> int:
 
 def make_proxy(shape: Shape, n_vertices: int = PROXY_VERTICES) -> tuple[Shape, np.ndarray]:
     """A proxy of about ``n_vertices`` vertices and the input vertex ``(p,)`` of each of its vertices
-    (decimation moves no vertex; clouds: farthest-point samples)."""
+    (decimation moves no vertex; clouds: farthest-point samples, with their given normals if any)."""
     n_vertices = check_proxy_size(n_vertices)
     V = np.asarray(shape.vertices, dtype=np.float64)
     if not shape.is_mesh:
         ids = farthest_point_sampling(V, int(n_vertices), ordered=False)
-        return Shape(V[ids], None, name=f"{shape.name}-proxy"), ids
+        normals = None if shape.normals is None else shape.normals[ids]
+        return Shape(V[ids], None, name=f"{shape.name}-proxy", normals=normals), ids
     import pymeshlab
     from scipy.spatial import cKDTree
 

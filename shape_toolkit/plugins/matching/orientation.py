@@ -22,7 +22,7 @@ import numpy as np
 from shape_toolkit.core.geometry import farthest_point_sampling, outward_vertex_normals
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.core.spectrum import Spectrum
-from shape_toolkit.core.surface import outward_normals
+from shape_toolkit.core.surface import cloud_normals
 from shape_toolkit.features.basis import Basis, basis_of, map_residual
 from shape_toolkit.plugins.matching.descriptors import shared_spectra
 from shape_toolkit.plugins.matching.side_cache import SideCache, cached, scoped, side_cache_scope
@@ -35,9 +35,9 @@ __all__ = [
 
 
 def _outward(shape: Shape) -> np.ndarray:
-    """Unit outward normals ``(n, 3)`` of a mesh's vertices, or of a point cloud's points (PCA normals signed by
-    visibility: :func:`~shape_toolkit.core.surface.outward_normals`, computed once per cloud)."""
-    return outward_vertex_normals(shape) if shape.is_mesh else outward_normals(shape.vertices)
+    """Unit outward normals ``(n, 3)`` of a mesh's vertices, or of a point cloud's points (its own, else PCA normals
+    signed by visibility: :func:`~shape_toolkit.core.surface.cloud_normals`, estimated once per cloud)."""
+    return outward_vertex_normals(shape) if shape.is_mesh else cloud_normals(shape)
 
 
 def orientation_votes(
@@ -110,7 +110,7 @@ def orientation_verdict(
     ``preserving`` or ``reversing`` when ``|z| >= ORIENTATION_Z`` (3), else ``undecided``: a mirror image
     (left and right swapped) is never reported as a sound map. A map that swaps left and right *and*
     front and back (a half turn) keeps orientation, so this test does not see it. Point clouds vote with
-    their outward normals (:func:`~shape_toolkit.core.surface.outward_normals`); maps of fewer than 4 matches
+    their outward normals (:func:`~shape_toolkit.core.surface.cloud_normals`); maps of fewer than 4 matches
     are ``undecided``."""
     t = np.asarray(target_of, dtype=np.int64).ravel()
     out: dict[str, Any] = {"verdict": "undecided", "score": 0.0, "z": 0.0, "samples": 0}

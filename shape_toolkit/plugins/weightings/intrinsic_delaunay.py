@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from shape_toolkit.api.interfaces import Weighting, Weights
 from shape_toolkit.api.params import Interval, Options, Param
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.surface import jet_projected, local_delaunay_triangles, outward_normals
+from shape_toolkit.core.surface import cloud_normals, jet_projected, local_delaunay_triangles
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 
 
@@ -35,7 +35,8 @@ class IntrinsicDelaunayWeighting(Weighting):
 
     ``cloud_neighbors`` (point clouds): ``'sheet'`` (default) triangulates around each point only the
     neighbours on its own sheet of the surface (:func:`shape_toolkit.core.surface.local_delaunay_triangles`,
-    with the outward normals of :func:`~shape_toolkit.core.surface.outward_normals`), so that parts touching
+    with the outward normals of :func:`~shape_toolkit.core.surface.cloud_normals`: the cloud's own, else
+    estimated), so that parts touching
     in space are not linked; ``'all'`` takes all ``n_neighbors`` (robust_laplacian's point-cloud Laplacian, the
     former default). On the tune half of the cloud benchmark (``benchmarks/results/cloud_matching_notes.md``)
     the sheets brought the spectra of TOSCA dogs and FAUST people closer to their meshes'.
@@ -111,7 +112,7 @@ class IntrinsicDelaunayWeighting(Weighting):
                         centred(v), mollify_factor=self.mollify_factor, n_neighbors=self.n_neighbors
                     )
                 else:
-                    normals = outward_normals(v)
+                    normals = cloud_normals(shape)
                     triangles = local_delaunay_triangles(v, normals, self.n_neighbors)
                     if self.cloud_smoothing == "jet":  # the same triangles, their lengths and areas denoised
                         v = jet_projected(v, normals, self.n_neighbors)
