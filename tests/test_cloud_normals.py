@@ -140,6 +140,29 @@ def test_normals_without_consistent_signs_are_estimated_and_inward_ones_turned()
                                       outward_normals(cloud.vertices))
 
 
+def test_an_open_scans_consistent_normals_are_kept_though_its_outside_is_unknown():
+    """An open, wavy sheet, as one scan of a surface sees it, with the normals of one of its sides: viewpoints all
+    around see it from both sides (about half its points face them), so they cannot tell its outside; its normals
+    agree between neighbours, so they are kept as they are, without a warning, either way up. With random signs the
+    same points have theirs estimated."""
+    from shape_toolkit.core.shape import NormalsWarning
+    from shape_toolkit.core.surface import CHECK_VIEWS, _visibility_vote
+
+    x, y = (a.ravel() for a in np.meshgrid(np.linspace(-1, 1, 40), np.linspace(-1, 1, 40)))
+    V = np.column_stack([x, y, 0.15 * np.sin(3 * x) * np.cos(2 * y)])
+    N = np.column_stack([-0.45 * np.cos(3 * x) * np.cos(2 * y), 0.3 * np.sin(3 * x) * np.sin(2 * y), np.ones_like(x)])
+    for side in (N, -N):
+        scan = Shape(V, None, "sheet", normals=side)
+        vote = _visibility_vote(V, scan.normals, CHECK_VIEWS)
+        assert 0.3 < (vote > 0).mean() < 0.7  # the views cannot tell
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            np.testing.assert_array_equal(cloud_normals(scan), scan.normals)
+    signs = np.random.default_rng(1).choice([-1.0, 1.0], size=(len(V), 1))
+    with pytest.warns(NormalsWarning, match="not oriented"):
+        cloud_normals(Shape(V, None, "sheet", normals=N * signs))
+
+
 def test_a_clouds_proxy_keeps_its_points_normals():
     from shape_toolkit.plugins.matching.multires import make_proxy
 

@@ -101,9 +101,12 @@ def cloud_normals(shape: Shape, n_neighbors: int = 10) -> np.ndarray:
 
     Given normals are checked first, once per cloud (kept in :data:`NORMALS_CACHE`), by the points seen from
     :data:`CHECK_VIEWS` viewpoints around the cloud (a seen point's outward normal faces the viewer): used as given
-    when at least :data:`ORIENTED_SHARE` of them face the viewers, turned when most face away (normals pointing
-    inwards), else estimated (normals without consistent signs, as PCA lines: half face away). The last two say so
-    with a :class:`~shape_toolkit.core.shape.NormalsWarning`."""
+    when at least :data:`ORIENTED_SHARE` of them face the viewers, turned when at most ``1 - ORIENTED_SHARE`` do
+    (normals pointing inwards). Between, the views cannot tell (an open surface, one side of a scan, is seen from both
+    sides; signs at random face the viewer half the time): they are used as given when their signs agree between
+    neighbours, else (more than ``1 - ORIENTED_SHARE`` of the pairs of neighbours in each other's tangent planes face
+    opposite ways, as PCA lines without signs do half the time) estimated instead. Turned or estimated normals are
+    announced by a :class:`~shape_toolkit.core.shape.NormalsWarning`."""
     if shape.normals is None:
         return outward_normals(shape.vertices, n_neighbors)
     key = ("given", shape.content_hash, int(n_neighbors))
@@ -196,9 +199,15 @@ def _given_normals(shape: Shape, n_neighbors: int) -> np.ndarray:
         warnings.warn(f"{shape!r}: its normals point inwards ({1 - facing:.0%} of the points seen from outside face "
                       "away), so they are used turned outwards", NormalsWarning, stacklevel=3)
         return -N
-    warnings.warn(f"{shape!r}: its normals are not oriented (of the points seen from outside, {facing:.0%} face the "
-                  "viewer and the others away), so they are estimated from the points instead", NormalsWarning,
-                  stacklevel=3)
+    # the views cannot tell: an open surface (one side of a scan, seen from both sides) or signs at random
+    from scipy.spatial import cKDTree
+
+    _, tangent, dots = _tangent_pairs(P, N, cKDTree(P), int(min(max(n_neighbors, 3), len(P) - 1)))
+    opposite = float((tangent & (dots < 0)).sum()) / max(int(tangent.sum()), 1)
+    if opposite <= 1.0 - ORIENTED_SHARE:
+        return N
+    warnings.warn(f"{shape!r}: its normals are not oriented ({opposite:.0%} of neighbouring points on one plane face "
+                  "opposite ways), so they are estimated from the points instead", NormalsWarning, stacklevel=3)
     return outward_normals(P, n_neighbors)
 
 
