@@ -163,6 +163,17 @@ def test_an_open_scans_consistent_normals_are_kept_though_its_outside_is_unknown
         cloud_normals(Shape(V, None, "sheet", normals=N * signs))
 
 
+def test_a_rigid_motion_turns_a_clouds_normals_with_it():
+    from shape_toolkit.data.corruptions import rigid_motion
+
+    mesh = articulated_shape(subdivisions=2, random_state=5).shape
+    cloud, _ = point_cloud(mesh, normals=True)
+    moved, _ = rigid_motion(cloud, strength=0.5, random_state=3)
+    assert not np.allclose(moved.normals, cloud.normals)
+    np.testing.assert_allclose(moved.normals, outward_vertex_normals(rigid_motion(mesh, strength=0.5,
+                                                                                  random_state=3)[0]), atol=1e-9)
+
+
 def test_a_clouds_proxy_keeps_its_points_normals():
     from shape_toolkit.plugins.matching.multires import make_proxy
 

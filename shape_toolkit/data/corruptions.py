@@ -86,7 +86,8 @@ def rigid_motion(
     shape: Shape, *, strength: float = 1.0, scale: float = 1.0, random_state: int = 0
 ) -> Corruption:
     """Rotate by ``strength * pi`` rad about a random axis, translate by ``strength`` bounding-box
-    diagonals in a random direction and scale by ``scale``; the vertex map is the identity."""
+    diagonals in a random direction and scale by ``scale`` (a point cloud's own normals turn with it); the vertex
+    map is the identity."""
     _checked("rigid", strength=strength, scale=scale)
     s = float(strength)
     rng = np.random.default_rng(random_state)
@@ -95,7 +96,8 @@ def rigid_motion(
     t *= s * shape.diagonal / max(np.linalg.norm(t), 1e-300)
     c = shape.vertices.mean(axis=0)
     v = scale * (shape.vertices - c) @ R.T + c + t
-    return shape.with_vertices(v), _identity(shape)
+    moved = shape.with_vertices(v)  # a cloud's own normals turn with it
+    return (moved if shape.normals is None else moved.with_normals(shape.normals @ R.T)), _identity(shape)
 
 
 def scaling(shape: Shape, *, strength: float = 0.5, random_state: int = 0) -> Corruption:
