@@ -55,12 +55,14 @@ def test_tosca_matching_scores_every_truth_point_with_dijkstra(shared_data, monk
 
 def test_cloud_matching_config_matches_two_clouds_on_report_pairs(shared_data, monkeypatch):
     """Both shapes become clouds and are scored on the clean mesh; only report-half pairs (no dog, FAUST
-    people 2-4); 7 pairs x (3 mesh rows + 4 cloud settings x 2 pipelines) = 77 rows."""
+    people 2-4); 7 pairs x (3 mesh rows + 4 cloud settings, with and without the meshes' normals, x 2 pipelines)
+    = 133 rows."""
     monkeypatch.setenv("TOOLKIT_DATA", str(shared_data))
     cfg = load_config(CONFIGS / "cloud_matching.toml")
-    assert cfg.planned_rows == 77
+    assert cfg.planned_rows == 133
     clouds = next(t for t in cfg.tasks if t.task_name == "clouds")
     assert clouds.options["corrupt"] == "both" and clouds.options["score_on"] == "clean"
+    assert sorted(str(c.params.get("normals")) for c in clouds.corruptions) == ["None"] * 4 + ["True"] * 4
     items = [r.name for d in cfg.datasets.values() for r in d.refs]
     assert len(items) == 7 and not any("dog" in i for i in items)
     people = [int(s[-3:]) // 10 for i in items if i.startswith("tr_reg") for s in i.split("-")]
