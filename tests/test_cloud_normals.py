@@ -61,7 +61,8 @@ def test_a_mesh_refuses_given_normals():
         Shape(mesh.vertices, mesh.faces, "m", normals=np.ones_like(mesh.vertices))
 
 
-@pytest.mark.parametrize("ext, binary", [("ply", False), ("ply", True), ("xyz", False), ("pcd", False)])
+@pytest.mark.parametrize("ext, binary", [("ply", False), ("ply", True), ("xyz", False), ("pcd", False),
+                                         ("off", False)])
 @pytest.mark.parametrize("coloured", [False, True])
 def test_normals_survive_a_file_round_trip(tmp_path, ext, binary, coloured):
     P, N = _cloud()
@@ -231,6 +232,19 @@ def test_cleaning_a_cloud_keeps_its_normals_and_info_reports_them():
     assert clean.n_vertices == len(P) and report.duplicate_vertices_merged == 5
     np.testing.assert_array_equal(clean.normals, doubled.normals[report.vertex_map])
     assert mesh_info(clean)["has_normals"] and not mesh_info(clean.with_normals(None))["has_normals"]
+
+
+def test_a_noff_clouds_normals_are_read_and_a_meshs_are_not(tmp_path):
+    cloud = tmp_path / "cloud.off"
+    cloud.write_text("NOFF\n3 0 0\n0 0 0 0 0 2\n1 0 0 0 0 1\n0 1 0 0 0 1\n")
+    np.testing.assert_array_equal(load_shape(cloud).normals, np.tile([0.0, 0.0, 1.0], (3, 1)))
+    mesh = tmp_path / "mesh.off"  # a mesh's rows were read as coordinates only, and still are
+    mesh.write_text("NOFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    assert load_shape(mesh).is_mesh
+    short = tmp_path / "short.off"  # a cloud that declares normals must give them
+    short.write_text("NOFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n")
+    with pytest.raises(ShapeFileError, match="NOFF vertex normal needs 6 numbers"):
+        load_shape(short)
 
 
 def test_files_with_normals_refuse_what_they_refused_before(tmp_path):

@@ -115,7 +115,7 @@ def load_shape(
     each, with a :class:`DuplicateFacesWarning`) or "keep" (for inspection and repair: ``info``,
     ``clean``). ``colors``: read per-vertex colours (and sample OBJ textures) into
     ``Shape.colors`` when the file has them; False reads the geometry alone. ``normals``: a point
-    cloud keeps the per-point normals of its file (PLY ``nx ny nz``, PCD ``normal_x normal_y normal_z``, XYZ
+    cloud keeps the per-point normals of its file (PLY ``nx ny nz``, PCD ``normal_x normal_y normal_z``, NOFF, XYZ
     normal columns) in ``Shape.normals``, where the cloud's Laplacian and orientation tests take them as the
     outward normals instead of estimating them (:func:`~shape_toolkit.core.surface.cloud_normals`); False, or
     a mesh, ignores them, and a file with a zero or non-finite normal has them all estimated instead (a
@@ -230,7 +230,8 @@ def save_shape(shape: Shape, path: str | Path, *, binary: bool = False) -> None:
     to PLY (``uchar red green blue``, rounded to 8 bits), OFF (as COFF, RGBA floats, exact), OBJ
     (``v x y z r g b``, exact), XYZ (``x y z r g b``, exact) and PCD (packed ``rgb``, 8 bits); STL
     stores geometry only. A point cloud's normals (``Shape.normals``) are written exactly to PLY (``double nx ny
-    nz``), XYZ (``x y z nx ny nz [r g b]``) and PCD (``normal_x normal_y normal_z``), and left out of OFF and OBJ.
+    nz``), OFF (as NOFF or CNOFF), XYZ (``x y z nx ny nz [r g b]``) and PCD (``normal_x normal_y normal_z``), and left
+    out of OBJ.
     """
     p = Path(path)
     ext = p.suffix.lower()
@@ -400,7 +401,7 @@ def _fan(polys: list[list[int]], where: list[int] | None = None) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # OFF
 # --------------------------------------------------------------------------------------------
-def _read_off(p: Path, want_colors: bool = True) -> _ParsedColors:
+def _read_off(p: Path, want_colors: bool = True) -> _ParsedNormals:
     lines = _content(_read_text(p))
     if not lines:
         raise _Err("file has no content")
@@ -430,13 +431,15 @@ def _read_off(p: Path, want_colors: bool = True) -> _ParsedColors:
     body = lines[k:]
     if len(body) < nv:
         raise _Err(f"truncated: header declares {nv} vertices but the file has {len(body)} lines")
-    colors = None
+    colors = normals = None
     if head.startswith("C") and want_colors:  # COFF: x y z r g b [a]; CNOFF: x y z nx ny nz r g b [a]
         s = 6 if head == "CNOFF" else 3
         table = _floats(body[:nv], [0, 1, 2, s, s + 1, s + 2], f"{head} vertex (coordinates and colour)")
         vertices, colors = table[:, :3], _text_colors(table[:, 3:], head)
     else:
         vertices = _floats(body[:nv], 3, "vertex")
+    if "N" in head and nf == 0:  # a cloud's NOFF, CNOFF: the normal follows the coordinates (a mesh's are not read)
+        normals = _floats(body[:nv], [3, 4, 5], f"{head} vertex normal")
     frows = body[nv:]
     if len(frows) < nf:
         raise _Err(
@@ -446,8 +449,8 @@ def _read_off(p: Path, want_colors: bool = True) -> _ParsedColors:
         ln = frows[nf][0]
         raise _Err(f"line {ln}: unexpected content after the {nf} declared faces")
     if nf == 0:
-        return vertices, None, colors
-    return vertices, _parse_counted_faces(frows), colors
+        return vertices, None, colors, normals
+    return vertices, _parse_counted_faces(frows), colors, normals
 
 
 def _parse_counted_faces(rows: list[tuple[int, str]]) -> np.ndarray:
@@ -1181,11 +1184,13 @@ def _fmt_rows(*blocks: np.ndarray, prefix: str = "") -> bytes:
 
 
 def _write_off(fh, shape: Shape, binary: bool) -> None:
-    if shape.colors is None:
-        fh.write(f"OFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode() + _fmt_rows(shape.vertices))
-    else:  # COFF: x y z r g b a, colours as floats in [0, 1]
-        fh.write(f"COFF\n{shape.n_vertices} {shape.n_faces} 0\n".encode())
-        fh.write(_fmt_rows(shape.vertices, shape.colors, np.ones((shape.n_vertices, 1))))
+    # [C][N]OFF: x y z [nx ny nz] [r g b a], colours as floats in [0, 1]
+    head = "C" * (shape.colors is not None) + "N" * (shape.normals is not None) + "OFF"
+    fh.write(f"{head}\n{shape.n_vertices} {shape.n_faces} 0\n".encode())
+    blocks = [b for b in (shape.vertices, shape.normals) if b is not None]
+    if shape.colors is not None:
+        blocks += [shape.colors, np.ones((shape.n_vertices, 1))]
+    fh.write(_fmt_rows(*blocks))
     if shape.faces is not None:
         fh.write(_fmt_rows(shape.faces, prefix="3 "))
 
