@@ -234,6 +234,22 @@ def test_cleaning_a_cloud_keeps_its_normals_and_info_reports_them():
     assert mesh_info(clean)["has_normals"] and not mesh_info(clean.with_normals(None))["has_normals"]
 
 
+@pytest.mark.parametrize("scale", [1e308, 1e-320])
+def test_a_files_huge_or_subnormal_normals_are_directions_read_without_a_warning(tmp_path, scale):
+    """1e308 overflowed a length (a RuntimeWarning printed by every command) and 1e-320 underflowed to a zero length,
+    which dropped the file's normals as if they were missing; each is a direction."""
+    P, N = _cloud()
+    N = N / np.linalg.norm(N, axis=1, keepdims=True)
+    path = tmp_path / "c.ply"
+    path.write_text(f"ply\nformat ascii 1.0\nelement vertex {len(P)}\n" + "".join(
+        f"property double {c}\n" for c in ("x", "y", "z", "nx", "ny", "nz")) + "end_header\n" + "".join(
+        " ".join(repr(float(x)) for x in (*p, *(n * scale))) + "\n" for p, n in zip(P, N)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = load_shape(path)
+    np.testing.assert_allclose(back.normals, N, atol=1e-12 if scale > 1 else 1e-2)  # subnormals hold ~11 bits
+
+
 def test_a_noff_clouds_normals_are_read_and_a_meshs_are_not(tmp_path):
     cloud = tmp_path / "cloud.off"
     cloud.write_text("NOFF\n3 0 0\n0 0 0 0 0 2\n1 0 0 0 0 1\n0 1 0 0 0 1\n")

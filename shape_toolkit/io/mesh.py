@@ -208,8 +208,8 @@ def load_shape(
     if vnormals is not None and (faces is not None or not normals):
         vnormals = None  # a mesh's normals come from its faces
     if vnormals is not None:
-        length = np.linalg.norm(np.nan_to_num(np.asarray(vnormals, dtype=np.float64), posinf=0.0, neginf=0.0), axis=1)
-        bad = ~(np.isfinite(vnormals).all(axis=1) & (length > 0))
+        vn = np.asarray(vnormals, dtype=np.float64)
+        bad = ~np.isfinite(vn).all(axis=1) | ~(vn != 0).any(axis=1)  # non-finite, or a zero vector (no length taken)
         if bad.any():
             warnings.warn(f"{p}: {int(bad.sum())} points have a zero or non-finite normal (first: point "
                           f"{int(np.flatnonzero(bad)[0])}), so the file's normals are not used: every normal is "
