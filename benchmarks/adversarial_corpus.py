@@ -251,6 +251,22 @@ def mesh_corpus(folder: Path) -> dict[str, Path]:
                                          [[0, 1, 2], [0, 1, 3], [0, 1, 4]])
     files["tetrahedron.off"] = _off([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]],
                                     [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    # -- point clouds with their own normals (session 42): bad values are dropped or refused, bad signs mended
+    sphere_n = v / np.linalg.norm(v, axis=1, keepdims=True)
+
+    def cloud_ply(normals) -> str:
+        head = (f"ply\nformat ascii 1.0\nelement vertex {len(v)}\n" + "".join(
+            f"property double {c}\n" for c in ("x", "y", "z", "nx", "ny", "nz")) + "end_header\n")
+        return head + "".join(" ".join(repr(float(x)) for x in (*p, *n)) + "\n" for p, n in zip(v, normals))
+
+    files["normals_good.ply"] = cloud_ply(sphere_n)
+    files["normals_nan.ply"] = cloud_ply(np.where(np.arange(len(v))[:, None] == 3, np.nan, sphere_n))
+    files["normals_zero.ply"] = cloud_ply(np.where(np.arange(len(v))[:, None] == 3, 0.0, sphere_n))
+    files["normals_1e308.ply"] = cloud_ply(sphere_n * 1e308)
+    files["normals_inward.ply"] = cloud_ply(-sphere_n)
+    files["normals_random_signs.ply"] = cloud_ply(sphere_n * np.random.default_rng(2).choice([-1.0, 1.0], (len(v), 1)))
+    files["noff_cloud_without_normals.off"] = f"NOFF\n{len(v)} 0 0\n" + "".join(
+        " ".join(repr(float(x)) for x in p) + "\n" for p in v)
     # -- names that end up in outputs: HTML, LaTeX, control characters
     for name in NASTY_NAMES:
         files[f"{name}.off"] = good_off

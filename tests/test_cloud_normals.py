@@ -263,6 +263,27 @@ def test_a_noff_clouds_normals_are_read_and_a_meshs_are_not(tmp_path):
         load_shape(short)
 
 
+def test_a_commands_warning_is_printed_when_it_succeeds_and_not_before_its_refusal(tmp_path, capsys):
+    """A cloud file with a NaN normal: `info` succeeds and prints the warning on one line; `evaluate-segmentation`
+    refuses a cloud, and its one error line stands alone (the warning before it made two lines)."""
+    from shape_toolkit.cli import main
+
+    P, N = _cloud()
+    N[3] = np.nan
+    path = tmp_path / "nan.ply"
+    path.write_text(f"ply\nformat ascii 1.0\nelement vertex {len(P)}\n" + "".join(
+        f"property double {c}\n" for c in ("x", "y", "z", "nx", "ny", "nz")) + "end_header\n" + "".join(
+        " ".join(repr(float(x)) for x in (*p, *n)) + "\n" for p, n in zip(P, N)))
+    labels = tmp_path / "labels.txt"
+    labels.write_text("0\n" * len(P))
+    assert main(["info", str(path)]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and "warning" in err[0] and "non-finite normal" in err[0]
+    assert main(["evaluate-segmentation", str(path), str(labels), "--truth", str(labels)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and "error" in err[0] and "triangle mesh" in err[0]
+
+
 def test_files_with_normals_refuse_what_they_refused_before(tmp_path):
     bad = tmp_path / "bad.ply"
     bad.write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"

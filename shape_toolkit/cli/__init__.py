@@ -117,7 +117,24 @@ def _one_line(text: object) -> str:
 
 
 def _call(args: argparse.Namespace) -> int:
-    """Run the command in this process: every error one line, with its exit code."""
+    """Run the command in this process: every error one line, with its exit code. Warnings are held until the
+    command succeeds, then printed (one line each); a command that fails prints its error line alone, not a warning
+    about its input before it (a cloud file's dropped normals, then the refusal of a cloud)."""
+    held: list[tuple[tuple, dict]] = []
+    show = warnings.showwarning
+    warnings.showwarning = lambda *w, **kw: held.append((w, kw))
+    try:
+        code = _command(args)
+    finally:
+        warnings.showwarning = show
+    if code == 0:
+        for w, kw in held:
+            show(*w, **kw)
+    return code
+
+
+def _command(args: argparse.Namespace) -> int:
+    """:func:`_call`'s work: the command's exit code, each error printed as one line."""
     try:
         return int(args.func(args) or 0)
     except ToolkitError as exc:
