@@ -1183,11 +1183,16 @@ def _fmt_rows(*blocks: np.ndarray, prefix: str = "") -> bytes:
     return "".join(prefix + " ".join(map(repr, chain(*row))) + "\n" for row in rows).encode()
 
 
+def _point_columns(shape: Shape) -> list[np.ndarray]:
+    """The per-point geometry every writer puts first: coordinates ``(n, 3)``, then a cloud's normals ``(n, 3)``."""
+    return [shape.vertices] + ([] if shape.normals is None else [shape.normals])
+
+
 def _write_off(fh, shape: Shape, binary: bool) -> None:
     # [C][N]OFF: x y z [nx ny nz] [r g b a], colours as floats in [0, 1]
     head = "C" * (shape.colors is not None) + "N" * (shape.normals is not None) + "OFF"
     fh.write(f"{head}\n{shape.n_vertices} {shape.n_faces} 0\n".encode())
-    blocks = [b for b in (shape.vertices, shape.normals) if b is not None]
+    blocks = _point_columns(shape)
     if shape.colors is not None:
         blocks += [shape.colors, np.ones((shape.n_vertices, 1))]
     fh.write(_fmt_rows(*blocks))
@@ -1203,8 +1208,7 @@ def _write_obj(fh, shape: Shape, binary: bool) -> None:
 
 def _write_xyz(fh, shape: Shape, binary: bool) -> None:
     # x y z [nx ny nz] [r g b]: the layouts the reader tells apart (normals are unit rows)
-    blocks = [b for b in (shape.vertices, shape.normals, shape.colors) if b is not None]
-    fh.write(_fmt_rows(*blocks))
+    fh.write(_fmt_rows(*_point_columns(shape), *([] if shape.colors is None else [shape.colors])))
 
 
 def _write_pcd(fh, shape: Shape, binary: bool) -> None:
@@ -1219,7 +1223,7 @@ def _write_pcd(fh, shape: Shape, binary: bool) -> None:
             f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA ascii\n"
         ).encode()
     )
-    geometry = [shape.vertices] + ([shape.normals] if nrm else [])
+    geometry = _point_columns(shape)
     if not rgb:
         fh.write(_fmt_rows(*geometry))
         return
@@ -1242,7 +1246,7 @@ def _write_ply(fh, shape: Shape, binary: bool) -> None:
     if shape.faces is not None:
         head += f"element face {shape.n_faces}\nproperty list uchar int vertex_indices\n"
     fh.write((head + "end_header\n").encode())
-    geometry = [shape.vertices] + ([] if shape.normals is None else [shape.normals])
+    geometry = _point_columns(shape)
     if not binary:
         fh.write(_fmt_rows(*geometry, *([] if rgb is None else [rgb])))
         if shape.faces is not None:
