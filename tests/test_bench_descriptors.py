@@ -145,6 +145,7 @@ def test_vertices_a_method_leaves_unreached_are_counted_not_averaged():
 
     class P:
         target = icosphere(2)
+        clean_target = None
 
     ids = np.array([0])
     rows = geodesic_distances(P.target, ids, method="exact").copy()

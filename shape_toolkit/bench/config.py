@@ -1106,7 +1106,8 @@ def _validate_options(adapter: Any, options: Any, where: str) -> dict[str, Any]:
         raise ConfigError(where, "must be a table")
     from shape_toolkit.bench.tasks import COMMON_OPTIONS
 
-    known = sorted({*adapter.option_defaults, *COMMON_OPTIONS})  # COMMON_OPTIONS: every task's
+    # COMMON_OPTIONS: every task's; protocol_options: how the task's items are prepared
+    known = sorted({*adapter.option_defaults, *COMMON_OPTIONS, *adapter.protocol_options})
     for k in options:
         if k not in known:
             raise ConfigError(f"{where}.{k}", f"unknown {adapter.name} option {k!r}; known: {', '.join(known)}")

@@ -211,7 +211,7 @@ def plan(
                     }
                     protocol = {k: task.options[k] for k, default in (("score_on", "target"), ("target", "pair"),
                                                                       ("truth_points", "random"), ("corrupt", "target"))
-                                if geo and task.options.get(k, default) != default}
+                                if (geo or k in adapter.protocol_options) and task.options.get(k, default) != default}
                     pident.update(protocol)  # only when set: the keys of earlier runs stay valid
                     pkey = row_key(pident)
                     prep = preps.get(pkey)

@@ -349,6 +349,23 @@ class TaskAdapter:
     default_metrics: tuple[str, ...] = ()
     #: metric name -> (function(prepared, output, options) -> {column: value}, required shape_toolkit.metrics names)
     metrics: dict[str, tuple[Callable[..., dict[str, Any]], tuple[str, ...]]] = {}
+    #: options of how an item is prepared (:func:`prepare`'s ``score_on``, ``target``) this task takes beside a
+    #: matching task, which takes them all; each kept in the options (a row's key) only when not its default
+    protocol_options: tuple[str, ...] = ()
+
+    def _pop_protocol(self, options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+        """``options`` without the :attr:`protocol_options`, and those checked, the defaults left out."""
+        if not isinstance(options, dict):
+            raise ParameterError("options must be a table")
+        rest, proto = dict(options), {}
+        for key in self.protocol_options:
+            if key in rest:
+                value, allowed = rest.pop(key), {"score_on": SCORE_ON, "target": TARGETS}[key]
+                if value not in allowed:
+                    raise ParameterError(f"{key} must be one of {', '.join(map(repr, allowed))}, got {value!r}")
+                if value != allowed[0]:
+                    proto[key] = value
+        return rest, proto
 
     def check_options(self, options: dict[str, Any]) -> dict[str, Any]:
         """Options merged over the defaults; unknown keys raise :class:`ParameterError`. Every task
@@ -519,8 +536,13 @@ def _m_n_keypoints(p, o, opt):
 
 def _m_repeatability(p, o, opt):
     """Keypoint repeatability in both directions through the ground-truth map
-    (:func:`shape_toolkit.metrics.repeatability_report`); columns per radius and a curve."""
+    (:func:`shape_toolkit.metrics.repeatability_report`); columns per radius and a curve. Scored on the clean
+    target (``score_on = "clean"``), the target's keypoints are taken there through the corruption's back-map
+    (a point cloud's point: its vertex, or the nearest vertex of the mesh it was sampled from)."""
     report, gt_map = lookup_metric("repeatability_report"), lookup_metric("ground_truth_map")
+    if p.clean_target is not None:
+        p, kp = score_on_clean(p, o["keypoints"])
+        o = {**o, "keypoints": np.unique(kp[kp >= 0])}
     if p.truth is None or not len(p.truth):
         raise ParameterError(f"item {p.name!r} has no ground-truth map for repeatability")
     a_to_b = gt_map(p.source, p.truth[:, 0], p.truth[:, 1], p.target.n_vertices)
@@ -559,6 +581,13 @@ class KeypointsTask(TaskAdapter):
         "n_keypoints": (_m_n_keypoints, ()),
         "repeatability": (_m_repeatability, ("repeatability_report", "ground_truth_map")),
     }
+    #: ``score_on = "clean"``: repeatability on the clean target (keypoints of a point cloud scored on its mesh);
+    #: ``target = "self"``: the source against a corrupted copy of itself (the identity as ground truth)
+    protocol_options = ("score_on", "target")
+
+    def check_options(self, options):
+        rest, proto = self._pop_protocol(options)
+        return {**super().check_options(rest), **proto}
 
     def run(self, method, prepared, spectra, options, random_state, detector=None, detector_spectra=None):
         return {
@@ -1229,7 +1258,11 @@ def _m_relative_error(p, o, opt):
     rows = np.asarray(o["reference_rows"])
     ids = np.asarray(o["sources"])[: len(rows)]
     # the reference rows are cached in the worker (content hash, method, source): every method compares to one copy
-    ref = geodesic_distances(p.target, ids, method=opt["reference"])
+    if p.clean_target is None:
+        ref = geodesic_distances(p.target, ids, method=opt["reference"])
+    else:  # on the clean shape, read at each point's vertex there (score_on = "clean")
+        vmap = np.asarray(p.vertex_map, dtype=np.int64)
+        ref = geodesic_distances(p.clean_target, vmap[ids], method=opt["reference"])[:, vmap]
     far = np.isfinite(ref) & (ref > 0.01 * np.max(ref[np.isfinite(ref)], initial=0.0))
     # a vertex the reference reaches and the method does not (inf, NaN) is counted apart, never averaged in
     reached = far & np.isfinite(rows)
@@ -1261,9 +1294,13 @@ class GeodesicsTask(TaskAdapter):
     default_metrics = ("relative_error", "sources")
     metrics = {"relative_error": (_m_relative_error, ()), "sources": (_m_sources, ())}
     uses_spectra = False
+    #: ``score_on = "clean"``: the reference on the uncorrupted shape, read at each point's vertex there (a point
+    #: cloud's distances against its mesh's)
+    protocol_options = ("score_on",)
 
     def check_options(self, options):
-        o = super().check_options(options)
+        rest, proto = self._pop_protocol(options)
+        o = {**super().check_options(rest), **proto}
         check_positive_ints(o, ("sources", "reference_sources"))
         if o["reference_sources"] > o["sources"]:
             raise ParameterError(f"reference_sources ({o['reference_sources']}) must be at most sources "

@@ -21,8 +21,8 @@ from shape_toolkit.core.shape import Shape
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.validation import machine_memory, shown_value
 
-__all__ = ["ShapeGraph", "build_graph", "knn_edges", "epsilon_edges", "weights_from_edges", "edge_length_graph",
-           "GRAPH_EDGE_BYTES", "graph_edge_count", "check_graph_memory"]
+__all__ = ["ShapeGraph", "build_graph", "knn_edges", "cloud_knn_edges", "epsilon_edges", "weights_from_edges",
+           "edge_length_graph", "GRAPH_EDGE_BYTES", "graph_edge_count", "check_graph_memory"]
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -96,7 +96,7 @@ def edge_length_graph(shape: Shape, n_neighbors: int = 8, *, memory_limit: float
         _check_memory_limit(memory_limit)
         k = min(int(n_neighbors), n - 1)
         check_graph_memory(shape, connectivity="knn", n_neighbors=k, memory_limit=memory_limit)
-        e = knn_edges(shape.vertices, k)
+        e = cloud_knn_edges(shape, k)
     w = np.maximum(np.linalg.norm(shape.vertices[e[:, 0]] - shape.vertices[e[:, 1]], axis=1), 1e-300)
     ij = (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])
     return sp.csr_matrix((np.r_[w, w], ij), shape=(n, n))
@@ -117,6 +117,37 @@ def knn_edges(points: np.ndarray, n_neighbors: int) -> np.ndarray:
     e = np.sort(e, axis=1)
     e = e[e[:, 0] != e[:, 1]]
     return np.unique(e, axis=0).astype(np.int64)
+
+
+def cloud_knn_edges(shape: Shape, n_neighbors: int) -> np.ndarray:
+    """The kNN edges ``(e, 2)`` int64 (``i < j``) of a point cloud's points, and where they fall apart, the edges of
+    the cloud's own surface that join the pieces.
+
+    A kNN graph of samples of one connected surface falls apart where the sampling is uneven: the vertices of an
+    anisotropic remeshing (TOSCA's cat0 has rings of 20 vertices 1 unit apart on its tail, the rings 14 units
+    apart: every vertex's 10 nearest lie on its own ring) are a cloud whose kNN graph has 4 pieces, although the
+    points sample one surface. Raising ``k`` for every point would change the graph everywhere. Instead, only when
+    the kNN graph has several pieces, the edges of the cloud's local Delaunay triangulations
+    (:func:`shape_toolkit.core.surface.local_delaunay_triangles`, the point-cloud Laplacian's triangles: 30
+    neighbours, each point's own sheet, with the cloud's outward normals) that run between two pieces are added:
+    the surface's own links, no distance threshold. Pieces that the triangulations do not join either (two
+    objects in one scan, each of more than 30 points) stay apart, and the graph is disconnected as before. A
+    connected kNN graph is returned unchanged."""
+    from shape_toolkit.core.geometry import edge_components
+
+    P = np.asarray(shape.vertices, dtype=np.float64)
+    e = knn_edges(P, n_neighbors)
+    count, labels = edge_components(len(P), e)
+    if count == 1 or shape.is_mesh:
+        return e
+    from shape_toolkit.core.surface import cloud_normals, local_delaunay_triangles
+
+    F = local_delaunay_triangles(P, cloud_normals(shape))
+    t = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    across = t[labels[t[:, 0]] != labels[t[:, 1]]]
+    if not len(across):
+        return e
+    return np.unique(np.concatenate([e, across]), axis=0).astype(np.int64)
 
 
 def epsilon_edges(points: np.ndarray, radius: float) -> np.ndarray:
@@ -291,7 +322,7 @@ def build_graph(
         shape.require_faces("connectivity='mesh'")
         edges = shape.edges
     elif connectivity == "knn":
-        edges = knn_edges(shape.vertices, n_neighbors)
+        edges = knn_edges(shape.vertices, n_neighbors) if shape.is_mesh else cloud_knn_edges(shape, n_neighbors)
     elif connectivity == "epsilon":
         if radius is None:
             raise ParameterError("connectivity='epsilon' needs a radius")

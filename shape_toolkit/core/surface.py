@@ -45,7 +45,7 @@ from shape_toolkit.errors import InvalidShapeError, ParameterError
 
 __all__ = [
     "cloud_surface", "sheet_surface", "cloud_normals", "outward_normals", "pca_normals", "visible_points",
-    "local_delaunay_triangles", "jet_projected", "FAN_NEIGHBORS",
+    "local_delaunay_triangles", "jet_projected", "sheet_triangulation", "check_triangulable", "FAN_NEIGHBORS",
 ]
 
 #: neighbours of each point in its fan (a one-ring has about 6)
@@ -451,6 +451,49 @@ def local_delaunay_triangles(points: np.ndarray, normals: np.ndarray, n_neighbor
         G = _delaunay_fans(P, N, nb, keep, cut)
         F = np.concatenate([F, G])
     return _geometric_order(P, F.astype(np.int64))
+
+
+def check_triangulable(shape: Shape, n_neighbors: int) -> None:
+    """Refuse a point cloud ``shape`` that cannot be triangulated locally with ``n_neighbors`` neighbours a point:
+    :class:`~shape_toolkit.errors.ParameterError` when it has at most ``n_neighbors`` points (a smaller
+    ``n_neighbors`` would do), :class:`~shape_toolkit.errors.InvalidShapeError` when points coincide."""
+    if not n_neighbors < shape.n_vertices:
+        raise ParameterError(  # the default too: a cloud of 2-30 points is smaller than a neighbourhood
+            f"{shape!r}: the cloud Laplacian's n_neighbors ({n_neighbors}) must be below its number of points; pass "
+            "a smaller n_neighbors (at least 3) or give more points"
+            if shape.n_vertices > 4 else
+            f"{shape!r}: a point cloud needs at least 5 points for its Laplacian (n_neighbors >= 3 each)"
+        )
+    n_distinct = len(np.unique(np.asarray(shape.vertices), axis=0))
+    if n_distinct < shape.n_vertices:  # geometry-central aborts on coincident points
+        raise InvalidShapeError(
+            f"{shape!r}: {shape.n_vertices - n_distinct} points coincide with others, which a local Delaunay "
+            "triangulation cannot take: merge them first (shape-toolkit clean)"
+        )
+
+
+def sheet_triangulation(shape: Shape, n_neighbors: int = 30, smoothing: str = "none") -> tuple[np.ndarray, np.ndarray]:
+    """The surface a point cloud's Laplacian is built on (the ``intrinsic-delaunay`` weighting's, ``'sheet'``):
+    positions ``(n, 3)`` (the points, or with ``smoothing="jet"`` the points projected onto their local quadric fits,
+    :func:`jet_projected`) and the triangles ``(m, 3)`` of every point's local Delaunay triangulation on its own sheet
+    (:func:`local_delaunay_triangles` of ``n_neighbors`` neighbours, with :func:`cloud_normals`; each triangle in up
+    to three of them). Same length units as the cloud. :class:`~shape_toolkit.errors.InvalidShapeError` for a cloud
+    with coincident points or whose neighbourhoods hold no triangle, :class:`~shape_toolkit.errors.ParameterError` for
+    one too small for ``n_neighbors``."""
+    v = np.ascontiguousarray(shape.vertices, dtype=np.float64)
+    if shape.is_mesh:
+        raise ParameterError(f"sheet_triangulation triangulates point clouds; {shape!r} has its own triangles")
+    if smoothing not in ("jet", "none"):
+        raise ParameterError(f"smoothing must be 'jet' or 'none', got {smoothing!r}")
+    check_triangulable(shape, n_neighbors)
+    normals = cloud_normals(shape)
+    triangles = local_delaunay_triangles(v, normals, n_neighbors)
+    if len(triangles) == 0:
+        raise InvalidShapeError(f"{shape!r}: its points' neighbourhoods hold no triangle (they lie on lines: a curve, "
+                                "not a surface); the cloud Laplacian needs points sampling a surface")
+    if smoothing == "jet":  # the same triangles, their lengths and areas denoised
+        v = jet_projected(v, normals, n_neighbors)
+    return v, triangles
 
 
 def jet_projected(points: np.ndarray, normals: np.ndarray, n_neighbors: int = 30) -> np.ndarray:

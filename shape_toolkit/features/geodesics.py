@@ -9,8 +9,17 @@ Methods of :func:`geodesic_distances`:
 * ``"heat"``: the heat method (Crane et al. 2013) through potpourri3d's
   ``MeshHeatMethodDistanceSolver`` (intrinsic-Delaunay "robust" Laplacian, factored once per shape).
 * ``"dijkstra"``: shortest paths along mesh edges (scipy); an upper bound of the exact distance.
-  Point clouds use a symmetrised 8-nearest-neighbour graph instead (the only method that works
-  without faces).
+  Point clouds use a symmetrised 8-nearest-neighbour graph instead, its pieces joined where the cloud's
+  surface joins them (:func:`~shape_toolkit.core.graph.cloud_knn_edges`).
+
+Point clouds take ``"heat"`` and ``"dijkstra"``. The heat method runs there on the surface the point-cloud
+Laplacian is built on (:func:`~shape_toolkit.core.surface.sheet_triangulation`: every point's local Delaunay
+triangulation of its 30 nearest neighbours on its own sheet, so parts touching in space are not linked) with the
+points projected onto their local quadric fits (``"jet"``: the distance is measured along the surface, not along
+the noise across it). Against libigl's exact geodesics on the meshes the clouds came from (TOSCA cat0, dog0, FAUST
+tr_reg_000 and tr_reg_007, vertex clouds, 3 sources; 2026-12-07): mean relative error 2.1-6.5 % (Dijkstra on the
+cloud 5.0-6.8 %), with 0.5 % noise 4.3-9.3 % (Dijkstra 8.8-12.6 %; the points as given, without the projection,
+10.4-14.0 %).
 
 Distances are in the shape's length units. Rows (one per source vertex) are cached by shape
 content and method (:data:`GEODESIC_ROWS_CACHE`), so a benchmark that asks twice computes once.
@@ -80,6 +89,8 @@ __all__ = [
 ]
 
 GEODESIC_METHODS = ("exact", "fmm", "heat", "dijkstra")
+#: the methods that take a point cloud, and the neighbours of the local triangulations the heat method runs on there
+CLOUD_METHODS, CLOUD_NEIGHBORS = ("heat", "dijkstra"), 30
 
 #: distance rows (read-only, keyed by shape content, method and source), bounded by float64 entries (400 MB)
 GEODESIC_ROWS_CACHE = LRUCache(None, max_cost=50_000_000, cost=lambda row: row.size, name="geodesic rows")
@@ -318,7 +329,13 @@ def _make_solver(shape: Shape, method: str) -> Any:
     if method == "dijkstra":
         solver = _edge_graph(shape)
     else:
-        F = np.ascontiguousarray(shape.faces, dtype=np.int64)
+        if shape.is_mesh:
+            F = np.ascontiguousarray(shape.faces, dtype=np.int64)
+        else:  # a cloud (heat only): the point-cloud Laplacian's own surface, denoised (module docstring)
+            from shape_toolkit.core.surface import sheet_triangulation
+
+            V, F = sheet_triangulation(shape, CLOUD_NEIGHBORS, "jet")
+            V, F = np.ascontiguousarray(V), np.ascontiguousarray(F, dtype=np.int64)
         import potpourri3d as pp3d
 
         try:
@@ -411,10 +428,10 @@ def _check_method(shape: Shape, method: str) -> None:
         raise ParameterError(
             f"unknown geodesic method {method!r}; choose one of {', '.join(GEODESIC_METHODS)}"
         )
-    if method != "dijkstra" and not shape.is_mesh:
+    if method not in CLOUD_METHODS and not shape.is_mesh:
         raise InvalidShapeError(
             f"{method!r} geodesics need a triangle mesh but {shape!r} is a point cloud; "
-            "use method='dijkstra' (kNN graph) or reconstruct a mesh"
+            "use method='heat' (on the cloud's local triangulations) or 'dijkstra' (kNN graph), or reconstruct a mesh"
         )
 
 

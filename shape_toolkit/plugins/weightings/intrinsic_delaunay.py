@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from shape_toolkit.api.interfaces import Weighting, Weights
 from shape_toolkit.api.params import Interval, Options, Param
 from shape_toolkit.core.shape import Shape
-from shape_toolkit.core.surface import cloud_normals, jet_projected, local_delaunay_triangles
+from shape_toolkit.core.surface import check_triangulable, sheet_triangulation
 from shape_toolkit.errors import InvalidShapeError, ParameterError
 
 
@@ -92,33 +92,15 @@ class IntrinsicDelaunayWeighting(Weighting):
                 v, np.ascontiguousarray(shape.faces), mollify_factor=self.mollify_factor
             )
         else:
-            if not self.n_neighbors < shape.n_vertices:  # the range that depends on the shape
-                raise ParameterError(  # the default too: a cloud of 2-30 points is smaller than a neighbourhood
-                    f"{shape!r}: the cloud Laplacian's n_neighbors ({self.n_neighbors}) must be below its number of "
-                    f"points; pass a smaller n_neighbors (at least 3) or give more points"
-                    if shape.n_vertices > 4 else
-                    f"{shape!r}: a point cloud needs at least 5 points for its Laplacian (n_neighbors >= 3 each)"
-                )
-            n_distinct = len(np.unique(v, axis=0))
-            if n_distinct < shape.n_vertices:  # geometry-central aborts on coincident points
-                raise InvalidShapeError(
-                    f"{shape!r}: {shape.n_vertices - n_distinct} points coincide with others, which a local "
-                    "Delaunay triangulation cannot take: merge them first (shape-toolkit clean)"
-                )
             no_triangle = "its points' neighbourhoods hold no triangle (they lie on lines: a curve, not a surface)"
             try:  # geometry-central aborts with a RuntimeError on a cloud with no local triangle at all
                 if self.cloud_neighbors == "all":
+                    check_triangulable(shape, self.n_neighbors)
                     L, M = robust_laplacian.point_cloud_laplacian(
                         centred(v), mollify_factor=self.mollify_factor, n_neighbors=self.n_neighbors
                     )
                 else:
-                    normals = cloud_normals(shape)
-                    triangles = local_delaunay_triangles(v, normals, self.n_neighbors)
-                    if self.cloud_smoothing == "jet":  # the same triangles, their lengths and areas denoised
-                        v = jet_projected(v, normals, self.n_neighbors)
-                    if len(triangles) == 0:
-                        raise InvalidShapeError(f"{shape!r}: {no_triangle}; the cloud Laplacian needs points "
-                                                "sampling a surface")
+                    v, triangles = sheet_triangulation(shape, self.n_neighbors, self.cloud_smoothing)
                     L, M = robust_laplacian.mesh_laplacian(
                         centred(v), np.ascontiguousarray(triangles), mollify_factor=self.mollify_factor
                     )

@@ -1,0 +1,129 @@
+"""Point clouds: their kNN graphs joined where the surface joins them (keypoints, descriptors, Dijkstra), and the
+heat method on the point-cloud Laplacian's surface (issue 29, item 4: "ADF keypoints and geodesics on clouds")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shape_toolkit.core.geometry import edge_components
+from shape_toolkit.core.graph import cloud_knn_edges, knn_edges
+from shape_toolkit.core.shape import Shape
+from shape_toolkit.errors import DisconnectedGraphError, InvalidShapeError
+from shape_toolkit.features import geodesics as g
+from shape_toolkit.plugins.keypoints.adf_maxima import ADFMaxima
+
+
+def _rings(gap: float = 1.5, per: int = 20, a: float = 10.0) -> np.ndarray:
+    """An ellipsoid of semi-axes (1, 1, ``a``) sampled as rings of ``per`` points, ``gap`` apart along its axis: every
+    point's 10 nearest lie on its own ring (0.31 apart), as on the tail of TOSCA's cat0 remeshed."""
+    pts = []
+    for z in np.arange(-a + gap / 2, a, gap):
+        r = np.sqrt(max(1.0 - (z / a) ** 2, 0.0))
+        t = np.arange(per) * 2 * np.pi / per + 0.1 * z
+        pts.append(np.c_[r * np.cos(t), r * np.sin(t), np.full(per, z)])
+    return np.vstack(pts)
+
+
+def _fibonacci_sphere(n: int, centre=(0.0, 0.0, 0.0)) -> np.ndarray:
+    i = np.arange(n) + 0.5
+    phi, theta = np.arccos(1 - 2 * i / n), np.pi * (1 + 5**0.5) * i
+    return np.c_[np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)] + np.asarray(centre)
+
+
+def test_rings_of_one_surface_are_joined_and_keep_their_knn_edges():
+    P = _rings()
+    assert edge_components(len(P), knn_edges(P, 10))[0] > 5  # the plain kNN graph falls apart ring by ring
+    e = cloud_knn_edges(Shape(P), 10)
+    assert edge_components(len(P), e)[0] == 1
+    plain = {tuple(x) for x in knn_edges(P, 10)}
+    assert plain <= {tuple(x) for x in e}  # only edges added, none taken away
+    added = np.array([x for x in e if tuple(x) not in plain])
+    z = P[added, 2]
+    assert np.all(np.abs(z[:, 0] - z[:, 1]) < 3.1)  # to the next ring or the one after, never across the shape
+
+
+def test_adf_keypoints_of_the_rings_are_the_two_tips():
+    P = _rings()
+    kp = ADFMaxima().detect(Shape(P))
+    tips = {int(np.argmin(P[:, 2])) // 20, int(np.argmax(P[:, 2])) // 20}  # the end rings
+    assert len(kp) >= 2 and {int(k) // 20 for k in kp[:2]} == tips
+
+
+def test_a_connected_cloud_keeps_its_knn_graph_exactly():
+    P = _fibonacci_sphere(500)
+    assert np.array_equal(cloud_knn_edges(Shape(P), 10), knn_edges(P, 10))
+
+
+def test_two_objects_stay_apart():
+    P = np.vstack([_fibonacci_sphere(300), _fibonacci_sphere(300, centre=(10.0, 0.0, 0.0))])
+    cloud = Shape(P)
+    assert edge_components(len(P), cloud_knn_edges(cloud, 10))[0] == 2
+    with pytest.raises(DisconnectedGraphError, match="2 connected components"):
+        ADFMaxima().detect(cloud)
+    d = g.geodesic_distances(cloud, [0], method="dijkstra", cache=False)[0]
+    assert np.isinf(d[300:]).all() and np.isfinite(d[:300]).all()
+
+
+@pytest.mark.parametrize("noise, tol", [(0.0, 0.03), (0.01, 0.05)])
+def test_heat_geodesics_on_a_sphere_cloud_are_great_circles(noise, tol):
+    P = _fibonacci_sphere(2000)
+    noisy = P + noise * np.random.default_rng(0).normal(size=P.shape)
+    src = [0, 700, 1500]
+    d = g.geodesic_distances(Shape(noisy), src, method="heat", cache=False)
+    gt = np.arccos(np.clip(P[src] @ P.T, -1.0, 1.0))
+    far = gt > 0.1
+    assert np.mean(np.abs(d[far] - gt[far]) / gt[far]) < tol
+    if noise == 0.0:  # Dijkstra along the cloud's kNN edges (chords, zigzags) is further off
+        dj = g.geodesic_distances(Shape(P), src, method="dijkstra", cache=False)
+        assert np.mean(np.abs(d[far] - gt[far])) < np.mean(np.abs(dj[far] - gt[far]))
+
+
+def test_cloud_geodesics_refuse_exact_and_fmm_naming_heat():
+    cloud = Shape(_fibonacci_sphere(200))
+    for method in ("exact", "fmm"):
+        with pytest.raises(InvalidShapeError, match="'heat'"):
+            g.geodesic_distances(cloud, [0], method=method)
+    with pytest.raises(InvalidShapeError, match="coincide"):
+        g.geodesic_distances(Shape(np.vstack([cloud.vertices, cloud.vertices[:3]])), [0], method="heat")
+
+
+def test_cli_geodesics_and_keypoints_on_a_cloud(tmp_path, capsys):
+    import json
+
+    from shape_toolkit.cli import main
+    from shape_toolkit.io.mesh import save_shape
+
+    path = tmp_path / "rings.ply"
+    save_shape(Shape(_rings(), name="rings"), path)
+    assert main(["keypoints", str(path), "--json", "-q"]) == 0
+    assert len(json.loads(capsys.readouterr().out)["keypoints"]) >= 2
+    assert main(["geodesics", str(path), "--sources", "0,5", "--json", "-q"]) == 0  # the default: heat
+    out = json.loads(capsys.readouterr().out)
+    assert out["method"] == "heat" and out["unreachable"] == 0
+    assert main(["geodesics", str(path), "--sources", "0", "--method", "fmm", "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'heat'" in err[0]
+
+
+@pytest.mark.parametrize("name", ["cat0", "dog0"])
+def test_tosca_vertex_clouds_keypoints_and_geodesics(shared_data, name):
+    """TOSCA cat0 and dog0 as the clouds of their vertices: their 10-NN graphs fall apart (4 pieces each, the
+    remeshing's rings on the tail), so keypoints were refused. Now ADF keypoints of the cloud lie where the mesh's
+    are, and both cloud methods reach every point and are near libigl's exact geodesics on the mesh."""
+    from shape_toolkit.io.mesh import load_shape
+
+    mesh = load_shape(shared_data / "tosca5k" / f"{name}.off")
+    cloud = Shape(mesh.vertices)
+    assert edge_components(mesh.n_vertices, knn_edges(mesh.vertices, 10))[0] > 1
+    scale = np.sqrt(mesh.area)
+    km, kc = ADFMaxima().detect(mesh), ADFMaxima().detect(cloud)
+    near = np.linalg.norm(mesh.vertices[km][:, None] - mesh.vertices[kc][None], axis=2).min(axis=1) / scale
+    assert np.mean(near < 0.05) >= 0.8  # measured: every one of the mesh's 7 within 0.05 (at most 0.029 / 0.049)
+    src = [0, 2500]
+    ref = g.geodesic_distances(mesh, src, method="exact")
+    far = ref > 0.01 * ref.max()
+    for method, tol in (("heat", 0.04), ("dijkstra", 0.08)):  # measured 0.020 / 0.032 and 0.048 / 0.053
+        d = g.geodesic_distances(cloud, src, method=method, cache=False)
+        assert np.isfinite(d).all()
+        assert np.mean(np.abs(d[far] - ref[far]) / ref[far]) < tol, method
