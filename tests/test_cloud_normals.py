@@ -62,7 +62,7 @@ def test_a_mesh_refuses_given_normals():
 
 
 @pytest.mark.parametrize("ext, binary", [("ply", False), ("ply", True), ("xyz", False), ("pcd", False),
-                                         ("off", False)])
+                                         ("off", False), ("obj", False)])
 @pytest.mark.parametrize("coloured", [False, True])
 def test_normals_survive_a_file_round_trip(tmp_path, ext, binary, coloured):
     P, N = _cloud()
@@ -77,6 +77,26 @@ def test_normals_survive_a_file_round_trip(tmp_path, ext, binary, coloured):
         np.testing.assert_allclose(back.colors, s.colors, atol=1e-12)
     assert load_shape(path, normals=False).normals is None
     assert back.content_hash == s.content_hash
+
+
+def test_obj_vn_lines_are_a_clouds_normals_only_one_per_point(tmp_path):
+    """MeshLab and CloudCompare write a cloud's normals as one ``vn`` per ``v``; a mesh's ``vn`` belong to face
+    corners (``f 1//1``) and are not read, nor are ``vn`` lines that do not pair one to one with the points."""
+    P, N = _cloud()
+    rows = "".join(f"v {float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in P)
+    normals = "".join(f"vn {float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in N)
+    (tmp_path / "c.obj").write_text(rows + normals)
+    np.testing.assert_allclose(load_shape(tmp_path / "c.obj").normals, N / np.linalg.norm(N, axis=1, keepdims=True),
+                               atol=1e-15)
+    (tmp_path / "short.obj").write_text(rows + normals.split("\n", 1)[1])  # one vn missing: no pairing
+    assert load_shape(tmp_path / "short.obj").normals is None
+    mesh = icosphere(1)
+    obj = "".join(f"v {x} {y} {z}\nvn {x} {y} {z}\n" for x, y, z in mesh.vertices)
+    obj += "".join(f"f {a + 1}//{a + 1} {b + 1}//{b + 1} {c + 1}//{c + 1}\n" for a, b, c in mesh.faces)
+    (tmp_path / "m.obj").write_text(obj)
+    m = load_shape(tmp_path / "m.obj")
+    assert m.is_mesh and m.normals is None
+    assert load_shape(tmp_path / "m.obj", kind="points").normals is None  # corner normals, not per point
 
 
 def test_a_mesh_files_normals_are_ignored_and_a_zero_normal_drops_them_with_a_warning(tmp_path):

@@ -116,9 +116,9 @@ def load_shape(
     ``clean``). ``colors``: read per-vertex colours (and sample OBJ textures) into
     ``Shape.colors`` when the file has them; False reads the geometry alone. ``normals``: a point
     cloud keeps the per-point normals of its file (PLY ``nx ny nz``, PCD ``normal_x normal_y normal_z``, NOFF, XYZ
-    normal columns) in ``Shape.normals``, where the cloud's Laplacian and orientation tests take them as the
-    outward normals instead of estimating them (:func:`~shape_toolkit.core.surface.cloud_normals`); False, or
-    a mesh, ignores them, and a file with a zero or non-finite normal has them all estimated instead (a
+    normal columns, OBJ ``vn`` lines one per point) in ``Shape.normals``, where the cloud's Laplacian and
+    orientation tests take them as the outward normals instead of estimating them
+    (:func:`~shape_toolkit.core.surface.cloud_normals`); False, or a mesh, ignores them, and a file with a zero or non-finite normal has them all estimated instead (a
     :class:`NormalsWarning` says so). Raises :class:`ShapeFileError` naming the file (or the texture /
     material file) for any problem.
     """
@@ -479,7 +479,10 @@ def _parse_counted_faces(rows: list[tuple[int, str]]) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # OBJ
 # --------------------------------------------------------------------------------------------
-def _read_obj(p: Path, want_colors: bool = True) -> _ParsedColors:
+def _read_obj(p: Path, want_colors: bool = True) -> _ParsedNormals:
+    """OBJ's vertices, faces, colours, and a point cloud's normals: its ``vn`` lines when the file has no faces and
+    one ``vn`` per ``v``, in the same order (as MeshLab and CloudCompare write a cloud; in a mesh, normals belong to
+    face corners and are not read)."""
     lines = [(ln, line.lstrip()) for ln, line in _content(_read_text(p))]
     vrows = [(ln, line[2:]) for ln, line in lines if line[:2] in ("v ", "v\t")]
     _check_count(len(vrows), "vertices")
@@ -498,7 +501,12 @@ def _read_obj(p: Path, want_colors: bool = True) -> _ParsedColors:
             faces = _fan(polys, where)
         if textured and faces is not None:
             colors = _obj_texture_colors(p, libs, corners, uv_rows, names, len(vertices))
-    return vertices, faces, colors
+    normals = None
+    if faces is None or not len(faces):
+        nrows = [(ln, line[3:]) for ln, line in lines if line[:3] in ("vn ", "vn\t")]
+        if nrows and len(nrows) == len(vrows):
+            normals = _floats(nrows, 3, "vertex normal (vn x y z)")
+    return vertices, faces, colors, normals
 
 
 def _obj_triangles(lines: list[tuple[int, str]]) -> np.ndarray | None:
@@ -1202,6 +1210,8 @@ def _write_off(fh, shape: Shape, binary: bool) -> None:
 
 def _write_obj(fh, shape: Shape, binary: bool) -> None:
     fh.write(_fmt_rows(shape.vertices, *([] if shape.colors is None else [shape.colors]), prefix="v "))
+    if shape.normals is not None:  # a cloud's: one vn per v, in order (MeshLab's and CloudCompare's layout)
+        fh.write(_fmt_rows(shape.normals, prefix="vn "))
     if shape.faces is not None:
         fh.write(_fmt_rows(shape.faces + 1, prefix="f "))
 
