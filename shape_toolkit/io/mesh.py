@@ -118,9 +118,9 @@ def load_shape(
     cloud keeps the per-point normals of its file (PLY ``nx ny nz``, PCD ``normal_x normal_y normal_z``, NOFF, XYZ
     normal columns, OBJ ``vn`` lines one per point) in ``Shape.normals``, where the cloud's Laplacian and
     orientation tests take them as the outward normals instead of estimating them
-    (:func:`~shape_toolkit.core.surface.cloud_normals`); False, or a mesh, ignores them, and a file with a zero or non-finite normal has them all estimated instead (a
-    :class:`NormalsWarning` says so). Raises :class:`ShapeFileError` naming the file (or the texture /
-    material file) for any problem.
+    (:func:`~shape_toolkit.core.surface.cloud_normals`); False, or a mesh, ignores them, and a file with a zero or
+    non-finite normal has them all estimated instead (a :class:`NormalsWarning` says so). Raises
+    :class:`ShapeFileError` naming the file (or the texture / material file) for any problem.
     """
     if kind not in ("auto", "mesh", "points"):
         raise ParameterError(f"kind must be 'auto', 'mesh' or 'points', got {kind!r}")
