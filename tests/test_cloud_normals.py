@@ -216,6 +216,10 @@ def test_the_point_cloud_corruption_carries_the_meshs_normals():
     assert point_cloud(mesh, points=2000)[0].normals is None
     with pytest.raises(ParameterError, match="normals must be a bool"):
         point_cloud(mesh, normals=1)
+    lone = Shape(np.vstack([mesh.vertices, [[9.0, 9.0, 9.0]]]), mesh.faces, "lone")  # a vertex on no face
+    with pytest.raises(InvalidShapeError, match=rf"1 vertices are on no face \(first: vertex {mesh.n_vertices}\)"):
+        point_cloud(lone, normals=True)
+    assert point_cloud(lone)[0].n_vertices == mesh.n_vertices + 1  # without normals it is a point like the others
 
 
 def test_a_scan_with_its_normals_links_fewer_touching_parts(shared_data):

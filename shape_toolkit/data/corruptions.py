@@ -590,6 +590,12 @@ def point_cloud(
         P, vmap = V[first], first
         if normals:
             N = VN[first]
+            lone = np.flatnonzero(~np.any(N, axis=1))
+            if len(lone):  # a vertex on no face has no normal
+                raise InvalidShapeError(
+                    f"{shape!r}: {len(lone)} vertices are on no face (first: vertex {int(first[lone[0]])}), so they "
+                    "have no normal to carry: remove them first (shape-toolkit clean; clean_shape), or make the cloud "
+                    "without normals")
     else:
         f = shape.require_faces("point_cloud with points > 0")
         area = np.asarray(shape.face_areas, dtype=np.float64)
