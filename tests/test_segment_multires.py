@@ -246,6 +246,9 @@ def test_a_cloud_refused_by_a_segmenter_of_faces_is_told_which_methods_take_poin
     monkeypatch.chdir(tmp_path)
     code, _, err = run_cli(capsys, "segment", tmp_path / "cloud.ply", "-k", "2")
     assert code == 2 and err.count("\n") == 1 and "needs a triangle mesh" in err
+    # through a proxy (--proxy below the cloud's size) the error still names the cloud given, not its proxy
+    code, _, err = run_cli(capsys, "segment", tmp_path / "cloud.ply", "-k", "2", "--proxy", "600")
+    assert code == 2 and "Shape('cloud', 6400 vertices" in err and "proxy" not in err, err
     assert all(f"--method {m}" in err or f" or {m}" in err for m in CLOUD_METHODS), err
     for m in CLOUD_METHODS:
         for proxy in ("0", "600"):

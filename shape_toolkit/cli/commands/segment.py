@@ -87,14 +87,16 @@ CLOUD_METHODS = ("spectral-clustering", "eigvec-gmm")
 
 
 @contextmanager
-def _cloud_hint(shape: Any) -> Iterator[None]:
-    """A point cloud refused by a segmenter that needs faces: the error also names methods that take points."""
+def _cloud_hint(shape: Any, method: str) -> Iterator[None]:
+    """A point cloud refused by a segmenter that needs faces: the error names the cloud the user gave (not the
+    proxy it was segmented through) and the methods that take points."""
     try:
         yield
     except MeshRequiredError as exc:
         if shape.is_mesh:
             raise
-        raise MeshRequiredError(f"{exc}; segment a point cloud with --method {' or '.join(CLOUD_METHODS)}") from exc
+        raise MeshRequiredError(f"{method!r} needs a triangle mesh, but {shape!r} has no faces; segment a point cloud "
+                                f"with --method {' or '.join(CLOUD_METHODS)}") from exc
 
 
 def run(args: argparse.Namespace) -> int:
@@ -133,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
         constraints = load_constraints(args.constraints, shape.n_vertices)
     t0 = time.perf_counter()
     through_proxy = bool(args.proxy) and shape.n_vertices > 1.5 * args.proxy
-    with status(args, f"segment: {args.method} on {shape.n_vertices} vertices") as st, _cloud_hint(shape):
+    with status(args, f"segment: {args.method} on {shape.n_vertices} vertices") as st, _cloud_hint(shape, args.method):
         if through_proxy:
             from shape_toolkit.plugins.segmenters.multires import segment_through_proxy
 
