@@ -127,3 +127,27 @@ def test_tosca_vertex_clouds_keypoints_and_geodesics(shared_data, name):
         d = g.geodesic_distances(cloud, src, method=method, cache=False)
         assert np.isfinite(d).all()
         assert np.mean(np.abs(d[far] - ref[far]) / ref[far]) < tol, method
+
+
+def test_cli_heat_geodesics_of_a_cloud_too_large_for_the_memory_limit_are_refused_naming_dijkstra(tmp_path, capsys):
+    """A file does not say that it has no faces, so the mesh model passes a cloud; once read, the cloud's own model
+    (its local triangulations: about 12 kB a point, 2.6x a mesh's) refuses it, naming the cheaper method."""
+    from shape_toolkit.cli import main
+    from shape_toolkit.features.geodesics import GEODESIC_MEMORY, geodesic_memory
+    from shape_toolkit.io.mesh import save_shape
+
+    path = tmp_path / "sphere.ply"
+    save_shape(Shape(_fibonacci_sphere(2000), name="sphere"), path)
+    mesh_need, cloud_need = geodesic_memory(2000, 1, "heat"), geodesic_memory(2000, 1, "heat", cloud=True)
+    assert cloud_need > 2 * mesh_need and geodesic_memory(2000, 1, "dijkstra", cloud=True) == GEODESIC_MEMORY[
+        "dijkstra"][0] + 2000 * (GEODESIC_MEMORY["dijkstra"][1] + 32.0)
+    limit = f"{(mesh_need + cloud_need) / 2 / 1e9:.6f}"  # between the two: only the cloud's model refuses
+    assert main(["geodesics", str(path), "--sources", "0", "--memory-limit", limit, "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "point cloud of 2,000 points" in err[0] and "--method dijkstra" in err[0]
+    from shape_toolkit.data.generate import icosphere
+
+    mesh = icosphere(4)  # 2,562 vertices: more than the cloud, but a mesh's heat method needs less
+    save_shape(mesh, tmp_path / "mesh.ply")
+    assert geodesic_memory(mesh.n_vertices, 1, "heat") < float(limit) * 1e9
+    assert main(["geodesics", str(tmp_path / "mesh.ply"), "--sources", "0", "--memory-limit", limit, "-q"]) == 0

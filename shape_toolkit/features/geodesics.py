@@ -103,6 +103,10 @@ _KNN_NEIGHBORS = 8
 #: measured peaks with one source (``benchmarks/results/memory_models.md``, 2026-12-06: 80k to 500k vertices; exact
 #: 20k to 80k)
 GEODESIC_MEMORY = {"dijkstra": (85e6, 380.0), "fmm": (60e6, 1260.0), "heat": (0.0, 4500.0), "exact": (5e6, 6400.0)}
+#: the same for the heat method on a point cloud (its normals, local triangulations of 30 neighbours, each triangle in
+#: up to three of them, the jet fits and the solver): 847 MB at 79,970 points and 2,944 MB at 244,904 (TOSCA cat0
+#: split 4 x 4 and 7 x 7, its vertices without faces, one source, ``/usr/bin/time``, 2026-12-07), about 2.6x a mesh's
+GEODESIC_CLOUD_MEMORY = {"heat": (0.0, 12_000.0)}
 #: bytes per vertex and source: the distance rows, the solved rows, their read-only copy in the rows cache and the
 #: command's nearest-source distances (float64 each; the cache is capped, so an estimate from above)
 GEODESIC_ROW_BYTES = 32.0
@@ -415,11 +419,12 @@ def _compute_rows(
 PAIRED_CHUNK, NEAREST_CHUNK = 128, 64
 
 
-def geodesic_memory(n: int, n_sources: int, method: str) -> float:
+def geodesic_memory(n: int, n_sources: int, method: str, *, cloud: bool = False) -> float:
     """Estimated peak bytes of ``shape-toolkit geodesics`` on a shape of ``n`` vertices from ``n_sources`` sources by
-    ``method`` (:data:`GEODESIC_MEMORY`, :data:`GEODESIC_ROW_BYTES`). An estimate for refusing a shape before reading
-    it (``--memory-limit``), not a bound."""
-    a, b = GEODESIC_MEMORY[method]
+    ``method`` (:data:`GEODESIC_MEMORY`, :data:`GEODESIC_ROW_BYTES`; ``cloud``: a point cloud's,
+    :data:`GEODESIC_CLOUD_MEMORY` where it differs). An estimate for refusing a shape before its work
+    (``--memory-limit``), not a bound."""
+    a, b = (GEODESIC_CLOUD_MEMORY if cloud and method in GEODESIC_CLOUD_MEMORY else GEODESIC_MEMORY)[method]
     return a + n * (b + GEODESIC_ROW_BYTES * max(int(n_sources), 1))
 
 

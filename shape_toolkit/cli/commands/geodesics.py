@@ -30,7 +30,7 @@ from shape_toolkit.errors import ParameterError, TimeLimitError
 from shape_toolkit.features.geodesics import geodesic_distances, geodesic_memory
 from shape_toolkit.io.mesh import MAX_VERTICES, load_shape
 from shape_toolkit.results.labels import read_vertex_ids, vertex_ids_within
-from shape_toolkit.validation import shown_value
+from shape_toolkit.validation import machine_memory, shown_value
 
 METHODS = ("exact", "heat", "fmm", "dijkstra")
 
@@ -104,6 +104,14 @@ def run(args: argparse.Namespace) -> int:
                  "give fewer --sources" if count > 1 else "")
     shape = load_shape(args.shape)
     src = sources_within(src, args.sources, shape.n_vertices)
+    limit = args.memory_limit if args.memory_limit is not None else machine_memory()
+    need = geodesic_memory(shape.n_vertices, count, args.method, cloud=not shape.is_mesh)
+    if not shape.is_mesh and limit is not None and need > limit:  # a file does not say it has no faces: known now
+        raise ParameterError(
+            f"{args.shape} is a point cloud of {shape.n_vertices:,} points, for which {args.method} geodesics would "
+            f"need about {need / 1e9:.1f} GB (its local triangulations; measured growth, "
+            f"features.geodesics.GEODESIC_CLOUD_MEMORY), above the memory limit of {limit / 1e9:.1f} GB "
+            "(--memory-limit); use --method dijkstra, fewer points, or raise --memory-limit")
     t0 = time.perf_counter()
     with status(args, f"geodesics: {args.method} from {src.size} sources") as st:
         try:
