@@ -267,6 +267,22 @@ def mesh_corpus(folder: Path) -> dict[str, Path]:
     files["normals_random_signs.ply"] = cloud_ply(sphere_n * np.random.default_rng(2).choice([-1.0, 1.0], (len(v), 1)))
     files["noff_cloud_without_normals.off"] = f"NOFF\n{len(v)} 0 0\n" + "".join(
         " ".join(repr(float(x)) for x in p) + "\n" for p in v)
+    # -- clouds whose kNN graphs fall apart (session 43): one surface sampled in rings (joined by its own local
+    # triangulations: every command works), two spheres far apart (kept apart: refused or segmented piece by piece)
+    rings = []
+    for z in np.arange(-9.25, 10.0, 1.5):  # an ellipsoid (1, 1, 10), rings of 20 points 1.5 apart along its axis
+        r, t = np.sqrt(max(1.0 - (z / 10.0) ** 2, 0.0)), np.arange(20) * np.pi / 10 + 0.1 * z
+        rings.append(np.c_[r * np.cos(t), r * np.sin(t), np.full(20, z)])
+    files["rings_cloud.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in np.vstack(rings).tolist())
+    ball = sphere_n[np.unique(np.round(sphere_n, 12), axis=0, return_index=True)[1]]
+    two = np.r_[ball, ball + [20, 0, 0]]
+    files["two_spheres_cloud.xyz"] = "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in two.tolist())
+    # OBJ clouds with normals: one vn per v (read), one vn short (not paired: estimated), a NaN normal (estimated)
+    obj_v = "".join("v " + " ".join(repr(float(x)) for x in p) + "\n" for p in v)
+    obj_vn = ["vn " + " ".join(repr(float(x)) for x in n) + "\n" for n in sphere_n]
+    files["obj_cloud_normals.obj"] = obj_v + "".join(obj_vn)
+    files["obj_cloud_vn_short.obj"] = obj_v + "".join(obj_vn[1:])
+    files["obj_cloud_vn_nan.obj"] = obj_v + "".join(obj_vn[:3]) + "vn nan nan nan\n" + "".join(obj_vn[4:])
     # -- names that end up in outputs: HTML, LaTeX, control characters
     for name in NASTY_NAMES:
         files[f"{name}.off"] = good_off

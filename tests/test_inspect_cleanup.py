@@ -246,8 +246,30 @@ def test_point_cloud_cleanup_only_merges(sphere):
     clean, rep = clean_shape(cloud)
     assert rep.duplicate_vertices_merged == 7 and clean.n_vertices == 642
     assert any("point cloud" in n for n in rep.notes)
-    with pytest.raises(InvalidShapeError):
-        clean_shape(cloud, keep_largest_component=True)
+    with pytest.raises(InvalidShapeError, match="remeshing needs a triangle mesh"):
+        clean_shape(cloud, remesh_target_edge=0.1)
+
+
+def test_point_cloud_keeps_the_largest_piece_of_its_knn_graph(sphere):
+    """Two objects in one cloud: the larger kept, with its normals and the vertex map (the spectra's error names
+    ``clean --keep-largest`` for such a cloud). One surface whose kNN graph falls apart only by its sampling (rings
+    far apart along an ellipsoid) loses nothing: its own triangulations join it."""
+    from shape_toolkit.core.geometry import edge_components
+    from shape_toolkit.core.graph import knn_edges
+
+    small = sphere.vertices[:300] * 0.5 + [10.0, 0.0, 0.0]
+    cloud = Shape(np.concatenate([small, sphere.vertices]), normals=np.concatenate([small, sphere.vertices]))
+    clean, rep = clean_shape(cloud, keep_largest_component=True)
+    assert rep.components_removed == 1 and clean.n_vertices == sphere.n_vertices
+    np.testing.assert_array_equal(rep.vertex_map, np.arange(300, 300 + sphere.n_vertices))
+    np.testing.assert_array_equal(clean.vertices, sphere.vertices)
+    np.testing.assert_allclose(clean.normals, cloud.normals[300:])
+    rings = np.vstack([np.c_[np.sqrt(max(1 - (z / 10) ** 2, 0)) * np.cos(t), np.sqrt(max(1 - (z / 10) ** 2, 0))
+                             * np.sin(t), np.full(20, z)]
+                       for z in np.arange(-9.25, 10.0, 1.5) for t in [np.arange(20) * np.pi / 10 + 0.1 * z]])
+    assert edge_components(len(rings), knn_edges(rings, 10))[0] > 1
+    clean, rep = clean_shape(Shape(rings), keep_largest_component=True)
+    assert rep.components_removed == 0 and clean.n_vertices == len(rings)
 
 
 def test_remesh(sphere):

@@ -75,6 +75,23 @@ class CleanupReport:
         return d
 
 
+def _largest_cloud_piece(shape: Shape, v: np.ndarray, vmap: np.ndarray, rep: CleanupReport):
+    """The points ``v`` (of ``shape``, through ``vmap``) of the largest piece of their kNN graph: the graph the
+    spectra of a cloud are taken on (:data:`~shape_toolkit.core.graph.KNN_NEIGHBORS` neighbours, pieces of one
+    surface joined: :func:`~shape_toolkit.core.graph.cloud_knn_edges`), so a cloud of two objects keeps the larger."""
+    from shape_toolkit.core.geometry import edge_components
+    from shape_toolkit.core.graph import KNN_NEIGHBORS, cloud_knn_edges
+
+    normals = shape.normals[vmap] if shape.normals is not None else None
+    edges = cloud_knn_edges(Shape(v, None, shape.name, normals=normals), min(KNN_NEIGHBORS, len(v) - 1))
+    k, labels = edge_components(len(v), edges)
+    if k > 1:
+        rep.components_removed = int(k - 1)
+        keep = labels == np.argmax(np.bincount(labels, minlength=k))  # most points (ties: the first piece)
+        v, _, vmap = _keep_vertices(v, None, vmap, keep)
+    return v, vmap
+
+
 def _keep_vertices(v, f, vmap, keep: np.ndarray):
     """Restrict to vertices where ``keep`` (bool (n,)) is True, renumbering faces."""
     remap = np.cumsum(keep) - 1
@@ -100,7 +117,8 @@ def clean_shape(
     two largest faces on each) and vertices (split each extra fan into a new vertex), orient the faces
     coherently (each piece as most of its faces already were; a piece that cannot be, as a Moebius strip, is said in
     the notes), drop unreferenced vertices, keep the component with most faces, isotropic remeshing to
-    ``remesh_target_edge`` (file units). A point cloud only gets duplicate points merged.
+    ``remesh_target_edge`` (file units). A point cloud only gets duplicate points merged and, with
+    ``keep_largest_component``, the largest piece of its kNN graph kept (the graph its spectra are taken on).
     """
     if remesh_target_edge is not None and not (np.isfinite(remesh_target_edge) and remesh_target_edge > 0):
         raise ParameterError(f"remesh_target_edge must be > 0, got {remesh_target_edge!r}")
@@ -122,11 +140,12 @@ def clean_shape(
         v, f, vmap = _keep_vertices(v, f, vmap, keep)
 
     if f is None:
-        rep.notes.append("point cloud: only exactly duplicate points were merged")
-        if keep_largest_component or remesh_target_edge is not None:
-            raise InvalidShapeError(
-                "keep_largest_component and remeshing need a triangle mesh, got a point cloud"
-            )
+        if remesh_target_edge is not None:
+            raise InvalidShapeError("remeshing needs a triangle mesh, got a point cloud")
+        rep.notes.append("point cloud: only exactly duplicate points were merged"
+                         + (", and the largest piece of its kNN graph kept" if keep_largest_component else ""))
+        if keep_largest_component and len(v) > 1:
+            v, vmap = _largest_cloud_piece(shape, v, vmap, rep)
         return _finish(shape, v, None, vmap, rep)
 
     if remove_degenerate:
