@@ -151,3 +151,26 @@ def test_cli_heat_geodesics_of_a_cloud_too_large_for_the_memory_limit_are_refuse
     save_shape(mesh, tmp_path / "mesh.ply")
     assert geodesic_memory(mesh.n_vertices, 1, "heat") < float(limit) * 1e9
     assert main(["geodesics", str(tmp_path / "mesh.ply"), "--sources", "0", "--memory-limit", limit, "-q"]) == 0
+
+
+def test_a_maps_error_on_a_cloud_target_is_in_units_of_the_clouds_own_area():
+    """The normalized geodesic error on a point-cloud target: heat geodesics along its surface over the square root
+    of that surface's area (it needed a mesh). A unit sphere sampled: the area is 4 pi to a few percent, and a map
+    off by a known rotation has the error of the great circles it moves along."""
+    from shape_toolkit.core.surface import cloud_area
+    from shape_toolkit.metrics.correspondence import error_normalization, geodesic_errors
+
+    P = _fibonacci_sphere(3000)
+    cloud = Shape(P)
+    assert cloud_area(cloud) == pytest.approx(4 * np.pi, rel=0.02)
+    assert error_normalization(cloud) == pytest.approx(np.sqrt(cloud_area(cloud)))
+    c, s = np.cos(0.3), np.sin(0.3)  # a map that turns every point by 0.3 rad about z
+    turned = P @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
+    from scipy.spatial import cKDTree
+
+    target_of = cKDTree(P).query(turned)[1]
+    ids = np.arange(0, 3000, 37)
+    err = geodesic_errors(cloud, target_of, ids, ids, method="heat")
+    along = np.arccos(np.clip(np.einsum("ij,ij->i", P[ids], P[target_of[ids]]), -1, 1))  # the true arc
+    keep = along > 0.1  # away from the poles, where the arc is shorter than the sampling
+    np.testing.assert_allclose(err[keep] * np.sqrt(4 * np.pi), along[keep], rtol=0.15, atol=0.02)

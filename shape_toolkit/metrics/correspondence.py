@@ -65,13 +65,22 @@ def check_truth(
 
 
 def error_normalization(target: Shape) -> float:
-    """``sqrt(target.area)``, the unit of the normalized geodesic error, or :class:`InvalidShapeError`
-    when it is not a positive number: a point cloud (no area), or a mesh whose every face is degenerate
-    (zero area to rounding: collinear or coincident vertices, repeated indices), where the error
-    would be a division by zero (NaN or infinite errors, reported as null)."""
+    """``sqrt(target.area)``, the unit of the normalized geodesic error (a point cloud: the area of the surface its
+    heat geodesics run on, :func:`~shape_toolkit.core.surface.cloud_area`), or :class:`InvalidShapeError` when it
+    is not a positive number: a mesh whose every face is degenerate (zero area to rounding: collinear or coincident
+    vertices, repeated indices), where the error would be a division by zero (NaN or infinite errors, reported as
+    null)."""
     from shape_toolkit.core.inspect import degenerate_face_mask
 
-    faces = target.require_faces("the normalized geodesic error (errors in units of sqrt(area))")
+    if not target.is_mesh:
+        from shape_toolkit.core.surface import cloud_area
+
+        area = cloud_area(target)
+        if not area > 0 or not np.isfinite(area):
+            raise InvalidShapeError(f"the target {target!r} has no surface area (its points' neighbourhoods span no "
+                                    "triangle), so the geodesic error normalized by sqrt(area) is undefined")
+        return float(np.sqrt(area))
+    faces = target.faces
     area = float(target.area)
     if not area > 0 or not np.isfinite(area) or degenerate_face_mask(target.vertices, faces).all():
         raise InvalidShapeError(
