@@ -435,8 +435,8 @@ def _check_method(shape: Shape, method: str) -> None:
         )
     if method not in CLOUD_METHODS and not shape.is_mesh:
         raise InvalidShapeError(
-            f"{method!r} geodesics need a triangle mesh but {shape!r} is a point cloud; "
-            "use method='heat' (on the cloud's local triangulations) or 'dijkstra' (kNN graph), or reconstruct a mesh"
+            f"{method!r} geodesics need a triangle mesh but {shape!r} is a point cloud; use the 'heat' method (on "
+            "the cloud's local triangulations) or 'dijkstra' (its kNN graph), or reconstruct a mesh"
         )
 
 
