@@ -306,6 +306,14 @@ def test_a_commands_warning_is_printed_when_it_succeeds_and_not_before_its_refus
     assert main(["evaluate-segmentation", str(path), str(labels), "--truth", str(labels)]) == 2
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and "error" in err[0] and "triangle mesh" in err[0]
+    # the same file as source and target is read twice and warns twice: printed once (the adversarial corpus)
+    ident, vts = tmp_path / "ident.txt", tmp_path / "a.vts"
+    ident.write_text("".join(f"{i}\n" for i in range(len(P))))
+    vts.write_text("".join(f"{i + 1}\n" for i in range(0, len(P), 3)))
+    assert main(["evaluate-map", str(path), str(path), str(ident), "--truth-src", str(vts), "--truth-dst", str(vts),
+                 "--json"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and "non-finite normal" in err[0], err
 
 
 def test_files_with_normals_refuse_what_they_refused_before(tmp_path):

@@ -118,8 +118,9 @@ def _one_line(text: object) -> str:
 
 def _call(args: argparse.Namespace) -> int:
     """Run the command in this process: every error one line, with its exit code. Warnings are held until the
-    command succeeds, then printed (one line each); a command that fails prints its error line alone, not a warning
-    about its input before it (a cloud file's dropped normals, then the refusal of a cloud)."""
+    command succeeds, then printed (one line each, each distinct warning once: a file read twice, as source and
+    target, warns once); a command that fails prints its error line alone, not a warning about its input before it
+    (a cloud file's dropped normals, then the refusal of a cloud)."""
     held: list[tuple[tuple, dict]] = []
     show = warnings.showwarning
     warnings.showwarning = lambda *w, **kw: held.append((w, kw))
@@ -128,8 +129,12 @@ def _call(args: argparse.Namespace) -> int:
     finally:
         warnings.showwarning = show
     if code == 0:
+        seen: set[tuple[str, type]] = set()
         for w, kw in held:
-            show(*w, **kw)
+            key = (str(w[0]), w[1])
+            if key not in seen:
+                seen.add(key)
+                show(*w, **kw)
     return code
 
 
