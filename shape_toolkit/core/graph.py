@@ -137,8 +137,10 @@ def cloud_knn_edges(shape: Shape, n_neighbors: int) -> np.ndarray:
 
     P = np.asarray(shape.vertices, dtype=np.float64)
     e = knn_edges(P, n_neighbors)
+    if shape.is_mesh:  # a mesh's vertices taken as points: its own edges say what is joined
+        return e
     count, labels = edge_components(len(P), e)
-    if count == 1 or shape.is_mesh:
+    if count == 1:
         return e
     from shape_toolkit.core.surface import cloud_normals, local_delaunay_triangles
 
