@@ -369,9 +369,11 @@ def _edge_graph(shape: Shape) -> sp.csr_matrix:
 
 
 def _components(shape: Shape) -> np.ndarray:
-    """Connected-component label ``(n,)`` of every vertex (mesh edges / kNN graph), cached."""
+    """Connected-component label ``(n,)`` of every vertex (mesh edges / kNN graph: Dijkstra's cached edge graph),
+    cached."""
     return GEODESIC_SOLVERS_CACHE.get_or_compute(
-        (shape.content_hash, "components"), lambda: connected_components(_edge_graph(shape), directed=False)[1]
+        (shape.content_hash, "components"),
+        lambda: connected_components(_solver(shape, "dijkstra"), directed=False)[1],
     )
 
 
@@ -576,7 +578,7 @@ def adjacency(shape: Shape) -> sp.csr_matrix:
 
 
 def _adjacency(shape: Shape) -> sp.csr_matrix:
-    G = _edge_graph(shape)
+    G = _solver(shape, "dijkstra")  # the edge graph, built once per shape (a cloud's may take its triangulations)
     A = sp.csr_matrix((np.ones(G.nnz), G.indices, G.indptr), shape=G.shape)
     A.setdiag(0)
     A.eliminate_zeros()
