@@ -172,7 +172,7 @@ def plan(
     config: BenchConfig, run_dir: str | os.PathLike, *, limit: int | None = None
 ) -> tuple[list[Job], dict[str, PrepareJob]]:
     """Expand the config into row jobs and prepare jobs ``{prepare key: job}``."""
-    from shape_toolkit.bench.tasks import TASKS
+    from shape_toolkit.bench.tasks import PROTOCOL_VALUES, TASKS
 
     run_dir = str(Path(run_dir).resolve())
     jobs: list[Job] = []
@@ -209,9 +209,9 @@ def plan(
                         "geodesic_method": task.options.get("geodesic_method") if geo else None,
                         "truth_sample": task.options.get("truth_sample") if geo else None,
                     }
-                    protocol = {k: task.options[k] for k, default in (("score_on", "target"), ("target", "pair"),
-                                                                      ("truth_points", "random"), ("corrupt", "target"))
-                                if (geo or k in adapter.protocol_options) and task.options.get(k, default) != default}
+                    protocol = {k: task.options[k] for k, allowed in PROTOCOL_VALUES.items()  # default first
+                                if (geo or k in adapter.protocol_options)
+                                and task.options.get(k, allowed[0]) != allowed[0]}
                     pident.update(protocol)  # only when set: the keys of earlier runs stay valid
                     pkey = row_key(pident)
                     prep = preps.get(pkey)

@@ -189,6 +189,8 @@ CORRUPT = ("target", "both", "source")
 #: which ground-truth points ``truth_sample`` keeps: a seeded random draw, evenly spaced ones (ends included),
 #: or every ``len(truth) // truth_sample``-th from the first (a fixed stride, e.g. every 5th of 5,000)
 TRUTH_POINTS = ("random", "even", "stride")
+#: the options of how an item is prepared (:func:`prepare`'s keywords) and their values, the default first
+PROTOCOL_VALUES = {"score_on": SCORE_ON, "target": TARGETS, "truth_points": TRUTH_POINTS, "corrupt": CORRUPT}
 
 
 def score_on_clean(prepared: Prepared, target_of: np.ndarray) -> tuple[Prepared, np.ndarray]:
@@ -349,8 +351,8 @@ class TaskAdapter:
     default_metrics: tuple[str, ...] = ()
     #: metric name -> (function(prepared, output, options) -> {column: value}, required shape_toolkit.metrics names)
     metrics: dict[str, tuple[Callable[..., dict[str, Any]], tuple[str, ...]]] = {}
-    #: options of how an item is prepared (:func:`prepare`'s ``score_on``, ``target``) this task takes beside a
-    #: matching task, which takes them all; each kept in the options (a row's key) only when not its default
+    #: options of how an item is prepared (:data:`PROTOCOL_VALUES`) this task takes beside a matching task, which
+    #: takes them all; each kept in the options (a row's key) only when not its default
     protocol_options: tuple[str, ...] = ()
 
     def _pop_protocol(self, options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -360,7 +362,7 @@ class TaskAdapter:
         rest, proto = dict(options), {}
         for key in self.protocol_options:
             if key in rest:
-                value, allowed = rest.pop(key), {"score_on": SCORE_ON, "target": TARGETS}[key]
+                value, allowed = rest.pop(key), PROTOCOL_VALUES[key]
                 if value not in allowed:
                     raise ParameterError(f"{key} must be one of {', '.join(map(repr, allowed))}, got {value!r}")
                 if value != allowed[0]:
@@ -1062,8 +1064,7 @@ class MatchingTask(TaskAdapter):
         th = o["r_smooth_theta"]
         if isinstance(th, bool) or not isinstance(th, (int, float)) or not 0 < th <= 1:
             raise ParameterError(f"r_smooth_theta must be in (0, 1], got {th!r}")
-        for key, allowed in (("score_on", SCORE_ON), ("target", TARGETS), ("truth_points", TRUTH_POINTS),
-                             ("corrupt", CORRUPT)):
+        for key, allowed in PROTOCOL_VALUES.items():
             if o[key] not in allowed:
                 raise ParameterError(f"{key} must be one of {', '.join(map(repr, allowed))}, got {o[key]!r}")
         if o["corrupt"] in ("both", "source") and o["target"] == "self":
