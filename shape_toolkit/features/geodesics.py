@@ -365,15 +365,17 @@ def _solve_failed(shape: Shape, method: str, exc: Exception) -> SolverError:
 
 
 def _edge_graph(shape: Shape) -> sp.csr_matrix:
-    return edge_length_graph(shape, _KNN_NEIGHBORS)
+    """The edge-length graph Dijkstra runs on (mesh edges; a cloud's kNN graph), built once per shape (cached: a
+    cloud's may take its local triangulations) and shared by the Dijkstra solver, the components and the adjacency."""
+    return GEODESIC_SOLVERS_CACHE.get_or_compute(
+        (shape.content_hash, "edge graph"), lambda: edge_length_graph(shape, _KNN_NEIGHBORS)
+    )
 
 
 def _components(shape: Shape) -> np.ndarray:
-    """Connected-component label ``(n,)`` of every vertex (mesh edges / kNN graph: Dijkstra's cached edge graph),
-    cached."""
+    """Connected-component label ``(n,)`` of every vertex (mesh edges / kNN graph), cached."""
     return GEODESIC_SOLVERS_CACHE.get_or_compute(
-        (shape.content_hash, "components"),
-        lambda: connected_components(_solver(shape, "dijkstra"), directed=False)[1],
+        (shape.content_hash, "components"), lambda: connected_components(_edge_graph(shape), directed=False)[1]
     )
 
 
@@ -578,7 +580,7 @@ def adjacency(shape: Shape) -> sp.csr_matrix:
 
 
 def _adjacency(shape: Shape) -> sp.csr_matrix:
-    G = _solver(shape, "dijkstra")  # the edge graph, built once per shape (a cloud's may take its triangulations)
+    G = _edge_graph(shape)
     A = sp.csr_matrix((np.ones(G.nnz), G.indices, G.indptr), shape=G.shape)
     A.setdiag(0)
     A.eliminate_zeros()
