@@ -7,6 +7,9 @@
   orientation verdict (:func:`~shape_toolkit.plugins.matching.orientation.orientation_verdict`) can. "Nearly the same
   residual" is the ambiguity's own ratio (:data:`AMBIGUOUS_RATIO`), so only maps the residual cannot tell apart are
   decided by orientation (``benchmarks/results/rigid_motion_notes.md``).
+- :func:`seed_tears`: at how many of the user's seed pairs a map is torn. Every matcher writes the seeds into its map,
+  so a map whose own solution disagrees with them still holds them, pasted into a map that sends their neighbours
+  elsewhere; ``best-of`` keeps a map torn at the fewest seeds (``auto_mirrored_notes.md``, session 44).
 """
 
 from __future__ import annotations
@@ -18,7 +21,8 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.plugins.matching.orientation import orientation_verdict
 
-__all__ = ["map_ambiguity", "map_distance", "preserving_alternative", "RIVAL_DISTANCE", "AMBIGUOUS_RATIO"]
+__all__ = ["map_ambiguity", "map_distance", "preserving_alternative", "seed_tears", "RIVAL_DISTANCE", "AMBIGUOUS_RATIO",
+           "SEED_NEIGHBORS"]
 
 #: ``info["ambiguity"]``: a candidate is a rival of the kept map when its images lie on average at least this far from
 #: the kept map's (Euclidean, in sqrt(area) of the target): 7 times a sound FAUST map's error; the FAUST rivals that
@@ -27,6 +31,8 @@ RIVAL_DISTANCE = 0.15
 #: the pair is reported ambiguous when a rival's residual is within this factor of the kept map's; a report, not a
 #: choice (``auto_mirrored_notes.md``, session 33: on the tuning half most kept maps so flagged were wrong)
 AMBIGUOUS_RATIO = 1.1
+#: :func:`seed_tears`: the source points nearest each seed whose images show whether a map is continuous there
+SEED_NEIGHBORS = 8
 
 
 def map_distance(a: np.ndarray, b: np.ndarray, target: Shape, mass: np.ndarray, area: float) -> float:
@@ -59,6 +65,32 @@ def map_ambiguity(candidates: list[dict[str, Any]], maps: list[np.ndarray], kept
     ratio = r["residual"] / max(candidates[i]["residual"], 1e-300)
     return {"rival": r["matcher"], "residual_ratio": ratio, "disagreement": r["disagreement"],
             "ambiguous": bool(ratio <= AMBIGUOUS_RATIO)}
+
+
+def seed_tears(source: Shape, target: Shape, target_of: np.ndarray, seeds: np.ndarray, area: float) -> int:
+    """At how many of the seed pairs ``seeds`` ``(q, 2)`` (source vertex, target vertex) the map ``target_of``
+    ``(n_s,)`` goes elsewhere: the :data:`SEED_NEIGHBORS` source points nearest the seed's source are sent, at the
+    median, at least :data:`RIVAL_DISTANCE` sqrt(``area``) of the target from the seed's target (Euclidean): there the
+    map is another map than the seed's (the distance at which two maps are rivals). A map that agrees with a seed sends
+    its neighbours next to it, however the shapes differ; a map that holds the seed only because it was written into
+    it sends them where the map itself goes. Unmatched neighbours (``-1``) do not count; a seed none of whose
+    neighbours is matched does not either."""
+    from scipy.spatial import cKDTree
+
+    sd = np.asarray(seeds, dtype=np.int64).reshape(-1, 2)
+    if not len(sd):
+        return 0
+    t = np.asarray(target_of)
+    X, Y = np.asarray(source.vertices, dtype=np.float64), np.asarray(target.vertices, dtype=np.float64)
+    k = int(min(SEED_NEIGHBORS + 1, len(X)))
+    nb = np.asarray(cKDTree(X).query(X[sd[:, 0]], k)[1]).reshape(len(sd), k)[:, 1:]
+    reach = RIVAL_DISTANCE * np.sqrt(area)
+    torn = 0
+    for j, ring in zip(sd[:, 1], nb):
+        ring = ring[t[ring] >= 0]
+        if len(ring):
+            torn += bool(np.median(np.linalg.norm(Y[t[ring]] - Y[j], axis=1)) >= reach)
+    return int(torn)
 
 
 def preserving_alternative(source: Shape, target: Shape, candidates: list[dict[str, Any]], maps: list[np.ndarray],

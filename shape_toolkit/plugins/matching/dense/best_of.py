@@ -69,6 +69,19 @@ worker): 21-25 % less CPU in every group, 1.5x-2.0x below pyFM; FAUST 0.0262 -> 
 Tried and not adopted: ``benchmarks/results/auto_speed_notes.md`` (coarser polish steps, fewer shells samples, one
 polish in full, the residual times the WKS disagreement).
 
+Seeds. Every matcher writes the user's seed pairs into its map, so a map whose own solution disagrees with them still
+holds them, pasted into a map that sends their surroundings elsewhere: in a frame the shells cannot bridge, the
+given-frame shells of a gorilla and a turned man fit best by the residual and hold every seed that way.
+With seeds, each candidate counts the seeds it is torn at (:func:`~shape_toolkit.plugins.matching.selection.
+seed_tears`: the seed's 8 nearest source points sent, at the median, a rival distance, 0.15 sqrt(area), or more
+from the seed's target), and a map torn at half of them or more is another map than the user's: it is kept only when
+every candidate is (``honour_seeds``). Half, not any: a sound map of a gorilla and a man can be locally wrong at a
+fingertip seed (FAUST tr_reg_017 -> 019 turned: the right map, 0.018, is torn at 1 of 6 seeds; keeping the least torn
+instead took 0.130). Tuning half only (session 44, scratch ``/work/wt/notes/lead/s44``), six ground-truth seeds
+(farthest points of the truth points): gorillas to men with the man turned by 144 degrees 0.168 -> 0.100 (as given
+0.100 either way), turned by random rotations 0.138-0.150 -> 0.100; dogs and FAUST people 0-1 as given or turned by 90
+degrees unchanged (0.0245, 0.0189). Without seeds nothing changes.
+
 Mirrored parts. A map can keep orientation on the whole and mirror a part: on FAUST people the feet or the arms
 swapped left for right, every candidate alike, since all start from the same intrinsic ambiguity. Where the kept map
 reverses orientation on a part (:func:`~shape_toolkit.plugins.matching.orientation.reversing_region`: the local
@@ -126,6 +139,7 @@ from shape_toolkit.plugins.matching.selection import (
     map_ambiguity,
     map_distance,
     preserving_alternative,
+    seed_tears,
 )
 from shape_toolkit.plugins.matching.validation import check_seeds
 from shape_toolkit.results.correspondence import Correspondence
@@ -185,7 +199,9 @@ class BestOfMatcher(DenseMatcher):
     map mirrors a part, it is also refitted from a ``reorient x reorient`` functional map fitted on the rest (0 or
     None: not; module docstring), ``info["mirrored_part"]``; ``keep_orientation``: a mirror image of least residual
     gives way to a close candidate that keeps orientation (module docstring), ``info["orientation_switch"]``; the rest
-    of ``info`` is the chosen matcher's. Seeds go to every matcher and stay in polished maps. A matcher that cannot
+    of ``info`` is the chosen matcher's. Seeds go to every matcher and stay in polished maps; ``honour_seeds``: a map
+    that agrees with half of them or fewer is not kept while another agrees with more (module docstring), each
+    candidate's ``seeds_torn`` in ``info["candidates"]``. A matcher that cannot
     take the pair (a point cloud for a matcher that needs faces: :class:`~shape_toolkit.errors.InvalidShapeError`) is
     left out and named in ``info["skipped"]``; when none can, the first one's error is raised."""
 
@@ -218,13 +234,17 @@ class BestOfMatcher(DenseMatcher):
                         "canonical forms are not run (0 or None: always run)"),
         "keep_orientation": Param(InstanceOf(bool), doc="when the map of least residual reverses orientation, keep "
                                   "a candidate that does not, of residual within AMBIGUOUS_RATIO of it"),
+        "honour_seeds": Param(InstanceOf(bool), doc="with seeds, a map that agrees with half of them or fewer "
+                              "(selection.seed_tears) is not kept while another agrees with more (False: the residual "
+                              "alone decides, as before session 44)"),
     }
 
     def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int = 64,
                  reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
                  same_frame: float = SAME_FRAME_DEGREES, reorient: int | None = REORIENT_START,
                  polish_samples: int | None = POLISH_SAMPLES, given_frame_first: bool = False,
-                 keep_orientation: bool = True, frame_from: str = "intrinsic", settle: float | None = SETTLE_DISTANCE):
+                 keep_orientation: bool = True, frame_from: str = "intrinsic", settle: float | None = SETTLE_DISTANCE,
+                 honour_seeds: bool = True):
         self.matchers = matchers
         self.k = k
         self.reframe = reframe
@@ -238,6 +258,7 @@ class BestOfMatcher(DenseMatcher):
         self.keep_orientation = keep_orientation
         self.frame_from = frame_from
         self.settle = settle
+        self.honour_seeds = honour_seeds
 
     def _matchers(self) -> list:
         return [_matcher(m) for m in self.matchers]
@@ -304,15 +325,26 @@ class BestOfMatcher(DenseMatcher):
         maps: list[np.ndarray] = []  # each candidate's map, for info["ambiguity"]
         corrs: list[Correspondence] = []  # each candidate, in the order of candidates and maps
 
+        # the seeds are the user's matches: a map that agrees with half of them or fewer (selection.seed_tears) is
+        # another map than theirs, whatever its residual, and is kept only when every candidate is; without seeds
+        # nothing is torn and the residual alone decides
+        torn: dict[str, int] = {}
+
+        def contradicts(name: str) -> bool:
+            return bool(self.honour_seeds) and seeds is not None and 2 * torn.get(name, 0) >= len(seeds)
+
         def consider(name: str, corr: Correspondence) -> None:
             nonlocal best
             residual = map_residual(bs, bt, np.asarray(corr.target_of), k)
             candidates.append({"matcher": name, "residual": residual})
+            if seeds is not None:
+                torn[name] = candidates[-1]["seeds_torn"] = seed_tears(source, target, corr.target_of, seeds,
+                                                                           spec_t.area)
             maps.append(np.asarray(corr.target_of))
             corrs.append(corr)
             if progress is not None:
                 progress(f"best-of: {name} residual {residual:.4g}")
-            if best is None or residual < best[0]:
+            if best is None or (contradicts(name), residual) < (contradicts(best[1]), best[0]):
                 best = (residual, name, corr)
 
         def run(name: str, m: Any, src: Shape, tgt: Shape = target) -> Correspondence | None:
@@ -384,7 +416,10 @@ class BestOfMatcher(DenseMatcher):
                     consider(f"{name}@canonical+zoomout", self._polished(corr, bps, bpt, seeds, sampled()))
         if best is None:
             raise first_error
-        switched = preserving_alternative(source, target, candidates, maps, best[1]) if self.keep_orientation else None
+        # a map that contradicts the seeds is no alternative to one that does not
+        eligible = [j for j, c in enumerate(candidates) if contradicts(c["matcher"]) <= contradicts(best[1])]
+        switched = preserving_alternative(source, target, [candidates[j] for j in eligible],
+                                          [maps[j] for j in eligible], best[1]) if self.keep_orientation else None
         if switched:  # the least residual reverses orientation; a map the residual cannot tell from it does not
             j = next(j for j, c in enumerate(candidates) if c["matcher"] == switched["to"])
             best = (candidates[j]["residual"], switched["to"], corrs[j])
