@@ -331,7 +331,7 @@ class BestOfMatcher(DenseMatcher):
         torn: dict[str, int] = {}
 
         def contradicts(name: str) -> bool:
-            return bool(self.honour_seeds) and seeds is not None and 2 * torn.get(name, 0) >= len(seeds)
+            return bool(self.honour_seeds and seeds is not None and len(seeds) and 2 * torn.get(name, 0) >= len(seeds))
 
         def consider(name: str, corr: Correspondence) -> None:
             nonlocal best
