@@ -565,3 +565,34 @@ def test_auto_keeps_a_map_that_agrees_with_the_seeds_whatever_the_frame(shared_d
     assert kept["residual"] == min(c["residual"] for c in agreeing)
     err = paired_geodesic_distances(b, vb, corr.target_of[va], method="dijkstra").mean() / np.sqrt(b.area)
     assert err < 0.2
+
+
+def test_match_warns_when_the_map_goes_elsewhere_than_a_seed(poses, tmp_path, capsys):
+    """``match --seeds``: the pipelines write the seeds into their maps, so a wrong seed holds in the map file; the
+    command counts the seeds the map goes elsewhere at (the points around them land a rival distance away) and says
+    so. Four seeds on the limb tips of two poses of one shape, the fourth sent to another limb's tip: one of four,
+    whatever the pipeline; right seeds give no warning, and ``--json`` carries the count."""
+    from shape_toolkit.cli import main
+    from shape_toolkit.core.geometry import farthest_point_sampling
+    from shape_toolkit.io.mesh import save_shape
+
+    a, b = poses
+    save_shape(a, tmp_path / "a.off")
+    save_shape(b, tmp_path / "b.off")
+    tips = farthest_point_sampling(a.vertices, 5)  # the poses share their vertex order
+    right = np.column_stack([tips[:4], tips[:4]])
+    wrong = right.copy()
+    wrong[3, 1] = tips[4]
+    for name, seeds in (("right", right), ("wrong", wrong)):
+        np.savetxt(tmp_path / f"{name}.txt", seeds, fmt="%d")
+    args = [str(tmp_path / "a.off"), str(tmp_path / "b.off"), "-o", str(tmp_path / "m.txt"), "--seeds"]
+    for pipeline in ("auto", "zoomout"):
+        assert main(["match", *args, str(tmp_path / "wrong.txt"), "--pipeline", pipeline]) == 0
+        warn = [line for line in capsys.readouterr().out.splitlines() if "goes elsewhere" in line]
+        assert len(warn) == 1 and "at 1 of the 4 seeds" in warn[0], warn
+    assert main(["match", *args, str(tmp_path / "right.txt")]) == 0
+    assert "goes elsewhere" not in capsys.readouterr().out
+    assert main(["match", *args, str(tmp_path / "wrong.txt"), "--json"]) == 0
+    import json
+
+    assert json.loads(capsys.readouterr().out)["seeds_torn"] == 1

@@ -105,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         # the proxies' functional map (a k x k array) is for the API, not the summary
         "proxy": {k: v for k, v in corr.info["proxy"].items() if k != "C"} if corr.info.get("proxy") else None,
         "open_boundary": _open_boundary(source, target),
+        "seeds_torn": _seeds_torn(source, target, corr.target_of, seeds),
     }
     if args.json:
         print_json(result)
@@ -125,12 +126,34 @@ def run(args: argparse.Namespace) -> int:
             print(f"warning: another map ({a['rival']}) lies {a['disagreement']:.2f} sqrt(area) from this one with a "
                   f"residual only {a['residual_ratio']:.2f} times its own: the pair is ambiguous (a half turn or a "
                   "swapped part may have been kept); pass seeds (--seeds) to decide")
+        if result["seeds_torn"]:
+            print(f"warning: the map goes elsewhere at {result['seeds_torn']} of the {len(seeds)} seeds (the points "
+                  "around each such seed land 0.15 sqrt(area) or more from its target): check those seeds, or add "
+                  "more where the shapes differ")
         hint = _partial_hint(result["open_boundary"], args, pipe.name)
         if hint:
             print(hint)
         if plys:
             print(f"coloured meshes: {plys[0]} (pull-back), {plys[1]}")
     return 0
+
+
+def _seeds_torn(source: Shape, target: Shape, target_of: np.ndarray, seeds: np.ndarray | None) -> int | None:
+    """At how many of the user's ``seeds`` ``(q, 2)`` the final map goes elsewhere
+    (:func:`~shape_toolkit.plugins.matching.selection.seed_tears`: the points around the seed, since most pipelines
+    write the seeds themselves into their maps); None without seeds, or for a target cloud with no surface to measure
+    it on."""
+    from shape_toolkit.core.surface import cloud_area
+    from shape_toolkit.errors import InvalidShapeError
+    from shape_toolkit.plugins.matching.selection import seed_tears
+
+    if seeds is None or not len(seeds):
+        return None
+    try:
+        area = target.area if target.is_mesh else cloud_area(target)
+    except InvalidShapeError:
+        return None
+    return seed_tears(source, target, target_of, seeds, area)
 
 
 def _open_boundary(source: Shape, target: Shape) -> dict:

@@ -50,37 +50,22 @@ clouds always run again. When the first intrinsic map and the extrinsic matcher'
 the source within ``settle`` (0.03 sqrt(area), :func:`~shape_toolkit.plugins.matching.selection.map_distance`) of
 each other, two independent methods (one blind to frames, one to intrinsic symmetries) agree, and the estimated frame
 and the canonical forms, there to repair a wrong map, are not run (``info["settled"]``). Session 37
-(``auto_speed_notes.md``): on the tuning half no mesh map worse (48 pairs, 4 better by up to 0.0006) and one of 64
-clouds worse by 0.0003, 24-30 % less CPU on FAUST and TOSCA; on the report half, run once, FAUST 0.0270 ->
-0.0271 (five pairs within 0.002 either way), glued 0.0440 -> 0.0437 and 0.0339 -> 0.0331, TOSCA and gorillas
-unchanged, two clouds within 0.0025; 25 % less CPU on FAUST, 8-14 % on TOSCA and glued pairs, none on gorillas (whose
-maps disagree). ``given_frame_first`` (off by default) also leaves the frame's run out when the extrinsic
-matcher's map in the given frame (raw or polished) already has a lower residual than the intrinsic map the frame was
-estimated from (meshes only; ``info["estimated_frame"]["not_run"]``). Tried for the CPU and not adopted
-(``auto_speed_notes.md``): on the tuning half it changed no kept map but three glued dog pairs' (0.0366 -> 0.0355);
-on the report half it flipped a glued FAUST pair (028 -> 033: 0.024 -> 0.393; glued FAUST 0.044 -> 0.069) and
-saved no CPU on TOSCA, though gorillas to women went 0.423 -> 0.383.
+(``auto_speed_notes.md``): on the tuning half no map worse by more than 0.0003, 24-30 % less CPU on FAUST and
+TOSCA; on the report half FAUST 0.0270 -> 0.0271, 8-25 % less CPU but on gorillas (whose maps disagree).
+``given_frame_first`` (off by default) also leaves the frame's run out when the extrinsic matcher's map in the given
+frame already has a lower residual than the intrinsic map the frame was estimated from
+(``info["estimated_frame"]["not_run"]``); not adopted: it flipped a glued FAUST pair (``auto_speed_notes.md``).
+Tried and not adopted for the CPU: coarser polish steps, fewer shells samples, one polish in full.
 The polishes' ZoomOut iterations query ``polish_samples`` (1,000) farthest-point samples of the source, each
-fitted with the area of its Voronoi cell, then one iteration queries every vertex. Tuning half: the groups' means
-within 2 % (FAUST people 0-1 0.0214 either way, gorillas to men 0.168 -> 0.172), 20-28 % less CPU; with each sample
-weighted by its own vertex's area instead, 4 % worse on four of five groups. Report half (``auto_speed.md``, one
-worker): 21-25 % less CPU in every group, 1.5x-2.0x below pyFM; FAUST 0.0262 -> 0.0270, gorillas to women 0.413 ->
-0.423, glued FAUST 0.0451 -> 0.0440, the TOSCA groups within 0.0002.
-Tried and not adopted: ``benchmarks/results/auto_speed_notes.md`` (coarser polish steps, fewer shells samples, one
-polish in full, the residual times the WKS disagreement).
+fitted with the area of its Voronoi cell, then one iteration queries every vertex: tuning half, the groups' means
+within 2 %, 20-28 % less CPU; report half 21-25 % less CPU, FAUST 0.0262 -> 0.0270 (``auto_speed_notes.md``).
 
-Seeds. Every matcher writes the user's seed pairs into its map, so a map whose own solution disagrees with them still
-holds them, pasted into a map that sends their surroundings elsewhere: in a frame the shells cannot bridge, the
-given-frame shells of a gorilla and a turned man fit best by the residual and hold every seed that way.
-With seeds, each candidate counts the seeds it is torn at (:func:`~shape_toolkit.plugins.matching.selection.
-seed_tears`: the seed's 8 nearest source points sent, at the median, a rival distance, 0.15 sqrt(area), or more
-from the seed's target), and a map torn at half of them or more is another map than the user's: it is kept only when
-every candidate is (``honour_seeds``). Half, not any: a sound map of a gorilla and a man can be locally wrong at a
-fingertip seed (FAUST tr_reg_017 -> 019 turned: the right map, 0.018, is torn at 1 of 6 seeds; keeping the least torn
-instead took 0.128). Tuning half only (session 44, scratch ``/work/wt/notes/lead/s44``), six ground-truth seeds
-(farthest points of the truth points): gorillas to men with the man turned by 144 degrees 0.168 -> 0.100 (as given
-0.100 either way), turned by random rotations 0.138-0.150 -> 0.100; dogs and FAUST people 0-1 as given or turned by 90
-degrees unchanged (0.0245, 0.0189). Without seeds nothing changes.
+Seeds. Most matchers write the user's seeds into their maps, so a map that disagrees with them still holds them (in a
+frame the shells cannot bridge, the given-frame shells held every seed and won on the residual). A candidate torn at
+half the seeds or more (:func:`~shape_toolkit.plugins.matching.selection.seed_tears`) is another map than the user's
+and is kept only when every candidate is (``honour_seeds``); half, not any, since a right map can be locally wrong at
+one seed. Tuning half, six seeds: gorillas to men turned by 144 degrees 0.168 -> 0.100, dogs and FAUST people 0-1
+unchanged (``seeded_frames_notes.md``). Without seeds nothing changes.
 
 Mirrored parts. A map can keep orientation on the whole and mirror a part: on FAUST people the feet or the arms
 swapped left for right, every candidate alike, since all start from the same intrinsic ambiguity. Where the kept map
@@ -200,10 +185,10 @@ class BestOfMatcher(DenseMatcher):
     None: not; module docstring), ``info["mirrored_part"]``; ``keep_orientation``: a mirror image of least residual
     gives way to a close candidate that keeps orientation (module docstring), ``info["orientation_switch"]``; the rest
     of ``info`` is the chosen matcher's. Seeds go to every matcher and stay in polished maps; ``honour_seeds``: a map
-    that agrees with half of them or fewer is not kept while another agrees with more (module docstring), each
-    candidate's ``seeds_torn`` in ``info["candidates"]``. A matcher that cannot
-    take the pair (a point cloud for a matcher that needs faces: :class:`~shape_toolkit.errors.InvalidShapeError`) is
-    left out and named in ``info["skipped"]``; when none can, the first one's error is raised."""
+    torn at half of them or more is not kept while another is not (module docstring; each candidate's ``seeds_torn``).
+    A matcher that cannot take the pair (a point cloud for a matcher that needs faces:
+    :class:`~shape_toolkit.errors.InvalidShapeError`) is left out and named in ``info["skipped"]``; when none can, the
+    first one's error is raised."""
 
     presets: dict = {}
     parameter_constraints = {
