@@ -63,6 +63,7 @@ NULLABLE = frozenset({
     "ambiguity",  # match: None for a pipeline without candidates to compare (only best-of, auto, has them)
     "rival",  # match's ambiguity: None when no candidate lies RIVAL_DISTANCE or more from the kept map
     "settled",  # match: None when best-of ran every frame (its first maps disagreed) or the pipeline has no best-of
+    "seeds_torn",  # match: None without --seeds, or for a target cloud with no surface to measure the seeds on
     "preset", "K", "times", "max_keypoints",  # parameters whose default is None, echoed as given
     "n_embedding", "output_dim",  # csc's parameters whose default is None
     "reason",  # a segmentation's constraint report: None when every constraint is kept
