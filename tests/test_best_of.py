@@ -455,6 +455,11 @@ def test_the_rival_of_the_kept_map_is_a_different_map_of_close_residual():
     assert map_ambiguity(c, maps, "kept", sphere, mass, area)["rival"] == "far"
     assert not map_ambiguity(c, maps, "kept", sphere, mass, area)["ambiguous"]
     assert map_ambiguity(cands(1.0)[:2], maps[:2], "kept", sphere, mass, area) == {"rival": None, "ambiguous": False}
+    # a candidate the user's seeds refuted is no rival (the seeds decided), but its disagreement is still reported
+    c = cands(1.05)
+    assert map_ambiguity(c, maps, "kept", sphere, mass, area, frozenset({"far"})) == {"rival": None,
+                                                                                    "ambiguous": False}
+    assert {x["matcher"]: x["disagreement"] for x in c}["far"] == pytest.approx(d["far"])
 
 
 def test_match_warns_when_the_pair_is_ambiguous(shared_data, capsys, tmp_path):
@@ -563,6 +568,8 @@ def test_auto_keeps_a_map_that_agrees_with_the_seeds_whatever_the_frame(shared_d
     assert 2 * kept["seeds_torn"] < len(seeds)  # ... and is not the one kept
     agreeing = [c for c in cand.values() if 2 * c["seeds_torn"] < len(seeds)]
     assert kept["residual"] == min(c["residual"] for c in agreeing)
+    rival = corr.info["ambiguity"]["rival"]  # a refuted map is no rival: the seeds decided
+    assert rival is None or 2 * cand[rival]["seeds_torn"] < len(seeds)
     err = paired_geodesic_distances(b, vb, corr.target_of[va], method="dijkstra").mean() / np.sqrt(b.area)
     assert err < 0.2
 

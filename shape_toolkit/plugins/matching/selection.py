@@ -49,16 +49,17 @@ def map_distance(a: np.ndarray, b: np.ndarray, target: Shape, mass: np.ndarray, 
 
 
 def map_ambiguity(candidates: list[dict[str, Any]], maps: list[np.ndarray], kept: str, target: Shape,
-                  mass: np.ndarray, area: float) -> dict[str, Any]:
+                  mass: np.ndarray, area: float, excluded: frozenset[str] = frozenset()) -> dict[str, Any]:
     """How far each candidate's map ``(n_s,)`` lies from the kept one's (``candidates[i]["disagreement"]``, set here:
     :func:`map_distance`), and the rival of least residual among those at least :data:`RIVAL_DISTANCE` away:
     ``{"rival", "residual_ratio", "disagreement", "ambiguous"}``, ambiguous when its residual is within
     :data:`AMBIGUOUS_RATIO` of the kept map's (two different maps explain the pair about as well: a half turn or a
-    swapped part may have been kept)."""
+    swapped part may have been kept). The candidates named in ``excluded`` are no rivals (maps the user's seeds
+    contradict: the seeds decided against them)."""
     i = next(j for j, c in enumerate(candidates) if c["matcher"] == kept)
     for c, T in zip(candidates, maps):
         c["disagreement"] = map_distance(T, maps[i], target, mass, area)
-    rivals = [c for c in candidates if c["disagreement"] >= RIVAL_DISTANCE]
+    rivals = [c for c in candidates if c["disagreement"] >= RIVAL_DISTANCE and c["matcher"] not in excluded]
     if not rivals:
         return {"rival": None, "ambiguous": False}
     r = min(rivals, key=lambda c: c["residual"])

@@ -424,8 +424,9 @@ class BestOfMatcher(DenseMatcher):
                     consider(f"{name}+reoriented", Correspondence(T, target.n_vertices, info={
                         **best[2].info, "C": C, "reoriented": f"ZoomOut {k0} -> {bps.k} from the unmirrored part"}))
         info = dict(best[2].info)
+        refuted = frozenset(c["matcher"] for c in candidates if contradicts(c["matcher"]))  # no rivals: seeds decided
         info.update({"candidates": candidates, "chosen": best[1], "skipped": skipped,
-                     "ambiguity": map_ambiguity(candidates, maps, best[1], target, bs.mass, spec_t.area)})
+                     "ambiguity": map_ambiguity(candidates, maps, best[1], target, bs.mass, spec_t.area, refuted)})
         if frame:
             info["estimated_frame"] = frame
         if canon:
