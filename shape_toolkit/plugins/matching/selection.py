@@ -7,9 +7,10 @@
   orientation verdict (:func:`~shape_toolkit.plugins.matching.orientation.orientation_verdict`) can. "Nearly the same
   residual" is the ambiguity's own ratio (:data:`AMBIGUOUS_RATIO`), so only maps the residual cannot tell apart are
   decided by orientation (``benchmarks/results/rigid_motion_notes.md``).
-- :func:`seed_tears`: at how many of the user's seed pairs a map is torn. Every matcher writes the seeds into its map,
-  so a map whose own solution disagrees with them still holds them, pasted into a map that sends their neighbours
-  elsewhere; ``best-of`` keeps a map torn at the fewest seeds (``auto_mirrored_notes.md``, session 44).
+- :func:`seed_tears`: at how many of the user's seed pairs a map is torn. Most matchers write the seeds into their
+  maps, so a map whose own solution disagrees with them still holds them, pasted into a map that sends their
+  neighbours elsewhere; ``best-of`` keeps a map torn at half the seeds or more only when every candidate is
+  (``seeded_frames_notes.md``, session 44), and ``match --seeds`` warns when its final map is torn at any.
 """
 
 from __future__ import annotations

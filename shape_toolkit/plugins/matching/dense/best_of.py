@@ -185,7 +185,7 @@ class BestOfMatcher(DenseMatcher):
     None: not; module docstring), ``info["mirrored_part"]``; ``keep_orientation``: a mirror image of least residual
     gives way to a close candidate that keeps orientation (module docstring), ``info["orientation_switch"]``; the rest
     of ``info`` is the chosen matcher's. Seeds go to every matcher and stay in polished maps; ``honour_seeds``: a map
-    torn at half of them or more is not kept while another is not (module docstring; each candidate's ``seeds_torn``).
+    torn at half of them or more is kept only when every candidate is (module docstring; ``seeds_torn``).
     A matcher that cannot take the pair (a point cloud for a matcher that needs faces:
     :class:`~shape_toolkit.errors.InvalidShapeError`) is left out and named in ``info["skipped"]``; when none can, the
     first one's error is raised."""
