@@ -362,6 +362,13 @@ def test_truth_seeds_reach_a_seeded_matcher_and_are_refused_elsewhere(tmp_path):
     with pytest.raises(ConfigError) as e:
         parse_config(_config(folder, '[[tasks.methods]]\npipeline = "zoomout"\n', options=opts))
     assert e.value.key == "tasks[0].methods[0]" and "truth_seeds" in str(e.value)
+    # scored on the clean target, the seeds still name vertices of the corrupted target the method matches: the
+    # truth carried through the corruption's vertex map (holes remove and renumber target vertices)
+    p = prepare(item, "holes", {"strength": 2}, pairwise=True, random_state=0, score_on="clean")
+    assert p.target.n_vertices < p.clean_target.n_vertices
+    seeds = truth_seeds(p, 12)
+    assert seeds.shape == (12, 2) and seeds[:, 1].max() < p.target.n_vertices
+    np.testing.assert_array_equal(np.asarray(p.vertex_map)[seeds[:, 1]], seeds[:, 0])  # the identity pair's truth
 
 
 def _self_config(folder: Path, methods: str, *, seed: str = "seed = 0\n", score_on: str = "target") -> dict:

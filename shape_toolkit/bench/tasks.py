@@ -952,16 +952,24 @@ def _m_r_smoothness(p, o, opt):
 
 def truth_seeds(prepared: Prepared, n: int) -> np.ndarray:
     """``n`` ground-truth pairs ``(n, 2)`` [source vertex, target vertex] spread over the source: farthest-point
-    samples (from the first) of the source positions of the item's truth pairs, each source vertex's first pair."""
+    samples (from the first) of the source positions of the item's truth pairs, each source vertex's first pair.
+    The seeds name vertices of the shapes the method matches: scored on the clean target (``score_on = "clean"``),
+    the truth's target column is carried onto the corrupted target through the corruption's vertex map, and pairs
+    whose target vertex did not survive the corruption are not drawn."""
     from shape_toolkit.core.geometry import farthest_point_sampling
+    from shape_toolkit.data.corruptions import invert_vertex_map
 
-    if prepared.truth is None or not len(prepared.truth):
+    truth = None if prepared.truth is None else np.asarray(prepared.truth, np.int64)
+    if truth is not None and len(truth) and prepared.clean_target is not None:
+        onto = invert_vertex_map(prepared.vertex_map, prepared.clean_target)[truth[:, 1]]
+        truth = np.column_stack([truth[:, 0], onto])[onto >= 0]
+    if truth is None or not len(truth):
         raise ParameterError(f"item {prepared.name!r} has no ground truth to draw seeds from")
-    _, first = np.unique(prepared.truth[:, 0], return_index=True)
+    _, first = np.unique(truth[:, 0], return_index=True)
     first = np.sort(first)
-    pts = np.asarray(prepared.source.vertices)[prepared.truth[first, 0]]
+    pts = np.asarray(prepared.source.vertices)[truth[first, 0]]
     rows = first[np.asarray(farthest_point_sampling(pts, min(n, len(first))), np.int64)]
-    return np.asarray(prepared.truth[rows], np.int64)
+    return truth[rows]
 
 
 def _kept(corr: Any) -> dict[str, Any]:
