@@ -603,3 +603,28 @@ def test_match_warns_when_the_map_goes_elsewhere_than_a_seed(poses, tmp_path, ca
     import json
 
     assert json.loads(capsys.readouterr().out)["seeds_torn"] == 1
+
+
+def test_the_seeds_check_of_match_takes_a_clouds_area_from_a_sample(poses, monkeypatch):
+    """``match``'s seed check onto a point cloud: the cloud's area (the scale of a rival distance) is its surface's,
+    measured on at most PROXY_VERTICES points (a million-point cloud's own triangulation would take gigabytes); the
+    count is the same from a sample as from every point, and a wrong seed is seen either way."""
+    from shape_toolkit.cli.commands import match as match_cmd
+    from shape_toolkit.core.geometry import farthest_point_sampling
+    from shape_toolkit.core.shape import Shape
+
+    a, b = poses
+    cloud = Shape(np.asarray(b.vertices), None, name="b-cloud")
+    tips = farthest_point_sampling(a.vertices, 5)
+    seeds = np.column_stack([tips[:4], tips[:4]])
+    wrong = seeds.copy()
+    wrong[3, 1] = tips[4]
+    ident = np.arange(a.n_vertices)
+    full = [match_cmd._seeds_torn(a, cloud, ident, s) for s in (seeds, wrong)]
+    monkeypatch.setattr(match_cmd, "PROXY_VERTICES", 300)  # below the cloud's 642 points: the sampled branch
+    sampled = [match_cmd._seeds_torn(a, cloud, ident, s) for s in (seeds, wrong)]
+    assert full == sampled == [0, 1]  # the identity (the poses share vertex order) goes elsewhere at the wrong one
+    pasted = ident.copy()
+    pasted[wrong[:, 0]] = wrong[:, 1]  # the wrong seed written into the identity: its neighbours stay where they were
+    assert match_cmd._seeds_torn(a, cloud, pasted, wrong) == 1
+    assert match_cmd._seeds_torn(a, cloud, ident, None) is None

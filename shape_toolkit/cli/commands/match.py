@@ -142,7 +142,9 @@ def _seeds_torn(source: Shape, target: Shape, target_of: np.ndarray, seeds: np.n
     """At how many of the user's ``seeds`` ``(q, 2)`` the final map goes elsewhere
     (:func:`~shape_toolkit.plugins.matching.selection.seed_tears`: the points around the seed, since most pipelines
     write the seeds themselves into their maps); None without seeds, or for a target cloud with no surface to measure
-    it on."""
+    it on. A cloud's area is that of its surface (:func:`~shape_toolkit.core.surface.cloud_area`), measured on at most
+    ``PROXY_VERTICES`` of its points (a fixed random draw: the area is the surface's, whatever the sampling, and the
+    full triangulation of a million points would take gigabytes)."""
     from shape_toolkit.core.surface import cloud_area
     from shape_toolkit.errors import InvalidShapeError
     from shape_toolkit.plugins.matching.selection import seed_tears
@@ -150,7 +152,12 @@ def _seeds_torn(source: Shape, target: Shape, target_of: np.ndarray, seeds: np.n
     if seeds is None or not len(seeds):
         return None
     try:
-        area = target.area if target.is_mesh else cloud_area(target)
+        if target.is_mesh:
+            area = target.area
+        else:
+            n, m = target.n_vertices, PROXY_VERTICES
+            pick = np.sort(np.random.default_rng(0).choice(n, m, replace=False)) if n > m else np.arange(n)
+            area = cloud_area(Shape(np.asarray(target.vertices)[pick], None, name=target.name))
     except InvalidShapeError:
         return None
     return seed_tears(source, target, target_of, seeds, area)
