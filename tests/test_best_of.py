@@ -520,7 +520,7 @@ def test_seed_tears_counts_the_seeds_a_map_goes_away_from(sphere):
     sqrt(area)) or more from its target. The identity agrees with every seed; the antipodal map with the seeds written
     into it (what a matcher returns when its own solution disagrees) is torn at all of them; sending one seed's
     surroundings away tears that one only. Scale-free (the target's own area), and unmatched points do not vote."""
-    from shape_toolkit.plugins.matching.selection import SEED_NEIGHBORS, seed_tears
+    from shape_toolkit.plugins.matching.selection import SEED_NEIGHBORS, seed_rings, seed_tears
 
     X = np.asarray(sphere.vertices)
     ident = np.arange(sphere.n_vertices)
@@ -534,6 +534,7 @@ def test_seed_tears_counts_the_seeds_a_map_goes_away_from(sphere):
     ring = np.argsort(((X - X[100]) ** 2).sum(axis=1))[1 : SEED_NEIGHBORS + 1]
     one[ring] = anti[ring]
     assert seed_tears(sphere, sphere, one, seeds, sphere.area) == 1
+    assert seed_tears(sphere, sphere, one, seeds, sphere.area, seed_rings(sphere, seeds)) == 1  # computed once
     big = sphere.with_vertices(X * 1000.0)
     assert seed_tears(sphere, big, one, seeds, big.area) == 1
     unmatched = one.copy()

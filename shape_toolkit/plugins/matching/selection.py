@@ -22,8 +22,8 @@ import numpy as np
 from shape_toolkit.core.shape import Shape
 from shape_toolkit.plugins.matching.orientation import orientation_verdict
 
-__all__ = ["map_ambiguity", "map_distance", "preserving_alternative", "seed_tears", "RIVAL_DISTANCE", "AMBIGUOUS_RATIO",
-           "SEED_NEIGHBORS"]
+__all__ = ["map_ambiguity", "map_distance", "preserving_alternative", "seed_tears", "seed_rings", "RIVAL_DISTANCE",
+           "AMBIGUOUS_RATIO", "SEED_NEIGHBORS"]
 
 #: ``info["ambiguity"]``: a candidate is a rival of the kept map when its images lie on average at least this far from
 #: the kept map's (Euclidean, in sqrt(area) of the target): 7 times a sound FAUST map's error; the FAUST rivals that
@@ -69,23 +69,35 @@ def map_ambiguity(candidates: list[dict[str, Any]], maps: list[np.ndarray], kept
             "ambiguous": bool(ratio <= AMBIGUOUS_RATIO)}
 
 
-def seed_tears(source: Shape, target: Shape, target_of: np.ndarray, seeds: np.ndarray, area: float) -> int:
+def seed_rings(source: Shape, seeds: np.ndarray) -> np.ndarray:
+    """The :data:`SEED_NEIGHBORS` source vertices nearest each seed's source vertex (itself left out): int64
+    ``(q, k)``, what :func:`seed_tears` looks at; they depend on the source and the seeds only, so a caller judging
+    several maps of one pair computes them once."""
+    from scipy.spatial import cKDTree
+
+    sd = np.asarray(seeds, dtype=np.int64).reshape(-1, 2)
+    X = np.asarray(source.vertices, dtype=np.float64)
+    k = int(min(SEED_NEIGHBORS + 1, len(X)))
+    if not len(sd):
+        return np.zeros((0, k - 1), dtype=np.int64)
+    return np.asarray(cKDTree(X).query(X[sd[:, 0]], k)[1], dtype=np.int64).reshape(len(sd), k)[:, 1:]
+
+
+def seed_tears(source: Shape, target: Shape, target_of: np.ndarray, seeds: np.ndarray, area: float,
+               rings: np.ndarray | None = None) -> int:
     """At how many of the seed pairs ``seeds`` ``(q, 2)`` (source vertex, target vertex) the map ``target_of``
     ``(n_s,)`` goes elsewhere: the :data:`SEED_NEIGHBORS` source points nearest the seed's source are sent, at the
     median, at least :data:`RIVAL_DISTANCE` sqrt(``area``) of the target from the seed's target (Euclidean): there the
     map is another map than the seed's (the distance at which two maps are rivals). A map that agrees with a seed sends
     its neighbours next to it, however the shapes differ; a map that holds the seed only because it was written into
     it sends them where the map itself goes. Unmatched neighbours (``-1``) do not count; a seed none of whose
-    neighbours is matched does not either."""
-    from scipy.spatial import cKDTree
-
+    neighbours is matched does not either. ``rings``: :func:`seed_rings` of the source and seeds, if computed."""
     sd = np.asarray(seeds, dtype=np.int64).reshape(-1, 2)
     if not len(sd):
         return 0
     t = np.asarray(target_of)
-    X, Y = np.asarray(source.vertices, dtype=np.float64), np.asarray(target.vertices, dtype=np.float64)
-    k = int(min(SEED_NEIGHBORS + 1, len(X)))
-    nb = np.asarray(cKDTree(X).query(X[sd[:, 0]], k)[1]).reshape(len(sd), k)[:, 1:]
+    Y = np.asarray(target.vertices, dtype=np.float64)
+    nb = seed_rings(source, sd) if rings is None else rings
     reach = RIVAL_DISTANCE * np.sqrt(area)
     torn = 0
     for j, ring in zip(sd[:, 1], nb):

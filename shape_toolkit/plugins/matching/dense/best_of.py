@@ -62,10 +62,9 @@ within 2 %, 20-28 % less CPU; report half 21-25 % less CPU, FAUST 0.0262 -> 0.02
 
 Seeds. Most matchers write the user's seeds into their maps, so a map that disagrees with them still holds them (in a
 frame the shells cannot bridge, the given-frame shells held every seed and won on the residual). A candidate torn at
-half the seeds or more (:func:`~shape_toolkit.plugins.matching.selection.seed_tears`) is another map than the user's
-and is kept only when every candidate is (``honour_seeds``); half, not any, since a right map can be locally wrong at
-one seed. Tuning half, six seeds: gorillas to men turned by 144 degrees 0.168 -> 0.100, dogs and FAUST people 0-1
-unchanged (``seeded_frames_notes.md``). Without seeds nothing changes.
+half the seeds or more (:func:`~shape_toolkit.plugins.matching.selection.seed_tears`) is kept only when every
+candidate is (``honour_seeds``); half, not any, since a right map can be locally wrong at one seed. Tuning half, six
+seeds: gorillas to men turned 144 degrees 0.168 -> 0.100, dogs and FAUST unchanged (``seeded_frames_notes.md``).
 
 Mirrored parts. A map can keep orientation on the whole and mirror a part: on FAUST people the feet or the arms
 swapped left for right, every candidate alike, since all start from the same intrinsic ambiguity. Where the kept map
@@ -124,6 +123,7 @@ from shape_toolkit.plugins.matching.selection import (
     map_ambiguity,
     map_distance,
     preserving_alternative,
+    seed_rings,
     seed_tears,
 )
 from shape_toolkit.plugins.matching.validation import check_seeds
@@ -310,10 +310,10 @@ class BestOfMatcher(DenseMatcher):
         maps: list[np.ndarray] = []  # each candidate's map, for info["ambiguity"]
         corrs: list[Correspondence] = []  # each candidate, in the order of candidates and maps
 
-        # the seeds are the user's matches: a map that agrees with half of them or fewer (selection.seed_tears) is
-        # another map than theirs, whatever its residual, and is kept only when every candidate is; without seeds
-        # nothing is torn and the residual alone decides
+        # the seeds are the user's matches: a map torn at half of them or more (selection.seed_tears) is kept only
+        # when every candidate is, whatever its residual; without seeds the residual alone decides
         torn: dict[str, int] = {}
+        rings = seed_rings(source, seeds) if seeds is not None else None  # the seeds' neighbours, once per pair
 
         def contradicts(name: str) -> bool:
             return bool(self.honour_seeds and seeds is not None and len(seeds) and 2 * torn.get(name, 0) >= len(seeds))
@@ -324,7 +324,7 @@ class BestOfMatcher(DenseMatcher):
             candidates.append({"matcher": name, "residual": residual})
             if seeds is not None:
                 torn[name] = candidates[-1]["seeds_torn"] = seed_tears(source, target, corr.target_of, seeds,
-                                                                           spec_t.area)
+                                                                           spec_t.area, rings)
             maps.append(np.asarray(corr.target_of))
             corrs.append(corr)
             if progress is not None:
