@@ -85,6 +85,14 @@ def test_fmap_zoomout_orientation_term_resolves_the_flip(pair):
         A, B, seeds=np.column_stack([tips, tips])
     )
     assert _err(B, seeded).mean() < 0.01
+    # the seed pairs stay in the map, as in every matcher's: even a pair the rest of the map does not follow; not when
+    # they are not trusted (a pipeline's [refine] stage, whose seeds are the dense stage's map)
+    odd = np.array([[tips[0], tips[1]], [tips[2], tips[2]]])
+    held = create_plugin("dense_matchers", "fmap-zoomout", **kw).match(A, B, seeds=odd)
+    np.testing.assert_array_equal(held.target_of[odd[:, 0]], odd[:, 1])
+    free = create_plugin("dense_matchers", "fmap-zoomout", trust_seeds=False, **kw).match(A, B, seeds=odd)
+    assert free.target_of[tips[0]] != tips[1]
+    assert load_pipeline({"dense": "seed-growing", "refine": "fmap-zoomout"}).plugins()["refine"].trust_seeds is False
     again = create_plugin("dense_matchers", "fmap-zoomout", **kw).match(A, B)
     np.testing.assert_array_equal(again.target_of, good.target_of)  # deterministic
 

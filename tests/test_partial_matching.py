@@ -296,3 +296,30 @@ def test_a_repeated_candidate_area_ratio_is_matched_once():
     m = FmapZoomOutMatcher(partial=True, area_ratios=[0.5, 0.5], k=10, zoomout_iters=1, hypotheses=[{}])
     rows = m.match(cap, s).info["partial"]["search"]["candidates"]
     assert len(rows) == 2 and rows[1]["area_ratio"] == 0.5  # the areas' ratio, then 0.5
+
+
+def test_the_partial_search_keeps_the_seed_pairs():
+    """Seeds given to the partial search stay in the map it keeps, whichever candidate or refinement that is (as in
+    every matcher's map; a pair the rest of the map does not follow included), and not when they are not trusted."""
+    s = icosphere(3)  # here a map refined on its support is kept: the search's candidates held the seeds
+    cap = s.submesh(np.flatnonzero(s.vertices[:, 2] > 0))[0]
+    top, side = int(np.argmax(cap.vertices[:, 2])), int(np.argmin(cap.vertices[:, 2]))
+    far = int(np.argmin(s.vertices[:, 2]))  # the bottom of the sphere: no part of the cap maps there
+    seeds = np.array([[top, int(np.argmax(s.vertices[:, 2]))], [side, far]])
+    kw = {"partial": True, "area_ratios": [0.5], "k": 10, "zoomout_iters": 1, "hypotheses": [{}]}
+    corr = FmapZoomOutMatcher(**kw).match(cap, s, seeds=seeds)
+    np.testing.assert_array_equal(corr.target_of[seeds[:, 0]], seeds[:, 1])
+    assert FmapZoomOutMatcher(trust_seeds=False, **kw).match(cap, s, seeds=seeds).target_of[side] != far
+
+
+def test_part_shells_with_a_small_k_declare_the_spectrum_the_shells_need():
+    """``part_shells`` with ``k = 10``: the matcher's own spectrum (31 eigenpairs) was all it declared and computed,
+    and the part's shells refused it (SpectrumMismatchError naming ShellAlignmentMatcher)."""
+    from shape_toolkit.plugins.matching.dense.shell_alignment import ShellAlignmentMatcher
+
+    s = icosphere(3)
+    cap = s.submesh(np.flatnonzero(s.vertices[:, 2] > 0))[0]
+    m = FmapZoomOutMatcher(partial=True, area_ratios=[0.5], k=10, zoomout_iters=1, hypotheses=[{}], part_shells=True)
+    assert m.spectrum_spec().k >= ShellAlignmentMatcher(partial=True).spectrum_spec().k
+    corr = m.match(cap, s)
+    assert corr.n_matched == cap.n_vertices and corr.info["partial"]["shells"]["candidates"]

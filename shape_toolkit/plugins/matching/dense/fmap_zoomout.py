@@ -48,7 +48,7 @@ from shape_toolkit.plugins.matching.dense.partial_search import part_wave_kernel
 from shape_toolkit.plugins.matching.descriptors import UsesDescriptor, normalize_columns, shared_spectra
 from shape_toolkit.plugins.matching.validation import check_descriptors, check_seeds
 from shape_toolkit.results.correspondence import Correspondence
-from shape_toolkit.spectra import SpectrumSpec, default_spec
+from shape_toolkit.spectra import SpectrumSpec, default_spec, merge_specs
 
 __all__ = ["FmapZoomOutMatcher", "part_wave_kernel_signatures"]
 
@@ -86,7 +86,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
     source vertices (farthest points, each weighted by its Voronoi cell) the final ZoomOut's iterations query before
     one on every vertex (0 or None, the default: every vertex throughout; two whole shapes only; 5 % less CPU in
     ``auto``, 5 % worse on FAUST across people: not its default, benchmarks/results/auto_speed_notes.md). Seeds add
-    one heat-kernel descriptor per seed pair.
+    one heat-kernel descriptor per seed pair; the map keeps each pair (``trust_seeds``; a [refine] stage's are not).
 
     ``hypotheses``: several fits, each a mapping overriding some of ``k``, the four weights and ``band``
     (the default WKS on the first ``round(band * K)`` of the ``K`` non-null eigenpairs). The one ZoomOut
@@ -141,30 +141,18 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         "area_ratios": Param(None, ListOf(Interval(float, 0, 1, closed="right")),
                              doc="candidate area ratios, the map of least geodesic distortion kept (partial only)"),
         "part_shells": Param(bool, doc="also the part's smooth shells placed from the search's map (area_ratios)"),
+        "trust_seeds": Param(bool, doc="the seeds are right (a user's): the map keeps each seed pair; False: they only "
+                             "enter the fit (a pipeline's [refine] stage, whose seeds are the dense stage's map)"),
     }
 
     def __init__(
-        self,
-        k: int = 30,
-        descriptor: str | dict | None = None,
-        descriptor_params: dict | None = None,
-        n_descriptors: int = 50,
-        w_descr: float = 1.0,
-        w_lap: float = 0.1,
-        w_dcomm: float = 1.0,
-        w_orient: float = 1.0,
-        orientation: str = "preserving",
-        zoomout_iters: int = 16,
-        zoomout_step: int = 5,
-        zoomout_samples: int | None = None,
-        source_samples: int | None = None,
-        seed_time: float = 0.01,
-        hypotheses: tuple[dict, ...] | list[dict] | None = None,
-        selection_samples: int = 500,
-        partial: bool = False,
-        area_ratio: float | None = None,
-        area_ratios: list[float] | None = None,
-        part_shells: bool = False,
+        self, k: int = 30, descriptor: str | dict | None = None, descriptor_params: dict | None = None,
+        n_descriptors: int = 50, w_descr: float = 1.0, w_lap: float = 0.1, w_dcomm: float = 1.0, w_orient: float = 1.0,
+        orientation: str = "preserving", zoomout_iters: int = 16, zoomout_step: int = 5,
+        zoomout_samples: int | None = None, source_samples: int | None = None, seed_time: float = 0.01,
+        hypotheses: tuple[dict, ...] | list[dict] | None = None, selection_samples: int = 500, partial: bool = False,
+        area_ratio: float | None = None, area_ratios: list[float] | None = None, part_shells: bool = False,
+        trust_seeds: bool = True,
     ):
         self.k = k
         self.descriptor = descriptor
@@ -186,6 +174,7 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
         self.area_ratio = area_ratio
         self.area_ratios = area_ratios
         self.part_shells = part_shells
+        self.trust_seeds = trust_seeds
 
     def _check(self) -> None:
         self._validate_params()
@@ -250,8 +239,13 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
 
     def spectrum_spec(self) -> SpectrumSpec:
         """The Laplace-Beltrami spectrum with ``k + zoomout_iters * zoomout_step + 1`` eigenpairs (twice
-        as many when ``partial``)."""
-        return default_spec((2 if self.partial else 1) * self.final_basis_size() + 1)
+        as many when ``partial``; with ``part_shells``, at least as many as the part's shells need)."""
+        own = default_spec((2 if self.partial else 1) * self.final_basis_size() + 1)
+        if not self.part_shells:
+            return own
+        from shape_toolkit.plugins.matching.dense.shell_alignment import ShellAlignmentMatcher  # (imports this module)
+
+        return merge_specs([own, ShellAlignmentMatcher(partial=True).spectrum_spec()])[0]
 
     def _descriptor_plugin(self):
         if self.descriptor is None:  # the WKS on this matcher's own spectrum
@@ -444,6 +438,8 @@ class FmapZoomOutMatcher(UsesDescriptor, DenseMatcher):
             support = part_support(T, bs, bt, 1.0 / scale, SUPPORT_SMOOTHING)
             T = point_map_within(C, bs, bt, support)
             info["partial"]["support"] = support
+        if self.trust_seeds and seeds is not None and len(seeds):  # the user's pairs, as in the other matchers' maps
+            T[seeds[:, 0]] = seeds[:, 1]
         info["C"] = C
         return Correspondence(T, target.n_vertices, info=info)
 

@@ -194,7 +194,12 @@ def match_over_area_ratios(
         "candidates": rows, "refined": refined, "distortion": d}}
     found_map = Correspondence(T, target.n_vertices, info=info)
     if getattr(matcher, "part_shells", False):
-        return with_part_shells(matcher, source, target, spec_s, spec_t, found_map, dp, samples, bs, bt, progress)
+        found_map = with_part_shells(matcher, source, target, spec_s, spec_t, found_map, dp, samples, bs, bt, progress)
+    seeds = kwargs.get("seeds")
+    if getattr(matcher, "trust_seeds", False) and seeds is not None and len(seeds):  # refined or shells maps too
+        T = np.array(found_map.target_of)
+        T[seeds[:, 0]] = seeds[:, 1]
+        found_map = Correspondence(T, target.n_vertices, info=found_map.info)
     return found_map
 
 
