@@ -174,3 +174,28 @@ def test_a_maps_error_on_a_cloud_target_is_in_units_of_the_clouds_own_area():
     along = np.arccos(np.clip(np.einsum("ij,ij->i", P[ids], P[target_of[ids]]), -1, 1))  # the true arc
     keep = along > 0.1  # away from the poles, where the arc is shorter than the sampling
     np.testing.assert_allclose(err[keep] * np.sqrt(4 * np.pi), along[keep], rtol=0.15, atol=0.02)
+
+
+def test_a_clouds_area_and_heat_geodesics_share_one_sheet_triangulation(monkeypatch):
+    """A cloud's area (the unit of a map's error) and its heat geodesics run on the same sheet triangulation, now
+    computed once per cloud (kept in ``SHEET_CACHE``): evaluate-map on a cloud triangulated it twice. The arrays
+    returned are copies (changing them changes nothing kept), and the same points with their own normals are another
+    cloud (another triangulation)."""
+    from shape_toolkit.core import surface
+    from shape_toolkit.metrics.correspondence import error_normalization, geodesic_errors
+
+    calls = []
+    real = surface.local_delaunay_triangles
+    monkeypatch.setattr(surface, "local_delaunay_triangles", lambda *a, **k: calls.append(1) or real(*a, **k))
+    surface.SHEET_CACHE.clear()
+    P = _fibonacci_sphere(1500)
+    cloud = Shape(P)
+    unit = error_normalization(cloud)
+    geodesic_errors(cloud, np.arange(1500), np.arange(0, 1500, 50), np.arange(0, 1500, 50), method="heat")
+    assert len(calls) == 1
+    V, F = surface.sheet_triangulation(cloud, 30, "jet")
+    V[:] = 0.0
+    F[:] = 0
+    assert len(calls) == 1 and surface.cloud_area(cloud) == pytest.approx(unit**2)
+    surface.sheet_triangulation(Shape(P, normals=P), 30, "jet")
+    assert len(calls) == 2

@@ -67,6 +67,11 @@ FAN_CHUNK = 1 << 15
 #: outward normals of the last 4 clouds (:func:`outward_normals`), keyed by the points' SHA-1, shape and neighbours
 #: (and a cloud's own normals as checked by :func:`cloud_normals`, keyed by its content hash)
 NORMALS_CACHE = LRUCache(4, name="outward normals")
+#: the last clouds' sheet triangulations (:func:`sheet_triangulation`), keyed by content hash, neighbours and smoothing,
+#: at most 256 MB (a million-point cloud's, about 170 MB): a cloud's Laplacian, its area (the unit of a geodesic error)
+#: and its heat geodesics share one triangulation instead of computing it for each
+SHEET_CACHE = LRUCache(2, max_cost=2**28, cost=lambda vt: float(vt[0].nbytes + vt[1].nbytes),
+                       name="sheet triangulations")
 #: a cloud's own normals are used as given when at least this share of the points seen from :data:`CHECK_VIEWS`
 #: viewpoints around it face the viewer, turned when at most 1 - this share do, else (not oriented) estimated: three
 #: quarters, halfway between outward normals (all seen points face the viewer) and normals of random signs (half)
@@ -481,11 +486,18 @@ def sheet_triangulation(shape: Shape, n_neighbors: int = 30, smoothing: str = "n
     to three of them). Same length units as the cloud. :class:`~shape_toolkit.errors.InvalidShapeError` for a cloud
     with coincident points or whose neighbourhoods hold no triangle, :class:`~shape_toolkit.errors.ParameterError` for
     one too small for ``n_neighbors``."""
-    v = np.ascontiguousarray(shape.vertices, dtype=np.float64)
     if shape.is_mesh:
         raise ParameterError(f"sheet_triangulation triangulates point clouds; {shape!r} has its own triangles")
     if smoothing not in ("jet", "none"):
         raise ParameterError(f"smoothing must be 'jet' or 'none', got {smoothing!r}")
+    key = (shape.content_hash, int(n_neighbors), smoothing)
+    v, triangles = SHEET_CACHE.get_or_compute(key, lambda: _sheet_triangulation(shape, n_neighbors, smoothing))
+    return v.copy(), triangles.copy()
+
+
+def _sheet_triangulation(shape: Shape, n_neighbors: int, smoothing: str) -> tuple[np.ndarray, np.ndarray]:
+    """What :func:`sheet_triangulation` returns, computed (not kept)."""
+    v = np.ascontiguousarray(shape.vertices, dtype=np.float64)
     check_triangulable(shape, n_neighbors)
     normals = cloud_normals(shape)
     triangles = local_delaunay_triangles(v, normals, n_neighbors)
