@@ -433,6 +433,10 @@ class Pipeline:
         say(f"{self.name}: lifting the proxy map to {source.n_vertices} and {target.n_vertices} vertices")
         t1, c1 = time.perf_counter(), time.process_time()
         full, lift = lift_map(source, target, ids_s, ids_t, inner.target_of, proxies=(ps, pt))
+        if seeds is not None:  # the user's pairs stay in the map, as when the shapes are matched directly
+            full = np.array(full)
+            kept = check_seeds(seeds, source.n_vertices, target.n_vertices)
+            full[kept[:, 0]] = kept[:, 1]
         t_lift, c_lift = time.perf_counter() - t1, time.process_time() - c1
         info = {k: v for k, v in inner.info.items() if k not in ("orientation", "timings", "cpu_timings", "seconds")}
         info["proxy"] = {**lift, "proxy_orientation": inner.info.get("orientation")}

@@ -111,6 +111,10 @@ def test_seeds_are_carried_to_the_proxies(poses):
     seeds = np.array([[i, i] for i in range(0, a.n_vertices, a.n_vertices // 6)])
     corr = load_pipeline("zoomout").run(a, b, seeds, proxy=2000)
     assert _error(b, np.asarray(corr.target_of)) < 0.02
+    # and the lifted map keeps the user's pairs, as a map of the shapes matched directly does: one sent elsewhere too
+    odd = np.vstack([seeds, [[seeds[0, 0] + 1, seeds[1, 1]]]])
+    held = load_pipeline("zoomout").run(a, b, odd, proxy=2000)
+    np.testing.assert_array_equal(held.target_of[odd[:, 0]], odd[:, 1])
 
 
 def test_the_interpolated_lift_of_two_clouds_is_finer_than_the_proxy_map(poses):
