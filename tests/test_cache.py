@@ -148,7 +148,7 @@ def test_the_package_caches_are_named_instances():
     from shape_toolkit.features import geodesics
     from shape_toolkit.plugins.segmenters import sdf
 
-    caches = [spectrum.SPECTRUM_CACHE, surface.NORMALS_CACHE, geodesics.GEODESIC_ROWS_CACHE,
+    caches = [spectrum.SPECTRUM_CACHE, surface.NORMALS_CACHE, surface.SHEET_CACHE, geodesics.GEODESIC_ROWS_CACHE,
               geodesics.GEODESIC_SOLVERS_CACHE, synthetic.POSE_SEQUENCE_CACHE, sdf.SDF_CACHE]
     assert all(isinstance(c, LRUCache) for c in caches)
     assert all(c.max_entries is not None or c.max_cost is not None for c in caches)  # every one bounded

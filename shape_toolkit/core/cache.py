@@ -5,6 +5,7 @@ fills it, so a user can find it, read its size, resize it or clear it:
 
 * ``core.spectrum.SPECTRUM_CACHE``: computed spectra (the disk cache is ``set_cache_dir``'s folder);
 * ``core.surface.NORMALS_CACHE``: outward normals of point clouds;
+* ``core.surface.SHEET_CACHE``: the sheet triangulations of point clouds (bounded by their bytes);
 * ``features.geodesics.GEODESIC_ROWS_CACHE`` (bounded by float64 entries) and ``GEODESIC_SOLVERS_CACHE``;
 * ``data.synthetic.POSE_SEQUENCE_CACHE``: generated pose sequences;
 * ``plugins.segmenters.sdf.SDF_CACHE``: normalised per-face shape diameter functions.
