@@ -404,6 +404,10 @@ class Pipeline:
                 raise ParameterError(f"pipeline {self.name!r}: the dense stage matched no vertex")
             ref = plugins.get("orient", plugins["refine"])  # [orient] runs the [refine] registration itself
             corr = timed("refine", lambda: ref.match(source, target, seeds=pairs, **sides, progress=counts("refine")))
+        if info.get("seed_source") == "given":  # the caller's pairs stay in the map, whatever its stages made of them
+            kept = np.array(corr.target_of)
+            kept[seeds[:, 0]] = seeds[:, 1]
+            corr = Correspondence(kept, corr.n_target, corr.confidence, corr.posteriors, corr.info)
         # every pipeline says whether its map keeps orientation: a mirror image is never returned silently
         info["orientation"] = orientation_verdict(source, target, corr.target_of)
         if info["orientation"]["verdict"] != "preserving":

@@ -303,6 +303,19 @@ def test_seeds_out_of_range(pair):
             create_plugin("dense_matchers", name).match(A, B, seeds=bad)
 
 
+
+@pytest.mark.parametrize("name", ["seed-growing", "ovsjanikov2010", "mateus2008", "zoomout"])
+def test_every_pipeline_keeps_the_callers_seed_pairs(pair, name):
+    """A caller's seeds are matches known to be right: the pipeline's map holds each pair, whatever its stages made of
+    it (seed growing, the greedy descriptor matcher and eigenvector alignment sent some elsewhere), a pair the rest of
+    the map does not follow included."""
+    A, B, _ = pair
+    seeds = np.array([[i, i] for i in range(0, A.n_vertices, A.n_vertices // 6)])
+    odd = np.vstack([seeds, [[seeds[0, 0] + 1, seeds[1, 1]]]])
+    corr = load_pipeline(name).run(A, B, odd)
+    np.testing.assert_array_equal(np.asarray(corr.target_of)[odd[:, 0]], odd[:, 1])
+    assert corr.info["seed_source"] == "given"
+
 def test_pipeline_specs(tmp_path):
     assert {"sharma2012", "zoomout"} <= set(PRESETS)
     p = load_pipeline("sharma2012")
