@@ -103,6 +103,31 @@ def test_one_to_one_and_inverse():
     np.testing.assert_array_equal(p.pairs(), [[0, 1], [3, 0]])
 
 
+def test_with_pairs_holds_known_matches_in_the_map_its_confidences_and_posteriors():
+    """A user's pair is kept wherever the map is read: the hard map, one_to_one / inverse (decided by confidence: the
+    pair's source had the lowest and would lose its target), the posteriors (probability 1, no other mass on its
+    source or target); the other rows keep their values, and nothing is changed in place."""
+    P = sp.csr_matrix(np.array([[0.6, 0.4, 0.0], [0.0, 0.9, 0.1], [0.2, 0.0, 0.8], [0.0, 1.0, 0.0]]))
+    c = Correspondence(np.array([0, 1, 2, 1]), 3, confidence=np.array([0.6, 0.9, 0.8, 1.0]), posteriors=P,
+                       info={"k": 1})
+    s = c.with_pairs(np.array([[0, 1]]))
+    np.testing.assert_array_equal(s.target_of, [1, 1, 2, 1])
+    np.testing.assert_array_equal(c.target_of, [0, 1, 2, 1])  # the original is unchanged
+    assert s.confidence[0] > 1.0 and np.isfinite(s.confidence[0])  # above a tie at 1.0, still finite (JSON)
+    np.testing.assert_array_equal(s.confidence[1:], c.confidence[1:])
+    np.testing.assert_array_equal(s.one_to_one().target_of, [1, -1, 2, -1])
+    assert s.inverse().target_of[1] == 0
+    np.testing.assert_allclose(s.posteriors.toarray(), [[0, 1, 0], [0, 0, 0.1], [0.2, 0, 0.8], [0, 0, 0]])
+    np.testing.assert_array_equal(transfer_labels(s, np.array([7, 8, 9, 8]), to="target", soft=True), [9, 7, 9])
+    assert s.info == {"k": 1}
+    hard = Correspondence(np.array([0, -1]), 2).with_pairs(np.array([[1, 0]]))
+    np.testing.assert_array_equal(hard.target_of, [0, 0])
+    assert hard.confidence is None and hard.posteriors is None
+    for bad in ([[0, 3]], [[4, 0]], [[-1, 0]]):
+        with pytest.raises(ParameterError, match="pairs"):
+            c.with_pairs(np.array(bad))
+
+
 @pytest.mark.parametrize("dim", [3, 40])
 def test_nearest_neighbors_matches_brute_force(dim):
     rng = np.random.default_rng(1)

@@ -316,6 +316,21 @@ def test_every_pipeline_keeps_the_callers_seed_pairs(pair, name):
     np.testing.assert_array_equal(np.asarray(corr.target_of)[odd[:, 0]], odd[:, 1])
     assert corr.info["seed_source"] == "given"
 
+def test_a_pipelines_soft_map_keeps_the_callers_seed_pairs(pair):
+    """A registration's confidences and posteriors hold the caller's pairs too: one_to_one and inverse (decided by
+    confidence) keep each pair, and its posterior row is the pair alone, so a soft label transfer honours it."""
+    A, B, _ = pair
+    seeds = np.array([[i, i] for i in range(0, A.n_vertices, A.n_vertices // 6)])
+    odd = np.vstack([seeds, [[seeds[0, 0] + 1, seeds[1, 1] + 1]]])  # a pair the rest of the map does not follow
+    corr = Pipeline({"dense": "seed-growing", "refine": "em-registration"}).run(A, B, odd, proxy=None)
+    assert corr.posteriors is not None and corr.confidence is not None
+    np.testing.assert_array_equal(corr.one_to_one().target_of[odd[:, 0]], odd[:, 1])
+    np.testing.assert_array_equal(corr.inverse().target_of[odd[:, 1]], odd[:, 0])
+    rows = corr.posteriors[odd[:, 0]].toarray()
+    np.testing.assert_array_equal(rows.argmax(axis=1), odd[:, 1])
+    np.testing.assert_array_equal(rows.sum(axis=1), 1.0)
+
+
 def test_pipeline_specs(tmp_path):
     assert {"sharma2012", "zoomout"} <= set(PRESETS)
     p = load_pipeline("sharma2012")
