@@ -188,8 +188,9 @@ def fine_matcher(orientation: str = "preserving", fit: dict | None = None):
 #: the fits :func:`symmetry_map` starts from: pyFM's fit (k = 30) and two coarser fits whose orientation term
 #: weighs 10 (where a pose bends the finer eigenfunctions apart, a coarse map still holds left and right)
 SYMMETRY_FITS: tuple[dict, ...] = ({}, {"k": 15, "w_orient": 10.0}, {"k": 10, "w_orient": 10.0})
-#: eigenfunctions of the ZoomOut residuals the orientation code judges maps by (best-of's): the choice among the
-#: refined symmetry maps, and a rescue from a conflict with the side reference (``OrientationRepair.rescue``)
+#: eigenfunctions of the ZoomOut residuals the orientation code judges maps by (best-of's when it polishes nothing):
+#: the choice among the refined symmetry maps, and a rescue from a conflict with the side reference
+#: (``OrientationRepair.rescue``)
 RESIDUAL_K = 64
 
 

@@ -13,20 +13,16 @@ are also polished by ZoomOut (an intrinsic refinement of an extrinsic map), and 
 On the tuning half (FAUST people 0-1 mapped across the two people, 11 pairs; dogs; gorillas to men) this took
 a pair turned by 113 degrees from 0.505 (left and right swapped) to 0.022 and the 11 pairs' mean from 0.143 to
 0.096; one pair turned by 115 degrees stays swapped (its intrinsic map, 0.30, gives a poor frame).
-``frame_from = "best"`` (not the default) takes the frame instead from the map of least residual once the extrinsic
-matcher has run in the given frame. Tried in session 36 (``auto_speed_notes.md``): ahead on the tuning half (gorillas
-to men 0.172 -> 0.133, FAUST 5,000-point clouds 0.067 -> 0.040, 60 FAUST pairs 0.0986 -> 0.0942 with one pair lost),
-no better on the report half, where it flipped a glued FAUST pair (0.024 -> 0.393): not adopted.
+``frame_from = "best"`` (not the default: it flipped a glued FAUST pair of the report half, session 36,
+``auto_speed_notes.md``) takes the frame from the map of least residual once the extrinsic matcher ran in the given one.
 
 Pose. An extrinsic matcher also needs the two shapes in one pose, and a gorilla crouching is not a person
 standing. So the extrinsic matchers run once more on the two shapes' canonical forms
 (:func:`~shape_toolkit.features.canonical.canonical_form`: geodesic MDS, which bending leaves unchanged up to
 a rigid motion), the source's turned onto the target's by the rigid rotation that best carries it along the best
-map so far; that map is polished by ZoomOut too, and competes on the residual. Simulated on the tuning half from
-each candidate's map (the frame taken from the best of the first three candidates, the pipeline takes the best
-of all earlier ones): gorillas to men 0.212 -> 0.172 (6 pairs), dogs 0.0250 -> 0.0241, FAUST people 0-1
-unchanged (0.0547 -> 0.0546, 15 pairs), glued dogs 0.0398 -> 0.0368, glued FAUST unchanged (6 pairs
-simulated); about 1 s CPU more at 5k (0.2 s the two forms, then one shells run and one polish).
+map so far; that map is polished by ZoomOut too, and competes on the residual. Simulated on the tuning half: gorillas
+to men 0.212 -> 0.172, dogs 0.0250 -> 0.0241, glued dogs 0.0398 -> 0.0368, FAUST and glued FAUST unchanged; about 1 s
+CPU more at 5k (0.2 s the two forms, then one shells run and one polish).
 
 Point clouds take both steps too: they judge orientation with their outward normals (signed by visibility), and
 their canonical forms are taken on their local surface (:func:`~shape_toolkit.core.surface.cloud_surface`: each
@@ -37,25 +33,20 @@ frame estimate alone: 0.041 / 0.060 and 0.052 / 0.108), for 1-2 s CPU more per p
 fall apart (an unevenly sampled cloud: dense patches whose 8 nearest points are all in the patch, as on every TOSCA
 dog's vertex cloud), both clouds take their sheet surfaces instead (:func:`~shape_toolkit.core.surface.
 sheet_surface`: the triangles of the point-cloud Laplacian, one piece wherever the Laplacian is); before, their
-canonical forms were skipped. On the tuning half's dog vertex clouds without noise: 0.041 -> 0.034 (meshes 0.024);
-the sheets for every cloud were within the scatter (FAUST vertex clouds 0.046 -> 0.055), so the fans stay first.
+canonical forms were skipped (tuning dog vertex clouds 0.041 -> 0.034; the sheets for every cloud: within the scatter).
 
 Cost. An estimated frame turned by less than ``same_frame`` degrees (15) from the given one is not run again:
 the shells' coarse-to-fine start absorbs such a turn (on the tuning pairs turned by 2-22 degrees the two maps
 were within 0.0007; the choice among candidates, simulated on 27 + 30 tuning pairs, moved the mean by at most
 0.0001), and it saves a shells run and a polish, about 0.8 s of 5 s CPU at 5k, on most pairs of a capture set-up.
-Meshes only: on point clouds the two runs are not interchangeable (tuning half's clouds, 16 pairs x 4 kinds: the
-second run was better on 2 of 64 -- 0.194 -> 0.157, 0.118 -> 0.041 -- and worse on none, for 0.1-0.5 s CPU), so
-clouds always run again. When the first intrinsic map and the extrinsic matcher's polished map in the given frame send
-the source within ``settle`` (0.03 sqrt(area), :func:`~shape_toolkit.plugins.matching.selection.map_distance`) of
-each other, two independent methods (one blind to frames, one to intrinsic symmetries) agree, and the estimated frame
-and the canonical forms, there to repair a wrong map, are not run (``info["settled"]``). Session 37
-(``auto_speed_notes.md``): on the tuning half no map worse by more than 0.0003, 24-30 % less CPU on FAUST and
-TOSCA; on the report half FAUST 0.0270 -> 0.0271, 8-25 % less CPU but on gorillas (whose maps disagree).
-``given_frame_first`` (off by default) also leaves the frame's run out when the extrinsic matcher's map in the given
-frame already has a lower residual than the intrinsic map the frame was estimated from
-(``info["estimated_frame"]["not_run"]``); not adopted: it flipped a glued FAUST pair (``auto_speed_notes.md``).
-Tried and not adopted for the CPU: coarser polish steps, fewer shells samples, one polish in full.
+Meshes only: on clouds the second run was better on 2 of 64 tuning pairs and worse on none, so they always run it.
+When the first intrinsic map and the extrinsic matcher's polished map in the given frame send the source within
+``settle`` (0.03 sqrt(area), :func:`~shape_toolkit.plugins.matching.selection.map_distance`) of each other, two
+independent methods (one blind to frames, one to intrinsic symmetries) agree, and the estimated frame and the
+canonical forms, there to repair a wrong map, are not run (``info["settled"]``). Session 37 (``auto_speed_notes.md``):
+no tuning map worse by more than 0.0003, 24-30 % less CPU on FAUST and TOSCA.
+``given_frame_first`` (off: it flipped a glued FAUST pair) leaves the frame's run out when the map in the given frame
+has a lower residual than the intrinsic map the frame came from (``info["estimated_frame"]["not_run"]``).
 The polishes' ZoomOut iterations query ``polish_samples`` (1,000) farthest-point samples of the source, each
 fitted with the area of its Voronoi cell, then one iteration queries every vertex: tuning half, the groups' means
 within 2 %, 20-28 % less CPU; report half 21-25 % less CPU, FAUST 0.0262 -> 0.0270 (``auto_speed_notes.md``).
@@ -76,10 +67,8 @@ in ``reorient`` (10) eigenfunctions fitted on the rest (:func:`~shape_toolkit.fe
 the residual only when it reverses orientation on less of the shape than the map it repairs (a refit that mirrors
 more is no repair: on FAUST pairs across people 0 and 1 the residual preferred such refits, smoother and wrong,
 0.02-0.03 -> 0.07); ``info["mirrored_part"]`` names the map, the part's share of the area before and after the
-refit and whether the refit competed. On the tuning half
-(``benchmarks/results/auto_mirrored_notes.md``) this took FAUST people 0-1 from 0.0292 (1 flipped pair of 22) to
-0.0214 (none), tr_reg_007 -> 008 (feet swapped) from 0.193 to 0.027; dogs, glued dogs and gorillas to men within
-0.001, one glued FAUST pair 0.045 -> 0.051. About 0.8 s CPU where a part reads as mirrored.
+refit and whether the refit competed. Tuning half (``auto_mirrored_notes.md``): FAUST people 0-1 0.0292 (1 flipped
+pair of 22) -> 0.0214 (none); the other groups within 0.001 but one glued FAUST pair. About 0.8 s CPU where it runs.
 
 Ambiguity. The residual cannot tell a person's half turn (left for right and front for back, which keeps
 orientation) from the right map, and no judge tried so far can (``auto_mirrored_notes.md``). So ``info["ambiguity"]``
@@ -94,10 +83,15 @@ and nothing else (``benchmarks/results/rigid_motion_notes.md``).
 
 Why the residual: the point map of a sound correspondence is, to a good approximation, the point map of a
 smooth functional map in the first eigenfunctions (it is what ZoomOut converges to); a part sent to the wrong
-place, or a map that folds a limb, leaves energy that no ``k x k`` functional map explains. On the tuning half
-of the former ``benchmarks/matching_field.py``'s split (FAUST people 0-1, dogs, gorillas to men; clean and with 6 glued
-contacts; 48 pairs) it kept the better of the two maps, or one within 0.005 of it, on 44; it missed on two
-glued FAUST pairs (0.156 kept against 0.039, 0.486 against 0.109) and by 0.012-0.015 on two clean ones.
+place, or a map that folds a limb, leaves energy that no ``k x k`` functional map explains. On 48 tuning pairs (FAUST
+people 0-1, dogs, gorillas to men; clean and glued) it kept the better of the two first maps, or one within 0.005 of
+it, on 44.
+
+The residual's basis (``k = None``): the polish's 100 eigenfunctions, where each polished map is a ZoomOut fixed point,
+so every map is judged in the basis it was refined in (until session 46 a separate 64, where an unpolished shells map,
+smooth but reaching a third of the target, read as more plausible). Tuning half (``auto_mirrored_notes.md``): 120
+FAUST pairs of people 0-1 0.0534 -> 0.0467 (29 -> 24 above 0.05), gorillas to men 0.127 -> 0.112, glued dogs 0.037 ->
+0.028, dogs 0.0181 -> 0.0185, glued FAUST unchanged.
 """
 
 from __future__ import annotations
@@ -116,7 +110,7 @@ from shape_toolkit.errors import InvalidShapeError, ParameterError
 from shape_toolkit.features.basis import POLISH_START, Basis, basis_of, map_residual, polish_map
 from shape_toolkit.plugins.matching.descriptors import resolve_plugin, shared_spectra
 from shape_toolkit.plugins.matching.frames import canonical_pair, estimated_frame
-from shape_toolkit.plugins.matching.orientation import reversing_region
+from shape_toolkit.plugins.matching.orientation import RESIDUAL_K, reversing_region
 from shape_toolkit.plugins.matching.selection import (
     AMBIGUOUS_RATIO,
     RIVAL_DISTANCE,
@@ -163,7 +157,8 @@ def _matcher(spec: Any) -> Any:
 
 class BestOfMatcher(DenseMatcher):
     """Runs every matcher of ``matchers`` (names, ``{plugin, preset, params}`` tables or instances) and keeps the map
-    of least ZoomOut residual in the first ``k`` Laplace-Beltrami eigenfunctions of both shapes. Intrinsic matchers
+    of least ZoomOut residual in the first ``k`` Laplace-Beltrami eigenfunctions of both shapes (None: the polish's,
+    ``RESIDUAL_K`` without a polish; module docstring). Intrinsic matchers
     run first. ``reframe``: each extrinsic matcher (``extrinsic = True``) runs a second time with the source turned
     into the frame of the first intrinsic map (``frame_from = "best"``: of the map of least residual once the first
     extrinsic matcher ran in the given frame), when that map keeps orientation and it is turned by at least
@@ -194,7 +189,8 @@ class BestOfMatcher(DenseMatcher):
     parameter_constraints = {
         "matchers": Param(ListOf(InstanceOf(str, dict, DenseMatcher, name="dense matcher")),
                           doc="dense matchers to run (names, tables or objects)"),
-        "k": Param(Interval(int, 2), doc="Laplace-Beltrami eigenfunctions of the ZoomOut residual"),
+        "k": Param(None, Interval(int, 2), doc="Laplace-Beltrami eigenfunctions of the ZoomOut residual (None: the "
+                   "polish's, where every polished map is a ZoomOut fixed point; 64 without a polish)"),
         "reframe": Param(InstanceOf(bool), doc="also run extrinsic matchers in the frame of the intrinsic map"),
         "polish": Param(None, Interval(int, 0), doc="ZoomOut size extrinsic maps are also polished to, above 20 "
                         "(0 or None: no polish)"),
@@ -224,7 +220,7 @@ class BestOfMatcher(DenseMatcher):
                               "alone decides, as before session 44)"),
     }
 
-    def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int = 64,
+    def __init__(self, matchers: tuple | list = ("fmap-zoomout", "shell-alignment"), k: int | None = None,
                  reframe: bool = True, polish: int | None = 100, canonical: bool = True, polish_step: int = 5,
                  same_frame: float = SAME_FRAME_DEGREES, reorient: int | None = REORIENT_START,
                  polish_samples: int | None = POLISH_SAMPLES, given_frame_first: bool = False,
@@ -245,6 +241,10 @@ class BestOfMatcher(DenseMatcher):
         self.settle = settle
         self.honour_seeds = honour_seeds
 
+    def _residual_k(self) -> int:
+        """The residual's basis size: ``k``, or when None the polish's (``RESIDUAL_K`` without a polish)."""
+        return int(self.k if self.k is not None else self.polish if self.polish else RESIDUAL_K)
+
     def _matchers(self) -> list:
         return [_matcher(m) for m in self.matchers]
 
@@ -261,7 +261,7 @@ class BestOfMatcher(DenseMatcher):
         """The Laplace-Beltrami spectrum with ``max(k, polish) + 1`` eigenpairs (the residual's common basis
         and the polish's), or as many as a nested matcher's of the same kind when more (``fmap-zoomout``'s 111):
         called without spectra, ``match`` then solves one eigenproblem per shape for every matcher, not two."""
-        own = default_spec(max(int(self.k), int(self.polish or 0)) + 1)
+        own = default_spec(max(self._residual_k(), int(self.polish or 0)) + 1)
         return merge_specs([own, *declared_specs(self._matchers())])[0]
 
     def match(
@@ -287,7 +287,7 @@ class BestOfMatcher(DenseMatcher):
         matchers = self._matchers()
         seeds = check_seeds(seeds, source.n_vertices, target.n_vertices)
         spec_s, spec_t = self._spectrum(source, source_spectrum), self._spectrum(target, target_spectrum)
-        k = int(min(self.k, spec_s.k, spec_t.k))
+        k = int(min(self._residual_k(), spec_s.k, spec_t.k))
         bs, bt = basis_of(spec_s, k), basis_of(spec_t, k)
         kp = int(min(self.polish, spec_s.k, spec_t.k)) if self.polish else None
         bps, bpt = (basis_of(spec_s, kp), basis_of(spec_t, kp)) if kp and kp > POLISH_START else (None, None)
