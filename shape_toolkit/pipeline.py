@@ -435,9 +435,8 @@ class Pipeline:
         say(f"{self.name}: lifting the proxy map to {source.n_vertices} and {target.n_vertices} vertices")
         t1, c1 = time.perf_counter(), time.process_time()
         full, lift = lift_map(source, target, ids_s, ids_t, inner.target_of, proxies=(ps, pt))
-        lifted = Correspondence(full, target.n_vertices)
         if seeds is not None:  # the user's pairs stay in the map, as when the shapes are matched directly
-            lifted = lifted.with_pairs(check_seeds(seeds, source.n_vertices, target.n_vertices))
+            full = Correspondence(full, target.n_vertices).with_pairs(seeds).target_of
         t_lift, c_lift = time.perf_counter() - t1, time.process_time() - c1
         info = {k: v for k, v in inner.info.items() if k not in ("orientation", "timings", "cpu_timings", "seconds")}
         info["proxy"] = {**lift, "proxy_orientation": inner.info.get("orientation")}
@@ -447,7 +446,7 @@ class Pipeline:
             # the part's support is a mask of the target proxy's vertices: carried to the target's, as the map is
             info["partial"] = {**info["partial"], "support": values_from_proxy(info["partial"]["support"], target, pt)}
         if source.is_mesh and target.is_mesh:
-            info["orientation"] = orientation_verdict(source, target, lifted.target_of)
+            info["orientation"] = orientation_verdict(source, target, full)
         else:  # a full cloud's outward normals cost ~n log n per view (40 s at 245k points): the proxies' verdict
             info["orientation"] = {**(inner.info.get("orientation") or {}), "on": "proxies"}
         timings = {"proxies": t_proxy, **{f"proxy {k}": v for k, v in inner.info.get("timings", {}).items()},
@@ -456,7 +455,7 @@ class Pipeline:
                                **{f"proxy {k}": v for k, v in inner.info.get("cpu_timings", {}).items()},
                                "lift": c_lift}
         info["timings"], info["seconds"] = timings, float(sum(timings.values()))
-        return Correspondence(lifted.target_of, target.n_vertices, info=info)
+        return Correspondence(full, target.n_vertices, info=info)
 
 
 def _is_integer(value: object) -> bool:

@@ -124,8 +124,10 @@ def test_with_pairs_holds_known_matches_in_the_map_its_confidences_and_posterior
     np.testing.assert_array_equal(hard.target_of, [0, 0])
     assert hard.confidence is None and hard.posteriors is None
     for bad in ([[0, 3]], [[4, 0]], [[-1, 0]]):
-        with pytest.raises(ParameterError, match="pairs"):
+        with pytest.raises(ParameterError, match="ids must lie in"):
             c.with_pairs(np.array(bad))
+    with pytest.raises(ParameterError, match="two targets"):
+        c.with_pairs(np.array([[0, 1], [0, 2]]))
 
 
 @pytest.mark.parametrize("dim", [3, 40])

@@ -122,11 +122,9 @@ class Correspondence:
         """A copy that holds the known matches ``pairs`` int ``(q, 2)`` ``[source, target]`` (a user's seeds)
         everywhere the map is read: each source sends its vertex to its target, its confidence is above every
         other (so :meth:`one_to_one` and :meth:`inverse` keep the pair), and the posteriors give the pair
-        probability 1 and its source and target no other mass. ``info`` is kept."""
-        p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-        if p.size and (p.min() < 0 or p[:, 0].max() >= self.n_source or p[:, 1].max() >= self.n_target):
-            raise ParameterError(f"pairs must give source ids below {self.n_source} and target ids below "
-                                 f"{self.n_target}")
+        probability 1 and its source and target no other mass. ``info`` is kept. The pairs are checked as seeds are
+        (:func:`~shape_toolkit.validation.check_seeds`: inside both shapes, one target per source vertex)."""
+        p = check_seeds(pairs, self.n_source, self.n_target)  # one target per source: a posterior row sums to 1
         t = self.target_of.copy()
         t[p[:, 0]] = p[:, 1]
         conf = None
@@ -142,8 +140,6 @@ class Correspondence:
             post = sp.csr_matrix((np.r_[P.data[~drop], np.ones(len(p))],
                                   (np.r_[P.row[~drop], p[:, 0]], np.r_[P.col[~drop], p[:, 1]])),
                                  shape=P.shape)
-            post.sum_duplicates()
-            post.data = np.minimum(post.data, 1.0)  # a pair given twice is still probability 1
         return Correspondence(t, self.n_target, conf, post, dict(self.info))
 
     def soft(self) -> sp.csr_matrix:

@@ -197,9 +197,7 @@ def match_over_area_ratios(
         found_map = with_part_shells(matcher, source, target, spec_s, spec_t, found_map, dp, samples, bs, bt, progress)
     seeds = kwargs.get("seeds")
     if getattr(matcher, "trust_seeds", False) and seeds is not None and len(seeds):  # refined or shells maps too
-        T = np.array(found_map.target_of)
-        T[seeds[:, 0]] = seeds[:, 1]
-        found_map = Correspondence(T, target.n_vertices, info=found_map.info)
+        found_map = found_map.with_pairs(seeds)
     return found_map
 
 
